@@ -1,0 +1,272 @@
+"""Geometry: back-projection, projection, pose algebra, Umeyama + RANSAC, oriented boxes.
+
+The only home for these. Conventions (see ARCHITECTURE.md):
+- camera axes as OpenCV: x right, y down, z forward; depth is z-depth in metres, 0 = invalid;
+- poses are `[4, 4] float64` camera-to-world (`T_wc`); `invert(T_wc)` gives world-to-camera;
+- intrinsics `K` are `[3, 3]`; points are `[N, 3] float64`;
+- oriented boxes follow VSI-Bench meta_info: `normalizedAxes` rows are the box axes.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+# ----------------------------------------------------------------------------- pose algebra
+
+
+def make_pose(R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """R: [3, 3], t: [3] -> T: [4, 4] float64."""
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = np.asarray(t, dtype=np.float64).reshape(3)
+    return T
+
+
+def invert(T: np.ndarray) -> np.ndarray:
+    """Inverse of a rigid or similarity transform `[4, 4]` (rotation block may carry a uniform scale)."""
+    A = T[:3, :3]
+    s2 = float(np.mean(np.sum(A * A, axis=0)))  # squared scale
+    Ti = np.eye(4)
+    Ti[:3, :3] = A.T / s2
+    Ti[:3, 3] = -Ti[:3, :3] @ T[:3, 3]
+    return Ti
+
+
+def transform(T: np.ndarray, pts: np.ndarray) -> np.ndarray:
+    """Apply `[4, 4]` T to points `[N, 3]` -> `[N, 3]`."""
+    pts = np.asarray(pts, dtype=np.float64)
+    return pts @ T[:3, :3].T + T[:3, 3]
+
+
+def rotation_angle_deg(R: np.ndarray) -> float:
+    """Angle of a rotation matrix `[3, 3]` in degrees."""
+    c = (np.trace(R[:3, :3]) - 1.0) / 2.0
+    return float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
+
+
+def rotation_about(axis: np.ndarray, angle_rad: float) -> np.ndarray:
+    """Rodrigues rotation `[3, 3]` about a unit `axis [3]`."""
+    a = np.asarray(axis, dtype=np.float64)
+    a = a / np.linalg.norm(a)
+    K = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
+    return np.eye(3) + np.sin(angle_rad) * K + (1 - np.cos(angle_rad)) * (K @ K)
+
+
+def rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Smallest rotation `[3, 3]` taking direction `a [3]` onto direction `b [3]`."""
+    a = np.asarray(a, float) / np.linalg.norm(a)
+    b = np.asarray(b, float) / np.linalg.norm(b)
+    v = np.cross(a, b)
+    s, c = np.linalg.norm(v), float(np.dot(a, b))
+    if s < 1e-12:
+        if c > 0:
+            return np.eye(3)
+        perp = np.cross(a, [1.0, 0, 0]) if abs(a[0]) < 0.9 else np.cross(a, [0, 1.0, 0])
+        return rotation_about(perp, np.pi)
+    return rotation_about(v / s, np.arctan2(s, c))
+
+
+# ----------------------------------------------------------------------------- camera models
+
+
+def backproject(depth: np.ndarray, K: np.ndarray, mask: np.ndarray | None = None,
+                stride: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """Lift valid depth pixels to camera-frame 3D points.
+
+    depth: [H, W] float32 metres (0 = invalid); K: [3, 3]; mask: [H, W] bool or None.
+    Returns points [N, 3] float64 (camera frame) and pixels [N, 2] float64 (u, v).
+    """
+    H, W = depth.shape
+    v, u = np.mgrid[0:H:stride, 0:W:stride]
+    d = depth[::stride, ::stride]
+    ok = np.isfinite(d) & (d > 0)
+    if mask is not None:
+        ok &= mask[::stride, ::stride].astype(bool)
+    u, v, z = u[ok].astype(np.float64), v[ok].astype(np.float64), d[ok].astype(np.float64)
+    uv = np.stack([u, v], 1)
+    return backproject_pixels(uv, z, K), uv
+
+
+def backproject_pixels(uv: np.ndarray, z: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """uv: [N, 2] pixels, z: [N] z-depth (m), K: [3, 3] -> points [N, 3] in the camera frame."""
+    uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
+    z = np.asarray(z, dtype=np.float64).reshape(-1)
+    x = (uv[:, 0] - K[0, 2]) / K[0, 0] * z
+    y = (uv[:, 1] - K[1, 2]) / K[1, 1] * z
+    return np.stack([x, y, z], 1)
+
+
+def sample_depth(depth: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """Nearest-pixel depth at `uv [N, 2]` -> `[N]` (0 outside the image or invalid)."""
+    H, W = depth.shape
+    ui = np.round(uv[:, 0]).astype(int)
+    vi = np.round(uv[:, 1]).astype(int)
+    ok = (ui >= 0) & (ui < W) & (vi >= 0) & (vi < H)
+    z = np.zeros(len(uv), dtype=np.float64)
+    z[ok] = depth[vi[ok], ui[ok]]
+    z[~np.isfinite(z)] = 0
+    return z
+
+
+def project(points_world: np.ndarray, K: np.ndarray, T_wc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Project world points `[N, 3]` into a camera with pose `T_wc [4, 4]` -> uv `[N, 2]`, z `[N]`."""
+    pc = transform(invert(T_wc), points_world)
+    z = pc[:, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u = K[0, 0] * pc[:, 0] / z + K[0, 2]
+        v = K[1, 1] * pc[:, 1] / z + K[1, 2]
+    return np.stack([u, v], 1), z
+
+
+def intrinsics_from_fov(width: int, height: int, hfov_deg: float = 60.0) -> np.ndarray:
+    """Pinhole `K [3, 3]` from a horizontal field of view (principal point at the centre)."""
+    f = 0.5 * width / np.tan(np.radians(hfov_deg) / 2)
+    return np.array([[f, 0, (width - 1) / 2], [0, f, (height - 1) / 2], [0, 0, 1.0]])
+
+
+# ----------------------------------------------------------------------------- rigid/similarity estimation
+
+
+def umeyama(src: np.ndarray, dst: np.ndarray, with_scale: bool = False) -> np.ndarray:
+    """Least-squares T `[4, 4]` with dst ≈ s·R·src + t (Umeyama 1991). src, dst: `[N, 3]`, N >= 3."""
+    src = np.asarray(src, dtype=np.float64)
+    dst = np.asarray(dst, dtype=np.float64)
+    mu_s, mu_d = src.mean(0), dst.mean(0)
+    xs, xd = src - mu_s, dst - mu_d
+    cov = xd.T @ xs / len(src)
+    U, D, Vt = np.linalg.svd(cov)
+    S = np.eye(3)
+    if np.linalg.det(U) * np.linalg.det(Vt) < 0:
+        S[2, 2] = -1
+    R = U @ S @ Vt
+    s = 1.0
+    if with_scale:
+        var_s = (xs**2).sum() / len(src)
+        s = float(np.trace(np.diag(D) @ S) / var_s) if var_s > 0 else 1.0
+    T = np.eye(4)
+    T[:3, :3] = s * R
+    T[:3, 3] = mu_d - s * R @ mu_s
+    return T
+
+
+@dataclass
+class RansacResult:
+    """Outcome of `ransac_transform`. T: [4, 4] (src -> dst); inliers: [N] bool."""
+
+    T: np.ndarray
+    inliers: np.ndarray
+    n_inliers: int
+    residual: float  # RMS distance (m) of inliers after the final refit
+    ok: bool
+    iterations: int = 0
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+def ransac_transform(src: np.ndarray, dst: np.ndarray, threshold: float = 0.05, iterations: int = 1000,
+                     with_scale: bool = False, min_inliers: int = 12, confidence: float = 0.999,
+                     rng: np.random.Generator | int | None = 0) -> RansacResult:
+    """Robust SE(3) (or Sim(3)) from 3D-3D correspondences: Umeyama inside RANSAC, then an inlier refit.
+
+    src, dst: [N, 3] metres; threshold: inlier distance (m). Stops early by the usual confidence bound.
+    `ok` is False when fewer than `min_inliers` agree (the caller must not trust `T` then).
+    """
+    src = np.asarray(src, dtype=np.float64)
+    dst = np.asarray(dst, dtype=np.float64)
+    n = len(src)
+    rng = np.random.default_rng(rng)
+    if n < 3:
+        return RansacResult(np.eye(4), np.zeros(n, bool), 0, float("inf"), False)
+    best = np.zeros(n, bool)
+    best_count, it, max_it = 0, 0, iterations
+    while it < max_it:
+        it += 1
+        idx = rng.choice(n, 3, replace=False)
+        a = src[idx]
+        if np.linalg.norm(np.cross(a[1] - a[0], a[2] - a[0])) < 1e-9:  # degenerate sample
+            continue
+        T = umeyama(a, dst[idx], with_scale)
+        err = np.linalg.norm(transform(T, src) - dst, axis=1)
+        inl = err < threshold
+        c = int(inl.sum())
+        if c > best_count:
+            best, best_count = inl, c
+            w = c / n
+            denom = np.log(max(1e-12, 1 - w**3))
+            if denom < 0:
+                max_it = min(iterations, int(np.ceil(np.log(1 - confidence) / denom)) + 1)
+    if best_count < 3:
+        return RansacResult(np.eye(4), best, best_count, float("inf"), False, it)
+    # refit on inliers twice (inlier set may grow once the model is refined)
+    for _ in range(2):
+        T = umeyama(src[best], dst[best], with_scale)
+        err = np.linalg.norm(transform(T, src) - dst, axis=1)
+        new = err < threshold
+        if new.sum() < 3:
+            break
+        best = new
+    T = umeyama(src[best], dst[best], with_scale)
+    err = np.linalg.norm(transform(T, src[best]) - dst[best], axis=1)
+    nin = int(best.sum())
+    return RansacResult(T, best, nin, float(np.sqrt(np.mean(err**2))), nin >= min_inliers, it)
+
+
+# ----------------------------------------------------------------------------- oriented boxes
+
+
+@dataclass
+class OrientedBox:
+    """Oriented 3D box. centroid: [3]; axes_lengths: [3] full lengths (m); axes: [3, 3], rows = unit axes."""
+
+    centroid: np.ndarray
+    axes_lengths: np.ndarray
+    axes: np.ndarray
+
+    def corners(self) -> np.ndarray:
+        """The 8 corners `[8, 3]`."""
+        signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], dtype=np.float64)
+        half = signs * (np.asarray(self.axes_lengths) / 2.0)
+        return np.asarray(self.centroid) + half @ np.asarray(self.axes)
+
+    def aabb(self) -> tuple[np.ndarray, np.ndarray]:
+        """Axis-aligned min/max `[3]`, `[3]` of the corners."""
+        c = self.corners()
+        return c.min(0), c.max(0)
+
+    def contains(self, pts: np.ndarray, margin: float = 0.0) -> np.ndarray:
+        """Which of `pts [N, 3]` are inside (with margin, m) -> `[N]` bool."""
+        local = (np.asarray(pts) - self.centroid) @ np.asarray(self.axes).T
+        return np.all(np.abs(local) <= np.asarray(self.axes_lengths) / 2 + margin, axis=1)
+
+    @classmethod
+    def from_meta(cls, m: dict[str, Any]) -> "OrientedBox":
+        """From a VSI-Bench meta_info box dict (`centroid`, `axesLengths`, `normalizedAxes` row-major 3x3)."""
+        return cls(np.asarray(m["centroid"], dtype=np.float64).reshape(3),
+                   np.asarray(m["axesLengths"], dtype=np.float64).reshape(3),
+                   np.asarray(m["normalizedAxes"], dtype=np.float64).reshape(3, 3))
+
+    def to_meta(self) -> dict[str, Any]:
+        lo, hi = self.aabb()
+        return {"centroid": np.asarray(self.centroid).tolist(), "axesLengths": np.asarray(self.axes_lengths).tolist(),
+                "normalizedAxes": np.asarray(self.axes).reshape(-1).tolist(), "min": lo.tolist(), "max": hi.tolist()}
+
+
+def fit_gravity_box(points: np.ndarray, up: np.ndarray | None = None) -> OrientedBox:
+    """Gravity-aligned oriented box around `points [N, 3]` in a z-up world: yaw from the floor-projected
+    points (minimum-area rectangle of their 2D convex hull), z extent from min/max height."""
+    import cv2
+
+    pts = np.asarray(points, dtype=np.float64)
+    xy = pts[:, :2].astype(np.float32)
+    if len(pts) >= 3:
+        (cx, cy), (w, h), ang = cv2.minAreaRect(xy)
+    else:
+        lo, hi = xy.min(0), xy.max(0)
+        (cx, cy), (w, h), ang = tuple((lo + hi) / 2), tuple(hi - lo), 0.0
+    a = np.radians(ang)
+    ax0 = np.array([np.cos(a), np.sin(a), 0.0])
+    ax1 = np.array([-np.sin(a), np.cos(a), 0.0])
+    z0, z1 = pts[:, 2].min(), pts[:, 2].max()
+    return OrientedBox(np.array([cx, cy, (z0 + z1) / 2]), np.array([w, h, z1 - z0]),
+                       np.stack([ax0, ax1, np.array([0, 0, 1.0])]))

@@ -1,0 +1,124 @@
+"""What happened during a run: stage times, memory, providers, fallbacks and decisions.
+
+A `Trace` is passed explicitly through the pipeline (no globals). It serialises to the versioned
+`trace.json` schema. Fallbacks and degradations are *events*: anything that changes an answer's basis
+(a provider fallback, a reduced plan, a random-weight model, an unknown object name) is recorded here.
+"""
+from __future__ import annotations
+
+import json
+import os
+import time
+import warnings
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from typing import Any, Iterator
+
+import psutil
+
+TRACE_SCHEMA = "mosaicthinker.trace/1"
+
+
+def rss_mb() -> float:
+    """Resident set size of this process in MiB."""
+    return psutil.Process(os.getpid()).memory_info().rss / 2**20
+
+
+@dataclass
+class StageRecord:
+    name: str
+    seconds: float = 0.0
+    calls: int = 0
+    rss_before_mb: float = 0.0
+    rss_peak_mb: float = 0.0
+    provider: str | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "seconds": round(self.seconds, 6),
+            "calls": self.calls,
+            "rss_before_mb": round(self.rss_before_mb, 1),
+            "rss_peak_mb": round(self.rss_peak_mb, 1),
+            "provider": self.provider,
+        }
+
+
+@dataclass
+class Trace:
+    """Accumulates stage records, events (fallbacks, warnings, re-plans) and named decisions."""
+
+    stages: dict[str, StageRecord] = field(default_factory=dict)
+    events: list[dict[str, Any]] = field(default_factory=list)
+    decisions: dict[str, Any] = field(default_factory=dict)
+    providers: dict[str, dict[str, Any]] = field(default_factory=dict)
+    random_weights_used: list[str] = field(default_factory=list)
+    started: float = field(default_factory=time.time)
+
+    @contextmanager
+    def stage(self, name: str) -> Iterator[StageRecord]:
+        """Time a stage and sample RSS before/after (peak is the max seen over all calls)."""
+        rec = self.stages.setdefault(name, StageRecord(name))
+        before = rss_mb()
+        if rec.calls == 0:
+            rec.rss_before_mb = before
+        t0 = time.perf_counter()
+        try:
+            yield rec
+        finally:
+            rec.seconds += time.perf_counter() - t0
+            rec.calls += 1
+            rec.rss_peak_mb = max(rec.rss_peak_mb, before, rss_mb())
+
+    def event(self, kind: str, message: str, *, warn: bool = False, **data: Any) -> None:
+        """Record something the user must be able to see afterwards (fallback, degradation, warning)."""
+        self.events.append({"kind": kind, "message": message, "t": round(time.time() - self.started, 4), **data})
+        if warn:
+            warnings.warn(f"[{kind}] {message}", RuntimeWarning, stacklevel=2)
+
+    def fallbacks(self) -> list[dict[str, Any]]:
+        return [e for e in self.events if e["kind"] == "fallback"]
+
+    def decide(self, key: str, value: Any) -> None:
+        self.decisions[key] = value
+
+    def note_random_weights(self, what: str) -> None:
+        if what not in self.random_weights_used:
+            self.random_weights_used.append(what)
+            self.event("random_weights", f"{what} has RANDOM weights (test model): its outputs are meaningless",
+                       warn=True, component=what)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "schema": TRACE_SCHEMA,
+            "wall_seconds": round(time.time() - self.started, 4),
+            "peak_rss_mb": round(max([r.rss_peak_mb for r in self.stages.values()] + [rss_mb()]), 1),
+            "stages": {k: v.to_dict() for k, v in self.stages.items()},
+            "providers": self.providers,
+            "events": self.events,
+            "decisions": _jsonable(self.decisions),
+            "random_weights_used": self.random_weights_used,
+        }
+
+    def save(self, path: str | os.PathLike) -> None:
+        with open(path, "w") as f:
+            json.dump(self.to_dict(), f, indent=2)
+
+
+def _jsonable(x: Any) -> Any:
+    """Convert numpy scalars/arrays and dataclass-ish values into JSON-friendly objects."""
+    import numpy as np
+
+    if isinstance(x, dict):
+        return {str(k): _jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_jsonable(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return x.tolist()
+    if isinstance(x, np.generic):
+        return x.item()
+    if hasattr(x, "to_dict"):
+        return x.to_dict()
+    return x
+
+
+jsonable = _jsonable
