@@ -1,0 +1,53 @@
+"""Per-frame perception results shared by every detector/segmenter backend (models, oracle, tests).
+
+Kept separate from the adapters so that the pipeline, the key-frame search and the synthetic oracle exchange one
+type without importing each other.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass
+class Detections:
+    """Objects found in one frame.
+
+    boxes: [N, 4] float32 x0, y0, x1, y1 pixels; scores: [N] float32 in [0, 1]; names: N object names (the
+    question's vocabulary, not the model's label); masks: [N, H, W] bool or None; instance_ids: [N] int64 or None
+    (only the synthetic oracle knows them); undetectable: names the backend cannot detect at all (reported, never
+    silently treated as "absent").
+    """
+
+    boxes: np.ndarray
+    scores: np.ndarray
+    names: list[str]
+    masks: np.ndarray | None = None
+    instance_ids: np.ndarray | None = None
+    undetectable: list[str] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        self.boxes = np.asarray(self.boxes, dtype=np.float32).reshape(-1, 4)
+        self.scores = np.asarray(self.scores, dtype=np.float32).reshape(-1)
+        if not (len(self.boxes) == len(self.scores) == len(self.names)):
+            raise ValueError("Detections: boxes, scores and names must have the same length")
+
+    def __len__(self) -> int:
+        return len(self.names)
+
+    @classmethod
+    def empty(cls, undetectable: list[str] | None = None) -> "Detections":
+        return cls(np.zeros((0, 4), np.float32), np.zeros(0, np.float32), [], undetectable=list(undetectable or []))
+
+    def best_score(self, name: str) -> float:
+        """Highest confidence for `name` in this frame (0 if not seen)."""
+        s = [float(sc) for n, sc in zip(self.names, self.scores) if n == name]
+        return max(s) if s else 0.0
+
+    def select(self, keep: np.ndarray) -> "Detections":
+        keep = np.asarray(keep)
+        idx = np.flatnonzero(keep) if keep.dtype == bool else keep
+        return Detections(self.boxes[idx], self.scores[idx], [self.names[i] for i in idx],
+                          None if self.masks is None else self.masks[idx],
+                          None if self.instance_ids is None else self.instance_ids[idx], list(self.undetectable))
