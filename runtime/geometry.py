@@ -180,18 +180,23 @@ def ransac_transform(src: np.ndarray, dst: np.ndarray, threshold: float = 0.05, 
         return RansacResult(np.eye(4), np.zeros(n, bool), 0, float("inf"), False)
     best = np.zeros(n, bool)
     best_count, it, max_it = 0, 0, iterations
-    while it < max_it:
-        it += 1
-        idx = rng.choice(n, 3, replace=False)
-        a = src[idx]
-        if np.linalg.norm(np.cross(a[1] - a[0], a[2] - a[0])) < 1e-9:  # degenerate sample
+    while it < max_it:  # hypotheses are drawn and scored in vectorised batches (same estimator, ~50x faster)
+        b = min(128, max_it - it)
+        it += b
+        idx = rng.integers(0, n, size=(b, 3))
+        a = src[idx]  # [b, 3, 3]
+        area = np.linalg.norm(np.cross(a[:, 1] - a[:, 0], a[:, 2] - a[:, 0]), axis=1)
+        good = (area >= 1e-9) & (idx[:, 0] != idx[:, 1]) & (idx[:, 0] != idx[:, 2]) & (idx[:, 1] != idx[:, 2])
+        if not good.any():
             continue
-        T = umeyama(a, dst[idx], with_scale)
-        err = np.linalg.norm(transform(T, src) - dst, axis=1)
-        inl = err < threshold
-        c = int(inl.sum())
+        Tb = umeyama_batch(a[good], dst[idx[good]], with_scale)  # [g, 4, 4]
+        pred = np.einsum("gij,nj->gni", Tb[:, :3, :3], src) + Tb[:, None, :3, 3]
+        inl_all = np.sum((pred - dst[None]) ** 2, axis=2) < threshold * threshold  # [g, n]
+        counts = inl_all.sum(1)
+        k = int(np.argmax(counts))
+        c = int(counts[k])
         if c > best_count:
-            best, best_count = inl, c
+            best, best_count = inl_all[k], c
             w = c / n
             denom = np.log(max(1e-12, 1 - w**3))
             if denom < 0:
@@ -270,3 +275,173 @@ def fit_gravity_box(points: np.ndarray, up: np.ndarray | None = None) -> Oriente
     z0, z1 = pts[:, 2].min(), pts[:, 2].max()
     return OrientedBox(np.array([cx, cy, (z0 + z1) / 2]), np.array([w, h, z1 - z0]),
                        np.stack([ax0, ax1, np.array([0, 0, 1.0])]))
+
+
+# ----------------------------------------------------------------------------- planar polygons, box distances
+
+
+def convex_hull_2d(points: np.ndarray) -> np.ndarray:
+    """Convex hull of `points [N, 2]` -> polygon `[P, 2]` counter-clockwise (Andrew's monotone chain).
+    Degenerate inputs (fewer than 3 distinct points, collinear) return the distinct extreme points."""
+    pts = np.unique(np.asarray(points, dtype=np.float64).reshape(-1, 2), axis=0)
+    if len(pts) < 3:
+        return pts
+
+    def half(seq: np.ndarray) -> list[np.ndarray]:
+        h: list[np.ndarray] = []
+        for p in seq:
+            while len(h) >= 2 and ((h[-1][0] - h[-2][0]) * (p[1] - h[-2][1])
+                                   - (h[-1][1] - h[-2][1]) * (p[0] - h[-2][0])) <= 0:
+                h.pop()
+            h.append(p)
+        return h
+
+    lower, upper = half(pts), half(pts[::-1])
+    return np.array(lower[:-1] + upper[:-1])
+
+
+def polygon_area(polygon: np.ndarray) -> float:
+    """Unsigned area (shoelace) of a simple polygon `[P, 2]`; 0 for fewer than 3 vertices."""
+    p = np.asarray(polygon, dtype=np.float64).reshape(-1, 2)
+    if len(p) < 3:
+        return 0.0
+    x, y = p[:, 0], p[:, 1]
+    return float(abs(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1))) / 2.0)
+
+
+def box_closest_points(a: "OrientedBox", b: "OrientedBox") -> tuple[float, np.ndarray, np.ndarray]:
+    """Closest points of two solid oriented boxes: (distance m, point on a [3], point on b [3]).
+
+    Exact: with p = c_a + A^T u, q = c_b + B^T v (u, v within the half lengths) the squared distance is a
+    bounded linear least-squares problem in (u, v), solved by scipy's BVLS. Overlapping boxes give 0.
+    """
+    from scipy.optimize import lsq_linear
+
+    Aa, Ab = np.asarray(a.axes, np.float64), np.asarray(b.axes, np.float64)
+    ha, hb = np.asarray(a.axes_lengths, np.float64) / 2, np.asarray(b.axes_lengths, np.float64) / 2
+    ca, cb = np.asarray(a.centroid, np.float64), np.asarray(b.centroid, np.float64)
+    M = np.concatenate([Aa.T, -Ab.T], 1)  # [3, 6]
+    lo, hi = -np.concatenate([ha, hb]), np.concatenate([ha, hb])
+    hi = np.maximum(hi, lo + 1e-12)  # flat boxes: keep bounds strictly ordered for the solver
+    res = lsq_linear(M, cb - ca, bounds=(lo, hi), method="bvls")
+    p = ca + Aa.T @ res.x[:3]
+    q = cb + Ab.T @ res.x[3:]
+    return float(np.linalg.norm(p - q)), p, q
+
+
+def box_distance(a: "OrientedBox", b: "OrientedBox") -> float:
+    """Shortest distance (m) between two solid oriented boxes (0 when they overlap)."""
+    return box_closest_points(a, b)[0]
+
+
+# ----------------------------------------------------------------------------- batched estimation, Sim(3) helpers
+
+
+def umeyama_batch(src: np.ndarray, dst: np.ndarray, with_scale: bool = False) -> np.ndarray:
+    """`umeyama` over a batch: src, dst [B, n, 3] (n >= 3) -> T [B, 4, 4] with dst ≈ s·R·src + t."""
+    src = np.asarray(src, dtype=np.float64)
+    dst = np.asarray(dst, dtype=np.float64)
+    mu_s, mu_d = src.mean(1), dst.mean(1)  # [B, 3]
+    xs, xd = src - mu_s[:, None], dst - mu_d[:, None]
+    cov = np.einsum("bni,bnj->bij", xd, xs) / src.shape[1]
+    U, D, Vt = np.linalg.svd(cov)
+    sign = np.sign(np.linalg.det(U) * np.linalg.det(Vt))
+    sign[sign == 0] = 1.0
+    S = np.ones((len(src), 3))
+    S[:, 2] = sign
+    R = np.einsum("bij,bj,bjk->bik", U, S, Vt)
+    s = np.ones(len(src))
+    if with_scale:
+        var_s = (xs**2).sum((1, 2)) / src.shape[1]
+        s = np.where(var_s > 0, (D * S).sum(1) / np.where(var_s > 0, var_s, 1.0), 1.0)
+    T = np.tile(np.eye(4), (len(src), 1, 1))
+    T[:, :3, :3] = s[:, None, None] * R
+    T[:, :3, 3] = mu_d - np.einsum("bij,bj->bi", T[:, :3, :3], mu_s)
+    return T
+
+
+def transform_scale(T: np.ndarray) -> float:
+    """Uniform scale s of a similarity transform `[4, 4]` (1 for a rigid one)."""
+    return float(np.cbrt(abs(np.linalg.det(np.asarray(T)[:3, :3]))))
+
+
+def relative_pose(T_wa: np.ndarray, T_wb: np.ndarray) -> np.ndarray:
+    """Pose of camera b in camera a's frame: inv(T_wa) @ T_wb, both `[4, 4]` camera-to-world."""
+    return invert(T_wa) @ T_wb
+
+
+def depth_normals(depth: np.ndarray, K: np.ndarray, stride: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """Vertex and normal maps of a depth image (camera frame). depth: [H, W] metres (0 = invalid), K: [3, 3].
+    Returns V [h, w, 3] and N [h, w, 3] (unit normals facing the camera; zeros where undefined), h = H // stride.
+    Normals from central differences; undefined next to invalid pixels or depth jumps."""
+    d = np.asarray(depth, dtype=np.float64)[::stride, ::stride]
+    h, w = d.shape
+    v, u = np.mgrid[0:h, 0:w].astype(np.float64) * stride
+    V = np.stack([(u - K[0, 2]) / K[0, 0] * d, (v - K[1, 2]) / K[1, 1] * d, d], -1)
+    N = np.zeros_like(V)
+    dx = V[1:-1, 2:] - V[1:-1, :-2]
+    dy = V[2:, 1:-1] - V[:-2, 1:-1]
+    n = np.cross(dx, dy)
+    ln = np.linalg.norm(n, axis=-1, keepdims=True)
+    c = d[1:-1, 1:-1]
+    nb = [d[1:-1, 2:], d[1:-1, :-2], d[2:, 1:-1], d[:-2, 1:-1]]
+    ok = (c > 0) & (ln[..., 0] > 0)
+    for q in nb:
+        ok &= (q > 0) & (np.abs(q - c) < 0.05 * c + 0.01 * stride)
+    n = np.where(ok[..., None], n / np.maximum(ln, 1e-12), 0.0)
+    n *= np.where(np.sum(n * V[1:-1, 1:-1], -1, keepdims=True) > 0, -1.0, 1.0)  # face the camera
+    N[1:-1, 1:-1] = n
+    return V, N
+
+
+def _se3_exp(xi: np.ndarray) -> np.ndarray:
+    """Small-motion update [6] (rotation vector, translation) -> [4, 4] (rotation via Rodrigues)."""
+    w, t = xi[:3], xi[3:]
+    a = float(np.linalg.norm(w))
+    R = np.eye(3) if a < 1e-12 else rotation_about(w / a, a)
+    return make_pose(R, t)
+
+
+def icp_point_to_plane(depth_a: np.ndarray, K_a: np.ndarray, depth_b: np.ndarray, K_b: np.ndarray,
+                       T_ab: np.ndarray, iterations: int = 10, stride: int = 4,
+                       max_dist: tuple[float, float] = (0.10, 0.02)) -> tuple[np.ndarray, float, int, float]:
+    """Refine a rigid T_ab [4, 4] (b camera -> a camera) by projective point-to-plane ICP on two depth maps
+    ([H, W] metres). Points of b (every `stride` pixels) are projected into a, paired with a's vertex there,
+    and the linearised point-to-plane error minimised; the pairing distance shrinks from max_dist[0] to
+    max_dist[1]. Returns (T_ab, RMS point-to-plane residual m, pairs used, overlap = pairs / valid b points)."""
+    Va, Na = depth_normals(depth_a, K_a, 1)
+    H, W = depth_a.shape
+    pb, _ = backproject(depth_b, K_b, stride=stride)
+    if len(pb) < 6:
+        return T_ab, float("inf"), 0, 0.0
+    T = np.array(T_ab, dtype=np.float64)
+    rms, n_used = float("inf"), 0
+    for it in range(iterations):
+        md = max_dist[0] + (max_dist[1] - max_dist[0]) * min(1.0, it / max(1, iterations - 3))
+        p = transform(T, pb)
+        z = p[:, 2]
+        ok = z > 1e-6
+        u = np.full(len(p), -1)
+        v = np.full(len(p), -1)
+        u[ok] = np.round(K_a[0, 0] * p[ok, 0] / z[ok] + K_a[0, 2]).astype(int)
+        v[ok] = np.round(K_a[1, 1] * p[ok, 1] / z[ok] + K_a[1, 2]).astype(int)
+        ok &= (u >= 0) & (u < W) & (v >= 0) & (v < H)
+        q = np.zeros_like(p)
+        n = np.zeros_like(p)
+        q[ok], n[ok] = Va[v[ok], u[ok]], Na[v[ok], u[ok]]
+        ok &= (q[:, 2] > 0) & (np.abs(n).sum(1) > 0) & (np.linalg.norm(q - p, axis=1) < md)
+        n_used = int(ok.sum())
+        if n_used < 6:
+            break
+        P, Q, Nn = p[ok], q[ok], n[ok]
+        r = np.sum(Nn * (Q - P), 1)
+        A = np.concatenate([np.cross(P, Nn), Nn], 1)
+        rms = float(np.sqrt(np.mean(r**2)))
+        try:
+            xi = np.linalg.solve(A.T @ A + 1e-9 * np.eye(6), A.T @ r)
+        except np.linalg.LinAlgError:
+            break
+        T = _se3_exp(xi) @ T
+        if np.linalg.norm(xi) < 1e-6:
+            break
+    return T, rms, n_used, n_used / len(pb)

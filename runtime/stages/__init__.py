@@ -1,0 +1,152 @@
+"""Runtime adapters: one small class per model role over onnxruntime sessions (numpy only, never torch).
+
+`load_role(bundle_or_dir, role, variant=None, providers=None, threads=None, trace=None)` reads the role's
+manifest entry, hash-checks the variant's files, creates one session per component through
+`runtime.providers.create_session` (provider fallback recorded in the trace), warns loudly when the role has
+random weights, and returns the adapter class registered for the manifest's `arch` in `ARCHS`.
+
+Interfaces (shapes as in ARCHITECTURE.md):
+- depth:     `.predict(rgb [H,W,3] uint8) -> [H,W] float32`, `.semantics` in metric_m|relative|relative_inverse
+- segmenter: `.segment(rgb, boxes [N,4] | None, names, points=None) -> masks [N,H,W] bool`
+- detector:  `.detect(rgb, names) -> perception.Detections` (names it cannot detect in `.undetectable`)
+- embedder:  `.embed(rgb) -> [D] float32`, L2-normalised
+- matcher:   `.match(rgb0, rgb1, boxes0=None, boxes1=None) -> matching.Matches`
+- vlm:       see the VLM adapter (H6)
+
+Adding an architecture: write `runtime/stages/<module>.py` with a `RoleModel` subclass and add ONE line to
+`ARCHS` ("arch": "module:Class"); the class receives a `RoleSpec` (manifest metadata + component paths) and the
+created sessions.
+"""
+from __future__ import annotations
+
+import importlib
+import os
+from typing import Any, Sequence
+
+import numpy as np
+
+from ..bundle import Bundle, RoleSpec, load_bundle
+from ..errors import BundleError, InputError
+from ..trace import Trace
+
+# arch (manifest roles.<role>.arch) -> "module:Class" inside mosaicthinker.runtime.stages
+ARCHS: dict[str, str] = {
+    "pydnet": "depth:DepthModel",            # relative monocular depth, single NHWC graph
+    "depth_generic": "depth:DepthModel",     # any single-graph depth model described by its preprocessing
+    "ssd_tflite": "detector:ClosedSetDetector",  # TFLite SSD with in-graph NMS (boxes, classes, scores, count)
+    "deeplab": "segmenter:SemanticSegmenter",    # per-pixel class logits
+    "mobilenet_embedding": "embedder:Embedder",  # pooled CNN features
+    "embedding_generic": "embedder:Embedder",
+    "xfeat": "matcher:PairMatcher",          # XFeat pair graph (see matcher.py for the contract)
+    "pair_matcher": "matcher:PairMatcher",   # any graph following the pair contract
+    "two_stage_matcher": "matcher:TwoStageMatcher",  # extractor + matcher components
+}
+
+
+class RoleModel:
+    """Base adapter: holds the role spec, its sessions and the trace; subclasses add the role's method."""
+
+    role: str = ""
+
+    def __init__(self, spec: RoleSpec, sessions: dict[str, Any], trace: Trace):
+        self.spec = spec
+        self.sessions = sessions
+        self.trace = trace
+
+    @property
+    def name(self) -> str:
+        return f"{self.spec.role}:{self.spec.arch}/{self.spec.variant}"
+
+    def session(self, component: str | None = None) -> Any:
+        """The session of `component` (default: the only one)."""
+        if component is None:
+            if len(self.sessions) != 1:
+                raise BundleError(f"{self.name}: several components {sorted(self.sessions)}; name one")
+            return next(iter(self.sessions.values()))
+        if component not in self.sessions:
+            raise BundleError(f"{self.name}: no component {component!r} (has {sorted(self.sessions)})")
+        return self.sessions[component]
+
+    def providers_used(self) -> dict[str, str | None]:
+        return {c: getattr(s, "provider", None) for c, s in self.sessions.items()}
+
+    def describe(self) -> dict[str, Any]:
+        return {"role": self.spec.role, "arch": self.spec.arch, "variant": self.spec.variant,
+                "random_weights": self.spec.random_weights, "providers": self.providers_used(),
+                "licence": self.spec.meta.get("licence"), "source": self.spec.meta.get("provenance", {}).get("source")}
+
+
+def resolve_arch(arch: str) -> type:
+    if arch not in ARCHS:
+        raise BundleError(f"manifest arch {arch!r} has no runtime adapter (known: {sorted(ARCHS)})")
+    mod, cls = ARCHS[arch].split(":")
+    module = importlib.import_module(f"{__name__}.{mod}")
+    return getattr(module, cls)
+
+
+def load_role(bundle_or_dir: Bundle | str | os.PathLike, role: str, variant: str | None = None,
+              providers: Sequence[Any] | str | None = None, threads: int | None = None,
+              trace: Trace | None = None) -> RoleModel:
+    """Load one role of a bundle as its runtime adapter.
+
+    providers: ordered preference (short names ok: "cuda,cpu"); threads: intra-op threads per session;
+    variant: e.g. "fp32", "int8-dynamic" (default: the role's default_variant). The component files are
+    sha256-checked before any session is created.
+    """
+    from ..providers import create_session
+
+    trace = trace if trace is not None else Trace()
+    b = load_bundle(bundle_or_dir, verify=False)
+    spec = b.spec(role, variant, verify=True)
+    cls = resolve_arch(spec.arch)
+    if spec.random_weights:
+        trace.note_random_weights(f"{role}:{spec.arch} ({b.root})")
+    sessions = {}
+    for cname, comp in spec.components.items():
+        if comp.format not in ("onnx", "ort"):
+            raise BundleError(f"{b.manifest_path}: roles.{role}.variants.{spec.variant}.components.{cname}.format "
+                              f"is {comp.format!r}; the runtime loads onnx or ort")
+        stage = role if len(spec.components) == 1 else f"{role}.{cname}"
+        sessions[cname] = create_session(comp.path, stage, providers, threads=threads, trace=trace)
+    trace.decide(f"model.{role}", {"arch": spec.arch, "variant": spec.variant, "bundle": str(b.root),
+                                   "random_weights": spec.random_weights})
+    return cls(spec, sessions, trace)
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Shared image pre-processing driven by the manifest's `preprocessing` block
+
+def preprocess_image(rgb: np.ndarray, pp: dict[str, Any]) -> np.ndarray:
+    """rgb [H, W, 3] uint8 -> [1, h, w, 3] (NHWC) or [1, 3, h, w] (NCHW) in the manifest's dtype.
+
+    pp keys: size [h, w] (resize, bilinear; absent = keep), channel_order RGB|BGR, dtype float32|float16|uint8,
+    scale (multiplied first), mean/std (per channel, after scale), layout NHWC|NCHW.
+    """
+    import cv2
+
+    if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
+        raise InputError(f"expected an RGB image [H, W, 3] uint8, got {rgb.shape} {rgb.dtype}")
+    img = rgb
+    size = pp.get("size")
+    if size:
+        h, w = int(size[0]), int(size[1])
+        if img.shape[:2] != (h, w):
+            interp = cv2.INTER_AREA if h < img.shape[0] and w < img.shape[1] else cv2.INTER_LINEAR
+            img = cv2.resize(img, (w, h), interpolation=interp)
+    if pp.get("channel_order", "RGB").upper() == "BGR":
+        img = img[..., ::-1]
+    dtype = np.dtype(pp.get("dtype", "float32"))
+    if dtype == np.uint8:
+        x = np.ascontiguousarray(img)
+    else:
+        x = img.astype(np.float32)
+        if pp.get("scale") is not None:
+            x = x * np.float32(pp["scale"])
+        if pp.get("mean") is not None:
+            x = x - np.asarray(pp["mean"], np.float32)
+        if pp.get("std") is not None:
+            x = x / np.asarray(pp["std"], np.float32)
+        x = x.astype(dtype)
+    if pp.get("layout", "NHWC").upper() == "NCHW":
+        x = x.transpose(2, 0, 1)
+    return np.ascontiguousarray(x[None])

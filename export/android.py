@@ -1,0 +1,728 @@
+"""`mosaic export --target android`: ONNX Runtime Mobile artifacts for every role of a bundle.
+
+Per role and per source variant (fp32, fp16, int8-qdq; fp16 is made from fp32 when the bundle lacks it and
+its parity allows), for every component graph:
+
+1. **fixed shapes** where the role allows (batch -> 1, image axes -> the role's preprocessing size, text ->
+   `text_len`, prompt points -> `max_points`, keypoints -> the role's top-K) with onnxruntime's own
+   `onnxruntime.tools.onnx_model_utils.make_dim_param_fixed` / `make_input_shape_fixed` (what
+   `python -m onnxruntime.tools.make_dynamic_shape_fixed` runs). Axes no rule covers stay dynamic and the
+   component is marked CPU/XNNPACK-only (NNAPI and QNN need static shapes).
+2. **.ort conversion** with `onnxruntime.tools.convert_onnx_models_to_ort` (target platform `arm`), both
+   optimisation styles: `Fixed` (`<component>.ort`, for CPU/XNNPACK) and `Runtime`
+   (`<component>.with_runtime_opt.ort`, for NNAPI/QNN: leaves fusions to run time so the compiling EP sees the
+   plain ops).
+3. **parity**: the .ort file (both styles) against its source .onnx on fresh random inputs (export/common.py
+   `parity_check`), and fp16 against fp32.
+4. **mobile usability report** from onnxruntime's checker (`check_onnx_model_mobile_usability`: NNAPI and
+   CoreML operator support and partition counts), text + JSON next to the artifacts, summarised in the
+   manifest; more than `nnapi_max_partitions` NNAPI partitions is flagged (the "NNAPI slower than CPU" trap).
+   XNNPACK and QNN coverage is NOT checked by that tool, nor here.
+
+Bundle-wide: `android/required_operators.config` (union over every converted model and both styles: the
+input of a reduced-operator onnxruntime build, `--include_ops_by_config`) and the build line in the manifest.
+
+The VLM decoder (growing KV cache) gets a fixed-window variant when its graph allows it (see
+`kv_window_plan`); otherwise it is marked CPU/XNNPACK-only with the reason.
+
+Manifest fields written (all under the RESERVED `android` keys of runtime/bundle.py)::
+
+    roles.<role>.variants["android-ort-<precision>"] = {precision, target: "android", components: {c: {file:
+        <role>/android-ort-<p>/<c>.ort, format: "ort", ...}}, parity: {c: {...}}, android: {source_variant,
+        components: {c: {fixed_shapes, dynamic_left, runtime_opt: {file, sha256}, usability: {file, sha256},
+        usability_text: {file, sha256}, nnapi: {...}, coreml_mlprogram: {...}, flags: [...],
+        providers: [...]}}}}
+    roles.<role>.android = {variants: [...], skipped: {variant: reason}, providers: [...]}
+    android = {onnxruntime_version, required_operators: {file, sha256}, build_command, usability_summary: [...],
+               not_checked: "...", phone_runs: "..."}
+"""
+from __future__ import annotations
+
+import argparse
+import contextlib
+import io
+import json
+import logging
+import re
+import shutil
+import tempfile
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+import numpy as np
+
+from mosaicthinker.runtime import bundle as B
+from mosaicthinker.runtime.errors import ExportError
+
+from . import common as C
+
+SOURCE_PRECISIONS = ("fp32", "fp16", "int8-qdq")
+STYLES = ("Fixed", "Runtime")
+VARIANT_PREFIX = "android-ort-"
+OPS_CONFIG = "android/required_operators.config"
+# .ort vs its source .onnx (same precision): conversion pre-applies graph optimisations (fusions, layout), so
+# only rounding-order differences are allowed: ~1e-6 in fp32, fp16 rounding of fused ops, one int8 step.
+ORT_PARITY_TOL = {"fp32": (1e-4, 0.99999), "fp16": (1e-2, 0.9999), "int8-qdq": (2e-2, 0.999)}
+NOT_CHECKED = ("XNNPACK and QNN operator coverage is not checked here: onnxruntime's mobile usability checker "
+               "covers NNAPI and CoreML only. Profile on the phone (android/profile.sh) to see what each "
+               "provider actually takes.")
+PHONE_RUNS = ("The phone runs the per-model graphs (.ort) through ONNX Runtime Mobile (Java/Kotlin or C/C++ "
+              "API, or onnxruntime_perf_test for profiling); the Python pipeline itself is not shipped to the "
+              "phone. See android/README.md for the Python-on-Android options that exist and why they are not "
+              "used.")
+
+
+@dataclass
+class AndroidConfig:
+    """Options of the Android step (defaults are the ones the tests and README use)."""
+
+    precisions: tuple[str, ...] = SOURCE_PRECISIONS      # source variants to convert (when present / makeable)
+    make_fp16: bool = True                               # derive fp16 from fp32 when the bundle lacks it
+    styles: tuple[str, ...] = STYLES                     # ORT optimisation styles to write
+    target_platform: str = "arm"                         # convert_onnx_models_to_ort --target_platform
+    batch: int = 1
+    text_len: int = 16                                   # detector text branch: tokens per name
+    max_points: int = 4                                  # segmenter prompt points (pad with label -1)
+    kv_window: int = 128                                 # VLM decoder fixed cache length (accelerator variant)
+    prefill_len: int = 32                                # VLM decoder prompt chunk for the fixed-window prefill
+    nnapi_max_partitions: int = 2                        # more -> flagged (onnxruntime's checker says NO > 2)
+    parity_trials: int = 2
+    roles: tuple[str, ...] | None = None                 # None: every role in the bundle
+    overrides: dict[str, int] = field(default_factory=dict)  # dim_param -> value (--fix NAME=VALUE)
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# Fixed shapes
+
+_BATCH = re.compile(r"^(batch|batch_size|b|n|N|B|bs|num_images)$|batch", re.I)
+_TEXT = re.compile(r"seq|token|text|length|len$", re.I)
+_POINTS = re.compile(r"point|prompt|box|query|queries", re.I)
+_KEYPOINTS = re.compile(r"keypoint|kpt|num_kp|top_?k", re.I)
+_PAST = re.compile(r"past|cache|total_seq|kv", re.I)
+
+
+def _image_axes(inp: dict[str, Any], pp: dict[str, Any]) -> dict[int, int]:
+    """Spatial axes of a 4-D image input -> sizes from the role's preprocessing (layout NCHW or NHWC)."""
+    size = pp.get("size")
+    shape = inp.get("shape") or []
+    if not size or len(shape) != 4:
+        return {}
+    h, w = int(size[0]), int(size[1])
+    layout = pp.get("layout")
+    if layout is None:  # guess from the channel axis
+        layout = "NHWC" if shape[3] == 3 else "NCHW"
+    return {1: h, 2: w} if layout == "NHWC" else {2: h, 3: w}
+
+
+def fixed_shape_plan(inputs: Sequence[dict[str, Any]], role_meta: dict[str, Any], component: str,
+                     conf: AndroidConfig) -> tuple[dict[str, list[int]], dict[str, str]]:
+    """Decide a static shape for every input with dynamic axes.
+
+    inputs: manifest input entries ({name, shape, dtype, dynamic_axes: {axis: dim name}}); role_meta: the
+    role's manifest entry (preprocessing size, config top-K). Returns (shapes {input: [d0, d1, ...]} for every
+    input that could be fixed, left {"input[axis]": reason} for axes no rule covers).
+    """
+    pp = role_meta.get("preprocessing") or {}
+    cfg = role_meta.get("config") or {}
+    shapes: dict[str, list[int]] = {}
+    left: dict[str, str] = {}
+    for inp in inputs:
+        dyn = {int(a): str(n) for a, n in (inp.get("dynamic_axes") or {}).items()}
+        if not dyn:
+            continue
+        shape = [int(s) for s in inp.get("shape", [])]
+        img = _image_axes(inp, pp) if inp.get("dtype") in ("float32", "float16", "uint8") else {}
+        ok = True
+        for ax, name in sorted(dyn.items()):
+            if name in conf.overrides:
+                shape[ax] = int(conf.overrides[name])
+            elif _PAST.search(name) or _PAST.search(inp["name"]):
+                ok = False
+                left[f"{inp['name']}[{ax}]"] = (f"{name}: KV-cache length grows while decoding (see the "
+                                                f"fixed-window decoder variant)")
+            elif ax == 0 and _BATCH.search(name) or (ax == 0 and name in ("d0", "0")):
+                shape[ax] = conf.batch
+            elif ax in img:
+                shape[ax] = img[ax]
+            elif _KEYPOINTS.search(name) and (cfg.get("top_k") or cfg.get("max_keypoints")):
+                shape[ax] = int(cfg.get("top_k") or cfg.get("max_keypoints"))
+            elif _POINTS.search(name) or _POINTS.search(inp["name"]):
+                shape[ax] = conf.max_points
+            elif _TEXT.search(name) or _TEXT.search(inp["name"]) or "input_ids" in inp["name"]:
+                shape[ax] = int(cfg.get("max_text_len", conf.text_len))
+            else:
+                ok = False
+                left[f"{inp['name']}[{ax}]"] = f"{name}: no rule fixes this axis (pass --fix {name}=VALUE)"
+        if ok:
+            shapes[inp["name"]] = shape
+    return shapes, left
+
+
+def make_fixed(src: str | Path, dst: str | Path, shapes: dict[str, list[int]]) -> Path:
+    """Write a copy of `src` whose listed inputs have static shapes (onnxruntime's make_dynamic_shape_fixed
+    helpers: dim_params are replaced graph-wide so every use of the same symbol agrees), then re-infer
+    output shapes."""
+    import onnx
+    from onnxruntime.tools.onnx_model_utils import fix_output_shapes, make_dim_param_fixed, make_input_shape_fixed
+
+    model = onnx.load(str(src))
+    by_name = {i.name: i for i in model.graph.input}
+    for name, shape in shapes.items():
+        if name not in by_name:
+            raise ExportError(f"{src}: fixed shape given for input {name!r}, which the graph does not have "
+                              f"(inputs: {sorted(by_name)})")
+        dims = by_name[name].type.tensor_type.shape.dim
+        for d, v in zip(dims, shape):  # symbolic dims first: every other use of the symbol follows
+            if d.HasField("dim_param") and d.dim_param:
+                make_dim_param_fixed(model.graph, d.dim_param, int(v))
+    for name, shape in shapes.items():  # then anything still unnamed/unknown on that input
+        dims = by_name[name].type.tensor_type.shape.dim
+        if any(not d.HasField("dim_value") for d in dims):
+            make_input_shape_fixed(model.graph, name, [int(v) for v in shape])
+    fix_output_shapes(model)
+    onnx.save(model, str(dst))
+    return Path(dst)
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# Random inputs for parity (fixed-shape graphs)
+
+def random_feeds_factory(onnx_path: str | Path, role_meta: dict[str, Any]) -> Callable[[np.random.Generator], dict]:
+    """make_inputs(rng) for a graph with static input shapes: images as random pixels through the role's
+    scale/mean/std, token ids in [0, vocab), masks all ones, prompt labels in {0, 1}, other floats ~N(0, 0.5)."""
+    sess = C.ort_session(onnx_path)
+    pp = role_meta.get("preprocessing") or {}
+    cfg = role_meta.get("config") or {}
+    vocab = int(cfg.get("vocab_size", 100))
+    specs = []
+    for i in sess.get_inputs():
+        if any(not isinstance(d, int) or d < 0 for d in i.shape):
+            raise ExportError(f"{onnx_path}: input {i.name} has dynamic shape {i.shape}; fix it first")
+        specs.append((i.name, tuple(int(d) for d in i.shape), i.type))
+    img_size = tuple(pp.get("size") or ())
+
+    def make(rng: np.random.Generator) -> dict[str, np.ndarray]:
+        feeds = {}
+        for name, shape, t in specs:
+            lname = name.lower()
+            if t == "tensor(uint8)":
+                feeds[name] = rng.integers(0, 256, shape, dtype=np.uint8)
+            elif t in ("tensor(int64)", "tensor(int32)"):
+                dt = np.int64 if t.endswith("int64)") else np.int32
+                if "mask" in lname:
+                    feeds[name] = np.ones(shape, dt)
+                elif "label" in lname:
+                    feeds[name] = rng.integers(0, 2, shape).astype(dt)
+                elif "position" in lname and len(shape) >= 1:
+                    feeds[name] = np.broadcast_to(np.arange(shape[-1]), shape).astype(dt).copy()
+                else:
+                    feeds[name] = rng.integers(0, vocab, shape).astype(dt)
+            elif t in ("tensor(float)", "tensor(float16)"):
+                dt = np.float32 if t == "tensor(float)" else np.float16
+                is_img = len(shape) == 4 and img_size and (tuple(shape[1:3]) == img_size or tuple(shape[2:4]) == img_size)
+                if is_img:
+                    px = rng.integers(0, 256, shape).astype(np.float32)
+                    x = px * float(pp.get("scale", 1.0 / 255.0)) if "scale" in pp or "mean" not in pp else px
+                    if "mean" in pp:
+                        ch_axis = 3 if shape[3] == 3 else 1
+                        bshape = [1] * 4
+                        bshape[ch_axis] = -1
+                        mean = np.asarray(pp["mean"], np.float32).reshape(bshape)
+                        std = np.asarray(pp.get("std", [1.0, 1.0, 1.0]), np.float32).reshape(bshape)
+                        x = (x - mean) / std
+                    feeds[name] = x.astype(dt)
+                elif "mask" in lname:
+                    feeds[name] = np.ones(shape, dt)
+                elif "coord" in lname or "point" in lname or "box" in lname:
+                    feeds[name] = (rng.random(shape) * max(img_size or (64,))).astype(dt)
+                else:
+                    feeds[name] = (rng.standard_normal(shape) * 0.5).astype(dt)
+            elif t == "tensor(bool)":
+                feeds[name] = np.ones(shape, bool)
+            else:
+                raise ExportError(f"{onnx_path}: input {name} has type {t}, which the parity check cannot fill")
+        return feeds
+
+    return make
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# ORT conversion and the operator config
+
+def convert_to_ort(onnx_files: Sequence[Path], out_dir: Path, *, styles: Sequence[str] = STYLES,
+                   target_platform: str = "arm") -> tuple[dict[Path, dict[str, Path]], dict[str, Path], str]:
+    """Convert .onnx files to .ort with onnxruntime's converter, once per optimisation style.
+
+    The files are staged into one folder so the converter writes one operator config per style covering all
+    of them. Returns ({onnx path: {style: .ort path}}, {style: config path}, the converter's log).
+    """
+    from onnxruntime.tools.convert_onnx_models_to_ort import OptimizationStyle, convert_onnx_models_to_ort
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    log = io.StringIO()
+    with tempfile.TemporaryDirectory(prefix="mosaic-ort-") as tmp:
+        stage = Path(tmp) / "stage"
+        stage.mkdir()
+        names = {}
+        for i, f in enumerate(onnx_files):
+            name = f"m{i:03d}.onnx"
+            shutil.copyfile(f, stage / name)
+            names[name] = f
+        conv_out = Path(tmp) / "out"
+        with contextlib.redirect_stdout(log):
+            try:
+                convert_onnx_models_to_ort(stage, output_dir=conv_out,
+                                           optimization_styles=[OptimizationStyle[s] for s in styles],
+                                           target_platform=target_platform)
+            except Exception as e:  # noqa: BLE001  the converter raises plain exceptions
+                raise ExportError(f"ORT conversion failed: {type(e).__name__}: {str(e)[:500]}\n"
+                                  f"converter log:\n{log.getvalue()[-2000:]}") from e
+        result: dict[Path, dict[str, Path]] = {}
+        for name, src in names.items():
+            stem = Path(name).stem
+            result[src] = {}
+            for s in styles:
+                suffix = ".with_runtime_opt.ort" if s == "Runtime" else ".ort"
+                got = conv_out / f"{stem}{suffix}"
+                if not got.is_file():
+                    raise ExportError(f"ORT conversion of {src} ({s}) produced no file; log:\n{log.getvalue()[-1500:]}")
+                dst = out_dir / f"{stem}{suffix}"
+                shutil.copyfile(got, dst)
+                result[src][s] = dst
+        configs = {}
+        for s in styles:
+            cname = "required_operators.with_runtime_opt.config" if s == "Runtime" else "required_operators.config"
+            if (conv_out / cname).is_file():
+                configs[s] = out_dir / f"{s.lower()}.{cname}"
+                shutil.copyfile(conv_out / cname, configs[s])
+    return result, configs, log.getvalue()
+
+
+def read_operator_config(path: str | Path) -> dict[tuple[str, int], set[str]]:
+    """Parse a required_operators config (`domain;opset;Op1,Op2` lines, `#` comments)."""
+    ops: dict[tuple[str, int], set[str]] = {}
+    for line in Path(path).read_text().splitlines():
+        line = line.strip()
+        if not line or line.startswith("#"):
+            continue
+        try:
+            domain, opset, names = line.split(";", 2)
+            key = (domain.strip(), int(opset))
+        except ValueError as e:
+            raise ExportError(f"{path}: malformed operator config line {line!r}") from e
+        ops.setdefault(key, set()).update(n.strip().split("{")[0] for n in names.split(",") if n.strip())
+    return ops
+
+
+def write_operator_config(path: str | Path, ops: dict[tuple[str, int], set[str]], models: Sequence[str]) -> Path:
+    """Write a merged config in the converter's format (one line per domain and opset)."""
+    lines = ["# Required operators for a reduced-operator ONNX Runtime build (--include_ops_by_config).",
+             "# Union of onnxruntime.tools.convert_onnx_models_to_ort configs (Fixed + Runtime styles) for:"]
+    lines += [f"# - {m}" for m in models]
+    for (domain, opset) in sorted(ops):
+        lines.append(f"{domain};{opset};{','.join(sorted(ops[(domain, opset)]))}")
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    Path(path).write_text("\n".join(lines) + "\n")
+    return Path(path)
+
+
+def config_op_types(ops: dict[tuple[str, int], set[str]]) -> set[tuple[str, str]]:
+    """{(domain, op type)} from a parsed config; domain '' is written as 'ai.onnx'."""
+    return {(d, o) for (d, _), names in ops.items() for o in names}
+
+
+def build_command(config_rel: str, *, android_abi: str = "arm64-v8a", api: int = 27,
+                  with_nnapi: bool = True, with_xnnpack: bool = True, with_qnn: bool = False) -> str:
+    """The onnxruntime build line for a reduced-operator Android build (run in an onnxruntime checkout with
+    the Android SDK/NDK installed; not runnable on this machine)."""
+    parts = ["./build.sh", "--config MinSizeRel", "--android", "--android_sdk_path $ANDROID_HOME",
+             "--android_ndk_path $ANDROID_NDK_HOME", f"--android_abi {android_abi}", f"--android_api {api}",
+             "--minimal_build extended", "--disable_ml_ops",
+             f"--include_ops_by_config {config_rel}", "--build_shared_lib", "--build_java", "--skip_tests",
+             "--parallel"]
+    if with_nnapi:
+        parts.append("--use_nnapi")
+    if with_xnnpack:
+        parts.append("--use_xnnpack")
+    if with_qnn:
+        parts.append("--use_qnn --qnn_home $QNN_SDK_ROOT")
+    return " ".join(parts)
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# Mobile usability (onnxruntime's checker)
+
+def _partition_dict(info: Any) -> dict[str, Any]:
+    pct = 100.0 * info.num_supported_nodes / max(info.num_nodes, 1)
+    return {"partitions": int(info.num_partitions), "supported_nodes": int(info.num_supported_nodes),
+            "nodes": int(info.num_nodes), "supported_pct": round(pct, 1),
+            "partition_sizes": [len(g) for g in info.supported_groups],
+            "unsupported_ops": sorted(info.unsupported_ops),
+            "unsupported_due_to_dynamic_shape": int(info.nodes_unsupported_due_to_dynamic_input),
+            "caveats": info.supported_ops_checker.get_caveats(),
+            "suitability": info.suitability().name}
+
+
+def usability_report(onnx_path: str | Path, text_out: str | Path, json_out: str | Path, *,
+                     nnapi_max_partitions: int = 2) -> dict[str, Any]:
+    """Run onnxruntime's mobile usability checker on a graph (as `python -m
+    onnxruntime.tools.check_onnx_model_mobile_usability` does: basic-level optimisation first) and store its
+    text report plus a JSON of the figures (NNAPI, CoreML NeuralNetwork, CoreML MLProgram partitions).
+
+    Returns the JSON dict: {nnapi: {...}, coreml_neuralnetwork: {...}, coreml_mlprogram: {...},
+    dynamic_inputs: [...], flags: [...], try_eps: bool, not_checked: str}.
+    """
+    from onnxruntime.tools.mobile_helpers import usability_checker as U
+    from onnxruntime.tools.onnx_model_utils import ModelProtoWithShapeInfo, optimize_model
+
+    buf = io.StringIO()
+    logger = logging.getLogger(f"mosaic.usability.{Path(onnx_path).stem}")
+    logger.handlers.clear()
+    h = logging.StreamHandler(buf)
+    h.setFormatter(logging.Formatter("%(levelname)s:  %(message)s"))
+    logger.addHandler(h)
+    logger.setLevel(logging.INFO)
+    logger.propagate = False
+    try_eps = bool(U.analyze_model(Path(onnx_path), skip_optimize=False, logger=logger))
+    logger.removeHandler(h)
+    Path(text_out).write_text(buf.getvalue())
+
+    with tempfile.TemporaryDirectory(prefix="mosaic-usab-") as tmp:
+        opt = Path(tmp) / Path(onnx_path).name
+        optimize_model(Path(onnx_path), opt, use_external_initializers=True)
+        model = ModelProtoWithShapeInfo(opt.resolve()).model_with_shape_info
+        dyn_inputs, _ = U.check_shapes(model.graph)
+        nnapi = _partition_dict(U.check_nnapi_partitions(model, require_fixed_input_sizes=True))
+        cml_nn = _partition_dict(U.check_coreml_partitions(model, True, "coreml_supported_neuralnetwork_ops.md"))
+        cml_mlp = _partition_dict(U.check_coreml_partitions(model, True, "coreml_supported_mlprogram_ops.md"))
+    flags = []
+    if nnapi["partitions"] > nnapi_max_partitions:
+        flags.append(f"nnapi_many_partitions: {nnapi['partitions']} NNAPI partitions (> {nnapi_max_partitions}); "
+                     f"device copies between partitions will likely make NNAPI slower than the CPU EP")
+    if nnapi["partitions"] == 0:
+        flags.append("nnapi_unusable: NNAPI can run no node of this graph")
+    if dyn_inputs:
+        flags.append("dynamic_inputs: " + ", ".join(i.name for i in dyn_inputs)
+                     + " (NNAPI needs fixed shapes; the graph runs on CPU/XNNPACK)")
+    rep = {"model": Path(onnx_path).name, "tool": "onnxruntime.tools.check_onnx_model_mobile_usability",
+           "nnapi": nnapi, "coreml_neuralnetwork": cml_nn, "coreml_mlprogram": cml_mlp,
+           "dynamic_inputs": [i.name for i in dyn_inputs], "flags": flags, "try_eps": try_eps,
+           "not_checked": NOT_CHECKED}
+    Path(json_out).write_text(json.dumps(rep, indent=2) + "\n")
+    return rep
+
+
+def recommended_providers(rep: dict[str, Any], precision: str, dynamic_left: bool,
+                          conf: AndroidConfig) -> tuple[list[str], list[str]]:
+    """Provider order to try on the phone for one component, with the reasons (the profile's chain
+    QNN -> NNAPI -> XNNPACK -> CPU, pruned by what this component can use)."""
+    why = []
+    chain = []
+    if dynamic_left:
+        why.append("dynamic shapes left: CPU/XNNPACK only")
+        return ["XNNPACK", "CPU"], why
+    if precision == "int8-qdq":
+        chain.append("QNN")
+        why.append("QDQ int8: QNN HTP candidate (coverage not checked here)")
+    else:
+        why.append("QNN HTP takes QDQ models (float graphs only with enable_htp_fp16_precision): try int8-qdq")
+    n = rep["nnapi"]
+    if n["partitions"] == 0 or n["partitions"] > conf.nnapi_max_partitions:
+        why.append(f"NNAPI skipped: {n['partitions']} partitions, {n['supported_pct']}% of nodes")
+    else:
+        chain.append("NNAPI")
+    chain += ["XNNPACK", "CPU"]
+    return chain, why
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# The step
+
+def _has_qdq(path: Path) -> bool:
+    import onnx
+
+    m = onnx.load(str(path), load_external_data=False)
+    return any(n.op_type in ("QuantizeLinear", "DequantizeLinear", "QLinearConv") for n in m.graph.node)
+
+
+def _ref(root: Path, path: Path) -> dict[str, str]:
+    return {"file": path.relative_to(root).as_posix(), "sha256": B.sha256_file(path)}
+
+
+def export_android(bundle_dir: str | Path, conf: AndroidConfig | None = None,
+                   log: Callable[[str], None] = C.progress) -> dict[str, Any]:
+    """Write the Android artifacts for every role (or `conf.roles`) of the bundle and record them in its
+    manifest. Returns a summary {roles: {role: {variant: {...}}}, required_operators, build_command,
+    usability: [...]}. Raises ExportError when a .ort file fails parity with its source graph."""
+    import onnxruntime as ort
+
+    conf = conf or AndroidConfig()
+    root = Path(bundle_dir)
+    bundle = B.load_bundle(root, verify=True)
+    roles = list(conf.roles or bundle.roles)
+    for r in roles:
+        bundle.role_meta(r)  # clear error for an unknown role
+    all_ort: list[str] = []
+    merged: dict[tuple[str, int], set[str]] = {}
+    summary: dict[str, Any] = {"roles": {}, "usability": []}
+    for role in roles:
+        rmeta = bundle.role_meta(role)
+        variants = rmeta["variants"]
+        skipped: dict[str, str] = {}
+        role_sum: dict[str, Any] = {}
+        sources = [v for v in conf.precisions if v in variants]
+        with tempfile.TemporaryDirectory(prefix=f"mosaic-android-{role}-") as tmpd:
+            tmp = Path(tmpd)
+            made: dict[str, dict[str, Path]] = {}  # variant -> {component: source onnx}
+            for v in sources:
+                made[v] = {c: B.safe_path(root, cm["file"]) for c, cm in variants[v]["components"].items()}
+            fp32_srcs = made.get("fp32")
+            already_q = fp32_srcs is not None and any(_has_qdq(p) for p in fp32_srcs.values())
+            if "fp16" in conf.precisions and "fp16" not in made:
+                if fp32_srcs is None:
+                    skipped["fp16"] = "no fp32 variant to derive it from"
+                elif already_q:
+                    skipped["fp16"] = "graph is already int8-quantised (QDQ): an fp16 copy adds nothing"
+                elif conf.make_fp16:
+                    derived, reason = {}, None
+                    for c, p in fp32_srcs.items():
+                        fixed_tmp = _fixed_copy(p, variants["fp32"]["components"][c], rmeta, c, conf, tmp, "f32ref")
+                        mk = random_feeds_factory(fixed_tmp, rmeta)
+                        q = C.quantize_variant(p, tmp / f"{c}.fp16.onnx", "fp16", make_inputs=mk)
+                        if not q["ok"]:
+                            reason = f"{c}: {q['reason']}"
+                            break
+                        derived[c] = q["path"]
+                    if reason:
+                        skipped["fp16"] = f"derived fp16 not shipped: {reason}"
+                    else:
+                        made["fp16"] = derived
+                        log(f"android {role}: fp16 derived from fp32 (graph-level conversion, parity ok)")
+            if "int8-qdq" in conf.precisions and "int8-qdq" not in made:
+                skipped["int8-qdq"] = ("fp32 graph is already int8 QDQ (see android-ort-fp32)" if already_q else
+                                       "no int8-qdq variant in the bundle: run `mosaic export "
+                                       f"{role} ... --precision int8 --calib FRAMES` first (QDQ needs calibration)")
+            for v, comps in made.items():
+                vname = VARIANT_PREFIX + v
+                log(f"android {role}/{v}: fixing shapes, converting {len(comps)} component(s) to .ort")
+                src_meta = variants.get(v, variants.get("fp32"))["components"]
+                fixed: dict[str, Path] = {}
+                comp_info: dict[str, dict[str, Any]] = {}
+                for c, p in comps.items():
+                    shapes, left = fixed_shape_plan(src_meta[c]["inputs"], rmeta, c, conf)
+                    fixed[c] = make_fixed(p, tmp / f"{v}.{c}.onnx", shapes) if shapes else _copy(p, tmp / f"{v}.{c}.onnx")
+                    comp_info[c] = {"fixed_shapes": shapes, "dynamic_left": left}
+                out_dir = root / role / vname
+                if out_dir.exists():
+                    shutil.rmtree(out_dir)
+                out_dir.mkdir(parents=True)
+                conv, configs, _ = convert_to_ort(list(fixed.values()), tmp / f"ort-{v}",
+                                                  styles=conf.styles, target_platform=conf.target_platform)
+                for cfg in configs.values():
+                    for k, ops in read_operator_config(cfg).items():
+                        merged.setdefault(k, set()).update(ops)
+                components, parity = {}, {}
+                for c, fx in fixed.items():
+                    info = comp_info[c]
+                    dyn_left = bool(info["dynamic_left"])
+                    paths = {}
+                    for s, pth in conv[fx].items():
+                        dst = out_dir / (f"{c}.with_runtime_opt.ort" if s == "Runtime" else f"{c}.ort")
+                        shutil.copyfile(pth, dst)
+                        paths[s] = dst
+                    # parity: each .ort against its fixed-shape source graph (fresh random inputs)
+                    if dyn_left:
+                        par = {"ok": None, "skipped": "dynamic axes left; parity runs in the role's export"}
+                    else:
+                        mk = random_feeds_factory(fx, rmeta)
+                        rel_tol, cos_min = ORT_PARITY_TOL[v]
+                        par = {s: ort_parity(pth, fx, mk, runtime_opt=(s == "Runtime"), trials=conf.parity_trials,
+                                             rel_tol=rel_tol, cos_min=cos_min,
+                                             label=f"{role}/{vname}/{pth.name} vs .onnx")
+                               for s, pth in paths.items()}
+                    parity[c] = par
+                    rep = usability_report(fx, out_dir / f"{c}.usability.txt", out_dir / f"{c}.usability.json",
+                                           nnapi_max_partitions=conf.nnapi_max_partitions)
+                    providers, why = recommended_providers(rep, v, dyn_left, conf)
+                    main = paths.get("Fixed") or next(iter(paths.values()))
+                    components[c] = {"file": main}
+                    entry = {**info, "usability": _ref(root, out_dir / f"{c}.usability.json"),
+                             "usability_text": _ref(root, out_dir / f"{c}.usability.txt"),
+                             "nnapi": {k: rep["nnapi"][k] for k in ("partitions", "supported_pct", "suitability",
+                                                                     "partition_sizes", "unsupported_ops")},
+                             "coreml_mlprogram": {k: rep["coreml_mlprogram"][k] for k in
+                                                  ("partitions", "supported_pct", "suitability")},
+                             "flags": rep["flags"], "providers": providers, "provider_notes": why}
+                    if "Runtime" in paths:
+                        entry["runtime_opt"] = {**_ref(root, paths["Runtime"]),
+                                                "session_config": {"session.enable_saved_runtime_optimizations": "1"},
+                                                "use_for": ["NNAPI", "QNN"]}
+                    info.update(entry)
+                    all_ort += [f"{role}/{vname}/{p.name}" for p in paths.values()]
+                    summary["usability"].append({"role": role, "variant": vname, "component": c,
+                                                 "nnapi_partitions": rep["nnapi"]["partitions"],
+                                                 "nnapi_supported_pct": rep["nnapi"]["supported_pct"],
+                                                 "nnapi_suitability": rep["nnapi"]["suitability"],
+                                                 "coreml_mlprogram_partitions": rep["coreml_mlprogram"]["partitions"],
+                                                 "flags": [f.split(":")[0] for f in rep["flags"]],
+                                                 "providers": providers})
+                # the .ort files are recorded directly (they already sit in out_dir)
+                comps_meta = {c: {"file": d["file"].relative_to(root).as_posix(), "format": "ort"}
+                              for c, d in components.items()}
+                notes = (f"ONNX Runtime Mobile ({ort.__version__}) .ort of {v}; fixed shapes per component in "
+                         f"android.components.*.fixed_shapes; use *.with_runtime_opt.ort with NNAPI/QNN")
+                B.add_variant(root, role, vname, comps_meta, role_meta={}, precision=v, target="android",
+                              parity=parity, notes=notes,
+                              extra={"android": {"source_variant": v if v in variants else f"{v} (derived from fp32)",
+                                                 "ort_styles": list(conf.styles),
+                                                 "target_platform": conf.target_platform,
+                                                 "components": comp_info}})
+                role_sum[vname] = {"components": {c: {"fixed_shapes": comp_info[c]["fixed_shapes"],
+                                                      "dynamic_left": comp_info[c]["dynamic_left"],
+                                                      "nnapi_partitions": comp_info[c]["nnapi"]["partitions"],
+                                                      "flags": comp_info[c]["flags"],
+                                                      "providers": comp_info[c]["providers"],
+                                                      "parity": _parity_brief(parity[c])}
+                                                  for c in comps}}
+        m = B.read_manifest(root)
+        rm = m["roles"][role]
+        rm["android"] = {"variants": sorted(role_sum), "skipped": skipped}
+        B.write_manifest(root, m)
+        summary["roles"][role] = {"variants": role_sum, "skipped": skipped}
+    cfg_path = write_operator_config(root / OPS_CONFIG, merged, sorted(set(all_ort)))
+    cmd = build_command("$BUNDLE/" + OPS_CONFIG)
+    m = B.read_manifest(root)
+    m["android"] = {"onnxruntime_version": ort.__version__, "required_operators": _ref(root, cfg_path),
+                    "build_command": cmd, "usability_summary": summary["usability"],
+                    "nnapi_max_partitions": conf.nnapi_max_partitions, "not_checked": NOT_CHECKED,
+                    "phone_runs": PHONE_RUNS}
+    B.write_manifest(root, m)
+    summary.update({"required_operators": str(cfg_path), "build_command": cmd, "not_checked": NOT_CHECKED})
+    return summary
+
+
+def ort_session(path: str | Path, *, runtime_opt: bool = False, threads: int = 1):
+    """CPU session for an .ort/.onnx file; runtime_opt=True replays the optimisations saved in a
+    `*.with_runtime_opt.ort` file (without it that file runs un-fused: QDQ groups stay float-emulated)."""
+    import onnxruntime as ort
+
+    so = ort.SessionOptions()
+    so.intra_op_num_threads = threads
+    so.inter_op_num_threads = 1
+    so.log_severity_level = 3
+    if runtime_opt:
+        so.add_session_config_entry("session.enable_saved_runtime_optimizations", "1")
+    return ort.InferenceSession(str(path), so, providers=["CPUExecutionProvider"])
+
+
+def ort_parity(ort_path: str | Path, onnx_path: str | Path, make_inputs: Callable[[np.random.Generator], dict], *,
+               runtime_opt: bool = False, trials: int = 2, rel_tol: float = 1e-4, cos_min: float = 0.99999,
+               seed: int | None = None, label: str = "") -> dict[str, Any]:
+    """Parity of a converted .ort file against the .onnx it came from (same precision) on fresh random inputs.
+
+    The conversion only re-serialises and pre-optimises the graph, so the tolerance is tight (ORT_PARITY_TOL).
+    Returns the same fields as export/common.py `parity_check`; raises ExportError when it fails."""
+    import os
+
+    seed = int.from_bytes(os.urandom(4), "little") if seed is None else seed
+    rng = np.random.default_rng(seed)
+    got_s, ref_s = ort_session(ort_path, runtime_opt=runtime_opt), ort_session(onnx_path)
+    per: list[list[dict]] = []
+    for _ in range(trials):
+        feeds = make_inputs(rng)
+        per.append(C.compare_outputs(C.ort_run(ref_s, feeds), C.ort_run(got_s, feeds)))
+    worst = {"rel": max(o["rel"] for t in per for o in t), "cosine": min(o["cosine"] for t in per for o in t),
+             "max_abs": max(o["max_abs"] for t in per for o in t)}
+    ok = worst["rel"] <= rel_tol and worst["cosine"] >= cos_min
+    C.progress(f"parity {label or Path(ort_path).name}: rel={worst['rel']:.2e} cos={worst['cosine']:.6f} -> "
+               f"{'ok' if ok else 'FAIL'}")
+    if not ok:
+        raise ExportError(f"{ort_path}: .ort output differs from its source graph {Path(onnx_path).name} "
+                          f"(rel {worst['rel']:.3g} > {rel_tol} or cosine {worst['cosine']:.5f} < {cos_min}); "
+                          f"the conversion is broken for this graph")
+    return {"ok": True, "reference": "source .onnx (same precision)", "trials": trials, "seed": seed,
+            "inputs": "fresh random", "runtime_opt_replayed": runtime_opt,
+            "tolerance": {"rel": rel_tol, "cosine_min": cos_min}, "worst": worst, "outputs": per[-1]}
+
+
+def _parity_brief(par: dict[str, Any]) -> Any:
+    if "skipped" in par:
+        return par
+    return {s: {"ok": p["ok"], "rel": p["worst"]["rel"], "cosine": p["worst"]["cosine"]} for s, p in par.items()}
+
+
+def _copy(src: Path, dst: Path) -> Path:
+    shutil.copyfile(src, dst)
+    return dst
+
+
+def _fixed_copy(p: Path, cmeta: dict, rmeta: dict, c: str, conf: AndroidConfig, tmp: Path, tag: str) -> Path:
+    shapes, left = fixed_shape_plan(cmeta["inputs"], rmeta, c, conf)
+    if left:
+        raise ExportError(f"{p}: cannot derive fp16 parity inputs, dynamic axes left: {left}")
+    dst = tmp / f"{tag}.{c}.onnx"
+    return make_fixed(p, dst, shapes) if shapes else _copy(p, dst)
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# CLI (hooked into `mosaic export --target android` by export/cli.py)
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    g = parser.add_argument_group("android target")
+    g.add_argument("--android-precisions", default=",".join(SOURCE_PRECISIONS),
+                   help="source variants to convert to .ort (default: fp32,fp16,int8-qdq)")
+    g.add_argument("--android-roles", default=None, help="comma-separated roles (default: all in the bundle)")
+    g.add_argument("--fix", action="append", default=[], metavar="DIM=VALUE",
+                   help="fix a named dynamic axis (repeatable), e.g. --fix num_points=5")
+    g.add_argument("--nnapi-max-partitions", type=int, default=2)
+    g.add_argument("--no-derive-fp16", action="store_true", help="do not make fp16 from fp32 when missing")
+
+
+def config_from_args(args: argparse.Namespace) -> AndroidConfig:
+    over = {}
+    for item in getattr(args, "fix", []) or []:
+        if "=" not in item:
+            raise ExportError(f"--fix {item!r}: expected DIM=VALUE")
+        k, v = item.split("=", 1)
+        try:
+            over[k.strip()] = int(v)
+        except ValueError as e:
+            raise ExportError(f"--fix {item!r}: VALUE must be an integer") from e
+        if over[k.strip()] <= 0:
+            raise ExportError(f"--fix {item!r}: VALUE must be > 0")
+    precs = tuple(p.strip() for p in getattr(args, "android_precisions", ",".join(SOURCE_PRECISIONS)).split(",") if p.strip())
+    bad = [p for p in precs if p not in SOURCE_PRECISIONS]
+    if bad:
+        raise ExportError(f"--android-precisions: unknown {bad} (use {', '.join(SOURCE_PRECISIONS)})")
+    roles = getattr(args, "android_roles", None)
+    return AndroidConfig(precisions=precs, overrides=over, make_fp16=not getattr(args, "no_derive_fp16", False),
+                         nnapi_max_partitions=int(getattr(args, "nnapi_max_partitions", 2)),
+                         roles=tuple(r.strip() for r in roles.split(",")) if roles else None)
+
+
+def run(args: argparse.Namespace) -> dict[str, Any]:
+    bundle = getattr(args, "out", None) or getattr(args, "bundle", None)
+    if not bundle:
+        raise ExportError("--target android needs the bundle folder (--out DIR or --bundle DIR)")
+    res = export_android(bundle, config_from_args(args))
+    return {"schema": "mosaicthinker.export.android/1", "bundle": str(bundle), **res}
+
+
+def render(result: dict[str, Any]) -> str:
+    lines = [f"android artifacts in {result['bundle']}"]
+    for role, r in result["roles"].items():
+        for v, vm in r["variants"].items():
+            for c, cm in vm["components"].items():
+                par = cm["parity"]
+                ptxt = ", ".join(f"{s} rel={p['rel']:.1e}" for s, p in par.items()) if "skipped" not in par \
+                    else par["skipped"]
+                lines.append(f"  {role}/{v}/{c}: NNAPI partitions={cm['nnapi_partitions']} "
+                             f"providers={'>'.join(cm['providers'])} parity[{ptxt}]"
+                             + (f" FLAGS: {'; '.join(f.split(':')[0] for f in cm['flags'])}" if cm["flags"] else ""))
+        for v, why in r["skipped"].items():
+            lines.append(f"  {role}/{v}: skipped ({why})")
+    lines.append(f"required operators: {result['required_operators']}")
+    lines.append(f"reduced build: {result['build_command']}")
+    lines.append(result["not_checked"])
+    return "\n".join(lines)

@@ -1,0 +1,320 @@
+"""Depth-Anything-V2 export (relative and metric-indoor), plus the HF export driver shared by export/hf_*.py.
+
+The driver (`GraphSpec`, `export_variants`) turns thin torch wrappers into bundle variants with the helpers of
+export/common.py: fp32 export + parity against torch, fp16 from a `.half()` copy, int8-dynamic and int8-qdq
+from the fp32 graph; every quantised/half component is checked against the fp32 graph on fresh random inputs
+and, when it fails, the component stays at fp32 inside that variant and the choice is recorded in the
+manifest (`components.<c>.precision` + `fallback_reason`, and the variant's `notes`).
+
+Depth-Anything-V2 graph: `pixel_values [B, 3, S, S] float32` (ImageNet mean/std, RGB, S a multiple of 14) ->
+`depth [B, S, S] float32`: relative inverse depth (disparity-like, larger = nearer) for the relative
+checkpoints, metres for the metric ones (sigmoid * max_depth).
+"""
+from __future__ import annotations
+
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+import numpy as np
+
+from mosaicthinker.runtime.errors import ExportError
+
+from . import common as C
+
+IMAGENET_MEAN = [0.485, 0.456, 0.406]
+IMAGENET_STD = [0.229, 0.224, 0.225]
+CLIP_MEAN = [0.48145466, 0.4578275, 0.40821073]
+CLIP_STD = [0.26862954, 0.26130258, 0.27577711]
+
+
+# ------------------------------------------------------------------------------------------------------------
+# Source loading (shared by the hf_* exporters)
+
+def load_source(source: str, role: str, hf_class: Any, *, tiny_kwargs: dict | None = None) -> tuple[Any, dict]:
+    """The torch model for `hf:ID[@REV]`, `dir:PATH`, `tiny` or `tiny:ARCH`, and its provenance.
+
+    hf_class: the transformers class to call `from_pretrained` on (real checkpoints; needs the hub or a local
+    folder). Returns (model in eval mode, {"source", "arch"?, "random_weights"}).
+    """
+    from . import tiny
+
+    if source == "tiny" or source.startswith("tiny:"):
+        arch = tiny.resolve(role, source)
+        return tiny.build(arch, **(tiny_kwargs or {})), {"source": f"tiny:{arch}", "arch": arch,
+                                                       "random_weights": True, "seed": tiny.SEED}
+    if source.startswith("hf:"):
+        ident, _, rev = source[3:].partition("@")
+        kw = {"revision": rev} if rev else {}
+    elif source.startswith("dir:"):
+        ident, kw = source[4:], {}
+        if not Path(ident).is_dir():
+            raise ExportError(f"--source {source}: folder {ident} does not exist")
+    else:
+        raise ExportError(f"--source {source}: expected hf:ID, dir:PATH, tiny or tiny:ARCH for the {role} role")
+    try:
+        model = hf_class.from_pretrained(ident, **kw)
+    except Exception as e:  # noqa: BLE001  (hub/network/format errors all end here)
+        raise ExportError(f"--source {source}: could not load {hf_class.__name__} ({type(e).__name__}: "
+                          f"{str(e)[:300]}); model hubs need network access, else pass dir:PATH of a local "
+                          f"checkpoint") from e
+    model.eval()
+    return model, {"source": source, "random_weights": False}
+
+
+# ------------------------------------------------------------------------------------------------------------
+# The export driver
+
+@dataclass
+class GraphSpec:
+    """One component graph of a role.
+
+    module: a thin torch wrapper with plain-tensor I/O (fp32, eval); example: export example args (use sizes
+    >= 2 on dynamic axes: torch.export specialises 0/1); make_inputs(rng) -> fresh feeds for parity (new values
+    and, on dynamic axes, new sizes); calibration(): feeds for int8-qdq (defaults to make_inputs draws);
+    quantize: False keeps this component at fp32 in int8 variants (e.g. graphs of integer index logic);
+    parity_outputs: output indices compared (default all); tol: {precision: (rel, cos)} overrides.
+    """
+
+    name: str
+    module: Any
+    example: tuple
+    input_names: list[str]
+    output_names: list[str]
+    make_inputs: Callable[[np.random.Generator], dict[str, np.ndarray]]
+    dynamic_shapes: Any = None
+    calibration: Callable[[], list[dict[str, np.ndarray]]] | None = None
+    quantize: bool = True
+    half: bool = True
+    parity_outputs: Sequence[int] | None = None
+    tol: dict[str, tuple[float, float]] = field(default_factory=dict)
+    meta: dict[str, Any] = field(default_factory=dict)
+
+
+class _Half:
+    """Wraps a module into an fp16 copy whose graph I/O stays fp32 (the runtime always feeds fp32)."""
+
+    def __new__(cls, module: Any):
+        import copy
+
+        import torch
+
+        class HalfWrapper(torch.nn.Module):
+            def __init__(self, m: Any):
+                super().__init__()
+                self.m = copy.deepcopy(m).half()
+
+            def forward(self, *args):
+                args = [a.half() if a.is_floating_point() else a for a in args]
+                out = self.m(*args)
+                out = out if isinstance(out, (tuple, list)) else (out,)
+                return tuple(o.float() if o.is_floating_point() else o for o in out)
+
+        return HalfWrapper(module).eval()
+
+
+def torch_reference(module: Any, input_names: Sequence[str]) -> Callable[[dict], list[np.ndarray]]:
+    """feeds -> list of numpy outputs of the torch module (the fp32 parity reference)."""
+    import torch
+
+    def run(feeds: dict[str, np.ndarray]) -> list[np.ndarray]:
+        with torch.no_grad():
+            out = module(*[torch.from_numpy(np.ascontiguousarray(feeds[n])) for n in input_names])
+        out = out if isinstance(out, (tuple, list)) else (out,)
+        return [o.detach().float().numpy() if o.is_floating_point() else o.detach().numpy() for o in out]
+
+    return run
+
+
+def export_variants(out: str | Path, role: str, graphs: list[GraphSpec], meta: dict[str, Any],
+                    precisions: Sequence[str], *, workdir: str | Path | None = None,
+                    task_check: Callable[[dict[str, Path]], dict[str, Any]] | None = None) -> dict[str, Any]:
+    """Export `graphs` at each precision and add the variants to the bundle at `out`.
+
+    precisions: variant names (`common.parse_precisions` output; fp32 always first). task_check(files) ->
+    {"ok": bool, ...} runs on a whole variant's component files when given (e.g. VLM token agreement); a
+    failing fp32 task check fails the export, a failing lower-precision one skips that variant.
+    Returns {"variants": {variant: {"components": {c: precision}, "parity": ..., "task": ...}}, "skipped": {...}}.
+    """
+    precisions = list(precisions)
+    if "fp32" not in precisions:
+        precisions.insert(0, "fp32")
+    tmp_ctx = tempfile.TemporaryDirectory(prefix=f"mosaic-export-{role}-") if workdir is None else None
+    work = Path(tmp_ctx.name if tmp_ctx else workdir)
+    report: dict[str, Any] = {"variants": {}, "skipped": {}}
+    try:
+        fp32: dict[str, Path] = {}
+        par32: dict[str, Any] = {}
+        for g in graphs:
+            p = C.export_torch(g.module, g.example, work / "fp32" / f"{g.name}.onnx", g.input_names, g.output_names,
+                               dynamic_shapes=g.dynamic_shapes)
+            rel, cos = g.tol.get("fp32", (None, None))
+            par32[g.name] = C.parity_check(p, torch_reference(g.module, g.input_names), g.make_inputs,
+                                           precision="fp32", outputs=g.parity_outputs, rel_tol=rel, cos_min=cos,
+                                           label=f"{role}/{g.name} vs torch")
+            fp32[g.name] = p
+            par32[g.name]["reference_std"] = _reference_spread(g)
+        task = task_check(fp32) if task_check else None
+        if task is not None and not task.get("ok"):
+            raise ExportError(f"{role}: fp32 task check failed: {task}")
+        cmeta = {g.name: {**g.meta, "precision": "fp32"} for g in graphs}
+        C.add_variant_files(out, role, "fp32", fp32, meta=meta, precision="fp32", parity=par32,
+                            component_meta=cmeta, default=True, extra={"task_check": task} if task else None)
+        report["variants"]["fp32"] = {"components": {g.name: "fp32" for g in graphs}, "parity": par32, "task": task}
+
+        for variant in precisions:
+            if variant == "fp32":
+                continue
+            files, parity, cmeta, fell_back = {}, {}, {}, []
+            for g in graphs:
+                res = _lower_precision(g, variant, fp32[g.name], work)
+                if res["ok"]:
+                    files[g.name] = res["path"]
+                    cmeta[g.name] = {**g.meta, "precision": variant}
+                else:
+                    files[g.name] = fp32[g.name]
+                    cmeta[g.name] = {**g.meta, "precision": "fp32", "fallback_reason": res["reason"]}
+                    fell_back.append(f"{g.name}: {res['reason']}")
+                    C.progress(f"{role}/{variant}/{g.name}: kept at fp32 ({res['reason']})")
+                parity[g.name] = res.get("parity")
+            if len(fell_back) == len(graphs):
+                reason = "; ".join(fell_back)
+                C.record_skipped_variant(out, role, variant, f"every component failed: {reason}")
+                report["skipped"][variant] = reason
+                continue
+            task = task_check(files) if task_check else None
+            if task is not None and not task.get("ok"):
+                C.record_skipped_variant(out, role, variant, f"task check failed: {task}")
+                report["skipped"][variant] = f"task check failed: {task}"
+                continue
+            notes = ("components kept at fp32 because their parity failed: " + "; ".join(fell_back)) if fell_back else None
+            extra = {"task_check": task} if task else None
+            C.add_variant_files(out, role, variant, files, meta=meta, precision=variant,
+                                target="accelerator" if variant == "int8-qdq" else "cpu", parity=parity,
+                                notes=notes, component_meta=cmeta, extra=extra)
+            report["variants"][variant] = {"components": {c: m["precision"] for c, m in cmeta.items()},
+                                           "parity": parity, "task": task}
+    finally:
+        if tmp_ctx is not None:
+            tmp_ctx.cleanup()
+    return report
+
+
+def _reference_spread(g: GraphSpec) -> list[float]:
+    """Std of each float reference output on one fresh input: a constant output (e.g. a random net whose
+    ReLU head is all zero) would make any parity figure vacuous, so it fails the export."""
+    outs = torch_reference(g.module, g.input_names)(g.make_inputs(np.random.default_rng(7)))
+    idx = g.parity_outputs if g.parity_outputs is not None else range(len(outs))
+    spread = [float(np.std(outs[i])) for i in idx if np.issubdtype(outs[i].dtype, np.floating) and outs[i].size > 1]
+    if spread and max(spread) == 0.0:
+        raise ExportError(f"{g.name}: every float output is constant on random inputs; the parity check would "
+                          f"be vacuous (a random-weight model with a dead head?)")
+    return spread
+
+
+def _lower_precision(g: GraphSpec, variant: str, fp32_path: Path, work: Path) -> dict[str, Any]:
+    """One component at fp16 / int8-*: converted, then checked against the fp32 graph on fresh inputs."""
+    dst = work / variant / f"{g.name}.onnx"
+    dst.parent.mkdir(parents=True, exist_ok=True)
+    rel, cos = g.tol.get(variant, (None, None))
+    if variant == "fp16":
+        if not g.half:
+            return {"ok": False, "reason": "fp16 disabled for this component (numerically unsafe in half)"}
+        try:
+            # the half wrapper takes *args: name-keyed dynamic shapes become one positional tuple
+            ds = g.dynamic_shapes
+            if isinstance(ds, dict):
+                ds = (tuple(ds.get(n) for n in g.input_names),)
+            C.export_torch(_Half(g.module), g.example, dst, g.input_names, g.output_names, dynamic_shapes=ds)
+        except ExportError as e:
+            return {"ok": False, "reason": f".half() export failed: {str(e)[:200]}"}
+        ref = C.ort_session(fp32_path)
+        par = C.parity_check(dst, lambda feeds: C.ort_run(ref, feeds), g.make_inputs, precision="fp16",
+                             outputs=g.parity_outputs, rel_tol=rel, cos_min=cos, require=False,
+                             label=f"{g.name} fp16 vs fp32")
+        if par["ok"]:
+            return {"ok": True, "path": dst, "parity": par}
+        return {"ok": False, "parity": par, "reason": f"fp16 parity vs fp32 failed: rel {par['worst']['rel']:.3g}, "
+                                                      f"cosine {par['worst']['cosine']:.4f}"}
+    if not g.quantize:
+        return {"ok": False, "reason": "int8 disabled for this component (integer/index logic or tiny graph)"}
+    calib = g.calibration() if (variant == "int8-qdq" and g.calibration) else (
+        [g.make_inputs(np.random.default_rng(1000 + i)) for i in range(8)] if variant == "int8-qdq" else ())
+    res = C.quantize_variant(fp32_path, dst, variant, make_inputs=g.make_inputs, calibration=calib,
+                             outputs=g.parity_outputs, rel_tol=rel, cos_min=cos)
+    return res
+
+
+# ------------------------------------------------------------------------------------------------------------
+# Depth-Anything-V2
+
+HF_DEFAULTS = {"relative": "depth-anything/Depth-Anything-V2-Small-hf",
+               "metric-indoor": "depth-anything/Depth-Anything-V2-Metric-Indoor-Small-hf"}
+
+
+def depth_wrapper(model: Any):
+    import torch
+
+    class DepthAnythingGraph(torch.nn.Module):
+        """pixel_values [B, 3, S, S] -> depth [B, S, S] (the DPT head's output at input resolution)."""
+
+        def __init__(self, m: Any):
+            super().__init__()
+            self.m = m
+
+        def forward(self, pixel_values):
+            return self.m(pixel_values=pixel_values).predicted_depth
+
+    return DepthAnythingGraph(model).eval()
+
+
+def export_depth(source: str, out: str | Path, precisions: Sequence[str], *, size: int | None = None,
+                 calibration_frames: list[np.ndarray] | None = None, **_: Any) -> dict[str, Any]:
+    """Add the depth role (Depth-Anything-V2) to the bundle at `out`. size: input side (multiple of 14;
+    default 518 for real checkpoints, the tiny config's 70 for tiny models)."""
+    import torch
+    from transformers import DepthAnythingForDepthEstimation
+
+    model, prov = load_source(source, "depth", DepthAnythingForDepthEstimation)
+    metric = model.config.depth_estimation_type == "metric"
+    size = size or (70 if prov["random_weights"] else 518)
+    if size % 14:
+        raise ExportError(f"--size {size}: Depth-Anything-V2 needs a multiple of the patch size 14")
+    w = depth_wrapper(model)
+    B = torch.export.Dim("batch", min=1, max=16)
+
+    def make_inputs(rng: np.random.Generator) -> dict[str, np.ndarray]:
+        return {"pixel_values": rng.standard_normal((int(rng.integers(1, 4)), 3, size, size)).astype(np.float32)}
+
+    pre = {"size": [size, size], "layout": "NCHW", "channel_order": "RGB", "dtype": "float32", "scale": 1 / 255,
+           "mean": IMAGENET_MEAN, "std": IMAGENET_STD, "resize": "bilinear", "keep_aspect": False}
+    g = GraphSpec("model", w, (torch.randn(2, 3, size, size),), ["pixel_values"], ["depth"], make_inputs,
+                  dynamic_shapes={"pixel_values": {0: B}},
+                  calibration=_image_calibration(calibration_frames, pre, "pixel_values"))
+    arch = "depth-anything-v2-metric-indoor" if metric else "depth-anything-v2"
+    sem = {"depth": "metric_m", "max_depth_m": float(model.config.max_depth)} if metric else {"depth": "relative_inverse"}
+    meta = C.role_meta(arch, preprocessing=pre, semantics=sem, provenance=prov, licence="Apache-2.0",
+                       random_weights=prov["random_weights"],
+                       config={"output": 0})
+    return export_variants(out, "depth", [g], meta, precisions)
+
+
+def preprocess_nchw(rgb: np.ndarray, pre: dict[str, Any]) -> np.ndarray:
+    """rgb [H, W, 3] uint8 -> [1, 3, S, S] float32 per the manifest preprocessing (export-side calibration)."""
+    import cv2
+
+    h, w = pre["size"]
+    x = cv2.resize(rgb, (w, h), interpolation=cv2.INTER_LINEAR)
+    x = x.astype(np.float32) * float(pre.get("scale", 1 / 255))
+    if "mean" in pre:
+        x = (x - np.asarray(pre["mean"], np.float32)) / np.asarray(pre["std"], np.float32)
+    return np.ascontiguousarray(x.transpose(2, 0, 1)[None])
+
+
+def _image_calibration(frames: list[np.ndarray] | None, pre: dict[str, Any],
+                       name: str) -> Callable[[], list[dict[str, np.ndarray]]] | None:
+    """int8-qdq calibration feeds from real frames (None -> the driver's random draws)."""
+    if not frames:
+        return None
+    return lambda: [{name: preprocess_nchw(f, pre)} for f in frames]

@@ -1,0 +1,305 @@
+"""`mosaic export --target jetson`: TensorRT settings for every role of a bundle (Jetson Orin, JetPack 6).
+
+Nothing is converted here: TensorRT cannot be installed on the export machine, and an engine is specific to the
+GPU, TensorRT version and JetPack it is built on. Instead, per role, variant (fp32, fp16, int8-qdq) and
+component this step writes into the manifest (RESERVED `jetson` fields of runtime/bundle.py):
+
+- the onnxruntime **TensorRT execution provider options**: engine cache + timing cache under the container's
+  cache folder, EP-context model dump (`trt_dump_ep_context_model`: the first run on the Jetson builds the
+  engine and writes `<component>_ctx.onnx` pointing at it; later sessions load that and skip the build),
+  `trt_fp16_enable` for fp16, `trt_int8_enable` for the QDQ variant (explicit quantisation from the Q/DQ nodes;
+  no calibration table: TensorRT's implicit calibration is deprecated since TensorRT 10),
+  and the **optimisation-profile shapes** (`trt_profile_min_shapes` / `opt` / `max`) for every dynamic axis of
+  the manifest's inputs;
+- the provider chain TensorRT -> CUDA -> CPU (the Jetson profiles' `providers`), as `[name, options]` pairs that
+  `runtime/providers.py create_session(preference=...)` takes as is;
+- the equivalent **`trtexec`** command line (build a standalone engine, same shapes and precision), collected
+  into `jetson/build_engines.sh` in the bundle.
+
+Axis ranges (min/opt/max) come from rules on the axis name and the role's manifest entry: batch -> 1..max_batch,
+image axes -> the preprocessing size (fixed), text tokens -> text_range, prompt points -> points_range, KV-cache
+past length -> past_range, decoder new tokens -> seq_range, keypoints -> the role's top-K (fixed). An axis no rule
+covers is an ExportError naming it (`--axis NAME=MIN:OPT:MAX` sets it) rather than a guess: TensorRT requires
+a profile for every dynamic input once any is given.
+"""
+from __future__ import annotations
+
+import argparse
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Sequence
+
+from mosaicthinker.runtime import bundle as B
+from mosaicthinker.runtime.errors import ExportError
+
+from .android import _image_axes  # the same image-axis rule as the Android step (one home)
+
+SOURCE_PRECISIONS = ("fp32", "fp16", "int8-qdq")
+SCRIPT = "jetson/build_engines.sh"
+NOT_RUN = ("TensorRT is not installed on the export machine: no engine was built and no TensorRT run was made "
+           "here. The provider options, profile shapes and trtexec lines are generated and checked for form "
+           "only; the engines are built on the Jetson on first run (or with jetson/build_engines.sh).")
+
+_BATCH = re.compile(r"batch|^b$|^n$|^bs$", re.I)
+_PAST = re.compile(r"past|cache|kv", re.I)
+_TOTAL = re.compile(r"total|attention_mask|mask_len", re.I)
+_SEQ = re.compile(r"seq|token|length|len$", re.I)
+_POINTS = re.compile(r"point|prompt|box|quer", re.I)
+_KEYPOINTS = re.compile(r"keypoint|kpt|top_?k", re.I)
+
+
+@dataclass
+class JetsonConfig:
+    """Options of the Jetson step. Ranges are (min, opt, max)."""
+
+    precisions: tuple[str, ...] = SOURCE_PRECISIONS
+    cache_dir: str = "/cache/trt"            # inside the container (jetson/run.sh mounts a host folder there)
+    bundle_dir: str = "/bundle"              # where jetson/run.sh mounts the bundle
+    workspace_mb: int = 2048
+    max_batch: int = 1
+    text_range: tuple[int, int, int] = (1, 16, 32)
+    points_range: tuple[int, int, int] = (1, 4, 16)
+    past_range: tuple[int, int, int] = (1, 128, 1024)
+    seq_range: tuple[int, int, int] = (1, 1, 256)
+    builder_optimization_level: int = 3
+    dla_core: int | None = None              # Orin AGX/NX have DLA cores; None = GPU only
+    roles: tuple[str, ...] | None = None
+    overrides: dict[str, tuple[int, int, int]] = field(default_factory=dict)  # axis name -> (min, opt, max)
+
+
+def axis_range(name: str, inp: dict[str, Any], ax: int, role_meta: dict[str, Any],
+               conf: JetsonConfig) -> tuple[int, int, int]:
+    """(min, opt, max) for one dynamic axis of one input (see the module docstring for the rules)."""
+    cfg = role_meta.get("config") or {}
+    iname = inp["name"]
+    if name in conf.overrides:
+        return tuple(int(v) for v in conf.overrides[name])  # type: ignore[return-value]
+    img = _image_axes(inp, role_meta.get("preprocessing") or {}) if inp.get("dtype") in (
+        "float32", "float16", "uint8") else {}
+    if ax == 0 and (_BATCH.search(name) or name in ("d0",)):
+        return (1, 1, conf.max_batch)
+    if ax in img:
+        return (img[ax],) * 3  # type: ignore[return-value]
+    if _PAST.search(name) or _PAST.search(iname):
+        return conf.past_range
+    if _TOTAL.search(name) or "attention_mask" in iname:
+        # total = past + new tokens
+        return (conf.past_range[0] + conf.seq_range[0], conf.past_range[1] + conf.seq_range[1],
+                conf.past_range[2] + conf.seq_range[2])
+    if _KEYPOINTS.search(name) and (cfg.get("top_k") or cfg.get("max_keypoints")):
+        k = int(cfg.get("top_k") or cfg.get("max_keypoints"))
+        return (k, k, k)
+    if _POINTS.search(name) or _POINTS.search(iname):
+        return conf.points_range
+    if "input_ids" in iname or "position" in iname or _SEQ.search(name):
+        return conf.seq_range if role_meta.get("arch", "").endswith("vlm") or "vlm" in str(
+            role_meta.get("arch", "")) else conf.text_range
+    raise ExportError(f"input {iname!r} axis {ax} ({name!r}): no rule gives its TensorRT profile range; pass "
+                      f"--axis {name}=MIN:OPT:MAX")
+
+
+def profile_shapes(inputs: Sequence[dict[str, Any]], role_meta: dict[str, Any],
+                   conf: JetsonConfig) -> dict[str, dict[str, list[int]]]:
+    """{"min"|"opt"|"max": {input: shape}} for every input with a dynamic axis (empty when all are static).
+
+    inputs: manifest input entries ({name, shape, dynamic_axes: {axis: name}}). Axes sharing a symbolic name
+    get the same range (they must agree at run time)."""
+    out: dict[str, dict[str, list[int]]] = {"min": {}, "opt": {}, "max": {}}
+    for inp in inputs:
+        dyn = {int(a): str(n) for a, n in (inp.get("dynamic_axes") or {}).items()}
+        if not dyn:
+            continue
+        shp = {k: [int(s) for s in inp["shape"]] for k in out}
+        for ax, name in dyn.items():
+            lo, opt, hi = axis_range(name, inp, ax, role_meta, conf)
+            if not (1 <= lo <= opt <= hi):
+                raise ExportError(f"input {inp['name']!r} axis {ax} ({name}): range {lo}:{opt}:{hi} must satisfy "
+                                  f"1 <= min <= opt <= max")
+            shp["min"][ax], shp["opt"][ax], shp["max"][ax] = lo, opt, hi
+        for k in out:
+            if any(s <= 0 for s in shp[k]):
+                raise ExportError(f"input {inp['name']!r}: shape {inp['shape']} has an unknown axis that is not "
+                                  f"listed in dynamic_axes {dyn}")
+            out[k][inp["name"]] = shp[k]
+    return out
+
+
+def shape_string(shapes: dict[str, list[int]]) -> str:
+    """{"x": [1, 3, 8, 8], "m": [1, 4]} -> 'x:1x3x8x8,m:1x4' (the format of trt_profile_*_shapes and trtexec)."""
+    for n in shapes:
+        if re.search(r"[,:\s]", n):
+            raise ExportError(f"input name {n!r} contains ',', ':' or whitespace, which the TensorRT shape string "
+                              f"cannot express; rename the graph input")
+    return ",".join(f"{n}:{'x'.join(str(int(d)) for d in s)}" for n, s in shapes.items())
+
+
+def trt_provider_options(role: str, variant: str, component: str, precision: str,
+                         profile: dict[str, dict[str, list[int]]], conf: JetsonConfig) -> dict[str, Any]:
+    """TensorrtExecutionProvider options for one component (keys as onnxruntime documents them)."""
+    cache = f"{conf.cache_dir}/{role}/{variant}"
+    opts: dict[str, Any] = {
+        "device_id": 0,
+        "trt_max_workspace_size": int(conf.workspace_mb) * 1024 * 1024,
+        "trt_fp16_enable": precision in ("fp16", "int8-qdq"),  # QDQ: unquantised layers in fp16
+        "trt_int8_enable": precision == "int8-qdq",
+        "trt_engine_cache_enable": True,
+        "trt_engine_cache_path": cache,
+        "trt_engine_cache_prefix": component,
+        "trt_timing_cache_enable": True,
+        "trt_timing_cache_path": conf.cache_dir,
+        "trt_dump_ep_context_model": True,
+        "trt_ep_context_file_path": f"{cache}/{component}_ctx.onnx",
+        "trt_ep_context_embed_mode": 0,
+        "trt_builder_optimization_level": int(conf.builder_optimization_level),
+    }
+    if precision == "int8-qdq":
+        # explicit quantisation: scales come from the Q/DQ nodes, no calibration table
+        opts["trt_int8_use_native_calibration_table"] = False
+    if conf.dla_core is not None:
+        opts["trt_dla_enable"] = True
+        opts["trt_dla_core"] = int(conf.dla_core)
+    if profile.get("min"):
+        opts["trt_profile_min_shapes"] = shape_string(profile["min"])
+        opts["trt_profile_opt_shapes"] = shape_string(profile["opt"])
+        opts["trt_profile_max_shapes"] = shape_string(profile["max"])
+    return opts
+
+
+def provider_chain(trt_opts: dict[str, Any]) -> list[list[Any]]:
+    """TensorRT -> CUDA -> CPU as [name, options] pairs (runtime/providers.py takes them as a preference)."""
+    return [["TensorrtExecutionProvider", trt_opts],
+            ["CUDAExecutionProvider", {"device_id": 0, "cudnn_conv_algo_search": "HEURISTIC"}],
+            ["CPUExecutionProvider", {}]]
+
+
+def trtexec_command(onnx_rel: str, role: str, variant: str, component: str, precision: str,
+                    profile: dict[str, dict[str, list[int]]], conf: JetsonConfig) -> list[str]:
+    """argv of the equivalent standalone build: `trtexec --onnx=... --saveEngine=...` with the same precision
+    and profile shapes (TensorRT 8.6 / 10.x flags)."""
+    argv = ["trtexec", f"--onnx={conf.bundle_dir}/{onnx_rel}",
+            f"--saveEngine={conf.cache_dir}/{role}/{variant}/{component}.engine",
+            f"--timingCacheFile={conf.cache_dir}/timing.cache",
+            f"--memPoolSize=workspace:{int(conf.workspace_mb)}M",
+            f"--builderOptimizationLevel={int(conf.builder_optimization_level)}"]
+    if precision in ("fp16", "int8-qdq"):
+        argv.append("--fp16")
+    if precision == "int8-qdq":
+        argv.append("--int8")  # with Q/DQ nodes: explicit quantisation, no --calib
+    if profile.get("min"):
+        argv += [f"--minShapes={shape_string(profile['min'])}", f"--optShapes={shape_string(profile['opt'])}",
+                 f"--maxShapes={shape_string(profile['max'])}"]
+    if conf.dla_core is not None:
+        argv += [f"--useDLACore={int(conf.dla_core)}", "--allowGPUFallback"]
+    return argv
+
+
+def script_line(argv: Sequence[str], conf: JetsonConfig) -> str:
+    """One shell line for build_engines.sh: bundle/cache prefixes become $BUNDLE/$CACHE, every argument is
+    double-quoted (so the variables expand and nothing else does)."""
+    out = []
+    for a in argv:
+        a = a.replace(f"{conf.bundle_dir}/", "$BUNDLE/").replace(f"{conf.cache_dir}/", "$CACHE/")
+        if re.search(r'["`\\]', a):
+            raise ExportError(f"trtexec argument {a!r} contains a quote/backquote/backslash")
+        out.append(a if re.fullmatch(r"[\w./=:-]+", a) else f'"{a}"')
+    return " ".join(out)
+
+
+def export_jetson(bundle_dir: str | Path, conf: JetsonConfig | None = None) -> dict[str, Any]:
+    """Record TensorRT provider options, profile shapes and trtexec commands for every role/variant/component
+    of the bundle (ONNX components only) and write jetson/build_engines.sh. Returns a summary."""
+    conf = conf or JetsonConfig()
+    root = Path(bundle_dir)
+    bundle = B.load_bundle(root, verify=True)
+    manifest = bundle.manifest
+    roles = list(conf.roles or bundle.roles)
+    lines = ["#!/usr/bin/env bash",
+             "# Standalone TensorRT engines for this bundle (generated by `mosaic export --target jetson`).",
+             "# Run on the Jetson (inside the container of jetson/Dockerfile): BUNDLE=/bundle CACHE=/cache/trt.",
+             "# NOT run on the export machine (no TensorRT there).", "set -euo pipefail",
+             f'BUNDLE="${{BUNDLE:-{conf.bundle_dir}}}"', f'CACHE="${{CACHE:-{conf.cache_dir}}}"']
+    summary: dict[str, Any] = {"roles": {}}
+    for role in roles:
+        rm = bundle.role_meta(role)
+        role_sum = {}
+        for v in conf.precisions:
+            vm = rm["variants"].get(v)
+            if vm is None:
+                continue
+            comps = {}
+            for c, cm in vm["components"].items():
+                if cm.get("format", "onnx") != "onnx":
+                    continue
+                profile = profile_shapes(cm.get("inputs", []), rm, conf)
+                opts = trt_provider_options(role, v, c, v, profile, conf)
+                argv = trtexec_command(cm["file"], role, v, c, v, profile, conf)
+                comps[c] = {"trt_profile_shapes": profile if profile["min"] else {},
+                            "providers": provider_chain(opts), "trtexec": argv}
+                lines.append(f'mkdir -p "$CACHE/{role}/{v}"')
+                lines.append(script_line(argv, conf))
+            if comps:
+                vm["jetson"] = {"components": comps, "precision": v,
+                                "int8": ("explicit (QDQ nodes), no calibration table" if v == "int8-qdq" else None),
+                                "engine_built_here": False}
+                role_sum[v] = {c: {"profile": d["trt_profile_shapes"], "trtexec": " ".join(d["trtexec"])}
+                               for c, d in comps.items()}
+        rm["jetson"] = {"variants": sorted(role_sum)}
+        summary["roles"][role] = role_sum
+    script = root / SCRIPT
+    script.parent.mkdir(parents=True, exist_ok=True)
+    script.write_text("\n".join(lines) + "\n")
+    script.chmod(0o755)
+    manifest["jetson"] = {"provider_chain": ["TensorrtExecutionProvider", "CUDAExecutionProvider",
+                                             "CPUExecutionProvider"],
+                          "build_engines": {"file": SCRIPT, "sha256": B.sha256_file(script)},
+                          "cache_dir": conf.cache_dir, "bundle_dir": conf.bundle_dir,
+                          "container": "jetson/Dockerfile (repository)", "not_run": NOT_RUN}
+    B.write_manifest(root, manifest)
+    summary.update({"script": str(script), "not_run": NOT_RUN})
+    return summary
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# CLI (hooked into `mosaic export --target jetson` by export/cli.py)
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    g = parser.add_argument_group("jetson target")
+    g.add_argument("--axis", action="append", default=[], metavar="NAME=MIN:OPT:MAX",
+                   help="TensorRT profile range for a named dynamic axis (repeatable)")
+    g.add_argument("--trt-cache", default="/cache/trt", help="engine/timing cache folder on the Jetson")
+    g.add_argument("--trt-workspace-mb", type=int, default=2048)
+    g.add_argument("--dla-core", type=int, default=None, help="build for a DLA core (GPU fallback allowed)")
+    g.add_argument("--jetson-roles", default=None, help="comma-separated roles (default: all)")
+
+
+def config_from_args(args: argparse.Namespace) -> JetsonConfig:
+    over = {}
+    for item in getattr(args, "axis", []) or []:
+        m = re.fullmatch(r"\s*([^=\s]+)\s*=\s*(\d+):(\d+):(\d+)\s*", item)
+        if not m:
+            raise ExportError(f"--axis {item!r}: expected NAME=MIN:OPT:MAX with integers")
+        over[m.group(1)] = (int(m.group(2)), int(m.group(3)), int(m.group(4)))
+    roles = getattr(args, "jetson_roles", None)
+    return JetsonConfig(cache_dir=getattr(args, "trt_cache", "/cache/trt"),
+                        workspace_mb=int(getattr(args, "trt_workspace_mb", 2048)),
+                        dla_core=getattr(args, "dla_core", None), overrides=over,
+                        roles=tuple(r.strip() for r in roles.split(",")) if roles else None)
+
+
+def run(args: argparse.Namespace) -> dict[str, Any]:
+    bundle = getattr(args, "out", None) or getattr(args, "bundle", None)
+    if not bundle:
+        raise ExportError("--target jetson needs the bundle folder (--out DIR or --bundle DIR)")
+    return {"schema": "mosaicthinker.export.jetson/1", "bundle": str(bundle),
+            **export_jetson(bundle, config_from_args(args))}
+
+
+def render(result: dict[str, Any]) -> str:
+    lines = [f"jetson settings written into {result['bundle']}/manifest.json"]
+    for role, vs in result["roles"].items():
+        for v, comps in vs.items():
+            for c, d in comps.items():
+                lines.append(f"  {role}/{v}/{c}: {d['trtexec']}")
+    lines += [f"engine build script: {result['script']}", result["not_run"]]
+    return "\n".join(lines)

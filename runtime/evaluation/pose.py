@@ -1,0 +1,210 @@
+"""Camera-pose accuracy: ATE / RPE, and the `mosaic eval pose` command.
+
+ATE RMSE: camera centres of the estimated poses are aligned to the ground-truth centres by the best rigid
+transform (Umeyama; Sim(3) when depth is not metric), then the RMS of the residual distances.
+RPE: for consecutive evaluated frames (time order), the relative motion estimated vs ground truth; translation
+as RMSE (m, after the ATE alignment's scale), rotation as the mean angle (deg).
+"""
+from __future__ import annotations
+
+import argparse
+import time
+from dataclasses import replace
+from typing import Any, Sequence
+
+import numpy as np
+
+from ..errors import InputError, MosaicError
+from ..geometry import invert, rotation_angle_deg, transform, transform_scale, umeyama
+
+SCHEMA = "mosaicthinker.eval.pose/1"
+
+
+def align_trajectories(est: np.ndarray, gt: np.ndarray, with_scale: bool = False) -> np.ndarray:
+    """Best transform S [4, 4] with gt ≈ S(est). est, gt: [N, 3] camera centres, N >= 3 (N = 2 and 1 handled by
+    translation only)."""
+    est = np.asarray(est, np.float64)
+    gt = np.asarray(gt, np.float64)
+    if len(est) >= 3:
+        return umeyama(est, gt, with_scale)
+    S = np.eye(4)
+    S[:3, 3] = (gt - est).mean(0) if len(est) else 0.0
+    return S
+
+
+def ate_rmse(est_poses: np.ndarray, gt_poses: np.ndarray, with_scale: bool = False) -> tuple[float, np.ndarray]:
+    """est_poses, gt_poses: [N, 4, 4] camera-to-world (est in any frame). Returns (ATE RMSE in m,
+    S [4, 4] taking the estimate into the ground-truth frame)."""
+    P = np.asarray(est_poses)[:, :3, 3]
+    Q = np.asarray(gt_poses)[:, :3, 3]
+    S = align_trajectories(P, Q, with_scale)
+    err = np.linalg.norm(transform(S, P) - Q, axis=1)
+    return float(np.sqrt(np.mean(err**2))) if len(err) else float("nan"), S
+
+
+def rpe(est_poses: np.ndarray, gt_poses: np.ndarray, S: np.ndarray | None = None) -> tuple[float, float]:
+    """Relative pose error between consecutive poses: (translation RMSE m, mean rotation error deg).
+    est, gt: [N, 4, 4] in time order; S: the ATE alignment (its scale fixes the estimate's units)."""
+    est = np.asarray(est_poses, np.float64)
+    gt = np.asarray(gt_poses, np.float64)
+    if len(est) < 2:
+        return float("nan"), float("nan")
+    S = np.eye(4) if S is None else S
+    E = np.einsum("ij,njk->nik", S, est)
+    s = np.array([transform_scale(T) for T in E])
+    E[:, :3, :3] /= s[:, None, None]  # rotation part; translations stay scaled into metres
+    te, re = [], []
+    for i in range(len(E) - 1):
+        d_est = invert(E[i]) @ E[i + 1]
+        d_gt = invert(gt[i]) @ gt[i + 1]
+        err = invert(d_gt) @ d_est
+        te.append(np.linalg.norm(err[:3, 3]))
+        re.append(rotation_angle_deg(err[:3, :3]))
+    return float(np.sqrt(np.mean(np.square(te)))), float(np.mean(re))
+
+
+def pick_frames(n: int, k: int, sampling: str, seed: int = 0) -> list[int]:
+    """K frame indices out of n, in time order: 'uniform' = evenly spaced (first and last included),
+    'random' = a random subset (uneven gaps), seeded."""
+    if k < 2:
+        raise InputError(f"--keyframes must be at least 2, got {k}")
+    if k > n:
+        raise InputError(f"--keyframes {k} is more than the {n} frames in the sequence")
+    if sampling == "uniform":
+        return sorted(set(int(round(x)) for x in np.linspace(0, n - 1, k)))
+    if sampling == "random":
+        return sorted(int(i) for i in np.random.default_rng(seed).choice(n, k, replace=False))
+    raise InputError(f"--sampling must be 'uniform' or 'random', got {sampling!r}")
+
+
+def depth_to_metric_like(pred: np.ndarray, semantics: str) -> tuple[np.ndarray, bool]:
+    """A depth model's output [H, W] -> (z-depth-like [H, W] float32, metric?). 'relative_inverse' (disparity up
+    to scale and shift) is inverted; the shift is unknown, so the result is only approximately proportional to
+    depth and each edge then gets its own Sim(3)."""
+    d = np.asarray(pred, dtype=np.float32)
+    if semantics == "metric_m":
+        return d, True
+    if semantics == "relative":
+        return np.where(d > 0, d, 0).astype(np.float32), False
+    if semantics == "relative_inverse":
+        with np.errstate(divide="ignore"):
+            z = np.where(d > 1e-6 * max(float(d.max()), 1e-12), 1.0 / d, 0.0)
+        return z.astype(np.float32), False
+    raise MosaicError(f"depth model semantics {semantics!r} is not one of metric_m, relative, relative_inverse")
+
+
+def _load_role(bundle: str | None, role: str, trace: Any) -> Any:
+    if not bundle:
+        raise InputError(f"--{role} model needs --bundle DIR (the bundle holding the {role} model)")
+    try:
+        from ..stages import load_role  # lazy: the stage adapters are another part of the runtime
+    except ImportError as e:
+        raise MosaicError(f"--{role} model: the model stages (mosaicthinker.runtime.stages.load_role) are not "
+                          f"available in this build ({e}); use --{role} "
+                          f"{'sensor' if role == 'depth' else 'sift'}") from None
+    return load_role(bundle, role, trace=trace)
+
+
+def evaluate_pose(source: Any, indices: Sequence[int], matcher: Any = "sift", strategy: str = "mst",
+                  depth_model: Any = None, conf: Any = None, trace: Any = None) -> dict[str, Any]:
+    """Align frames `indices` of a source with ground-truth poses and score them. matcher: 'orb' | 'sift' |
+    matcher object (a shared FeatureMatcher keeps its feature cache across calls); depth_model: None (sensor
+    depth) or an adapter with .predict(rgb) and .semantics."""
+    from ..alignment import align_frames
+
+    frames = []
+    with_scale = False
+    t_depth = 0.0
+    for i in indices:
+        f = source[i]
+        if f.pose_gt is None:
+            raise InputError(f"{source.name}: frame {i} has no ground-truth pose (needed for ATE/RPE)")
+        if depth_model is not None:
+            t0 = time.perf_counter()
+            d, metric = depth_to_metric_like(depth_model.predict(f.rgb), getattr(depth_model, "semantics", ""))
+            t_depth += time.perf_counter() - t0
+            with_scale = with_scale or not metric
+            f = replace(f, depth=d)
+        elif f.depth is None:
+            raise InputError(f"{source.name}: frame {i} has no sensor depth; use --depth model")
+        frames.append(f)
+    t0 = time.perf_counter()
+    res = align_frames(frames, matcher=matcher, strategy=strategy, conf=conf, with_scale=with_scale, trace=trace)
+    secs = time.perf_counter() - t0
+    ev = [f for f in frames if f.index in res.poses]  # time order
+    est = np.array([res.poses[f.index] for f in ev])
+    gt = np.array([f.pose_gt for f in ev])
+    if len(ev) >= 2:
+        ate, S = ate_rmse(est, gt, with_scale)
+        rt, rr = rpe(est, gt, S)
+    else:
+        ate, rt, rr = float("nan"), float("nan"), float("nan")
+    return {
+        "ate_rmse_m": ate, "rpe_trans_m": rt, "rpe_rot_deg": rr,
+        "aligned_frames": len(res.aligned), "total_frames": len(frames),
+        "unaligned_frames": list(res.unaligned), "guessed_frames": list(res.guessed),
+        "evaluated_frames": len(ev), "sim3": with_scale, "root": res.root, "frames": list(map(int, indices)),
+        "seconds": secs + t_depth, "seconds_breakdown": {**res.seconds, "depth_model": t_depth},
+        "alignment": res.to_dict(),
+    }
+
+
+# ----------------------------------------------------------------------------- command
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from ..cli import add_stage_flags
+
+    parser.add_argument("--data", required=True, metavar="DIR",
+                        help="RGB-D folder with ground-truth poses (7-Scenes or TUM layout)")
+    parser.add_argument("--keyframes", type=int, default=32, metavar="K", help="number of frames to align")
+    parser.add_argument("--sampling", choices=["uniform", "random"], default="uniform",
+                        help="evenly spaced frames, or a random subset kept in time order")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the random subset")
+    parser.add_argument("--strategy", choices=["mst", "sequential"], default="mst",
+                        help="maximum spanning tree (paper) or sequential chaining (baseline)")
+    add_stage_flags(parser, depth=True, matcher=True)
+
+
+def run(args: argparse.Namespace) -> dict[str, Any]:
+    from ..frames import open_source
+    from ..trace import Trace
+
+    trace = Trace()
+    t0 = time.perf_counter()
+    src = open_source(args.data)
+    if not src.has_pose:
+        raise InputError(f"{args.data}: needs ground-truth poses for every frame (7-Scenes .pose.txt or TUM "
+                         f"groundtruth.txt)")
+    idx = pick_frames(len(src), args.keyframes, args.sampling, args.seed)
+    depth_model = _load_role(args.bundle, "depth", trace) if args.depth == "model" else None
+    matcher = _load_role(args.bundle, "matcher", trace) if args.matcher == "model" else args.matcher
+    out = evaluate_pose(src, idx, matcher, args.strategy, depth_model, trace=trace)
+    out["seconds"] = time.perf_counter() - t0
+    out.update({"schema": SCHEMA, "data": str(args.data), "keyframes": args.keyframes, "sampling": args.sampling,
+                "seed": args.seed, "strategy": args.strategy, "depth": args.depth, "matcher": args.matcher,
+                "events": trace.events})
+    if args.out:
+        import json
+        from pathlib import Path
+
+        from ..trace import jsonable
+
+        p = Path(args.out)
+        p.mkdir(parents=True, exist_ok=True)
+        (p / "eval_pose.json").write_text(json.dumps(jsonable(out), indent=2))
+        trace.save(p / "trace.json")
+    return out
+
+
+def render(r: dict[str, Any]) -> str:
+    un = r.get("unaligned_frames", [])
+    gs = r.get("guessed_frames", [])
+    lines = [f"pose evaluation on {r.get('data')}: {r.get('keyframes')} frames ({r.get('sampling')}, seed "
+             f"{r.get('seed')}), strategy {r.get('strategy')}, depth {r.get('depth')}, matcher {r.get('matcher')}",
+             f"  ATE RMSE        {r['ate_rmse_m']:.4f} m{'  (Sim(3) alignment)' if r.get('sim3') else ''}",
+             f"  RPE             {r['rpe_trans_m']:.4f} m, {r['rpe_rot_deg']:.2f} deg",
+             f"  aligned frames  {r['aligned_frames']} / {r['total_frames']}"
+             + (f"  unaligned: {un}" if un else "") + (f"  guessed (failed links): {gs}" if gs else ""),
+             f"  seconds         {r['seconds']:.2f}"]
+    return "\n".join(lines)

@@ -1,0 +1,326 @@
+"""Task grounding without a VLM: the VSI-Bench question templates and an indoor object vocabulary.
+
+`parse_question(question, options)` -> `ParsedQuestion`: the question type (VSI-Bench names), ranked target
+objects and cue objects (canonical vocabulary names), the type's parameters, and every object phrase that is not in
+the vocabulary (`unknown`: reported, never dropped silently).
+
+Targets are the objects the question asks about, cues the reference objects that fix the frame or the route
+(key-frame scoring weighs targets 1 and cues 0.5):
+- object_counting / object_size_estimation: target = the object;
+- object_abs_distance: targets = both objects;
+- object_rel_distance: targets = the candidate objects, cue = the reference object;
+- object_rel_direction_*: target = the queried object, cues = the object stood by and the object faced;
+- route_planning: target = the destination, cues = start, facing object and the waypoints;
+- obj_appearance_order: targets = the listed categories in the question's order.
+
+Canonical names are the VSI-Bench (ARKitScenes) categories where one exists (`refrigerator`, `tv`, `washer` ...),
+otherwise a short common noun. Phrases resolve to the head noun: modifiers before it ("kitchen sink" -> sink) and
+attachments after a preposition ("stool by the piano" -> stool) are dropped.
+"""
+from __future__ import annotations
+
+import re
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+QTYPES = ("object_counting", "object_size_estimation", "room_size_estimation", "object_abs_distance",
+          "object_rel_distance", "object_rel_direction_easy", "object_rel_direction_medium",
+          "object_rel_direction_hard", "route_planning", "obj_appearance_order")
+
+# canonical name -> synonyms (lower case, singular; plurals are handled by `canonical_name`)
+VOCABULARY: dict[str, tuple[str, ...]] = {
+    # the VSI-Bench / ARKitScenes categories
+    "chair": ("chair", "armchair", "arm chair", "desk chair", "office chair", "dining chair", "recliner",
+              "wicker chair"),
+    "table": ("table", "dining table", "dinning table", "coffee table", "side table", "end table", "desk",
+              "kitchen table", "work table"),  # ARKitScenes labels desks as tables
+    "sofa": ("sofa", "couch", "loveseat", "love seat", "settee", "sectional", "seater sofa", "futon"),
+    "tv": ("tv", "television", "tv monitor", "tv_monitor", "monitor", "computer monitor", "screen",
+           "tv screen", "flat screen"),
+    "stool": ("stool", "bar stool", "footstool", "foot stool", "ottoman", "pouf"),
+    "bed": ("bed", "mattress", "bunk bed", "double bed", "single bed"),
+    "toilet": ("toilet", "wc", "toilet bowl"),
+    "stove": ("stove", "gas stove", "cooktop", "cooker", "range", "hob", "stovetop", "stove top"),
+    "bathtub": ("bathtub", "bath tub", "bathtube", "tub", "bath"),
+    "washer": ("washer", "washing machine", "laundry machine", "clothes washer", "dryer"),
+    "refrigerator": ("refrigerator", "fridge", "freezer"),
+    "fireplace": ("fireplace", "fire place", "hearth"),
+    "dishwasher": ("dishwasher", "dish washer"),
+    # other common indoor objects (the synthetic scenes and detectors use these)
+    "lamp": ("lamp", "floor lamp", "standing lamp", "table lamp", "desk lamp", "light"),
+    "plant": ("plant", "potted plant", "houseplant", "house plant", "flower pot", "flowers", "flower",
+              "christmas tree", "bouquet", "green plant"),
+    "cabinet": ("cabinet", "cupboard", "kitchen cabinet", "display cabinet", "filing cabinet", "sideboard",
+                "counter", "kitchen counter", "dresser", "chest of drawers", "drawer"),
+    "wardrobe": ("wardrobe", "closet", "armoire"),
+    "nightstand": ("nightstand", "night stand", "bedside table", "night table"),
+    "shelf": ("shelf", "bookshelf", "book shelf", "bookcase", "shelves", "shelving"),
+    "door": ("door", "doorway", "doorframe", "door frame", "entrance", "entry", "terrace door", "kitchen door"),
+    "window": ("window", "windows"),
+    "sink": ("sink", "bathroom sink", "kitchen sink", "basin", "washbasin", "wash basin"),
+    "mirror": ("mirror",),
+    "oven": ("oven", "microwave oven"),
+    "microwave": ("microwave",),
+    "trash bin": ("trash bin", "trash can", "garbage bin", "garbage can", "waste bin", "wastebasket", "bin",
+                  "dustbin", "bucket"),
+    "heater": ("heater", "radiator"),
+    "laptop": ("laptop", "computer", "notebook computer", "pc"),
+    "picture": ("picture", "painting", "poster", "frame", "photo"),
+    "clock": ("clock",),
+    "rug": ("rug", "carpet", "mat"),
+    "pillow": ("pillow", "cushion"),
+    "curtain": ("curtain", "blind"),
+    "shower": ("shower",),
+    "towel": ("towel", "towel rack"),
+    "vase": ("vase",),
+    "printer": ("printer",),
+    "piano": ("piano",),
+    "fan": ("fan", "electric fan", "corner fan"),
+    "speaker": ("speaker", "loudspeaker"),
+    "backpack": ("backpack", "bag"),
+    "bottle": ("bottle",),
+    "cup": ("cup", "mug"),
+    "book": ("book",),
+    "remote": ("remote", "tv remote", "remote control"),
+    "stairs": ("stairs", "stair", "staircase"),
+    "wall": ("wall",),
+    "teddy bear": ("teddy bear",),
+    "candle": ("candle",),
+    "keyboard": ("keyboard",),
+    "bench": ("bench",),
+}
+
+_SYN: dict[str, str] = {s: canon for canon, syns in VOCABULARY.items() for s in (canon, *syns)}
+_MAX_NGRAM = max(len(s.split()) for s in _SYN)
+_ARTICLES = {"the", "a", "an", "my", "this", "that", "these", "those", "some", "same"}
+# a noun phrase's head ends where an attachment starts ("the stool by the piano", "the tv on the table")
+_PREPOSITIONS = {"by", "on", "near", "next", "with", "in", "under", "beside", "behind", "closest", "closer",
+                 "nearest", "farthest", "right", "left", "towards", "toward", "at", "above", "below", "against",
+                 "facing", "is", "positioned", "from", "to", "into", "between", "that", "which", "where"}
+
+
+def _singular(w: str) -> str:
+    if len(w) > 4 and w.endswith("lves"):  # shelves -> shelf
+        return w[:-3] + "f"
+    if len(w) > 3 and w.endswith("ies"):
+        return w[:-3] + "y"
+    if len(w) > 3 and re.search(r"(ches|shes|sses|xes)$", w):
+        return w[:-2]
+    if len(w) > 2 and w.endswith("s") and not w.endswith("ss"):
+        return w[:-1]
+    return w
+
+
+def _words(s: str) -> list[str]:
+    s = s.lower().replace("(s)", "").replace("_", " ")
+    s = re.sub(r"[^a-z0-9\- ]+", " ", s)
+    return [w for w in s.split() if w]
+
+
+def _match(words: list[str]) -> str | None:
+    """Rightmost, longest vocabulary n-gram in `words` (the head noun of an English noun phrase is last)."""
+    best: tuple[int, int, str] | None = None  # (end, length, canonical)
+    for n in range(min(_MAX_NGRAM, len(words)), 0, -1):
+        for i in range(len(words) - n + 1):
+            gram = words[i:i + n]
+            for cand in (" ".join(gram), " ".join(gram[:-1] + [_singular(gram[-1])])):
+                if cand in _SYN:
+                    key = (i + n, n, _SYN[cand])
+                    if best is None or key[:2] > best[:2]:
+                        best = key
+                    break
+    return None if best is None else best[2]
+
+
+def canonical_name(s: str) -> str | None:
+    """Canonical vocabulary name for an object phrase, or None when it names nothing in the vocabulary.
+
+    "couch" -> "sofa", "fridge" -> "refrigerator", "chair(s)" -> "chair", "the stool by the piano" -> "stool",
+    "kitchen sink" -> "sink", "edge of the bed" -> "bed" (a part's owner when the part is not an object).
+    """
+    words = [w for w in _words(s) if w not in _ARTICLES]
+    if not words:
+        return None
+    joined = " ".join(words)
+    if joined in _SYN:
+        return _SYN[joined]
+    head: list[str] = []
+    for w in words:
+        if w in _PREPOSITIONS or w == "of":
+            break
+        head.append(w)
+    found = _match(head) if head else None
+    if found is None and "of" in words:  # "edge of the bed", "corner of the table"
+        found = _match(words[words.index("of") + 1:])
+    if found is None and head != words:
+        found = _match(words)
+    return found
+
+
+@dataclass
+class ObjectRef:
+    """One object phrase from the question: the text and its canonical name (None when unknown)."""
+
+    phrase: str
+    name: str | None
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+@dataclass
+class ParsedQuestion:
+    """What a question asks. qtype: one of QTYPES or None (not a recognised template); targets, cues: canonical
+    names, ranked; params: the type's parameters (object names are canonical; a phrase that is not in the
+    vocabulary stays as its text and is listed in `unknown`); unknown: object phrases not in the vocabulary."""
+
+    qtype: str | None
+    targets: list[str] = field(default_factory=list)
+    cues: list[str] = field(default_factory=list)
+    params: dict[str, Any] = field(default_factory=dict)
+    unknown: list[str] = field(default_factory=list)
+    question: str = ""
+    options: list[str] | None = None
+
+    @property
+    def objects(self) -> list[str]:
+        """Targets then cues, without repeats."""
+        return list(dict.fromkeys(self.targets + self.cues))
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"qtype": self.qtype, "targets": self.targets, "cues": self.cues, "params": self.params,
+                "unknown": self.unknown}
+
+
+# ----------------------------------------------------------------------------- options
+
+
+_OPT_RE = re.compile(r"^\s*([A-Z])\s*[.)::]\s*(.*?)\s*$")
+
+
+def split_options(options: list[str] | None) -> list[tuple[str, str]]:
+    """["A. left", "B. right"] -> [("A", "left"), ("B", "right")]; unlettered options get A, B, ... in order."""
+    out: list[tuple[str, str]] = []
+    for i, o in enumerate(options or []):
+        m = _OPT_RE.match(str(o))
+        out.append((m.group(1), m.group(2)) if m else (chr(ord("A") + i), str(o).strip()))
+    return out
+
+
+# ----------------------------------------------------------------------------- templates
+
+_O = r"(?:the\s+)*(.+?)"  # an object phrase (leading articles dropped, lazily up to the template's next words)
+
+_TEMPLATES: list[tuple[str, re.Pattern[str]]] = [
+    ("object_counting", re.compile(rf"^how many {_O}\s*(?:\(s\))? (?:are|is) (?:there )?in (?:this|the) room", re.I)),
+    ("object_size_estimation", re.compile(
+        rf"longest dimension \(length, width, or height\) of {_O}, measured in centimeters", re.I)),
+    ("room_size_estimation", re.compile(r"size of (?:this|the) room \(in square meters\)", re.I)),
+    ("object_abs_distance", re.compile(rf"distance between {_O} and {_O} \(in meters\)", re.I)),
+    ("object_rel_distance", re.compile(
+        rf"which of these objects \((.+?)\) is (?:the )?(closest|nearest|farthest|furthest) to {_O}\s*\?", re.I)),
+    ("object_rel_direction_hard", re.compile(
+        rf"standing by {_O} and facing {_O}, is {_O} to my front-left, front-right, back-left, or back-right",
+        re.I)),
+    ("object_rel_direction_medium", re.compile(
+        rf"standing by {_O} and facing {_O}, is {_O} to my left, right, or back", re.I)),
+    ("object_rel_direction_easy", re.compile(
+        rf"standing by {_O} and facing {_O}, is {_O} to the left or (?:to )?the right of {_O}\s*\?", re.I)),
+    ("obj_appearance_order", re.compile(
+        r"first-time appearance order of the following categories in the video:\s*(.+?)\s*\?", re.I)),
+    ("route_planning", re.compile(r"you are a robot beginning (?:at|by|near) ", re.I)),
+]
+
+
+def _ref(phrase: str) -> ObjectRef:
+    phrase = re.sub(r"^(?:the\s+)+", "", phrase.strip().rstrip(".?,"), flags=re.I).strip()
+    return ObjectRef(phrase, canonical_name(phrase))
+
+
+def _name(r: ObjectRef) -> str:
+    return r.name if r.name is not None else r.phrase
+
+
+def parse_question(question: str, options: list[str] | None = None) -> ParsedQuestion:
+    """Parse a VSI-Bench-style question. Returns qtype None when no template matches (the VLM's job then)."""
+    q = " ".join(str(question).split())
+    pq = ParsedQuestion(None, question=question, options=list(options) if options is not None else None)
+    refs: list[ObjectRef] = []
+    for qtype, rx in _TEMPLATES:
+        m = rx.search(q)
+        if not m:
+            continue
+        pq.qtype = qtype
+        if qtype in ("object_counting", "object_size_estimation"):
+            r = _ref(m.group(1))
+            refs = [r]
+            pq.targets = [_name(r)]
+            pq.params = {"object": _name(r)}
+        elif qtype == "room_size_estimation":
+            pq.params = {}
+        elif qtype == "object_abs_distance":
+            a, b = _ref(m.group(1)), _ref(m.group(2))
+            refs = [a, b]
+            pq.targets = [_name(a), _name(b)]
+            pq.params = {"a": _name(a), "b": _name(b)}
+        elif qtype == "object_rel_distance":
+            cands = [_ref(c) for c in m.group(1).split(",")]
+            ref = _ref(m.group(3))
+            refs = cands + [ref]
+            pq.targets = [_name(c) for c in cands]
+            pq.cues = [_name(ref)]
+            pq.params = {"reference": _name(ref), "candidates": [_name(c) for c in cands],
+                         "extreme": "closest" if m.group(2).lower() in ("closest", "nearest") else "farthest"}
+        elif qtype.startswith("object_rel_direction"):
+            pos, face, query = _ref(m.group(1)), _ref(m.group(2)), _ref(m.group(3))
+            refs = [pos, face, query]
+            pq.targets = [_name(query)]
+            pq.cues = [_name(pos), _name(face)]
+            pq.params = {"position": _name(pos), "facing": _name(face), "query": _name(query)}
+            if qtype == "object_rel_direction_easy":
+                rel = _ref(m.group(4))
+                refs.append(rel)
+                pq.params["relative_to"] = _name(rel)
+        elif qtype == "obj_appearance_order":
+            cats = [_ref(c) for c in re.split(r",\s*(?:and\s+)?|\s+and\s+", m.group(1)) if c.strip()]
+            refs = cats
+            pq.targets = [_name(c) for c in cats]
+            pq.params = {"categories": [_name(c) for c in cats]}
+        elif qtype == "route_planning":
+            refs = _parse_route(q, pq)
+        break
+    pq.targets = list(dict.fromkeys(pq.targets))
+    pq.cues = [c for c in dict.fromkeys(pq.cues) if c not in pq.targets]
+    pq.unknown = list(dict.fromkeys(r.phrase for r in refs if r.name is None))
+    return pq
+
+
+_ROUTE_START = re.compile(
+    r"beginning (?:at|by|near) (.+?)(?:,)? (?:and )?facing (?:into |toward |towards |to |out )?(.+?)\s*\. "
+    r"you want to navigate to (.+?)\s*\. ", re.I)
+_STEP = re.compile(r"\d+\.\s*(\[please fill in\]\.?|go forward (?:until|to)\s+(.+?))\s*(?=\d+\.\s|you have reached|$)",
+                   re.I)
+
+
+def _parse_route(q: str, pq: ParsedQuestion) -> list[ObjectRef]:
+    """Route questions are written by people: start, facing, destination, then numbered steps, each
+    "[please fill in]" (a turn to choose) or "Go forward until X"."""
+    m = _ROUTE_START.search(q)
+    if not m:
+        pq.params = {"parse_error": "route start/facing/destination not found"}
+        return []
+    start, facing, dest = _ref(m.group(1)), _ref(m.group(2)), _ref(m.group(3))
+    steps: list[dict[str, Any]] = []
+    refs = [start, facing, dest]
+    for sm in _STEP.finditer(q[m.end():]):
+        if sm.group(2) is None:
+            steps.append({"action": "turn"})
+        else:
+            r = _ref(re.sub(r"\s*(?:is on your (?:left|right)|on your (?:left|right))\s*\.?$", "", sm.group(2)))
+            refs.append(r)
+            steps.append({"action": "forward", "until": _name(r), "phrase": r.phrase})
+    pq.targets = [_name(dest)]
+    pq.cues = [_name(start), _name(facing)] + [s["until"] for s in steps if s["action"] == "forward"]
+    pq.params = {"start": _name(start), "facing": _name(facing), "destination": _name(dest), "steps": steps,
+                 "n_turns": sum(s["action"] == "turn" for s in steps)}
+    return refs

@@ -1,0 +1,227 @@
+"""Weight-free feature matching (ORB, SIFT from OpenCV): mutual nearest neighbour + Lowe ratio test.
+
+Matching can be restricted to keypoints inside object boxes (the paper's trick: no walls and floors, whose
+repeated texture gives wrong matches); with no boxes the whole image is used. Learned matchers
+(`runtime/stages/matcher.py`) expose the same `.match(rgb0, rgb1, boxes0=None, boxes1=None) -> Matches`.
+
+`FeatureMatcher` caches keypoints and descriptors per frame key, so aligning K frames extracts K feature sets,
+however many pairs are tried.
+"""
+from __future__ import annotations
+
+from collections import OrderedDict
+from dataclasses import dataclass, fields, replace
+from typing import Any, Hashable, Mapping
+
+import numpy as np
+
+from .errors import InputError
+
+
+@dataclass
+class Matches:
+    """Correspondences between two images. uv0, uv1: [M, 2] float32 pixels (x, y); scores: [M] float32 in
+    [0, 1] (higher = more distinctive: 1 - ratio of best to second-best distance for ORB/SIFT)."""
+
+    uv0: np.ndarray
+    uv1: np.ndarray
+    scores: np.ndarray
+
+    def __post_init__(self) -> None:
+        self.uv0 = np.asarray(self.uv0, dtype=np.float32).reshape(-1, 2)
+        self.uv1 = np.asarray(self.uv1, dtype=np.float32).reshape(-1, 2)
+        self.scores = np.asarray(self.scores, dtype=np.float32).reshape(-1)
+        if not (len(self.uv0) == len(self.uv1) == len(self.scores)):
+            raise ValueError("Matches: uv0, uv1 and scores must have the same length")
+
+    def __len__(self) -> int:
+        return len(self.scores)
+
+    @classmethod
+    def empty(cls) -> "Matches":
+        return cls(np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0))
+
+
+@dataclass
+class MatchConf:
+    """Defaults: SIFT (Lowe 2004, ratio 0.8) and ORB (Rublee 2011) with mutual nearest neighbours."""
+
+    method: str = "sift"
+    max_keypoints: int = 2000
+    ratio: float = 0.8           # Lowe's ratio test (best / second-best distance)
+    mutual: bool = True          # keep only mutual nearest neighbours
+    max_side: int = 640          # images are downscaled so that the longer side is at most this (speed)
+    orb_fast_threshold: int = 12
+    box_margin: float = 4.0      # pixels added around each box when restricting keypoints
+
+    @classmethod
+    def merged(cls, conf: "MatchConf | Mapping[str, Any] | None" = None, **overrides: Any) -> "MatchConf":
+        """Defaults merged with a conf object or dict and keyword overrides (unknown keys are an error)."""
+        base = conf if isinstance(conf, MatchConf) else cls()
+        upd = dict(conf) if isinstance(conf, Mapping) else {}
+        upd.update({k: v for k, v in overrides.items() if v is not None})
+        names = {f.name for f in fields(cls)}
+        bad = set(upd) - names
+        if bad:
+            raise InputError(f"matcher config: unknown keys {sorted(bad)} (known: {sorted(names)})")
+        out = replace(base, **upd)
+        if out.method not in ("sift", "orb"):
+            raise InputError(f"matcher config: method must be 'sift' or 'orb', got {out.method!r}")
+        return out
+
+
+@dataclass
+class Features:
+    """Keypoints of one image. uv: [N, 2] float32 pixels in the ORIGINAL image; desc: [N, D] (float32 SIFT,
+    uint8 ORB)."""
+
+    uv: np.ndarray
+    desc: np.ndarray
+    method: str
+
+    def __len__(self) -> int:
+        return len(self.uv)
+
+
+def _gray(rgb: np.ndarray) -> np.ndarray:
+    import cv2
+
+    if rgb.ndim == 2:
+        return rgb
+    return cv2.cvtColor(np.ascontiguousarray(rgb), cv2.COLOR_RGB2GRAY)
+
+
+def extract_features(rgb: np.ndarray, conf: MatchConf | None = None) -> Features:
+    """Detect and describe keypoints. rgb: [H, W, 3] uint8 (or [H, W] gray) -> Features."""
+    import cv2
+
+    conf = conf or MatchConf()
+    g = _gray(rgb)
+    s = min(1.0, conf.max_side / max(g.shape))
+    if s < 1.0:
+        g = cv2.resize(g, (round(g.shape[1] * s), round(g.shape[0] * s)), interpolation=cv2.INTER_AREA)
+    if conf.method == "sift":
+        det = cv2.SIFT_create(nfeatures=conf.max_keypoints)
+        dim, dtype = 128, np.float32
+    else:
+        det = cv2.ORB_create(nfeatures=conf.max_keypoints, fastThreshold=conf.orb_fast_threshold)
+        dim, dtype = 32, np.uint8
+    kps, desc = det.detectAndCompute(g, None)
+    if desc is None or not kps:
+        return Features(np.zeros((0, 2), np.float32), np.zeros((0, dim), dtype), conf.method)
+    uv = np.array([k.pt for k in kps], dtype=np.float32) / s
+    return Features(uv, desc.astype(dtype, copy=False), conf.method)
+
+
+def in_boxes(uv: np.ndarray, boxes: np.ndarray | None, margin: float = 0.0) -> np.ndarray:
+    """Which pixels uv [N, 2] lie inside any of boxes [B, 4] (x0, y0, x1, y1) -> [N] bool (all True if None)."""
+    if boxes is None:
+        return np.ones(len(uv), bool)
+    b = np.asarray(boxes, dtype=np.float32).reshape(-1, 4)
+    if len(b) == 0:
+        return np.zeros(len(uv), bool)
+    x, y = uv[:, :1], uv[:, 1:2]
+    inside = (x >= b[:, 0] - margin) & (x <= b[:, 2] + margin) & (y >= b[:, 1] - margin) & (y <= b[:, 3] + margin)
+    return inside.any(1)
+
+
+def _knn2_l2(d0: np.ndarray, d1: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Squared-L2 two nearest neighbours of each row of d0 in d1 (one matmul). Returns idx [N, 2], dist [N, 2]
+    (Euclidean) and the backward nearest neighbour of each row of d1 [M]."""
+    a = d0.astype(np.float32)
+    b = d1.astype(np.float32)
+    D = (a * a).sum(1)[:, None] + (b * b).sum(1)[None, :] - 2.0 * (a @ b.T)
+    np.maximum(D, 0, out=D)
+    k = min(2, D.shape[1])
+    idx = np.argpartition(D, k - 1, axis=1)[:, :k] if D.shape[1] > 2 else np.argsort(D, 1)[:, :k]
+    dd = np.take_along_axis(D, idx, 1)
+    order = np.argsort(dd, 1)
+    idx, dd = np.take_along_axis(idx, order, 1), np.take_along_axis(dd, order, 1)
+    back = D.argmin(0)
+    return idx, np.sqrt(dd), back
+
+
+def _knn2_hamming(d0: np.ndarray, d1: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    import cv2
+
+    bf = cv2.BFMatcher(cv2.NORM_HAMMING)
+    fw = bf.knnMatch(d0, d1, k=2)
+    idx = np.full((len(d0), 2), -1, np.int64)
+    dd = np.full((len(d0), 2), np.inf, np.float64)
+    for i, ms in enumerate(fw):
+        for j, m in enumerate(ms[:2]):
+            idx[i, j], dd[i, j] = m.trainIdx, m.distance
+    back = np.full(len(d1), -1, np.int64)
+    for m in bf.match(d1, d0):
+        back[m.queryIdx] = m.trainIdx
+    return idx, dd, back
+
+
+def match_descriptors(f0: Features, f1: Features, conf: MatchConf | None = None,
+                      keep0: np.ndarray | None = None, keep1: np.ndarray | None = None) -> Matches:
+    """Mutual nearest neighbours passing the ratio test between two feature sets, optionally restricted to
+    keypoints with keep0 [N0] / keep1 [N1] True."""
+    conf = conf or MatchConf(method=f0.method)
+    i0 = np.flatnonzero(keep0) if keep0 is not None else np.arange(len(f0))
+    i1 = np.flatnonzero(keep1) if keep1 is not None else np.arange(len(f1))
+    if len(i0) < 2 or len(i1) < 2:
+        return Matches.empty()
+    d0, d1 = f0.desc[i0], f1.desc[i1]
+    idx, dd, back = _knn2_l2(d0, d1) if f0.method == "sift" else _knn2_hamming(d0, d1)
+    nn = idx[:, 0]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = np.where(dd[:, 1] > 0, dd[:, 0] / dd[:, 1], 1.0)
+    ok = (nn >= 0) & (ratio < conf.ratio)
+    if conf.mutual:
+        ok &= back[np.clip(nn, 0, None)] == np.arange(len(nn))
+    q = np.flatnonzero(ok)
+    return Matches(f0.uv[i0[q]], f1.uv[i1[nn[q]]], 1.0 - ratio[q])
+
+
+class FeatureMatcher:
+    """ORB/SIFT matcher with a per-frame feature cache (LRU over `cache_size` frame keys).
+
+    `.match(rgb0, rgb1, boxes0, boxes1)` is the common matcher interface; `.match_keys(k0, rgb0, k1, rgb1, ...)`
+    reuses cached features for frames identified by hashable keys (frame indices)."""
+
+    def __init__(self, method: str = "sift", conf: MatchConf | Mapping[str, Any] | None = None,
+                 cache_size: int = 256):
+        self.conf = MatchConf.merged(conf, method=method)
+        self.name = self.conf.method
+        self._cache: OrderedDict[Hashable, Features] = OrderedDict()
+        self._cache_size = cache_size
+        self.extract_seconds = 0.0
+
+    def features(self, key: Hashable | None, rgb: np.ndarray) -> Features:
+        import time
+
+        if key is not None and key in self._cache:
+            self._cache.move_to_end(key)
+            return self._cache[key]
+        t0 = time.perf_counter()
+        f = extract_features(rgb, self.conf)
+        self.extract_seconds += time.perf_counter() - t0
+        if key is not None:
+            self._cache[key] = f
+            while len(self._cache) > self._cache_size:
+                self._cache.popitem(last=False)
+        return f
+
+    def match_keys(self, k0: Hashable, rgb0: np.ndarray, k1: Hashable, rgb1: np.ndarray,
+                   boxes0: np.ndarray | None = None, boxes1: np.ndarray | None = None) -> Matches:
+        f0, f1 = self.features(k0, rgb0), self.features(k1, rgb1)
+        m = self.conf.box_margin
+        return match_descriptors(f0, f1, self.conf, in_boxes(f0.uv, boxes0, m) if boxes0 is not None else None,
+                                 in_boxes(f1.uv, boxes1, m) if boxes1 is not None else None)
+
+    def match(self, rgb0: np.ndarray, rgb1: np.ndarray, boxes0: np.ndarray | None = None,
+              boxes1: np.ndarray | None = None) -> Matches:
+        return self.match_keys(None, rgb0, None, rgb1, boxes0, boxes1)
+
+
+def match_features(rgb0: np.ndarray, rgb1: np.ndarray, boxes0: np.ndarray | None = None,
+                   boxes1: np.ndarray | None = None, method: str = "sift",
+                   conf: MatchConf | Mapping[str, Any] | None = None) -> Matches:
+    """Match two images. rgb0, rgb1: [H, W, 3] uint8; boxes: [N, 4] x0, y0, x1, y1 (keypoints outside every box
+    are ignored) or None (whole image). Returns Matches (uv0 in image 0, uv1 in image 1)."""
+    return FeatureMatcher(method, conf, cache_size=0).match(rgb0, rgb1, boxes0, boxes1)

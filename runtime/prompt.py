@@ -1,0 +1,239 @@
+"""Visual prompt: the semantic map rendered for the VLM (paper, "Spatial reasoning via visual prompts").
+
+Three modes (the paper's main variant and its two ablations):
+- ``grid``   top-down grid image, one distinct colour per object box with its label, camera positions and
+             headings, a metric scale bar and axes, plus the text block (default);
+- ``points`` a dense top-down render of the fused 3D points (coloured per instance) instead of boxes, plus text;
+- ``text``   the text block only (no image).
+
+The image is drawn in the map's z-up world seen from above: +x to the right, +y up the image.
+"""
+from __future__ import annotations
+
+import colorsys
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import cv2
+import numpy as np
+
+from .semantic_map import SemanticMap
+
+MODES = ("grid", "points", "text")
+
+
+@dataclass
+class PromptConfig:
+    mode: str = "grid"
+    size_px: int = 768          # longest image side
+    margin_px: int = 48
+    grid_m: float = 1.0         # grid spacing (m)
+    font_scale: float = 0.45
+    camera_stride: int = 1      # draw every n-th camera
+
+
+default_conf = PromptConfig()
+
+
+@dataclass
+class VisualPrompt:
+    """image: [H, W, 3] uint8 RGB or None (text mode); text: the object block; colours: instance id -> RGB;
+    px_per_m: image scale; origin_px: pixel of world (0, 0); scale_bar_m / scale_bar_px: the drawn bar."""
+
+    image: np.ndarray | None
+    text: str
+    colours: dict[int, tuple[int, int, int]] = field(default_factory=dict)
+    px_per_m: float = 0.0
+    origin_px: tuple[float, float] = (0.0, 0.0)
+    scale_bar_m: float = 0.0
+    scale_bar_px: int = 0
+    mode: str = "grid"
+
+    def world_to_px(self, xy: np.ndarray) -> np.ndarray:
+        """World `[N, 2]` (x, y metres) -> image pixels `[N, 2]` (u, v)."""
+        xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+        return np.stack([self.origin_px[0] + xy[:, 0] * self.px_per_m,
+                         self.origin_px[1] - xy[:, 1] * self.px_per_m], 1)
+
+    def save_png(self, path: str) -> None:
+        if self.image is None:
+            raise ValueError("text-only prompt has no image")
+        cv2.imwrite(str(path), cv2.cvtColor(self.image, cv2.COLOR_RGB2BGR))
+
+
+def distinct_colours(n: int) -> list[tuple[int, int, int]]:
+    """`n` well-separated saturated RGB colours (golden-ratio hue walk, alternating lightness)."""
+    out = []
+    for i in range(n):
+        h = (0.07 + i * 0.618033988749895) % 1.0
+        light = 0.45 if i % 2 == 0 else 0.6
+        r, g, b = colorsys.hls_to_rgb(h, light, 0.85)
+        out.append((int(r * 255), int(g * 255), int(b * 255)))
+    return out
+
+
+def text_block(smap: SemanticMap) -> str:
+    """One line per object: label, centre and size (m) and yaw in map coordinates (x right, y forward, z up)."""
+    lines = ["Objects in the map (metres; x right, y forward, z up; size = length x width x height):"]
+    for o in sorted(smap.instances, key=lambda o: (o.name, o.id)):
+        c = np.asarray(o.box.centroid)
+        s = np.asarray(o.box.axes_lengths)
+        yaw = float(np.degrees(np.arctan2(o.box.axes[0][1], o.box.axes[0][0])))
+        lines.append(f"- {o.name} #{o.id}: centre ({c[0]:.2f}, {c[1]:.2f}, {c[2]:.2f}), "
+                     f"size ({s[0]:.2f} x {s[1]:.2f} x {s[2]:.2f}), yaw {yaw:.0f} deg")
+    if smap.cameras:
+        t0, T0 = smap.cameras[0]
+        t1, T1 = smap.cameras[-1]
+        lines.append(f"Camera: first at ({T0[0, 3]:.2f}, {T0[1, 3]:.2f}) t={t0:.1f}s, "
+                     f"last at ({T1[0, 3]:.2f}, {T1[1, 3]:.2f}) t={t1:.1f}s")
+    if smap.room is not None:
+        lines.append(f"Room floor area about {smap.room.area():.1f} m^2")
+    return "\n".join(lines)
+
+
+def _nice_length(max_m: float) -> float:
+    """Largest 1/2/5 x 10^k length not above max_m."""
+    k = np.floor(np.log10(max_m))
+    for m in (5, 2, 1):
+        if m * 10**k <= max_m:
+            return float(m * 10**k)
+    return float(10**k)
+
+
+def _extent(smap: SemanticMap, points: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    pts = [o.box.corners()[:, :2] for o in smap.instances]
+    pts += [np.asarray(T)[None, :2, 3] for _, T in smap.cameras]
+    if smap.room is not None:
+        pts.append(np.asarray(smap.room.polygon).reshape(-1, 2))
+    if points is not None and len(points):
+        pts.append(np.asarray(points)[:, :2])
+    if not pts:
+        return np.array([-1.0, -1.0]), np.array([1.0, 1.0])
+    allp = np.concatenate(pts, 0)
+    lo, hi = allp.min(0), allp.max(0)
+    pad = np.maximum(0.25, 0.05 * (hi - lo))
+    return lo - pad, hi + pad
+
+
+def render(smap: SemanticMap, conf: PromptConfig | dict[str, Any] | None = None,
+           points: np.ndarray | None = None, point_ids: np.ndarray | None = None) -> VisualPrompt:
+    """Render the visual prompt of `smap`.
+
+    points: [N, 3] world points for the ``points`` mode (optional in other modes); point_ids: [N] instance ids.
+    Returns a `VisualPrompt` (image [H, W, 3] uint8 RGB unless mode is ``text``).
+    """
+    if isinstance(conf, dict):
+        conf = replace(default_conf, **conf)
+    conf = conf or default_conf
+    if conf.mode not in MODES:
+        raise ValueError(f"prompt mode must be one of {MODES}, got {conf.mode!r}")
+    text = text_block(smap)
+    ids = [o.id for o in smap.instances]
+    colours = dict(zip(ids, distinct_colours(len(ids))))
+    if conf.mode == "text":
+        return VisualPrompt(None, text, colours, mode="text")
+
+    lo, hi = _extent(smap, points)
+    span = hi - lo
+    inner = conf.size_px - 2 * conf.margin_px
+    ppm = inner / float(max(span))
+    W = int(round(span[0] * ppm)) + 2 * conf.margin_px
+    H = int(round(span[1] * ppm)) + 2 * conf.margin_px
+    origin = (conf.margin_px - lo[0] * ppm, conf.margin_px + hi[1] * ppm)
+    vp = VisualPrompt(None, text, colours, ppm, origin, mode=conf.mode)
+    img = np.full((H, W, 3), 255, np.uint8)
+
+    # grid every grid_m metres, labelled
+    g = conf.grid_m
+    for x in np.arange(np.ceil(lo[0] / g) * g, hi[0], g):
+        u = int(round(vp.world_to_px([[x, 0]])[0, 0]))
+        cv2.line(img, (u, 0), (u, H - 1), (225, 225, 225), 1)
+    for y in np.arange(np.ceil(lo[1] / g) * g, hi[1], g):
+        v = int(round(vp.world_to_px([[0, y]])[0, 1]))
+        cv2.line(img, (0, v), (W - 1, v), (225, 225, 225), 1)
+
+    if smap.room is not None:
+        poly = vp.world_to_px(smap.room.polygon).round().astype(np.int32)
+        cv2.polylines(img, [poly], True, (150, 150, 150), 2, cv2.LINE_AA)
+
+    if conf.mode == "points" and points is not None and len(points):
+        uv = vp.world_to_px(np.asarray(points)[:, :2]).round().astype(int)
+        ok = (uv[:, 0] >= 0) & (uv[:, 0] < W) & (uv[:, 1] >= 0) & (uv[:, 1] < H)
+        col = np.array([colours.get(int(i), (80, 80, 80)) for i in (point_ids if point_ids is not None
+                                                                     else np.full(len(uv), -1))], np.uint8)
+        img[uv[ok, 1], uv[ok, 0]] = col[ok]
+
+    font = cv2.FONT_HERSHEY_SIMPLEX
+    for o in smap.instances:
+        col = colours[o.id]
+        poly = vp.world_to_px(_footprint(o.box)).round().astype(np.int32)
+        if conf.mode == "grid":
+            overlay = img.copy()
+            cv2.fillPoly(overlay, [poly], col)
+            img[:] = cv2.addWeighted(overlay, 0.45, img, 0.55, 0)
+        cv2.polylines(img, [poly], True, col, 2, cv2.LINE_AA)
+    for o in smap.instances:  # labels last so boxes never cover them
+        c = vp.world_to_px(np.asarray(o.box.centroid)[None, :2])[0]
+        label = f"{o.name} {o.id}"
+        (tw, th), _ = cv2.getTextSize(label, font, conf.font_scale, 1)
+        org = (int(c[0] - tw / 2), int(c[1] + th / 2))
+        cv2.putText(img, label, org, font, conf.font_scale, (255, 255, 255), 3, cv2.LINE_AA)
+        cv2.putText(img, label, org, font, conf.font_scale, tuple(int(v * 0.6) for v in colours[o.id]), 1, cv2.LINE_AA)
+
+    # cameras: dot + heading (camera z axis projected on the floor)
+    for i, (_, T) in enumerate(smap.cameras):
+        if i % max(1, conf.camera_stride):
+            continue
+        T = np.asarray(T)
+        p = vp.world_to_px(T[None, :2, 3])[0]
+        f = T[:2, 2]
+        n = np.linalg.norm(f)
+        q = p + (np.array([f[0], -f[1]]) / n * 0.3 * ppm if n > 1e-6 else 0)
+        cv2.circle(img, (int(p[0]), int(p[1])), 3, (0, 0, 0), -1, cv2.LINE_AA)
+        cv2.arrowedLine(img, (int(p[0]), int(p[1])), (int(q[0]), int(q[1])), (0, 0, 0), 1, cv2.LINE_AA,
+                        tipLength=0.3)
+
+    # scale bar (bottom left) and axes (bottom right)
+    bar_m = _nice_length(0.3 * span[0])
+    bar_px = int(round(bar_m * ppm))
+    y0 = H - conf.margin_px // 2
+    x0 = conf.margin_px // 2
+    cv2.line(img, (x0, y0), (x0 + bar_px, y0), (0, 0, 0), 3)
+    for xx in (x0, x0 + bar_px):
+        cv2.line(img, (xx, y0 - 5), (xx, y0 + 5), (0, 0, 0), 2)
+    cv2.putText(img, f"{bar_m:g} m", (x0, y0 - 8), font, conf.font_scale, (0, 0, 0), 1, cv2.LINE_AA)
+    ax = (W - conf.margin_px // 2 - 40, H - conf.margin_px // 2)
+    cv2.arrowedLine(img, ax, (ax[0] + 35, ax[1]), (200, 0, 0), 2, tipLength=0.25)
+    cv2.arrowedLine(img, ax, (ax[0], ax[1] - 35), (0, 150, 0), 2, tipLength=0.25)
+    cv2.putText(img, "x", (ax[0] + 37, ax[1] + 4), font, conf.font_scale, (200, 0, 0), 1, cv2.LINE_AA)
+    cv2.putText(img, "y", (ax[0] - 4, ax[1] - 38), font, conf.font_scale, (0, 150, 0), 1, cv2.LINE_AA)
+    vp.image, vp.scale_bar_m, vp.scale_bar_px = img, bar_m, bar_px
+    return vp
+
+
+def _footprint(box) -> np.ndarray:
+    """Floor footprint `[4, 2]` of an oriented box (corners of the bottom face, in order)."""
+    c = np.asarray(box.centroid)[:2]
+    ax = np.asarray(box.axes)
+    L = np.asarray(box.axes_lengths) / 2
+    # the two axes closest to horizontal span the footprint
+    horiz = np.argsort(np.abs(ax[:, 2]))[:2]
+    a, b = ax[horiz[0], :2] * L[horiz[0]], ax[horiz[1], :2] * L[horiz[1]]
+    return np.stack([c - a - b, c + a - b, c + a + b, c - a + b])
+
+
+def vlm_prompt(question: str, options: list[str] | None, block: str, mode: str = "grid") -> str:
+    """The paper's prompt structure: what the image is, the object text block, the question, the answer format."""
+    head = {"grid": "The image is a top-down map of the room built from the video: each coloured box is an "
+                    "object (label inside), black dots with arrows are the camera positions and headings, the "
+                    "scale bar gives metres, x points right and y up the image.",
+            "points": "The image is a top-down view of the 3D points of the objects seen in the video, one colour "
+                      "per object; black dots with arrows are the camera positions and headings.",
+            "text": "The room was reconstructed from the video into the object list below."}[mode]
+    parts = [head, block, f"Question: {question}"]
+    if options:
+        parts.append("Options:\n" + "\n".join(options))
+        parts.append("Answer with the option's letter only.")
+    else:
+        parts.append("Answer with a single number only.")
+    return "\n\n".join(parts)

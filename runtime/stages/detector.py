@@ -1,0 +1,143 @@
+"""Object detector adapters: image + object names -> `perception.Detections`.
+
+Closed-set detectors (SSD MobileNet on COCO here) map the question's names onto their label list through
+`SYNONYMS` (sofa -> couch, table -> dining table, tv -> tv/tvmonitor, plant -> potted plant ...). A name that
+maps to no label is returned in `Detections.undetectable` -- never silently treated as "not present".
+Open-vocabulary detectors (OWLv2, `owlv2.py`) take the names directly and cache a text embedding per name.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+
+from ..perception import Detections
+from . import RoleModel, preprocess_image
+
+# question name -> candidate labels (the first one present in the model's label list is used; several may be).
+SYNONYMS: dict[str, list[str]] = {
+    "sofa": ["couch", "sofa"],
+    "couch": ["couch", "sofa"],
+    "table": ["dining table", "diningtable"],
+    "dining table": ["dining table", "diningtable"],
+    "desk": ["dining table", "diningtable"],
+    "tv": ["tv", "tvmonitor"],
+    "television": ["tv", "tvmonitor"],
+    "monitor": ["tv", "tvmonitor"],
+    "tv monitor": ["tv", "tvmonitor"],
+    "screen": ["tv", "tvmonitor"],
+    "plant": ["potted plant", "pottedplant"],
+    "potted plant": ["potted plant", "pottedplant"],
+    "fridge": ["refrigerator"],
+    "refrigerator": ["refrigerator"],
+    "stool": ["chair"],
+    "chair": ["chair"],
+    "bed": ["bed"],
+    "toilet": ["toilet"],
+    "sink": ["sink"],
+    "laptop": ["laptop"],
+    "computer": ["laptop", "tv", "tvmonitor"],
+    "microwave": ["microwave"],
+    "oven": ["oven"],
+    "stove": ["oven"],
+    "toaster": ["toaster"],
+    "book": ["book"],
+    "clock": ["clock"],
+    "vase": ["vase"],
+    "cup": ["cup"],
+    "mug": ["cup"],
+    "bottle": ["bottle"],
+    "bowl": ["bowl"],
+    "keyboard": ["keyboard"],
+    "mouse": ["mouse"],
+    "phone": ["cell phone"],
+    "cell phone": ["cell phone"],
+    "backpack": ["backpack"],
+    "bag": ["handbag", "backpack", "suitcase"],
+    "suitcase": ["suitcase"],
+    "umbrella": ["umbrella"],
+    "bench": ["bench"],
+    "person": ["person"],
+    "car": ["car"],
+    "bicycle": ["bicycle"],
+    "teddy bear": ["teddy bear"],
+}
+
+
+def normalize_name(name: str) -> str:
+    return " ".join(name.lower().replace("_", " ").replace("-", " ").split())
+
+
+def map_names(names: Sequence[str], labels: Sequence[str]) -> tuple[dict[str, list[int]], list[str]]:
+    """Question names -> label ids of a closed label list, and the names that cannot be detected.
+
+    Exact label matches (after normalising case, '_' and '-') and singular forms ('chairs' -> chair) count;
+    otherwise `SYNONYMS` is consulted. Returns ({name: [label ids]}, undetectable names).
+    """
+    index: dict[str, list[int]] = {}
+    for i, lab in enumerate(labels):
+        index.setdefault(normalize_name(lab), []).append(i)
+    mapping: dict[str, list[int]] = {}
+    missing: list[str] = []
+    for name in names:
+        n = normalize_name(name)
+        cands = [n, n[:-1] if n.endswith("s") else n] + SYNONYMS.get(n, []) + SYNONYMS.get(n[:-1], [])
+        ids = sorted({i for c in cands for i in index.get(normalize_name(c), []) if normalize_name(c) != "n/a"})
+        if ids:
+            mapping[name] = ids
+        else:
+            missing.append(name)
+    return mapping, missing
+
+
+@dataclass
+class DetectorConf:
+    score_threshold: float = 0.5   # SSD MobileNet v1 quantised: 0.5 is the TFLite example's default
+    max_detections: int = 100
+
+
+class ClosedSetDetector(RoleModel):
+    """TFLite-style SSD graph with NMS inside: outputs boxes [1, N, 4] (ymin, xmin, ymax, xmax normalised),
+    classes [1, N] (index into semantics.labels), scores [1, N], count [1]."""
+
+    role = "detector"
+
+    def __init__(self, spec, sessions, trace, conf: DetectorConf | None = None):
+        super().__init__(spec, sessions, trace)
+        cfg = {k: v for k, v in spec.config.items() if k in DetectorConf.__dataclass_fields__}
+        self.conf = conf or DetectorConf(**cfg)
+        self.labels: list[str] = list(spec.semantics["labels"])
+        self.vocabulary = "closed"
+        self._input = self.session().input_names[0]
+
+    def raw(self, rgb: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """All detections above the threshold: boxes [N, 4] pixels x0 y0 x1 y1, class ids [N], scores [N]."""
+        H, W = rgb.shape[:2]
+        x = preprocess_image(rgb, self.spec.preprocessing)
+        with self.trace.stage("detector"):
+            boxes, classes, scores, count = self.session().run({self._input: x})
+        n = int(np.asarray(count).reshape(-1)[0])
+        b, c, s = boxes[0, :n], classes[0, :n].astype(np.int64), scores[0, :n].astype(np.float32)
+        keep = s >= self.conf.score_threshold
+        b, c, s = b[keep], c[keep], s[keep]
+        px = np.stack([b[:, 1] * W, b[:, 0] * H, b[:, 3] * W, b[:, 2] * H], 1).clip(0, [W, H, W, H])
+        return px.astype(np.float32), c, s
+
+    def detect(self, rgb: np.ndarray, names: Sequence[str]) -> Detections:
+        """rgb [H, W, 3] uint8, names: the question's object names -> Detections in those names."""
+        mapping, missing = map_names(names, self.labels)
+        if missing and not getattr(self, "_warned", set()) >= set(missing):
+            self._warned = getattr(self, "_warned", set()) | set(missing)
+            self.trace.event("undetectable", f"{self.name}: closed label set cannot detect {missing}",
+                             names=missing, stage="detector")
+        px, cls, sc = self.raw(rgb)
+        out_b, out_s, out_n = [], [], []
+        for name, ids in mapping.items():
+            sel = np.isin(cls, ids)
+            out_b.append(px[sel])
+            out_s.append(sc[sel])
+            out_n += [name] * int(sel.sum())
+        if not out_n:
+            return Detections.empty(missing)
+        return Detections(np.concatenate(out_b), np.concatenate(out_s), out_n, undetectable=missing)
