@@ -180,9 +180,36 @@ def make_fixed(src: str | Path, dst: str | Path, shapes: dict[str, list[int]]) -
         dims = by_name[name].type.tensor_type.shape.dim
         if any(not d.HasField("dim_value") for d in dims):
             make_input_shape_fixed(model.graph, name, [int(v) for v in shape])
-    fix_output_shapes(model)
+    try:
+        fix_output_shapes(model)
+    except Exception:  # noqa: BLE001  the fp16 converter leaves stale value_info and appends its Casts last
+        del model.graph.value_info[:]
+        _toposort(model.graph)
+        fix_output_shapes(model)
     onnx.save(model, str(dst))
     return Path(dst)
+
+
+def _toposort(graph: Any) -> None:
+    """Reorder graph.node topologically in place (onnx's checker requires it; onnxruntime does not)."""
+    known = {i.name for i in graph.input} | {i.name for i in graph.initializer} | {""}
+    nodes, order = list(graph.node), []
+    pending = nodes
+    while pending:
+        rest = []
+        for n in pending:
+            if all(i in known for i in n.input):
+                order.append(n)
+                known.update(n.output)
+            else:
+                rest.append(n)
+        if len(rest) == len(pending):  # a cycle or an outer-scope input: keep the remainder as it was
+            order += rest
+            break
+        pending = rest
+    del graph.node[:]
+    graph.node.extend(order)
+
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -257,7 +284,10 @@ def convert_to_ort(onnx_files: Sequence[Path], out_dir: Path, *, styles: Sequenc
     The files are staged into one folder so the converter writes one operator config per style covering all
     of them. Returns ({onnx path: {style: .ort path}}, {style: config path}, the converter's log).
     """
+    import onnxruntime as ort
     from onnxruntime.tools.convert_onnx_models_to_ort import OptimizationStyle, convert_onnx_models_to_ort
+
+    ort.set_default_logger_severity(3)  # the converter's sessions otherwise print constant-folding warnings
 
     out_dir.mkdir(parents=True, exist_ok=True)
     log = io.StringIO()

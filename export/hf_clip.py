@@ -1,6 +1,6 @@
 """CLIP / SigLIP vision towers as frame embedders.
 
-Graph: `pixel_values [B, 3, S, S] float32` -> `embedding [B, D] float32`, L2-normalised in the graph (CLIP: the
+Graph: `pixel_values [B, 3, S, S] float32` -> `image_embedding [B, D] float32`, L2-normalised in the graph (CLIP: the
 projected image embedding; SigLIP: the attention-pooled `pooler_output`). Runtime adapter: the generic
 `embedder:Embedder` (H5) with `config.output = 0`.
 """
@@ -73,7 +73,7 @@ def export_embedder(source: str, out: str | Path, precisions: Sequence[str], *,
     def make_inputs(rng: np.random.Generator) -> dict[str, np.ndarray]:
         return {"pixel_values": rng.standard_normal((int(rng.integers(1, 4)), 3, size, size)).astype(np.float32)}
 
-    g = GraphSpec("model", w, (torch.randn(2, 3, size, size),), ["pixel_values"], ["embedding"], make_inputs,
+    g = GraphSpec("model", w, (torch.randn(2, 3, size, size),), ["pixel_values"], ["image_embedding"], make_inputs,
                   dynamic_shapes={"pixel_values": {0: B}},
                   calibration=_image_calibration(calibration_frames, pre, "pixel_values"))
     if dim < 2:

@@ -28,7 +28,8 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from .errors import AlignmentError, InputError
-from .geometry import backproject_pixels, icp_point_to_plane, ransac_transform, rotation_angle_deg, sample_depth, transform_scale
+from .geometry import (backproject_pixels, icp_point_to_plane, ransac_transform, rotation_angle_deg, sample_depth,
+                       transform, transform_scale, umeyama)
 from .matching import FeatureMatcher, Matches
 
 
@@ -38,6 +39,8 @@ class AlignConf:
 
     threshold_m: float = 0.05          # RANSAC inlier distance for metric depth (m)
     threshold_rel: float = 0.025       # ... for relative depth (with_scale): fraction of the median depth
+    refine_m: float = 0.02             # final least-squares refit on matches within this distance (m; for
+                                       # relative depth scaled like threshold_rel); 0 = off
     iterations: int = 2000
     min_inliers: int = 20              # fewer inliers = failed edge
     min_inlier_ratio: float = 0.15     # inliers / matches with depth, below = failed edge (random matches)
@@ -45,11 +48,13 @@ class AlignConf:
     edge_radius: int = 3               # a match's depth must be smooth in a (2r+1)^2 window (0 = off) ...
     edge_rel: float = 0.05             # ... i.e. max - min depth there below this fraction of its depth
     hist_bins: tuple[int, int, int] = (16, 8, 4)
-    icp: bool = True                   # refine metric edges by point-to-plane ICP on the two depth maps
+    icp: bool = False                  # refine metric edges by point-to-plane ICP on the two depth maps
     icp_iterations: int = 10
     icp_stride: int = 4
     icp_max_change: tuple[float, float] = (0.10, 5.0)  # (m, deg) larger ICP corrections are rejected
     icp_min_overlap: float = 0.2       # fraction of b's points paired in a, below = ICP rejected
+    verify_top: int = 4                # geometric refinement: each frame's top-k similar frames are aligned first
+                                       # and the tree prefers edges with more inliers (0 = order by S only)
     max_attempts: int | None = None    # cap on pairwise alignments tried by Kruskal (None = as many as needed)
     seed: int = 0
 
@@ -113,6 +118,15 @@ def align_pair(m: Matches, depth_a: np.ndarray, K_a: np.ndarray, depth_b: np.nda
                          min_inliers=conf.min_inliers, rng=rng)
     reason = ""
     good = r.ok
+    if good and conf.refine_m > 0:  # accept with the loose threshold, estimate from the tight inliers
+        thr2 = conf.refine_m * (1.0 if not with_scale else thr / conf.threshold_m)
+        T = r.T
+        for _ in range(2):
+            sel = np.linalg.norm(transform(T, pb) - pa, axis=1) < thr2
+            if sel.sum() < max(6, conf.min_inliers // 2):
+                break
+            T = umeyama(pb[sel], pa[sel], with_scale)
+        r.T = T
     if not r.ok:
         reason = f"{r.n_inliers} inliers (need {conf.min_inliers})"
     elif r.n_inliers < conf.min_inlier_ratio * nv:
@@ -234,6 +248,23 @@ def maximum_spanning_tree(S: np.ndarray, verify=None, max_attempts: int | None =
         if len(tree) == K - 1:
             break
     return tree, failed
+
+
+def refine_with_inliers(S: np.ndarray, verify, inliers, top: int) -> np.ndarray:
+    """Edge weights refined by geometric verification: every frame's `top` most similar frames (by S [K, K])
+    are aligned; a verified pair weighs 1 + its inlier count, a failed one -1 (never used), an untried one keeps
+    its similarity (in [-1, 1], so verified edges come first and untried ones are the next-best fallbacks).
+    verify(i, j) -> bool, inliers(i, j) -> int (after verify). Returns W [K, K]."""
+    K = len(S)
+    W = np.array(S, dtype=np.float64)
+    cand = set()
+    for i in range(K):
+        for j in np.argsort(-S[i])[:min(top, K - 1)]:
+            if int(j) != i:
+                cand.add((min(i, int(j)), max(i, int(j))))
+    for i, j in sorted(cand):
+        W[i, j] = W[j, i] = (1.0 + inliers(i, j)) if verify(i, j) else -1.0
+    return W
 
 
 def compose_tree(root: int, edges: Sequence[tuple[int, int]], T: Mapping[tuple[int, int], np.ndarray]
@@ -363,6 +394,20 @@ def align_frames(frames: Sequence[Any], matcher: Any = "sift", strategy: str = "
             Tpair[(a, b)] = r.T_ab
         return r.ok
 
+    ok_cache: dict[tuple[int, int], bool] = {}
+    n_inl: dict[tuple[int, int], int] = {}
+
+    def verify_cached(a: int, b: int) -> bool:
+        a, b = min(a, b), max(a, b)
+        if (a, b) not in ok_cache:
+            ok_cache[(a, b)] = verify(a, b)
+            n_inl[(a, b)] = stats[(frames[a].index, frames[b].index)].n_inliers if ok_cache[(a, b)] else 0
+        return ok_cache[(a, b)]
+
+    def stats_inliers(a: int, b: int) -> int:
+        verify_cached(a, b)
+        return n_inl[(min(a, b), max(a, b))]
+
     t_all = time.perf_counter()
     S, kind = None, ""
     guessed: list[int] = []
@@ -373,7 +418,10 @@ def align_frames(frames: Sequence[Any], matcher: Any = "sift", strategy: str = "
         secs["similarity"] = time.perf_counter() - t0
         root = choose_root(S)
         t0 = time.perf_counter()
-        tree, _failed = maximum_spanning_tree(S, verify, conf.max_attempts)
+        W = S
+        if conf.verify_top > 0:
+            W = refine_with_inliers(S, verify, stats_inliers, conf.verify_top)
+        tree, _failed = maximum_spanning_tree(W, verify_cached, conf.max_attempts)
         secs["tree"] = time.perf_counter() - t0
         local, _parent = compose_tree(root, tree, Tpair)
         poses = {idx[k]: T for k, T in local.items()}

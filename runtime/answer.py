@@ -26,6 +26,7 @@ Conventions (general geometric rules; they reproduce the benchmark's own answers
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -172,10 +173,9 @@ class MapReasoner:
         if isinstance(value, (int, float, np.floating, np.integer)):
             nums = []
             for letter, text in opts:
-                try:
-                    nums.append((abs(float(text) - float(value)), letter, text))
-                except ValueError:
-                    pass
+                m = re.match(r"\s*([-+]?\d+(?:\.\d+)?)", text)  # "2.5", "2.5 m", "160 cm"
+                if m:
+                    nums.append((abs(float(m.group(1)) - float(value)), letter, text))
             if nums:
                 _, letter, text = min(nums)
                 return letter, text

@@ -717,21 +717,28 @@ def plan(profile: Profile | str | os.PathLike, duration_s: float, fps: float, bu
 
     k_cap = min(c.keyframes_max, n_c)
     k_lo = min(c.keyframes_min, n_c)
-    policy = "all_resident"
-    models_mb = all_mb
-    if base_mb + all_mb + k_lo * kf_mb > M and base_mb + one_mb + k_lo * kf_mb <= M:
-        policy, models_mb = "one_at_a_time", one_mb
-        notes.append(f"memory: all models together ({_fmt(all_mb)} MB) do not fit beside the runtime; sessions are "
-                     f"loaded one at a time, stage-major (each stage runs over all key frames, then its session "
-                     f"is released)")
-    chosen, why = None, ""
-    for k in range(k_cap, k_lo - 1, -1):
-        if lat(k, s_floor(k)) <= L and base_mb + models_mb + k * kf_mb <= M:
-            chosen = k
-            break
+
+    def largest_k(models: float) -> int | None:
+        for k in range(k_cap, k_lo - 1, -1):
+            if lat(k, s_floor(k)) <= L and base_mb + models + k * kf_mb <= M:
+                return k
+        return None
+
+    # all sessions resident, unless loading them one at a time (stage-major) allows more key frames
+    policy, models_mb = "all_resident", all_mb
+    chosen = largest_k(all_mb)
+    k_one = largest_k(one_mb) if len(res) > 1 else None
+    if k_one is not None and (chosen is None or k_one > chosen):
+        policy, models_mb, chosen = "one_at_a_time", one_mb, k_one
+        notes.append(f"memory: all models together ({_fmt(all_mb)} MB) leave room for fewer key frames; sessions "
+                     f"are loaded one at a time, stage-major (each stage runs over all key frames, then its "
+                     f"session is released)")
+    why = ""
     if chosen is None:
         k = k_lo
         parts = []
+        if len(res) > 1:  # the shortfall is reported for the leanest policy
+            policy, models_mb = "one_at_a_time", one_mb
         over_l = lat(k, s_floor(k)) - L
         over_m = base_mb + models_mb + k * kf_mb - M
         if over_l > 0:

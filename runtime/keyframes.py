@@ -34,7 +34,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass, field, fields
-from typing import Any, Callable, Mapping, Sequence
+from typing import Any, Callable, Mapping, MutableMapping, Sequence
 
 import cv2
 import numpy as np
@@ -250,17 +250,19 @@ def histogram_similarity(h1: np.ndarray, h2: np.ndarray) -> float:
 
 
 class _HistogramCache:
-    """Colour histograms of candidates, computed on first use only."""
+    """Colour histograms of candidates, computed on first use only (`store`: frame index -> histogram, may be
+    shared between searches over the same video)."""
 
-    def __init__(self, candidates: np.ndarray, image: ImageFn, conf: KeyFrameConf) -> None:
+    def __init__(self, candidates: np.ndarray, image: ImageFn, conf: KeyFrameConf,
+                 store: MutableMapping[int, np.ndarray] | None = None) -> None:
         self.candidates, self.image, self.conf = candidates, image, conf
-        self.cache: dict[int, np.ndarray] = {}
+        self.store: MutableMapping[int, np.ndarray] = {} if store is None else store
 
     def __call__(self, pos: int) -> np.ndarray:
-        if pos not in self.cache:
-            self.cache[pos] = colour_histogram(self.image(int(self.candidates[pos])), self.conf.hist_bins,
-                                               self.conf.hist_size)
-        return self.cache[pos]
+        f = int(self.candidates[pos])
+        if f not in self.store:
+            self.store[f] = colour_histogram(self.image(f), self.conf.hist_bins, self.conf.hist_size)
+        return self.store[f]
 
     def neighbour_similarity(self, pos: int) -> float:
         """Mean similarity of candidate `pos` to the candidates within +-r (0 when it has none)."""
@@ -318,11 +320,13 @@ def exhaustive_keyframes(candidates: Sequence[int], targets: Sequence[str], cues
 
 def iterative_search(candidates: Sequence[int], targets: Sequence[str], cues: Sequence[str], detect: DetectFn,
                      image: ImageFn | None = None, conf: KeyFrameConf | None = None,
-                     trace: Any | None = None) -> KeyFrameResult:
+                     trace: Any | None = None,
+                     histograms: MutableMapping[int, np.ndarray] | None = None) -> KeyFrameResult:
     """The paper's iterative temporal search over `candidates` [M] frame indices.
 
     detect(frame_index, names) -> Detections scores one frame; image(frame_index) -> [H, W, 3] uint8 RGB feeds
-    the histogram similarity that sets each kernel's width (without it every kernel uses sigma_min, noted).
+    the histogram similarity that sets each kernel's width (without it every kernel uses sigma_min, noted);
+    `histograms` (frame index -> colour histogram) is filled lazily and may be shared across questions.
     `trace` (a runtime.trace.Trace) receives a "degraded" event when fewer than K frames pass, a "fallback"
     event when the question names no object (uniform key frames), and the decision `keyframes.method`.
     """
@@ -341,7 +345,7 @@ def iterative_search(candidates: Sequence[int], targets: Sequence[str], cues: Se
     max_score = sum(weights.values())
     budget = resolve_budget(m, conf)
     sizes = batch_sizes(budget, conf.iterations, conf.batch)
-    hist = _HistogramCache(c, image, conf) if image is not None else None
+    hist = _HistogramCache(c, image, conf, histograms) if image is not None else None
     rng = np.random.default_rng(conf.seed)
 
     w = np.ones(m, dtype=np.float64)            # uniform start
@@ -402,10 +406,11 @@ def iterative_search(candidates: Sequence[int], targets: Sequence[str], cues: Se
 
 def select_keyframes(method: str, candidates: Sequence[int], targets: Sequence[str], cues: Sequence[str],
                      detect: DetectFn, image: ImageFn | None = None, conf: KeyFrameConf | None = None,
-                     trace: Any | None = None) -> KeyFrameResult:
+                     trace: Any | None = None,
+                     histograms: MutableMapping[int, np.ndarray] | None = None) -> KeyFrameResult:
     """Run one of `METHODS` ("iterative", "uniform", "exhaustive") with the same inputs."""
     if method == "iterative":
-        return iterative_search(candidates, targets, cues, detect, image, conf, trace)
+        return iterative_search(candidates, targets, cues, detect, image, conf, trace, histograms)
     if method == "uniform":
         return uniform_keyframes(candidates, conf)
     if method == "exhaustive":

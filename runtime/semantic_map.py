@@ -201,3 +201,278 @@ def _plain(x: Any) -> Any:
     from .trace import jsonable
 
     return jsonable(x)
+
+
+# ----------------------------------------------------------------------------- building a map from perception
+#
+# Paper, "Iterative construction": per key frame, detector boxes -> segmenter masks -> masked depth -> 3D points
+# -> world frame through the frame's global pose; then gravity alignment to a z-up world, fusion of same-name
+# observations into instances, outlier removal and gravity-aligned oriented boxes.
+
+
+@dataclass
+class FusionConfig:
+    """Defaults chosen for metric indoor depth; all overridable (`default_fusion_conf` merged with overrides)."""
+
+    stride: int = 2               # pixel stride when lifting masks (speed; masks are dense)
+    erode_px: int = 2             # shrink masks so depth edges (object/background) do not bleed in
+    max_depth_m: float = 8.0      # ignore far, noisy depth
+    min_points: int = 25          # an observation with fewer 3D points is dropped
+    max_points: int = 4000        # per observation, random subsample (memory bound)
+    voxel_m: float = 0.04         # instance point clouds are voxel-downsampled at this size
+    merge_radius_m: float = 0.12  # a point "overlaps" an instance if an instance point is this close
+    merge_overlap: float = 0.2    # ... and this share of the observation's points overlaps
+    merge_centre_m: float = 0.6   # or the centres are this close relative to the instance's size (see below)
+    outlier_mad: float = 3.0      # radial outlier removal: keep points within median + k * MAD of the centre
+    min_instance_points: int = 40
+    seed: int = 0
+
+
+default_fusion_conf = FusionConfig()
+
+
+@dataclass
+class Observation:
+    """One detection lifted to 3D. points: [N, 3] world (m); frame: key-frame index; t: seconds;
+    instance_hint: id from an oracle (evaluation only) or None."""
+
+    name: str
+    score: float
+    frame: int
+    t: float
+    points: np.ndarray
+    box2d: np.ndarray
+    instance_hint: int | None = None
+
+
+def lift_observations(rgb_shape: tuple[int, int], depth: np.ndarray, K: np.ndarray, T_wc: np.ndarray,
+                      boxes: np.ndarray, names: list[str], scores: np.ndarray, masks: np.ndarray | None,
+                      frame: int, t: float, conf: FusionConfig = default_fusion_conf,
+                      instance_ids: np.ndarray | None = None) -> list[Observation]:
+    """Masked depth -> world points for each detection of one frame.
+
+    depth: [H, W] float32 metres (0 invalid); K: [3, 3]; T_wc: [4, 4] camera-to-world (gravity-aligned world);
+    boxes: [N, 4] pixels; masks: [N, H, W] bool or None (then the box interior is used, with a tighter depth
+    filter: the median-depth band, since boxes also cover background).
+    """
+    import cv2
+
+    from .geometry import backproject, transform
+
+    H, W = depth.shape
+    rng = np.random.default_rng(conf.seed + frame)
+    out: list[Observation] = []
+    d = np.where(depth < conf.max_depth_m, depth, 0).astype(np.float32)
+    kernel = np.ones((2 * conf.erode_px + 1,) * 2, np.uint8) if conf.erode_px > 0 else None
+    for j, (box, name) in enumerate(zip(boxes, names)):
+        if masks is not None:
+            m = masks[j].astype(np.uint8)
+            if kernel is not None:
+                eroded = cv2.erode(m, kernel)
+                m = eroded if eroded.sum() >= conf.min_points else m
+        else:
+            m = np.zeros((H, W), np.uint8)
+            x0, y0, x1, y1 = np.round(box).astype(int)
+            m[max(0, y0):min(H, y1), max(0, x0):min(W, x1)] = 1
+        pts, _ = backproject(d, K, m.astype(bool), conf.stride)
+        if masks is None and len(pts):  # box only: keep the dominant depth band (the object, not the wall)
+            z = pts[:, 2]
+            med = np.median(z)
+            pts = pts[np.abs(z - med) < max(0.15, 0.15 * med)]
+        if len(pts) < conf.min_points:
+            continue
+        if len(pts) > conf.max_points:
+            pts = pts[rng.choice(len(pts), conf.max_points, replace=False)]
+        out.append(Observation(name, float(scores[j]), frame, t, transform(T_wc, pts), np.asarray(box, np.float32),
+                               None if instance_ids is None else int(instance_ids[j])))
+    return out
+
+
+def voxel_downsample(points: np.ndarray, voxel: float) -> np.ndarray:
+    """One point (the mean) per occupied voxel. points: [N, 3] -> [M, 3]."""
+    if len(points) == 0:
+        return points
+    keys = np.floor(points / voxel).astype(np.int64)
+    _, inv = np.unique(keys, axis=0, return_inverse=True)
+    inv = inv.reshape(-1)
+    sums = np.zeros((inv.max() + 1, 3))
+    np.add.at(sums, inv, points)
+    cnt = np.bincount(inv).astype(np.float64)
+    return sums / cnt[:, None]
+
+
+def remove_outliers(points: np.ndarray, k: float) -> np.ndarray:
+    """Radial outlier removal around the median: keep points within median + k * MAD of the distance."""
+    if len(points) < 8:
+        return points
+    c = np.median(points, 0)
+    r = np.linalg.norm(points - c, axis=1)
+    med = np.median(r)
+    mad = np.median(np.abs(r - med)) + 1e-9
+    return points[r <= med + k * 1.4826 * mad]
+
+
+@dataclass
+class _Acc:
+    name: str
+    points: np.ndarray
+    score: float
+    first_seen: float
+    frames: list[int]
+    hints: list[int]
+
+    def centre(self) -> np.ndarray:
+        return np.median(self.points, 0)
+
+    def radius(self) -> float:
+        return float(np.percentile(np.linalg.norm(self.points - self.centre(), axis=1), 90))
+
+
+def fuse_observations(observations: list[Observation], conf: FusionConfig = default_fusion_conf
+                      ) -> tuple[list[ObjectInstance], list[np.ndarray]]:
+    """Fuse observations into instances (same name + 3D overlap or close centres), remove outliers and fit
+    gravity-aligned oriented boxes (yaw from floor-projected points).
+
+    Returns the instances and their fused point clouds ([M, 3] each, same order).
+    Two observations of one name merge when >= `merge_overlap` of the new points lie within `merge_radius_m`
+    of the instance's points, or when the centres are closer than `merge_centre_m` and than the larger of the
+    two radii (an object seen from two sides overlaps little but shares its centre).
+    """
+    from scipy.spatial import cKDTree
+
+    from .geometry import fit_gravity_box
+
+    accs: list[_Acc] = []
+    for ob in sorted(observations, key=lambda o: (o.t, o.frame, -o.score)):
+        pts = voxel_downsample(ob.points, conf.voxel_m)
+        best, best_ov = None, 0.0
+        for a in accs:
+            if a.name != ob.name:
+                continue
+            dist, _ = cKDTree(a.points).query(pts, distance_upper_bound=conf.merge_radius_m)
+            ov = float(np.mean(np.isfinite(dist)))
+            cdist = float(np.linalg.norm(np.median(pts, 0) - a.centre()))
+            r_new = float(np.percentile(np.linalg.norm(pts - np.median(pts, 0), axis=1), 90))
+            close = cdist < min(conf.merge_centre_m, max(a.radius(), r_new))
+            if (ov >= conf.merge_overlap or close) and ov + (1.0 if close else 0.0) > best_ov:
+                best, best_ov = a, ov + (1.0 if close else 0.0)
+        if best is None:
+            accs.append(_Acc(ob.name, pts, ob.score, ob.t, [ob.frame],
+                             [] if ob.instance_hint is None else [ob.instance_hint]))
+        else:
+            best.points = voxel_downsample(np.concatenate([best.points, pts]), conf.voxel_m)
+            best.score = max(best.score, ob.score)
+            best.first_seen = min(best.first_seen, ob.t)
+            if ob.frame not in best.frames:
+                best.frames.append(ob.frame)
+            if ob.instance_hint is not None:
+                best.hints.append(ob.instance_hint)
+    instances, clouds = [], []
+    for a in accs:
+        pts = remove_outliers(a.points, conf.outlier_mad)
+        if len(pts) < max(4, conf.min_instance_points // max(1, int(round(conf.voxel_m / 0.04)))):
+            continue
+        inst = ObjectInstance(len(instances), a.name, fit_gravity_box(pts), a.first_seen, a.score, len(pts),
+                              sorted(a.frames))
+        instances.append(inst)
+        clouds.append(pts)
+    return instances, clouds
+
+
+# ----------------------------------------------------------------------------- gravity
+
+
+def fit_floor_plane(points: np.ndarray, down_hint: np.ndarray, max_tilt_deg: float = 35.0,
+                    threshold: float = 0.03, iterations: int = 300, min_share: float = 0.05,
+                    rng: int = 0) -> tuple[np.ndarray, float, int] | None:
+    """Find the floor: the lowest large plane whose normal is within `max_tilt_deg` of `down_hint`.
+
+    points: [N, 3] in the root camera frame (or any frame); down_hint: [3] rough gravity (e.g. the camera's +y).
+    Returns (down [3] unit normal pointing down, offset d with down·p = d on the plane, inliers) or None.
+    RANSAC over 3-point planes; among near-horizontal planes with >= `min_share` of the best count, the one
+    farthest along `down` wins (table tops are horizontal too, but above the floor).
+    """
+    pts = np.asarray(points, dtype=np.float64)
+    if len(pts) < 50:
+        return None
+    g = np.random.default_rng(rng)
+    hint = np.asarray(down_hint, float) / np.linalg.norm(down_hint)
+    cos_max = np.cos(np.radians(max_tilt_deg))
+    cands: list[tuple[int, np.ndarray, float]] = []
+    for _ in range(iterations):
+        a, b, c = pts[g.choice(len(pts), 3, replace=False)]
+        n = np.cross(b - a, c - a)
+        nn = np.linalg.norm(n)
+        if nn < 1e-9:
+            continue
+        n /= nn
+        if n @ hint < 0:
+            n = -n
+        if n @ hint < cos_max:
+            continue
+        d = float(n @ a)
+        cnt = int(np.sum(np.abs(pts @ n - d) < threshold))
+        cands.append((cnt, n, d))
+    if not cands:
+        return None
+    best = max(c[0] for c in cands)
+    ok = [c for c in cands if c[0] >= max(min_share * len(pts), 0.3 * best)]
+    cnt, n, d = max(ok, key=lambda c: c[2])  # lowest plane (largest offset along down)
+    inl = np.abs(pts @ n - d) < threshold
+    # refine: least-squares normal of the inliers
+    q = pts[inl]
+    cq = q.mean(0)
+    _, _, vt = np.linalg.svd(q - cq, full_matrices=False)
+    n2 = vt[2] if vt[2] @ hint > 0 else -vt[2]
+    return n2, float(n2 @ cq), int(inl.sum())
+
+
+def gravity_world_transform(down_root: np.ndarray, floor_offset: float | None = None,
+                            camera_height_m: float = 1.5) -> np.ndarray:
+    """T [4, 4] from the root camera frame to the gravity-aligned world: z up, y = the root camera's viewing
+    direction projected on the floor, x right, origin on the floor below the root camera.
+
+    down_root: [3] gravity (down) in the root camera frame; floor_offset: d with down·p = d on the floor plane
+    (distance of the floor below the root camera); when unknown, `camera_height_m` is used (a documented prior).
+    """
+    z = -np.asarray(down_root, float) / np.linalg.norm(down_root)
+    fwd = np.array([0.0, 0.0, 1.0]) - z * z[2]  # camera z axis, horizontal part
+    if np.linalg.norm(fwd) < 1e-6:  # looking straight down/up: use the camera's y axis instead
+        fwd = np.array([0.0, -1.0, 0.0]) - z * (-z[1])
+    y = fwd / np.linalg.norm(fwd)
+    x = np.cross(y, z)
+    R = np.stack([x, y, z])  # rows: world axes in root-camera coordinates -> R maps root cam to world
+    h = camera_height_m if floor_offset is None else float(floor_offset)
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = np.array([0.0, 0.0, h])
+    return T
+
+
+# ----------------------------------------------------------------------------- occlusion refinement
+
+
+def expected_visible(inst: ObjectInstance, K: np.ndarray, T_wc: np.ndarray, size: tuple[int, int],
+                     depth: np.ndarray | None = None, min_px: int = 400, occlusion_tol_m: float = 0.25
+                     ) -> np.ndarray | None:
+    """Projected 2D box [4] of `inst` in a camera, or None when it should not be visible there (behind the
+    camera, off-image, too small, or hidden: the observed depth in its projected box is mostly in front of it)."""
+    from .geometry import project
+
+    W, H = size
+    uv, z = project(inst.box.corners(), K, T_wc)
+    if np.any(z <= 0.1):
+        return None
+    x0, y0 = np.clip(uv.min(0), 0, [W - 1, H - 1])
+    x1, y1 = np.clip(uv.max(0), 0, [W - 1, H - 1])
+    if (x1 - x0) * (y1 - y0) < min_px:
+        return None
+    if depth is not None:
+        from .geometry import invert, transform
+
+        zc = transform(invert(T_wc), inst.center[None])[0, 2]
+        patch = depth[int(y0):int(y1) + 1, int(x0):int(x1) + 1]
+        valid = patch[patch > 0]
+        if len(valid) and np.mean(valid < zc - occlusion_tol_m - 0.5 * max(inst.box.axes_lengths)) > 0.7:
+            return None  # something is in front of it
+    return np.array([x0, y0, x1, y1], np.float32)

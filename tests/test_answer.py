@@ -130,6 +130,9 @@ def test_relative_distance_closest_and_farthest():
 def test_numeric_question_with_options_picks_the_nearest():
     a = MapReasoner(numbers_map()).answer("How many chair(s) are in this room?", ["A. 5", "B. 2", "C. 3"])
     assert a.ok and a.text == "B"
+    a = MapReasoner(numbers_map()).answer("What is the length of the longest dimension (length, width, or height) "
+                                          "of the table, measured in centimeters?", ["A. 90 cm", "B. 155 cm"])
+    assert a.ok and a.text == "B" and a.value == pytest.approx(160)
 
 
 def test_appearance_order_from_first_seen():

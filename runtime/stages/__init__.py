@@ -37,7 +37,7 @@ ARCHS: dict[str, str] = {
     "deeplab": "segmenter:SemanticSegmenter",    # per-pixel class logits
     "mobilenet_embedding": "embedder:Embedder",  # pooled CNN features
     "embedding_generic": "embedder:Embedder",
-    "xfeat": "matcher:PairMatcher",          # XFeat pair graph (see matcher.py for the contract)
+    "xfeat": "matcher:TwoStageMatcher",      # XFeat extractor + mutual-NN matcher (contract B in matcher.py)
     "pair_matcher": "matcher:PairMatcher",   # any graph following the pair contract
     "two_stage_matcher": "matcher:TwoStageMatcher",  # extractor + matcher components
 }

