@@ -83,7 +83,8 @@ class AndroidConfig:
     target_platform: str = "arm"                         # convert_onnx_models_to_ort --target_platform
     batch: int = 1
     text_len: int = 16                                   # detector text branch: tokens per name
-    max_points: int = 4                                  # segmenter prompt points (pad with label -1)
+    max_prompts: int = 4                                 # segmenter prompts (boxes) per call
+    max_points: int = 4                                  # points per prompt (pad with label -1)
     kv_window: int = 128                                 # VLM decoder fixed cache length (accelerator variant)
     prefill_len: int = 32                                # VLM decoder prompt chunk for the fixed-window prefill
     nnapi_max_partitions: int = 2                        # more -> flagged (onnxruntime's checker says NO > 2)
@@ -97,7 +98,8 @@ class AndroidConfig:
 
 _BATCH = re.compile(r"^(batch|batch_size|b|n|N|B|bs|num_images)$|batch", re.I)
 _TEXT = re.compile(r"seq|token|text|length|len$", re.I)
-_POINTS = re.compile(r"point|prompt|box|query|queries", re.I)
+_PROMPTS = re.compile(r"prompt|box|quer|object", re.I)
+_POINTS = re.compile(r"point", re.I)
 _KEYPOINTS = re.compile(r"keypoint|kpt|num_kp|top_?k", re.I)
 _PAST = re.compile(r"past|cache|total_seq|kv", re.I)
 
@@ -112,6 +114,8 @@ def _image_axes(inp: dict[str, Any], pp: dict[str, Any]) -> dict[int, int]:
     layout = pp.get("layout")
     if layout is None:  # guess from the channel axis
         layout = "NHWC" if shape[3] == 3 else "NCHW"
+    if shape[3 if layout == "NHWC" else 1] not in (1, 3):  # not an image (e.g. a KV cache [1, heads, T, d])
+        return {}
     return {1: h, 2: w} if layout == "NHWC" else {2: h, 3: w}
 
 
@@ -147,6 +151,8 @@ def fixed_shape_plan(inputs: Sequence[dict[str, Any]], role_meta: dict[str, Any]
                 shape[ax] = img[ax]
             elif _KEYPOINTS.search(name) and (cfg.get("top_k") or cfg.get("max_keypoints")):
                 shape[ax] = int(cfg.get("top_k") or cfg.get("max_keypoints"))
+            elif _PROMPTS.search(name):
+                shape[ax] = conf.max_prompts
             elif _POINTS.search(name) or _POINTS.search(inp["name"]):
                 shape[ax] = conf.max_points
             elif _TEXT.search(name) or _TEXT.search(inp["name"]) or "input_ids" in inp["name"]:
@@ -215,18 +221,34 @@ def _toposort(graph: Any) -> None:
 # ----------------------------------------------------------------------------------------------------------------
 # Random inputs for parity (fixed-shape graphs)
 
-def random_feeds_factory(onnx_path: str | Path, role_meta: dict[str, Any]) -> Callable[[np.random.Generator], dict]:
-    """make_inputs(rng) for a graph with static input shapes: images as random pixels through the role's
-    scale/mean/std, token ids in [0, vocab), masks all ones, prompt labels in {0, 1}, other floats ~N(0, 0.5)."""
+def _dim_value(d: Any, dyn_values: dict[str, int], default: int) -> int:
+    """A concrete size for one graph dim: int as is; a symbol from dyn_values (else `default`); a simple
+    expression of symbols ('past_sequence_length + 1') evaluated with those values."""
+    if isinstance(d, int) and d >= 0:
+        return d
+    if not isinstance(d, str) or not d:
+        return default
+    if d in dyn_values:
+        return int(dyn_values[d])
+    if re.fullmatch(r"[\w\s+*-]+", d) and re.search(r"[+*-]", d):
+        expr = re.sub(r"[A-Za-z_]\w*", lambda m: str(int(dyn_values.get(m.group(0), default))), d)
+        return int(eval(expr, {"__builtins__": {}}, {}))  # noqa: S307  digits and + - * only (checked above)
+    return default
+
+
+def random_feeds_factory(onnx_path: str | Path, role_meta: dict[str, Any],
+                         dyn_values: dict[str, int] | None = None) -> Callable[[np.random.Generator], dict]:
+    """make_inputs(rng): images as random pixels through the role's scale/mean/std, token ids in [0, vocab),
+    masks all ones, prompt labels in {0, 1}, other floats ~N(0, 0.5). Dynamic dims (graphs that keep them,
+    e.g. a KV-cache decoder) get sizes from dyn_values {symbol: size} (default 3)."""
     sess = C.ort_session(onnx_path)
     pp = role_meta.get("preprocessing") or {}
     cfg = role_meta.get("config") or {}
     vocab = int(cfg.get("vocab_size", 100))
+    dyn_values = dyn_values or {}
     specs = []
     for i in sess.get_inputs():
-        if any(not isinstance(d, int) or d < 0 for d in i.shape):
-            raise ExportError(f"{onnx_path}: input {i.name} has dynamic shape {i.shape}; fix it first")
-        specs.append((i.name, tuple(int(d) for d in i.shape), i.type))
+        specs.append((i.name, tuple(_dim_value(d, dyn_values, 3) for d in i.shape), i.type))
     img_size = tuple(pp.get("size") or ())
 
     def make(rng: np.random.Generator) -> dict[str, np.ndarray]:
@@ -261,6 +283,8 @@ def random_feeds_factory(onnx_path: str | Path, role_meta: dict[str, Any]) -> Ca
                     feeds[name] = x.astype(dt)
                 elif "mask" in lname:
                     feeds[name] = np.ones(shape, dt)
+                elif "label" in lname:
+                    feeds[name] = rng.integers(0, 2, shape).astype(dt)
                 elif "coord" in lname or "point" in lname or "box" in lname:
                     feeds[name] = (rng.random(shape) * max(img_size or (64,))).astype(dt)
                 else:
@@ -469,11 +493,32 @@ def recommended_providers(rep: dict[str, Any], precision: str, dynamic_left: boo
 # ----------------------------------------------------------------------------------------------------------------
 # The step
 
+def derive_fp16(src: Path, dst: Path, make_inputs: Callable[[np.random.Generator], dict]) -> tuple[bool, Any]:
+    """fp16 copy of a float graph (I/O kept fp32; Q/DQ nodes and onnxruntime's default block list stay fp32),
+    kept only when its parity vs the fp32 graph passes (export/common.py PARITY_TOL["fp16"]).
+    Returns (True, path) or (False, reason)."""
+    from onnxruntime.transformers.float16 import DEFAULT_OP_BLOCK_LIST
+
+    try:
+        C.to_fp16(src, dst, op_block_list=list(DEFAULT_OP_BLOCK_LIST) + ["QuantizeLinear", "DequantizeLinear"])
+        ref = C.ort_session(src)
+        par = C.parity_check(dst, lambda f: C.ort_run(ref, f), make_inputs, precision="fp16", require=False,
+                             label=f"{dst.name} vs fp32")
+    except Exception as e:  # noqa: BLE001  a graph the converter cannot handle: keep fp32, say why
+        return False, f"fp16 conversion failed: {type(e).__name__}: {str(e)[:200]}"
+    if not par["ok"]:
+        return False, (f"parity vs fp32 failed: rel {par['worst']['rel']:.3g} (tol {par['tolerance']['rel']}), "
+                       f"cosine {par['worst']['cosine']:.4f}")
+    return True, dst
+
+
 def _has_qdq(path: Path) -> bool:
+    """True when activations are quantised (QuantizeLinear / QLinear* nodes); weight-only DequantizeLinear
+    (e.g. PyDNet's int8 weights) does not count: the compute is float and an fp16 copy can still help."""
     import onnx
 
     m = onnx.load(str(path), load_external_data=False)
-    return any(n.op_type in ("QuantizeLinear", "DequantizeLinear", "QLinearConv") for n in m.graph.node)
+    return any(n.op_type == "QuantizeLinear" or n.op_type.startswith("QLinear") for n in m.graph.node)
 
 
 def _ref(root: Path, path: Path) -> dict[str, str]:
@@ -519,11 +564,11 @@ def export_android(bundle_dir: str | Path, conf: AndroidConfig | None = None,
                     for c, p in fp32_srcs.items():
                         fixed_tmp = _fixed_copy(p, variants["fp32"]["components"][c], rmeta, c, conf, tmp, "f32ref")
                         mk = random_feeds_factory(fixed_tmp, rmeta)
-                        q = C.quantize_variant(p, tmp / f"{c}.fp16.onnx", "fp16", make_inputs=mk)
-                        if not q["ok"]:
-                            reason = f"{c}: {q['reason']}"
+                        ok, path_or_reason = derive_fp16(p, tmp / f"{c}.fp16.onnx", mk)
+                        if not ok:
+                            reason = f"{c}: {path_or_reason}"
                             break
-                        derived[c] = q["path"]
+                        derived[c] = path_or_reason
                     if reason:
                         skipped["fp16"] = f"derived fp16 not shipped: {reason}"
                     else:
@@ -549,9 +594,10 @@ def export_android(bundle_dir: str | Path, conf: AndroidConfig | None = None,
                 out_dir.mkdir(parents=True)
                 conv, configs, _ = convert_to_ort(list(fixed.values()), tmp / f"ort-{v}",
                                                   styles=conf.styles, target_platform=conf.target_platform)
+                v_ops: dict[tuple[str, int], set[str]] = {}
                 for cfg in configs.values():
                     for k, ops in read_operator_config(cfg).items():
-                        merged.setdefault(k, set()).update(ops)
+                        v_ops.setdefault(k, set()).update(ops)
                 components, parity = {}, {}
                 for c, fx in fixed.items():
                     info = comp_info[c]
@@ -561,17 +607,14 @@ def export_android(bundle_dir: str | Path, conf: AndroidConfig | None = None,
                         dst = out_dir / (f"{c}.with_runtime_opt.ort" if s == "Runtime" else f"{c}.ort")
                         shutil.copyfile(pth, dst)
                         paths[s] = dst
-                    # parity: each .ort against its fixed-shape source graph (fresh random inputs)
-                    if dyn_left:
-                        par = {"ok": None, "skipped": "dynamic axes left; parity runs in the role's export"}
-                    else:
-                        mk = random_feeds_factory(fx, rmeta)
-                        rel_tol, cos_min = ORT_PARITY_TOL[v]
-                        par = {s: ort_parity(pth, fx, mk, runtime_opt=(s == "Runtime"), trials=conf.parity_trials,
-                                             rel_tol=rel_tol, cos_min=cos_min,
-                                             label=f"{role}/{vname}/{pth.name} vs .onnx")
-                               for s, pth in paths.items()}
-                    parity[c] = par
+                    # parity: each .ort against its fixed-shape source graph (fresh random inputs; axes left
+                    # dynamic, e.g. a KV cache, get small concrete sizes)
+                    mk = random_feeds_factory(fx, rmeta)
+                    rel_tol, cos_min = ORT_PARITY_TOL[v]
+                    parity[c] = {s: ort_parity(pth, fx, mk, runtime_opt=(s == "Runtime"), trials=conf.parity_trials,
+                                               rel_tol=rel_tol, cos_min=cos_min,
+                                               label=f"{role}/{vname}/{pth.name} vs .onnx")
+                                 for s, pth in paths.items()}
                     rep = usability_report(fx, out_dir / f"{c}.usability.txt", out_dir / f"{c}.usability.json",
                                            nnapi_max_partitions=conf.nnapi_max_partitions)
                     providers, why = recommended_providers(rep, v, dyn_left, conf)
@@ -589,7 +632,6 @@ def export_android(bundle_dir: str | Path, conf: AndroidConfig | None = None,
                                                 "session_config": {"session.enable_saved_runtime_optimizations": "1"},
                                                 "use_for": ["NNAPI", "QNN"]}
                     info.update(entry)
-                    all_ort += [f"{role}/{vname}/{p.name}" for p in paths.values()]
                     summary["usability"].append({"role": role, "variant": vname, "component": c,
                                                  "nnapi_partitions": rep["nnapi"]["partitions"],
                                                  "nnapi_supported_pct": rep["nnapi"]["supported_pct"],
@@ -607,6 +649,7 @@ def export_android(bundle_dir: str | Path, conf: AndroidConfig | None = None,
                               extra={"android": {"source_variant": v if v in variants else f"{v} (derived from fp32)",
                                                  "ort_styles": list(conf.styles),
                                                  "target_platform": conf.target_platform,
+                                                 "required_operators": _ops_to_json(v_ops),
                                                  "components": comp_info}})
                 role_sum[vname] = {"components": {c: {"fixed_shapes": comp_info[c]["fixed_shapes"],
                                                       "dynamic_left": comp_info[c]["dynamic_left"],
@@ -620,9 +663,18 @@ def export_android(bundle_dir: str | Path, conf: AndroidConfig | None = None,
         rm["android"] = {"variants": sorted(role_sum), "skipped": skipped}
         B.write_manifest(root, m)
         summary["roles"][role] = {"variants": role_sum, "skipped": skipped}
+    # one config for the whole bundle: every android variant recorded so far (also from earlier runs)
+    m = B.read_manifest(root)
+    for rname, rm in m["roles"].items():
+        for vname, vm in rm["variants"].items():
+            if vm.get("target") == "android":
+                for k, ops in _ops_from_json((vm.get("android") or {}).get("required_operators", {})).items():
+                    merged.setdefault(k, set()).update(ops)
+                all_ort += [c["file"] for c in vm["components"].values()]
+                all_ort += [c["runtime_opt"]["file"] for c in (vm.get("android") or {}).get("components", {}).values()
+                            if "runtime_opt" in c]
     cfg_path = write_operator_config(root / OPS_CONFIG, merged, sorted(set(all_ort)))
     cmd = build_command("$BUNDLE/" + OPS_CONFIG)
-    m = B.read_manifest(root)
     m["android"] = {"onnxruntime_version": ort.__version__, "required_operators": _ref(root, cfg_path),
                     "build_command": cmd, "usability_summary": summary["usability"],
                     "nnapi_max_partitions": conf.nnapi_max_partitions, "not_checked": NOT_CHECKED,
@@ -676,9 +728,19 @@ def ort_parity(ort_path: str | Path, onnx_path: str | Path, make_inputs: Callabl
             "tolerance": {"rel": rel_tol, "cosine_min": cos_min}, "worst": worst, "outputs": per[-1]}
 
 
+def _ops_to_json(ops: dict[tuple[str, int], set[str]]) -> dict[str, list[str]]:
+    return {f"{d};{v}": sorted(o) for (d, v), o in sorted(ops.items())}
+
+
+def _ops_from_json(d: dict[str, list[str]]) -> dict[tuple[str, int], set[str]]:
+    out = {}
+    for k, ops in d.items():
+        dom, ver = k.rsplit(";", 1)
+        out[(dom, int(ver))] = set(ops)
+    return out
+
+
 def _parity_brief(par: dict[str, Any]) -> Any:
-    if "skipped" in par:
-        return par
     return {s: {"ok": p["ok"], "rel": p["worst"]["rel"], "cosine": p["worst"]["cosine"]} for s, p in par.items()}
 
 
@@ -731,6 +793,14 @@ def config_from_args(args: argparse.Namespace) -> AndroidConfig:
                          roles=tuple(r.strip() for r in roles.split(",")) if roles else None)
 
 
+def target_step(out: str | Path, roles: Sequence[str], args: argparse.Namespace) -> dict[str, Any]:
+    """`mosaic export ROLE ... --target android` (export/cli.py TARGETS): the roles just exported."""
+    conf = replace(config_from_args(args), roles=tuple(roles))
+    res = export_android(out, conf)
+    C.progress(render({"bundle": str(out), **res}))
+    return res
+
+
 def run(args: argparse.Namespace) -> dict[str, Any]:
     bundle = getattr(args, "out", None) or getattr(args, "bundle", None)
     if not bundle:
@@ -745,8 +815,7 @@ def render(result: dict[str, Any]) -> str:
         for v, vm in r["variants"].items():
             for c, cm in vm["components"].items():
                 par = cm["parity"]
-                ptxt = ", ".join(f"{s} rel={p['rel']:.1e}" for s, p in par.items()) if "skipped" not in par \
-                    else par["skipped"]
+                ptxt = ", ".join(f"{s} rel={p['rel']:.1e}" for s, p in par.items())
                 lines.append(f"  {role}/{v}/{c}: NNAPI partitions={cm['nnapi_partitions']} "
                              f"providers={'>'.join(cm['providers'])} parity[{ptxt}]"
                              + (f" FLAGS: {'; '.join(f.split(':')[0] for f in cm['flags'])}" if cm["flags"] else ""))
@@ -756,3 +825,26 @@ def render(result: dict[str, Any]) -> str:
     lines.append(f"reduced build: {result['build_command']}")
     lines.append(result["not_checked"])
     return "\n".join(lines)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """`python -m mosaicthinker.export.android BUNDLE`: the Android step alone on an existing bundle."""
+    from mosaicthinker.runtime.errors import MosaicError
+
+    p = argparse.ArgumentParser(prog="python -m mosaicthinker.export.android", description=__doc__.split("\n")[0])
+    p.add_argument("bundle", metavar="BUNDLE")
+    p.add_argument("--json", action="store_true")
+    add_arguments(p)
+    args = p.parse_args(argv)
+    args.out = args.bundle
+    try:
+        res = run(args)
+    except MosaicError as e:
+        print(f"error: {e}")
+        return 2
+    print(json.dumps(res, default=str) if args.json else render(res))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -32,9 +32,16 @@ SOURCE_EXPORTERS: dict[str, str] = {
     "pypi": "xfeat:export_role",
 }
 # role -> "module:function" for hf:/dir:/tiny sources (H6 registers the HF architectures here)
-HF_EXPORTERS: dict[str, str] = {}
+HF_EXPORTERS: dict[str, str] = {
+    "depth": "hf_depth:export_role",          # Depth-Anything-V2 (relative, metric-indoor)
+    "segmenter": "hf_sam:export_role",        # SAM / SlimSAM: encoder + prompt decoder
+    "detector": "hf_owlv2:export_role",       # OWLv2: image + text branches
+    "embedder": "hf_clip:export_role",        # CLIP / SigLIP vision towers
+    "matcher": "hf_matchers:export_role",     # SuperPoint+LightGlue, EfficientLoFTR
+    "vlm": "hf_vlm:export_role",              # SmolVLM, InternVL: vision + embed + decoder-with-KV-cache
+}
 # target -> "module:function(out: Path, roles: list[str], args) -> dict" (issue 7: android, jetson)
-TARGETS: dict[str, str] = {}
+TARGETS: dict[str, str] = {"android": "android:target_step", "jetson": "jetson:target_step"}
 
 
 def _load(ref: str):
@@ -53,6 +60,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--meta", metavar="FILE", help="metadata JSON for --source onnx:PATH")
     parser.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",
                         help="exporter option (e.g. k=1024, height=480, width=640); repeatable")
+    from . import android, jetson  # flags of the --target android|jetson steps (issue 7)
+
+    android.add_arguments(parser)
+    jetson.add_arguments(parser)
 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:

@@ -14,7 +14,7 @@ import numpy as np
 from mosaicthinker.runtime.errors import ExportError
 
 from . import common as C
-from .hf_depth import CLIP_MEAN, CLIP_STD, GraphSpec, _image_calibration, export_variants, load_source
+from .hf_depth import run_exporter, CLIP_MEAN, CLIP_STD, GraphSpec, _image_calibration, export_variants, load_source
 
 HF_DEFAULTS = {"clip": "openai/clip-vit-base-patch32", "siglip": "google/siglip-base-patch16-224"}
 
@@ -82,3 +82,9 @@ def export_embedder(source: str, out: str | Path, precisions: Sequence[str], *,
     meta = C.role_meta(kind, preprocessing=pre, semantics={"dim": dim, "normalised": True}, provenance=prov,
                        licence=licence, random_weights=prov["random_weights"], config={"output": 0})
     return export_variants(out, "embedder", [g], meta, precisions)
+
+
+def export_role(role: str, source: str, precisions: Sequence[str], out: str | Path, *, calib: str | None = None,
+                options: dict[str, str] | None = None, **_: Any) -> dict[str, Any]:
+    """`mosaic export embedder --source hf:ID|dir:PATH|tiny[:ARCH]` (registered in export/cli.py)."""
+    return run_exporter(export_embedder, source, precisions, out, calib=calib, options=options)

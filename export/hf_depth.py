@@ -90,6 +90,12 @@ class GraphSpec:
     parity_outputs: Sequence[int] | None = None
     tol: dict[str, tuple[float, float]] = field(default_factory=dict)
     meta: dict[str, Any] = field(default_factory=dict)
+    # graphs with discrete selections (top-k, argmax, mutual nearest neighbours): near-ties may legitimately
+    # flip between runtimes, so besides element-wise parity on `parity_outputs` (the continuous ones) the
+    # outputs are compared as sets: agreement(ref_outputs, got_outputs) -> fraction in [0, 1]
+    agreement: Callable[[list[np.ndarray], list[np.ndarray]], float] | None = None
+    agreement_min: dict[str, float] = field(default_factory=lambda: {"fp32": 0.95, "fp16": 0.8, "int8-dynamic": 0.7,
+                                                                     "int8-qdq": 0.7})
 
 
 class _Half:
@@ -129,15 +135,15 @@ def torch_reference(module: Any, input_names: Sequence[str]) -> Callable[[dict],
 
 def export_variants(out: str | Path, role: str, graphs: list[GraphSpec], meta: dict[str, Any],
                     precisions: Sequence[str], *, workdir: str | Path | None = None,
-                    task_check: Callable[[dict[str, Path]], dict[str, Any]] | None = None) -> dict[str, Any]:
+                    task_check: Callable[[dict[str, Path], str], dict[str, Any]] | None = None) -> dict[str, Any]:
     """Export `graphs` at each precision and add the variants to the bundle at `out`.
 
-    precisions: variant names (`common.parse_precisions` output; fp32 always first). task_check(files) ->
+    precisions: variant names (`common.parse_precisions` output; fp32 always first). task_check(files, variant) ->
     {"ok": bool, ...} runs on a whole variant's component files when given (e.g. VLM token agreement); a
     failing fp32 task check fails the export, a failing lower-precision one skips that variant.
     Returns {"variants": {variant: {"components": {c: precision}, "parity": ..., "task": ...}}, "skipped": {...}}.
     """
-    precisions = list(precisions)
+    precisions = C.parse_precisions(",".join(precisions))
     if "fp32" not in precisions:
         precisions.insert(0, "fp32")
     tmp_ctx = tempfile.TemporaryDirectory(prefix=f"mosaic-export-{role}-") if workdir is None else None
@@ -149,13 +155,11 @@ def export_variants(out: str | Path, role: str, graphs: list[GraphSpec], meta: d
         for g in graphs:
             p = C.export_torch(g.module, g.example, work / "fp32" / f"{g.name}.onnx", g.input_names, g.output_names,
                                dynamic_shapes=g.dynamic_shapes)
-            rel, cos = g.tol.get("fp32", (None, None))
-            par32[g.name] = C.parity_check(p, torch_reference(g.module, g.input_names), g.make_inputs,
-                                           precision="fp32", outputs=g.parity_outputs, rel_tol=rel, cos_min=cos,
-                                           label=f"{role}/{g.name} vs torch")
+            par32[g.name] = _parity(g, p, torch_reference(g.module, g.input_names), "fp32", f"{role}/{g.name} vs torch",
+                                    require=True)
             fp32[g.name] = p
             par32[g.name]["reference_std"] = _reference_spread(g)
-        task = task_check(fp32) if task_check else None
+        task = task_check(fp32, "fp32") if task_check else None
         if task is not None and not task.get("ok"):
             raise ExportError(f"{role}: fp32 task check failed: {task}")
         cmeta = {g.name: {**g.meta, "precision": "fp32"} for g in graphs}
@@ -183,7 +187,7 @@ def export_variants(out: str | Path, role: str, graphs: list[GraphSpec], meta: d
                 C.record_skipped_variant(out, role, variant, f"every component failed: {reason}")
                 report["skipped"][variant] = reason
                 continue
-            task = task_check(files) if task_check else None
+            task = task_check(files, variant) if task_check else None
             if task is not None and not task.get("ok"):
                 C.record_skipped_variant(out, role, variant, f"task check failed: {task}")
                 report["skipped"][variant] = f"task check failed: {task}"
@@ -205,7 +209,7 @@ def _reference_spread(g: GraphSpec) -> list[float]:
     """Std of each float reference output on one fresh input: a constant output (e.g. a random net whose
     ReLU head is all zero) would make any parity figure vacuous, so it fails the export."""
     outs = torch_reference(g.module, g.input_names)(g.make_inputs(np.random.default_rng(7)))
-    idx = g.parity_outputs if g.parity_outputs is not None else range(len(outs))
+    idx = g.parity_outputs if g.parity_outputs else range(len(outs))
     spread = [float(np.std(outs[i])) for i in idx if np.issubdtype(outs[i].dtype, np.floating) and outs[i].size > 1]
     if spread and max(spread) == 0.0:
         raise ExportError(f"{g.name}: every float output is constant on random inputs; the parity check would "
@@ -226,13 +230,16 @@ def _lower_precision(g: GraphSpec, variant: str, fp32_path: Path, work: Path) ->
             ds = g.dynamic_shapes
             if isinstance(ds, dict):
                 ds = (tuple(ds.get(n) for n in g.input_names),)
+            elif isinstance(ds, (tuple, list)):  # positional, possibly with a nested *args tuple: flatten
+                flat: list = []
+                for d in ds:
+                    flat.extend(d) if isinstance(d, (tuple, list)) else flat.append(d)
+                ds = (tuple(flat),)
             C.export_torch(_Half(g.module), g.example, dst, g.input_names, g.output_names, dynamic_shapes=ds)
         except ExportError as e:
             return {"ok": False, "reason": f".half() export failed: {str(e)[:200]}"}
         ref = C.ort_session(fp32_path)
-        par = C.parity_check(dst, lambda feeds: C.ort_run(ref, feeds), g.make_inputs, precision="fp16",
-                             outputs=g.parity_outputs, rel_tol=rel, cos_min=cos, require=False,
-                             label=f"{g.name} fp16 vs fp32")
+        par = _parity(g, dst, lambda feeds: C.ort_run(ref, feeds), "fp16", f"{g.name} fp16 vs fp32", require=False)
         if par["ok"]:
             return {"ok": True, "path": dst, "parity": par}
         return {"ok": False, "parity": par, "reason": f"fp16 parity vs fp32 failed: rel {par['worst']['rel']:.3g}, "
@@ -241,9 +248,87 @@ def _lower_precision(g: GraphSpec, variant: str, fp32_path: Path, work: Path) ->
         return {"ok": False, "reason": "int8 disabled for this component (integer/index logic or tiny graph)"}
     calib = g.calibration() if (variant == "int8-qdq" and g.calibration) else (
         [g.make_inputs(np.random.default_rng(1000 + i)) for i in range(8)] if variant == "int8-qdq" else ())
+    task = None
+    if g.agreement is not None:
+        ref = C.ort_session(fp32_path)
+
+        def task(path: Path) -> dict[str, Any]:
+            return _agreement(g, path, lambda feeds: C.ort_run(ref, feeds), variant, require=False)
+
     res = C.quantize_variant(fp32_path, dst, variant, make_inputs=g.make_inputs, calibration=calib,
-                             outputs=g.parity_outputs, rel_tol=rel, cos_min=cos)
+                             outputs=g.parity_outputs, rel_tol=rel, cos_min=cos, task_check=task)
     return res
+
+
+def _parity(g: GraphSpec, path: Path, reference: Callable, precision: str, label: str, *,
+            require: bool) -> dict[str, Any]:
+    """Element-wise parity (common.parity_check) on the continuous outputs, plus set agreement for graphs
+    with discrete selections. Raises ExportError when require and either fails."""
+    rel, cos = g.tol.get(precision, (None, None))
+    if g.parity_outputs is not None and len(g.parity_outputs) == 0:
+        par: dict[str, Any] = {"ok": True, "precision": precision, "elementwise": "none (discrete outputs only)"}
+    else:
+        par = C.parity_check(path, reference, g.make_inputs, precision=precision, outputs=g.parity_outputs,
+                             rel_tol=rel, cos_min=cos, require=require, label=label)
+    if g.agreement is not None:
+        agr = _agreement(g, path, reference, precision, require=require)
+        par = {**par, "agreement": agr, "ok": bool(par["ok"] and agr["ok"])}
+    return par
+
+
+def _agreement(g: GraphSpec, path: Path, reference: Callable, precision: str, *, require: bool,
+               trials: int = 2) -> dict[str, Any]:
+    import os
+
+    seed = int.from_bytes(os.urandom(4), "little")
+    rng = np.random.default_rng(seed)
+    sess = C.ort_session(path)
+    vals = []
+    for _ in range(trials):
+        feeds = g.make_inputs(rng)
+        vals.append(float(g.agreement(list(reference(feeds)), C.ort_run(sess, feeds))))
+    need = g.agreement_min.get(precision, 0.9)
+    ok = min(vals) >= need
+    C.progress(f"agreement {g.name} [{precision}]: {min(vals):.3f} (min {need}) -> {'ok' if ok else 'FAIL'}")
+    if require and not ok:
+        raise ExportError(f"parity (set agreement) failed for {path} ({precision}): {min(vals):.3f} < {need}; "
+                          f"the artifact was not added to the bundle")
+    return {"ok": bool(ok), "worst": min(vals), "min": need, "trials": trials, "seed": seed,
+            "inputs": "fresh random"}
+
+
+def run_exporter(fn: Callable[..., dict], source: str, precisions: Sequence[str], out: str | Path, *,
+                 calib: str | None = None, options: dict[str, str] | None = None) -> dict[str, Any]:
+    """The `mosaic export` entry (export/cli.py signature) around an `export_<role>(source, out, precisions,
+    **kw)` function: --option KEY=VALUE become keyword arguments (ints/floats parsed), --calib frames are
+    read for int8-qdq calibration."""
+    kw: dict[str, Any] = {}
+    for k, v in (options or {}).items():
+        try:
+            kw[k] = int(v)
+        except ValueError:
+            try:
+                kw[k] = float(v)
+            except ValueError:
+                kw[k] = v
+    if calib:
+        kw["calibration_frames"] = C.calibration_frames(calib)
+    rep = fn(source, out, precisions, **kw)
+    return {"variants": {v: {c: (r["parity"][c] or {}).get("worst") if r.get("parity") else None
+                             for c in r["components"]} for v, r in rep["variants"].items()},
+            "components": {v: r["components"] for v, r in rep["variants"].items()},
+            "task": {v: _brief_task(r.get("task")) for v, r in rep["variants"].items() if r.get("task")},
+            "skipped": rep["skipped"]}
+
+
+def _brief_task(task: dict[str, Any] | None) -> dict[str, Any] | None:
+    return None if task is None else {k: v for k, v in task.items() if k != "runs"}
+
+
+def export_role(role: str, source: str, precisions: Sequence[str], out: str | Path, *, calib: str | None = None,
+                options: dict[str, str] | None = None, **_: Any) -> dict[str, Any]:
+    """`mosaic export depth --source hf:ID|dir:PATH|tiny[:ARCH]` (registered in export/cli.py)."""
+    return run_exporter(export_depth, source, precisions, out, calib=calib, options=options)
 
 
 # ------------------------------------------------------------------------------------------------------------

@@ -17,7 +17,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from . import common as C
-from .hf_depth import IMAGENET_MEAN, IMAGENET_STD, GraphSpec, export_variants, load_source
+from .hf_depth import run_exporter, IMAGENET_MEAN, IMAGENET_STD, GraphSpec, export_variants, load_source
 
 HF_DEFAULTS = {"sam": "facebook/sam-vit-base", "slimsam": "nielsr/slimsam-50-uniform"}
 
@@ -122,3 +122,9 @@ def export_segmenter(source: str, out: str | Path, precisions: Sequence[str], *,
                        provenance=prov, licence="Apache-2.0", random_weights=prov["random_weights"],
                        config={"input_size": S, "mask_threshold": 0.0, "embedding_size": [hw, hw]})
     return export_variants(out, "segmenter", graphs, meta, precisions)
+
+
+def export_role(role: str, source: str, precisions: Sequence[str], out: str | Path, *, calib: str | None = None,
+                options: dict[str, str] | None = None, **_: Any) -> dict[str, Any]:
+    """`mosaic export segmenter --source hf:ID|dir:PATH|tiny[:ARCH]` (registered in export/cli.py)."""
+    return run_exporter(export_segmenter, source, precisions, out, calib=calib, options=options)

@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import argparse
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -45,7 +45,8 @@ _BATCH = re.compile(r"batch|^b$|^n$|^bs$", re.I)
 _PAST = re.compile(r"past|cache|kv", re.I)
 _TOTAL = re.compile(r"total|attention_mask|mask_len", re.I)
 _SEQ = re.compile(r"seq|token|length|len$", re.I)
-_POINTS = re.compile(r"point|prompt|box|quer", re.I)
+_PROMPTS = re.compile(r"prompt|box|quer|object", re.I)
+_POINTS = re.compile(r"point", re.I)
 _KEYPOINTS = re.compile(r"keypoint|kpt|top_?k", re.I)
 
 
@@ -59,7 +60,8 @@ class JetsonConfig:
     workspace_mb: int = 2048
     max_batch: int = 1
     text_range: tuple[int, int, int] = (1, 16, 32)
-    points_range: tuple[int, int, int] = (1, 4, 16)
+    prompts_range: tuple[int, int, int] = (1, 4, 64)
+    points_range: tuple[int, int, int] = (1, 2, 16)
     past_range: tuple[int, int, int] = (1, 128, 1024)
     seq_range: tuple[int, int, int] = (1, 1, 256)
     builder_optimization_level: int = 3
@@ -90,6 +92,8 @@ def axis_range(name: str, inp: dict[str, Any], ax: int, role_meta: dict[str, Any
     if _KEYPOINTS.search(name) and (cfg.get("top_k") or cfg.get("max_keypoints")):
         k = int(cfg.get("top_k") or cfg.get("max_keypoints"))
         return (k, k, k)
+    if _PROMPTS.search(name):
+        return conf.prompts_range
     if _POINTS.search(name) or _POINTS.search(iname):
         return conf.points_range
     if "input_ids" in iname or "position" in iname or _SEQ.search(name):
@@ -206,6 +210,43 @@ def script_line(argv: Sequence[str], conf: JetsonConfig) -> str:
     return " ".join(out)
 
 
+def qdq_info(onnx_path: str | Path) -> dict[str, Any]:
+    """Quantisation nodes of a graph and whether TensorRT can take them as explicit int8 quantisation.
+
+    TensorRT's Q/DQ layers are symmetric signed int8 (zero point 0). TFLite-converted graphs and onnxruntime's
+    default static QDQ (QUInt8 activations) carry uint8 / non-zero zero points: NNAPI and QNN take those, but
+    TensorRT cannot fuse them, so onnxruntime leaves those nodes to CUDA/CPU. Returns {qdq, nodes,
+    zero_point_dtypes, nonzero_zero_points, trt_int8_compatible}."""
+    import onnx
+    from onnx import numpy_helper
+
+    m = onnx.load(str(onnx_path), load_external_data=False)
+    init = {i.name: i for i in m.graph.initializer}
+    consts = {n.output[0]: n for n in m.graph.node if n.op_type == "Constant"}
+    nodes, dtypes, nonzero = 0, set(), 0
+    for n in m.graph.node:
+        if n.op_type not in ("QuantizeLinear", "DequantizeLinear"):
+            continue
+        nodes += 1
+        if len(n.input) < 3 or not n.input[2]:
+            dtypes.add("uint8")  # default zero-point type of QuantizeLinear without one
+            continue
+        zp = n.input[2]
+        arr = None
+        if zp in init:
+            arr = numpy_helper.to_array(init[zp])
+        elif zp in consts:
+            arr = numpy_helper.to_array(consts[zp].attribute[0].t)
+        if arr is None:
+            dtypes.add("unknown")
+            continue
+        dtypes.add(arr.dtype.name)
+        nonzero += int(arr.size and (arr != 0).any())
+    ok = nodes > 0 and dtypes <= {"int8"} and nonzero == 0
+    return {"qdq": nodes > 0, "nodes": nodes, "zero_point_dtypes": sorted(dtypes),
+            "nonzero_zero_points": nonzero, "trt_int8_compatible": ok}
+
+
 def export_jetson(bundle_dir: str | Path, conf: JetsonConfig | None = None) -> dict[str, Any]:
     """Record TensorRT provider options, profile shapes and trtexec commands for every role/variant/component
     of the bundle (ONNX components only) and write jetson/build_engines.sh. Returns a summary."""
@@ -232,20 +273,42 @@ def export_jetson(bundle_dir: str | Path, conf: JetsonConfig | None = None) -> d
                 if cm.get("format", "onnx") != "onnx":
                     continue
                 profile = profile_shapes(cm.get("inputs", []), rm, conf)
-                opts = trt_provider_options(role, v, c, v, profile, conf)
-                argv = trtexec_command(cm["file"], role, v, c, v, profile, conf)
-                comps[c] = {"trt_profile_shapes": profile if profile["min"] else {},
-                            "providers": provider_chain(opts), "trtexec": argv}
-                lines.append(f'mkdir -p "$CACHE/{role}/{v}"')
-                lines.append(script_line(argv, conf))
+                q = qdq_info(B.safe_path(root, cm["file"]))
+                prec = "int8-qdq" if q["qdq"] else v  # Q/DQ nodes need the int8 builder flag
+                opts = trt_provider_options(role, v, c, prec, profile, conf)
+                argv = trtexec_command(cm["file"], role, v, c, prec, profile, conf)
+                entry = {"trt_profile_shapes": profile if profile["min"] else {},
+                         "providers": provider_chain(opts), "trtexec": argv, "qdq": q, "warnings": []}
+                if q["qdq"] and not q["trt_int8_compatible"]:
+                    entry["warnings"].append(
+                        f"Q/DQ nodes with zero-point types {q['zero_point_dtypes']} and {q['nonzero_zero_points']} "
+                        f"non-zero zero points: TensorRT takes only symmetric int8 Q/DQ, so these run outside "
+                        f"TensorRT (CUDA/CPU). For Jetson re-quantise with int8 symmetric activations "
+                        f"(onnxruntime quantize_static activation_type=QInt8, extra_options "
+                        f"ActivationSymmetric=True) or use the fp16 engine of a float graph.")
+                if v == "fp32" and not q["qdq"]:
+                    # the usual Jetson choice: an fp16 engine built from the fp32 graph
+                    fp16 = trt_provider_options(role, "fp32-trtfp16", c, "fp16", profile, conf)
+                    entry["providers_fp16_engine"] = provider_chain(fp16)
+                    entry["trtexec_fp16_engine"] = trtexec_command(cm["file"], role, "fp32-trtfp16", c, "fp16",
+                                                                   profile, conf)
+                comps[c] = entry
             if comps:
                 vm["jetson"] = {"components": comps, "precision": v,
                                 "int8": ("explicit (QDQ nodes), no calibration table" if v == "int8-qdq" else None),
                                 "engine_built_here": False}
-                role_sum[v] = {c: {"profile": d["trt_profile_shapes"], "trtexec": " ".join(d["trtexec"])}
-                               for c, d in comps.items()}
+                role_sum[v] = {c: {"profile": d["trt_profile_shapes"], "trtexec": " ".join(d["trtexec"]),
+                                   "warnings": d["warnings"]} for c, d in comps.items()}
         rm["jetson"] = {"variants": sorted(role_sum)}
         summary["roles"][role] = role_sum
+    for role, rm in manifest["roles"].items():  # the script covers every role with Jetson settings so far
+        for v, vm in rm["variants"].items():
+            for c, d in ((vm.get("jetson") or {}).get("components") or {}).items():
+                for argv in (d["trtexec"], d.get("trtexec_fp16_engine")):
+                    if argv:
+                        lines.append(f'mkdir -p "{Path(argv[2].split("=", 1)[1]).parent}"'
+                                     .replace(f"{conf.cache_dir}/", "$CACHE/"))
+                        lines.append(script_line(argv, conf))
     script = root / SCRIPT
     script.parent.mkdir(parents=True, exist_ok=True)
     script.write_text("\n".join(lines) + "\n")
@@ -287,6 +350,12 @@ def config_from_args(args: argparse.Namespace) -> JetsonConfig:
                         roles=tuple(r.strip() for r in roles.split(",")) if roles else None)
 
 
+def target_step(out: str | Path, roles: Sequence[str], args: argparse.Namespace) -> dict[str, Any]:
+    """`mosaic export ROLE ... --target jetson` (export/cli.py TARGETS): the roles just exported."""
+    conf = replace(config_from_args(args), roles=tuple(roles))
+    return export_jetson(out, conf)
+
+
 def run(args: argparse.Namespace) -> dict[str, Any]:
     bundle = getattr(args, "out", None) or getattr(args, "bundle", None)
     if not bundle:
@@ -301,5 +370,31 @@ def render(result: dict[str, Any]) -> str:
         for v, comps in vs.items():
             for c, d in comps.items():
                 lines.append(f"  {role}/{v}/{c}: {d['trtexec']}")
+                lines += [f"    WARNING: {w}" for w in d.get("warnings", [])]
     lines += [f"engine build script: {result['script']}", result["not_run"]]
     return "\n".join(lines)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """`python -m mosaicthinker.export.jetson BUNDLE`: the Jetson step alone on an existing bundle."""
+    import json
+
+    from mosaicthinker.runtime.errors import MosaicError
+
+    p = argparse.ArgumentParser(prog="python -m mosaicthinker.export.jetson", description=__doc__.split("\n")[0])
+    p.add_argument("bundle", metavar="BUNDLE")
+    p.add_argument("--json", action="store_true")
+    add_arguments(p)
+    args = p.parse_args(argv)
+    args.out = args.bundle
+    try:
+        res = run(args)
+    except MosaicError as e:
+        print(f"error: {e}")
+        return 2
+    print(json.dumps(res) if args.json else render(res))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

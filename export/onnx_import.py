@@ -215,3 +215,111 @@ def import_shared_models(models_dir: str | os.PathLike, out: str | os.PathLike,
         results[role] = import_onnx(out, role, sp["file"], sp["meta"], list(precisions), calib=calib,
                                     make_inputs=mk, outputs=outputs)
     return results
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Task checks of the imported real models on an RGB-D folder (7-Scenes layout): used by the tests (a handful of
+# frames) and by benchmarks/shared_models.py (all frames).
+
+ABSENT_FROM_KITCHEN = ("bed", "toilet", "car", "person", "bicycle", "horse", "sheep", "cow", "airplane", "boat")
+AGREEMENT_NAMES = ("chair", "dining table")
+
+
+def depth_errors(pred_m: np.ndarray, gt_m: np.ndarray, max_depth_m: float = 10.0) -> dict[str, float]:
+    """AbsRel and delta<1.25 of a metric map [H, W] against ground truth [H, W] (0 = invalid), on pixels valid in
+    both."""
+    ok = (gt_m > 0) & (gt_m < max_depth_m) & (pred_m > 0)
+    if not ok.any():
+        return {"absrel": float("nan"), "delta1": float("nan"), "n": 0}
+    p, g = pred_m[ok].astype(np.float64), gt_m[ok].astype(np.float64)
+    return {"absrel": float(np.mean(np.abs(p - g) / g)), "delta1": float(np.mean(np.maximum(p / g, g / p) < 1.25)),
+            "n": int(ok.sum())}
+
+
+def shared_model_checks(bundle: str | os.PathLike, frames_dir: str | os.PathLike, indices: list[int] | None = None,
+                        *, threads: int = 1, min_seg_fraction: float = 0.005, box_fill: float = 0.10,
+                        trace: Any = None) -> dict[str, Any]:
+    """Real-data checks of the four imported models on the frames `indices` of a 7-Scenes folder.
+
+    depth: PyDNet++ vs sensor depth after a per-frame least-squares scale+shift fit (`fit_to_sensor`), and a
+    scale-only fit; baseline: the best constant depth per frame (the sensor's median). AbsRel / delta<1.25 per
+    frame and mean.
+    detector vs segmenter, per name in AGREEMENT_NAMES: a frame where either model "sees" the class (>= 1 box, or
+    >= min_seg_fraction of the image labelled with it) agrees when some detector box is at least `box_fill` filled
+    with the segmenter's pixels of that class.
+    absent: fraction of frames in which each model reports a class absent from a kitchen (detector: any box;
+    segmenter: >= min_seg_fraction of the image).
+    """
+    from mosaicthinker.runtime.frames import open_source
+    from mosaicthinker.runtime.stages import load_role
+    from mosaicthinker.runtime.stages.depth import fit_to_sensor
+    from mosaicthinker.runtime.stages.detector import map_names
+    from mosaicthinker.runtime.trace import Trace
+
+    trace = trace if trace is not None else Trace()
+    src = open_source(frames_dir)
+    idx = list(range(len(src))) if indices is None else list(indices)
+    depth = load_role(bundle, "depth", threads=threads, trace=trace)
+    det = load_role(bundle, "detector", threads=threads, trace=trace)
+    seg = load_role(bundle, "segmenter", threads=threads, trace=trace)
+    absent_det = [n for n in ABSENT_FROM_KITCHEN if not map_names([n], det.labels)[1]]
+    absent_seg = [n for n in ABSENT_FROM_KITCHEN if not map_names([n], seg.labels)[1]]
+    per_frame, agree = [], {n: {"either": 0, "agree": 0, "det_only": 0, "seg_only": 0} for n in AGREEMENT_NAMES}
+    absent_counts = {"detector": {n: 0 for n in absent_det}, "segmenter": {n: 0 for n in absent_seg}}
+    for i in idx:
+        f = src[i]
+        row: dict[str, Any] = {"frame": int(i)}
+        if f.depth is not None:
+            pred = depth.predict(f.rgb)
+            ss = fit_to_sensor(pred, f.depth, depth.semantics, shift=True)
+            so = fit_to_sensor(pred, f.depth, depth.semantics, shift=False)
+            gt = f.depth
+            valid = (gt > 0) & (gt < 10.0)
+            const = np.where(valid, np.median(gt[valid]), 0).astype(np.float32)
+            row["depth"] = {"scale_shift": depth_errors(ss.apply(pred), gt), "scale_only": depth_errors(so.apply(pred), gt),
+                            "constant": depth_errors(const, gt), "s": ss.s, "t": ss.t}
+        H, W = f.rgb.shape[:2]
+        dets = det.detect(f.rgb, list(AGREEMENT_NAMES) + absent_det)
+        lab = seg.classes(f.rgb)
+        row["detections"] = {n: int(sum(1 for x in dets.names if x == n)) for n in set(dets.names)}
+        for n in AGREEMENT_NAMES:
+            cm = np.isin(lab, map_names([n], seg.labels)[0].get(n, []))
+            seg_sees = cm.mean() >= min_seg_fraction
+            boxes = dets.boxes[[k for k, x in enumerate(dets.names) if x == n]]
+            det_sees = len(boxes) > 0
+            fills = []
+            for b in boxes:
+                x0, y0, x1, y1 = [int(round(v)) for v in b]
+                win = cm[max(0, y0):min(H, y1), max(0, x0):min(W, x1)]
+                fills.append(float(win.mean()) if win.size else 0.0)
+            ok = det_sees and max(fills) >= box_fill
+            if det_sees or seg_sees:
+                a = agree[n]
+                a["either"] += 1
+                a["agree"] += int(ok)
+                a["det_only"] += int(det_sees and not seg_sees)
+                a["seg_only"] += int(seg_sees and not det_sees)
+            row[f"fill_{n}"] = max(fills) if fills else None
+            row[f"seg_fraction_{n}"] = float(cm.mean())
+        for n in absent_det:
+            absent_counts["detector"][n] += int(n in dets.names)
+        for n in absent_seg:
+            cm = np.isin(lab, map_names([n], seg.labels)[0][n])
+            absent_counts["segmenter"][n] += int(cm.mean() >= min_seg_fraction)
+        per_frame.append(row)
+    nf = max(len(idx), 1)
+    dr = [r["depth"] for r in per_frame if "depth" in r]
+
+    def mean(key, metric):
+        return float(np.nanmean([d[key][metric] for d in dr])) if dr else float("nan")
+
+    depth_sum = {k: {"absrel": mean(k, "absrel"), "delta1": mean(k, "delta1")}
+                 for k in ("scale_shift", "scale_only", "constant")}
+    depth_sum["beats_constant"] = bool(depth_sum["scale_shift"]["absrel"] < depth_sum["constant"]["absrel"])
+    agreement = {n: {**a, "rate": a["agree"] / a["either"] if a["either"] else float("nan")} for n, a in agree.items()}
+    absent = {m: {n: c / nf for n, c in d.items()} for m, d in absent_counts.items()}
+    return {"frames": len(idx), "depth": depth_sum, "agreement": agreement, "absent_rate": absent,
+            "absent_max_rate": max([v for d in absent.values() for v in d.values()] or [0.0]),
+            "thresholds": {"min_seg_fraction": min_seg_fraction, "box_fill": box_fill,
+                           "detector_score": det.conf.score_threshold},
+            "per_frame": per_frame}

@@ -39,7 +39,8 @@ def _torch_default_init(model: Any) -> None:
     makes a tiny random net's outputs ~1e-7, below fp16 resolution, so fp16/int8 parity would measure noise;
     fan-in init keeps activations O(1) like a trained model's."""
     for mod in model.modules():
-        if isinstance(mod, (torch.nn.Linear, torch.nn.Conv2d, torch.nn.ConvTranspose2d)):
+        if isinstance(mod, (torch.nn.Linear, torch.nn.Conv2d, torch.nn.ConvTranspose2d, torch.nn.BatchNorm2d,
+                            torch.nn.LayerNorm)):
             mod.reset_parameters()
 
 
@@ -151,7 +152,8 @@ def superpoint_lightglue():
     from transformers import LightGlueConfig, LightGlueForKeypointMatching
 
     cfg = LightGlueConfig(keypoint_detector_config=_superpoint_config(), descriptor_dim=32, num_hidden_layers=2,
-                          num_attention_heads=2, depth_confidence=-1.0, width_confidence=-1.0)
+                          num_attention_heads=2, depth_confidence=-1.0, width_confidence=-1.0,
+                          filter_threshold=0.0)
     return LightGlueForKeypointMatching(cfg)
 
 
@@ -160,9 +162,11 @@ def efficientloftr():
     """EfficientLoFTR (the architecture MatchAnything ships weights for)."""
     from transformers import EfficientLoFTRConfig, EfficientLoFTRForKeypointMatching
 
-    cfg = EfficientLoFTRConfig(stage_num_blocks=[1, 1, 1], out_features=[16, 32, 32], stage_stride=[2, 1, 2],
-                               hidden_size=32, num_attention_layers=2, num_attention_heads=2,
-                               fine_kernel_size=8, fine_matching_slice_dim=8)
+    # 8 heads: the 2-D rotary embedding needs head_dim * partial_rotary_factor(4) == hidden_size / 4 * 2
+    cfg = EfficientLoFTRConfig(stage_num_blocks=[1, 1, 1, 1], out_features=[16, 16, 32, 32],
+                               stage_stride=[2, 1, 2, 2], hidden_size=32, num_attention_layers=2,
+                               num_attention_heads=8, coarse_matching_threshold=0.0,
+                               coarse_matching_border_removal=0)
     return EfficientLoFTRForKeypointMatching(cfg)
 
 

@@ -306,3 +306,36 @@ def export_role(role: str, source: str, precisions: list[str], out: Path, *, cal
         frames = calibration_frames(calib, 8)
         pair = (frames[0], frames[1])
     return export_xfeat(out, precisions, size=size, k=int(opts.get("k", DEFAULT_K)), calib=calib, task_pair=pair)
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Matching quality on real RGB-D pairs (tests and benchmarks/shared_models.py)
+
+def pair_quality(uv0: np.ndarray, uv1: np.ndarray, K: np.ndarray, depth0: np.ndarray | None = None,
+                 T0: np.ndarray | None = None, T1: np.ndarray | None = None, px: float = 5.0) -> dict[str, Any]:
+    """Matches uv0 [M, 2] -> uv1 [M, 2] between two views with intrinsics K [3, 3]:
+    `inliers`: RANSAC essential-matrix inliers (1 px threshold, what a pose solver would keep);
+    with sensor depth0 [H, W] and ground-truth camera-to-world poses T0, T1 [4, 4] also `gt_correct`: matches
+    whose point (lifted with the sensor depth, moved with the true relative pose) reprojects within `px` pixels,
+    out of `gt_checked` matches with valid depth."""
+    import cv2
+
+    from mosaicthinker.runtime.geometry import backproject_pixels, invert, sample_depth, transform
+
+    uv0 = np.asarray(uv0, np.float64).reshape(-1, 2)
+    uv1 = np.asarray(uv1, np.float64).reshape(-1, 2)
+    res: dict[str, Any] = {"matches": int(len(uv0)), "inliers": 0}
+    if len(uv0) >= 8:
+        _, mask = cv2.findEssentialMat(uv0, uv1, K, method=cv2.RANSAC, prob=0.999, threshold=1.0)
+        res["inliers"] = int(mask.sum()) if mask is not None else 0
+    if depth0 is not None and T0 is not None and T1 is not None:
+        z = sample_depth(depth0, uv0)
+        ok = z > 0
+        p1 = transform(invert(T1) @ T0, backproject_pixels(uv0[ok], z[ok], K))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            proj = np.stack([K[0, 0] * p1[:, 0] / p1[:, 2] + K[0, 2], K[1, 1] * p1[:, 1] / p1[:, 2] + K[1, 2]], 1)
+        err = np.linalg.norm(proj - uv1[ok], axis=1)
+        res["gt_checked"] = int(ok.sum())
+        res["gt_correct"] = int(np.sum(err < px))
+        res["gt_precision"] = float(res["gt_correct"] / max(res["gt_checked"], 1))
+    return res

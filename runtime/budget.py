@@ -440,8 +440,8 @@ def bundle_hash(bundle: Any) -> str:
 
 
 def update_profile_costs(path: str | os.PathLike, measured: Mapping[str, Mapping[str, float]], *,
-                         bundle_hash_: str, date: str | None = None, providers: Mapping[str, str] | None = None
-                         ) -> dict[str, Any]:
+                         bundle_hash_: str, date: str | None = None, providers: Mapping[str, str] | None = None,
+                         notes: Mapping[str, str] | None = None) -> dict[str, Any]:
     """Write measured costs back into a profile TOML (tomli_w). `measured`: item -> {field: value}; each item
     touched becomes status "measured" with `date` and `bundle_hash`; its old `source` is dropped. Fields not
     measured keep their value (and the item's note says which were kept from the estimate). The result is
@@ -471,11 +471,13 @@ def update_profile_costs(path: str | os.PathLike, measured: Mapping[str, Mapping
         entry["bundle_hash"] = bundle_hash_
         if providers and item in providers:
             entry["provider"] = providers[item]
+        entry.pop("note", None)
+        parts = [notes[item]] if notes and item in notes else []
         if kept:
-            entry["note"] = (f"{', '.join(kept)} kept from the previous value (not measured by mosaic profile)"
-                             + (f"; previous source: {prev_source}" if prev_source else ""))
-        elif "note" in entry and entry["note"].startswith(tuple(nums)):
-            entry.pop("note")
+            parts.append(f"{', '.join(kept)} kept from the previous value (not measured by mosaic profile)"
+                         + (f"; previous source: {prev_source}" if prev_source else ""))
+        if parts:
+            entry["note"] = "; ".join(parts)
     parse_profile(data, path)  # never write an invalid profile
     with open(path, "wb") as f:
         tomli_w.dump(data, f)
@@ -525,6 +527,12 @@ class PlanConf:
 
 # pipeline stages the controller budgets (names the pipeline passes to start_stage/end_stage)
 RUNTIME_STAGES = ("load", "frames", "grounding", "keyframes", "perception", "alignment", "answer")
+# other names the pipeline's trace uses for the same work
+# (whole stages only: per-call names such as "detect" are timed by trace.stage, not by the controller)
+STAGE_ALIASES = {"dedup": "frames", "decode": "frames", "video": "frames", "search": "keyframes",
+                 "select": "keyframes", "keyframe_search": "keyframes", "align": "alignment",
+                 "map": "alignment", "fusion": "alignment", "vlm": "answer", "prompt": "answer",
+                 "models": "load", "load_models": "load"}
 
 
 @dataclass
@@ -950,15 +958,34 @@ class BudgetController:
 
     def share_ms(self, name: str) -> float:
         """This stage's share of the budget under the current (possibly reduced) plan."""
-        return self.plan.stage_ms(name, self.keyframes, self.scored_frames)
+        return self.plan.stage_ms(self.canonical(name), self.keyframes, self.scored_frames)
 
     def deadline_ms(self, name: str) -> float:
         """Milliseconds from now by which `name` should end (its share, or what is left if that is less)."""
+        name = self.canonical(name)
         left = self.remaining_ms() - sum(self.share_ms(s) for s in self.plan.stages
                                          if s not in self.done and s != name)
         return max(0.0, min(self.share_ms(name), left) if name in self.plan.stages else left)
 
+    @staticmethod
+    def canonical(name: str) -> str:
+        """Plan stage for a pipeline stage name (RUNTIME_STAGES or an alias such as 'dedup' -> 'frames')."""
+        return STAGE_ALIASES.get(name, name)
+
+    def update_candidates(self, n: int) -> None:
+        """After redundant-frame removal the candidate count is known: K and S never exceed it (recorded)."""
+        n = int(n)
+        k, s = min(self.keyframes, n), min(self.scored_frames, n)
+        if (k, s) != (self.keyframes, self.scored_frames):
+            self.trace.event("plan", f"{n} candidates after dedup (planned {self.plan.candidates}): key frames "
+                             f"{self.keyframes} -> {k}, scored frames {self.scored_frames} -> {s}", candidates=n)
+        self.keyframes, self.scored_frames = max(k, 0), max(s, 0)
+        self.iterations = max(1, min(self.iterations, max(s, 1)))
+        self.batch_size = int(math.ceil(max(s, 1) / self.iterations))
+        self.trace.decide("budget.candidates", n)
+
     def start_stage(self, name: str) -> None:
+        name = self.canonical(name)
         self._open[name] = self._clock()
         self._current = name
         reset_peak_rss()
@@ -966,6 +993,7 @@ class BudgetController:
 
     def end_stage(self, name: str) -> bool:
         """Close a stage; returns True when it caused a re-plan."""
+        name = self.canonical(name)
         if name not in self._open:
             raise RuntimeError(f"BudgetController.end_stage({name!r}) without start_stage")
         spent = (self._clock() - self._open.pop(name)) * 1000.0

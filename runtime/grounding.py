@@ -324,3 +324,107 @@ def _parse_route(q: str, pq: ParsedQuestion) -> list[ObjectRef]:
     pq.params = {"start": _name(start), "facing": _name(facing), "destination": _name(dest), "steps": steps,
                  "n_turns": sum(s["action"] == "turn" for s in steps)}
     return refs
+
+
+# ----------------------------------------------------------------------------- grounding with a VLM (paper)
+
+GROUNDING_PROMPT = (
+    "You will answer a question about an indoor video. First list the objects needed to answer it.\n"
+    "Question: {question}\n"
+    "Reply in exactly this format:\n"
+    "targets: <objects the question asks about, comma separated>\n"
+    "cues: <reference objects that fix a position, direction or route, comma separated, or none>")
+
+
+def parse_grounding_reply(reply: str) -> tuple[list[str], list[str]] | None:
+    """`targets: a, b` / `cues: c` lines (or a JSON object with those keys) -> (target phrases, cue phrases);
+    None when the reply has no usable targets."""
+    import json
+
+    text = str(reply or "").strip()
+    targets: list[str] = []
+    cues: list[str] = []
+    m = re.search(r"\{.*\}", text, re.S)
+    if m:
+        try:
+            d = json.loads(m.group(0))
+            if isinstance(d, dict):
+                targets = [str(x) for x in d.get("targets", []) or []]
+                cues = [str(x) for x in d.get("cues", []) or []]
+        except (json.JSONDecodeError, TypeError):
+            pass
+    if not targets:
+        for key, dest in (("targets?", targets), ("cues?", cues)):
+            mm = re.search(rf"(?im)^\W*{key}\s*[:=-]\s*(.+)$", text)
+            if mm:
+                dest += [p for p in re.split(r",|;|\band\b", mm.group(1))]
+    clean = lambda xs: [x.strip(" .*'\"[]") for x in xs if x.strip(" .*'\"[]") and  # noqa: E731
+                        x.strip(" .*'\"[]").lower() not in ("none", "n/a", "-")]
+    targets, cues = clean(targets), clean(cues)
+    return (targets, cues) if targets else None
+
+
+def ground(question: str, options: list[str] | None = None, vlm: Any = None, frames: list[Any] | None = None,
+           trace: Any = None, max_new_tokens: int = 48) -> ParsedQuestion:
+    """Task grounding: question -> ranked targets and cues (+ the template's type and parameters).
+
+    With a VLM (`.generate(images, prompt, max_new_tokens=...) -> str`) it is prompted with the question and a
+    few sampled frames (`frames`: [H, W, 3] uint8 RGB) and its object names are canonicalised through the
+    vocabulary; names it gives that are not in the vocabulary are reported (trace event "unknown_objects" and
+    `ParsedQuestion.unknown`), never dropped silently. An unusable reply (no parsable targets, or none in the
+    vocabulary) falls back to the template parser with a "fallback" trace event. Without a VLM the template
+    parser is used (`parse_question`). The template's qtype/params are kept whenever a template matches, so
+    the map reasoner can still answer.
+    """
+    pq = parse_question(question, options)
+    how = "templates"
+    if vlm is not None:
+        prompt = GROUNDING_PROMPT.format(question=" ".join(str(question).split()))
+        try:
+            if trace is not None:
+                with trace.stage("grounding.vlm"):
+                    reply = str(vlm.generate(list(frames or []), prompt, max_new_tokens=max_new_tokens))
+            else:
+                reply = str(vlm.generate(list(frames or []), prompt, max_new_tokens=max_new_tokens))
+        except Exception as e:  # a VLM failure must not lose the question: fall back, loudly
+            reply, err = "", f"{type(e).__name__}: {e}"
+        else:
+            err = ""
+        got = parse_grounding_reply(reply)
+        if got is not None:
+            t_phr, c_phr = got
+            tn = [canonical_name(p) for p in t_phr]
+            cn = [canonical_name(p) for p in c_phr]
+            unknown = [p for p, n in zip(t_phr + c_phr, tn + cn) if n is None]
+            targets = list(dict.fromkeys(n for n in tn if n))
+            cues = [n for n in dict.fromkeys(n for n in cn if n) if n not in targets]
+            if targets or cues:
+                if unknown and trace is not None:
+                    trace.event("unknown_objects", f"VLM grounding named objects outside the vocabulary: "
+                                f"{', '.join(unknown)} (not searched)", names=unknown, stage="grounding")
+                template_only = [n for n in pq.objects if n not in targets and n not in cues]
+                # objects the matched template needs but the VLM did not name are searched too (as cues), so
+                # the map reasoner can still answer; recorded
+                pq.targets = targets or cues[:1]
+                pq.cues = [c for c in (cues if targets else cues[1:]) + template_only if c not in pq.targets]
+                pq.unknown = list(dict.fromkeys(pq.unknown + unknown))
+                how = "vlm"
+                if trace is not None:
+                    trace.decide("grounding.vlm_reply", reply)
+                    if template_only:
+                        trace.event("grounding", f"template objects the VLM did not name, added as cues: "
+                                    f"{', '.join(template_only)}", names=template_only, stage="grounding")
+            else:
+                err = f"none of the named objects is in the vocabulary: {t_phr + c_phr}"
+        else:
+            err = err or f"no `targets:` in the reply {reply[:120]!r}"
+        if how != "vlm" and trace is not None:
+            trace.event("fallback", f"VLM grounding unusable ({err}); using the question-template parser",
+                        stage="grounding", warn=True)
+    if pq.unknown and trace is not None and how == "templates":
+        trace.event("unknown_objects", f"question names objects outside the vocabulary: {', '.join(pq.unknown)} "
+                    f"(not searched)", names=pq.unknown, stage="grounding")
+    if trace is not None:
+        trace.decide("grounding", {"method": how, "qtype": pq.qtype, "targets": pq.targets, "cues": pq.cues,
+                                   "unknown": pq.unknown})
+    return pq

@@ -65,6 +65,7 @@ class KeyFrameConf:
     cue_weight: float = 0.5
     hist_bins: int = 8              # bins per RGB channel
     hist_size: int = 64             # images are downscaled to this width before the histogram
+    min_keyframes: int = 0          # top up to this many from the best positive frames below the threshold
     seed: int = 0
     record_distributions: bool = False
 
@@ -89,6 +90,8 @@ class KeyFrameConf:
             raise InputError(f"key-frame config: need r >= 0 and k > 0 (got r={self.r}, k={self.k})")
         if not 0 < self.budget_fraction <= 1:
             raise InputError(f"key-frame config: budget_fraction must be in (0, 1] (got {self.budget_fraction})")
+        if not 0 <= self.min_keyframes <= self.keyframes:
+            raise InputError(f"key-frame config: min_keyframes must be in [0, keyframes] (got {self.min_keyframes})")
         if self.gain < 0:
             raise InputError(f"key-frame config: gain must be >= 0 (got {self.gain})")
         if self.budget is not None and self.budget < 1:
@@ -283,6 +286,22 @@ def top_k(frames: Sequence[int], scores: Mapping[int, float], k: int) -> np.ndar
     return np.array(sorted(ranked), dtype=np.int64)
 
 
+def _fill(chosen: list[int], scores: Mapping[int, float], candidates: np.ndarray, n: int, gap: int) -> list[int]:
+    """Best positive-score frames not chosen, up to `n` in all: first those more than `gap` candidates away from
+    every chosen frame (near neighbours add no new view), then any."""
+    pos = {int(f): i for i, f in enumerate(candidates)}
+    ranked = [f for f in sorted(scores, key=lambda f: (-scores[f], f)) if scores[f] > 0 and f not in chosen]
+    out: list[int] = []
+    for strict in (True, False):
+        for f in ranked:
+            if len(chosen) + len(out) >= n:
+                return out
+            if f in out or (strict and any(abs(pos[f] - pos[g]) <= gap for g in chosen + out)):
+                continue
+            out.append(f)
+    return out
+
+
 def _check_candidates(candidates: Sequence[int]) -> np.ndarray:
     c = np.asarray(candidates, dtype=np.int64).reshape(-1)
     if c.size == 0:
@@ -397,6 +416,15 @@ def iterative_search(candidates: Sequence[int], targets: Sequence[str], cues: Se
         if trace is not None:
             trace.event("degraded", "key frames: " + msg, stage="keyframes", chosen=len(chosen),
                         requested=conf.keyframes)
+    if len(chosen) < conf.min_keyframes:
+        extra = _fill(chosen.tolist(), frame_scores, c, conf.min_keyframes, conf.r)
+        if extra:
+            chosen = np.array(sorted(chosen.tolist() + extra), dtype=np.int64)
+            msg = (f"filled {len(extra)} key frame(s) from the scored frames below the threshold "
+                   f"(min_keyframes={conf.min_keyframes})")
+            notes.append(msg)
+            if trace is not None:
+                trace.event("degraded", "key frames: " + msg, stage="keyframes", filled=len(extra))
     if trace is not None:
         trace.decide("keyframes.method", "iterative")
         trace.decide("keyframes.frames_scored", len(order))

@@ -44,14 +44,17 @@ class Matches:
 
 @dataclass
 class MatchConf:
-    """Defaults: SIFT (Lowe 2004, ratio 0.8) and ORB (Rublee 2011) with mutual nearest neighbours."""
+    """Defaults: SIFT (Lowe 2004) and ORB (Rublee 2011) with mutual nearest neighbours and the ratio test."""
 
     method: str = "sift"
-    max_keypoints: int = 2000
-    ratio: float = 0.8           # Lowe's ratio test (best / second-best distance)
+    max_keypoints: int = 3000
+    ratio: float | None = None   # Lowe's ratio test (best / second-best distance); None = 0.9 SIFT, 0.8 ORB
+                                 # (0.9 for SIFT: RANSAC removes the extra outliers, wide baselines need the
+                                 # extra matches; measured on 7-Scenes, see benchmarks/pose_table.py)
     mutual: bool = True          # keep only mutual nearest neighbours
     max_side: int = 640          # images are downscaled so that the longer side is at most this (speed)
     orb_fast_threshold: int = 12
+    sift_contrast_threshold: float = 0.02  # OpenCV's default is 0.04; lower finds more keypoints indoors
     box_margin: float = 4.0      # pixels added around each box when restricting keypoints
 
     @classmethod
@@ -67,6 +70,8 @@ class MatchConf:
         out = replace(base, **upd)
         if out.method not in ("sift", "orb"):
             raise InputError(f"matcher config: method must be 'sift' or 'orb', got {out.method!r}")
+        if out.ratio is None:
+            out = replace(out, ratio=0.9 if out.method == "sift" else 0.8)
         return out
 
 
@@ -95,13 +100,13 @@ def extract_features(rgb: np.ndarray, conf: MatchConf | None = None) -> Features
     """Detect and describe keypoints. rgb: [H, W, 3] uint8 (or [H, W] gray) -> Features."""
     import cv2
 
-    conf = conf or MatchConf()
+    conf = MatchConf.merged(conf)
     g = _gray(rgb)
     s = min(1.0, conf.max_side / max(g.shape))
     if s < 1.0:
         g = cv2.resize(g, (round(g.shape[1] * s), round(g.shape[0] * s)), interpolation=cv2.INTER_AREA)
     if conf.method == "sift":
-        det = cv2.SIFT_create(nfeatures=conf.max_keypoints)
+        det = cv2.SIFT_create(nfeatures=conf.max_keypoints, contrastThreshold=conf.sift_contrast_threshold)
         dim, dtype = 128, np.float32
     else:
         det = cv2.ORB_create(nfeatures=conf.max_keypoints, fastThreshold=conf.orb_fast_threshold)
@@ -161,7 +166,7 @@ def match_descriptors(f0: Features, f1: Features, conf: MatchConf | None = None,
                       keep0: np.ndarray | None = None, keep1: np.ndarray | None = None) -> Matches:
     """Mutual nearest neighbours passing the ratio test between two feature sets, optionally restricted to
     keypoints with keep0 [N0] / keep1 [N1] True."""
-    conf = conf or MatchConf(method=f0.method)
+    conf = MatchConf.merged(conf or MatchConf(method=f0.method))
     i0 = np.flatnonzero(keep0) if keep0 is not None else np.arange(len(f0))
     i1 = np.flatnonzero(keep1) if keep1 is not None else np.arange(len(f1))
     if len(i0) < 2 or len(i1) < 2:

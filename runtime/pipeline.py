@@ -39,6 +39,11 @@ class PipelineConfig:
     gravity: str = "auto"                # auto (source if it knows gravity, else floor fit) | source | floor
     refine: bool = True                  # occlusion refinement
     min_keyframes: int = 3               # fewer passing frames are topped up uniformly (recorded)
+    topup: bool = True                   # fewer than K passing: add the best other scored frames (recorded)
+    whole_image_fallback: bool = True    # key frames unaligned with matches inside boxes: retry on whole images
+    bridge_frames: int = 24              # at most this many extra frames to connect unaligned key frames (0 = off)
+    bridge_gap_s: float = 0.5            # bridge frames are placed at most this far apart in time
+    bridge_max_gap_s: float = 4.0        # ... and only across gaps up to this long (long chains drift)
     camera_height_m: float = 1.5         # prior when no floor is found
     dedup: dict[str, Any] = field(default_factory=dict)
     keyframe: dict[str, Any] = field(default_factory=dict)
@@ -131,8 +136,9 @@ class _CachedDetector:
 
 def select(source: FrameSource, targets: Sequence[str], cues: Sequence[str], perception: Perception,
            conf: PipelineConfig, trace: Trace, detector: _CachedDetector | None = None,
-           keyframes: int | None = None) -> tuple[list[int], _CachedDetector, Any]:
-    """Dedup + key-frame search. Returns (key frame indices in time order, the cached detector, the result)."""
+           keyframes: int | None = None) -> tuple[list[int], _CachedDetector, Any, list[int]]:
+    """Dedup + key-frame search. Returns (key frame indices in time order, the cached detector, the search
+    result, the candidate frames kept by dedup)."""
     from .keyframes import KeyFrameConf, select_keyframes, uniform_keyframes
 
     cands = _candidates(source, conf, trace)
@@ -143,6 +149,8 @@ def select(source: FrameSource, targets: Sequence[str], cues: Sequence[str], per
         res = select_keyframes(conf.keyframe_method, cands, list(targets), list(cues), det,
                                lambda i: source[int(i)].rgb, kconf, trace)
     chosen = [int(i) for i in res.chosen]
+    if conf.topup and len(chosen) < K and res.scores:
+        chosen = _top_up(chosen, res.scores, K, max(1, len(source) // (4 * K)), trace)
     if len(chosen) < min(conf.min_keyframes, len(cands)):
         extra = [int(i) for i in uniform_keyframes(cands, KeyFrameConf.merged({"keyframes": conf.min_keyframes})).chosen
                  if int(i) not in chosen]
@@ -151,7 +159,69 @@ def select(source: FrameSource, targets: Sequence[str], cues: Sequence[str], per
         trace.event("degraded", f"only {len(res.chosen)} frames passed the key-frame threshold; topped up with "
                     f"{min(need, len(extra))} evenly spaced frames", stage="keyframes")
     trace.decide("keyframes", {**res.to_dict(), "chosen": chosen, "scores": None, "order": None})
-    return sorted(chosen), det, res
+    return sorted(chosen), det, res, cands
+
+
+def _top_up(chosen: list[int], scores: dict[int, float], K: int, gap: int, trace: Trace) -> list[int]:
+    """Fewer than K frames passed the threshold: add the best-scoring frames the search already scored (score >
+    0), skipping frames within `gap` of one already chosen (near-duplicates add no view). Recorded."""
+    out = list(chosen)
+    for i in sorted(scores, key=lambda i: (-scores[i], i)):
+        if len(out) >= K:
+            break
+        if scores[i] <= 0 or i in out or any(abs(i - j) < gap for j in out):
+            continue
+        out.append(int(i))
+    if len(out) > len(chosen):
+        trace.event("degraded", f"{len(chosen)} of {K} key frames passed the threshold; added {len(out) - len(chosen)} "
+                    f"more of the scored frames by score (at least {gap} frames apart)", stage="keyframes",
+                    passed=len(chosen), added=len(out) - len(chosen))
+    return sorted(out)
+
+
+def _bridge(al: Any, frames: list[Frame], boxes: dict[int, Any], cands: list[int], source: FrameSource,
+            matcher: Any, perception: Perception, conf: PipelineConfig, trace: Trace) -> Any:
+    """Key frames far apart in time often share no view, so the tree falls apart into components. Connect each
+    unaligned key frame to its nearest aligned key frame in time through intermediate candidate frames (at
+    most `bridge_gap_s` apart, `bridge_frames` in all; used for poses only, never detected) and align again.
+    Key frames still unaligned afterwards stay unaligned (recorded by align_frames)."""
+    from .alignment import align_frames
+
+    have = {f.index for f in frames}
+    times = {i: float(source.timestamps[i]) for i in cands}
+    extra: list[int] = []
+    for u in sorted(al.unaligned, key=lambda u: min(abs(u - a) for a in al.poses)):
+        a = min(al.poses, key=lambda j: abs(j - u))
+        lo, hi = sorted((u, a))
+        if abs(float(source.timestamps[hi]) - float(source.timestamps[lo])) > conf.bridge_max_gap_s:
+            continue  # a long chain of bridges drifts: better unaligned (reported) than misplaced
+        between = [c for c in cands if lo < c < hi and c not in have and c not in extra]
+        last = float(source.timestamps[lo])
+        for c in between:
+            if times[c] - last >= conf.bridge_gap_s:
+                extra.append(c)
+                last = times[c]
+        if len(extra) >= conf.bridge_frames:
+            break
+    extra = sorted(extra[:conf.bridge_frames])
+    if not extra:
+        return al
+    bf = []
+    for i in extra:
+        f = source[i]
+        bf.append(dataclasses.replace(f, depth=_depth_for(f, conf, perception, trace)))
+    with trace.stage("alignment"):
+        al2 = align_frames(frames + bf, matcher, "mst", conf.alignment or None, None,
+                           {**boxes, **{i: None for i in extra}}, with_scale=perception.depth_relative, trace=None)
+    before = len(al.unaligned)
+    al2.unaligned = [i for i in al2.unaligned if i in have]
+    trace.event("degraded" if al2.unaligned else "alignment",
+                f"{before} key frame(s) had no verified edge to the tree; {len(extra)} bridge frames between them "
+                f"and their neighbours in time left {len(al2.unaligned)} unaligned", stage="alignment",
+                bridges=extra, unaligned=al2.unaligned)
+    if len(al2.poses) and sum(i in have for i in al2.poses) >= sum(i in have for i in al.poses):
+        return al2
+    return al
 
 
 def _depth_for(frame: Frame, conf: PipelineConfig, perception: Perception, trace: Trace) -> np.ndarray:
@@ -225,7 +295,7 @@ def build_map(source: FrameSource, targets: Sequence[str], cues: Sequence[str] =
     K = int(keyframes or conf.keyframes)
     if budget is not None:
         K = int(budget.allow_keyframes(K))
-    chosen, det, _ = select(source, targets, cues, perception, conf, trace, keyframes=K)
+    chosen, det, _, cands_all = select(source, targets, cues, perception, conf, trace, keyframes=K)
 
     # perception per key frame
     frames: list[Frame] = []
@@ -246,16 +316,29 @@ def build_map(source: FrameSource, targets: Sequence[str], cues: Sequence[str] =
         raise MosaicError(f"only {len(frames)} key frame(s) available: need at least 2 to build a map")
 
     # alignment: matches restricted to object boxes (the paper's trick), MST over frame similarity
-    from .alignment import align_frames
+    from .alignment import _make_matcher, align_frames
 
     emb = None
     if perception.embed is not None:
         with trace.stage("embed"):
             emb = np.stack([perception.embed(f.rgb) for f in frames])
     boxes = {f.index: (dets[f.index].boxes if len(dets[f.index]) else None) for f in frames}
+    matcher = _make_matcher(perception.matcher)  # one matcher: features are cached across the rounds below
     with trace.stage("alignment"):
-        al = align_frames(frames, perception.matcher, "mst", conf.alignment or None, emb, boxes,
+        al = align_frames(frames, matcher, "mst", conf.alignment or None, emb, boxes,
                           with_scale=perception.depth_relative, trace=trace)
+    if al.unaligned and conf.whole_image_fallback:
+        # too few matches inside the task objects' boxes (small or few objects): match whole images instead
+        with trace.stage("alignment"):
+            al2 = align_frames(frames, matcher, "mst", conf.alignment or None, emb, None,
+                               with_scale=perception.depth_relative, trace=None)
+        trace.event("fallback", f"alignment inside object boxes left {len(al.unaligned)} of {len(frames)} key frames "
+                    f"unaligned; whole-image matching left {len(al2.unaligned)}", stage="alignment",
+                    boxes_unaligned=list(al.unaligned), whole_unaligned=list(al2.unaligned))
+        if len(al2.unaligned) < len(al.unaligned):
+            al = al2
+    if al.unaligned and conf.bridge_frames > 0:
+        al = _bridge(al, frames, boxes, cands_all, source, matcher, perception, conf, trace)
     root = al.root
     with trace.stage("gravity"):
         W = _gravity(frames, al.poses, source, root, conf, trace)
@@ -275,7 +358,8 @@ def build_map(source: FrameSource, targets: Sequence[str], cues: Sequence[str] =
     recovered = 0
     if conf.refine and (perception.segment_points is not None or perception.segment_class is not None):
         with trace.stage("refine"):
-            instances, clouds, recovered = refine(instances, obs, frames, poses, dets, perception, fconf, trace)
+            instances, clouds, recovered = refine(instances, obs, frames, poses, dets, perception, fconf, trace,
+                                                  matcher=matcher)
     trace.decide("instances", {"count": len(instances), "recovered_by_refinement": recovered,
                                "by_name": {n: sum(o.name == n for o in instances) for n in names}})
     missing = [n for n in names if not any(o.name == n for o in instances)]
@@ -308,15 +392,19 @@ def _room(instances: list[ObjectInstance], cams: list[tuple[float, np.ndarray]])
 
 def refine(instances: list[ObjectInstance], obs: list[Observation], frames: list[Frame],
            poses: dict[int, np.ndarray], dets: dict[int, Detections], perception: Perception,
-           conf: FusionConfig, trace: Trace) -> tuple[list[ObjectInstance], list[np.ndarray], int]:
+           conf: FusionConfig, trace: Trace, conf_views: int = 2, matcher: Any = None
+           ) -> tuple[list[ObjectInstance], list[np.ndarray], int]:
     """Paper, occlusion refinement: project every instance into each key frame; where it should be visible but
     was not segmented, re-prompt the segmenter — with point prompts from cross-frame matches inside its other
     views (promptable segmenter), or the class mask inside the projected box (semantic segmenter) — and add what
     it recovers. Returns the re-fused instances, their clouds and how many instances gained a view."""
     from .alignment import _make_matcher
 
-    matcher = _make_matcher(perception.matcher)
+    matcher = matcher if matcher is not None else _make_matcher(perception.matcher)
     by_index = {f.index: f for f in frames}
+    n_pts = {}  # (instance name, frame) -> points of its observation there: prompts come from the best views
+    for o in obs:
+        n_pts[(o.name, o.frame)] = max(n_pts.get((o.name, o.frame), 0), len(o.points))
     new_obs: list[Observation] = []
     gained: set[int] = set()
     for inst in instances:
@@ -330,14 +418,18 @@ def refine(instances: list[ObjectInstance], obs: list[Observation], frames: list
             mask = None
             if perception.segment_points is not None:
                 pts = []
-                for g_idx in inst.frames:  # matches between a view that has it and this frame, inside both boxes
+                views = sorted(inst.frames, key=lambda g: -n_pts.get((inst.name, g), 0))[:conf_views]
+                for g_idx in views:  # matches between a view that has it and this frame, inside both boxes
                     g = by_index.get(g_idx)
                     if g is None:
                         continue
                     gb = [o.box2d for o in obs if o.frame == g_idx and o.name == inst.name]
                     if not gb:
                         continue
-                    m = matcher.match(g.rgb, f.rgb, np.stack(gb), box[None])
+                    if hasattr(matcher, "match_keys"):  # cached features per frame
+                        m = matcher.match_keys(g.index, g.rgb, f.index, f.rgb, np.stack(gb), box[None])
+                    else:
+                        m = matcher.match(g.rgb, f.rgb, np.stack(gb), box[None])
                     if len(m.uv1):
                         pts.append(m.uv1)
                 if pts:
@@ -369,3 +461,241 @@ def refine(instances: list[ObjectInstance], obs: list[Observation], frames: list
                 f"instance(s)", views=len(new_obs), instances=len(gained))
     inst2, clouds = fuse_observations(obs + new_obs, conf)
     return inst2, clouds, len(gained)
+
+
+# ----------------------------------------------------------------------------- perception from a bundle
+
+PERCEPTION_ROLES = ("detector", "segmenter", "depth", "matcher", "embedder")
+
+
+def _role_kwargs(profile: Any, role: str) -> dict[str, Any]:
+    if profile is None:
+        return {}
+    out: dict[str, Any] = {"providers": profile.providers_for(role)}
+    if getattr(profile, "intra_op_threads", None):
+        out["threads"] = profile.intra_op_threads
+    variant = None
+    try:
+        variant = profile.role(role).bundle_variant if profile.uses(role) else None
+    except Exception:  # a profile without settings for this role: the bundle's default variant
+        variant = None
+    if variant:
+        out["variant"] = variant
+    return out
+
+
+def perception_from_bundle(bundle: Any, conf: PipelineConfig | dict | None = None, trace: Trace | None = None,
+                           profile: Any = None, detector: str = "model") -> Perception:
+    """Build the pipeline's `Perception` from a bundle's roles (adapters of `runtime.stages`).
+
+    - detector (required unless `detector` is not "model"): `.detect(rgb, names)`;
+    - segmenter (optional): a semantic segmenter (`kind == "semantic"`, e.g. DeepLab) gives masks as class pixels
+      inside each box and, for refinement, the class mask inside the projected box; a promptable one (SAM-style)
+      gives box masks and point-prompt masks. Without one: the box + dominant depth band is lifted (recorded);
+    - depth (used when `conf.depth` is "model", or "auto" on a source without sensor depth): metric models as is,
+      relative ones scaled by the adapter's documented prior, with Sim(3) alignment per edge (`depth_relative`);
+    - matcher: `conf.matcher` "orb" | "sift" (OpenCV, no weights) or "model" (the bundle's matcher role);
+    - embedder (optional): frame embeddings for the alignment tree's similarity (else colour histograms).
+    Every choice is recorded in `trace.decisions["perception"]`.
+    """
+    from .bundle import load_bundle
+    from .stages import load_role
+
+    conf = conf if isinstance(conf, PipelineConfig) else PipelineConfig.merged(conf)
+    trace = trace if trace is not None else Trace()
+    b = load_bundle(bundle) if bundle is not None else None
+    has = (lambda r: b is not None and b.has_role(r))
+    desc: dict[str, Any] = {}
+
+    def load(role: str) -> Any:
+        m = load_role(b, role, trace=trace, **_role_kwargs(profile, role))
+        desc[role] = m.describe() if hasattr(m, "describe") else role
+        return m
+
+    if detector != "model":
+        raise InputError(f"perception_from_bundle: detector {detector!r}; the oracle detector is evaluation-only "
+                         f"(`mosaic ask --detector oracle` on a synthetic scene)")
+    if not has("detector"):
+        raise InputError(f"{'no --bundle given' if b is None else str(b.manifest_path) + ': no `detector` role'}: "
+                         f"the map needs a detector (export one with `mosaic export detector`), or use "
+                         f"--detector oracle on a synthetic scene")
+    det = load("detector")
+    p = Perception(detect=lambda frame, names: det.detect(frame.rgb, names))
+    if has("segmenter"):
+        seg = load("segmenter")
+        if getattr(seg, "kind", "") == "semantic":
+            p.segment = lambda frame, d: seg.segment(frame.rgb, d.boxes, d.names)
+            p.segment_class = lambda frame, name: seg.class_mask(frame.rgb, name)
+            desc["refinement"] = "semantic segmenter: class mask inside the projected box (takes no prompts)"
+        else:
+            p.segment = lambda frame, d: seg.segment(frame.rgb, d.boxes, d.names)
+            p.segment_points = lambda frame, pts, name: _first_mask(seg.segment(frame.rgb, None, [name],
+                                                                                  points=pts))
+            desc["refinement"] = "promptable segmenter: point prompts from cross-frame matches"
+    else:
+        trace.event("degraded", "bundle has no segmenter: objects are lifted from their boxes (dominant depth "
+                    "band), occlusion refinement is off", stage="perception")
+        desc["segmenter"] = "none (box + depth band)"
+    if conf.depth == "model":
+        if not has("depth"):
+            raise InputError("--depth model needs a bundle with a `depth` role (or use --depth sensor)")
+        dm = load("depth")
+        p.depth = lambda frame: dm.predict_metric(frame.rgb)[0]
+        p.depth_relative = getattr(dm, "semantics", "metric_m") != "metric_m"
+    elif conf.depth == "auto" and has("depth"):
+        dm = load("depth")
+        p.depth = lambda frame: dm.predict_metric(frame.rgb)[0]
+        p.depth_relative = getattr(dm, "semantics", "metric_m") != "metric_m"
+    if conf.matcher == "model":
+        if not has("matcher"):
+            raise InputError("--matcher model needs a bundle with a `matcher` role (or use --matcher sift|orb)")
+        p.matcher = load("matcher")
+    else:
+        p.matcher = conf.matcher
+        desc["matcher"] = f"opencv {conf.matcher}"
+    if has("embedder"):
+        emb = load("embedder")
+        p.embed = emb.embed
+    p.describe = desc
+    trace.decide("perception", desc)
+    return p
+
+
+def _first_mask(masks: Any) -> np.ndarray | None:
+    m = np.asarray(masks)
+    if m.ndim == 3 and len(m):
+        m = m[0]
+    return m.astype(bool) if m.ndim == 2 and m.any() else None
+
+
+def load_vlm(bundle: Any, trace: Trace | None = None, profile: Any = None) -> Any | None:
+    """The bundle's VLM adapter (`.generate(images, prompt, max_new_tokens=...) -> str`) or None without one."""
+    from .bundle import load_bundle
+
+    if bundle is None:
+        return None
+    b = load_bundle(bundle)
+    if not b.has_role("vlm"):
+        return None
+    from .stages import load_role
+
+    vlm = load_role(b, "vlm", trace=trace, **_role_kwargs(profile, "vlm"))
+    if trace is not None:
+        trace.decide("vlm", vlm.describe() if hasattr(vlm, "describe") else "vlm")
+    return vlm
+
+
+# ----------------------------------------------------------------------------- the question API
+
+
+@dataclass
+class AskResult:
+    """answer: `answer.Answer`; map: the semantic map used; trace: what happened; prompt: the rendered
+    `prompt.VisualPrompt` (None when not rendered); build: the `MapBuild` (None when a saved map was given);
+    question: the grounded `grounding.ParsedQuestion`."""
+
+    answer: Any
+    map: SemanticMap | None
+    trace: Trace
+    prompt: Any = None
+    build: MapBuild | None = None
+    question: Any = None
+    method: str = "mosaic"
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"answer": self.answer.text, "status": self.answer.status, "value": self.answer.value,
+                "explanation": self.answer.explanation, "qtype": self.answer.qtype, "missing": self.answer.missing,
+                "method": self.method,
+                "grounding": None if self.question is None else self.question.to_dict(),
+                "instances": None if self.map is None else [
+                    {"id": o.id, "name": o.name, "centre": np.round(o.center, 3).tolist(),
+                     "size": np.round(np.asarray(o.box.axes_lengths), 3).tolist(), "first_seen": o.first_seen}
+                    for o in self.map.instances],
+                "keyframes": None if self.build is None else self.build.keyframes}
+
+
+def _open(source: Any) -> FrameSource | SemanticMap:
+    from pathlib import Path
+
+    if isinstance(source, (FrameSource, SemanticMap)):
+        return source
+    p = Path(source)
+    if p.is_file() and p.suffix.lower() == ".json":
+        return SemanticMap.load(p)
+    if p.is_dir() and (p / "map.json").is_file() and not any(p.glob("frame-*")) and not any(
+            q.suffix.lower() in (".jpg", ".png", ".mp4") for q in p.iterdir()):
+        return SemanticMap.load(p / "map.json")
+    from .frames import open_source
+
+    return open_source(p)
+
+
+def ask(source: Any, question: str, options: list[str] | None = None, *, perception: Perception | None = None,
+        bundle: Any = None, profile: Any = None, conf: PipelineConfig | dict | None = None,
+        answerer: str = "auto", method: str = "mosaic", prompt_mode: str = "grid", vlm: Any = None,
+        trace: Trace | None = None, keyframes: int | None = None, budget: Any = None,
+        direct_frames: int = 8) -> AskResult:
+    """Answer a spatial question about a video, frame folder or saved map.
+
+    source: a path (video, image/RGB-D folder, `map.json`), a `FrameSource` or a `SemanticMap`; options:
+    multiple-choice options ("A. ...") or None. perception: injected models (default: built from `bundle`);
+    answerer: "map" | "vlm" | "auto"; method: "mosaic" (map + visual prompt) or "direct" (the baseline: frames
+    sampled uniformly straight to the VLM); prompt_mode: "grid" | "points" | "text".
+    """
+    from . import prompt as vprompt
+    from .answer import answer_question, answer_with_vlm
+    from .grounding import ground
+
+    trace = trace if trace is not None else Trace()
+    conf = conf if isinstance(conf, PipelineConfig) else PipelineConfig.merged(conf)
+    if method not in ("mosaic", "direct"):
+        raise InputError(f"--method must be mosaic or direct, got {method!r}")
+    if vlm is None and bundle is not None:
+        vlm = load_vlm(bundle, trace, profile)
+    src = _open(source)
+    if method == "direct":
+        if isinstance(src, SemanticMap):
+            raise InputError("--method direct needs a video or frame folder, not a saved map")
+        if vlm is None:
+            raise InputError("--method direct (the Direct Input baseline) needs a bundle with a `vlm` role")
+        n = min(direct_frames, len(src))
+        idx = np.unique(np.floor((np.arange(n) + 0.5) * len(src) / n).astype(int))
+        with trace.stage("decode"):
+            imgs = [src[int(i)].rgb for i in idx]
+        trace.decide("direct.frames", idx.tolist())
+        pq = ground(question, options, None, None, trace)
+        text = vprompt.vlm_prompt(question, options if options is not None else pq.options, "", "video")
+        ans = answer_with_vlm(vlm, question, options, text, imgs, trace=trace, parsed=pq)
+        trace.decide("answer", ans.to_dict())
+        return AskResult(ans, None, trace, None, None, pq, "direct")
+
+    frames_for_grounding = None
+    if vlm is not None and not isinstance(src, SemanticMap):
+        n = min(4, len(src))
+        frames_for_grounding = [src[int(i)].rgb for i in np.linspace(0, len(src) - 1, n).round().astype(int)]
+    with trace.stage("grounding"):
+        pq = ground(question, options, vlm, frames_for_grounding, trace)
+    build = None
+    if isinstance(src, SemanticMap):
+        smap = src
+        trace.decide("map", {"source": "saved map", "instances": len(smap.instances)})
+    else:
+        if not pq.objects:
+            raise InputError("the question names no object the pipeline can look for (see the trace's grounding); "
+                             "nothing to build a map of")
+        if perception is None:
+            perception = perception_from_bundle(bundle, conf, trace, profile)
+        build = build_map(src, pq.targets, pq.cues, perception, conf, trace, keyframes, budget)
+        smap = build.map
+    vp = None
+    with trace.stage("prompt"):
+        pts = ids = None
+        if prompt_mode == "points" and build is not None and build.clouds:
+            pts = np.concatenate([c for c in build.clouds if len(c)] or [np.zeros((0, 3))])
+            ids = np.concatenate([np.full(len(c), o.id) for o, c in zip(smap.instances, build.clouds)
+                                  if len(c)] or [np.zeros(0, int)])
+        vp = vprompt.render(smap, {"mode": prompt_mode}, pts, ids)
+    with trace.stage("answer"):
+        ans = answer_question(smap, question, options, answerer, vlm, vp, trace, pq)
+    trace.decide("answer", {k: v for k, v in ans.to_dict().items() if k != "parsed"})
+    return AskResult(ans, smap, trace, vp, build, pq, "mosaic")

@@ -229,8 +229,9 @@ def vlm_prompt(question: str, options: list[str] | None, block: str, mode: str =
                     "scale bar gives metres, x points right and y up the image.",
             "points": "The image is a top-down view of the 3D points of the objects seen in the video, one colour "
                       "per object; black dots with arrows are the camera positions and headings.",
-            "text": "The room was reconstructed from the video into the object list below."}[mode]
-    parts = [head, block, f"Question: {question}"]
+            "text": "The room was reconstructed from the video into the object list below.",
+            "video": "The images are frames sampled uniformly from a video of a room, in time order."}[mode]
+    parts = [head] + ([block] if block else []) + [f"Question: {question}"]
     if options:
         parts.append("Options:\n" + "\n".join(options))
         parts.append("Answer with the option's letter only.")

@@ -384,13 +384,15 @@ def fuse_observations(observations: list[Observation], conf: FusionConfig = defa
 
 def fit_floor_plane(points: np.ndarray, down_hint: np.ndarray, max_tilt_deg: float = 35.0,
                     threshold: float = 0.03, iterations: int = 300, min_share: float = 0.05,
-                    rng: int = 0) -> tuple[np.ndarray, float, int] | None:
+                    rng: int = 0, parallel_deg: float = 5.0) -> tuple[np.ndarray, float, int] | None:
     """Find the floor: the lowest large plane whose normal is within `max_tilt_deg` of `down_hint`.
 
     points: [N, 3] in the root camera frame (or any frame); down_hint: [3] rough gravity (e.g. the camera's +y).
     Returns (down [3] unit normal pointing down, offset d with down·p = d on the plane, inliers) or None.
-    RANSAC over 3-point planes; among near-horizontal planes with >= `min_share` of the best count, the one
-    farthest along `down` wins (table tops are horizontal too, but above the floor).
+    RANSAC over 3-point planes. The largest near-horizontal surface fixes the orientation; among the surfaces
+    parallel to it (within `parallel_deg`) with >= `min_share` of the points, the one farthest along `down`
+    wins (table and counter tops are horizontal too, but above the floor). Each hypothesis is refit by least
+    squares on its inliers and must be a surface (not a band cut through vertical faces).
     """
     pts = np.asarray(points, dtype=np.float64)
     if len(pts) < 50:
@@ -415,16 +417,42 @@ def fit_floor_plane(points: np.ndarray, down_hint: np.ndarray, max_tilt_deg: flo
         cands.append((cnt, n, d))
     if not cands:
         return None
-    best = max(c[0] for c in cands)
-    ok = [c for c in cands if c[0] >= max(min_share * len(pts), 0.3 * best)]
-    cnt, n, d = max(ok, key=lambda c: c[2])  # lowest plane (largest offset along down)
-    inl = np.abs(pts @ n - d) < threshold
-    # refine: least-squares normal of the inliers
-    q = pts[inl]
-    cq = q.mean(0)
-    _, _, vt = np.linalg.svd(q - cq, full_matrices=False)
-    n2 = vt[2] if vt[2] @ hint > 0 else -vt[2]
-    return n2, float(n2 @ cq), int(inl.sum())
+    def refit(n: np.ndarray, d: float) -> tuple[np.ndarray, float, int, bool]:
+        n2, d2 = n, d
+        for _ in range(3):  # least squares on the inliers, inliers of the refit, ... (a few rounds converge)
+            inl = np.abs(pts @ n2 - d2) < threshold
+            q = pts[inl]
+            if len(q) < 3:
+                return n, d, 0, False
+            cq = q.mean(0)
+            _, sv, vt = np.linalg.svd(q - cq, full_matrices=False)
+            n2 = vt[2] if vt[2] @ hint > 0 else -vt[2]
+            d2 = float(n2 @ cq)
+        # a real surface: its inliers' own normal agrees and they spread in two directions (a slanted plane
+        # cutting through vertical cabinet fronts collects a thin band, not a surface)
+        surface = bool(n2 @ n > np.cos(np.radians(8.0)) and sv[1] > 0.25 * sv[0] and n2 @ hint >= cos_max)
+        return n2, d2, int(inl.sum()), surface
+
+    # the largest horizontal-ish surface fixes the orientation; the floor is the lowest surface parallel to it
+    # with enough support (table and counter tops are parallel to the floor but above it)
+    cands.sort(key=lambda c: -c[0])
+    ref = None
+    for cnt, n, d in cands[:10]:
+        r = refit(n, d)
+        if r[3]:
+            ref = r
+            break
+    if ref is None:
+        return None
+    cos_par = np.cos(np.radians(parallel_deg))
+    lowest = ref
+    for cnt, n, d in cands:
+        if cnt < max(min_share * len(pts), 0.2 * ref[2]) or n @ ref[0] < cos_par or d <= lowest[1] + threshold:
+            continue
+        r = refit(n, d)
+        if r[3] and r[0] @ ref[0] >= cos_par and r[2] >= min_share * len(pts) and r[1] > lowest[1]:
+            lowest = r
+    return lowest[0], lowest[1], lowest[2]
 
 
 def gravity_world_transform(down_root: np.ndarray, floor_offset: float | None = None,

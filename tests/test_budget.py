@@ -357,3 +357,16 @@ def test_update_profile_costs_round_trip(tmp_path):
     with pytest.raises(ProfileError):
         B.update_profile_costs(dst, {"detector": {"ms_per_call": -1.0}}, bundle_hash_="x")
     assert B.load_profile(dst).cost("detector").ms_per_call == 12.5  # the invalid update was not written
+
+
+def test_stage_aliases_and_candidates_after_dedup():
+    p = B.plan(B.parse_profile(hand_profile(6000, 1000)), 100, 10)  # K = 28, S = 118 from 500 estimated
+    clock, trace = FakeClock(), Trace()
+    ctl = B.BudgetController(p, trace, clock=clock, rss=lambda: 0.0)
+    assert ctl.share_ms("dedup") == ctl.share_ms("frames") == pytest.approx(2000)
+    with ctl.stage("dedup"):  # the trace keeps the pipeline's name, the controller books it on "frames"
+        clock.t += 1.0
+    assert "dedup" in trace.stages and "frames" in ctl.done and not ctl.reduced
+    ctl.update_candidates(20)  # dedup kept only 20 frames
+    assert (ctl.keyframes, ctl.scored_frames) == (20, 20) and ctl.batch_size == 1
+    assert trace.decisions["budget.candidates"] == 20

@@ -40,6 +40,18 @@ ARCHS: dict[str, str] = {
     "xfeat": "matcher:TwoStageMatcher",      # XFeat extractor + mutual-NN matcher (contract B in matcher.py)
     "pair_matcher": "matcher:PairMatcher",   # any graph following the pair contract
     "two_stage_matcher": "matcher:TwoStageMatcher",  # extractor + matcher components
+    # Hugging Face architectures (export/hf_*.py)
+    "depth-anything-v2": "depth:DepthModel",                # relative inverse depth
+    "depth-anything-v2-metric-indoor": "depth:DepthModel",  # metres
+    "sam": "sam:SamSegmenter",                # image encoder + prompt decoder
+    "slimsam": "sam:SamSegmenter",
+    "owlv2": "owlv2:OwlV2Detector",           # image branch + text branch (embeddings cached per name)
+    "clip": "embedder:Embedder",              # CLIP vision tower + projection, L2-normalised in graph
+    "siglip": "embedder:Embedder",            # SigLIP pooled vision embedding
+    "superpoint_lightglue": "matcher:TwoStageMatcher",  # SuperPoint top-K extractor + LightGlue matcher
+    "efficientloftr": "matcher:PairMatcher",  # pair graph
+    "smolvlm": "vlm:VLM",                     # vision + embed + decoder-with-KV-cache
+    "internvl": "vlm:VLM",
 }
 
 

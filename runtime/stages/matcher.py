@@ -119,6 +119,11 @@ class TwoStageMatcher(RoleModel):
             self._cache.popitem(last=False)
         return feats
 
+    def match_keys(self, k0: Any, rgb0: np.ndarray, k1: Any, rgb1: np.ndarray, boxes0: np.ndarray | None = None,
+                   boxes1: np.ndarray | None = None) -> Matches:
+        """Same as `match`, caching features under the caller's frame keys (e.g. frame indices)."""
+        return self.match(rgb0, rgb1, boxes0, boxes1, key0=("key", k0), key1=("key", k1))
+
     def match(self, rgb0: np.ndarray, rgb1: np.ndarray, boxes0: np.ndarray | None = None,
               boxes1: np.ndarray | None = None, key0: Any = None, key1: Any = None) -> Matches:
         """rgb0, rgb1: [H, W, 3] uint8 -> Matches in original-image pixels (key0/key1: optional cache keys)."""

@@ -1,0 +1,371 @@
+"""Key-frame selection measured on synthetic scenes: `mosaic eval keyframes`.
+
+For N generated scenes (complexity varied one factor at a time, see `--vary`), every question with objects is
+grounded (`grounding.parse_question`: targets and cues), the candidates are the frames kept by redundant-frame
+removal (`dedup.remove_redundant`, when that module is available; otherwise every frame, noted), and each
+method picks K key frames with the same detector:
+    iterative   the paper's search (`keyframes.iterative_search`, default configuration)
+    uniform     K evenly spaced candidates (nothing scored)
+    exhaustive  every candidate scored, top K with a positive score
+Metrics per question (ground truth: `scene.json` per-frame `visibility`, the question record's `instances`):
+    recall     share of the question's object instances that are seen (visibility >= --min-visible, default
+               0.2) in at least one selected frame; instances never that visible in the whole video are left
+               out (no method could find them);
+    precision  share of the selected frames that show (same visibility rule) at least one of those instances;
+               an empty selection has precision 0;
+    F1         2PR / (P + R) per question, then averaged (`f1`); means of P and R are reported beside it;
+    scored     detector calls / candidates (`scored_candidates`) and / all frames (`scored_frames`).
+Questions that name no object (room size) and questions whose objects are never >= min-visible are skipped and
+counted. Results are reported per method, per complexity level and per question type.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from ..errors import InputError
+from ..keyframes import METHODS, KeyFrameConf, select_keyframes
+from ..perception import Detections
+
+SCHEMA = "mosaicthinker.eval.keyframes/1"
+LEVELS = {"objects": ("low", "med", "high"), "room": ("small", "medium", "large"),
+          "duration": ("short", "medium", "long")}
+TARGETS = {"f1_min": 0.70, "scored_candidates_max": 0.30, "recall_gap_to_exhaustive_max": 0.05,
+           "f1_margin_over_uniform_min": 0.10}
+
+
+# ------------------------------------------------------------------------------------------------ metrics
+
+
+def visibility_table(scene_meta: dict[str, Any]) -> list[dict[int, float]]:
+    """Per frame: instance id -> visibility (visible fraction x in-frame share) from `scene.json`."""
+    rows = scene_meta.get("frames")
+    if not isinstance(rows, list):
+        raise InputError("scene.json: field `frames` (per-frame visibility) is missing; regenerate the scene")
+    out: list[dict[int, float]] = [dict() for _ in rows]
+    for r in rows:
+        out[int(r["index"])] = {int(v["id"]): float(v["visibility"]) for v in r.get("visible", [])}
+    return out
+
+
+@dataclass
+class QuestionScore:
+    precision: float
+    recall: float
+    f1: float
+    chosen: int
+
+
+def score_selection(chosen: list[int], instances: set[int], vis: list[dict[int, float]],
+                    min_visible: float = 0.2) -> QuestionScore:
+    """Precision/recall/F1 of `chosen` frame indices for the question's `instances` (ids), see the module doc.
+    `instances` must already be restricted to the ones that reach `min_visible` somewhere in the video."""
+    if not instances:
+        raise ValueError("score_selection: no eligible instances")
+    seen = {i for f in chosen for i, v in vis[f].items() if v >= min_visible and i in instances}
+    recall = len(seen) / len(instances)
+    good = sum(any(vis[f].get(i, 0.0) >= min_visible for i in instances) for f in chosen)
+    precision = good / len(chosen) if chosen else 0.0
+    f1 = 2 * precision * recall / (precision + recall) if precision + recall > 0 else 0.0
+    return QuestionScore(precision, recall, f1, len(chosen))
+
+
+def _summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    if not rows:
+        return {"questions": 0}
+    a = {k: np.array([r[k] for r in rows], dtype=np.float64)
+         for k in ("precision", "recall", "f1", "scored_candidates", "scored_frames", "chosen")}
+    return {"questions": len(rows), **{k: round(float(v.mean()), 4) for k, v in a.items()},
+            "empty_selections": int((a["chosen"] == 0).sum()),
+            "fewer_than_k": int(sum(any(n.startswith("fewer than K") for n in r["notes"]) for r in rows))}
+
+
+def summarise(records: list[dict[str, Any]], methods: list[str]) -> dict[str, Any]:
+    """Per method: overall, by complexity level and by question type."""
+    out: dict[str, Any] = {}
+    for m in methods:
+        rows = [r for r in records if r["method"] == m]
+        out[m] = {"all": _summary(rows),
+                  "by_level": {lv: _summary([r for r in rows if r["level"] == lv])
+                               for lv in sorted({r["level"] for r in rows})},
+                  "by_type": {t: _summary([r for r in rows if r["qtype"] == t])
+                              for t in sorted({r["qtype"] for r in rows})}}
+    return out
+
+
+def check_targets(summary: dict[str, Any]) -> dict[str, Any]:
+    """The issue's targets on the default iterative search; each with its value and the margin (miss if < 0)."""
+    it, ex, un = (summary.get(m, {}).get("all", {}) for m in METHODS)
+    if not it.get("questions"):
+        return {}
+    t = TARGETS
+    res = {
+        "iterative_f1": (it["f1"], t["f1_min"], it["f1"] - t["f1_min"]),
+        "iterative_scored_candidates": (it["scored_candidates"], t["scored_candidates_max"],
+                                        t["scored_candidates_max"] - it["scored_candidates"]),
+    }
+    if ex.get("questions"):
+        gap = ex["recall"] - it["recall"]
+        res["recall_gap_to_exhaustive"] = (round(gap, 4), t["recall_gap_to_exhaustive_max"],
+                                           t["recall_gap_to_exhaustive_max"] - gap)
+    if un.get("questions"):
+        marg = it["f1"] - un["f1"]
+        res["f1_margin_over_uniform"] = (round(marg, 4), t["f1_margin_over_uniform_min"],
+                                         marg - t["f1_margin_over_uniform_min"])
+    return {k: {"value": v, "target": tg, "met": bool(m >= 0), "margin": round(m, 4)} for k, (v, tg, m) in res.items()}
+
+
+# ------------------------------------------------------------------------------------------------ scenes
+
+
+def _scene_config(i: int, args: argparse.Namespace) -> tuple[Any, str]:
+    """Scene i: the varied factor cycles through its three levels, the others stay at their middle level."""
+    from ..synth.scene import DURATION_LEVELS, SceneConfig
+
+    level = LEVELS[args.vary][i % 3]
+    kw: dict[str, Any] = {"objects": "med", "room": "medium", "duration": args.duration}
+    if args.vary == "objects":
+        kw["objects"] = level
+    elif args.vary == "room":
+        kw["room"] = level
+    else:
+        kw["duration"] = DURATION_LEVELS[level] * args.duration / DURATION_LEVELS["medium"]
+    conf = SceneConfig(seed=args.seed * 1000 + i, fps=args.fps, width=args.width, height=args.height, **kw)
+    return conf, level
+
+
+def _ensure_scene(conf: Any, out: Path, workers: int) -> dict[str, Any]:
+    """Generate the scene into `out` unless a scene with the same configuration is already there."""
+    from ..synth.generate import load_scene, write_scene
+    from ..synth.scene import config_dict
+
+    if (out / "scene.json").exists() and (out / "questions.jsonl").exists():
+        meta = load_scene(out)
+        if meta.get("config") == json.loads(json.dumps(config_dict(conf))):
+            return {"generated": False}
+        raise InputError(f"{out}: holds a scene with another configuration; give another --out or delete it")
+    if out.exists() and any(out.iterdir()):
+        raise InputError(f"{out}: exists and is not a complete generated scene; delete it or give another --out")
+    info = write_scene(conf, out, workers=workers, video=False)
+    return {"generated": True, "seconds": info.get("seconds")}
+
+
+def _candidates(scene_dir: Path, use_dedup: bool) -> tuple[list[int], str]:
+    """Frames kept by redundant-frame removal (or every frame, said so)."""
+    from ..frames import open_source
+
+    src = open_source(scene_dir)
+    if use_dedup:
+        try:
+            from ..dedup import remove_redundant
+        except ImportError:
+            return list(range(len(src))), "all frames (runtime.dedup is not available)"
+        res = remove_redundant(src)
+        return [int(i) for i in res.kept], "dedup.remove_redundant (default configuration)"
+    return list(range(len(src))), "all frames (--no-dedup)"
+
+
+def _image_reader(scene_dir: Path) -> Callable[[int], np.ndarray]:
+    import cv2
+
+    def image(f: int) -> np.ndarray:
+        p = scene_dir / f"frame-{int(f):06d}.color.jpg"
+        bgr = cv2.imread(str(p), cv2.IMREAD_COLOR)
+        if bgr is None:
+            raise InputError(f"{p}: cannot read the frame image")
+        return bgr[:, :, ::-1]
+
+    return image
+
+
+def _detector(scene_dir: Path, args: argparse.Namespace, image: Callable[[int], np.ndarray]
+              ) -> tuple[Callable[[int, list[str]], Detections], str]:
+    if args.detector == "oracle":
+        from ..synth.oracle import OracleDetector
+
+        det = OracleDetector(scene_dir, miss_rate=args.miss_rate, score_noise=args.score_noise, seed=args.seed)
+        return det.detect, f"oracle (miss_rate={args.miss_rate}, score_noise={args.score_noise})"
+    if not args.bundle:
+        raise InputError("--detector model needs --bundle DIR (a bundle with a detector role)")
+    from ..stages import load_role
+
+    model = load_role(args.bundle, "detector")
+    return (lambda f, names: model.detect(image(f), names)), f"bundle detector ({args.bundle})"
+
+
+class _Memo:
+    """The same detector answer for every method (and for repeated calls): detections per (frame, names)."""
+
+    def __init__(self, fn: Callable[[int, list[str]], Detections]):
+        self.fn, self.cache = fn, {}
+
+    def __call__(self, f: int, names: list[str]) -> Detections:
+        key = (int(f), tuple(names))
+        if key not in self.cache:
+            self.cache[key] = self.fn(int(f), list(names))
+        return self.cache[key]
+
+
+def evaluate_scene(scene_dir: Path, level: str, args: argparse.Namespace, conf: KeyFrameConf,
+                   methods: list[str]) -> tuple[list[dict[str, Any]], dict[str, Any]]:
+    """All questions of one generated scene x all methods -> per-question records and a scene summary."""
+    from ..grounding import parse_question
+    from ..synth.generate import load_scene
+
+    meta = load_scene(scene_dir)
+    vis = visibility_table(meta)
+    cands, how = _candidates(scene_dir, not args.no_dedup)
+    image = _image_reader(scene_dir)
+    det_fn, det_desc = _detector(scene_dir, args, image)
+    names_by_id = {int(o["id"]): str(o["name"]) for o in meta["instances"]}
+    qpath = scene_dir / "questions.jsonl"
+    questions = [json.loads(line) for line in qpath.read_text().splitlines() if line.strip()]
+    histograms: dict[int, np.ndarray] = {}
+    records: list[dict[str, Any]] = []
+    skipped: dict[str, int] = {}
+    for q in questions:
+        pq = parse_question(q["question"], q.get("options"))
+        if not pq.objects:
+            skipped["no objects"] = skipped.get("no objects", 0) + 1
+            continue
+        ids = q.get("instances")
+        if ids is None:
+            raise InputError(f"{qpath}: question {q.get('id')} has no `instances` field; regenerate the scene")
+        eligible = {int(i) for i in ids if any(v.get(int(i), 0.0) >= args.min_visible for v in vis)}
+        if not eligible:
+            skipped["objects never visible enough"] = skipped.get("objects never visible enough", 0) + 1
+            continue
+        detect = _Memo(det_fn)  # per question: every method sees identical detections
+        for m in methods:
+            t0 = time.perf_counter()
+            res = select_keyframes(m, cands, pq.targets, pq.cues, detect, image, conf, histograms=histograms)
+            sc = score_selection([int(f) for f in res.chosen], eligible, vis, args.min_visible)
+            records.append({
+                "scene": meta["scene_name"], "level": level, "question": int(q.get("id", -1)),
+                "qtype": q["question_type"], "method": m, "targets": pq.targets, "cues": pq.cues,
+                "instances": sorted(eligible), "instance_names": sorted({names_by_id.get(i, "?") for i in eligible}),
+                "precision": sc.precision, "recall": sc.recall, "f1": sc.f1, "chosen": sc.chosen,
+                "chosen_frames": [int(f) for f in res.chosen],
+                "scored_candidates": res.frames_scored / len(cands), "scored_frames": res.frames_scored / len(vis),
+                "notes": res.notes, "seconds": round(time.perf_counter() - t0, 4)})
+    info = {"scene": meta["scene_name"], "level": level, "frames": len(vis), "candidates": len(cands),
+            "candidates_from": how, "detector": det_desc, "questions": len(questions),
+            "objects": len(meta["instances"]), "room_size": meta.get("room_size"),
+            "duration_s": meta.get("camera", {}).get("duration"), "skipped": skipped,
+            "histograms_computed": len(histograms)}
+    return records, info
+
+
+# ------------------------------------------------------------------------------------------------ command
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    from ..cli import add_stage_flags
+
+    p.add_argument("--scenes", type=int, default=3, help="number of generated scenes (default 3)")
+    p.add_argument("--seed", type=int, default=0, help="scene i uses seed 1000*S + i; also the oracle's seed")
+    p.add_argument("--keyframes", type=int, default=8, metavar="K", help="key-frame budget K (default 8)")
+    add_stage_flags(p, detector=True)
+    p.add_argument("--vary", choices=sorted(LEVELS), default="objects",
+                   help="complexity factor cycled over low/medium/high across the scenes (default objects)")
+    p.add_argument("--duration", type=float, default=60.0, help="video seconds at the medium level (default 60)")
+    p.add_argument("--fps", type=float, default=15.0)
+    p.add_argument("--width", type=int, default=320)
+    p.add_argument("--height", type=int, default=240)
+    p.add_argument("--workers", type=int, default=1, help="rendering processes")
+    p.add_argument("--miss-rate", type=float, default=0.1, help="oracle detector miss rate (default 0.1)")
+    p.add_argument("--score-noise", type=float, default=0.1, help="oracle detector score noise (default 0.1)")
+    p.add_argument("--min-visible", type=float, default=0.2,
+                   help="an instance counts as seen in a frame from this visibility on (default 0.2)")
+    p.add_argument("--no-dedup", action="store_true", help="use every frame as a candidate")
+    p.add_argument("--conf", default=None, metavar="JSON",
+                   help='key-frame config overrides, e.g. \'{"threshold": 2, "budget_fraction": 0.2}\'')
+    p.add_argument("--records", action="store_true", help="include per-question records in the output")
+
+
+def run(args: argparse.Namespace) -> dict[str, Any]:
+    if args.scenes < 1:
+        raise InputError("--scenes must be >= 1")
+    if not 0 <= args.miss_rate < 1:
+        raise InputError(f"--miss-rate must be in [0, 1) (got {args.miss_rate})")
+    try:
+        over = json.loads(args.conf) if args.conf else {}
+    except json.JSONDecodeError as e:
+        raise InputError(f"--conf: not valid JSON ({e})") from None
+    conf = KeyFrameConf.merged({**over, "keyframes": args.keyframes})
+    methods = list(METHODS)
+    t0 = time.perf_counter()
+    tmp = None
+    root = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix="mosaic-kf-"))
+    if not args.out:
+        tmp = root
+    records: list[dict[str, Any]] = []
+    scenes: list[dict[str, Any]] = []
+    try:
+        for i in range(args.scenes):
+            sconf, level = _scene_config(i, args)
+            sdir = root / f"scene-{sconf.seed:05d}-{args.vary}-{level}"
+            gen = _ensure_scene(sconf, sdir, args.workers)
+            recs, info = evaluate_scene(sdir, level, args, conf, methods)
+            records += recs
+            scenes.append({**info, **gen, "seed": sconf.seed})
+    finally:
+        if tmp is not None:
+            shutil.rmtree(tmp, ignore_errors=True)
+    summary = summarise(records, methods)
+    out: dict[str, Any] = {
+        "schema": SCHEMA,
+        "command": "mosaic eval keyframes " + " ".join(_argv(args)),
+        "detector": args.detector, "keyframes": args.keyframes, "vary": args.vary, "seed": args.seed,
+        "min_visible": args.min_visible, "config": conf.to_dict(),
+        "methods": summary, "targets": check_targets(summary), "scenes": scenes,
+        "seconds": round(time.perf_counter() - t0, 2), "cpu_count": os.cpu_count(),
+    }
+    if args.records:
+        out["records"] = records
+    return out
+
+
+def _argv(args: argparse.Namespace) -> list[str]:
+    keep = ["scenes", "seed", "keyframes", "detector", "vary", "duration", "fps", "width", "height", "miss_rate",
+            "score_noise", "min_visible"]
+    out = [f"--{k.replace('_', '-')} {getattr(args, k)}" for k in keep]
+    if args.no_dedup:
+        out.append("--no-dedup")
+    if args.conf:
+        out.append(f"--conf '{args.conf}'")
+    if args.bundle:
+        out.append(f"--bundle {args.bundle}")
+    return out
+
+
+def render(result: dict[str, Any]) -> str:
+    lines = [f"key frames: {len(result['scenes'])} scenes, K={result['keyframes']}, detector={result['detector']}, "
+             f"varying {result['vary']}", ""]
+    head = f"{'method':<11} {'level':<8} {'n':>4} {'P':>6} {'R':>6} {'F1':>6} {'scored/cand':>11} {'scored/all':>10}"
+    lines.append(head)
+    for m, s in result["methods"].items():
+        groups = [("all", s["all"])] + list(s["by_level"].items())
+        for lv, g in groups:
+            if not g.get("questions"):
+                continue
+            lines.append(f"{m:<11} {lv:<8} {g['questions']:>4} {g['precision']:>6.3f} {g['recall']:>6.3f} "
+                         f"{g['f1']:>6.3f} {g['scored_candidates']:>11.3f} {g['scored_frames']:>10.3f}")
+    if result.get("targets"):
+        lines += ["", "targets (iterative, default configuration):"]
+        for k, t in result["targets"].items():
+            lines.append(f"  {k:<30} {t['value']!s:>8} vs {t['target']:<5} {'met' if t['met'] else 'MISSED'} "
+                         f"(margin {t['margin']:+.3f})")
+    for s in result["scenes"]:
+        lines.append(f"scene {s['scene']}: {s['level']}, {s['frames']} frames, {s['candidates']} candidates "
+                     f"({s['candidates_from']}), {s['objects']} objects, skipped {s['skipped']}")
+    return "\n".join(lines)

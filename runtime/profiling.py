@@ -1,0 +1,681 @@
+"""Per-device profiling reports: `mosaic profile --bundle B [--profile P] [--video V] --out DIR`.
+
+What is measured, on this machine, with the providers and threads of the profile (default: CPU, onnxruntime's
+thread default):
+
+- per role x variant x component (the raw graphs): session load time, latency p50/p90/mean over N warm runs
+  on random inputs shaped from the graph's declared inputs, the increase of resident memory after loading
+  and the peak during load + runs, and the execution provider onnxruntime really used (with any fallback);
+- per role (the runtime adapter, pre/post-processing included, on a real frame when --video is given): the same
+  latency figures; these are the planner's `ms_per_call` figures;
+- the CPU-side pipeline pieces that exist: video decode per frame, redundant-frame removal per frame, RANSAC per
+  pair, key-frame state size;
+- when --video and a question-free object list are given and `runtime.pipeline.build_map` exists, one full map
+  build with per-stage times from its Trace.
+
+Outputs in --out: `report.json` (schema mosaicthinker.profile_report/1), `report.md`, `latency.png`,
+`memory.png` (Pillow charts, no matplotlib). `--update-profile` writes the measured costs back into the
+profile TOML (status "measured", today's date and the bundle hash). Random-weight models are marked everywhere:
+their timings are real, their outputs are not.
+"""
+from __future__ import annotations
+
+import argparse
+import datetime as _dt
+import gc
+import json
+import os
+import platform
+import time
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+import numpy as np
+
+from .budget import (Profile, bundle_hash, load_profile, peak_rss_mb, reset_peak_rss, update_profile_costs)
+from .errors import InputError, MosaicError
+from .trace import Trace, rss_mb
+
+REPORT_SCHEMA = "mosaicthinker.profile_report/1"
+_ORT_DTYPES = {"float": np.float32, "float16": np.float16, "double": np.float64, "uint8": np.uint8,
+               "int8": np.int8, "int32": np.int32, "int64": np.int64, "bool": np.bool_}
+DEFAULT_NAMES = ("chair", "table", "sofa", "tv", "bed", "plant")
+
+
+def percentiles(times_ms: Sequence[float]) -> dict[str, float]:
+    """times [N] ms -> {p50, p90, mean, min, n} (numpy's linear interpolation)."""
+    a = np.asarray(times_ms, np.float64)
+    if a.size == 0:
+        return {"p50": float("nan"), "p90": float("nan"), "mean": float("nan"), "min": float("nan"), "n": 0}
+    return {"p50": round(float(np.percentile(a, 50)), 3), "p90": round(float(np.percentile(a, 90)), 3),
+            "mean": round(float(a.mean()), 3), "min": round(float(a.min()), 3), "n": int(a.size)}
+
+
+def random_feeds(sess: Any, rng: np.random.Generator, dynamic_dim: int = 1) -> dict[str, np.ndarray]:
+    """Random inputs for a session's declared inputs: uint8 images 0..255, floats in [0, 1), ints 0..9 (token
+    ids, indices), dynamic dims -> `dynamic_dim`. sess: onnxruntime InferenceSession or providers.Session."""
+    feeds = {}
+    for i in sess.get_inputs():
+        shape = [d if isinstance(d, int) and d > 0 else dynamic_dim for d in (i.shape or [])]
+        dt = _ORT_DTYPES.get(i.type.replace("tensor(", "").rstrip(")"), np.float32)
+        if dt == np.uint8:
+            x = rng.integers(0, 256, shape, dtype=np.uint8)
+        elif np.issubdtype(dt, np.integer):
+            x = rng.integers(0, 10, shape).astype(dt)
+        elif dt == np.bool_:
+            x = np.ones(shape, bool)
+        else:
+            x = rng.random(shape, dtype=np.float32).astype(dt)
+        feeds[i.name] = x
+    return feeds
+
+
+def time_calls(fn: Callable[[], Any], runs: int, warmup: int) -> tuple[list[float], float]:
+    """Run `fn` warmup + runs times; returns (warm times in ms, first-call ms)."""
+    t0 = time.perf_counter()
+    fn()
+    first = (time.perf_counter() - t0) * 1000
+    for _ in range(max(0, warmup - 1)):
+        fn()
+    times = []
+    for _ in range(runs):
+        t = time.perf_counter()
+        fn()
+        times.append((time.perf_counter() - t) * 1000)
+    return times, first
+
+
+def synthetic_frame(h: int = 480, w: int = 640, seed: int = 0) -> np.ndarray:
+    """A textured RGB test image [h, w, 3] uint8 (smooth colour blobs + edges), so that feature extractors and
+    NMS see realistic amounts of structure. Used when no --video is given."""
+    import cv2
+
+    rng = np.random.default_rng(seed)
+    img = cv2.resize(rng.integers(0, 256, (h // 16, w // 16, 3), dtype=np.uint8), (w, h),
+                     interpolation=cv2.INTER_CUBIC)
+    for _ in range(25):
+        x0, y0 = int(rng.integers(0, w - 40)), int(rng.integers(0, h - 40))
+        x1, y1 = x0 + int(rng.integers(20, 160)), y0 + int(rng.integers(20, 120))
+        cv2.rectangle(img, (x0, y0), (x1, y1), tuple(int(c) for c in rng.integers(0, 256, 3)), -1)
+    return img
+
+
+class _Mem:
+    """RSS before / after / peak around a block (peak via the kernel's VmHWM after a reset, where possible)."""
+
+    def __enter__(self):
+        gc.collect()
+        self.can_reset = reset_peak_rss()
+        self.before = rss_mb()
+        return self
+
+    def __exit__(self, *exc):
+        self.after = rss_mb()
+        self.peak = max(peak_rss_mb() if self.can_reset else self.after, self.after)
+        return False
+
+    @property
+    def increase(self) -> float:
+        return round(self.after - self.before, 1)
+
+    @property
+    def peak_increase(self) -> float:
+        return round(self.peak - self.before, 1)
+
+
+def _variant_for(bundle: Any, role: str, profile: Profile | None, which: str) -> list[str]:
+    variants = list(bundle.role_meta(role).get("variants", {}))
+    if which == "all":
+        return variants
+    if profile is not None and role in profile.roles:
+        want = profile.role(role).bundle_variant()
+        if want in variants:
+            return [want]
+    return [bundle.variant_name(role)]
+
+
+def profile_components(bundle: Any, role: str, variant: str, providers: list[str] | None, threads: int | None,
+                       runs: int, warmup: int, trace: Trace, rng: np.random.Generator) -> dict[str, Any]:
+    """Per component of one variant: load ms, warm latency, memory, provider used (errors recorded, not raised)."""
+    from .providers import create_session
+
+    spec = bundle.spec(role, variant, verify=True)
+    out: dict[str, Any] = {}
+    for cname, comp in spec.components.items():
+        stage = f"profile.{role}.{variant}.{cname}"
+        rec: dict[str, Any] = {"file": comp.meta.get("file"), "bytes": comp.meta.get("bytes")}
+        try:
+            with _Mem() as m:
+                t0 = time.perf_counter()
+                sess = create_session(comp.path, stage, providers, threads=threads, trace=trace)
+                rec["load_ms"] = round((time.perf_counter() - t0) * 1000, 2)
+                feeds = random_feeds(sess, rng)
+                times, first = time_calls(lambda: sess.run(feeds), runs, warmup)
+            rec.update({"first_run_ms": round(first, 2), "latency_ms": percentiles(times),
+                        "rss_increase_mb": m.increase, "peak_rss_increase_mb": m.peak_increase,
+                        "provider": sess.provider,
+                        "fallbacks": [a for a in sess.attempts if not a.get("ok")],
+                        "input_shapes": {k: list(v.shape) for k, v in feeds.items()}})
+            del sess
+        except MosaicError as e:
+            rec["error"] = str(e)
+        except Exception as e:  # noqa: BLE001 - a graph that cannot run on random inputs is reported, not fatal
+            rec["error"] = f"{type(e).__name__}: {str(e)[:300]}"
+        gc.collect()
+        out[cname] = rec
+    return out
+
+
+class _Fresh:
+    """Hands out a distinct copy of a frame on every call (one pixel changed), so that adapters' per-image caches
+    (segmenter classes, matcher features) never hit and every call pays for the real work."""
+
+    _serial = 0  # process-wide, so two _Fresh never hand out identical images
+
+    def __init__(self, frame: np.ndarray, n: int):
+        self.frames = []
+        for _ in range(n):
+            k = _Fresh._serial = _Fresh._serial + 1
+            f = frame.copy()
+            f[0, 0] = (k % 256, (k // 256) % 256, (k // 65536) % 256)
+            self.frames.append(f)
+        self.i = 0
+
+    def __call__(self) -> np.ndarray:
+        f = self.frames[self.i % len(self.frames)]
+        self.i += 1
+        return f
+
+
+def _adapter_call(model: Any, role: str, frames: list[np.ndarray], n: int
+                  ) -> tuple[Callable[[], Any], str] | None:
+    a = _Fresh(frames[0], n)
+    b = _Fresh(frames[min(1, len(frames) - 1)], n)
+    if role == "depth" and hasattr(model, "predict"):
+        return (lambda: model.predict(a())), "predict(rgb)"
+    if role == "detector" and hasattr(model, "detect"):
+        return (lambda: model.detect(a(), list(DEFAULT_NAMES))), f"detect(rgb, {len(DEFAULT_NAMES)} names)"
+    if role == "segmenter" and hasattr(model, "segment"):
+        H, W = frames[0].shape[:2]
+        boxes = np.array([[0, 0, W / 2, H / 2], [W / 2, H / 2, W, H], [W / 4, H / 4, 3 * W / 4, 3 * H / 4],
+                          [0, H / 2, W / 2, H]], np.float32)
+        names = ["chair", "table", "sofa", "tv"]
+        return (lambda: model.segment(a(), boxes, names)), "segment(rgb, 4 boxes)"
+    if role == "embedder" and hasattr(model, "embed"):
+        return (lambda: model.embed(a())), "embed(rgb)"
+    if role == "matcher" and hasattr(model, "match"):
+        return (lambda: model.match(a(), b())), "match(rgb0, rgb1), both images new"
+    return None
+
+
+def profile_adapter(bundle: Any, role: str, variant: str, providers: list[str] | None, threads: int | None,
+                    runs: int, warmup: int, trace: Trace, frames: list[np.ndarray]) -> dict[str, Any]:
+    """The runtime adapter of a role (pre/post-processing included): load ms, warm latency, memory, providers."""
+    from .stages import load_role
+
+    rec: dict[str, Any] = {}
+    try:
+        with _Mem() as m:
+            t0 = time.perf_counter()
+            model = load_role(bundle, role, variant, providers=providers, threads=threads, trace=trace)
+            rec["load_ms"] = round((time.perf_counter() - t0) * 1000, 2)
+            call = _adapter_call(model, role, frames, runs + warmup)
+            if call is None:
+                rec["note"] = f"no adapter call for role {role} (component timings only)"
+            else:
+                fn, what = call
+                times, first = time_calls(fn, runs, warmup)
+                rec.update({"call": what, "first_run_ms": round(first, 2), "latency_ms": percentiles(times)})
+                if role == "matcher" and hasattr(model, "features"):  # two-stage: extraction alone
+                    fresh = _Fresh(frames[0], runs + 1)
+                    ft, _ = time_calls(lambda: model.features(fresh()), runs, 1)
+                    rec["features_latency_ms"] = percentiles(ft)
+        rec.update({"rss_increase_mb": m.increase, "peak_rss_increase_mb": m.peak_increase,
+                    "providers": model.providers_used(), "random_weights": bool(model.spec.random_weights)})
+        del model
+    except MosaicError as e:
+        rec["error"] = str(e)
+    except Exception as e:  # noqa: BLE001
+        rec["error"] = f"{type(e).__name__}: {str(e)[:300]}"
+    gc.collect()
+    return rec
+
+
+def _role_worker(job: dict[str, Any]) -> dict[str, Any]:
+    """Profile one role/variant in THIS process (used in a fresh spawned process, so that memory figures are not
+    flattered by memory an earlier model freed). Returns components, adapter, baseline RSS and trace events."""
+    import cv2  # noqa: F401 - part of the runtime's baseline
+
+    import onnxruntime  # noqa: F401
+
+    from .bundle import load_bundle
+    from .stages import load_role  # noqa: F401 - import cost outside the measurement
+
+    trace = Trace()
+    base = rss_mb()
+    b = load_bundle(job["bundle"], verify=False)
+    rng = np.random.default_rng(0)
+    comps = profile_components(b, job["role"], job["variant"], job["providers"], job["threads"], job["runs"],
+                               job["warmup"], trace, rng)
+    adapter = profile_adapter(b, job["role"], job["variant"], job["providers"], job["threads"], job["runs"],
+                              job["warmup"], trace, job["frames"])
+    return {"components": comps, "adapter": adapter, "rss_baseline_mb": round(base, 1),
+            "events": trace.events, "providers": trace.providers}
+
+
+def _run_isolated(job: dict[str, Any]) -> dict[str, Any]:
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor
+
+    with ProcessPoolExecutor(max_workers=1, mp_context=mp.get_context("spawn")) as ex:
+        return ex.submit(_role_worker, job).result()
+
+
+def profile_cpu_side(video: str | None, frames: list[np.ndarray], runs: int, max_frames: int = 150
+                     ) -> dict[str, Any]:
+    """CPU-side pieces that exist: video decode and dedup per frame (needs --video), RANSAC per pair."""
+    out: dict[str, Any] = {}
+    if video:
+        from .frames import open_source
+
+        try:
+            src = open_source(video, cache_size=0)
+            n = min(len(src), max_frames)
+            t0 = time.perf_counter()
+            for i in range(n):
+                src[i]
+            out["video_decode"] = {"ms_per_frame": round((time.perf_counter() - t0) * 1000 / max(n, 1), 3),
+                                   "frames": n, "source": type(src).__name__}
+        except Exception as e:  # noqa: BLE001
+            out["video_decode"] = {"error": f"{type(e).__name__}: {str(e)[:200]}"}
+        try:
+            from .dedup import remove_redundant
+            from .frames import open_source as _open
+
+            src = _open(video, max_frames=max_frames) if max_frames else _open(video)
+            n = len(src)
+            t0 = time.perf_counter()
+            res = remove_redundant(src)
+            total = (time.perf_counter() - t0) * 1000
+            dec = out.get("video_decode", {}).get("ms_per_frame", 0.0) or 0.0
+            out["dedup"] = {"ms_per_frame": round(max(total / max(n, 1) - dec, 0.0), 3), "frames": n,
+                            "kept": len(res.kept), "note": "decode time per frame subtracted"}
+        except Exception as e:  # noqa: BLE001
+            out["dedup"] = {"error": f"{type(e).__name__}: {str(e)[:200]}"}
+    from .geometry import make_pose, ransac_transform, rotation_about
+
+    rng = np.random.default_rng(0)
+    src_pts = rng.uniform(-2, 2, (400, 3))
+    T = make_pose(rotation_about(np.array([0.0, 0.0, 1.0]), 0.3), np.array([0.2, -0.1, 0.05]))
+    dst = src_pts @ T[:3, :3].T + T[:3, 3]
+    dst[:120] += rng.normal(0, 0.5, (120, 3))
+    try:
+        times, _ = time_calls(lambda: ransac_transform(src_pts, dst), runs, 1)
+        out["ransac_pair"] = {"latency_ms": percentiles(times), "points": 400, "outliers": 120}
+    except Exception as e:  # noqa: BLE001
+        out["ransac_pair"] = {"error": f"{type(e).__name__}: {str(e)[:200]}"}
+    h, w = frames[0].shape[:2]
+    # what a key frame keeps: RGB, depth float32, 4 masks (bool), 4096 features x (64 float32 + 3 float32)
+    out["keyframe_state"] = {"mb": round((h * w * 3 + h * w * 4 + 4 * h * w + 4096 * (64 + 3) * 4) / 2**20, 3),
+                             "arithmetic": f"{w}x{h}: rgb + depth f32 + 4 masks + 4096 x 67 f32 features"}
+    return out
+
+
+def load_frames(video: str | None, n: int = 2) -> tuple[list[np.ndarray], str]:
+    """Two real frames from --video (first and a quarter in), else synthetic ones (the second shifted by 8 px)."""
+    if video:
+        from .frames import open_source
+
+        src = open_source(video)
+        idx = [0, max(1, len(src) // 4)] if len(src) > 1 else [0]
+        return [src[i].rgb for i in idx][:n], f"{video} frames {idx}"
+    f0 = synthetic_frame()
+    f1 = np.roll(f0, (6, 8), axis=(0, 1))
+    return [f0, f1], "synthetic 640x480 textured image (no --video)"
+
+
+def _costs_from(report: dict[str, Any]) -> tuple[dict[str, dict[str, float]], dict[str, str]]:
+    """Measured figures -> profile cost items (only what was measured)."""
+    costs: dict[str, dict[str, float]] = {}
+    provs: dict[str, str] = {}
+    for role, r in report["roles"].items():
+        if r.get("skipped"):
+            continue
+        v = r["variants"][r["planned_variant"]]
+        ad = v.get("adapter", {})
+        comps = v.get("components", {})
+        if "error" in ad or not comps or any("error" in c for c in comps.values()):
+            continue
+        p50 = ad.get("latency_ms", {}).get("p50")
+        load = ad.get("load_ms")
+        # the adapter loads after its raw components were freed (allocator reuse): take the larger figure
+        res = max(ad.get("rss_increase_mb", 0.0), sum(max(c.get("rss_increase_mb", 0.0), 0.0)
+                                                       for c in comps.values()), 0.0)
+        provs[role] = ", ".join(sorted({c.get("provider") or "?" for c in comps.values()}))
+        if role == "matcher":
+            fl = ad.get("features_latency_ms", {}).get("p50")
+            if fl is not None and p50 is not None:  # two-stage: features per frame + the pair's own work
+                costs[role] = {"ms_per_call": fl, "ms_per_pair": max(p50 - 2 * fl, 0.0), "load_ms": load,
+                               "resident_mb": res}
+            elif p50 is not None:  # one pair graph extracts both images on every call
+                costs[role] = {"ms_per_call": 0.0, "ms_per_pair": p50, "load_ms": load, "resident_mb": res}
+        elif role == "segmenter":
+            if p50 is not None:
+                enc = [c for n, c in comps.items() if "enc" in n or n == "image"]
+                dec = [c for n, c in comps.items() if "dec" in n or "prompt" in n]
+                if enc and dec:
+                    costs[role] = {"ms_per_call": enc[0]["latency_ms"]["p50"],
+                                   "ms_per_prompt": dec[0]["latency_ms"]["p50"], "load_ms": load,
+                                   "resident_mb": res}
+                else:  # semantic: one pass per frame, prompts only select its pixels
+                    costs[role] = {"ms_per_call": p50, "ms_per_prompt": 0.0, "load_ms": load, "resident_mb": res}
+        elif role == "vlm":
+            vis = [c for n, c in comps.items() if "vis" in n or "image" in n]
+            dec = [c for n, c in comps.items() if "dec" in n or "text" in n or "lm" in n]
+            if vis and dec:
+                load = sum(c.get("load_ms", 0.0) for c in comps.values())
+                res = sum(max(c.get("rss_increase_mb", 0.0), 0.0) for c in comps.values())
+                costs[role] = {"ms_per_image": vis[0]["latency_ms"]["p50"], "ms_per_token": dec[0]["latency_ms"]["p50"],
+                               "load_ms": load, "resident_mb": res}
+        elif p50 is not None:
+            costs[role] = {"ms_per_call": p50, "load_ms": load, "resident_mb": res}
+    cpu = report.get("cpu_side", {})
+    if "ms_per_frame" in cpu.get("video_decode", {}):
+        costs["video_decode"] = {"ms_per_call": cpu["video_decode"]["ms_per_frame"]}
+    if "ms_per_frame" in cpu.get("dedup", {}):
+        costs["dedup"] = {"ms_per_call": cpu["dedup"]["ms_per_frame"]}
+    if "latency_ms" in cpu.get("ransac_pair", {}):
+        costs["geometry"] = {"ms_per_call": cpu["ransac_pair"]["latency_ms"]["p50"]}
+    costs["process"] = {"resident_mb": report["process"]["rss_baseline_mb"]}
+    for c in costs.values():
+        for k in list(c):
+            c[k] = round(float(c[k]), 3)
+    return costs, provs
+
+
+COST_NOTES = {
+    "geometry": "RANSAC on one 400-point pair only (the tree and fusion shares are not in this figure)",
+    "process": "RSS after importing the runtime, numpy, OpenCV and onnxruntime (no frame cache yet)",
+    "dedup": "redundant-frame removal per frame, decode time subtracted",
+}
+
+
+def run_profile(bundle: Any, profile: Profile | str | None = None, *, video: str | None = None,
+                out: str | os.PathLike | None = None, runs: int = 10, warmup: int = 2, variants: str = "planned",
+                roles: Sequence[str] | None = None, update_profile: bool = False, progress: bool = True,
+                trace: Trace | None = None, isolate: bool = True) -> dict[str, Any]:
+    """Profile a bundle on this machine; writes report.json / report.md / PNG charts into `out` when given.
+
+    profile: providers, threads and the planned variant per role (None: CPU, default threads, the bundle's
+    default variants); variants: "planned" (the profile's variant per role, else the bundle default) or "all";
+    update_profile: write measured costs into the profile file (needs a profile); isolate: profile each role in
+    a fresh process (default) so memory figures are not flattered by memory freed by the previous model.
+    """
+    from tqdm import tqdm
+
+    from .bundle import load_bundle
+
+    import cv2  # noqa: F401 - counted in the runtime's baseline
+
+    base_rss = rss_mb()
+    prof = load_profile(profile) if isinstance(profile, (str, os.PathLike)) else profile
+    if update_profile and prof is None:
+        raise InputError("--update-profile needs --profile FILE (the file the measured costs are written to)")
+    b = load_bundle(bundle, verify=True)
+    bhash = bundle_hash(b)
+    trace = trace if trace is not None else Trace()
+    rng = np.random.default_rng(0)
+    frames, frames_from = load_frames(video)
+    threads = prof.intra_op_threads if prof else None
+    todo = []
+    for role in b.roles:
+        if roles and role not in roles:
+            continue
+        for v in _variant_for(b, role, prof, variants):
+            todo.append((role, v))
+    report: dict[str, Any] = {
+        "schema": REPORT_SCHEMA, "date": _dt.date.today().isoformat(),
+        "machine": {"platform": platform.platform(), "processor": platform.processor() or platform.machine(),
+                    "cpu_count": os.cpu_count(), "python": platform.python_version(),
+                    "load_average_1min": round(os.getloadavg()[0], 2) if hasattr(os, "getloadavg") else None},
+        "bundle": str(b.root), "bundle_hash": bhash, "profile": prof.name if prof else None,
+        "profile_path": str(prof.path) if prof and prof.path else None,
+        "runs": runs, "warmup": warmup, "threads": threads, "frames_from": frames_from, "isolated": isolate,
+        "process": {"rss_baseline_mb": round(base_rss, 1)}, "roles": {},
+    }
+    try:
+        import onnxruntime as ort
+
+        report["machine"]["onnxruntime"] = ort.__version__
+        report["machine"]["providers_available"] = list(ort.get_available_providers())
+    except Exception:  # pragma: no cover
+        pass
+    bar = tqdm(total=len(todo) + 1, desc="mosaic profile", unit="step", disable=not progress, leave=False)
+    for role, v in todo:
+        bar.set_postfix_str(f"{role}/{v}")
+        meta = b.role_meta(role)
+        providers = prof.providers_for(role) if prof else None
+        rr = report["roles"].setdefault(role, {
+            "arch": meta.get("arch"), "random_weights": bool(meta.get("random_weights")),
+            "licence": meta.get("licence"), "planned_variant": v, "providers_requested": providers or ["cpu"],
+            "variants": {}})
+        if rr["random_weights"] and isolate:  # in-process, load_role notes it in this trace itself
+            trace.note_random_weights(f"{role}:{meta.get('arch')} ({b.root})")
+        if isolate:
+            job = {"bundle": str(b.root), "role": role, "variant": v, "providers": providers, "threads": threads,
+                   "runs": runs, "warmup": warmup, "frames": frames}
+            res = _run_isolated(job)
+            comps, adapter = res["components"], res["adapter"]
+            for e in res["events"]:
+                if e["kind"] != "random_weights":
+                    trace.events.append({**e, "isolated_process": True})
+            for k, pv in res["providers"].items():
+                trace.providers[k] = pv
+        else:
+            comps = profile_components(b, role, v, providers, threads, runs, warmup, trace, rng)
+            adapter = profile_adapter(b, role, v, providers, threads, runs, warmup, trace, frames)
+        rr["variants"][v] = {"precision": meta["variants"][v].get("precision"), "components": comps,
+                             "adapter": adapter}
+        bar.update(1)
+    bar.set_postfix_str("cpu-side stages")
+    report["cpu_side"] = profile_cpu_side(video, frames, runs)
+    bar.update(1)
+    bar.close()
+    report["fallbacks"] = trace.fallbacks()
+    report["random_weights_used"] = list(trace.random_weights_used)
+    report["peak_rss_mb"] = round(max(peak_rss_mb(), rss_mb()), 1)
+    costs, provs = _costs_from(report)
+    report["measured_costs"] = costs
+    if update_profile and prof is not None and prof.path is not None:
+        notes = {k: v for k, v in COST_NOTES.items() if k in costs}
+        vd = report["cpu_side"].get("video_decode", {})
+        if "video_decode" in costs:
+            notes["video_decode"] = f"per frame of a {vd.get('source')} ({report['frames_from'].split(' frames')[0]})"
+        load = report["machine"].get("load_average_1min")
+        if load is not None and os.cpu_count() and load > os.cpu_count():
+            for k in costs:
+                notes[k] = (notes.get(k, "") + ("; " if k in notes else "")
+                            + f"measured with load average {load} on {os.cpu_count()} CPUs: timings inflated")
+        update_profile_costs(prof.path, costs, bundle_hash_=bhash, date=report["date"], providers=provs,
+                             notes=notes)
+        report["updated_profile"] = str(prof.path)
+    if out is not None:
+        write_report(report, out)
+    return report
+
+
+# ------------------------------------------------------------------------------------------------ output
+
+
+def _rows(report: dict[str, Any]) -> list[dict[str, Any]]:
+    """One row per role/variant/component and per adapter, for the table and charts."""
+    rows = []
+    for role, r in report["roles"].items():
+        for v, vr in r["variants"].items():
+            ad = vr.get("adapter", {})
+            if ad and "latency_ms" in ad:
+                rows.append({"name": f"{role} (adapter)", "role": role, "variant": v, "kind": "adapter",
+                             "load_ms": ad.get("load_ms"), "p50": ad["latency_ms"]["p50"],
+                             "p90": ad["latency_ms"]["p90"], "mem": ad.get("rss_increase_mb"),
+                             "peak": ad.get("peak_rss_increase_mb"),
+                             "provider": ", ".join(sorted({str(p) for p in ad.get("providers", {}).values()})),
+                             "random": r["random_weights"]})
+            for c, cr in vr["components"].items():
+                if "error" in cr:
+                    rows.append({"name": f"{role}.{c}", "role": role, "variant": v, "kind": "component",
+                                 "error": cr["error"], "random": r["random_weights"]})
+                    continue
+                rows.append({"name": f"{role}.{c}", "role": role, "variant": v, "kind": "component",
+                             "load_ms": cr["load_ms"], "p50": cr["latency_ms"]["p50"], "p90": cr["latency_ms"]["p90"],
+                             "mem": cr["rss_increase_mb"], "peak": cr["peak_rss_increase_mb"],
+                             "provider": cr["provider"], "random": r["random_weights"]})
+    return rows
+
+
+def render(report: dict[str, Any]) -> str:
+    """The Markdown summary (also what the command prints)."""
+    m = report["machine"]
+    lines = [f"# Profile of {report['bundle']} (bundle {report['bundle_hash']})", "",
+             f"- date {report['date']}, machine: {m['processor']}, {m['cpu_count']} CPUs, {m['platform']}, "
+             f"onnxruntime {m.get('onnxruntime', '?')} (available: {', '.join(m.get('providers_available', []))}); "
+             f"load average at start {m.get('load_average_1min')} (other jobs on the machine inflate timings)",
+             f"- profile: {report['profile'] or '(none: CPU, default threads)'}; threads {report['threads']}; "
+             f"{report['runs']} warm runs after {report['warmup']} warm-up; inputs: {report['frames_from']}",
+             f"- runtime baseline RSS {report['process']['rss_baseline_mb']} MB; peak RSS {report['peak_rss_mb']} MB",
+             ""]
+    if report.get("random_weights_used"):
+        lines += [f"**RANDOM WEIGHTS**: {', '.join(report['random_weights_used'])} — timings are real, outputs "
+                  f"are meaningless.", ""]
+    lines += ["| model | variant | provider | load ms | p50 ms | p90 ms | RSS +MB | peak +MB |",
+              "|---|---|---|---:|---:|---:|---:|---:|"]
+    for r in _rows(report):
+        tag = " (RANDOM WEIGHTS)" if r["random"] else ""
+        if "error" in r:
+            lines.append(f"| {r['name']}{tag} | {r['variant']} | error: {r['error'][:80]} | | | | | |")
+        else:
+            lines.append(f"| {r['name']}{tag} | {r['variant']} | {r['provider']} | {r['load_ms']:.1f} | "
+                         f"{r['p50']:.1f} | {r['p90']:.1f} | {r['mem']:.1f} | {r['peak']:.1f} |")
+    cpu = report.get("cpu_side", {})
+    lines += ["", "CPU-side stages:", ""]
+    for k, v in cpu.items():
+        lines.append(f"- {k}: " + ", ".join(f"{a}={b}" for a, b in v.items() if a != "latency_ms")
+                     + (f", p50 {v['latency_ms']['p50']} ms, p90 {v['latency_ms']['p90']} ms" if "latency_ms" in v
+                        else ""))
+    if report.get("pipeline"):
+        lines += ["", "Pipeline stages (one map build):", "", "| stage | seconds | calls | peak RSS MB |",
+                  "|---|---:|---:|---:|"]
+        for n, s in report["pipeline"].get("stages", {}).items():
+            lines.append(f"| {n} | {s['seconds']:.3f} | {s['calls']} | {s['rss_peak_mb']:.0f} |")
+    if report.get("fallbacks"):
+        lines += ["", "Provider fallbacks:", ""] + [f"- {e['message']}" for e in report["fallbacks"]]
+    lines += ["", "Measured costs (profile items):", ""]
+    for k, v in report.get("measured_costs", {}).items():
+        lines.append(f"- {k}: " + ", ".join(f"{a} = {b:g}" for a, b in v.items()))
+    if report.get("updated_profile"):
+        lines += ["", f"Written back to {report['updated_profile']} (status measured, {report['date']}, "
+                      f"bundle {report['bundle_hash']})."]
+    return "\n".join(lines) + "\n"
+
+
+def _font(size: int):
+    from PIL import ImageFont
+
+    for name in ("DejaVuSans.ttf", "/usr/share/fonts/truetype/dejavu/DejaVuSans.ttf"):
+        try:
+            return ImageFont.truetype(name, size)
+        except OSError:
+            continue
+    return ImageFont.load_default()
+
+
+def bar_chart(path: str | os.PathLike, title: str, labels: list[str], values: list[float],
+              whiskers: list[float] | None = None, unit: str = "ms", marks: list[bool] | None = None) -> Path:
+    """Horizontal bar chart PNG (Pillow): one bar per label, optional p90 whisker, '*' marks random weights."""
+    from PIL import Image, ImageDraw
+
+    n = max(len(labels), 1)
+    W, row, left, top = 900, 26, 260, 50
+    H = top + n * row + 40
+    img = Image.new("RGB", (W, H), "white")
+    d = ImageDraw.Draw(img)
+    f, fs = _font(14), _font(12)
+    d.text((10, 12), title, fill="black", font=_font(16))
+    vmax = max([v for v in values + (whiskers or []) if v == v] + [1e-9])
+    scale = (W - left - 90) / vmax
+    for i, (lab, v) in enumerate(zip(labels, values)):
+        y = top + i * row
+        mark = marks[i] if marks else False
+        d.text((10, y + 4), (lab + (" *" if mark else ""))[:34], fill="black", font=fs)
+        if v != v:  # nan: error
+            d.text((left, y + 4), "error", fill=(180, 0, 0), font=fs)
+            continue
+        colour = (200, 90, 60) if mark else (60, 110, 190)
+        d.rectangle([left, y + 4, left + max(1, int(v * scale)), y + row - 6], fill=colour)
+        if whiskers and whiskers[i] == whiskers[i]:
+            x = left + int(whiskers[i] * scale)
+            d.line([left + int(v * scale), y + row // 2, x, y + row // 2], fill="black", width=1)
+            d.line([x, y + 7, x, y + row - 9], fill="black", width=1)
+        d.text((left + max(1, int(max(v, whiskers[i] if whiskers else v) * scale)) + 6, y + 4),
+               f"{v:.1f} {unit}", fill="black", font=fs)
+    foot = "bars: p50, whisker: p90" if whiskers else ""
+    if marks and any(marks):
+        foot += ("; " if foot else "") + "* random weights (timings real, outputs not)"
+    d.text((10, H - 24), foot, fill=(90, 90, 90), font=f)
+    img.save(path)
+    return Path(path)
+
+
+def write_report(report: dict[str, Any], out: str | os.PathLike) -> dict[str, str]:
+    """report.json, report.md, latency.png, memory.png into `out`."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    from .trace import jsonable
+
+    (out / "report.json").write_text(json.dumps(jsonable(report), indent=2))
+    (out / "report.md").write_text(render(report))
+    rows = [r for r in _rows(report)]
+    nan = float("nan")
+    lat_rows = rows + [{"name": f"cpu: {k}", "p50": v["latency_ms"]["p50"], "p90": v["latency_ms"]["p90"],
+                        "random": False} for k, v in report.get("cpu_side", {}).items() if "latency_ms" in v]
+    for k, v in report.get("cpu_side", {}).items():
+        if "ms_per_frame" in v:
+            lat_rows.append({"name": f"cpu: {k} / frame", "p50": v["ms_per_frame"], "p90": nan, "random": False})
+    for n, s in (report.get("pipeline") or {}).get("stages", {}).items():
+        lat_rows.append({"name": f"pipeline: {n}", "p50": s["seconds"] * 1000, "p90": nan, "random": False})
+    bar_chart(out / "latency.png", f"latency per model / stage (bundle {report['bundle_hash']})",
+              [r["name"] for r in lat_rows], [r.get("p50", nan) for r in lat_rows],
+              [r.get("p90", nan) for r in lat_rows], "ms", [r["random"] for r in lat_rows])
+    bar_chart(out / "memory.png", "resident memory increase after load + runs (peak in brackets in report)",
+              [r["name"] for r in rows], [r.get("mem", nan) for r in rows], [r.get("peak", nan) for r in rows],
+              "MB", [r["random"] for r in rows])
+    return {k: str(out / k) for k in ("report.json", "report.md", "latency.png", "memory.png")}
+
+
+# ------------------------------------------------------------------------------------------ `mosaic profile`
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--video", metavar="V", help="video / image / RGB-D folder: real frames for the adapters, "
+                                                     "and the decode + dedup costs")
+    parser.add_argument("--runs", type=int, default=10, help="warm runs per model (default 10)")
+    parser.add_argument("--warmup", type=int, default=2, help="warm-up runs, not timed (default 2)")
+    parser.add_argument("--variants", choices=["planned", "all"], default="planned",
+                        help="planned: the profile's variant per role (else the bundle default); all: every variant")
+    parser.add_argument("--roles", help="comma-separated roles to profile (default: all in the bundle)")
+    parser.add_argument("--update-profile", action="store_true",
+                        help="write the measured costs into --profile (status measured, date, bundle hash)")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.add_argument("--in-process", action="store_true",
+                        help="profile every role in this process (faster; memory figures then flatter later roles)")
+
+
+def run(args: argparse.Namespace) -> dict[str, Any]:
+    if not args.bundle:
+        raise InputError("mosaic profile needs --bundle DIR")
+    if args.runs < 1 or args.warmup < 1:
+        raise InputError("--runs and --warmup must be >= 1")
+    return run_profile(args.bundle, args.profile, video=args.video, out=args.out, runs=args.runs,
+                       warmup=args.warmup, variants=args.variants,
+                       roles=[r.strip() for r in args.roles.split(",")] if args.roles else None,
+                       update_profile=args.update_profile, progress=not args.no_progress,
+                       isolate=not args.in_process)

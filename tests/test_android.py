@@ -1,0 +1,362 @@
+"""Android target (export/android.py + android/*.sh): .ort artifacts of the real shared models and of a tiny
+random-weight SAM, checked here on onnxruntime CPU (no phone, no Android SDK on this machine)."""
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("onnx")
+
+from mosaicthinker.export import android as A  # noqa: E402
+from mosaicthinker.runtime import bundle as B  # noqa: E402
+
+REPO = Path(__file__).resolve().parents[1]
+SCRIPTS = ["common.sh", "push.sh", "profile.sh", "build_ort.sh"]
+
+
+def _session(path, runtime_opt=False, level=None, save_to=None):
+    import onnxruntime as ort
+
+    so = ort.SessionOptions()
+    so.intra_op_num_threads = 1
+    so.log_severity_level = 3
+    if runtime_opt:
+        so.add_session_config_entry("session.enable_saved_runtime_optimizations", "1")
+    kw = {}
+    if level is not None:
+        so.graph_optimization_level = level
+        so.optimized_model_filepath = str(save_to)
+        so.add_session_config_entry("session.qdqisint8allowed", "1")  # what the converter sets for arm
+        kw["disabled_optimizers"] = ["NchwcTransformer"]
+    return ort.InferenceSession(str(path), so, providers=["CPUExecutionProvider"], **kw)
+
+
+def _graph_ops(onnx_path, tmp, level):
+    """(domain, op type) of the graph onnxruntime builds from `onnx_path` at `level` (saved as ONNX)."""
+    import onnx
+
+    out = tmp / f"opt_{Path(onnx_path).stem}_{int(level)}.onnx"
+    _session(onnx_path, level=level, save_to=out)
+    m = onnx.load(str(out))
+    return {(n.domain or "ai.onnx", n.op_type) for n in m.graph.node}
+
+
+@pytest.fixture(scope="module")
+def real_bundle(shared_models, redkitchen, tmp_path_factory):
+    """detector (SSD, uint8 QDQ), segmenter (DeepLab fp32 + int8-qdq calibrated on 7-Scenes frames) and embedder
+    (MobileNet QDQ) from ../shared/models."""
+    from mosaicthinker.export.onnx_import import import_shared_models
+
+    out = tmp_path_factory.mktemp("android_real") / "bundle"
+    import_shared_models(shared_models, out, ["fp32"], roles=["detector", "embedder"])
+    import_shared_models(shared_models, out, ["fp32", "int8-qdq"], roles=["segmenter"], calib=redkitchen)
+    summary = A.export_android(out, A.AndroidConfig())
+    return out, summary
+
+
+@pytest.fixture(scope="module")
+def tiny_bundle(tmp_path_factory):
+    """Tiny random-weight SAM (encoder + prompt decoder with dynamic prompts/points axes)."""
+    from mosaicthinker.export.hf_sam import export_segmenter
+
+    out = tmp_path_factory.mktemp("android_tiny") / "bundle"
+    export_segmenter("tiny", out, ["fp32"])
+    summary = A.export_android(out, A.AndroidConfig(make_fp16=False))
+    return out, summary
+
+
+def _android_variants(root):
+    m = json.loads((root / "manifest.json").read_text())
+    for role, rm in m["roles"].items():
+        for v, vm in rm["variants"].items():
+            if vm["target"] == "android":
+                yield role, v, vm, rm
+
+
+def _source_onnx(root, rm, vm):
+    src = vm["android"]["source_variant"].split(" ")[0]
+    if src in rm["variants"]:
+        return {c: root / cm["file"] for c, cm in rm["variants"][src]["components"].items()}, src
+    return {c: root / cm["file"] for c, cm in rm["variants"]["fp32"]["components"].items()}, "fp32"
+
+
+def _check_parity(root, tmp):
+    """Every .ort (both styles) loads, runs and matches the graph it came from on a fresh random input."""
+    n = 0
+    for role, v, vm, rm in _android_variants(root):
+        srcs, src_prec = _source_onnx(root, rm, vm)
+        for c, cm in vm["components"].items():
+            ort_file = root / cm["file"]
+            ro_file = root / vm["android"]["components"][c]["runtime_opt"]["file"]
+            assert ort_file.suffix == ".ort" and ort_file.is_file() and ro_file.is_file()
+            shapes = vm["android"]["components"][c]["fixed_shapes"]
+            fixed_src = tmp / f"{role}_{v}_{c}.onnx"
+            A.make_fixed(srcs[c], fixed_src, shapes) if shapes else shutil.copyfile(srcs[c], fixed_src)
+            feeds = A.random_feeds_factory(fixed_src, rm)(np.random.default_rng(12345 + n))
+            ref = _session(fixed_src).run(None, feeds)
+            for path, ro in ((ort_file, False), (ro_file, True)):
+                got = _session(path, runtime_opt=ro).run(None, feeds)
+                assert len(got) == len(ref)
+                for g, r in zip(got, ref):
+                    assert g.shape == r.shape
+                    if v.endswith("fp16") and src_prec == "fp32":  # derived fp16 vs the fp32 graph
+                        tol = 3e-2 * max(float(np.abs(r).max()), 1e-6)
+                    elif v.endswith("fp16"):
+                        tol = 1e-2 * max(float(np.abs(r).max()), 1e-6)
+                    elif v.endswith("int8-qdq"):  # arm QDQ fusions may round differently by one step
+                        tol = 2e-2 * max(float(np.abs(r).max()), 1e-6)
+                    else:
+                        tol = 1e-4 * max(float(np.abs(r).max()), 1e-6)
+                    assert float(np.abs(g.astype(np.float64) - r.astype(np.float64)).max()) <= tol, \
+                        (role, v, c, path.name)
+            # the input shapes recorded in the manifest are the .ort's real (static) shapes
+            s = _session(ort_file)
+            for i, spec in zip(s.get_inputs(), cm["inputs"]):
+                assert list(i.shape) == spec["shape"] and all(isinstance(d, int) for d in i.shape)
+            n += 1
+    return n
+
+
+def test_real_models_ort_parity(real_bundle, tmp_path):
+    root, summary = real_bundle
+    B.load_bundle(root, verify=True)  # every new file is hashed in the manifest
+    assert _check_parity(root, tmp_path) == 5  # SSD, MobileNet, DeepLab fp32 + fp16 + int8-qdq
+    roles = summary["roles"]
+    assert "android-ort-fp32" in roles["detector"]["variants"]
+    assert "android-ort-fp16" in roles["segmenter"]["variants"]  # fp16 derived from fp32, parity ok
+    q = roles["segmenter"]["variants"]["android-ort-int8-qdq"]["components"]["model"]
+    assert q["providers"][0] == "QNN"  # QDQ graph in one NNAPI partition: QNN first, then NNAPI
+    assert q["nnapi_partitions"] == 1 and "NNAPI" in q["providers"]
+    # already-quantised TFLite graphs get no fp16/int8 copies, and say why
+    assert "already" in roles["detector"]["skipped"]["fp16"]
+    assert "int8-qdq" not in roles["segmenter"]["skipped"]
+    assert "calibration" in roles["detector"]["skipped"]["int8-qdq"] or \
+        "already" in roles["detector"]["skipped"]["int8-qdq"]
+
+
+def test_operator_config_covers_every_operator(real_bundle, tmp_path):
+    import onnxruntime as ort
+
+    root, _ = real_bundle
+    cfg = root / A.OPS_CONFIG
+    ops = A.config_op_types(A.read_operator_config(cfg))
+    m = json.loads((root / "manifest.json").read_text())
+    assert m["android"]["required_operators"]["file"] == A.OPS_CONFIG
+    assert "--include_ops_by_config" in m["android"]["build_command"]
+    for role, v, vm, rm in _android_variants(root):
+        srcs, _ = _source_onnx(root, rm, vm)
+        for c, cm in vm["components"].items():
+            shapes = vm["android"]["components"][c]["fixed_shapes"]
+            src = tmp_path / f"{role}_{v}_{c}.onnx"
+            A.make_fixed(srcs[c], src, shapes) if shapes else shutil.copyfile(srcs[c], src)
+            if v.endswith("fp16") and vm["android"]["source_variant"].startswith("fp16 (derived"):
+                from mosaicthinker.export.common import to_fp16
+
+                to_fp16(src, src)
+                A.make_fixed(src, src, {})  # the same topological clean-up the export applies
+            # Fixed style = the ALL-level graph; Runtime style keeps the BASIC-level graph
+            for level in (ort.GraphOptimizationLevel.ORT_ENABLE_ALL, ort.GraphOptimizationLevel.ORT_ENABLE_BASIC):
+                missing = _graph_ops(src, tmp_path, level) - ops
+                assert not missing, f"{role}/{v}/{c}: operators {missing} missing from {cfg}"
+
+
+def test_usability_reports(real_bundle):
+    root, summary = real_bundle
+    m = json.loads((root / "manifest.json").read_text())
+    seen = 0
+    for role, v, vm, rm in _android_variants(root):
+        for c, info in vm["android"]["components"].items():
+            rep = json.loads((root / info["usability"]["file"]).read_text())
+            text = (root / info["usability_text"]["file"]).read_text()
+            assert "Checking NNAPI" in text and "CoreML" in text
+            n = rep["nnapi"]["partitions"]
+            assert isinstance(n, int) and n == info["nnapi"]["partitions"]
+            assert 0 <= rep["nnapi"]["supported_nodes"] <= rep["nnapi"]["nodes"]
+            flagged = any(f.startswith("nnapi_many_partitions") for f in info["flags"])
+            assert flagged == (n > 2)
+            if flagged:
+                assert "NNAPI" not in info["providers"]
+            assert "XNNPACK and QNN" in rep["not_checked"]
+            seen += 1
+    # the bundle-wide summary lists every component
+    assert len(m["android"]["usability_summary"]) == seen
+    assert "not checked" in m["android"]["not_checked"]
+    # DeepLab fp32 is one NNAPI partition (fully supported); SSD splits around NMS/TopK
+    by = {(u["role"], u["variant"]): u for u in m["android"]["usability_summary"]}
+    assert by[("segmenter", "android-ort-fp32")]["nnapi_partitions"] == 1
+    assert by[("detector", "android-ort-fp32")]["nnapi_partitions"] >= 2
+
+
+def test_tiny_sam_fixed_shapes_and_parity(tiny_bundle, tmp_path):
+    root, summary = tiny_bundle
+    B.load_bundle(root, verify=True)
+    m = json.loads((root / "manifest.json").read_text())
+    vm = m["roles"]["segmenter"]["variants"]["android-ort-fp32"]
+    dec = vm["android"]["components"]["decoder"]
+    conf = A.AndroidConfig()
+    assert dec["fixed_shapes"]["point_coords"] == [conf.max_prompts, conf.max_points, 2]
+    assert dec["fixed_shapes"]["point_labels"] == [conf.max_prompts, conf.max_points]
+    assert vm["android"]["components"]["encoder"]["fixed_shapes"]["pixel_values"][0] == 1
+    assert not dec["dynamic_left"]
+    assert _check_parity(root, tmp_path) == 2
+    assert m["roles"]["segmenter"]["random_weights"] is True
+
+
+def test_fixed_shape_plan_rules():
+    role = {"preprocessing": {"size": [48, 64], "layout": "NHWC"}, "config": {"top_k": 256}}
+    inputs = [{"name": "image", "shape": [0, 0, 0, 3], "dtype": "uint8",
+               "dynamic_axes": {"0": "batch", "1": "height", "2": "width"}},
+              {"name": "input_ids", "shape": [0, 0], "dtype": "int64",
+               "dynamic_axes": {"0": "batch", "1": "sequence_length"}},
+              {"name": "keypoints", "shape": [1, 0, 2], "dtype": "float32", "dynamic_axes": {"1": "num_keypoints"}},
+              {"name": "past_key_values.0.key", "shape": [1, 2, 0, 8], "dtype": "float32",
+               "dynamic_axes": {"2": "past_sequence_length"}},
+              {"name": "weird", "shape": [1, 0], "dtype": "float32", "dynamic_axes": {"1": "zzz"}}]
+    shapes, left = A.fixed_shape_plan(inputs, role, "model", A.AndroidConfig(text_len=12))
+    assert shapes["image"] == [1, 48, 64, 3]
+    assert shapes["input_ids"] == [1, 12]
+    assert shapes["keypoints"] == [1, 256, 2]
+    assert "past_key_values.0.key" not in shapes and "KV-cache" in left["past_key_values.0.key[2]"]
+    assert "--fix zzz=VALUE" in left["weird[1]"]
+    shapes, left = A.fixed_shape_plan(inputs[-1:], role, "model", A.AndroidConfig(overrides={"zzz": 5}))
+    assert shapes == {"weird": [1, 5]} and not left
+    providers, why = A.recommended_providers({"nnapi": {"partitions": 1, "supported_pct": 99.0}}, "fp32", True,
+                                             A.AndroidConfig())
+    assert providers == ["XNNPACK", "CPU"]
+
+
+def test_operator_config_roundtrip(tmp_path):
+    p = tmp_path / "a.config"
+    p.write_text("# c\nai.onnx;13;Conv,Relu\ncom.microsoft;1;FusedConv\n")
+    ops = A.read_operator_config(p)
+    ops[("ai.onnx", 13)].add("Add")
+    q = A.write_operator_config(tmp_path / "b.config", ops, ["x.ort"])
+    assert A.read_operator_config(q) == ops
+    (tmp_path / "bad.config").write_text("ai.onnx;x;Conv\n")
+    with pytest.raises(Exception, match="malformed"):
+        A.read_operator_config(tmp_path / "bad.config")
+
+
+# ------------------------------------------------------------------------------------------------ scripts
+
+@pytest.mark.parametrize("script", SCRIPTS)
+def test_script_syntax(script):
+    path = REPO / "android" / script
+    assert path.is_file()
+    subprocess.run(["bash", "-n", str(path)], check=True)
+    if shutil.which("shellcheck"):
+        r = subprocess.run(["shellcheck", "-x", "-P", str(REPO), str(path)], capture_output=True, text=True,
+                           cwd=REPO)
+        assert r.returncode == 0, r.stdout + r.stderr
+
+
+def _run(args, **kw):
+    env = {**os.environ, "PATH": os.environ.get("PATH", "") + os.pathsep + str(Path(os.sys.executable).parent)}
+    return subprocess.run(["bash", *map(str, args)], capture_output=True, text=True, env=env, **kw)
+
+
+def test_push_and_profile_dry_run(real_bundle, tmp_path):
+    root, _ = real_bundle
+    perf = tmp_path / "onnxruntime_perf_test"
+    perf.write_text("stub")
+    r = _run([REPO / "android/push.sh", "--dry-run", "--serial", "ABC", "--perf-test", perf, root])
+    assert r.returncode == 0, r.stderr
+    lines = r.stdout.splitlines()
+    assert all(ln.startswith("adb -s ABC ") for ln in lines)
+    pushed = [ln for ln in lines if " push " in ln and ln.split()[4].endswith(".ort")]
+    n_comp = sum(len(vm["components"]) for _, _, vm, _ in _android_variants(root))
+    assert n_comp >= 4 and len(pushed) == 2 * n_comp  # Fixed + Runtime style per component
+    assert any("onnxruntime_perf_test" in ln for ln in lines)
+
+    out = tmp_path / "prof"
+    r = _run([REPO / "android/profile.sh", "--dry-run", "--providers", "cpu,nnapi,qnn", "--runs", "7",
+              "--out", out, root])
+    assert r.returncode == 0, r.stderr
+    runs = [ln for ln in r.stdout.splitlines() if "onnxruntime_perf_test" in ln]
+    assert len(runs) == 3 * n_comp
+    assert all("-m times -r 7" in ln and " -I " in ln for ln in runs)
+    assert all("with_runtime_opt.ort" in ln and "enable_saved_runtime_optimizations|1" in ln
+               for ln in runs if "-e nnapi" in ln or "-e qnn" in ln)
+    assert all("with_runtime_opt" not in ln for ln in runs if "-e cpu" in ln)
+    assert r.stdout.splitlines()[-1].startswith("adb pull ")
+    assert (out / "raw").is_dir()
+
+
+def test_script_argument_errors(real_bundle, tmp_path):
+    root, _ = real_bundle
+    r = _run([REPO / "android/profile.sh", "--dry-run", "--providers", "gpu", root])
+    assert r.returncode == 2 and "unknown provider" in r.stderr
+    r = _run([REPO / "android/profile.sh", "--dry-run", "--runs", "0", root])
+    assert r.returncode == 2 and "--runs" in r.stderr
+    r = _run([REPO / "android/push.sh", "--dry-run", tmp_path])
+    assert r.returncode == 2 and "manifest.json" in r.stderr
+    r = _run([REPO / "android/push.sh", "--bogus", root])
+    assert r.returncode == 2 and "unknown option" in r.stderr
+    r = _run([REPO / "android/build_ort.sh", "--dry-run", "--ort-src", "/src/onnxruntime", "--qnn", root])
+    assert r.returncode == 0, r.stderr
+    line = r.stdout.splitlines()[-1]
+    assert f"--include_ops_by_config {(root / A.OPS_CONFIG).resolve()}" in line
+    assert "--minimal_build extended" in line and "--use_qnn" in line and "--use_nnapi" in line
+
+
+# Output format of onnxruntime_perf_test -s (onnxruntime/test/perftest/performance_runner.cc), as profile.sh
+# stores it with the appended exit code. Numbers here are made up: the test checks the parsing and the report.
+PERF_OK = """Session creation time cost: 0.0508382 s
+First inference time cost: 31 ms
+Total inference time cost: 1.9918 s
+Total inference requests: 100
+Average inference time cost total: 19.918 ms
+Total inference run time: 1.99202 s
+Number of inferences per second: 50.2002
+Avg CPU usage: 12 %
+Peak working set size: 109531136 bytes
+Min Latency: 0.0197812 s
+Max Latency: 0.0202704 s
+P50 Latency: 0.0199047 s
+P90 Latency: 0.0200251 s
+P95 Latency: 0.0201534 s
+P99 Latency: 0.0202704 s
+P999 Latency: 0.0202704 s
+exit_code: 0
+"""
+PERF_FAIL = "Error: NNAPI execution provider is not available in this build\nexit_code: 1\n"
+
+
+def test_perf_report_in_profile_schema(real_bundle, tmp_path):
+    import importlib.util
+
+    from mosaicthinker.runtime.profiling import REPORT_SCHEMA
+
+    spec = importlib.util.spec_from_file_location("perf_report", REPO / "android" / "perf_report.py")
+    pr = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(pr)
+    r = pr.parse_perf_output(PERF_OK)
+    assert r["ok"] and r["p50_s"] == pytest.approx(0.0199047) and r["total_requests"] == 100
+    assert r["average_ms"] == pytest.approx(19.918) and r["peak_working_set_bytes"] == 109531136
+    bad = pr.parse_perf_output(PERF_FAIL)
+    assert not bad["ok"] and "not available" in bad["error"]
+
+    root, _ = real_bundle
+    raw = tmp_path / "raw"
+    raw.mkdir()
+    (raw / "device.txt").write_text("model=TEST-PHONE\nsoc=SM8550\nandroid=14\n")
+    (raw / "segmenter__android-ort-fp32__model__cpu.txt").write_text(PERF_OK)
+    (raw / "segmenter__android-ort-fp32__model__nnapi.txt").write_text(PERF_FAIL)
+    out = tmp_path / "report"
+    assert pr.main(["--bundle", str(root), "--raw", str(raw), "--out", str(out)]) == 0
+    rep = json.loads((out / "report.json").read_text())
+    assert rep["schema"] == REPORT_SCHEMA and rep["machine"]["device"] == "TEST-PHONE"
+    v = rep["roles"]["segmenter"]["variants"]
+    c = v["android-ort-fp32@cpu"]["components"]["model"]
+    assert c["latency_ms"]["p50"] == pytest.approx(19.905, abs=1e-3) and c["load_ms"] == pytest.approx(50.84, 0.01)
+    assert c["provider"] == "CPUExecutionProvider" and c["peak_rss_increase_mb"] == pytest.approx(104.5, abs=0.1)
+    assert "error" in v["android-ort-fp32@nnapi"]["components"]["model"] and rep["fallbacks"]
+    for f in ("report.md", "latency.png", "memory.png"):
+        assert (out / f).stat().st_size > 0
+    assert "android-ort-fp32@cpu" in (out / "report.md").read_text()

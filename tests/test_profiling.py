@@ -1,0 +1,118 @@
+"""`mosaic profile` on the shared real models: report.json / report.md / PNG charts, providers used, memory
+figures, measured costs written back into a profile, random-weight roles marked (runtime/profiling.py)."""
+from __future__ import annotations
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from mosaicthinker.runtime import budget as B
+from mosaicthinker.runtime import profiling as P
+
+
+@pytest.fixture(scope="module")
+def shared_bundle(tmp_path_factory, shared_models):
+    from mosaicthinker.export.onnx_import import import_shared_models
+
+    out = tmp_path_factory.mktemp("shared_bundle")
+    import_shared_models(shared_models, out, ["fp32"])
+    return out
+
+
+def test_percentiles_and_random_feeds():
+    p = P.percentiles([1, 2, 3, 4, 5, 6, 7, 8, 9, 10])
+    assert (p["p50"], p["p90"], p["n"]) == (5.5, 9.1, 10)
+
+    class Inp:
+        def __init__(self, name, shape, type_):
+            self.name, self.shape, self.type = name, shape, type_
+
+    class Sess:
+        def get_inputs(self):
+            return [Inp("img", [1, 8, 8, 3], "tensor(uint8)"), Inp("ids", ["batch", 5], "tensor(int64)"),
+                    Inp("x", [None, 2], "tensor(float)")]
+
+    f = P.random_feeds(Sess(), np.random.default_rng(0))
+    assert f["img"].dtype == np.uint8 and f["img"].shape == (1, 8, 8, 3)
+    assert f["ids"].dtype == np.int64 and f["ids"].shape == (1, 5)
+    assert f["x"].dtype == np.float32 and f["x"].shape == (1, 2)
+
+
+def test_mosaic_profile_report_on_shared_models(shared_bundle, tmp_path, capsys):
+    from mosaicthinker.runtime.cli import main
+
+    prof = tmp_path / "cpu.toml"
+    shutil.copy(B.resolve_profile_path("cpu-generic"), prof)
+    out = tmp_path / "report"
+    rc = main(["profile", "--bundle", str(shared_bundle), "--profile", str(prof), "--runs", "2", "--warmup", "1",
+               "--roles", "detector,embedder,segmenter", "--out", str(out), "--update-profile", "--no-progress"])
+    assert rc == 0
+    printed = capsys.readouterr().out
+    assert "| detector (adapter) |" in printed
+    rep = json.loads((out / "report.json").read_text())
+    assert rep["schema"] == P.REPORT_SCHEMA and rep["bundle_hash"] == B.bundle_hash(shared_bundle)
+    assert set(rep["roles"]) == {"detector", "embedder", "segmenter"}
+    for role, r in rep["roles"].items():
+        assert r["random_weights"] is False
+        v = r["variants"][r["planned_variant"]]
+        for comp in v["components"].values():
+            assert "error" not in comp, comp
+            assert comp["provider"] == "CPUExecutionProvider"
+            assert comp["load_ms"] > 0 and comp["latency_ms"]["n"] == 2
+            assert comp["latency_ms"]["p90"] >= comp["latency_ms"]["p50"] > 0
+            assert comp["peak_rss_increase_mb"] >= comp["rss_increase_mb"] - 0.5
+        ad = v["adapter"]
+        assert "error" not in ad and ad["latency_ms"]["p50"] > 0
+    # the segmenter's per-image cache must not have hidden the real work
+    seg = rep["roles"]["segmenter"]["variants"]["fp32"]
+    assert seg["adapter"]["latency_ms"]["p50"] > 0.3 * seg["components"]["model"]["latency_ms"]["p50"]
+    assert rep["cpu_side"]["ransac_pair"]["latency_ms"]["p50"] > 0
+    md = (out / "report.md").read_text()
+    assert "p50 ms" in md and rep["bundle_hash"] in md
+    for png in ("latency.png", "memory.png"):
+        im = Image.open(out / png)
+        assert im.size[0] == 900 and im.size[1] > 100
+        assert len(np.unique(np.asarray(im.convert("RGB")).reshape(-1, 3), axis=0)) > 3  # bars and text drawn
+    # measured costs written back and the profile still validates
+    p = B.load_profile(prof)
+    for item in ("detector", "embedder", "segmenter", "process", "geometry"):
+        e = p.cost(item)
+        assert e.status == "measured" and e.bundle_hash == rep["bundle_hash"] and e.date == rep["date"]
+    assert p.cost("detector").ms_per_call == pytest.approx(
+        rep["roles"]["detector"]["variants"]["fp32"]["adapter"]["latency_ms"]["p50"], rel=1e-3)
+    assert p.cost("depth") == B.load_profile("cpu-generic").cost("depth")  # not profiled: untouched
+    # the planner no longer flags the re-measured items as measured on another bundle
+    plan = B.plan(p, 60, 15, bundle=shared_bundle)
+    stale = " ".join(n for n in plan.notes if "another bundle" in n)
+    assert not any(item in stale for item in ("detector", "embedder", "segmenter"))
+
+
+def test_profile_marks_random_weights_and_reports_fallback(shared_bundle, tmp_path):
+    # a copy of the bundle whose embedder claims random weights, profiled under the Jetson provider chain
+    from mosaicthinker.runtime.bundle import read_manifest, write_manifest
+
+    b2 = tmp_path / "b2"
+    shutil.copytree(shared_bundle, b2)
+    m = read_manifest(b2)
+    m["roles"]["embedder"]["random_weights"] = True
+    write_manifest(b2, m)
+    rep = P.run_profile(b2, "jetson-orin-nano-8gb", roles=["embedder"], runs=1, warmup=1, progress=False,
+                        out=tmp_path / "r", isolate=False)
+    r = rep["roles"]["embedder"]
+    assert r["random_weights"] is True and rep["random_weights_used"]
+    assert r["providers_requested"][0] == "TensorrtExecutionProvider"
+    comp = r["variants"]["fp32"]["components"]["model"]
+    assert comp["provider"] == "CPUExecutionProvider"
+    assert rep["fallbacks"]
+    assert any("TensorrtExecutionProvider" in e["message"] for e in rep["fallbacks"])
+    assert "RANDOM WEIGHTS" in (tmp_path / "r" / "report.md").read_text()
+
+
+def test_update_profile_needs_a_profile(shared_bundle):
+    from mosaicthinker.runtime.errors import InputError
+
+    with pytest.raises(InputError, match="--update-profile needs --profile"):
+        P.run_profile(shared_bundle, None, update_profile=True, progress=False)
