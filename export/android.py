@@ -85,8 +85,8 @@ class AndroidConfig:
     text_len: int = 16                                   # detector text branch: tokens per name
     max_prompts: int = 4                                 # segmenter prompts (boxes) per call
     max_points: int = 4                                  # points per prompt (pad with label -1)
-    kv_window: int = 128                                 # VLM decoder fixed cache length (accelerator variant)
-    prefill_len: int = 32                                # VLM decoder prompt chunk for the fixed-window prefill
+    kv_window: int = 256                                 # VLM decoder fixed cache slots W (0: no window variant)
+    prefill_len: int = 64                                # VLM decoder prompt chunk P of the window prefill graph
     nnapi_max_partitions: int = 2                        # more -> flagged (onnxruntime's checker says NO > 2)
     parity_trials: int = 2
     roles: tuple[str, ...] | None = None                 # None: every role in the bundle
@@ -96,7 +96,7 @@ class AndroidConfig:
 # ----------------------------------------------------------------------------------------------------------------
 # Fixed shapes
 
-_BATCH = re.compile(r"^(batch|batch_size|b|n|N|B|bs|num_images)$|batch", re.I)
+_BATCH = re.compile(r"^(batch|batch_size|b|n|N|B|bs|num_images|images?)$|batch", re.I)
 _TEXT = re.compile(r"seq|token|text|length|len$", re.I)
 _PROMPTS = re.compile(r"prompt|box|quer|object", re.I)
 _POINTS = re.compile(r"point", re.I)
@@ -120,12 +120,13 @@ def _image_axes(inp: dict[str, Any], pp: dict[str, Any]) -> dict[int, int]:
 
 
 def fixed_shape_plan(inputs: Sequence[dict[str, Any]], role_meta: dict[str, Any], component: str,
-                     conf: AndroidConfig) -> tuple[dict[str, list[int]], dict[str, str]]:
+                     conf: AndroidConfig, role: str = "") -> tuple[dict[str, list[int]], dict[str, str]]:
     """Decide a static shape for every input with dynamic axes.
 
     inputs: manifest input entries ({name, shape, dtype, dynamic_axes: {axis: dim name}}); role_meta: the
-    role's manifest entry (preprocessing size, config top-K). Returns (shapes {input: [d0, d1, ...]} for every
-    input that could be fixed, left {"input[axis]": reason} for axes no rule covers).
+    role's manifest entry (preprocessing size, config top-K); role: the role name (the VLM's token axes vary
+    per call and are left dynamic). Returns (shapes {input: [d0, d1, ...]} for every input that could be
+    fixed, left {"input[axis]": reason} for axes no rule covers).
     """
     pp = role_meta.get("preprocessing") or {}
     cfg = role_meta.get("config") or {}
@@ -141,6 +142,10 @@ def fixed_shape_plan(inputs: Sequence[dict[str, Any]], role_meta: dict[str, Any]
         for ax, name in sorted(dyn.items()):
             if name in conf.overrides:
                 shape[ax] = int(conf.overrides[name])
+            elif role == "vlm" and ax != 0 and not img:
+                ok = False
+                left[f"{inp['name']}[{ax}]"] = (f"{name}: VLM token axis (prompt length, then 1 per generated "
+                                                f"token; see the fixed-window decoder variant)")
             elif _PAST.search(name) or _PAST.search(inp["name"]):
                 ok = False
                 left[f"{inp['name']}[{ax}]"] = (f"{name}: KV-cache length grows while decoding (see the "
@@ -296,6 +301,141 @@ def random_feeds_factory(onnx_path: str | Path, role_meta: dict[str, Any],
         return feeds
 
     return make
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# VLM decoder: fixed-window KV cache
+
+KV_WINDOW_PROTOCOL = (
+    "Fixed-window KV cache (static shapes for NPU providers): the cache is W slots per layer "
+    "(past_* [1, KV, W, D], zeros at start) with a validity mask m[W] (all 0 at start). Every call feeds s new "
+    "positions (s = 1 for *_kvwindow_step, s = P for *_kvwindow_prefill; a shorter prompt chunk is padded on "
+    "the RIGHT with masked positions): attention_mask = [m, new_valid] (int64, length W + s), position_ids = "
+    "number of valid tokens so far + 0, 1, ... for the valid new positions (0 for pads), past_* = the cache. "
+    "Then cache = present_*[:, :, s:, :] and m = [m, new_valid][s:]. The s dropped slots must be unused (m = 0): "
+    "at most W - s valid tokens fit (prompt + generated), else fall back to the dynamic decoder.")
+
+
+def kv_io(inputs: Sequence[dict[str, Any]], outputs: Sequence[dict[str, Any]]) -> dict[str, Any] | None:
+    """Recognise the decoder-with-cache I/O convention of export/hf_vlm.py (inputs_embeds | input_ids,
+    attention_mask, position_ids, past_key_i / past_value_i -> logits, present_key_i / present_value_i).
+    Returns {"new", "mask", "pos", "past": [names], "present": [names], "logits"} or None."""
+    names = [i["name"] for i in inputs]
+    new = next((n for n in ("inputs_embeds", "input_ids") if n in names), None)
+    past = [n for n in names if n.startswith("past")]
+    outs = [o["name"] for o in outputs]
+    present = [n.replace("past", "present", 1) for n in past]
+    if not new or "attention_mask" not in names or "position_ids" not in names or not past \
+            or any(p not in outs for p in present):
+        return None
+    return {"new": new, "mask": "attention_mask", "pos": "position_ids", "past": past, "present": present,
+            "logits": "logits" if "logits" in outs else outs[0]}
+
+
+def kv_window_check(decoder: str | Path, inputs: Sequence[dict[str, Any]], outputs: Sequence[dict[str, Any]], *,
+                    window: int, prefill: int, prompt_len: int = 5, steps: int = 6, seed: int = 0,
+                    rel_tol: float = 1e-3) -> dict[str, Any]:
+    """Does the fixed-window protocol (KV_WINDOW_PROTOCOL) give the dynamic decoder's logits?
+
+    Teacher-forced on random embeddings: the dynamic graph prefills `prompt_len` positions (past 0) then steps
+    one position at a time with a growing cache; the window path prefills the same positions padded to
+    `prefill`, then steps with the W-slot cache. Compares the logits of the last prompt position and of every
+    step. Returns {"ok", "max_rel", "steps", "window", "prefill", "reason"?}."""
+    io = kv_io(inputs, outputs)
+    if io is None:
+        return {"ok": False, "reason": "decoder I/O does not follow the inputs_embeds/attention_mask/"
+                                       "position_ids/past_* -> logits/present_* convention"}
+    prompt_len, steps = min(prompt_len, prefill), min(steps, window - prefill)
+    if prompt_len < 1 or steps < 1:
+        return {"ok": False, "reason": f"window {window} / prefill {prefill} leave no room for the check"}
+    sess = C.ort_session(decoder)
+    spec = {i.name: i for i in sess.get_inputs()}
+    new_i = spec[io["new"]]
+    rng = np.random.default_rng(seed)
+    kv_shape = [d if isinstance(d, int) else None for d in spec[io["past"][0]].shape]
+    if sum(d is None for d in kv_shape) != 1 or kv_shape[2] is not None:
+        return {"ok": False, "reason": f"past shape {spec[io['past'][0]].shape}: expected [1, KV, past, D]"}
+    kv, d = int(kv_shape[1]), int(kv_shape[3])
+    total = prompt_len + steps
+    if io["new"] == "inputs_embeds":
+        hidden = int(new_i.shape[2])
+        seq = (rng.standard_normal((1, total, hidden)) * 0.5).astype(np.float32)
+    else:
+        seq = rng.integers(0, 50, (1, total)).astype(np.int64)
+    names = [o.name for o in sess.get_outputs()]
+    li = names.index(io["logits"])
+    pres_i = [names.index(p) for p in io["present"]]
+
+    def run(chunk, mask, pos, past):
+        feeds = {io["new"]: chunk, io["mask"]: mask.astype(np.int64)[None], io["pos"]: pos.astype(np.int64)[None]}
+        feeds.update(dict(zip(io["past"], past)))
+        out = sess.run(None, feeds)
+        return out[li], [out[i] for i in pres_i]
+
+    # dynamic reference
+    past = [np.zeros((1, kv, 0, d), np.float32) for _ in io["past"]]
+    ref = []
+    lg, past = run(seq[:, :prompt_len], np.ones(prompt_len), np.arange(prompt_len), past)
+    ref.append(lg[0, -1])
+    for t in range(prompt_len, total):
+        lg, past = run(seq[:, t:t + 1], np.ones(t + 1), np.array([t]), past)
+        ref.append(lg[0, -1])
+    # window path
+    cache = [np.zeros((1, kv, window, d), np.float32) for _ in io["past"]]
+    m = np.zeros(window, np.int64)
+    chunk = np.zeros((1, prefill) + seq.shape[2:], seq.dtype)
+    chunk[:, :prompt_len] = seq[:, :prompt_len]
+    new_valid = (np.arange(prefill) < prompt_len).astype(np.int64)
+    pos = np.where(new_valid == 1, np.arange(prefill), 0)
+    got = []
+    lg, pres = run(chunk, np.concatenate([m, new_valid]), pos, cache)
+    got.append(lg[0, prompt_len - 1])
+    cache, m = [p[:, :, prefill:, :] for p in pres], np.concatenate([m, new_valid])[prefill:]
+    for t in range(prompt_len, total):
+        if m[0]:
+            return {"ok": False, "reason": "window full during the check"}
+        lg, pres = run(seq[:, t:t + 1], np.concatenate([m, [1]]), np.array([int(m.sum())]), cache)
+        got.append(lg[0, -1])
+        cache, m = [p[:, :, 1:, :] for p in pres], np.concatenate([m, [1]])[1:]
+    rel = max(float(np.abs(a - b).max() / max(np.abs(a).max(), 1e-12)) for a, b in zip(ref, got))
+    finite = all(np.isfinite(g).all() for g in got)
+    return {"ok": bool(finite and rel <= rel_tol), "max_rel": rel, "finite": finite, "steps": len(got),
+            "window": window, "prefill": prefill, "tolerance_rel": rel_tol,
+            "reference": "the same decoder with a growing (dynamic) cache, teacher-forced random inputs"}
+
+
+def decoder_dyn_values(inputs: Sequence[dict[str, Any]], io: dict[str, Any], new: int = 2,
+                       past: int = 3) -> dict[str, int]:
+    """Consistent sizes for a dynamic decoder's symbolic axes (mask length = past + new) for parity runs."""
+    vals = {}
+    for i in inputs:
+        for ax, name in (i.get("dynamic_axes") or {}).items():
+            if i["name"] == io["mask"]:
+                vals[name] = past + new
+            elif i["name"] in io["past"]:
+                vals[name] = past
+            elif i["name"] in (io["new"], io["pos"]) and int(ax) == 1:
+                vals[name] = new
+    return vals
+
+
+def kv_window_shapes(inputs: Sequence[dict[str, Any]], io: dict[str, Any], window: int, s: int) -> dict[str, list[int]]:
+    """Static input shapes of the fixed-window decoder for s new positions."""
+    shapes = {}
+    for i in inputs:
+        shp = [int(x) for x in i["shape"]]
+        if i["name"] == io["new"]:
+            shp[0], shp[1] = 1, s
+        elif i["name"] == io["mask"]:
+            shp = [1, window + s]
+        elif i["name"] == io["pos"]:
+            shp = [1, s]
+        elif i["name"] in io["past"]:
+            shp[0], shp[2] = 1, window
+        elif any(v <= 0 for v in shp):
+            raise ExportError(f"decoder input {i['name']}: unexpected dynamic shape {i['shape']}")
+        shapes[i["name"]] = shp
+    return shapes
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -562,8 +702,11 @@ def export_android(bundle_dir: str | Path, conf: AndroidConfig | None = None,
                 elif conf.make_fp16:
                     derived, reason = {}, None
                     for c, p in fp32_srcs.items():
-                        fixed_tmp = _fixed_copy(p, variants["fp32"]["components"][c], rmeta, c, conf, tmp, "f32ref")
-                        mk = random_feeds_factory(fixed_tmp, rmeta)
+                        fixed_tmp = _fixed_copy(p, variants["fp32"]["components"][c], rmeta, c, conf, tmp, "f32ref", role)
+                        cm32 = variants["fp32"]["components"][c]
+                        io = kv_io(cm32["inputs"], cm32["outputs"])
+                        mk = random_feeds_factory(fixed_tmp, rmeta,
+                                                  decoder_dyn_values(cm32["inputs"], io) if io else None)
                         ok, path_or_reason = derive_fp16(p, tmp / f"{c}.fp16.onnx", mk)
                         if not ok:
                             reason = f"{c}: {path_or_reason}"
@@ -584,10 +727,28 @@ def export_android(bundle_dir: str | Path, conf: AndroidConfig | None = None,
                 src_meta = variants.get(v, variants.get("fp32"))["components"]
                 fixed: dict[str, Path] = {}
                 comp_info: dict[str, dict[str, Any]] = {}
-                for c, p in comps.items():
-                    shapes, left = fixed_shape_plan(src_meta[c]["inputs"], rmeta, c, conf)
+                for c, p in list(comps.items()):
+                    shapes, left = fixed_shape_plan(src_meta[c]["inputs"], rmeta, c, conf, role)
                     fixed[c] = make_fixed(p, tmp / f"{v}.{c}.onnx", shapes) if shapes else _copy(p, tmp / f"{v}.{c}.onnx")
                     comp_info[c] = {"fixed_shapes": shapes, "dynamic_left": left}
+                    if left and conf.kv_window > 0:
+                        io = kv_io(src_meta[c]["inputs"], src_meta[c]["outputs"])
+                        if io is not None:
+                            chk = kv_window_check(p, src_meta[c]["inputs"], src_meta[c]["outputs"],
+                                                  window=conf.kv_window, prefill=conf.prefill_len)
+                            comp_info[c]["kv_window_check"] = chk
+                            log(f"android {role}/{v}/{c}: fixed-window KV cache (W={conf.kv_window}) "
+                                f"{'matches' if chk['ok'] else 'does NOT match'} the dynamic decoder "
+                                f"({chk.get('max_rel', chk.get('reason'))})")
+                            if chk["ok"]:
+                                for tag, n_new in (("step", 1), ("prefill", conf.prefill_len)):
+                                    name = f"{c}_kvwindow_{tag}"
+                                    shp = kv_window_shapes(src_meta[c]["inputs"], io, conf.kv_window, n_new)
+                                    fixed[name] = make_fixed(p, tmp / f"{v}.{name}.onnx", shp)
+                                    comp_info[name] = {"fixed_shapes": shp, "dynamic_left": {},
+                                                       "kv_window": {"window": conf.kv_window, "new_positions": n_new,
+                                                                     "protocol": KV_WINDOW_PROTOCOL,
+                                                                     "check": chk, "of_component": c}}
                 out_dir = root / role / vname
                 if out_dir.exists():
                     shutil.rmtree(out_dir)
@@ -609,7 +770,8 @@ def export_android(bundle_dir: str | Path, conf: AndroidConfig | None = None,
                         paths[s] = dst
                     # parity: each .ort against its fixed-shape source graph (fresh random inputs; axes left
                     # dynamic, e.g. a KV cache, get small concrete sizes)
-                    mk = random_feeds_factory(fx, rmeta)
+                    io = kv_io(src_meta[c]["inputs"], src_meta[c]["outputs"]) if c in src_meta else None
+                    mk = random_feeds_factory(fx, rmeta, decoder_dyn_values(src_meta[c]["inputs"], io) if io else None)
                     rel_tol, cos_min = ORT_PARITY_TOL[v]
                     parity[c] = {s: ort_parity(pth, fx, mk, runtime_opt=(s == "Runtime"), trials=conf.parity_trials,
                                                rel_tol=rel_tol, cos_min=cos_min,
@@ -618,6 +780,10 @@ def export_android(bundle_dir: str | Path, conf: AndroidConfig | None = None,
                     rep = usability_report(fx, out_dir / f"{c}.usability.txt", out_dir / f"{c}.usability.json",
                                            nnapi_max_partitions=conf.nnapi_max_partitions)
                     providers, why = recommended_providers(rep, v, dyn_left, conf)
+                    if "kv_window_check" in info:
+                        chk = info["kv_window_check"]
+                        why.append(f"fixed-window KV variant {c}_kvwindow_step/_prefill for NPU providers"
+                                   if chk["ok"] else f"no fixed-window KV variant: {chk.get('reason') or chk}")
                     main = paths.get("Fixed") or next(iter(paths.values()))
                     components[c] = {"file": main}
                     entry = {**info, "usability": _ref(root, out_dir / f"{c}.usability.json"),
@@ -656,8 +822,10 @@ def export_android(bundle_dir: str | Path, conf: AndroidConfig | None = None,
                                                       "nnapi_partitions": comp_info[c]["nnapi"]["partitions"],
                                                       "flags": comp_info[c]["flags"],
                                                       "providers": comp_info[c]["providers"],
-                                                      "parity": _parity_brief(parity[c])}
-                                                  for c in comps}}
+                                                      "parity": _parity_brief(parity[c]),
+                                                      **({"kv_window_check": comp_info[c]["kv_window_check"]}
+                                                         if "kv_window_check" in comp_info[c] else {})}
+                                                  for c in comp_info}}
         m = B.read_manifest(root)
         rm = m["roles"][role]
         rm["android"] = {"variants": sorted(role_sum), "skipped": skipped}
@@ -749,10 +917,10 @@ def _copy(src: Path, dst: Path) -> Path:
     return dst
 
 
-def _fixed_copy(p: Path, cmeta: dict, rmeta: dict, c: str, conf: AndroidConfig, tmp: Path, tag: str) -> Path:
-    shapes, left = fixed_shape_plan(cmeta["inputs"], rmeta, c, conf)
-    if left:
-        raise ExportError(f"{p}: cannot derive fp16 parity inputs, dynamic axes left: {left}")
+def _fixed_copy(p: Path, cmeta: dict, rmeta: dict, c: str, conf: AndroidConfig, tmp: Path, tag: str,
+                role: str) -> Path:
+    """A copy with the fixable axes fixed (axes left dynamic get small sizes in random_feeds_factory)."""
+    shapes, _ = fixed_shape_plan(cmeta["inputs"], rmeta, c, conf, role)
     dst = tmp / f"{tag}.{c}.onnx"
     return make_fixed(p, dst, shapes) if shapes else _copy(p, dst)
 
@@ -769,6 +937,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                    help="fix a named dynamic axis (repeatable), e.g. --fix num_points=5")
     g.add_argument("--nnapi-max-partitions", type=int, default=2)
     g.add_argument("--no-derive-fp16", action="store_true", help="do not make fp16 from fp32 when missing")
+    g.add_argument("--kv-window", type=int, default=256,
+                   help="VLM decoder: KV-cache slots of the fixed-window variant (0 = none; default 256)")
+    g.add_argument("--prefill-len", type=int, default=64,
+                   help="VLM decoder: prompt positions per fixed-window prefill call (default 64)")
 
 
 def config_from_args(args: argparse.Namespace) -> AndroidConfig:
@@ -788,7 +960,11 @@ def config_from_args(args: argparse.Namespace) -> AndroidConfig:
     if bad:
         raise ExportError(f"--android-precisions: unknown {bad} (use {', '.join(SOURCE_PRECISIONS)})")
     roles = getattr(args, "android_roles", None)
+    kvw, pre = int(getattr(args, "kv_window", 256)), int(getattr(args, "prefill_len", 64))
+    if kvw < 0 or pre < 1 or (kvw and pre >= kvw):
+        raise ExportError(f"--kv-window {kvw} / --prefill-len {pre}: need 0 (off) or window > prefill >= 1")
     return AndroidConfig(precisions=precs, overrides=over, make_fp16=not getattr(args, "no_derive_fp16", False),
+                         kv_window=kvw, prefill_len=pre,
                          nnapi_max_partitions=int(getattr(args, "nnapi_max_partitions", 2)),
                          roles=tuple(r.strip() for r in roles.split(",")) if roles else None)
 

@@ -268,8 +268,18 @@ def _parity(g: GraphSpec, path: Path, reference: Callable, precision: str, label
     if g.parity_outputs is not None and len(g.parity_outputs) == 0:
         par: dict[str, Any] = {"ok": True, "precision": precision, "elementwise": "none (discrete outputs only)"}
     else:
-        par = C.parity_check(path, reference, g.make_inputs, precision=precision, outputs=g.parity_outputs,
-                             rel_tol=rel, cos_min=cos, require=require, label=label)
+        try:
+            par = C.parity_check(path, reference, g.make_inputs, precision=precision, outputs=g.parity_outputs,
+                                 rel_tol=rel, cos_min=cos, require=require, label=label)
+        except ExportError:
+            raise
+        except Exception as e:  # noqa: BLE001  the graph cannot even run the fresh inputs
+            msg = (f"parity check: {path.name} failed to run on fresh inputs ({type(e).__name__}: {str(e)[:300]}); "
+                   f"an axis was probably specialised to the export example (declare it dynamic)")
+            if require:
+                raise ExportError(msg) from e
+            return {"ok": False, "precision": precision, "error": msg,
+                    "worst": {"rel": float("inf"), "cosine": 0.0, "max_abs": float("inf")}}
     if g.agreement is not None:
         agr = _agreement(g, path, reference, precision, require=require)
         par = {**par, "agreement": agr, "ok": bool(par["ok"] and agr["ok"])}

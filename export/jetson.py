@@ -62,8 +62,9 @@ class JetsonConfig:
     text_range: tuple[int, int, int] = (1, 16, 32)
     prompts_range: tuple[int, int, int] = (1, 4, 64)
     points_range: tuple[int, int, int] = (1, 2, 16)
-    past_range: tuple[int, int, int] = (1, 128, 1024)
-    seq_range: tuple[int, int, int] = (1, 1, 256)
+    past_range: tuple[int, int, int] = (0, 128, 2048)  # 0: the prefill call has an empty cache (TRT allows it)
+    seq_range: tuple[int, int, int] = (1, 1, 1024)      # new positions per decoder call (prefill .. 1)
+    images_range: tuple[int, int, int] = (1, 1, 8)      # images per VLM vision call
     builder_optimization_level: int = 3
     dla_core: int | None = None              # Orin AGX/NX have DLA cores; None = GPU only
     roles: tuple[str, ...] | None = None
@@ -79,6 +80,8 @@ def axis_range(name: str, inp: dict[str, Any], ax: int, role_meta: dict[str, Any
         return tuple(int(v) for v in conf.overrides[name])  # type: ignore[return-value]
     img = _image_axes(inp, role_meta.get("preprocessing") or {}) if inp.get("dtype") in (
         "float32", "float16", "uint8") else {}
+    if ax == 0 and re.fullmatch(r"(num_)?images?", name, re.I):
+        return conf.images_range
     if ax == 0 and (_BATCH.search(name) or name in ("d0",)):
         return (1, 1, conf.max_batch)
     if ax in img:
@@ -117,12 +120,13 @@ def profile_shapes(inputs: Sequence[dict[str, Any]], role_meta: dict[str, Any],
         shp = {k: [int(s) for s in inp["shape"]] for k in out}
         for ax, name in dyn.items():
             lo, opt, hi = axis_range(name, inp, ax, role_meta, conf)
-            if not (1 <= lo <= opt <= hi):
+            floor = 0 if (_PAST.search(name) or _PAST.search(inp["name"])) else 1  # empty cache on prefill
+            if not (floor <= lo <= opt <= hi) or opt < 1:
                 raise ExportError(f"input {inp['name']!r} axis {ax} ({name}): range {lo}:{opt}:{hi} must satisfy "
-                                  f"1 <= min <= opt <= max")
+                                  f"{floor} <= min <= opt <= max, opt >= 1")
             shp["min"][ax], shp["opt"][ax], shp["max"][ax] = lo, opt, hi
         for k in out:
-            if any(s <= 0 for s in shp[k]):
+            if any(s <= 0 for a, s in enumerate(shp[k]) if a not in dyn):
                 raise ExportError(f"input {inp['name']!r}: shape {inp['shape']} has an unknown axis that is not "
                                   f"listed in dynamic_axes {dyn}")
             out[k][inp["name"]] = shp[k]

@@ -41,7 +41,7 @@ class AlignConf:
     threshold_rel: float = 0.025       # ... for relative depth (with_scale): fraction of the median depth
     refine_m: float = 0.02             # final least-squares refit on matches within this distance (m; for
                                        # relative depth scaled like threshold_rel); 0 = off
-    iterations: int = 2000
+    iterations: int = 1000
     min_inliers: int = 20              # fewer inliers = failed edge
     min_inlier_ratio: float = 0.15     # inliers / matches with depth, below = failed edge (random matches)
     max_depth_m: float = 10.0          # ignore depth beyond this (sensor noise)
@@ -95,9 +95,11 @@ class PairResult:
 
 def align_pair(m: Matches, depth_a: np.ndarray, K_a: np.ndarray, depth_b: np.ndarray, K_b: np.ndarray,
                conf: AlignConf | None = None, with_scale: bool = False,
-               rng: np.random.Generator | int | None = 0) -> PairResult:
+               rng: np.random.Generator | int | None = 0, dist_a: np.ndarray | None = None,
+               dist_b: np.ndarray | None = None) -> PairResult:
     """Matches (uv0 in a, uv1 in b) -> 3D points via each frame's depth ([H, W] float32, 0 = invalid) and
-    intrinsics K [3, 3] -> RANSAC transform T_ab (b camera -> a camera)."""
+    intrinsics K [3, 3] -> RANSAC transform T_ab (b camera -> a camera). dist_a/dist_b: OpenCV distortion
+    coefficients; when given, the pixels are undistorted before back-projection (depth is read at the raw pixel)."""
     conf = conf or AlignConf()
     t0 = time.perf_counter()
     za = sample_depth(depth_a, m.uv0)
@@ -111,8 +113,8 @@ def align_pair(m: Matches, depth_a: np.ndarray, K_a: np.ndarray, depth_b: np.nda
     if nv < max(3, conf.min_inliers):
         return PairResult(np.eye(4), False, len(m), nv, 0, float("inf"), time.perf_counter() - t0,
                           f"only {nv} matches with valid depth (need {conf.min_inliers})")
-    pa = backproject_pixels(m.uv0[ok], za[ok], K_a)
-    pb = backproject_pixels(m.uv1[ok], zb[ok], K_b)
+    pa = backproject_pixels(_undistort(m.uv0[ok], K_a, dist_a), za[ok], K_a)
+    pb = backproject_pixels(_undistort(m.uv1[ok], K_b, dist_b), zb[ok], K_b)
     thr = conf.threshold_m if not with_scale else conf.threshold_rel * float(np.median(za[ok]))
     r = ransac_transform(pb, pa, threshold=thr, iterations=conf.iterations, with_scale=with_scale,
                          min_inliers=conf.min_inliers, rng=rng)
@@ -143,6 +145,15 @@ def align_pair(m: Matches, depth_a: np.ndarray, K_a: np.ndarray, depth_b: np.nda
         else:
             T, icp = T2, "applied"
     return PairResult(T, good, len(m), nv, r.n_inliers, r.residual, time.perf_counter() - t0, reason, icp, icp_rms)
+
+
+def _undistort(uv: np.ndarray, K: np.ndarray, dist: np.ndarray | None) -> np.ndarray:
+    if dist is None or not np.any(dist):
+        return uv
+    import cv2
+
+    pts = np.asarray(uv, np.float64).reshape(-1, 1, 2)
+    return cv2.undistortPoints(pts, K, np.asarray(dist, np.float64), P=K).reshape(-1, 2)
 
 
 def depth_smooth(depth: np.ndarray, uv: np.ndarray, radius: int = 3, rel: float = 0.05) -> np.ndarray:
@@ -387,7 +398,8 @@ def align_frames(frames: Sequence[Any], matcher: Any = "sift", strategy: str = "
         else:
             mt = m.match(fa.rgb, fb.rgb, box_list[a], box_list[b])
         secs["match"] += time.perf_counter() - t0
-        r = align_pair(mt, fa.depth, fa.K, fb.depth, fb.K, conf, with_scale, rng)
+        r = align_pair(mt, fa.depth, fa.K, fb.depth, fb.K, conf, with_scale, rng, getattr(fa, "dist", None),
+                       getattr(fb, "dist", None))
         secs["ransac"] += r.seconds
         stats[(fa.index, fb.index)] = r
         if r.ok:

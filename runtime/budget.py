@@ -155,6 +155,7 @@ class RoleSettings:
     input_size_px: tuple[int, int] | None = None  # (W, H)
     notes: str | None = None
 
+    @property
     def bundle_variant(self) -> str:
         """The bundle variant this precision maps to (fp32 | fp16 | int8-dynamic | int8-qdq) unless named."""
         if self.variant:
@@ -192,6 +193,23 @@ class Profile:
 
     def role(self, role: str) -> RoleSettings:
         return self.roles.get(role) or RoleSettings(role)
+
+    def variant_in(self, role: str, bundle: Any, trace: Trace | None = None) -> str | None:
+        """The profile's variant for `role` if the bundle has it, else None (= the bundle's default variant; the
+        substitution is recorded in the trace as a "degraded" event)."""
+        if role not in self.roles:
+            return None
+        want = self.roles[role].bundle_variant
+        from .bundle import load_bundle
+
+        b = load_bundle(bundle, verify=False)
+        have = list(b.role_meta(role).get("variants", {})) if b.has_role(role) else []
+        if want in have:
+            return want
+        if trace is not None and have:
+            trace.event("degraded", f"profile {self.name} asks for {role} variant {want!r}; the bundle has "
+                        f"{have}: using its default", stage=role, requested=want)
+        return None
 
     def cost(self, name: str) -> CostEntry | None:
         return self.costs.get(name)
@@ -807,7 +825,7 @@ def plan(profile: Profile | str | os.PathLike, duration_s: float, fps: float, bu
         providers[r] = {"device": chain[0], "chain": chain,
                         "here": next((p for p in chain if p in here), "CPUExecutionProvider"),
                         "precision": rs.precision + (f"-{rs.int8_kind}" if rs.int8_kind else ""),
-                        "variant": rs.bundle_variant()}
+                        "variant": rs.bundle_variant}
         size = list(rs.input_size_px) if rs.input_size_px else None
         if b is not None and b.has_role(r):
             pre = b.role_meta(r).get("preprocessing", {})

@@ -443,6 +443,8 @@ def add_role(root: str | os.PathLike, role: str, role_meta: dict[str, Any], *, r
     manifest = read_manifest(root) if (root / MANIFEST).is_file() else new_manifest()
     roles = manifest.setdefault("roles", {})
     old = roles.get(role, {}) if not replace else {}
+    if old and old.get("arch") != role_meta.get("arch", old.get("arch")):
+        old = {}  # a different architecture replaces the role: its old variants would not fit the new adapter
     meta = {"android": {}, "jetson": {}, "config": {}, **{k: v for k, v in old.items() if k != "variants"},
             **role_meta}
     meta["variants"] = dict(old.get("variants", {}))

@@ -147,12 +147,12 @@ def remove_redundant(source_or_frames: Any, conf: DedupConf | Mapping[str, Any] 
     n = len(src)
     if n == 0:
         raise InputError("remove_redundant: no frames")
-    is_source = hasattr(src, "timestamps")  # a FrameSource: position == frame index
+    is_source = hasattr(src, "timestamps")  # a FrameSource (else a plain sequence of Frames)
     ts = np.asarray(src.timestamps if is_source else [f.t for f in src], dtype=np.float64)
     get = src.__getitem__
 
     def index_at(p: int) -> int:
-        return p if is_source else int(src[p].index)
+        return src.index_of(p) if is_source else int(src[p].index)
 
     # 1. uniform down-sampling by time (robust to uneven timestamps) or stride
     if conf.sample_fps:

@@ -196,6 +196,10 @@ class FrameSource:
     def _load(self, i: int) -> Frame:  # pragma: no cover - abstract
         raise NotImplementedError
 
+    def index_of(self, position: int) -> int:
+        """Frame index of the frame at `position` (the same for sources; FrameList keeps its frames' indices)."""
+        return int(position)
+
     def prefetch(self, indices: Sequence[int]) -> None:
         """Hint that these frames are needed soon (the video source decodes them in one forward pass)."""
 
@@ -204,7 +208,10 @@ class FrameSource:
         if self.gravity is None:
             return None
         T = self[i].pose_gt
-        return None if T is None else T[:3, :3].T @ self.gravity
+        if T is None:
+            return None
+        g = T[:3, :3].T @ self.gravity
+        return g / np.linalg.norm(g)  # ground-truth rotations are not exactly orthonormal
 
     def describe(self) -> dict[str, Any]:
         return {"name": self.name, "kind": type(self).__name__, "frames": len(self), "size": list(self.size),
@@ -231,6 +238,9 @@ class FrameList(FrameSource):
 
     def _load(self, i: int) -> Frame:
         return self.frames[i]
+
+    def index_of(self, position: int) -> int:
+        return int(self.frames[position].index)
 
 
 # ----------------------------------------------------------------------------- RGB-D folders

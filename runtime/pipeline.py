@@ -39,15 +39,21 @@ class PipelineConfig:
     gravity: str = "auto"                # auto (source if it knows gravity, else floor fit) | source | floor
     refine: bool = True                  # occlusion refinement
     min_keyframes: int = 3               # fewer passing frames are topped up uniformly (recorded)
+    min_scored_per_keyframe: int = 3     # search budget >= this x K (capped at the candidates), recorded
     topup: bool = True                   # fewer than K passing: add the best other scored frames (recorded)
     whole_image_fallback: bool = True    # key frames unaligned with matches inside boxes: retry on whole images
-    bridge_frames: int = 24              # at most this many extra frames to connect unaligned key frames (0 = off)
-    bridge_gap_s: float = 0.5            # bridge frames are placed at most this far apart in time
-    bridge_max_gap_s: float = 4.0        # ... and only across gaps up to this long (long chains drift)
+    bridge_frames: int = 48              # at most this many extra frames to connect unaligned key frames (0 = off)
+    bridge_gap_s: float = 0.3            # bridge frames are placed at most this far apart in time
+    bridge_max_gap_s: float = 10.0       # ... and only across gaps up to this long (long chains drift)
+    verify_depth: bool = True            # reject tree edges whose depth maps contradict each other (metric depth)
+    max_free_space_violation: float = 0.02  # share of a frame's points seen in front of the other's surfaces
     camera_height_m: float = 1.5         # prior when no floor is found
     dedup: dict[str, Any] = field(default_factory=dict)
     keyframe: dict[str, Any] = field(default_factory=dict)
-    alignment: dict[str, Any] = field(default_factory=dict)
+    # fewer inliers than alignment's default 20 are accepted because every tree edge is then checked against
+    # the two depth maps (`verify_depth`), which catches the wrong ones a low inlier count lets through
+    alignment: dict[str, Any] = field(default_factory=lambda: {"min_inliers": 12})
+    match: dict[str, Any] = field(default_factory=lambda: {"sift_contrast_threshold": 0.02})  # OpenCV matchers
     fusion: dict[str, Any] = field(default_factory=dict)
 
     @classmethod
@@ -144,7 +150,12 @@ def select(source: FrameSource, targets: Sequence[str], cues: Sequence[str], per
     cands = _candidates(source, conf, trace)
     det = detector or _CachedDetector(source, perception.detect, trace)
     K = int(keyframes or conf.keyframes)
-    kconf = KeyFrameConf.merged({**conf.keyframe, "keyframes": K})
+    kc = {**conf.keyframe, "keyframes": K}
+    if "budget" not in kc and conf.min_scored_per_keyframe > 0:
+        # the paper's 25% of the candidates, but at least a few frames per key frame (short videos)
+        frac = float(kc.get("budget_fraction", KeyFrameConf.budget_fraction))
+        kc["budget"] = int(min(len(cands), max(np.ceil(frac * len(cands)), conf.min_scored_per_keyframe * K)))
+    kconf = KeyFrameConf.merged(kc)
     with trace.stage("keyframes"):
         res = select_keyframes(conf.keyframe_method, cands, list(targets), list(cues), det,
                                lambda i: source[int(i)].rgb, kconf, trace)
@@ -179,12 +190,97 @@ def _top_up(chosen: list[int], scores: dict[int, float], K: int, gap: int, trace
     return sorted(out)
 
 
+def depth_consistency(fa: Frame, fb: Frame, T_ab: np.ndarray, stride: int = 8) -> tuple[float, float, float]:
+    """How well frame b's depth agrees with frame a's under T_ab (b camera -> a camera).
+
+    Returns (overlap: share of b's points that land on valid depth in a, consistent: share of those within
+    5 cm + 3% of a's depth, violation: share of those lying clearly in FRONT of a's observed surface, i.e. in
+    space a sees as empty). A wrong transform puts points in free space; a right one only at occlusion edges."""
+    from .geometry import backproject, sample_depth, transform
+
+    p, _ = backproject(fb.depth, fb.K, stride=stride)
+    if len(p) == 0:
+        return 0.0, 0.0, 0.0
+    q = transform(T_ab, p)
+    z = q[:, 2]
+    zs = np.maximum(z, 1e-6)
+    uv = np.stack([fa.K[0, 0] * q[:, 0] / zs + fa.K[0, 2], fa.K[1, 1] * q[:, 1] / zs + fa.K[1, 2]], 1)
+    zo = sample_depth(fa.depth, uv)
+    ins = (z > 0.1) & (zo > 0)
+    n = max(int(ins.sum()), 1)
+    cons = ins & (np.abs(z - zo) < 0.05 + 0.03 * zo)
+    viol = ins & (z < zo - (0.10 + 0.05 * zo))
+    return float(ins.mean()), float(cons.sum() / n), float(viol.sum() / n)
+
+
+def verify_tree(al: Any, frames: dict[int, Frame], conf: PipelineConfig, trace: Trace) -> Any:
+    """Check every tree edge with `depth_consistency` in both directions; a frame whose edge to its parent puts
+    more than `max_free_space_violation` of the points into observed free space is detached with its subtree
+    and re-attached through another verified pair (from the pairs alignment already tried) that passes the same
+    check, if any; the rest become unaligned. Recorded in the trace."""
+    from collections import deque
+
+    from .geometry import invert
+
+    def ok(a: int, b: int, T_ab: np.ndarray) -> bool:
+        if a not in frames or b not in frames:
+            return True  # bridge frames are not checked (their depth is not kept)
+        v1 = depth_consistency(frames[a], frames[b], T_ab)[2]
+        v2 = depth_consistency(frames[b], frames[a], invert(T_ab))[2]
+        return max(v1, v2) <= conf.max_free_space_violation
+
+    adj: dict[int, list[int]] = {}
+    for a, b in al.edges:
+        adj.setdefault(a, []).append(b)
+        adj.setdefault(b, []).append(a)
+    poses = dict(al.poses)
+    parent = {al.root: None}
+    order = deque([al.root])
+    bad: list[tuple[int, int]] = []
+    while order:  # breadth-first from the root: drop a failing edge's whole subtree
+        p = order.popleft()
+        for c in adj.get(p, []):
+            if c in parent or c not in poses:
+                continue
+            if ok(p, c, invert(poses[p]) @ poses[c]):
+                parent[c] = p
+                order.append(c)
+            else:
+                bad.append((p, c))
+    kept = set(parent)
+    dropped = [i for i in poses if i not in kept]
+    if not dropped:
+        return al
+    for i in dropped:
+        poses.pop(i)
+    reattached = []
+    changed = True
+    while changed:  # re-attach through other pairs alignment verified
+        changed = False
+        for (a, b), r in al.edge_stats.items():
+            if not r.ok:
+                continue
+            for x, y, T in ((a, b, r.T_ab), (b, a, invert(r.T_ab))):  # T: pose of y in x's camera
+                if x in poses and y not in poses and y in dropped and ok(x, y, T):
+                    poses[y] = poses[x] @ T
+                    reattached.append(y)
+                    changed = True
+    lost = [i for i in dropped if i not in poses]
+    trace.event("degraded" if lost else "alignment",
+                f"depth check rejected tree edge(s) {bad}: {len(dropped)} frame(s) detached, {len(reattached)} "
+                f"re-attached through other verified pairs, {len(lost)} left unaligned", stage="alignment",
+                rejected=[list(e) for e in bad], unaligned=lost)
+    al.poses = poses
+    al.unaligned = sorted(set(al.unaligned) | set(lost))
+    return al
+
+
 def _bridge(al: Any, frames: list[Frame], boxes: dict[int, Any], cands: list[int], source: FrameSource,
-            matcher: Any, perception: Perception, conf: PipelineConfig, trace: Trace) -> Any:
+            matcher: Any, perception: Perception, conf: PipelineConfig, trace: Trace) -> tuple[Any, list[Frame]]:
     """Key frames far apart in time often share no view, so the tree falls apart into components. Connect each
     unaligned key frame to its nearest aligned key frame in time through intermediate candidate frames (at
     most `bridge_gap_s` apart, `bridge_frames` in all; used for poses only, never detected) and align again.
-    Key frames still unaligned afterwards stay unaligned (recorded by align_frames)."""
+    Key frames still unaligned afterwards stay unaligned (recorded). Returns (alignment, the bridge frames used)."""
     from .alignment import align_frames
 
     have = {f.index for f in frames}
@@ -205,7 +301,7 @@ def _bridge(al: Any, frames: list[Frame], boxes: dict[int, Any], cands: list[int
             break
     extra = sorted(extra[:conf.bridge_frames])
     if not extra:
-        return al
+        return al, []
     bf = []
     for i in extra:
         f = source[i]
@@ -220,8 +316,8 @@ def _bridge(al: Any, frames: list[Frame], boxes: dict[int, Any], cands: list[int
                 f"and their neighbours in time left {len(al2.unaligned)} unaligned", stage="alignment",
                 bridges=extra, unaligned=al2.unaligned)
     if len(al2.poses) and sum(i in have for i in al2.poses) >= sum(i in have for i in al.poses):
-        return al2
-    return al
+        return al2, bf
+    return al, []
 
 
 def _depth_for(frame: Frame, conf: PipelineConfig, perception: Perception, trace: Trace) -> np.ndarray:
@@ -317,13 +413,16 @@ def build_map(source: FrameSource, targets: Sequence[str], cues: Sequence[str] =
 
     # alignment: matches restricted to object boxes (the paper's trick), MST over frame similarity
     from .alignment import _make_matcher, align_frames
+    from .matching import FeatureMatcher
 
     emb = None
     if perception.embed is not None:
         with trace.stage("embed"):
             emb = np.stack([perception.embed(f.rgb) for f in frames])
     boxes = {f.index: (dets[f.index].boxes if len(dets[f.index]) else None) for f in frames}
-    matcher = _make_matcher(perception.matcher)  # one matcher: features are cached across the rounds below
+    # one matcher: features are cached across the rounds below
+    matcher = (FeatureMatcher(perception.matcher, conf.match or None) if isinstance(perception.matcher, str)
+               else _make_matcher(perception.matcher))
     with trace.stage("alignment"):
         al = align_frames(frames, matcher, "mst", conf.alignment or None, emb, boxes,
                           with_scale=perception.depth_relative, trace=trace)
@@ -336,9 +435,16 @@ def build_map(source: FrameSource, targets: Sequence[str], cues: Sequence[str] =
                     f"unaligned; whole-image matching left {len(al2.unaligned)}", stage="alignment",
                     boxes_unaligned=list(al.unaligned), whole_unaligned=list(al2.unaligned))
         if len(al2.unaligned) < len(al.unaligned):
-            al = al2
+            al, boxes = al2, {i: None for i in boxes}
+    check = conf.verify_depth and not perception.depth_relative
+    if check:
+        with trace.stage("alignment.verify"):
+            al = verify_tree(al, {f.index: f for f in frames}, conf, trace)
     if al.unaligned and conf.bridge_frames > 0:
-        al = _bridge(al, frames, boxes, cands_all, source, matcher, perception, conf, trace)
+        al, bridges = _bridge(al, frames, boxes, cands_all, source, matcher, perception, conf, trace)
+        if check and bridges:
+            with trace.stage("alignment.verify"):
+                al = verify_tree(al, {f.index: f for f in frames + bridges}, conf, trace)
     root = al.root
     with trace.stage("gravity"):
         W = _gravity(frames, al.poses, source, root, conf, trace)
@@ -529,8 +635,9 @@ def perception_from_bundle(bundle: Any, conf: PipelineConfig | dict | None = Non
             desc["refinement"] = "semantic segmenter: class mask inside the projected box (takes no prompts)"
         else:
             p.segment = lambda frame, d: seg.segment(frame.rgb, d.boxes, d.names)
-            p.segment_points = lambda frame, pts, name: _first_mask(seg.segment(frame.rgb, None, [name],
-                                                                                  points=pts))
+            p.segment_points = lambda frame, pts, name: _first_mask(seg.segment(
+                frame.rgb, None, [name], points=np.concatenate([np.asarray(pts, np.float32).reshape(-1, 2),
+                                                               np.ones((len(pts), 1), np.float32)], 1)[None]))
             desc["refinement"] = "promptable segmenter: point prompts from cross-frame matches"
     else:
         trace.event("degraded", "bundle has no segmenter: objects are lifted from their boxes (dominant depth "

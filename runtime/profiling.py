@@ -10,8 +10,8 @@ thread default):
   latency figures; these are the planner's `ms_per_call` figures;
 - the CPU-side pipeline pieces that exist: video decode per frame, redundant-frame removal per frame, RANSAC per
   pair, key-frame state size;
-- when --video and a question-free object list are given and `runtime.pipeline.build_map` exists, one full map
-  build with per-stage times from its Trace.
+- with --video, one full question (`--question`, default "How many chairs are in this room?") through
+  `pipeline.ask` in a fresh process: wall time, per-stage times and calls from its Trace, peak RSS.
 
 Outputs in --out: `report.json` (schema mosaicthinker.profile_report/1), `report.md`, `latency.png`,
 `memory.png` (Pillow charts, no matplotlib). `--update-profile` writes the measured costs back into the
@@ -128,7 +128,7 @@ def _variant_for(bundle: Any, role: str, profile: Profile | None, which: str) ->
     if which == "all":
         return variants
     if profile is not None and role in profile.roles:
-        want = profile.role(role).bundle_variant()
+        want = profile.role(role).bundle_variant
         if want in variants:
             return [want]
     return [bundle.variant_name(role)]
@@ -263,12 +263,36 @@ def _role_worker(job: dict[str, Any]) -> dict[str, Any]:
             "events": trace.events, "providers": trace.providers}
 
 
-def _run_isolated(job: dict[str, Any]) -> dict[str, Any]:
+def _question_worker(job: dict[str, Any]) -> dict[str, Any]:
+    """One full question through `pipeline.ask` in THIS process: wall time, per-stage times, peak RSS."""
+    from .pipeline import ask
+
+    reset_peak_rss()
+    base = rss_mb()
+    trace = Trace()
+    prof = load_profile(job["profile"]) if job.get("profile") else None
+    t0 = time.perf_counter()
+    res = ask(job["video"], job["question"], bundle=job["bundle"], profile=prof, trace=trace,
+              conf={"depth": "model", "matcher": "model"}, keyframes=job.get("keyframes"))
+    wall = time.perf_counter() - t0
+    td = trace.to_dict()
+    kf = td["decisions"].get("keyframes", {})
+    return {"question": job["question"], "answer": res.answer.text, "wall_s": round(wall, 3),
+            "stages": td["stages"], "frames_scored": kf.get("frames_scored"), "candidates": kf.get("candidates"),
+            "keyframes": len(res.build.keyframes) if res.build is not None else None,
+            "frames": (td["decisions"].get("dedup") or {}).get("frames"),
+            "peak_rss_mb": round(max(peak_rss_mb(), rss_mb()), 1), "rss_start_mb": round(base, 1),
+            "events": [e for e in td["events"] if e["kind"] in ("fallback", "degraded", "replan", "memory_guard",
+                                                                "random_weights")]}
+
+
+def _run_isolated(job: dict[str, Any], fn: Callable[[dict[str, Any]], dict[str, Any]] | None = None
+                  ) -> dict[str, Any]:
     import multiprocessing as mp
     from concurrent.futures import ProcessPoolExecutor
 
     with ProcessPoolExecutor(max_workers=1, mp_context=mp.get_context("spawn")) as ex:
-        return ex.submit(_role_worker, job).result()
+        return ex.submit(fn or _role_worker, job).result()
 
 
 def profile_cpu_side(video: str | None, frames: list[np.ndarray], runs: int, max_frames: int = 150
@@ -384,6 +408,10 @@ def _costs_from(report: dict[str, Any]) -> tuple[dict[str, dict[str, float]], di
         costs["video_decode"] = {"ms_per_call": cpu["video_decode"]["ms_per_frame"]}
     if "ms_per_frame" in cpu.get("dedup", {}):
         costs["dedup"] = {"ms_per_call": cpu["dedup"]["ms_per_frame"]}
+    pl = report.get("pipeline") or {}
+    if "dedup" not in costs and pl.get("frames") and "dedup" in pl.get("stages", {}):
+        dec = costs.get("video_decode", {}).get("ms_per_call", 0.0)
+        costs["dedup"] = {"ms_per_call": max(pl["stages"]["dedup"]["seconds"] * 1000 / pl["frames"] - dec, 0.0)}
     if "latency_ms" in cpu.get("ransac_pair", {}):
         costs["geometry"] = {"ms_per_call": cpu["ransac_pair"]["latency_ms"]["p50"]}
     costs["process"] = {"resident_mb": report["process"]["rss_baseline_mb"]}
@@ -396,20 +424,24 @@ def _costs_from(report: dict[str, Any]) -> tuple[dict[str, dict[str, float]], di
 COST_NOTES = {
     "geometry": "RANSAC on one 400-point pair only (the tree and fusion shares are not in this figure)",
     "process": "RSS after importing the runtime, numpy, OpenCV and onnxruntime (no frame cache yet)",
-    "dedup": "redundant-frame removal per frame, decode time subtracted",
+    "dedup": "redundant-frame removal per frame (from the full-question run when dedup.py was profiled there), "
+             "decode time subtracted",
 }
 
 
 def run_profile(bundle: Any, profile: Profile | str | None = None, *, video: str | None = None,
                 out: str | os.PathLike | None = None, runs: int = 10, warmup: int = 2, variants: str = "planned",
                 roles: Sequence[str] | None = None, update_profile: bool = False, progress: bool = True,
-                trace: Trace | None = None, isolate: bool = True) -> dict[str, Any]:
+                trace: Trace | None = None, isolate: bool = True,
+                question: str | None = "How many chairs are in this room?", keyframes: int | None = None
+                ) -> dict[str, Any]:
     """Profile a bundle on this machine; writes report.json / report.md / PNG charts into `out` when given.
 
     profile: providers, threads and the planned variant per role (None: CPU, default threads, the bundle's
     default variants); variants: "planned" (the profile's variant per role, else the bundle default) or "all";
     update_profile: write measured costs into the profile file (needs a profile); isolate: profile each role in
-    a fresh process (default) so memory figures are not flattered by memory freed by the previous model.
+    a fresh process (default) so memory figures are not flattered by memory freed by the previous model;
+    question: with `video`, one full question through `pipeline.ask` (None: skip); keyframes: its K.
     """
     from tqdm import tqdm
 
@@ -450,7 +482,7 @@ def run_profile(bundle: Any, profile: Profile | str | None = None, *, video: str
         report["machine"]["providers_available"] = list(ort.get_available_providers())
     except Exception:  # pragma: no cover
         pass
-    bar = tqdm(total=len(todo) + 1, desc="mosaic profile", unit="step", disable=not progress, leave=False)
+    bar = tqdm(total=len(todo) + 1 + int(bool(video and question)), desc="mosaic profile", unit="step", disable=not progress, leave=False)
     for role, v in todo:
         bar.set_postfix_str(f"{role}/{v}")
         meta = b.role_meta(role)
@@ -480,6 +512,17 @@ def run_profile(bundle: Any, profile: Profile | str | None = None, *, video: str
     bar.set_postfix_str("cpu-side stages")
     report["cpu_side"] = profile_cpu_side(video, frames, runs)
     bar.update(1)
+    if video and question:
+        bar.set_postfix_str("one full question")
+        job = {"video": str(video), "question": question, "bundle": str(b.root),
+               "profile": str(prof.path) if prof is not None and prof.path else None, "keyframes": keyframes}
+        try:
+            report["pipeline"] = _run_isolated(job, _question_worker) if isolate else _question_worker(job)
+        except MosaicError as e:
+            report["pipeline"] = {"error": str(e), "question": question}
+        except Exception as e:  # noqa: BLE001 - reported; the per-model figures stand on their own
+            report["pipeline"] = {"error": f"{type(e).__name__}: {str(e)[:300]}", "question": question}
+        bar.update(1)
     bar.close()
     report["fallbacks"] = trace.fallbacks()
     report["random_weights_used"] = list(trace.random_weights_used)
@@ -561,11 +604,16 @@ def render(report: dict[str, Any]) -> str:
         lines.append(f"- {k}: " + ", ".join(f"{a}={b}" for a, b in v.items() if a != "latency_ms")
                      + (f", p50 {v['latency_ms']['p50']} ms, p90 {v['latency_ms']['p90']} ms" if "latency_ms" in v
                         else ""))
-    if report.get("pipeline"):
-        lines += ["", "Pipeline stages (one map build):", "", "| stage | seconds | calls | peak RSS MB |",
-                  "|---|---:|---:|---:|"]
-        for n, s in report["pipeline"].get("stages", {}).items():
-            lines.append(f"| {n} | {s['seconds']:.3f} | {s['calls']} | {s['rss_peak_mb']:.0f} |")
+    pl = report.get("pipeline")
+    if pl and "error" in pl:
+        lines += ["", f"One full question ({pl.get('question')!r}): error: {pl['error']}"]
+    elif pl:
+        lines += ["", f"One full question: {pl['question']!r} -> {pl['answer']!r}: {pl['wall_s']} s wall, "
+                      f"{pl['frames']} frames, {pl['frames_scored']} scored of {pl['candidates']} candidates, "
+                      f"{pl['keyframes']} key frames, peak RSS {pl['peak_rss_mb']} MB", "",
+                  "| stage | seconds | calls | peak RSS MB |", "|---|---:|---:|---:|"]
+        for n, st in pl.get("stages", {}).items():
+            lines.append(f"| {n} | {st['seconds']:.3f} | {st['calls']} | {st['rss_peak_mb']:.0f} |")
     if report.get("fallbacks"):
         lines += ["", "Provider fallbacks:", ""] + [f"- {e['message']}" for e in report["fallbacks"]]
     lines += ["", "Measured costs (profile items):", ""]
@@ -640,8 +688,9 @@ def write_report(report: dict[str, Any], out: str | os.PathLike) -> dict[str, st
     for k, v in report.get("cpu_side", {}).items():
         if "ms_per_frame" in v:
             lat_rows.append({"name": f"cpu: {k} / frame", "p50": v["ms_per_frame"], "p90": nan, "random": False})
-    for n, s in (report.get("pipeline") or {}).get("stages", {}).items():
-        lat_rows.append({"name": f"pipeline: {n}", "p50": s["seconds"] * 1000, "p90": nan, "random": False})
+    for n, st in (report.get("pipeline") or {}).get("stages", {}).items():
+        lat_rows.append({"name": f"question: {n} (total)", "p50": st["seconds"] * 1000, "p90": nan,
+                         "random": False})
     bar_chart(out / "latency.png", f"latency per model / stage (bundle {report['bundle_hash']})",
               [r["name"] for r in lat_rows], [r.get("p50", nan) for r in lat_rows],
               [r.get("p90", nan) for r in lat_rows], "ms", [r["random"] for r in lat_rows])
@@ -664,6 +713,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--roles", help="comma-separated roles to profile (default: all in the bundle)")
     parser.add_argument("--update-profile", action="store_true",
                         help="write the measured costs into --profile (status measured, date, bundle hash)")
+    parser.add_argument("--question", default="How many chairs are in this room?",
+                        help="with --video: one full question through the pipeline, timed per stage")
+    parser.add_argument("--no-question", action="store_true", help="skip the full-question run")
+    parser.add_argument("--keyframes", type=int, help="K for the full-question run (default: the pipeline's)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument("--in-process", action="store_true",
                         help="profile every role in this process (faster; memory figures then flatter later roles)")
@@ -678,4 +731,5 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                        warmup=args.warmup, variants=args.variants,
                        roles=[r.strip() for r in args.roles.split(",")] if args.roles else None,
                        update_profile=args.update_profile, progress=not args.no_progress,
-                       isolate=not args.in_process)
+                       isolate=not args.in_process, question=None if args.no_question else args.question,
+                       keyframes=args.keyframes)

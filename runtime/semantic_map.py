@@ -223,7 +223,10 @@ class FusionConfig:
     merge_radius_m: float = 0.12  # a point "overlaps" an instance if an instance point is this close
     merge_overlap: float = 0.2    # ... and this share of the observation's points overlaps
     merge_centre_m: float = 0.6   # or the centres are this close relative to the instance's size (see below)
-    outlier_mad: float = 3.0      # radial outlier removal: keep points within median + k * MAD of the centre
+    outlier_mad: float = 6.0      # radial outlier removal: keep points within median + k * MAD of the centre
+    outlier_radius_m: float = 0.1  # density outlier removal: >= outlier_neighbors other points within this
+    outlier_neighbors: int = 3
+    merge_footprint: bool = True  # after fusion, merge same-name instances whose floor footprints overlap
     min_instance_points: int = 40
     seed: int = 0
 
@@ -301,10 +304,25 @@ def voxel_downsample(points: np.ndarray, voxel: float) -> np.ndarray:
     return sums / cnt[:, None]
 
 
-def remove_outliers(points: np.ndarray, k: float) -> np.ndarray:
-    """Radial outlier removal around the median: keep points within median + k * MAD of the distance."""
+def remove_outliers(points: np.ndarray, k: float, radius: float | None = None, min_neighbors: int = 3
+                    ) -> np.ndarray:
+    """Outlier removal for one instance's points [N, 3] -> [M, 3].
+
+    1. density (when `radius` is given): drop points with fewer than `min_neighbors` other points within
+       `radius` (isolated flying pixels at depth edges); thin parts such as table legs are lines of neighbouring
+       voxels and survive;
+    2. radial: keep points within median + k * 1.4826 * MAD of the distance to the median point (far-flung
+       clusters, e.g. a mask that bled onto the wall behind).
+    """
     if len(points) < 8:
         return points
+    if radius is not None:
+        from scipy.spatial import cKDTree
+
+        cnt = np.array([len(n) - 1 for n in cKDTree(points).query_ball_point(points, radius)])
+        dense = cnt >= min_neighbors
+        if dense.sum() >= 8:
+            points = points[dense]
     c = np.median(points, 0)
     r = np.linalg.norm(points - c, axis=1)
     med = np.median(r)
@@ -367,16 +385,64 @@ def fuse_observations(observations: list[Observation], conf: FusionConfig = defa
                 best.frames.append(ob.frame)
             if ob.instance_hint is not None:
                 best.hints.append(ob.instance_hint)
-    instances, clouds = [], []
+    cleaned: list[tuple[_Acc, np.ndarray]] = []
     for a in accs:
-        pts = remove_outliers(a.points, conf.outlier_mad)
-        if len(pts) < max(4, conf.min_instance_points // max(1, int(round(conf.voxel_m / 0.04)))):
-            continue
+        pts = remove_outliers(a.points, conf.outlier_mad, conf.outlier_radius_m, conf.outlier_neighbors)
+        if len(pts) >= max(4, conf.min_instance_points // max(1, int(round(conf.voxel_m / 0.04)))):
+            cleaned.append((a, pts))
+    if conf.merge_footprint:
+        cleaned = _merge_overlapping(cleaned, conf)
+    instances, clouds = [], []
+    for a, pts in cleaned:
         inst = ObjectInstance(len(instances), a.name, fit_gravity_box(pts), a.first_seen, a.score, len(pts),
                               sorted(a.frames))
         instances.append(inst)
         clouds.append(pts)
     return instances, clouds
+
+
+def footprint_overlap(a: OrientedBox, b: OrientedBox) -> float:
+    """Intersection area of two gravity-aligned boxes' floor footprints over the smaller footprint, in [0, 1]."""
+    import cv2
+
+    from .prompt import _footprint
+
+    fa, fb = _footprint(a).astype(np.float32), _footprint(b).astype(np.float32)
+    area, _ = cv2.intersectConvexConvex(fa, fb)
+    small = min(polygon_area(fa), polygon_area(fb))
+    return float(area / small) if small > 1e-9 else 0.0
+
+
+def _merge_overlapping(items: list[tuple["_Acc", np.ndarray]], conf: FusionConfig
+                       ) -> list[tuple["_Acc", np.ndarray]]:
+    """Merge same-name instances whose floor footprints overlap (>= 30% of the smaller one): two views of one
+    object that shared too few points to fuse (a table seen from either end). Same-category objects do not
+    interpenetrate, so overlapping footprints mean one object (objects stacked on each other have other names)."""
+    from .geometry import fit_gravity_box
+
+    items = list(items)
+    merged = True
+    while merged:
+        merged = False
+        boxes = [fit_gravity_box(p) for _, p in items]
+        for i in range(len(items)):
+            for j in range(i + 1, len(items)):
+                if items[i][0].name != items[j][0].name or footprint_overlap(boxes[i], boxes[j]) < 0.3:
+                    continue
+                a, pa = items[i]
+                b, pb = items[j]
+                a.points = voxel_downsample(np.concatenate([pa, pb]), conf.voxel_m)
+                a.score = max(a.score, b.score)
+                a.first_seen = min(a.first_seen, b.first_seen)
+                a.frames = sorted(set(a.frames) | set(b.frames))
+                a.hints += b.hints
+                items[i] = (a, a.points)
+                del items[j]
+                merged = True
+                break
+            if merged:
+                break
+    return items
 
 
 # ----------------------------------------------------------------------------- gravity

@@ -360,3 +360,120 @@ def test_perf_report_in_profile_schema(real_bundle, tmp_path):
     for f in ("report.md", "latency.png", "memory.png"):
         assert (out / f).stat().st_size > 0
     assert "android-ort-fp32@cpu" in (out / "report.md").read_text()
+
+
+# ------------------------------------------------------------------------------------------------ VLM decoder
+
+def _toy_decoder(path: Path, *, use_position_ids: bool = True, hidden: int = 16, d: int = 8, vocab: int = 24,
+                 max_pos: int = 512) -> Path:
+    """A one-layer, one-head attention decoder with the KV-cache I/O of export/hf_vlm.py (inputs_embeds,
+    attention_mask, position_ids, past_key_0/past_value_0 -> logits, present_key_0/present_value_0), causal +
+    padding mask and learned position embeddings. use_position_ids=False derives positions from the cache
+    length instead (past .. past+s-1), as graphs without a position input do: the fixed window then breaks."""
+    import onnx
+    from onnx import TensorProto, helper, numpy_helper
+
+    rng = np.random.default_rng(0)
+    w = {n: (rng.standard_normal(s) * 0.3).astype(np.float32) for n, s in
+         {"Wq": (hidden, d), "Wk": (hidden, d), "Wv": (hidden, d), "Wo": (d, vocab), "PE": (max_pos, d)}.items()}
+    init = [numpy_helper.from_array(v, k) for k, v in w.items()]
+    init += [numpy_helper.from_array(np.array(v, dt), n) for n, v, dt in
+             [("one_i", [1], np.int64), ("zero_i", [0], np.int64), ("ax1", [1], np.int64),
+              ("scale", 1 / np.sqrt(d), np.float32), ("neg", -1e9, np.float32), ("onef", 1.0, np.float32),
+              ("step", 1, np.int64)]]
+    N = helper.make_node
+    nodes = [N("Shape", ["inputs_embeds"], ["sh_x"]), N("Gather", ["sh_x", "one_i"], ["s"], axis=0),
+             N("Shape", ["attention_mask"], ["sh_m"]), N("Gather", ["sh_m", "one_i"], ["t"], axis=0),
+             N("Sub", ["t", "s"], ["past_len"]), N("Concat", ["s", "t"], ["st"], axis=0),
+             N("ConstantOfShape", ["st"], ["ones"], value=helper.make_tensor("v", TensorProto.FLOAT, [1], [1.0])),
+             N("Squeeze", ["past_len", "zero_i"], ["k0"]), N("Trilu", ["ones", "k0"], ["causal"], upper=0),
+             N("Cast", ["attention_mask"], ["mf"], to=TensorProto.FLOAT), N("Unsqueeze", ["mf", "ax1"], ["mf3"]),
+             N("Mul", ["causal", "mf3"], ["allowed"]), N("Sub", ["onef", "allowed"], ["blocked"]),
+             N("Mul", ["blocked", "neg"], ["bias"])]
+    if use_position_ids:
+        nodes.append(N("Gather", ["PE", "position_ids"], ["pe"], axis=0))
+    else:
+        nodes += [N("Squeeze", ["t", "zero_i"], ["t0"]), N("Range", ["k0", "t0", "step"], ["rng_pos"]),
+                  N("Gather", ["PE", "rng_pos"], ["pe"], axis=0)]
+    nodes += [N("MatMul", ["inputs_embeds", "Wq"], ["q0"]), N("Add", ["q0", "pe"], ["q"]),
+              N("MatMul", ["inputs_embeds", "Wk"], ["k1"]), N("Add", ["k1", "pe"], ["k2"]),
+              N("MatMul", ["inputs_embeds", "Wv"], ["v1"]),
+              N("Unsqueeze", ["k2", "ax1"], ["k3"]), N("Unsqueeze", ["v1", "ax1"], ["v3"]),
+              N("Concat", ["past_key_0", "k3"], ["present_key_0"], axis=2),
+              N("Concat", ["past_value_0", "v3"], ["present_value_0"], axis=2),
+              N("Squeeze", ["present_key_0", "ax1"], ["K"]), N("Squeeze", ["present_value_0", "ax1"], ["V"]),
+              N("Transpose", ["K"], ["KT"], perm=[0, 2, 1]), N("MatMul", ["q", "KT"], ["sc0"]),
+              N("Mul", ["sc0", "scale"], ["sc1"]), N("Add", ["sc1", "bias"], ["sc"]),
+              N("Softmax", ["sc"], ["p"], axis=-1), N("MatMul", ["p", "V"], ["o"]),
+              N("MatMul", ["o", "Wo"], ["logits"])]
+    f = TensorProto.FLOAT
+    ins = [helper.make_tensor_value_info("inputs_embeds", f, [1, "seq", hidden]),
+           helper.make_tensor_value_info("attention_mask", TensorProto.INT64, [1, "total"]),
+           helper.make_tensor_value_info("position_ids", TensorProto.INT64, [1, "seq"]),
+           helper.make_tensor_value_info("past_key_0", f, [1, 1, "past", d]),
+           helper.make_tensor_value_info("past_value_0", f, [1, 1, "past", d])]
+    outs = [helper.make_tensor_value_info("logits", f, [1, "seq", vocab]),
+            helper.make_tensor_value_info("present_key_0", f, [1, 1, "total", d]),
+            helper.make_tensor_value_info("present_value_0", f, [1, 1, "total", d])]
+    m = helper.make_model(helper.make_graph(nodes, "toy_decoder", ins, outs, init),
+                          opset_imports=[helper.make_opsetid("", 18)])
+    m.ir_version = 9
+    onnx.checker.check_model(m)
+    onnx.save(m, str(path))
+    return path
+
+
+def _vlm_bundle(tmp, use_position_ids):
+    from mosaicthinker.export import common as C
+
+    meta = C.role_meta("smolvlm", preprocessing={"size": [32, 32], "layout": "NCHW"}, semantics={},
+                       provenance={"source": "test toy decoder"}, licence="Apache-2.0", random_weights=True,
+                       config={"family": "smolvlm"})
+    out = tmp / "bundle"
+    C.add_variant_files(out, "vlm", "fp32", {"decoder": _toy_decoder(tmp / "dec.onnx",
+                                                                      use_position_ids=use_position_ids)},
+                        meta=meta, precision="fp32")
+    return out
+
+
+def test_vlm_decoder_fixed_window_variant(tmp_path):
+    root = _vlm_bundle(tmp_path, use_position_ids=True)
+    conf = A.AndroidConfig(kv_window=16, prefill_len=4, make_fp16=False)
+    summary = A.export_android(root, conf)
+    comps = summary["roles"]["vlm"]["variants"]["android-ort-fp32"]["components"]
+    dec = comps["decoder"]
+    assert dec["dynamic_left"] and dec["providers"] == ["XNNPACK", "CPU"]  # growing cache: CPU/XNNPACK
+    chk = dec["kv_window_check"]
+    assert chk["ok"] and chk["max_rel"] < 1e-5 and chk["steps"] == 7
+    m = json.loads((root / "manifest.json").read_text())
+    vm = m["roles"]["vlm"]["variants"]["android-ort-fp32"]
+    step = vm["android"]["components"]["decoder_kvwindow_step"]
+    assert step["fixed_shapes"]["past_key_0"] == [1, 1, 16, 8] and step["fixed_shapes"]["attention_mask"] == [1, 17]
+    assert vm["android"]["components"]["decoder_kvwindow_prefill"]["fixed_shapes"]["inputs_embeds"] == [1, 4, 16]
+    assert "RIGHT" in step["kv_window"]["protocol"]
+    # the fixed-window .ort graphs run the protocol: one prefill + steps give the dynamic graph's logits
+    sess = {n: _session(root / vm["components"][n]["file"]) for n in ("decoder", "decoder_kvwindow_step")}
+    rng = np.random.default_rng(3)
+    x = rng.standard_normal((1, 4, 16)).astype(np.float32)
+    ref = sess["decoder"].run(None, {"inputs_embeds": x, "attention_mask": np.ones((1, 4), np.int64),
+                                     "position_ids": np.arange(4)[None],
+                                     "past_key_0": np.zeros((1, 1, 0, 8), np.float32),
+                                     "past_value_0": np.zeros((1, 1, 0, 8), np.float32)})[0]
+    cache = [np.zeros((1, 1, 16, 8), np.float32)] * 2
+    mask = np.zeros(16, np.int64)
+    for t in range(4):  # token by token through the step graph
+        lg, k, v = sess["decoder_kvwindow_step"].run(None, {
+            "inputs_embeds": x[:, t:t + 1], "attention_mask": np.concatenate([mask, [1]])[None],
+            "position_ids": np.array([[t]]), "past_key_0": cache[0], "past_value_0": cache[1]})
+        cache, mask = [k[:, :, 1:], v[:, :, 1:]], np.concatenate([mask, [1]])[1:]
+        np.testing.assert_allclose(lg[0, 0], ref[0, t], rtol=1e-4, atol=1e-5)
+    B.load_bundle(root, verify=True)
+
+
+def test_vlm_decoder_without_position_input_stays_cpu_only(tmp_path):
+    root = _vlm_bundle(tmp_path, use_position_ids=False)
+    summary = A.export_android(root, A.AndroidConfig(kv_window=16, prefill_len=4, make_fp16=False))
+    comps = summary["roles"]["vlm"]["variants"]["android-ort-fp32"]["components"]
+    assert set(comps) == {"decoder"}  # no window variant shipped
+    assert not comps["decoder"]["kv_window_check"]["ok"] and comps["decoder"]["kv_window_check"]["max_rel"] > 1e-2
+    assert comps["decoder"]["providers"] == ["XNNPACK", "CPU"]

@@ -82,8 +82,8 @@ def test_shipped_profiles_validate():
     phone = B.load_profile("oneplus-12r")
     assert phone.providers == ["QNNExecutionProvider", "NnapiExecutionProvider", "XnnpackExecutionProvider",
                                "CPUExecutionProvider"]
-    assert phone.role("detector").int8_kind == "qdq" and phone.role("detector").bundle_variant() == "int8-qdq"
-    assert B.load_profile("cpu-generic").role("vlm").bundle_variant() == "int8-dynamic"
+    assert phone.role("detector").int8_kind == "qdq" and phone.role("detector").bundle_variant == "int8-qdq"
+    assert B.load_profile("cpu-generic").role("vlm").bundle_variant == "int8-dynamic"
 
 
 def _mutate(fn):

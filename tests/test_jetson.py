@@ -113,6 +113,7 @@ def test_profile_shapes_cover_dynamic_inputs_and_run(bundle):
         feeds = {i.name: np.ones(prof[k][i.name], np.float32 if "float" in i.type else np.int64)
                  for i in sess.get_inputs()}
         sess.run(None, feeds)  # every profile shape is a valid input of the graph
+    assert prof["min"]["past_key_values.0.key"][2] == 0  # the prefill call has an empty cache
     conf = J.JetsonConfig()
     assert prof["opt"]["past_key_values.0.key"][2] == conf.past_range[1]
     assert prof["max"]["attention_mask"][1] == conf.past_range[2] + conf.seq_range[2]  # total = past + new

@@ -323,6 +323,10 @@ def _targets(s: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
+def _cell(v: dict[str, Any] | None) -> str:
+    return "-" if v is None else f"{v['score']:.3f} (n={v['n']})"
+
+
 def render(r: dict[str, Any]) -> str:
     lines = [f"e2e on {len(r['scenes'])} synthetic scene(s), modes {', '.join(r['modes'])} "
              f"({r['seconds']['total']} s, scenes generated in {r['seconds']['generate']} s)"]
@@ -333,15 +337,15 @@ def render(r: dict[str, Any]) -> str:
         row = f"{t:<30}"
         for m in s:
             v = s[m]["by_type"].get(t)
-            row += f"{'-' if v is None else f'{v['score']:.3f} (n={v['n']})':>16}"
+            row += f"{_cell(v):>16}"
         lines.append(row)
-    lines.append(f"{'overall':<30}" + "".join(f"{s[m]['overall'] if s[m]['overall'] is not None else '-':>16}"
+    lines.append(f"{'overall':<30}" + "".join(f"{_cell({'score': s[m]['overall'], 'n': s[m]['n']}):>16}"
                                              for m in s))
     for lvl in LEVELS:
         row = f"{'objects ' + lvl:<30}"
         for m in s:
             v = s[m]["by_level"].get(lvl)
-            row += f"{'-' if v is None else f'{v['score']:.3f} (n={v['n']})':>16}"
+            row += f"{_cell(v):>16}"
         lines.append(row)
     for m in s:
         if "map" in s[m]:

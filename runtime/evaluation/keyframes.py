@@ -104,7 +104,7 @@ def summarise(records: list[dict[str, Any]], methods: list[str]) -> dict[str, An
 
 def check_targets(summary: dict[str, Any]) -> dict[str, Any]:
     """The issue's targets on the default iterative search; each with its value and the margin (miss if < 0)."""
-    it, ex, un = (summary.get(m, {}).get("all", {}) for m in METHODS)
+    it, un, ex = (summary.get(m, {}).get("all", {}) for m in ("iterative", "uniform", "exhaustive"))
     if not it.get("questions"):
         return {}
     t = TARGETS
@@ -215,9 +215,10 @@ class _Memo:
         return self.cache[key]
 
 
-def evaluate_scene(scene_dir: Path, level: str, args: argparse.Namespace, conf: KeyFrameConf,
-                   methods: list[str]) -> tuple[list[dict[str, Any]], dict[str, Any]]:
-    """All questions of one generated scene x all methods -> per-question records and a scene summary."""
+def evaluate_scene(scene_dir: Path, level: str, args: argparse.Namespace,
+                   methods: dict[str, tuple[str, KeyFrameConf]]) -> tuple[list[dict[str, Any]], dict[str, Any]]:
+    """All questions of one generated scene x all methods (label -> (method, config)) -> per-question records
+    and a scene summary."""
     from ..grounding import parse_question
     from ..synth.generate import load_scene
 
@@ -245,13 +246,13 @@ def evaluate_scene(scene_dir: Path, level: str, args: argparse.Namespace, conf: 
             skipped["objects never visible enough"] = skipped.get("objects never visible enough", 0) + 1
             continue
         detect = _Memo(det_fn)  # per question: every method sees identical detections
-        for m in methods:
+        for label, (m, conf) in methods.items():
             t0 = time.perf_counter()
             res = select_keyframes(m, cands, pq.targets, pq.cues, detect, image, conf, histograms=histograms)
             sc = score_selection([int(f) for f in res.chosen], eligible, vis, args.min_visible)
             records.append({
                 "scene": meta["scene_name"], "level": level, "question": int(q.get("id", -1)),
-                "qtype": q["question_type"], "method": m, "targets": pq.targets, "cues": pq.cues,
+                "qtype": q["question_type"], "method": label, "targets": pq.targets, "cues": pq.cues,
                 "instances": sorted(eligible), "instance_names": sorted({names_by_id.get(i, "?") for i in eligible}),
                 "precision": sc.precision, "recall": sc.recall, "f1": sc.f1, "chosen": sc.chosen,
                 "chosen_frames": [int(f) for f in res.chosen],
@@ -289,6 +290,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-dedup", action="store_true", help="use every frame as a candidate")
     p.add_argument("--conf", default=None, metavar="JSON",
                    help='key-frame config overrides, e.g. \'{"threshold": 2, "budget_fraction": 0.2}\'')
+    p.add_argument("--variant", action="append", default=[], metavar="LABEL=JSON",
+                   help='an extra iterative configuration reported as its own method, e.g. '
+                        '\'topup={"min_keyframes": 8}\' (repeatable; the targets are judged on the default only)')
     p.add_argument("--records", action="store_true", help="include per-question records in the output")
 
 
@@ -302,7 +306,16 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     except json.JSONDecodeError as e:
         raise InputError(f"--conf: not valid JSON ({e})") from None
     conf = KeyFrameConf.merged({**over, "keyframes": args.keyframes})
-    methods = list(METHODS)
+    methods: dict[str, tuple[str, KeyFrameConf]] = {m: (m, conf) for m in METHODS}
+    for v in args.variant:
+        label, _, js = v.partition("=")
+        try:
+            vo = json.loads(js)
+        except json.JSONDecodeError as e:
+            raise InputError(f"--variant {v!r}: expected LABEL=JSON ({e})") from None
+        if not label or label in methods or not isinstance(vo, dict):
+            raise InputError(f"--variant {v!r}: give a new label and a JSON object of key-frame config overrides")
+        methods[label] = ("iterative", KeyFrameConf.merged({**over, **vo, "keyframes": args.keyframes}))
     t0 = time.perf_counter()
     tmp = None
     root = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix="mosaic-kf-"))
@@ -315,18 +328,20 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
             sconf, level = _scene_config(i, args)
             sdir = root / f"scene-{sconf.seed:05d}-{args.vary}-{level}"
             gen = _ensure_scene(sconf, sdir, args.workers)
-            recs, info = evaluate_scene(sdir, level, args, conf, methods)
+            recs, info = evaluate_scene(sdir, level, args, methods)
             records += recs
             scenes.append({**info, **gen, "seed": sconf.seed})
     finally:
         if tmp is not None:
             shutil.rmtree(tmp, ignore_errors=True)
-    summary = summarise(records, methods)
+    summary = summarise(records, list(methods))
     out: dict[str, Any] = {
         "schema": SCHEMA,
         "command": "mosaic eval keyframes " + " ".join(_argv(args)),
         "detector": args.detector, "keyframes": args.keyframes, "vary": args.vary, "seed": args.seed,
         "min_visible": args.min_visible, "config": conf.to_dict(),
+        "variants": {k: {"method": m, "overrides": {f: v for f, v in c.to_dict().items() if v != conf.to_dict()[f]}}
+                     for k, (m, c) in methods.items() if k not in METHODS},
         "methods": summary, "targets": check_targets(summary), "scenes": scenes,
         "seconds": round(time.perf_counter() - t0, 2), "cpu_count": os.cpu_count(),
     }
@@ -343,6 +358,7 @@ def _argv(args: argparse.Namespace) -> list[str]:
         out.append("--no-dedup")
     if args.conf:
         out.append(f"--conf '{args.conf}'")
+    out += [f"--variant '{v}'" for v in args.variant]
     if args.bundle:
         out.append(f"--bundle {args.bundle}")
     return out
@@ -351,14 +367,14 @@ def _argv(args: argparse.Namespace) -> list[str]:
 def render(result: dict[str, Any]) -> str:
     lines = [f"key frames: {len(result['scenes'])} scenes, K={result['keyframes']}, detector={result['detector']}, "
              f"varying {result['vary']}", ""]
-    head = f"{'method':<11} {'level':<8} {'n':>4} {'P':>6} {'R':>6} {'F1':>6} {'scored/cand':>11} {'scored/all':>10}"
+    head = f"{'method':<14} {'level':<8} {'n':>4} {'P':>6} {'R':>6} {'F1':>6} {'scored/cand':>11} {'scored/all':>10}"
     lines.append(head)
     for m, s in result["methods"].items():
         groups = [("all", s["all"])] + list(s["by_level"].items())
         for lv, g in groups:
             if not g.get("questions"):
                 continue
-            lines.append(f"{m:<11} {lv:<8} {g['questions']:>4} {g['precision']:>6.3f} {g['recall']:>6.3f} "
+            lines.append(f"{m:<14} {lv:<8} {g['questions']:>4} {g['precision']:>6.3f} {g['recall']:>6.3f} "
                          f"{g['f1']:>6.3f} {g['scored_candidates']:>11.3f} {g['scored_frames']:>10.3f}")
     if result.get("targets"):
         lines += ["", "targets (iterative, default configuration):"]

@@ -83,18 +83,27 @@ def _render_one(i: int) -> tuple[int, bytes, np.ndarray, np.ndarray, np.ndarray]
     return i, bgr.tobytes(), res.visible, res.covered, inf
 
 
-def _init_worker() -> None:
-    cv2.setNumThreads(1)
+def _init_worker(conf: dict[str, Any], out: str, K: np.ndarray, poses: np.ndarray, threads: int = 1) -> None:
+    """Build the renderer in this process (the scene is regenerated from its config: deterministic)."""
+    from .render import Renderer
+
+    if threads:
+        cv2.setNumThreads(threads)
+    scene = generate_scene(SceneConfig(**conf))
+    _G.update(renderer=Renderer(scene, K, scene.config.width, scene.config.height, scene.config.noise_sigma),
+              out=Path(out), poses=poses)
 
 
 def render_frames(scene: Scene, out: Path, K: np.ndarray, poses: np.ndarray, workers: int = 1,
                   video: bool = True) -> tuple[list[dict[str, Any]], dict[str, Any]]:
-    """Render and write every frame (and the mp4). Returns per-frame visibility rows and timing info."""
-    from .render import Renderer
-
+    """Render and write every frame (and the mp4). Returns per-frame visibility rows and timing info.
+    With workers > 1, frames are rendered in spawned processes (each rebuilds the renderer from the config)."""
     conf = scene.config
     t0 = time.perf_counter()
-    _G.update(renderer=Renderer(scene, K, conf.width, conf.height, conf.noise_sigma), out=out, poses=poses)
+    workers = max(1, min(int(workers), len(poses)))
+    init_args = (config_dict(conf), str(out), np.asarray(K), np.asarray(poses))
+    if workers == 1:
+        _init_worker(*init_args, threads=0)
     t_init = time.perf_counter() - t0
     writer = None
     if video:
@@ -117,15 +126,14 @@ def render_frames(scene: Scene, out: Path, K: np.ndarray, poses: np.ndarray, wor
                             "in_frame": round(float(inf[k]), 4), "visibility": round(frac * float(inf[k]), 4)})
         rows[i] = {"index": int(i), "visible": visible}
 
-    workers = max(1, min(int(workers), n))
     if workers == 1:
         for i in range(n):
             consume(_render_one(i))
     else:
         import multiprocessing as mp
 
-        ctx = mp.get_context("fork")
-        with ctx.Pool(workers, initializer=_init_worker) as pool:
+        # spawn, not fork: OpenCV's thread pool in the parent can deadlock a forked child
+        with mp.get_context("spawn").Pool(workers, initializer=_init_worker, initargs=init_args) as pool:
             for item in pool.imap(_render_one, range(n), chunksize=4):
                 consume(item)
     if writer is not None:
@@ -155,7 +163,7 @@ def write_scene(conf: SceneConfig, out_dir: str | os.PathLike, workers: int = 1,
     rows, timing = render_frames(scene, out, K, poses, workers, video)
     for r, t in zip(rows, times):
         r["t"] = round(float(t), 6)
-    meta = scene_json(scene, name or out.name, K, times, rows, timing)
+    meta = scene_json(scene, name or out.name, K, times, rows)
     (out / "scene.json").write_text(json.dumps(meta, indent=1))
     n_q = 0
     q_skipped: dict[str, str] = {}
@@ -173,8 +181,8 @@ def write_scene(conf: SceneConfig, out_dir: str | os.PathLike, workers: int = 1,
             "seconds": round(time.perf_counter() - t0, 2), **timing}
 
 
-def scene_json(scene: Scene, name: str, K: np.ndarray, times: np.ndarray, rows: list[dict[str, Any]],
-               timing: dict[str, Any] | None = None) -> dict[str, Any]:
+def scene_json(scene: Scene, name: str, K: np.ndarray, times: np.ndarray, rows: list[dict[str, Any]]
+               ) -> dict[str, Any]:
     """The ground truth as a VSI-Bench meta_info scene (object_bbox, object_counts, room_size, room_center) plus
     instances, camera, per-frame visibility and provenance."""
     conf = scene.config
@@ -212,7 +220,6 @@ def scene_json(scene: Scene, name: str, K: np.ndarray, times: np.ndarray, rows: 
                               "in_frame": "share of 27 box probe points inside the view frustum",
                               "visibility": "fraction * in_frame"},
         "frames": rows,
-        "timing": timing or {},
     }
 
 

@@ -188,10 +188,11 @@ def generate_questions(meta: dict[str, Any], seed: int = 0) -> tuple[list[dict[s
         texts = [", ".join(p) for p in opts]
         return ask("obj_appearance_order", Q_ORDER.format(cats=", ".join(cats)), _letters(texts),
                    chr(65 + opts.index(truth)), list(cats))
-    k = 4 if len(seen) >= 4 else 3
-    combos = list(itertools.combinations([n for _, n in seen], k)) if len(seen) >= 3 else []
-    if len(combos) > 200:
-        combos = [combos[int(i)] for i in rng.permutation(len(combos))[:200]]
+    combos = []
+    for k in (4, 3):  # four categories where their first appearances are separated, else three
+        ck = [c for c in itertools.combinations([n for _, n in seen], k)
+              if min(np.diff(sorted(first[x] for x in c))) >= ORDER_GAP]
+        combos += [ck[int(i)] for i in rng.permutation(len(ck))[:100]]
     take("obj_appearance_order", combos, order)
 
     # route planning: start A facing B, waypoints, destination; every turn clear of the boundaries

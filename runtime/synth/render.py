@@ -2,8 +2,9 @@
 
 Every surface is a planar convex polygon (box faces, prism sides and caps, room walls, pictures). A frame is drawn
 in two passes:
-1. rasterisation: for each front-facing polygon in view (clipped at the near plane), its pixels come from
-   `cv2.fillConvexPoly` on the polygon's screen rectangle and its exact z-depth from the plane equation
+1. rasterisation: for each front-facing polygon in view (clipped at the near plane), its pixels are the pixel
+   centres inside its projected edges (half-plane tests over its screen rectangle) and their exact z-depth comes
+   from the plane equation
    (z = d / (a u + b v + c), linear in the pixel); a z-buffer keeps the nearest face index;
 2. deferred shading: each pixel is lifted to the world with its depth, its face's texture coordinates index a
    procedural texture (4 pre-blurred levels chosen by texel footprint, so distant surfaces do not alias), tinted by
@@ -29,7 +30,6 @@ from .scene import POSTER_PATTERNS, Scene
 
 T = 256  # texture size (texels), power of two
 LEVELS = 4
-SHIFT = 4  # fillConvexPoly sub-pixel bits
 NEAR = 0.05
 
 PATTERNS = ("plaster", "wood", "fabric", "tiles", "carpet", "metal", "screen", "books", "leaves", "ceramic",
@@ -49,7 +49,9 @@ def _fbm(rng: np.random.Generator, octaves=(4, 8, 16, 32, 64), gain: float = 0.5
     amp, tot = 1.0, 0.0
     for g in octaves:
         small = rng.random((g, g)).astype(np.float32)
-        big = cv2.resize(np.tile(small, (3, 3)), (3 * T, 3 * T), interpolation=cv2.INTER_CUBIC)[T:2 * T, T:2 * T]
+        k = T // g  # integer upscale of a wrap-padded grid: the crop is exactly one period
+        big = cv2.resize(np.pad(small, 2, mode="wrap"), ((g + 4) * k, (g + 4) * k),
+                         interpolation=cv2.INTER_CUBIC)[2 * k:2 * k + T, 2 * k:2 * k + T]
         out += amp * big
         tot += amp
         amp *= gain
@@ -164,7 +166,9 @@ def make_textures(seed: int) -> np.ndarray:
         for img in pats:
             if k:
                 s = 0.5 * 2 ** k
-                img = cv2.GaussianBlur(np.tile(img, (3, 3, 1)), (0, 0), s)[T:2 * T, T:2 * T]
+                pad = int(3 * s) + 1  # wrap-around padding keeps the blurred texture tileable
+                img = cv2.GaussianBlur(np.pad(img, ((pad, pad), (pad, pad), (0, 0)), mode="wrap"), (0, 0), s)
+                img = img[pad:pad + T, pad:pad + T]
             lv.append(np.clip(img * 212.0, 0, 255).astype(np.uint8))
         levels.append(np.stack(lv))
     return np.stack(levels).reshape(-1, 3)
@@ -427,18 +431,16 @@ class Renderer:
                     continue
                 pu = fx * poly[:, 0] / poly[:, 2] + cx
                 pv = fy * poly[:, 1] / poly[:, 2] + cy
+                zlo, zhi = float(poly[:, 2].min()), float(poly[:, 2].max())
             else:
                 pu, pv = uu[s:e], vv[s:e]
+                zlo, zhi = float(zmin[i]), float(zmax[i])
             x0, x1 = max(0, int(math.floor(pu.min()))), min(W, int(math.ceil(pu.max())) + 1)
             y0, y1 = max(0, int(math.floor(pv.min()))), min(H, int(math.ceil(pv.max())) + 1)
             if x1 <= x0 or y1 <= y0:
                 continue
-            mask = np.zeros((y1 - y0, x1 - x0), np.uint8)
-            pts = np.stack([(pu - x0) * (1 << SHIFT), (pv - y0) * (1 << SHIFT)], 1)
-            pts = np.clip(np.round(pts), -(1 << 26), 1 << 26).astype(np.int32)
-            cv2.fillConvexPoly(mask, pts, 1, cv2.LINE_8, SHIFT)
-            m = mask.view(bool)
-            if not m.any():
+            m = self._inside(pu, pv, x0, x1, y0, y1)
+            if m is None:
                 continue
             n = nc[i]
             a, b = n[0] / fx, n[1] / fy
@@ -447,8 +449,12 @@ class Renderer:
             with np.errstate(divide="ignore", invalid="ignore"):
                 zz = (dc[i] / denom).astype(np.float32)
             m &= zz > NEAR * 0.5
+            # boundary pixels (centres just outside the polygon) extrapolate the plane: keep their depth within
+            # the face's own depth range so silhouettes carry no flying points
+            np.clip(zz, zlo, zhi, out=zz)
             zb = zbuf[y0:y1, x0:x1]
-            upd = m & (zz < zb)
+            # objects win depth ties against the room and earlier objects (contact lines with floor and walls)
+            upd = m & (zz < (zb + np.float32(1e-3)) if f.inst[i] > 0 else zz < zb)
             zb[upd] = zz[upd]
             fbuf[y0:y1, x0:x1][upd] = i
             inst = f.inst[i]
@@ -458,6 +464,28 @@ class Renderer:
                 covered[inst] += int(np.count_nonzero(new))
                 st[new] = inst
         return zbuf, fbuf, covered
+
+    def _inside(self, pu: np.ndarray, pv: np.ndarray, x0: int, x1: int, y0: int, y1: int) -> np.ndarray | None:
+        """Pixels of the crop whose centres lie inside (or on the edge of) the convex polygon (pu, pv): [h, w]
+        bool, or None when empty. Exact half-plane tests (not a generous scan fill), so that no pixel takes the
+        depth of a plane extrapolated beyond its face; faces sharing an edge share its pixels (no cracks)."""
+        k = len(pu)
+        area = float(np.dot(pu, np.roll(pv, -1)) - np.dot(pv, np.roll(pu, -1)))
+        if abs(area) < 1e-9:
+            return None
+        sgn = 1.0 if area > 0 else -1.0
+        u = self._u[x0:x1]
+        v = self._v[y0:y1]
+        m = None
+        for j in range(k):
+            ax, ay = pu[j], pv[j]
+            bx, by = pu[(j + 1) % k], pv[(j + 1) % k]
+            # cross((b - a), (p - a)) * sgn >= -eps  <=>  inside the edge's half plane
+            A, B = -(by - ay) * sgn, (bx - ax) * sgn
+            C = -(A * ax + B * ay)
+            e = (np.float32(A) * u)[None, :] + (np.float32(B) * v + np.float32(C))[:, None] >= -1e-3
+            m = e if m is None else (m & e)
+        return m if m.any() else None
 
     # -- pass 2
     def shade(self, zbuf: np.ndarray, fbuf: np.ndarray, T_wc: np.ndarray, frame_seed: int | None = None

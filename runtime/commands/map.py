@@ -1,0 +1,133 @@
+"""`mosaic map VIDEO --out map.json`: build a semantic map once, ask questions of it later without perception.
+
+`--out` may name the map file (`map.json`; `map.png` and `trace.json` are written beside it) or a folder (the
+three files inside). The objects to map are `--objects a,b,c` (vocabulary names; synonyms resolve), by default
+every category the detector can detect (the oracle: the scene's categories; a closed-set model: its label list
+mapped onto the vocabulary; an open-vocabulary model needs --objects).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+from typing import Any
+
+from ..errors import InputError
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    from ..cli import add_stage_flags
+
+    p.add_argument("source", help="video file or image / RGB-D folder")
+    p.add_argument("--objects", default=None, help="comma-separated object names to map (default: all the "
+                                                   "detector can detect)")
+    p.add_argument("--keyframes", type=int, default=24, help="key-frame budget K (default 24)")
+    p.add_argument("--keyframe-method", choices=["iterative", "uniform", "exhaustive"], default="iterative")
+    p.add_argument("--prompt", choices=["grid", "points"], default="grid", help="map image mode")
+    add_stage_flags(p, matcher=True, detector=True)
+    p.set_defaults(detector="model")
+    p.add_argument("--depth", choices=["auto", "sensor", "model"], default="auto",
+                   help="depth source (auto: sensor depth when the source has it, else the bundle's depth model)")
+    p.add_argument("--miss-rate", type=float, default=0.1, help="oracle detector miss rate (synthetic scenes)")
+
+
+def _out_paths(out: str | None, source: Path) -> tuple[Path, Path, Path]:
+    if out is None:
+        raise InputError("mosaic map needs --out (map.json or a folder)")
+    o = Path(out)
+    if o.suffix.lower() == ".json":
+        o.parent.mkdir(parents=True, exist_ok=True)
+        return o, o.with_suffix(".png"), o.parent / (o.stem + ".trace.json")
+    o.mkdir(parents=True, exist_ok=True)
+    return o / "map.json", o / "map.png", o / "trace.json"
+
+
+def default_objects(args: argparse.Namespace, source: Path) -> list[str]:
+    """Every category the chosen detector can detect, as vocabulary names."""
+    from ..grounding import VOCABULARY, canonical_name
+
+    if args.detector == "oracle":
+        from ..synth.generate import load_scene
+
+        return sorted({canonical_name(n) or n for n in load_scene(source)["object_counts"]})
+    if not args.bundle:
+        raise InputError("mosaic map with --detector model needs --bundle (or give --detector oracle on a "
+                         "synthetic scene)")
+    from ..bundle import load_bundle
+    from ..stages.detector import map_names
+
+    b = load_bundle(args.bundle)
+    if not b.has_role("detector"):
+        raise InputError(f"{args.bundle}: the bundle has no `detector` role")
+    labels = b.spec("detector", verify=False).semantics.get("labels")
+    if not labels:
+        raise InputError("the bundle's detector is open-vocabulary: say what to map with --objects a,b,c")
+    mapping, _ = map_names(sorted(VOCABULARY), labels)
+    return sorted(mapping)
+
+
+def run(args: argparse.Namespace) -> dict[str, Any]:
+    from .. import pipeline
+    from ..budget import load_profile
+    from ..grounding import canonical_name
+    from ..prompt import render as render_prompt
+    from ..trace import Trace
+
+    src = Path(args.source)
+    map_path, png_path, trace_path = _out_paths(args.out, src)
+    trace = Trace()
+    profile = load_profile(args.profile) if args.profile else None
+    if args.objects:
+        raw = [s.strip() for s in args.objects.split(",") if s.strip()]
+        names = [canonical_name(s) for s in raw]
+        unknown = [r for r, n in zip(raw, names) if n is None]
+        if unknown:
+            trace.event("unknown_objects", f"not in the vocabulary (mapped by their own name): {unknown}",
+                        names=unknown, warn=True)
+        names = list(dict.fromkeys(n or r.lower() for r, n in zip(raw, names)))
+    else:
+        names = default_objects(args, src)
+    conf = {"depth": args.depth, "matcher": args.matcher if args.matcher != "model" else "model",
+            "keyframe_method": args.keyframe_method}
+    if args.detector == "oracle":
+        if not (src.is_dir() and (src / "scene.json").is_file()):
+            raise InputError(f"{src}: --detector oracle needs a synthetic scene folder (with scene.json)")
+        from ..evaluation.oracle_perception import oracle_perception
+
+        perception = oracle_perception(src, miss_rate=args.miss_rate,
+                                       matcher=args.matcher if args.matcher != "model" else "sift")
+        trace.decide("perception", perception.describe)
+    else:
+        perception = pipeline.perception_from_bundle(args.bundle, conf, trace, profile)
+    from ..frames import open_source
+
+    build = pipeline.build_map(open_source(src), names, [], perception, conf, trace, args.keyframes)
+    build.map.save(map_path)
+    pts = ids = None
+    if args.prompt == "points":
+        import numpy as np
+
+        pts = np.concatenate([c for c in build.clouds if len(c)] or [np.zeros((0, 3))])
+        ids = np.concatenate([np.full(len(c), o.id) for o, c in zip(build.map.instances, build.clouds)
+                              if len(c)] or [np.zeros(0, int)])
+    render_prompt(build.map, {"mode": args.prompt}, pts, ids).save_png(png_path)
+    trace_path.write_text(json.dumps(trace.to_dict(), indent=1))
+    return {"schema": "mosaicthinker.map/1", "objects": names, "instances": len(build.map.instances),
+            "counts": build.map.counts(), "keyframes": build.keyframes, "unaligned": build.unaligned,
+            "recovered_by_refinement": build.recovered,
+            "files": {"map_json": str(map_path), "map_png": str(png_path), "trace_json": str(trace_path)},
+            "warnings": [e["message"] for e in trace.events if e["kind"] in ("fallback", "degraded",
+                                                                             "random_weights", "not_in_map")],
+            "seconds": trace.to_dict()["wall_seconds"]}
+
+
+def render(r: dict[str, Any]) -> str:
+    lines = [f"map: {r['instances']} object(s) from {len(r['keyframes'])} key frames: "
+             + ", ".join(f"{k} x{v}" for k, v in sorted(r["counts"].items()))]
+    for w in r.get("warnings", []):
+        lines.append(f"  note: {w}")
+    for v in r["files"].values():
+        lines.append(f"  wrote {v}")
+    lines.append(f"  ask it: mosaic ask {r['files']['map_json']} \"How many chair(s) are in this room?\"")
+    lines.append(f"  ({r['seconds']:.1f} s)")
+    return "\n".join(lines)
