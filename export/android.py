@@ -4,7 +4,8 @@ Per role and per source variant (fp32, fp16, int8-qdq; fp16 is made from fp32 wh
 its parity allows), for every component graph:
 
 1. **fixed shapes** where the role allows (batch -> 1, image axes -> the role's preprocessing size, text ->
-   `text_len`, prompt points -> `max_points`, keypoints -> the role's top-K) with onnxruntime's own
+   `text_len`, SAM prompts/points -> `max_prompts`/`max_points`, keypoints -> the role's top-K; the VLM's
+   token and KV-cache axes stay dynamic) with onnxruntime's own
    `onnxruntime.tools.onnx_model_utils.make_dim_param_fixed` / `make_input_shape_fixed` (what
    `python -m onnxruntime.tools.make_dynamic_shape_fixed` runs). Axes no rule covers stay dynamic and the
    component is marked CPU/XNNPACK-only (NNAPI and QNN need static shapes).
@@ -12,8 +13,9 @@ its parity allows), for every component graph:
    optimisation styles: `Fixed` (`<component>.ort`, for CPU/XNNPACK) and `Runtime`
    (`<component>.with_runtime_opt.ort`, for NNAPI/QNN: leaves fusions to run time so the compiling EP sees the
    plain ops).
-3. **parity**: the .ort file (both styles) against its source .onnx on fresh random inputs (export/common.py
-   `parity_check`), and fp16 against fp32.
+3. **parity**: the .ort file (both styles; the Runtime style with its saved optimisations replayed) against
+   its source .onnx on fresh random inputs (`ort_parity`, ORT_PARITY_TOL), and a derived fp16 copy against
+   fp32 (export/common.py `parity_check`, PARITY_TOL["fp16"]).
 4. **mobile usability report** from onnxruntime's checker (`check_onnx_model_mobile_usability`: NNAPI and
    CoreML operator support and partition counts), text + JSON next to the artifacts, summarised in the
    manifest; more than `nnapi_max_partitions` NNAPI partitions is flagged (the "NNAPI slower than CPU" trap).
@@ -22,8 +24,10 @@ its parity allows), for every component graph:
 Bundle-wide: `android/required_operators.config` (union over every converted model and both styles: the
 input of a reduced-operator onnxruntime build, `--include_ops_by_config`) and the build line in the manifest.
 
-The VLM decoder (growing KV cache) gets a fixed-window variant when its graph allows it (see
-`kv_window_plan`); otherwise it is marked CPU/XNNPACK-only with the reason.
+The VLM decoder (growing KV cache) stays dynamic and CPU/XNNPACK-only; in addition it gets a fixed-window
+variant (`<c>_kvwindow_step`, `<c>_kvwindow_prefill`: static W-slot cache, KV_WINDOW_PROTOCOL) when
+`kv_window_check` shows that the protocol reproduces the dynamic decoder's logits; otherwise the reason is
+recorded (`kv_window_check` in the component's android entry).
 
 Manifest fields written (all under the RESERVED `android` keys of runtime/bundle.py)::
 
@@ -31,8 +35,9 @@ Manifest fields written (all under the RESERVED `android` keys of runtime/bundle
         <role>/android-ort-<p>/<c>.ort, format: "ort", ...}}, parity: {c: {...}}, android: {source_variant,
         components: {c: {fixed_shapes, dynamic_left, runtime_opt: {file, sha256}, usability: {file, sha256},
         usability_text: {file, sha256}, nnapi: {...}, coreml_mlprogram: {...}, flags: [...],
-        providers: [...]}}}}
-    roles.<role>.android = {variants: [...], skipped: {variant: reason}, providers: [...]}
+        providers: [...], provider_notes: [...], kv_window_check?: {...}, kv_window?: {...}}},
+        required_operators: {"domain;opset": [ops]}}}
+    roles.<role>.android = {variants: [...], skipped: {variant: reason}}
     android = {onnxruntime_version, required_operators: {file, sha256}, build_command, usability_summary: [...],
                not_checked: "...", phone_runs: "..."}
 """
@@ -718,7 +723,9 @@ def export_android(bundle_dir: str | Path, conf: AndroidConfig | None = None,
                         made["fp16"] = derived
                         log(f"android {role}: fp16 derived from fp32 (graph-level conversion, parity ok)")
             if "int8-qdq" in conf.precisions and "int8-qdq" not in made:
+                why_not = (rmeta.get("skipped_variants") or {}).get("int8-qdq")
                 skipped["int8-qdq"] = ("fp32 graph is already int8 QDQ (see android-ort-fp32)" if already_q else
+                                       f"the export did not ship int8-qdq: {why_not}" if why_not else
                                        "no int8-qdq variant in the bundle: run `mosaic export "
                                        f"{role} ... --precision int8 --calib FRAMES` first (QDQ needs calibration)")
             for v, comps in made.items():

@@ -192,7 +192,9 @@ def export_variants(out: str | Path, role: str, graphs: list[GraphSpec], meta: d
                 C.record_skipped_variant(out, role, variant, f"task check failed: {task}")
                 report["skipped"][variant] = f"task check failed: {task}"
                 continue
-            notes = ("components kept at fp32 because their parity failed: " + "; ".join(fell_back)) if fell_back else None
+            notes = None
+            if fell_back:
+                notes = "components kept at fp32 because their parity failed: " + "; ".join(fell_back)
             extra = {"task_check": task} if task else None
             C.add_variant_files(out, role, variant, files, meta=meta, precision=variant,
                                 target="accelerator" if variant == "int8-qdq" else "cpu", parity=parity,
@@ -388,7 +390,8 @@ def export_depth(source: str, out: str | Path, precisions: Sequence[str], *, siz
                   dynamic_shapes={"pixel_values": {0: B}},
                   calibration=_image_calibration(calibration_frames, pre, "pixel_values"))
     arch = "depth-anything-v2-metric-indoor" if metric else "depth-anything-v2"
-    sem = {"depth": "metric_m", "max_depth_m": float(model.config.max_depth)} if metric else {"depth": "relative_inverse"}
+    sem = ({"depth": "metric_m", "max_depth_m": float(model.config.max_depth)} if metric
+           else {"depth": "relative_inverse"})
     meta = C.role_meta(arch, preprocessing=pre, semantics=sem, provenance=prov, licence="Apache-2.0",
                        random_weights=prov["random_weights"],
                        config={"output": 0})

@@ -25,7 +25,7 @@ import numpy as np
 from mosaicthinker.runtime.errors import ExportError
 
 from . import common as C
-from .hf_depth import run_exporter, GraphSpec, export_variants, load_source
+from .hf_depth import GraphSpec, export_variants, load_source, run_exporter
 
 HF_DEFAULTS = {"superpoint-lightglue": "ETH-CVG/lightglue_superpoint", "efficientloftr": "zju-community/efficientloftr"}
 GRAY = (0.299, 0.587, 0.114)
@@ -232,8 +232,10 @@ def export_matcher(source: str, out: str | Path, precisions: Sequence[str], *, h
         GraphSpec("matcher", mat, tuple(torch.from_numpy(exm[n]) for n in names_m), names_m, ["matches0", "scores"],
                   match_inputs, quantize=False, parity_outputs=[], agreement=match_agreement, meta={"k": K}),
     ]
+    # SuperPoint's released weights are non-commercial (Magic Leap); LightGlue's are Apache-2.0
+    licence = "Apache-2.0" if prov["random_weights"] else "LicenseRef-MagicLeap-SuperPoint-NonCommercial AND Apache-2.0"
     meta = C.role_meta("superpoint_lightglue", preprocessing=pre, semantics={"contract": "extractor+matcher"},
-                       provenance=prov, licence="Apache-2.0", random_weights=prov["random_weights"],
+                       provenance=prov, licence=licence, random_weights=prov["random_weights"],
                        config={"k": K, "normalize_kpts": False, "keypoint_threshold": threshold, "min_score": 0.0})
     return export_variants(out, "matcher", graphs, meta, precisions)
 

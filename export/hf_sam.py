@@ -17,7 +17,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from . import common as C
-from .hf_depth import run_exporter, IMAGENET_MEAN, IMAGENET_STD, GraphSpec, export_variants, load_source
+from .hf_depth import IMAGENET_MEAN, IMAGENET_STD, GraphSpec, export_variants, load_source, run_exporter
 
 HF_DEFAULTS = {"sam": "facebook/sam-vit-base", "slimsam": "nielsr/slimsam-50-uniform"}
 
@@ -97,7 +97,8 @@ def export_segmenter(source: str, out: str | Path, precisions: Sequence[str], *,
         return {"image_embeddings": (emb_scale * rng.standard_normal((1, C_, hw, hw))).astype(np.float32),
                 "point_coords": (rng.random((p, n, 2)) * S).astype(np.float32), "point_labels": lab}
 
-    ex_dec = {"image_embeddings": (emb_scale * np.random.default_rng(4).standard_normal((1, C_, hw, hw))).astype(np.float32),
+    ex_emb = emb_scale * np.random.default_rng(4).standard_normal((1, C_, hw, hw))
+    ex_dec = {"image_embeddings": ex_emb.astype(np.float32),
               "point_coords": (np.random.default_rng(5).random((3, 2, 2)) * S).astype(np.float32),
               "point_labels": np.array([[1, 0], [2, 3], [1, -1]], np.float32)}
     pre = {"size": [S, S], "layout": "NCHW", "channel_order": "RGB", "dtype": "float32", "scale": 1.0,

@@ -21,7 +21,7 @@ import numpy as np
 from mosaicthinker.runtime.errors import ExportError
 
 from . import common as C
-from .hf_depth import run_exporter, GraphSpec, export_variants, load_source
+from .hf_depth import GraphSpec, export_variants, load_source, run_exporter
 
 HF_DEFAULTS = {"smolvlm": "HuggingFaceTB/SmolVLM-256M-Instruct", "internvl": "OpenGVLab/InternVL3-1B-hf"}
 
@@ -206,7 +206,8 @@ def token_check(model: Any, family: str, files: dict[str, Path], cfg: dict[str, 
             cache_ok &= nc == ort_ids
         runs.append(rec)
     frac = agree / max(total, 1)
-    return {"token_agreement": frac, "tokens": total, "kv_cache_consistent": cache_ok if reference_ids is None else None,
+    return {"token_agreement": frac, "tokens": total,
+            "kv_cache_consistent": cache_ok if reference_ids is None else None,
             "runs": runs}
 
 
@@ -220,8 +221,6 @@ def export_vlm(source: str, out: str | Path, precisions: Sequence[str], *, max_n
 
     family = _family_of(source)
     if source.startswith("tiny"):
-        from . import tiny
-
         model, prov = load_source(source, "vlm", None, tiny_kwargs={"vocab": TINY_VOCAB})
     else:
         model, prov = load_source(source, "vlm", AutoModelForImageTextToText)
@@ -251,7 +250,8 @@ def export_vlm(source: str, out: str | Path, precisions: Sequence[str], *, max_n
     cfg = {"family": family, **dims, "image_token_id": image_token_id, "image_seq_len": T, "image_size": S,
            "stop_tokens": TEMPLATES[family]["stop"], "max_new_tokens": 64,
            "pad_token_id": int(getattr(_text_model(model, family).config, "pad_token_id", None) or 0)}
-    L, KV, D, Hs, V = dims["num_layers"], dims["num_kv_heads"], dims["head_dim"], dims["hidden_size"], dims["vocab_size"]
+    L, KV, D = dims["num_layers"], dims["num_kv_heads"], dims["head_dim"]
+    Hs, V = dims["hidden_size"], dims["vocab_size"]
     Nd = torch.export.Dim("images", min=1, max=16)
     Sd = torch.export.Dim("seq", min=1, max=4096)
     Pd = torch.export.Dim("past", min=0, max=4096)

@@ -219,19 +219,21 @@ def qdq_info(onnx_path: str | Path) -> dict[str, Any]:
 
     TensorRT's Q/DQ layers are symmetric signed int8 (zero point 0). TFLite-converted graphs and onnxruntime's
     default static QDQ (QUInt8 activations) carry uint8 / non-zero zero points: NNAPI and QNN take those, but
-    TensorRT cannot fuse them, so onnxruntime leaves those nodes to CUDA/CPU. Returns {qdq, nodes,
-    zero_point_dtypes, nonzero_zero_points, trt_int8_compatible}."""
+    TensorRT cannot fuse them, so onnxruntime leaves those nodes to CUDA/CPU. Returns {qdq, nodes, weight_only
+    (DequantizeLinear only: int8 weights, float compute), zero_point_dtypes, nonzero_zero_points,
+    trt_int8_compatible}."""
     import onnx
     from onnx import numpy_helper
 
     m = onnx.load(str(onnx_path), load_external_data=False)
     init = {i.name: i for i in m.graph.initializer}
     consts = {n.output[0]: n for n in m.graph.node if n.op_type == "Constant"}
-    nodes, dtypes, nonzero = 0, set(), 0
+    nodes, dtypes, nonzero, quant = 0, set(), 0, 0
     for n in m.graph.node:
         if n.op_type not in ("QuantizeLinear", "DequantizeLinear"):
             continue
         nodes += 1
+        quant += n.op_type == "QuantizeLinear"
         if len(n.input) < 3 or not n.input[2]:
             dtypes.add("uint8")  # default zero-point type of QuantizeLinear without one
             continue
@@ -247,8 +249,8 @@ def qdq_info(onnx_path: str | Path) -> dict[str, Any]:
         dtypes.add(arr.dtype.name)
         nonzero += int(arr.size and (arr != 0).any())
     ok = nodes > 0 and dtypes <= {"int8"} and nonzero == 0
-    return {"qdq": nodes > 0, "nodes": nodes, "zero_point_dtypes": sorted(dtypes),
-            "nonzero_zero_points": nonzero, "trt_int8_compatible": ok}
+    return {"qdq": nodes > 0, "nodes": nodes, "weight_only": nodes > 0 and quant == 0,
+            "zero_point_dtypes": sorted(dtypes), "nonzero_zero_points": nonzero, "trt_int8_compatible": ok}
 
 
 def export_jetson(bundle_dir: str | Path, conf: JetsonConfig | None = None) -> dict[str, Any]:
@@ -290,7 +292,11 @@ def export_jetson(bundle_dir: str | Path, conf: JetsonConfig | None = None) -> d
                         f"TensorRT (CUDA/CPU). For Jetson re-quantise with int8 symmetric activations "
                         f"(onnxruntime quantize_static activation_type=QInt8, extra_options "
                         f"ActivationSymmetric=True) or use the fp16 engine of a float graph.")
-                if v == "fp32" and not q["qdq"]:
+                if q["weight_only"]:
+                    entry["warnings"].append(
+                        "weight-only int8 (DequantizeLinear on weights, float activations): TensorRT's handling "
+                        "depends on its version; if the int8 build fails or is slow, use the fp16 engine")
+                if v == "fp32" and (not q["qdq"] or q["weight_only"]):
                     # the usual Jetson choice: an fp16 engine built from the fp32 graph
                     fp16 = trt_provider_options(role, "fp32-trtfp16", c, "fp16", profile, conf)
                     entry["providers_fp16_engine"] = provider_chain(fp16)

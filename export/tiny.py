@@ -9,8 +9,6 @@ and the runtime warns whenever one is used. Nothing here is a stand-in for a tra
 """
 from __future__ import annotations
 
-import json
-from pathlib import Path
 from typing import Any, Callable
 
 import torch

@@ -37,7 +37,6 @@ import hashlib
 import json
 import math
 import os
-import re
 import sys
 import time
 from dataclasses import asdict, dataclass, field, fields
@@ -523,6 +522,8 @@ class PlanConf:
     vlm_max_new_tokens: int = 32
     use_vlm: bool = True               # False: the map reasoner answers (no VLM costs)
     safety_fraction: float = 0.0       # keep this share of the latency budget unplanned
+    video_pass: str = "question"       # question: decode + dedup run after the question (a clip is given);
+                                       # online: they run while the video is captured (not in the latency)
 
     @classmethod
     def merged(cls, overrides: Mapping[str, Any] | None = None, **kw: Any) -> "PlanConf":
@@ -537,6 +538,8 @@ class PlanConf:
                              f"{c.keyframes_max})")
         if not 0 < c.scored_fraction <= 1 or not 0 < c.dedup_keep_fraction <= 1:
             raise InputError("plan config: scored_fraction and dedup_keep_fraction must be in (0, 1]")
+        if c.video_pass not in ("question", "online"):
+            raise InputError(f"plan config: video_pass must be 'question' or 'online' (got {c.video_pass!r})")
         if not 0 <= c.safety_fraction < 1 or c.iterations < 1 or c.min_scored_per_keyframe < 1:
             raise InputError("plan config: need 0 <= safety_fraction < 1, iterations >= 1, "
                              "min_scored_per_keyframe >= 1")
@@ -621,7 +624,7 @@ class Plan:
             "schema": PLAN_SCHEMA, "profile": self.profile, "device": self.device,
             "bundle": self.bundle, "bundle_hash": self.bundle_hash,
             "video": {"duration_s": self.duration_s, "fps": self.fps, "frames": self.total_frames,
-                      "candidates": self.candidates},
+                      "candidates": self.candidates, "pass": self.conf.video_pass},
             "keyframes": k, "scored_frames": s, "iterations": self.iterations, "batch_size": self.batch_size,
             "scored_fraction": round(s / max(self.candidates, 1), 4), "limited_by": self.limited_by,
             "latency_budget_ms": self.latency_budget_ms, "planned_ms": round(self.total_ms, 1),
@@ -704,14 +707,23 @@ def plan(profile: Profile | str | os.PathLike, duration_s: float, fps: float, bu
 
     # (1) fixed costs
     loads = {r: cost(r, "load_ms") for r in MODEL_COSTS if used[r]}
-    video_ms = total_frames * (cost("video_decode", "ms_per_call") + cost("dedup", "ms_per_call"))
+    per_frame_ms = cost("video_decode", "ms_per_call") + cost("dedup", "ms_per_call")
+    video_ms = total_frames * per_frame_ms
+    online_factor = per_frame_ms * fps / 1000.0  # share of real time the online video pass needs
+    if c.video_pass == "online":
+        video_ms = 0.0
+        if online_factor > 1:
+            notes.append(f"online video pass: decode + dedup take {_fmt(per_frame_ms)} ms per frame, more than the "
+                         f"{_fmt(1000 / fps)} ms between frames at {fps:g} fps: it cannot keep up with capture "
+                         f"(x{online_factor:.2f} real time)")
     vlm_fixed = c.vlm_images * cost("vlm", "ms_per_image") + c.vlm_max_new_tokens * cost("vlm", "ms_per_token")
     fixed = {"model_loads": sum(loads.values()), "video_pass": video_ms,
              "grounding": cost("grounding", "ms_per_call"), "vlm_answer": vlm_fixed}
-    # (2) search, per scored frame
-    c_s = cost("detector", "ms_per_call")
+    # (2) search, per scored frame: fetching the frame (one decode) + the detector
+    c_s = cost("detector", "ms_per_call") + cost("video_decode", "ms_per_call")
     # (3) per key frame
-    per_kf = {"segmenter": cost("segmenter", "ms_per_call") + c.prompts_per_keyframe * cost("segmenter", "ms_per_prompt"),
+    per_kf = {"decode": cost("video_decode", "ms_per_call"),  # key frames are fetched again for perception
+              "segmenter": cost("segmenter", "ms_per_call") + c.prompts_per_keyframe * cost("segmenter", "ms_per_prompt"),
               "depth": cost("depth", "ms_per_call"), "embedder": cost("embedder", "ms_per_call"),
               "features": cost("matcher", "ms_per_call"),
               "matching": c.pairs_per_keyframe * cost("matcher", "ms_per_pair"),
@@ -775,8 +787,10 @@ def plan(profile: Profile | str | os.PathLike, duration_s: float, fps: float, bu
         if over_m > 0:
             parts.append(f"memory budget {_fmt(M)} MB fails by {_fmt(over_m)} MB: runtime {_fmt(base_mb)} + models "
                          f"{_fmt(models_mb)} ({policy}) + {k} key frames x {_fmt(kf_mb)} MB")
+        hint = (" (or plan with --online: decode + dedup while the video is captured)"
+                if c.video_pass == "question" and video_ms > L / 2 else "")
         raise BudgetError(f"profile {prof.name}: nothing fits even at K = {k} key frames: " + "; ".join(parts)
-                          + ". Raise the budget, use a shorter clip or a cheaper bundle variant.")
+                          + ". Raise the budget, use a shorter clip or a cheaper bundle variant" + hint + ".")
     K = chosen
     if K == c.keyframes_max:
         why = f"keyframes_max ({c.keyframes_max})"
@@ -801,8 +815,8 @@ def plan(profile: Profile | str | os.PathLike, duration_s: float, fps: float, bu
         "frames": StageBudget("frames", fixed_ms=video_ms),
         "grounding": StageBudget("grounding", fixed_ms=fixed["grounding"]),
         "keyframes": StageBudget("keyframes", per_scored_ms=c_s),
-        "perception": StageBudget("perception", per_keyframe_ms=per_kf["segmenter"] + per_kf["depth"]
-                                  + per_kf["embedder"] + per_kf["features"]),
+        "perception": StageBudget("perception", per_keyframe_ms=per_kf["decode"] + per_kf["segmenter"]
+                                  + per_kf["depth"] + per_kf["embedder"] + per_kf["features"]),
         "alignment": StageBudget("alignment", per_keyframe_ms=per_kf["matching"] + per_kf["geometry"]),
         "answer": StageBudget("answer", fixed_ms=vlm_fixed, per_keyframe_ms=per_kf["vlm_images"]),
     }
@@ -848,7 +862,9 @@ def plan(profile: Profile | str | os.PathLike, duration_s: float, fps: float, bu
     arith.append("fixed = loads " + " + ".join(f"{r} {_fmt(v)}" for r, v in loads.items()) + f" = {_fmt(fixed['model_loads'])} ms"
                  if loads else "fixed = no model loads")
     arith.append(f"      + video pass {total_frames} frames x ({_fmt(cost('video_decode', 'ms_per_call'))} decode + "
-                 f"{_fmt(cost('dedup', 'ms_per_call'))} dedup) ms = {_fmt(video_ms)} ms")
+                 f"{_fmt(cost('dedup', 'ms_per_call'))} dedup) ms = {_fmt(video_ms)} ms" if c.video_pass == "question"
+                 else f"      + video pass 0 ms (online, during capture: {_fmt(per_frame_ms)} ms per frame = "
+                      f"x{online_factor:.2f} real time)")
     arith.append(f"      + grounding {_fmt(fixed['grounding'])} ms")
     arith.append(f"      + VLM {c.vlm_images} image x {_fmt(cost('vlm', 'ms_per_image'))} ms + "
                  f"{c.vlm_max_new_tokens} tokens x {_fmt(cost('vlm', 'ms_per_token'))} ms = {_fmt(vlm_fixed)} ms"
@@ -858,7 +874,7 @@ def plan(profile: Profile | str | os.PathLike, duration_s: float, fps: float, bu
                  + f" = {_fmt(c_k)} ms   (segmenter incl. {c.prompts_per_keyframe:g} prompts, matching "
                    f"{c.pairs_per_keyframe:g} pairs)")
     arith.append(f"K = largest k <= min(keyframes_max {c.keyframes_max}, candidates {n_c}) with "
-                 f"fixed + {c.min_scored_per_keyframe}k x {_fmt(c_s)} + k x {_fmt(c_k)} <= {_fmt(L)} ms and "
+                 f"fixed + {c.min_scored_per_keyframe}k x {_fmt(c_s)} (decode + detector) + k x {_fmt(c_k)} <= {_fmt(L)} ms and "
                  f"{_fmt(base_mb)} + {_fmt(models_mb)} + k x {_fmt(kf_mb)} <= {_fmt(M)} MB  ->  K = {K} "
                  f"(limited by {why})")
     arith.append(f"search S = min(target {s_target(K)}, floor(({_fmt(L)} - {_fmt(F)} - {K} x {_fmt(c_k)}) / "
@@ -1159,10 +1175,9 @@ class BudgetController:
         per = self.plan.keyframe_mb
         if per > 0:
             room = held + int(max(0.0, self.headroom_mb()) // per)
-            if room < allowed:
-                if room < allowed:
-                    self.release_idle(need_mb=(allowed - held) * per)
-                    room = held + int(max(0.0, self.headroom_mb()) // per)
+            if room < allowed:  # try releasing idle sessions before lowering K
+                self.release_idle(need_mb=(allowed - held) * per)
+                room = held + int(max(0.0, self.headroom_mb()) // per)
                 allowed = min(allowed, room)
         if allowed < k:
             msg = (f"key frames {k} -> {allowed} (plan K {self.keyframes}, headroom {self.headroom_mb():.0f} MB at "
@@ -1196,6 +1211,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--candidates", type=int, help="frames kept by redundant-frame removal, if known "
                                                        "(default: an estimate)")
     parser.add_argument("--keyframes-max", type=int, help="upper bound for K (default 32)")
+    parser.add_argument("--online", action="store_true",
+                        help="decode + dedup run while the video is captured: not in the per-question latency")
     parser.add_argument("--answerer", choices=["vlm", "map"], default="vlm",
                         help="vlm: plan the VLM's costs when the profile and bundle have one; map: the map reasoner")
 
@@ -1226,7 +1243,8 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         raise InputError("mosaic plan needs --profile (a file, or a name from profiles/: "
                          + ", ".join(p.stem for p in list_profiles()) + ")")
     duration, fps = _clip_from_args(args)
-    conf = PlanConf.merged(keyframes_max=args.keyframes_max, use_vlm=args.answerer == "vlm")
+    conf = PlanConf.merged(keyframes_max=args.keyframes_max, use_vlm=args.answerer == "vlm",
+                           video_pass="online" if args.online else "question")
     p = plan(args.profile, duration, fps, bundle=args.bundle, conf=conf, candidates=args.candidates)
     return p.to_dict()
 
@@ -1236,6 +1254,7 @@ def render(result: dict[str, Any]) -> str:
     v = r["video"]
     lines = [f"plan for {r['profile']} ({r['device']})",
              f"clip {v['duration_s']:g} s at {v['fps']:g} fps = {v['frames']} frames, {v['candidates']} candidates"
+             + (" (video pass online, during capture)" if v.get("pass") == "online" else "")
              + (f"; bundle {r['bundle']} ({r['bundle_hash']})" if r.get("bundle") else ""), "",
              f"  key frames K      {r['keyframes']:>8}   (limited by {r['limited_by']})",
              f"  scored frames S   {r['scored_frames']:>8}   ({100 * r['scored_fraction']:.1f}% of candidates, "

@@ -393,9 +393,9 @@ def iterative_search(candidates: Sequence[int], targets: Sequence[str], cues: Se
             pos_scores[pos] = s
             order.append(int(c[pos]))
             scored[pos] = True
-            sim = hist.neighbour_similarity(pos) if hist is not None else 0.0
             amp = conf.gain * s / max_score if max_score > 0 else 0.0
-            if amp > 0:
+            if amp > 0:  # a zero-score frame adds nothing: no histograms needed for it
+                sim = hist.neighbour_similarity(pos) if hist is not None else 0.0
                 w = update_distribution(w, pos, amp, sigma_from_similarity(sim, conf))
         # threshold every scored frame against all scores seen so far; a pass is kept
         ps = np.array(list(pos_scores), dtype=np.int64)

@@ -52,7 +52,7 @@ class PipelineConfig:
     keyframe: dict[str, Any] = field(default_factory=dict)
     # fewer inliers than alignment's default 20 are accepted because every tree edge is then checked against
     # the two depth maps (`verify_depth`), which catches the wrong ones a low inlier count lets through
-    alignment: dict[str, Any] = field(default_factory=lambda: {"min_inliers": 12})
+    alignment: dict[str, Any] = field(default_factory=lambda: {"min_inliers": 12, "iterations": 1000})
     match: dict[str, Any] = field(default_factory=lambda: {"sift_contrast_threshold": 0.02})  # OpenCV matchers
     fusion: dict[str, Any] = field(default_factory=dict)
 
@@ -272,7 +272,33 @@ def verify_tree(al: Any, frames: dict[int, Frame], conf: PipelineConfig, trace: 
                 rejected=[list(e) for e in bad], unaligned=lost)
     al.poses = poses
     al.unaligned = sorted(set(al.unaligned) | set(lost))
+    al.rejected_edges = bad  # type: ignore[attr-defined]  (the bridge round must not use them again)
     return al
+
+
+class _BlockPairs:
+    """Matcher wrapper that returns no matches for the given frame pairs (edges the depth check rejected), so a
+    new alignment round cannot choose them again; everything else goes to the wrapped matcher."""
+
+    def __init__(self, matcher: Any, pairs: Sequence[tuple[int, int]]):
+        self.m = matcher
+        self.pairs = {frozenset(p) for p in pairs}
+
+    def match_keys(self, k0: Any, rgb0: np.ndarray, k1: Any, rgb1: np.ndarray, boxes0: Any = None,
+                   boxes1: Any = None) -> Any:
+        from .matching import Matches
+
+        if frozenset((k0, k1)) in self.pairs:
+            return Matches.empty()
+        if hasattr(self.m, "match_keys"):
+            return self.m.match_keys(k0, rgb0, k1, rgb1, boxes0, boxes1)
+        return self.m.match(rgb0, rgb1, boxes0, boxes1)
+
+    def match(self, rgb0: np.ndarray, rgb1: np.ndarray, boxes0: Any = None, boxes1: Any = None) -> Any:
+        return self.m.match(rgb0, rgb1, boxes0, boxes1)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.m, name)
 
 
 def _bridge(al: Any, frames: list[Frame], boxes: dict[int, Any], cands: list[int], source: FrameSource,
@@ -388,10 +414,15 @@ def build_map(source: FrameSource, targets: Sequence[str], cues: Sequence[str] =
     names = list(dict.fromkeys(list(targets) + list(cues)))
     if not names:
         raise InputError("build_map: no object names to look for")
-    K = int(keyframes or conf.keyframes)
+    K = int(keyframes or getattr(budget, "keyframes", None) or conf.keyframes)
     if budget is not None:
         K = int(budget.allow_keyframes(K))
+        if getattr(budget, "scored_frames", None) and "budget" not in conf.keyframe:
+            conf = dataclasses.replace(conf, keyframe={**conf.keyframe, "budget": int(budget.scored_frames)})
+        trace.decide("budget.keyframes", K)
     chosen, det, _, cands_all = select(source, targets, cues, perception, conf, trace, keyframes=K)
+    if budget is not None and hasattr(budget, "update_candidates"):
+        budget.update_candidates(len(cands_all))
 
     # perception per key frame
     frames: list[Frame] = []
@@ -441,7 +472,8 @@ def build_map(source: FrameSource, targets: Sequence[str], cues: Sequence[str] =
         with trace.stage("alignment.verify"):
             al = verify_tree(al, {f.index: f for f in frames}, conf, trace)
     if al.unaligned and conf.bridge_frames > 0:
-        al, bridges = _bridge(al, frames, boxes, cands_all, source, matcher, perception, conf, trace)
+        blocked = _BlockPairs(matcher, getattr(al, "rejected_edges", []))  # never re-use a rejected edge
+        al, bridges = _bridge(al, frames, boxes, cands_all, source, blocked, perception, conf, trace)
         if check and bridges:
             with trace.stage("alignment.verify"):
                 al = verify_tree(al, {f.index: f for f in frames + bridges}, conf, trace)
@@ -783,6 +815,14 @@ def ask(source: Any, question: str, options: list[str] | None = None, *, percept
     with trace.stage("grounding"):
         pq = ground(question, options, vlm, frames_for_grounding, trace)
     build = None
+    if budget is None and profile is not None and not isinstance(src, SemanticMap):
+        from .budget import BudgetController, plan
+
+        ts = np.asarray(src.timestamps, float)
+        dur = float(ts[-1] - ts[0]) if len(ts) > 1 else 1.0
+        fps = (len(ts) - 1) / dur if dur > 0 else 30.0
+        budget = BudgetController(plan(profile, max(dur, 1e-3), fps, bundle), trace)
+        trace.decide("budget.plan", {"keyframes": budget.keyframes, "scored_frames": budget.scored_frames})
     if isinstance(src, SemanticMap):
         smap = src
         trace.decide("map", {"source": "saved map", "instances": len(smap.instances)})

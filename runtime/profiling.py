@@ -267,17 +267,22 @@ def _question_worker(job: dict[str, Any]) -> dict[str, Any]:
     """One full question through `pipeline.ask` in THIS process: wall time, per-stage times, peak RSS."""
     from .pipeline import ask
 
+    import resource
+
     reset_peak_rss()
     base = rss_mb()
     trace = Trace()
     prof = load_profile(job["profile"]) if job.get("profile") else None
+    ru0 = resource.getrusage(resource.RUSAGE_SELF)
     t0 = time.perf_counter()
     res = ask(job["video"], job["question"], bundle=job["bundle"], profile=prof, trace=trace,
               conf={"depth": "model", "matcher": "model"}, keyframes=job.get("keyframes"))
     wall = time.perf_counter() - t0
+    ru1 = resource.getrusage(resource.RUSAGE_SELF)
+    cpu = (ru1.ru_utime - ru0.ru_utime) + (ru1.ru_stime - ru0.ru_stime)
     td = trace.to_dict()
     kf = td["decisions"].get("keyframes", {})
-    return {"question": job["question"], "answer": res.answer.text, "wall_s": round(wall, 3),
+    return {"question": job["question"], "answer": res.answer.text, "wall_s": round(wall, 3), "cpu_s": round(cpu, 3),
             "stages": td["stages"], "frames_scored": kf.get("frames_scored"), "candidates": kf.get("candidates"),
             "keyframes": len(res.build.keyframes) if res.build is not None else None,
             "frames": (td["decisions"].get("dedup") or {}).get("frames"),
@@ -608,7 +613,8 @@ def render(report: dict[str, Any]) -> str:
     if pl and "error" in pl:
         lines += ["", f"One full question ({pl.get('question')!r}): error: {pl['error']}"]
     elif pl:
-        lines += ["", f"One full question: {pl['question']!r} -> {pl['answer']!r}: {pl['wall_s']} s wall, "
+        lines += ["", f"One full question: {pl['question']!r} -> {pl['answer']!r}: {pl['wall_s']} s wall "
+                      f"({pl.get('cpu_s')} s CPU), "
                       f"{pl['frames']} frames, {pl['frames_scored']} scored of {pl['candidates']} candidates, "
                       f"{pl['keyframes']} key frames, peak RSS {pl['peak_rss_mb']} MB", "",
                   "| stage | seconds | calls | peak RSS MB |", "|---|---:|---:|---:|"]
@@ -637,7 +643,8 @@ def _font(size: int):
 
 
 def bar_chart(path: str | os.PathLike, title: str, labels: list[str], values: list[float],
-              whiskers: list[float] | None = None, unit: str = "ms", marks: list[bool] | None = None) -> Path:
+              whiskers: list[float] | None = None, unit: str = "ms", marks: list[bool] | None = None,
+              legend: str = "bars: p50, whisker: p90") -> Path:
     """Horizontal bar chart PNG (Pillow): one bar per label, optional p90 whisker, '*' marks random weights."""
     from PIL import Image, ImageDraw
 
@@ -665,7 +672,7 @@ def bar_chart(path: str | os.PathLike, title: str, labels: list[str], values: li
             d.line([x, y + 7, x, y + row - 9], fill="black", width=1)
         d.text((left + max(1, int(max(v, whiskers[i] if whiskers else v) * scale)) + 6, y + 4),
                f"{v:.1f} {unit}", fill="black", font=fs)
-    foot = "bars: p50, whisker: p90" if whiskers else ""
+    foot = legend if whiskers else ""
     if marks and any(marks):
         foot += ("; " if foot else "") + "* random weights (timings real, outputs not)"
     d.text((10, H - 24), foot, fill=(90, 90, 90), font=f)
@@ -694,9 +701,9 @@ def write_report(report: dict[str, Any], out: str | os.PathLike) -> dict[str, st
     bar_chart(out / "latency.png", f"latency per model / stage (bundle {report['bundle_hash']})",
               [r["name"] for r in lat_rows], [r.get("p50", nan) for r in lat_rows],
               [r.get("p90", nan) for r in lat_rows], "ms", [r["random"] for r in lat_rows])
-    bar_chart(out / "memory.png", "resident memory increase after load + runs (peak in brackets in report)",
+    bar_chart(out / "memory.png", f"resident memory per model (bundle {report['bundle_hash']})",
               [r["name"] for r in rows], [r.get("mem", nan) for r in rows], [r.get("peak", nan) for r in rows],
-              "MB", [r["random"] for r in rows])
+              "MB", [r["random"] for r in rows], legend="bars: RSS increase after load + runs, whisker: peak increase")
     return {k: str(out / k) for k in ("report.json", "report.md", "latency.png", "memory.png")}
 
 

@@ -225,7 +225,7 @@ class FusionConfig:
     merge_centre_m: float = 0.6   # or the centres are this close relative to the instance's size (see below)
     outlier_mad: float = 6.0      # radial outlier removal: keep points within median + k * MAD of the centre
     outlier_radius_m: float = 0.1  # density outlier removal: >= outlier_neighbors other points within this
-    outlier_neighbors: int = 3
+    outlier_neighbors: int = 2
     merge_footprint: bool = True  # after fusion, merge same-name instances whose floor footprints overlap
     min_instance_points: int = 40
     seed: int = 0

@@ -6,6 +6,7 @@ import json
 import os
 import shutil
 import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -62,12 +63,12 @@ def real_bundle(shared_models, redkitchen, tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def tiny_bundle(tmp_path_factory):
-    """Tiny random-weight SAM (encoder + prompt decoder with dynamic prompts/points axes)."""
-    from mosaicthinker.export.hf_sam import export_segmenter
+    """Tiny random-weight CLIP vision tower (the embedder's real architecture, dynamic batch axis)."""
+    from mosaicthinker.export.hf_clip import export_embedder
 
     out = tmp_path_factory.mktemp("android_tiny") / "bundle"
-    export_segmenter("tiny", out, ["fp32"])
-    summary = A.export_android(out, A.AndroidConfig(make_fp16=False))
+    export_embedder("tiny", out, ["fp32"])
+    summary = A.export_android(out, A.AndroidConfig())
     return out, summary
 
 
@@ -193,19 +194,18 @@ def test_usability_reports(real_bundle):
     assert by[("detector", "android-ort-fp32")]["nnapi_partitions"] >= 2
 
 
-def test_tiny_sam_fixed_shapes_and_parity(tiny_bundle, tmp_path):
+def test_tiny_clip_fixed_shapes_and_parity(tiny_bundle, tmp_path):
     root, summary = tiny_bundle
     B.load_bundle(root, verify=True)
     m = json.loads((root / "manifest.json").read_text())
-    vm = m["roles"]["segmenter"]["variants"]["android-ort-fp32"]
-    dec = vm["android"]["components"]["decoder"]
-    conf = A.AndroidConfig()
-    assert dec["fixed_shapes"]["point_coords"] == [conf.max_prompts, conf.max_points, 2]
-    assert dec["fixed_shapes"]["point_labels"] == [conf.max_prompts, conf.max_points]
-    assert vm["android"]["components"]["encoder"]["fixed_shapes"]["pixel_values"][0] == 1
-    assert not dec["dynamic_left"]
+    rm = m["roles"]["embedder"]
+    assert rm["variants"]["fp32"]["components"]["model"]["inputs"][0]["dynamic_axes"]  # batch is dynamic in the export
+    size = rm["preprocessing"]["size"]
+    for v in ("android-ort-fp32", "android-ort-fp16"):  # fp16 derived from fp32 (parity-checked)
+        info = rm["variants"][v]["android"]["components"]["model"]
+        assert info["fixed_shapes"]["pixel_values"] == [1, 3, *size] and not info["dynamic_left"]
     assert _check_parity(root, tmp_path) == 2
-    assert m["roles"]["segmenter"]["random_weights"] is True
+    assert rm["random_weights"] is True
 
 
 def test_fixed_shape_plan_rules():
@@ -217,11 +217,14 @@ def test_fixed_shape_plan_rules():
               {"name": "keypoints", "shape": [1, 0, 2], "dtype": "float32", "dynamic_axes": {"1": "num_keypoints"}},
               {"name": "past_key_values.0.key", "shape": [1, 2, 0, 8], "dtype": "float32",
                "dynamic_axes": {"2": "past_sequence_length"}},
+              {"name": "point_coords", "shape": [0, 0, 2], "dtype": "float32",
+               "dynamic_axes": {"0": "prompts", "1": "points"}},
               {"name": "weird", "shape": [1, 0], "dtype": "float32", "dynamic_axes": {"1": "zzz"}}]
     shapes, left = A.fixed_shape_plan(inputs, role, "model", A.AndroidConfig(text_len=12))
     assert shapes["image"] == [1, 48, 64, 3]
     assert shapes["input_ids"] == [1, 12]
     assert shapes["keypoints"] == [1, 256, 2]
+    assert shapes["point_coords"] == [4, 4, 2]  # SAM prompts x points (pad with label -1)
     assert "past_key_values.0.key" not in shapes and "KV-cache" in left["past_key_values.0.key[2]"]
     assert "--fix zzz=VALUE" in left["weird[1]"]
     shapes, left = A.fixed_shape_plan(inputs[-1:], role, "model", A.AndroidConfig(overrides={"zzz": 5}))
@@ -257,7 +260,8 @@ def test_script_syntax(script):
 
 
 def _run(args, **kw):
-    env = {**os.environ, "PATH": os.environ.get("PATH", "") + os.pathsep + str(Path(os.sys.executable).parent)}
+    env = {**os.environ, "PYTHON": sys.executable,
+           "PATH": os.environ.get("PATH", "") + os.pathsep + str(Path(sys.executable).parent)}
     return subprocess.run(["bash", *map(str, args)], capture_output=True, text=True, env=env, **kw)
 
 

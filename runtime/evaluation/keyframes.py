@@ -187,8 +187,11 @@ def _image_reader(scene_dir: Path) -> Callable[[int], np.ndarray]:
     return image
 
 
-def _detector(scene_dir: Path, args: argparse.Namespace, image: Callable[[int], np.ndarray]
-              ) -> tuple[Callable[[int, list[str]], Detections], str]:
+def _detector(scene_dir: Path, args: argparse.Namespace, image: Callable[[int], np.ndarray],
+              vocabulary: list[str]) -> tuple[Callable[[int, list[str]], Detections], str]:
+    """detect(frame, names). The model runs once per frame on the scene's whole question `vocabulary` and each
+    call takes the names it asks for (a closed-set detector's answer for one name does not depend on the
+    others), so the exhaustive baseline costs one network run per candidate, not one per question."""
     if args.detector == "oracle":
         from ..synth.oracle import OracleDetector
 
@@ -199,7 +202,17 @@ def _detector(scene_dir: Path, args: argparse.Namespace, image: Callable[[int], 
     from ..stages import load_role
 
     model = load_role(args.bundle, "detector")
-    return (lambda f, names: model.detect(image(f), names)), f"bundle detector ({args.bundle})"
+    per_frame: dict[int, Detections] = {}
+
+    def detect(f: int, names: list[str]) -> Detections:
+        if f not in per_frame:
+            per_frame[f] = model.detect(image(f), vocabulary)
+        d = per_frame[f]
+        out = d.select(np.array([n in names for n in d.names], dtype=bool))
+        out.undetectable = [n for n in d.undetectable if n in names]
+        return out
+
+    return detect, f"bundle detector ({args.bundle}: {getattr(model, 'name', 'detector')})"
 
 
 class _Memo:
@@ -226,10 +239,11 @@ def evaluate_scene(scene_dir: Path, level: str, args: argparse.Namespace,
     vis = visibility_table(meta)
     cands, how = _candidates(scene_dir, not args.no_dedup)
     image = _image_reader(scene_dir)
-    det_fn, det_desc = _detector(scene_dir, args, image)
     names_by_id = {int(o["id"]): str(o["name"]) for o in meta["instances"]}
     qpath = scene_dir / "questions.jsonl"
     questions = [json.loads(line) for line in qpath.read_text().splitlines() if line.strip()]
+    vocab = sorted({n for q in questions for n in parse_question(q["question"], q.get("options")).objects})
+    det_fn, det_desc = _detector(scene_dir, args, image, vocab)
     histograms: dict[int, np.ndarray] = {}
     records: list[dict[str, Any]] = []
     skipped: dict[str, int] = {}

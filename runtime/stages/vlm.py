@@ -18,7 +18,7 @@ Tokenizer: `tokenizer.json` from the bundle, through the `tokenizers` library (n
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Callable, Sequence
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -188,5 +188,3 @@ class OrtRunner:
     def run(self, feeds: dict[str, np.ndarray], outputs: Sequence[str] | None = None) -> list[np.ndarray]:
         return self.sess.run(outputs, feeds)
 
-
-GenerateFn = Callable[[Sequence[np.ndarray], str], str]

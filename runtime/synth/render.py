@@ -506,12 +506,10 @@ class Renderer:
         bt = np.einsum("ij,ij->i", f.e2 * ds, t - f.origin) + f.offset[:, 1]
         Nc = f.normal @ R  # camera-frame normals
         lc = (self.light - t) @ R  # light in the camera frame
-        ldc = self.light_dir @ R
         direc = np.maximum(f.normal @ self.light_dir, 0)
         tab = np.concatenate([As, bs[:, None], At, bt[:, None], Nc, (f.density / self.K[0, 0])[:, None],
                               (50.0 / f.density)[:, None], (97.0 * f.inst)[:, None], direc[:, None],
                               f.pattern[:, None].astype(np.float64), f.color], 1).astype(np.float32)
-        del ldc
         g = np.take(tab, fid, axis=0)  # [N, 19]
         Pc = self._rays * z[:, None]
         s = np.einsum("ij,ij->i", Pc, g[:, 0:3]) + g[:, 3]

@@ -450,7 +450,7 @@ class _Layout:
         self.gap = gap
         self.items: list[tuple[np.ndarray, float, float]] = []  # footprint, z0, z1
 
-    def fits(self, o: SynthObject, keepout: np.ndarray | None = None) -> bool:
+    def fits(self, o: SynthObject) -> bool:
         fp = o.footprint()
         x, y = self.room.Lx / 2 - 0.005, self.room.Ly / 2 - 0.005
         if np.any(np.abs(fp[:, 0]) > x) or np.any(np.abs(fp[:, 1]) > y):
@@ -462,7 +462,7 @@ class _Layout:
                 return False
         return True
 
-    def add(self, o: SynthObject, extra: np.ndarray | None = None, z=(None, None)) -> None:
+    def add(self, o: SynthObject, extra: np.ndarray | None = None) -> None:
         self.items.append((o.footprint(self.gap / 2), o.pos[2], o.pos[2] + o.size[2]))
         if extra is not None:  # keep-out zone (e.g. in front of a door), full height
             self.items.append((extra, 0.0, 10.0))

@@ -137,7 +137,12 @@ def sample_dims(cat_stats: dict[str, Any], rng: np.random.Generator) -> np.ndarr
     lo, hi = np.asarray(cat_stats["dims_min"]), np.asarray(cat_stats["dims_max"])
     d = np.exp(mu)
     for _ in range(50):
-        d = np.exp(rng.multivariate_normal(mu, cov, method="cholesky")) if np.any(cov) else np.exp(mu)
+        if not np.any(cov):
+            break
+        try:
+            d = np.exp(rng.multivariate_normal(mu, cov, method="cholesky"))
+        except np.linalg.LinAlgError:  # singular fit (few instances): eigen-decomposition copes
+            d = np.exp(rng.multivariate_normal(mu, cov, method="eigh"))
         if np.all(d >= lo) and np.all(d <= hi):
             break
     d = np.clip(d, lo, hi)

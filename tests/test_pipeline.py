@@ -1,0 +1,147 @@
+"""The pipeline end to end on a generated scene with oracle perception: instance recall and centre error through
+the camera track, map save/load round trip, asking a saved map, the tree's depth check on real 7-Scenes frames,
+bundle perception errors and the lazy Python API."""
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+SCENE = dict(seed=4, objects="low", room="medium", duration=10.0, fps=6.0, width=400, height=300)
+
+
+def synthetic_scene(factory) -> Path:
+    """One small generated scene per test session (shared by test_pipeline and test_commands)."""
+    from mosaicthinker.runtime.synth.generate import write_scene
+    from mosaicthinker.runtime.synth.scene import SceneConfig
+
+    d = factory.getbasetemp() / "mosaic_scene_seed4"
+    if not (d / "questions.jsonl").is_file():
+        write_scene(SceneConfig(**SCENE), d, video=False)
+    return d
+
+
+@pytest.fixture(scope="module")
+def scene(tmp_path_factory) -> Path:
+    return synthetic_scene(tmp_path_factory)
+
+
+@pytest.fixture(scope="module")
+def built(scene):
+    from mosaicthinker.runtime import Trace, build_map, open_source
+    from mosaicthinker.runtime.evaluation.oracle_perception import oracle_perception
+    from mosaicthinker.runtime.synth.generate import load_scene
+
+    meta = load_scene(scene)
+    names = sorted(meta["object_counts"])
+    trace = Trace()
+    src = open_source(scene)
+    mb = build_map(src, names, [], oracle_perception(scene), {"keyframes": 10}, trace)
+    return mb, trace, src, meta, names
+
+
+def test_built_map_recall_and_centre_error_through_the_camera_track(built):
+    from mosaicthinker.runtime.evaluation.e2e import map_quality
+
+    mb, trace, src, meta, names = built
+    q = map_quality(mb.map, {i: mb.poses_world[i] for i in mb.keyframes if i in mb.poses_world}, src, meta, names)
+    assert q["track_err_median_m"] < 0.05
+    assert q["recall"] >= 0.75 and q["centre_err_median_m"] <= 0.15, q
+    assert q["unmatched_built"] <= 1, q
+    d = trace.to_dict()
+    for stage in ("dedup", "keyframes", "detect", "alignment", "gravity", "fusion"):
+        assert stage in d["stages"]
+    assert d["decisions"]["gravity"]["method"] == "source"
+    assert d["decisions"]["instances"]["count"] == len(mb.map.instances)
+    # z-up world with the floor at 0: boxes stand on it
+    assert all(o.box.aabb()[0][2] > -0.1 for o in mb.map.instances)
+    assert all(o.first_seen is not None and o.frames for o in mb.map.instances)
+
+
+def test_map_save_load_round_trip_and_ask_the_saved_map(built, tmp_path):
+    from mosaicthinker.runtime import SemanticMap, ask
+
+    mb = built[0]
+    p = tmp_path / "map.json"
+    mb.map.save(p)
+    m2 = SemanticMap.load(p)
+    assert [o.name for o in m2.instances] == [o.name for o in mb.map.instances]
+    for a, b in zip(m2.instances, mb.map.instances):
+        assert np.allclose(a.box.corners(), b.box.corners()) and a.first_seen == b.first_seen
+        assert a.frames == b.frames
+    assert len(m2.cameras) == len(mb.map.cameras) and np.allclose(m2.cameras[0][1], mb.map.cameras[0][1])
+    assert m2.room_area() == pytest.approx(mb.map.room_area())
+    name = mb.map.instances[0].name
+    res = ask(p, f"How many {name}(s) are in this room?")
+    assert res.answer.text == str(len(mb.map.by_name(name))) and res.build is None
+    res = ask(m2, "How many bed(s) are in this room?")
+    assert res.answer.status == "not_found" and res.answer.missing == ["bed"]
+
+
+def test_ask_answers_a_generated_question_from_the_video(scene):
+    import json
+
+    from mosaicthinker.runtime import ask
+    from mosaicthinker.runtime.evaluation.oracle_perception import oracle_perception
+    from mosaicthinker.runtime.evaluation.vsibench import score_answer
+
+    qs = [json.loads(l) for l in (scene / "questions.jsonl").read_text().splitlines()]
+    q = next(q for q in qs if q["question_type"] == "object_size_estimation")
+    res = ask(scene, q["question"], q.get("options"), perception=oracle_perception(scene),
+              conf={"keyframes": 8})
+    assert res.answer.ok and score_answer(q["question_type"], res.answer.text, q["ground_truth"]) >= 0.8
+    assert res.prompt is not None and res.prompt.image is not None
+    d = res.to_dict()
+    assert d["grounding"]["targets"] and d["keyframes"]
+
+
+def test_depth_check_detaches_a_wrong_pose_on_7scenes(redkitchen):
+    from mosaicthinker.runtime.alignment import AlignmentResult
+    from mosaicthinker.runtime.frames import open_source
+    from mosaicthinker.runtime.geometry import invert
+    from mosaicthinker.runtime.pipeline import PipelineConfig, depth_consistency, verify_tree
+    from mosaicthinker.runtime.trace import Trace
+
+    src = open_source(redkitchen)
+    fr = {i: src[i] for i in (0, 5, 10)}
+    T0 = fr[0].pose_gt
+    poses = {i: invert(T0) @ f.pose_gt for i, f in fr.items()}
+    ov, cons, viol = depth_consistency(fr[0], fr[5], poses[5])
+    assert ov > 0.5 and cons > 0.8 and viol < 0.02
+    bad = dict(poses)
+    bad[10] = bad[10].copy()
+    bad[10][:3, 3] += [0.0, 0.0, -0.8]  # 80 cm wrong along the view direction
+    al = AlignmentResult(bad, 0, [(0, 5), (5, 10)], [], "mst")
+    t = Trace()
+    al2 = verify_tree(al, fr, PipelineConfig(), t)
+    assert 10 not in al2.poses and 10 in al2.unaligned and 5 in al2.poses
+    assert any("depth check rejected" in e["message"] for e in t.events)
+    al3 = verify_tree(AlignmentResult(dict(poses), 0, [(0, 5), (5, 10)], [], "mst"), fr, PipelineConfig(), Trace())
+    assert sorted(al3.poses) == [0, 5, 10]
+
+
+def test_perception_from_bundle_errors_name_the_fix(tmp_path):
+    from mosaicthinker.runtime import InputError, perception_from_bundle
+
+    with pytest.raises(InputError, match="detector"):
+        perception_from_bundle(None)
+    with pytest.raises(InputError, match="oracle"):
+        perception_from_bundle(None, detector="oracle")
+
+
+def test_pipeline_config_rejects_unknown_keys():
+    from mosaicthinker.runtime import InputError, PipelineConfig
+
+    with pytest.raises(InputError, match="keyframez"):
+        PipelineConfig.merged({"keyframez": 3})
+
+
+def test_python_api_is_lazy_and_light():
+    code = ("import sys, mosaicthinker.runtime as r; assert 'numpy' not in sys.modules; "
+            "from mosaicthinker.runtime import ask, build_map, SemanticMap, Trace, load_bundle, open_source; "
+            "assert callable(ask) and 'torch' not in sys.modules; print('ok')")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert out.stdout.strip() == "ok", out.stderr
