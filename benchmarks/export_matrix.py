@@ -58,6 +58,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--real", action="store_true", help="export the real HF checkpoints (needs network)")
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--out", default=str(ROOT / "results" / "export_matrix.json"))
+    ap.add_argument("--update", action="store_true", help="merge these architectures into an existing --out file")
     args = ap.parse_args(argv)
 
     import importlib
@@ -96,6 +97,10 @@ def main(argv: list[str] | None = None) -> int:
            "machine": {"python": platform.python_version(), "cpu_count": os.cpu_count(), "threads": args.threads,
                        "torch": torch.__version__},
            "precisions": precisions, "random_weights": not args.real, "results": results}
+    if args.update and Path(args.out).is_file():
+        old = json.loads(Path(args.out).read_text())
+        doc["results"] = {**old.get("results", {}), **results}
+        doc["command"] = old.get("command", "") + " ; " + doc["command"]
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     Path(args.out).write_text(json.dumps(doc, indent=1))
     print(f"wrote {args.out}", file=sys.stderr)

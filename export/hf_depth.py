@@ -250,6 +250,23 @@ def _lower_precision(g: GraphSpec, variant: str, fp32_path: Path, work: Path) ->
         return {"ok": False, "reason": "int8 disabled for this component (integer/index logic or tiny graph)"}
     calib = g.calibration() if (variant == "int8-qdq" and g.calibration) else (
         [g.make_inputs(np.random.default_rng(1000 + i)) for i in range(8)] if variant == "int8-qdq" else ())
+    if g.parity_outputs is not None and len(g.parity_outputs) == 0:
+        # discrete outputs only: quantise, then judge by set agreement with the fp32 graph
+        try:
+            if variant == "int8-dynamic":
+                C.quantize_int8_dynamic(fp32_path, dst)
+            else:
+                C.quantize_int8_qdq(fp32_path, dst, calib)
+        except Exception as e:  # noqa: BLE001
+            return {"ok": False, "reason": f"{variant} conversion failed: {type(e).__name__}: {str(e)[:200]}"}
+        ref = C.ort_session(fp32_path)
+        par = _parity(g, dst, lambda feeds: C.ort_run(ref, feeds), variant, f"{g.name} {variant} vs fp32",
+                      require=False)
+        if par["ok"]:
+            return {"ok": True, "path": dst, "parity": par}
+        dst.unlink(missing_ok=True)
+        return {"ok": False, "parity": par, "reason": f"{variant} set agreement vs fp32 "
+                                                      f"{par['agreement']['worst']:.3f} < {par['agreement']['min']}"}
     task = None
     if g.agreement is not None:
         ref = C.ort_session(fp32_path)

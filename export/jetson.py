@@ -43,9 +43,10 @@ NOT_RUN = ("TensorRT is not installed on the export machine: no engine was built
 
 _BATCH = re.compile(r"batch|^b$|^n$|^bs$", re.I)
 _PAST = re.compile(r"past|cache|kv", re.I)
-_TOTAL = re.compile(r"total|attention_mask|mask_len", re.I)
+_TOTAL = re.compile(r"total|mask_len", re.I)
 _SEQ = re.compile(r"seq|token|length|len$", re.I)
-_PROMPTS = re.compile(r"prompt|box|quer|object", re.I)
+_PROMPTS = re.compile(r"prompt|box|object", re.I)
+_QUERIES = re.compile(r"quer|names?$|labels?$", re.I)
 _POINTS = re.compile(r"point", re.I)
 _KEYPOINTS = re.compile(r"keypoint|kpt|top_?k", re.I)
 
@@ -62,6 +63,7 @@ class JetsonConfig:
     text_range: tuple[int, int, int] = (1, 16, 32)
     prompts_range: tuple[int, int, int] = (1, 4, 64)
     points_range: tuple[int, int, int] = (1, 2, 16)
+    queries_range: tuple[int, int, int] = (1, 4, 32)      # open-vocabulary detector: names per text call
     past_range: tuple[int, int, int] = (0, 128, 2048)  # 0: the prefill call has an empty cache (TRT allows it)
     seq_range: tuple[int, int, int] = (1, 1, 1024)      # new positions per decoder call (prefill .. 1)
     images_range: tuple[int, int, int] = (1, 1, 8)      # images per VLM vision call
@@ -88,7 +90,7 @@ def axis_range(name: str, inp: dict[str, Any], ax: int, role_meta: dict[str, Any
         return (img[ax],) * 3  # type: ignore[return-value]
     if _PAST.search(name) or _PAST.search(iname):
         return conf.past_range
-    if _TOTAL.search(name) or "attention_mask" in iname:
+    if _TOTAL.search(name):
         # total = past + new tokens
         return (conf.past_range[0] + conf.seq_range[0], conf.past_range[1] + conf.seq_range[1],
                 conf.past_range[2] + conf.seq_range[2])
@@ -97,6 +99,8 @@ def axis_range(name: str, inp: dict[str, Any], ax: int, role_meta: dict[str, Any
         return (k, k, k)
     if _PROMPTS.search(name):
         return conf.prompts_range
+    if _QUERIES.search(name):
+        return conf.queries_range
     if _POINTS.search(name) or _POINTS.search(iname):
         return conf.points_range
     if "input_ids" in iname or "position" in iname or _SEQ.search(name):

@@ -190,8 +190,11 @@ def ransac_transform(src: np.ndarray, dst: np.ndarray, threshold: float = 0.05, 
         if not good.any():
             continue
         Tb = umeyama_batch(a[good], dst[idx[good]], with_scale)  # [g, 4, 4]
-        pred = np.einsum("gij,nj->gni", Tb[:, :3, :3], src) + Tb[:, None, :3, 3]
-        inl_all = np.sum((pred - dst[None]) ** 2, axis=2) < threshold * threshold  # [g, n]
+        g = len(Tb)
+        pred = (src @ Tb[:, :3, :3].reshape(3 * g, 3).T).reshape(n, g, 3)  # one GEMM for all hypotheses
+        pred += Tb[None, :, :3, 3]
+        pred -= dst[:, None, :]
+        inl_all = (np.einsum("ngk,ngk->gn", pred, pred) < threshold * threshold)  # [g, n]
         counts = inl_all.sum(1)
         k = int(np.argmax(counts))
         c = int(counts[k])

@@ -43,7 +43,8 @@ class PipelineConfig:
     topup: bool = True                   # fewer than K passing: add the best other scored frames (recorded)
     whole_image_fallback: bool = True    # key frames unaligned with matches inside boxes: retry on whole images
     bridge_frames: int = 48              # at most this many extra frames to connect unaligned key frames (0 = off)
-    bridge_gap_s: float = 0.3            # bridge frames are placed at most this far apart in time
+    bridge_gap_s: float = 0.25           # bridge frames are placed at most this far apart in time
+    bridge_rounds: int = 2               # bridge, check, bridge again around edges the check rejected
     bridge_max_gap_s: float = 10.0       # ... and only across gaps up to this long (long chains drift)
     verify_depth: bool = True            # reject tree edges whose depth maps contradict each other (metric depth)
     max_free_space_violation: float = 0.02  # share of a frame's points seen in front of the other's surfaces
@@ -161,7 +162,9 @@ def select(source: FrameSource, targets: Sequence[str], cues: Sequence[str], per
                                lambda i: source[int(i)].rgb, kconf, trace)
     chosen = [int(i) for i in res.chosen]
     if conf.topup and len(chosen) < K and res.scores:
-        chosen = _top_up(chosen, res.scores, K, max(1, len(source) // (4 * K)), trace)
+        names = tuple(dict.fromkeys(list(targets) + list(cues)))
+        seen = {i: {n for n, sc in zip(d.names, d.scores) if sc > 0} for (i, nm), d in det.cache.items() if nm == names}
+        chosen = _top_up(chosen, res.scores, K, max(1, len(source) // (4 * K)), trace, seen)
     if len(chosen) < min(conf.min_keyframes, len(cands)):
         extra = [int(i) for i in uniform_keyframes(cands, KeyFrameConf.merged({"keyframes": conf.min_keyframes})).chosen
                  if int(i) not in chosen]
@@ -173,20 +176,38 @@ def select(source: FrameSource, targets: Sequence[str], cues: Sequence[str], per
     return sorted(chosen), det, res, cands
 
 
-def _top_up(chosen: list[int], scores: dict[int, float], K: int, gap: int, trace: Trace) -> list[int]:
-    """Fewer than K frames passed the threshold: add the best-scoring frames the search already scored (score >
-    0), skipping frames within `gap` of one already chosen (near-duplicates add no view). Recorded."""
+def _top_up(chosen: list[int], scores: dict[int, float], K: int, gap: int, trace: Trace,
+            seen: dict[int, set[str]] | None = None) -> list[int]:
+    """Fewer than K frames passed the threshold: add frames the search already scored (score > 0), skipping
+    frames within `gap` of one already chosen (near-duplicates add no view). Coverage first: while some object
+    the detector saw in a scored frame is in no chosen frame, the best-scoring frame showing one is added
+    (`seen`: frame -> names detected there); then the rest by score. Recorded."""
     out = list(chosen)
+    seen = seen or {}
+
+    def ok(i: int) -> bool:
+        return scores.get(i, 0) > 0 and i not in out and all(abs(i - j) >= gap for j in out)
+
+    covered = set().union(*[seen.get(i, set()) for i in out]) if out else set()
+    missing = set().union(*seen.values()) - covered if seen else set()
+    n_cov = 0
+    while len(out) < K and missing:
+        cand = [i for i in seen if ok(i) and seen[i] & missing]
+        if not cand:
+            break
+        i = max(cand, key=lambda i: (len(seen[i] & missing), scores[i], -i))
+        out.append(int(i))
+        missing -= seen[i]
+        n_cov += 1
     for i in sorted(scores, key=lambda i: (-scores[i], i)):
         if len(out) >= K:
             break
-        if scores[i] <= 0 or i in out or any(abs(i - j) < gap for j in out):
-            continue
-        out.append(int(i))
+        if ok(i):
+            out.append(int(i))
     if len(out) > len(chosen):
         trace.event("degraded", f"{len(chosen)} of {K} key frames passed the threshold; added {len(out) - len(chosen)} "
-                    f"more of the scored frames by score (at least {gap} frames apart)", stage="keyframes",
-                    passed=len(chosen), added=len(out) - len(chosen))
+                    f"more of the scored frames ({n_cov} for objects no chosen frame showed, the rest by score; at "
+                    f"least {gap} frames apart)", stage="keyframes", passed=len(chosen), added=len(out) - len(chosen))
     return sorted(out)
 
 
@@ -217,14 +238,15 @@ def verify_tree(al: Any, frames: dict[int, Frame], conf: PipelineConfig, trace: 
     """Check every tree edge with `depth_consistency` in both directions; a frame whose edge to its parent puts
     more than `max_free_space_violation` of the points into observed free space is detached with its subtree
     and re-attached through another verified pair (from the pairs alignment already tried) that passes the same
-    check, if any; the rest become unaligned. Recorded in the trace."""
+    check, if any; the rest become unaligned. Recorded in the trace; the rejected edges are kept in
+    `al.rejected_edges` so that a later round does not use them again."""
     from collections import deque
 
     from .geometry import invert
 
     def ok(a: int, b: int, T_ab: np.ndarray) -> bool:
         if a not in frames or b not in frames:
-            return True  # bridge frames are not checked (their depth is not kept)
+            return True  # frames without kept depth are not checked
         v1 = depth_consistency(frames[a], frames[b], T_ab)[2]
         v2 = depth_consistency(frames[b], frames[a], invert(T_ab))[2]
         return max(v1, v2) <= conf.max_free_space_violation
@@ -236,8 +258,8 @@ def verify_tree(al: Any, frames: dict[int, Frame], conf: PipelineConfig, trace: 
     poses = dict(al.poses)
     parent = {al.root: None}
     order = deque([al.root])
-    bad: list[tuple[int, int]] = []
-    while order:  # breadth-first from the root: drop a failing edge's whole subtree
+    bad: list[tuple[int, int]] = list(getattr(al, "rejected_edges", []))
+    while order:  # breadth-first from the root: a failing edge drops its whole subtree
         p = order.popleft()
         for c in adj.get(p, []):
             if c in parent or c not in poses:
@@ -249,6 +271,7 @@ def verify_tree(al: Any, frames: dict[int, Frame], conf: PipelineConfig, trace: 
                 bad.append((p, c))
     kept = set(parent)
     dropped = [i for i in poses if i not in kept]
+    al.rejected_edges = bad  # type: ignore[attr-defined]
     if not dropped:
         return al
     for i in dropped:
@@ -272,7 +295,6 @@ def verify_tree(al: Any, frames: dict[int, Frame], conf: PipelineConfig, trace: 
                 rejected=[list(e) for e in bad], unaligned=lost)
     al.poses = poses
     al.unaligned = sorted(set(al.unaligned) | set(lost))
-    al.rejected_edges = bad  # type: ignore[attr-defined]  (the bridge round must not use them again)
     return al
 
 
@@ -302,14 +324,17 @@ class _BlockPairs:
 
 
 def _bridge(al: Any, frames: list[Frame], boxes: dict[int, Any], cands: list[int], source: FrameSource,
-            matcher: Any, perception: Perception, conf: PipelineConfig, trace: Trace) -> tuple[Any, list[Frame]]:
+            matcher: Any, perception: Perception, conf: PipelineConfig, trace: Trace,
+            previous: Sequence[Frame] = ()) -> tuple[Any, list[Frame]]:
     """Key frames far apart in time often share no view, so the tree falls apart into components. Connect each
     unaligned key frame to its nearest aligned key frame in time through intermediate candidate frames (at
-    most `bridge_gap_s` apart, `bridge_frames` in all; used for poses only, never detected) and align again.
-    Key frames still unaligned afterwards stay unaligned (recorded). Returns (alignment, the bridge frames used)."""
+    most `bridge_gap_s` apart, `bridge_frames` in all, only across gaps up to `bridge_max_gap_s`; used for
+    poses only, never detected) and align again. Key frames still unaligned afterwards stay unaligned
+    (recorded). Returns (alignment, the bridge frames used)."""
     from .alignment import align_frames
 
     have = {f.index for f in frames}
+    prev = {f.index: f for f in previous}  # bridges of an earlier round are kept (their depth is loaded)
     times = {i: float(source.timestamps[i]) for i in cands}
     extra: list[int] = []
     for u in sorted(al.unaligned, key=lambda u: min(abs(u - a) for a in al.poses)):
@@ -317,7 +342,7 @@ def _bridge(al: Any, frames: list[Frame], boxes: dict[int, Any], cands: list[int
         lo, hi = sorted((u, a))
         if abs(float(source.timestamps[hi]) - float(source.timestamps[lo])) > conf.bridge_max_gap_s:
             continue  # a long chain of bridges drifts: better unaligned (reported) than misplaced
-        between = [c for c in cands if lo < c < hi and c not in have and c not in extra]
+        between = [c for c in cands if lo < c < hi and c not in have and c not in extra and c not in prev]
         last = float(source.timestamps[lo])
         for c in between:
             if times[c] - last >= conf.bridge_gap_s:
@@ -325,11 +350,14 @@ def _bridge(al: Any, frames: list[Frame], boxes: dict[int, Any], cands: list[int
                 last = times[c]
         if len(extra) >= conf.bridge_frames:
             break
-    extra = sorted(extra[:conf.bridge_frames])
-    if not extra:
+    extra = sorted(set(extra[:conf.bridge_frames]) | set(prev))
+    if not set(extra) - set(prev):
         return al, []
     bf = []
     for i in extra:
+        if i in prev:
+            bf.append(prev[i])
+            continue
         f = source[i]
         bf.append(dataclasses.replace(f, depth=_depth_for(f, conf, perception, trace)))
     with trace.stage("alignment"):
@@ -337,6 +365,7 @@ def _bridge(al: Any, frames: list[Frame], boxes: dict[int, Any], cands: list[int
                            {**boxes, **{i: None for i in extra}}, with_scale=perception.depth_relative, trace=None)
     before = len(al.unaligned)
     al2.unaligned = [i for i in al2.unaligned if i in have]
+    al2.rejected_edges = list(getattr(al, "rejected_edges", []))  # type: ignore[attr-defined]
     trace.event("degraded" if al2.unaligned else "alignment",
                 f"{before} key frame(s) had no verified edge to the tree; {len(extra)} bridge frames between them "
                 f"and their neighbours in time left {len(al2.unaligned)} unaligned", stage="alignment",
@@ -414,6 +443,9 @@ def build_map(source: FrameSource, targets: Sequence[str], cues: Sequence[str] =
     names = list(dict.fromkeys(list(targets) + list(cues)))
     if not names:
         raise InputError("build_map: no object names to look for")
+    uses_model_depth = conf.depth == "model" or (conf.depth == "auto" and not getattr(source, "has_depth", False))
+    if perception.depth_relative and not uses_model_depth:  # sensor depth is metric whatever the bundle holds
+        perception = dataclasses.replace(perception, depth_relative=False)
     K = int(keyframes or getattr(budget, "keyframes", None) or conf.keyframes)
     if budget is not None:
         K = int(budget.allow_keyframes(K))
@@ -471,10 +503,18 @@ def build_map(source: FrameSource, targets: Sequence[str], cues: Sequence[str] =
     if check:
         with trace.stage("alignment.verify"):
             al = verify_tree(al, {f.index: f for f in frames}, conf, trace)
-    if al.unaligned and conf.bridge_frames > 0:
+    used: list[Frame] = []
+    for _ in range(conf.bridge_rounds):
+        if not al.unaligned or conf.bridge_frames <= 0:
+            break
         blocked = _BlockPairs(matcher, getattr(al, "rejected_edges", []))  # never re-use a rejected edge
-        al, bridges = _bridge(al, frames, boxes, cands_all, source, blocked, perception, conf, trace)
-        if check and bridges:
+        # bridge frames come from the whole video (consecutive frames match best), not only dedup's candidates
+        al, bridges = _bridge(al, frames, boxes, list(range(len(source))), source, blocked, perception, conf,
+                              trace, used)
+        if not bridges:
+            break
+        used = bridges
+        if check:
             with trace.stage("alignment.verify"):
                 al = verify_tree(al, {f.index: f for f in frames + bridges}, conf, trace)
     root = al.root

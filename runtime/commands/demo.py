@@ -26,12 +26,12 @@ DEMO_TYPES = ("object_counting", "object_size_estimation", "object_abs_distance"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--seed", type=int, default=3, help="scene seed")
+    p.add_argument("--seed", type=int, default=4, help="scene seed")
     p.add_argument("--objects", choices=["low", "med", "high"], default="low", help="object-number level")
     p.add_argument("--room", choices=["small", "medium", "large"], default="medium", help="room-size level")
     p.add_argument("--duration", type=float, default=16.0, help="video length (s)")
-    p.add_argument("--fps", type=float, default=8.0)
-    p.add_argument("--size", default="400x300", help="frame size WxH")
+    p.add_argument("--fps", type=float, default=6.0)
+    p.add_argument("--size", default="480x360", help="frame size WxH")
     p.add_argument("--keyframes", type=int, default=12, help="key-frame budget K")
     p.add_argument("--questions", type=int, default=6, help="how many questions to ask (one per type)")
     p.add_argument("--answerer", choices=["map", "vlm", "auto"], default="auto")

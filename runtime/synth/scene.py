@@ -102,7 +102,8 @@ def _pick(rng: np.random.Generator, key: str) -> tuple[float, float, float]:
     return p[int(rng.integers(len(p)))]
 
 
-# --- furniture designs: (W along x, D along y with the front at +y, H) -> primitives filling [-W/2,W/2]x[-D/2,D/2]x[0,H]
+# --- furniture designs: (W along x, D along y with the front at +y, H) -> primitives that fill
+#     [-W/2, W/2] x [-D/2, D/2] x [0, H]
 
 def _table(W, D, H, rng):
     wood = _pick(rng, "wood")
@@ -618,7 +619,8 @@ def _posters(room: RoomShape, rng: np.random.Generator, objects: list[SynthObjec
             t = np.array([n[1], -n[0]])
             s = rng.uniform(-(length - w) / 2 + 0.1, (length - w) / 2 - 0.1)
             c = np.array([*(mid + t * s + n * 0.01), rng.uniform(1.3, min(2.0, room.height - h / 2 - 0.1))])
-            half = np.abs(np.array([t[0], t[1], 0.0])) * w / 2 + np.array([0, 0, h / 2]) + np.abs(n[[0, 1]].tolist() + [0]) * 0.02
+            half = (np.abs(np.array([t[0], t[1], 0.0])) * w / 2 + np.array([0, 0, h / 2])
+                    + np.abs(np.array([n[0], n[1], 0.0])) * 0.02)
             lo, hi = c - half, c + half
             if any(np.all(lo < b1) and np.all(b0 < hi) for b0, b1 in boxes + placed):
                 continue
