@@ -42,7 +42,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seeds", default="1-10", help="random-subset seeds, e.g. 1-10 or 1,2,3")
     ap.add_argument("--uniform-k", default="16,32,64")
     ap.add_argument("--random-k", default="16,32")
-    ap.add_argument("--matchers", default="orb,sift")
+    ap.add_argument("--matchers", default="sift,orb")
     ap.add_argument("--out", default=str(HERE / "results"))
     a = ap.parse_args(argv)
     src = open_source(a.data, cache_size=260)

@@ -163,6 +163,7 @@ def export_variants(out: str | Path, role: str, graphs: list[GraphSpec], meta: d
         if task is not None and not task.get("ok"):
             raise ExportError(f"{role}: fp32 task check failed: {task}")
         cmeta = {g.name: {**g.meta, "precision": "fp32"} for g in graphs}
+        _drop_role(out, role)  # a re-export replaces the role: no stale variants of an older model
         C.add_variant_files(out, role, "fp32", fp32, meta=meta, precision="fp32", parity=par32,
                             component_meta=cmeta, default=True, extra={"task_check": task} if task else None)
         report["variants"]["fp32"] = {"components": {g.name: "fp32" for g in graphs}, "parity": par32, "task": task}
@@ -194,7 +195,7 @@ def export_variants(out: str | Path, role: str, graphs: list[GraphSpec], meta: d
                 continue
             notes = None
             if fell_back:
-                notes = "components kept at fp32 because their parity failed: " + "; ".join(fell_back)
+                notes = "components kept at fp32 (not converted, or their parity failed): " + "; ".join(fell_back)
             extra = {"task_check": task} if task else None
             C.add_variant_files(out, role, variant, files, meta=meta, precision=variant,
                                 target="accelerator" if variant == "int8-qdq" else "cpu", parity=parity,
@@ -205,6 +206,16 @@ def export_variants(out: str | Path, role: str, graphs: list[GraphSpec], meta: d
         if tmp_ctx is not None:
             tmp_ctx.cleanup()
     return report
+
+
+def _drop_role(out: str | Path, role: str) -> None:
+    from mosaicthinker.runtime import bundle as B
+
+    if (Path(out) / B.MANIFEST).is_file():
+        manifest = B.read_manifest(out)
+        if manifest["roles"].pop(role, None) is not None:
+            C.progress(f"{role}: replacing the role's previous variants in {out}")
+            B.write_manifest(out, manifest)
 
 
 def _reference_spread(g: GraphSpec) -> list[float]:

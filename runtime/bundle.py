@@ -397,7 +397,7 @@ def write_manifest(root: str | os.PathLike, manifest: dict[str, Any]) -> Path:
 def io_spec_from_onnx(path: str | os.PathLike) -> tuple[list[dict], list[dict], int | None]:
     """Inputs/outputs of a graph as manifest entries, via onnxruntime (no `onnx` import needed).
 
-    Returns (inputs, outputs, opset); a dim that is symbolic or unknown becomes 0 in `shape` with its name in
+    Returns (inputs, outputs, opset of the default domain or None); a dim that is symbolic or unknown becomes 0 in `shape` with its name in
     `dynamic_axes` ({axis index as str: name}).
     """
     import onnxruntime as ort
@@ -420,13 +420,7 @@ def io_spec_from_onnx(path: str | os.PathLike) -> tuple[list[dict], list[dict], 
             out.append({"name": n.name, "shape": shape, "dtype": _ort_dtype(n.type), "dynamic_axes": dyn})
         return out
 
-    opset = None
-    try:
-        meta = sess.get_modelmeta()
-        opset = int(meta.custom_metadata_map.get("opset")) if "opset" in meta.custom_metadata_map else None
-    except Exception:
-        pass
-    return conv(sess.get_inputs()), conv(sess.get_outputs()), opset
+    return conv(sess.get_inputs()), conv(sess.get_outputs()), _onnx_opset(Path(path))
 
 
 def _ort_dtype(t: str) -> str:
@@ -474,11 +468,9 @@ def add_variant(root: str | os.PathLike, role: str, variant: str, components: di
         c["sha256"] = sha256_file(path)
         c["bytes"] = path.stat().st_size
         if "inputs" not in c or "outputs" not in c:
-            ins, outs, opset = io_spec_from_onnx(path)
+            ins, outs, _ = io_spec_from_onnx(path)
             c.setdefault("inputs", ins)
             c.setdefault("outputs", outs)
-            if opset is not None:
-                c.setdefault("opset", opset)
         c.setdefault("opset", _onnx_opset(path) if c["format"] == "onnx" else None)
         for e in c.get("extra_files", []):
             ep = safe_path(root, e["file"], f"roles.{role}.variants.{variant}.components.{cname}.extra_files")

@@ -11,7 +11,7 @@ Every dropped frame gets a reason. `ssim` reproduces scikit-image's
 from __future__ import annotations
 
 from dataclasses import dataclass, field, fields, replace
-from typing import Any, Mapping, Sequence
+from typing import Any, Mapping
 
 import numpy as np
 

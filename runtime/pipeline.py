@@ -38,6 +38,7 @@ class PipelineConfig:
     matcher: str = "sift"                # orb | sift | model
     gravity: str = "auto"                # auto (source if it knows gravity, else floor fit) | source | floor
     refine: bool = True                  # occlusion refinement
+    first_seen_from_search: bool = True  # first-seen times also from the frames the search scored
     min_keyframes: int = 3               # fewer passing frames are topped up uniformly (recorded)
     min_scored_per_keyframe: int = 3     # search budget >= this x K (capped at the candidates), recorded
     topup: bool = True                   # fewer than K passing: add the best other scored frames (recorded)
@@ -539,13 +540,21 @@ def build_map(source: FrameSource, targets: Sequence[str], cues: Sequence[str] =
             instances, clouds, recovered = refine(instances, obs, frames, poses, dets, perception, fconf, trace,
                                                   matcher=matcher)
     trace.decide("instances", {"count": len(instances), "recovered_by_refinement": recovered,
-                               "by_name": {n: sum(o.name == n for o in instances) for n in names}})
+                               "by_name": {n: sum(o.name == n for o in instances) for n in names},
+                               "list": [{"id": o.id, "name": o.name, "centre": np.round(o.center, 3).tolist(),
+                                         "size": np.round(np.asarray(o.box.axes_lengths), 3).tolist(),
+                                         "frames": o.frames, "score": round(float(o.score), 3)}
+                                        for o in instances]})
     missing = [n for n in names if not any(o.name == n for o in instances)]
     if missing:
         trace.event("not_in_map", f"not found in the key frames: {', '.join(missing)}", names=missing)
 
     cams = [(float(f.t), poses[f.index]) for f in frames if f.index in poses]
-    smap = SemanticMap(instances, _room(instances, cams), cams,
+    if conf.first_seen_from_search:
+        _first_seen_from_search(instances, det, names, source, trace)
+    with trace.stage("room"):
+        room = _room(instances, cams, frames, poses)
+    smap = SemanticMap(instances, room, cams,
                        {"source": getattr(source, "name", "frames"), "built_from": "video", "keyframes": chosen,
                         "root": root, "unaligned": al.unaligned, "objects": names, "recovered": recovered})
     return MapBuild(smap, chosen, clouds, poses, W, list(al.unaligned), recovered,
@@ -553,16 +562,60 @@ def build_map(source: FrameSource, targets: Sequence[str], cues: Sequence[str] =
                     {"alignment": al.to_dict(), "dedup_kept": None})
 
 
-def _room(instances: list[ObjectInstance], cams: list[tuple[float, np.ndarray]]) -> Room | None:
-    """Room extent of a built map: hull of the object footprints and the camera track (a lower bound)."""
-    from .geometry import convex_hull_2d
+def _room(instances: list[ObjectInstance], cams: list[tuple[float, np.ndarray]], frames: Sequence[Frame] = (),
+          poses: dict[int, np.ndarray] | None = None, trim: float = 0.5) -> Room | None:
+    """Room extent of a built map: the floor-projected hull of everything the aligned key frames' depth saw
+    (walls, floor, furniture), plus the object footprints and the camera track. Points beyond the `trim`
+    percentile along any of 36 directions are dropped first (stray depth through doorways and windows). A
+    convex hull: an L-shaped room is over-estimated, a room whose walls were never seen under-estimated."""
+    from .geometry import backproject, convex_hull_2d, transform
 
     pts = [o.box.corners()[:, :2] for o in instances] + [T[None, :2, 3] for _, T in cams]
+    seen = []
+    for f in frames:
+        if poses is not None and f.index in poses and f.depth is not None:
+            p, _ = backproject(f.depth, f.K, stride=12)
+            seen.append(transform(poses[f.index], p[(p[:, 2] > 0.1) & (p[:, 2] < 8.0)])[:, :2])
+    source = "objects_and_camera_hull"
+    if seen:
+        S = np.concatenate(seen)
+        if len(S) > 100:
+            ang = np.linspace(0, np.pi, 36, endpoint=False)
+            D = np.stack([np.cos(ang), np.sin(ang)], 1)
+            proj = S @ D.T
+            lo, hi = np.percentile(proj, trim, 0), np.percentile(proj, 100 - trim, 0)
+            S = S[np.all((proj >= lo) & (proj <= hi), 1)]
+            pts.append(S)
+            source = "observed_depth_hull"
     if not pts:
         return None
     P = np.concatenate(pts)
     top = max([float(o.box.aabb()[1][2]) for o in instances] + [2.4])
-    return Room(convex_hull_2d(P), 0.0, top, "objects_and_camera_hull")
+    return Room(convex_hull_2d(P), 0.0, top, source)
+
+
+def _first_seen_from_search(instances: list[ObjectInstance], det: "_CachedDetector", names: list[str],
+                            source: FrameSource, trace: Trace) -> None:
+    """The key-frame search ran the detector on many more frames than the key frames: a category detected
+    earlier than any of its instances' key frames was first seen then. The earliest instance of the category
+    takes that time (appearance-order questions are about categories)."""
+    key = tuple(names)
+    first: dict[str, float] = {}
+    for (i, nm), d in det.cache.items():
+        if nm != key:
+            continue
+        t = float(source.timestamps[i])
+        for n in set(d.names):
+            first[n] = min(first.get(n, np.inf), t)
+    changed = 0
+    for n, t in first.items():
+        inst = [o for o in instances if o.name == n and o.first_seen is not None]
+        if inst:
+            o = min(inst, key=lambda o: o.first_seen)
+            if t < o.first_seen:
+                o.first_seen, changed = t, changed + 1
+    if changed:
+        trace.decide("first_seen_from_search", changed)
 
 
 # ----------------------------------------------------------------------------- occlusion refinement

@@ -37,6 +37,9 @@ def shared_bundle(tmp_path_factory, shared_models):
     return out
 
 
+HAND = {"pairs_per_keyframe": 1.5}  # planner conf of the hand-computed cases
+
+
 def hand_profile(latency_ms: float = 6000, memory_mb: float = 1000) -> dict:
     """Round numbers so the planner's arithmetic can be checked by hand (no segmenter, embedder or VLM)."""
     est = {"status": "estimated", "source": "hand-made test figure"}
@@ -48,7 +51,7 @@ def hand_profile(latency_ms: float = 6000, memory_mb: float = 1000) -> dict:
         "costs": {
             "process": {"resident_mb": 100, **est},
             "video_decode": {"ms_per_call": 1, **est},
-            "dedup": {"ms_per_call": 1, **est},
+            "dedup": {"ms_per_call": 2, **est},  # includes the decoding the pass does
             "grounding": {"ms_per_call": 0, **est},
             "detector": {"ms_per_call": 10, "load_ms": 100, "resident_mb": 50, **est},
             "depth": {"ms_per_call": 50, "load_ms": 100, "resident_mb": 100, **est},
@@ -140,12 +143,12 @@ def test_bad_toml_and_missing_file(tmp_path):
 
 
 def test_plan_arithmetic_by_hand():
-    # 100 s at 10 fps = 1000 frames -> 500 candidates. fixed = loads 300 + video 1000 x (1 + 1) = 2300 ms.
+    # 100 s at 10 fps = 1000 frames -> 500 candidates. fixed = loads 300 + video pass 1000 x 2 = 2300 ms.
     # per scored frame = decode 1 + detector 10 = 11 ms; per key frame = decode 1 + depth 50 + features 20
     # + 1.5 pairs x 10 + geometry 5 = 91 ms; the search scores at least 4 frames per key frame.
     # latency: 2300 + 4k x 11 + 91k <= 6000 -> k <= 27.4 -> K = 27 (memory 100 + 200 + 270 <= 1000 fits).
     # S = max(4 x 27, min(ceil(0.25 x 500) = 125, floor((6000 - 2300 - 27 x 91) / 11) = 113)) = 113.
-    p = B.plan(B.parse_profile(hand_profile(6000, 1000)), 100, 10)
+    p = B.plan(B.parse_profile(hand_profile(6000, 1000)), 100, 10, conf=HAND)
     assert (p.total_frames, p.candidates) == (1000, 500)
     assert sum(p.fixed_ms.values()) == pytest.approx(2300)
     assert sum(p.per_keyframe_ms.values()) == pytest.approx(91)
@@ -162,26 +165,26 @@ def test_plan_arithmetic_by_hand():
     # memory-bound: all resident 100 + 200 + 10k <= 400 gives k <= 10; one session at a time (stage-major)
     # 100 + max(100) + 10k <= 400 gives k <= 20, so the planner loads them one at a time: K = 20, and the search
     # gets its full target of 125 (6000 - 2300 - 20 x 91 = 1880 ms leaves room for 170).
-    p = B.plan(B.parse_profile(hand_profile(6000, 400)), 100, 10)
+    p = B.plan(B.parse_profile(hand_profile(6000, 400)), 100, 10, conf=HAND)
     assert (p.keyframes, p.limited_by, p.scored_frames) == (20, "memory", 125)
     assert p.session_policy == "one_at_a_time" and p.total_memory_mb == pytest.approx(100 + 100 + 200)
 
     # 100 + 100 + 10k <= 250 -> K = 5
-    p = B.plan(B.parse_profile(hand_profile(6000, 250)), 100, 10)
+    p = B.plan(B.parse_profile(hand_profile(6000, 250)), 100, 10, conf=HAND)
     assert (p.session_policy, p.keyframes) == ("one_at_a_time", 5)
 
     # plenty of budget: K hits keyframes_max
-    p = B.plan(B.parse_profile(hand_profile(60000, 5000)), 100, 10)
+    p = B.plan(B.parse_profile(hand_profile(60000, 5000)), 100, 10, conf=HAND)
     assert p.keyframes == 32 and p.limited_by.startswith("keyframes_max")
 
 
 def test_plan_nothing_fits_says_which_budget_and_by_how_much():
     # K = 2: 2300 + 8 x 11 + 2 x 91 = 2570 ms > 2000 ms -> fails by 570 ms
     with pytest.raises(BudgetError, match=r"latency budget 2,000 ms fails by 570 ms"):
-        B.plan(B.parse_profile(hand_profile(2000, 1000)), 100, 10)
+        B.plan(B.parse_profile(hand_profile(2000, 1000)), 100, 10, conf=HAND)
     # memory: even one session at a time needs 100 + 100 + 2 x 10 = 220 MB > 150 MB -> fails by 70 MB
     with pytest.raises(BudgetError, match=r"memory budget 150 MB fails by 70.0 MB") as e:
-        B.plan(B.parse_profile(hand_profile(60000, 150)), 100, 10)
+        B.plan(B.parse_profile(hand_profile(60000, 150)), 100, 10, conf=HAND)
     assert "latency" not in str(e.value)
 
 
@@ -269,7 +272,7 @@ class FakeClock:
 
 
 def test_overrun_replans_remaining_stages():
-    p = B.plan(B.parse_profile(hand_profile(6000, 1000)), 100, 10)  # K = 27, S = 113
+    p = B.plan(B.parse_profile(hand_profile(6000, 1000)), 100, 10, conf=HAND)  # K = 27, S = 113
     clock, trace = FakeClock(), Trace()
     ctl = B.BudgetController(p, trace, clock=clock, rss=lambda: 0.0)
     # on-plan stage: no re-plan
@@ -295,7 +298,7 @@ def test_overrun_replans_remaining_stages():
 
 
 def test_tiny_budget_overruns_to_the_minimum_and_says_so():
-    p = B.plan(B.parse_profile(hand_profile(6000, 1000)), 100, 10)
+    p = B.plan(B.parse_profile(hand_profile(6000, 1000)), 100, 10, conf=HAND)
     clock, trace = FakeClock(), Trace()
     ctl = B.BudgetController(p, trace, clock=clock, rss=lambda: 0.0)
     with ctl.stage("load"):
@@ -306,7 +309,7 @@ def test_tiny_budget_overruns_to_the_minimum_and_says_so():
 
 
 def test_memory_guard_releases_idle_sessions_then_refuses():
-    p = B.plan(B.parse_profile(hand_profile(60000, 5000)), 100, 10)
+    p = B.plan(B.parse_profile(hand_profile(60000, 5000)), 100, 10, conf=HAND)
     p.memory_budget_mb = rss_mb() + 60.0  # deliberately tiny headroom
     trace = Trace()
     ctl = B.BudgetController(p, trace)
@@ -361,7 +364,7 @@ def test_update_profile_costs_round_trip(tmp_path):
 
 
 def test_stage_aliases_and_candidates_after_dedup():
-    p = B.plan(B.parse_profile(hand_profile(6000, 1000)), 100, 10)  # K = 27, S = 113 from 500 estimated
+    p = B.plan(B.parse_profile(hand_profile(6000, 1000)), 100, 10, conf=HAND)  # K = 27, S = 113 from 500 estimated
     clock, trace = FakeClock(), Trace()
     ctl = B.BudgetController(p, trace, clock=clock, rss=lambda: 0.0)
     assert ctl.share_ms("dedup") == ctl.share_ms("frames") == pytest.approx(2000)
@@ -384,9 +387,9 @@ def test_online_video_pass_is_not_in_the_question_latency():
     # fixed = loads 300 only; 300 + 4k x 11 + 91k <= 2000 -> k <= 12.6 -> K = 12 (question mode: nothing fits)
     prof = B.parse_profile(hand_profile(2000, 1000))
     with pytest.raises(BudgetError, match="--online"):
-        B.plan(prof, 100, 10)
-    p = B.plan(prof, 100, 10, conf={"video_pass": "online"})
+        B.plan(prof, 100, 10, conf=HAND)
+    p = B.plan(prof, 100, 10, conf={**HAND, "video_pass": "online"})
     assert p.fixed_ms["video_pass"] == 0 and p.keyframes == 12
     assert not any("cannot keep up" in n for n in p.notes)  # 2 ms per frame at 10 fps: x0.02 real time
-    slow = B.parse_profile(_mutate(lambda d: d["costs"]["video_decode"].update(ms_per_call=150)))
-    assert any("cannot keep up" in n for n in B.plan(slow, 100, 10, conf={"video_pass": "online"}).notes)
+    slow = B.parse_profile(_mutate(lambda d: d["costs"]["dedup"].update(ms_per_call=150)))
+    assert any("cannot keep up" in n for n in B.plan(slow, 100, 10, conf={**HAND, "video_pass": "online"}).notes)

@@ -250,3 +250,24 @@ def test_end_to_end_keyframes_on_a_small_scene(small_eval):
     assert m["iterative"]["precision"] >= 0.7
     assert m["exhaustive"]["f1"] >= 0.8
     assert m["topup"]["f1"] >= 0.8 and m["topup"]["f1"] > m["uniform"]["f1"] + 0.1
+
+
+def test_min_keyframes_tops_up_from_scored_frames_spread_out():
+    """Nothing stands out (flat scores), so nothing passes; the top-up takes the best scored positive frames,
+    first those more than r candidates from one already taken."""
+    m = 40
+    table = {f: {"tv": 0.5 + 0.01 * (f % 7)} for f in range(m)}
+    conf = kf.KeyFrameConf.merged(keyframes=4, min_keyframes=3, budget=m, threshold=5.0, seed=0)
+    tr = Trace()
+    res = kf.iterative_search(range(m), ["tv"], [], table_detector(table), conf=conf, trace=tr)
+    assert not res.zscores  # no pass at z >= 5
+    ranked = sorted(res.scores, key=lambda f: (-res.scores[f], f))
+    exp: list[int] = []
+    for f in ranked:  # greedy: best score, more than r = 3 candidates from the ones already taken
+        if len(exp) < 3 and all(abs(f - g) > 3 for g in exp):
+            exp.append(f)
+    assert res.chosen.tolist() == sorted(exp)
+    assert any("fewer than K: 0 of 4" in n for n in res.notes) and any("filled 3" in n for n in res.notes)
+    assert sum(e["kind"] == "degraded" for e in tr.events) == 2
+    with pytest.raises(InputError, match="min_keyframes"):
+        kf.KeyFrameConf.merged(keyframes=4, min_keyframes=5)

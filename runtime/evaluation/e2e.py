@@ -238,9 +238,9 @@ def summarise(records: list[dict[str, Any]], maps: list[dict[str, Any]]) -> dict
         for r in rs:
             by_t.setdefault(r["qtype"], []).append(r["score"])
             by_l.setdefault(r["level"], []).append(r["score"])
+        agg = lambda d: {k: {"n": len(v), "score": round(float(np.mean(v)), 4)} for k, v in sorted(d.items())}  # noqa: E731
         out[mode] = {"n": len(rs), "overall": round(float(np.mean([r["score"] for r in rs])), 4) if rs else None,
-                     "by_type": {k: {"n": len(v), "score": round(float(np.mean(v)), 4)} for k, v in sorted(by_t.items())},
-                     "by_level": {k: {"n": len(v), "score": round(float(np.mean(v)), 4)} for k, v in sorted(by_l.items())}}
+                     "by_type": agg(by_t), "by_level": agg(by_l)}
         ms = [m for m in maps if m["mode"] == mode and m.get("quality") and "recall" in m["quality"]]
         if ms:
             true = sum(m["quality"]["instances_true"] for m in ms)

@@ -21,7 +21,8 @@ from __future__ import annotations
 
 import importlib
 import os
-from typing import Any, Sequence
+from contextlib import contextmanager
+from typing import Any, Iterator, Sequence
 
 import numpy as np
 
@@ -78,6 +79,13 @@ class RoleModel:
         if component not in self.sessions:
             raise BundleError(f"{self.name}: no component {component!r} (has {sorted(self.sessions)})")
         return self.sessions[component]
+
+    @contextmanager
+    def _stage(self, name: str, component: str | None = None) -> Iterator[Any]:
+        """trace.stage(name) that also records the provider the component's session runs on."""
+        with self.trace.stage(name) as rec:
+            rec.provider = getattr(self.session(component), "provider", None)
+            yield rec
 
     def providers_used(self) -> dict[str, str | None]:
         return {c: getattr(s, "provider", None) for c, s in self.sessions.items()}

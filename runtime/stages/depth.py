@@ -199,7 +199,7 @@ class DepthModel(RoleModel):
     def predict_raw(self, rgb: np.ndarray) -> np.ndarray:
         """Model output at the model's resolution, [h, w] float32."""
         x = preprocess_image(rgb, self.spec.preprocessing)
-        with self.trace.stage("depth"):
+        with self._stage("depth"):
             out = self.session().run({self._input: x})[self.conf.output]
         out = np.asarray(out, np.float32)
         return np.squeeze(out)

@@ -115,7 +115,7 @@ class ClosedSetDetector(RoleModel):
         """All detections above the threshold: boxes [N, 4] pixels x0 y0 x1 y1, class ids [N], scores [N]."""
         H, W = rgb.shape[:2]
         x = preprocess_image(rgb, self.spec.preprocessing)
-        with self.trace.stage("detector"):
+        with self._stage("detector"):
             boxes, classes, scores, count = self.session().run({self._input: x})
         n = int(np.asarray(count).reshape(-1)[0])
         b, c, s = boxes[0, :n], classes[0, :n].astype(np.int64), scores[0, :n].astype(np.float32)

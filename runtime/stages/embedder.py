@@ -28,7 +28,7 @@ class Embedder(RoleModel):
     def embed(self, rgb: np.ndarray) -> np.ndarray:
         """rgb [H, W, 3] uint8 -> [D] float32 with unit L2 norm (all-zero features stay zero)."""
         x = preprocess_image(rgb, self.spec.preprocessing)
-        with self.trace.stage("embedder"):
+        with self._stage("embedder"):
             out = self.session().run({self._input: x})[self.output_index]
         v = (np.asarray(out).reshape(-1).astype(np.float32) - self.zero_point) * self.scale
         n = float(np.linalg.norm(v))

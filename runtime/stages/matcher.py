@@ -75,7 +75,7 @@ class PairMatcher(RoleModel):
         """rgb0, rgb1: [H, W, 3] uint8 -> Matches in original-image pixels."""
         pp = self.spec.preprocessing
         x0, x1 = preprocess_image(rgb0, pp), preprocess_image(rgb1, pp)
-        with self.trace.stage("matcher"):
+        with self._stage("matcher", "pair" if "pair" in self.sessions else None):
             k0, k1, sc = self._sess.run({self._in0: x0, self._in1: x1}, self._outs)
         sc = np.asarray(sc, np.float32).reshape(-1)
         ok = sc > self.min_score
@@ -108,7 +108,7 @@ class TwoStageMatcher(RoleModel):
             self._cache.move_to_end(key)
             return self._cache[key]
         x = preprocess_image(rgb, self.spec.preprocessing)
-        with self.trace.stage("matcher.extract"):
+        with self._stage("matcher.extract", "extractor"):
             out = self._ext.run({self._ext_in: x})
         names = self._ext.output_names
         d = dict(zip(names, out))
@@ -138,7 +138,7 @@ class TwoStageMatcher(RoleModel):
 
         avail = {"desc0": d0, "desc1": d1, "kpt_scores0": s0, "kpt_scores1": s1, "kpts0": kp(k0), "kpts1": kp(k1)}
         feeds = {n: avail[n] for n in self._mat.input_names}
-        with self.trace.stage("matcher.match"):
+        with self._stage("matcher.match", "matcher"):
             m0, sc = self._mat.run(feeds)[:2]
         m0 = np.asarray(m0).reshape(-1).astype(np.int64)
         sc = np.asarray(sc, np.float32).reshape(-1)

@@ -41,7 +41,7 @@ class SemanticSegmenter(RoleModel):
         if self._cache is not None and self._cache[0] == key:
             return self._cache[1]
         x = preprocess_image(rgb, self.spec.preprocessing)
-        with self.trace.stage("segmenter"):
+        with self._stage("segmenter"):
             logits = self.session().run({self._input: x})[0][0]
         if self.logits_layout == "NCHW":
             logits = logits.transpose(1, 2, 0)
