@@ -21,8 +21,9 @@ Every measured run is a fresh process (spawned), so its peak RSS (the kernel's V
 counts everything the run does: model loads, decode, dedup, key-frame search, perception, alignment, gravity,
 fusion and refinement. `cpu_s` (user + system time of the run's process, all its threads) is recorded too: on a
 machine shared with other jobs the wall time is inflated, the CPU time much less so; on an idle 2-core machine
-the wall time lies between cpu_s / 2 and cpu_s. Targets on a 2-core CPU (issue): <= 10 s and <= 1.5 GB peak at 60 s; <= 1.5x those at 600 s;
-geometric core <= 0.2 s at K = 32. The machine's load average is recorded: other jobs inflate wall times.
+the wall time lies between cpu_s / 2 and cpu_s. Targets on a 2-core CPU (issue): <= 10 s and <= 1.5 GB peak at
+60 s; <= 1.5x those at 600 s; geometric core <= 0.2 s at K = 32. The machine's load average is recorded: other
+jobs inflate wall times.
 """
 from __future__ import annotations
 

@@ -208,6 +208,18 @@ def export_variants(out: str | Path, role: str, graphs: list[GraphSpec], meta: d
     return report
 
 
+def _strip_value_info(src: Path, dst: Path) -> Path:
+    """A copy of the graph without the exporter's intermediate `value_info` shapes: onnxruntime's quantiser
+    re-infers shapes and rejects some that the dynamo exporter recorded (seen: CLIP's projection, 'Inferred
+    shape and existing shape differ'). Same numerics; the quantisers start from this copy."""
+    import onnx
+
+    model = onnx.load(str(src))
+    model.graph.ClearField("value_info")
+    onnx.save(model, str(dst))
+    return dst
+
+
 def _drop_role(out: str | Path, role: str) -> None:
     from mosaicthinker.runtime import bundle as B
 
@@ -259,6 +271,7 @@ def _lower_precision(g: GraphSpec, variant: str, fp32_path: Path, work: Path) ->
                                                       f"cosine {par['worst']['cosine']:.4f}"}
     if not g.quantize:
         return {"ok": False, "reason": "int8 disabled for this component (integer/index logic or tiny graph)"}
+    fp32_path = _strip_value_info(fp32_path, work / variant / f"{g.name}.src.onnx")
     calib = g.calibration() if (variant == "int8-qdq" and g.calibration) else (
         [g.make_inputs(np.random.default_rng(1000 + i)) for i in range(8)] if variant == "int8-qdq" else ())
     if g.parity_outputs is not None and len(g.parity_outputs) == 0:

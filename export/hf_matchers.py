@@ -12,8 +12,9 @@ SuperPoint + LightGlue: contract B ("extractor+matcher"), arch `superpoint_light
 
 EfficientLoFTR: contract A ("pair"), arch `efficientloftr` -> PairMatcher.
 - pair: `image0, image1 [1, 3, H, W] float32` (RGB 0..1) -> `kpts0, kpts1 [N, 2]` model-input pixels,
-  `scores [N]` (0 = no match; N = coarse cells, fixed by H, W). Pairs are taken exactly as the HF model and
-  its `post_process_keypoint_matching` index them.
+  `scores [N]` (0 = no match; N = coarse cells, fixed by H, W). Row i pairs image-0 coarse cell i with its
+  mutual nearest neighbour in image 1, then the model's fine stage refines that pair (transformers'
+  forward pairs cells by position in two differently indexed lists; see `loftr_pair`).
 """
 from __future__ import annotations
 
@@ -93,13 +94,32 @@ def loftr_pair(model: Any):
             self.m = model
 
         def forward(self, image0, image1):
-            H, W = image0.shape[-2:]
+            # EfficientLoFTRForKeypointMatching.forward with one change: transformers' `matches[:, 0]` is
+            # indexed by the image-1 cell and `matches[:, 1]` by the image-0 cell, and its forward pairs the two
+            # at the same index (right only when both cells have the same index). Here row i pairs image-0
+            # cell i with its mutual match j = matches[:, 1][i], and the fine stage refines those true pairs.
+            m = self.m
+            H = image0.shape[-2]
             g = torch.stack([_gray(image0), _gray(image1)], dim=1).expand(-1, -1, 3, -1, -1)
-            out = self.m(pixel_values=g)
-            kp = out.keypoints[0] * torch.tensor([W, H], dtype=image0.dtype)             # [2, N, 2] pixels
-            valid = (out.matches[0, 0] > -1) & (out.matches[0, 1] > -1)
-            scores = torch.where(valid, out.matching_scores[0, 0], torch.zeros_like(out.matching_scores[0, 0]))
-            return kp[0], kp[1], scores
+            feats = m.efficientloftr(g).feature_maps
+            coarse = feats[0]                                                    # [1, 2, C, h, w]
+            ch, cw = coarse.shape[-2:]
+            coarse_scale = H / ch
+            _, scores, idx = m._coarse_matching(coarse, coarse_scale)           # idx [1, 2, N]
+            n = idx.shape[-1]
+            i_idx = torch.arange(n, device=idx.device)[None]
+            j_idx = idx[:, 1].clamp(min=0)
+            pair_idx = torch.stack([i_idx, j_idx], dim=1)                      # [1, 2, N]
+            cw_t = torch.tensor(cw, device=idx.device)
+            kp_coarse = torch.stack([pair_idx % cw_t, pair_idx // cw_t], dim=-1) * coarse_scale
+            f0, f1 = m.refinement_layer(coarse / m.config.hidden_size ** 0.5, feats[1:])
+            b = torch.arange(1, device=idx.device)[..., None]
+            f0, f1 = f0[b, pair_idx[:, 0]], f1[b, pair_idx[:, 1]]
+            fine_scale = H / int(ch * coarse_scale)
+            kp = m._fine_matching(f0, f1, kp_coarse, fine_scale)                # [1, 2, N, 2] pixels
+            s = scores[0, 1]
+            s = torch.where(idx[0, 1] > -1, s, torch.zeros_like(s))
+            return kp[0, 0], kp[0, 1], s
 
     return EfficientLoFTRPair().eval()
 

@@ -715,7 +715,8 @@ def plan(profile: Profile | str | os.PathLike, duration_s: float, fps: float, bu
     if c.video_pass == "online":
         video_ms = 0.0
         if online_factor > 1:
-            notes.append(f"online video pass: dedup (with its decoding) takes {_fmt(per_frame_ms)} ms per frame, more than the "
+            notes.append(f"online video pass: dedup (with its decoding) takes {_fmt(per_frame_ms)} ms per frame, "
+                         f"more than the "
                          f"{_fmt(1000 / fps)} ms between frames at {fps:g} fps: it cannot keep up with capture "
                          f"(x{online_factor:.2f} real time)")
     vlm_fixed = c.vlm_images * cost("vlm", "ms_per_image") + c.vlm_max_new_tokens * cost("vlm", "ms_per_token")
@@ -725,7 +726,8 @@ def plan(profile: Profile | str | os.PathLike, duration_s: float, fps: float, bu
     c_s = cost("detector", "ms_per_call") + cost("video_decode", "ms_per_call")
     # (3) per key frame
     per_kf = {"decode": cost("video_decode", "ms_per_call"),  # key frames are fetched again for perception
-              "segmenter": cost("segmenter", "ms_per_call") + c.prompts_per_keyframe * cost("segmenter", "ms_per_prompt"),
+              "segmenter": cost("segmenter", "ms_per_call")
+              + c.prompts_per_keyframe * cost("segmenter", "ms_per_prompt"),
               "depth": cost("depth", "ms_per_call"), "embedder": cost("embedder", "ms_per_call"),
               "features": cost("matcher", "ms_per_call"),
               "matching": c.pairs_per_keyframe * cost("matcher", "ms_per_pair"),
@@ -861,7 +863,8 @@ def plan(profile: Profile | str | os.PathLike, duration_s: float, fps: float, bu
 
     # the arithmetic, as the user reads it
     arith.append(f"candidates = {cand_how} = {n_c}")
-    arith.append("fixed = loads " + " + ".join(f"{r} {_fmt(v)}" for r, v in loads.items()) + f" = {_fmt(fixed['model_loads'])} ms"
+    arith.append("fixed = loads " + " + ".join(f"{r} {_fmt(v)}" for r, v in loads.items())
+                 + f" = {_fmt(fixed['model_loads'])} ms"
                  if loads else "fixed = no model loads")
     arith.append(f"      + video pass (decode + dedup) {total_frames} frames x {_fmt(per_frame_ms)} ms = "
                  f"{_fmt(video_ms)} ms" if c.video_pass == "question"
@@ -876,7 +879,8 @@ def plan(profile: Profile | str | os.PathLike, duration_s: float, fps: float, bu
                  + f" = {_fmt(c_k)} ms   (segmenter incl. {c.prompts_per_keyframe:g} prompts, matching "
                    f"{c.pairs_per_keyframe:g} pairs)")
     arith.append(f"K = largest k <= min(keyframes_max {c.keyframes_max}, candidates {n_c}) with "
-                 f"fixed + {c.min_scored_per_keyframe}k x {_fmt(c_s)} (decode + detector) + k x {_fmt(c_k)} <= {_fmt(L)} ms and "
+                 f"fixed + {c.min_scored_per_keyframe}k x {_fmt(c_s)} (decode + detector) + k x {_fmt(c_k)} "
+                 f"<= {_fmt(L)} ms and "
                  f"{_fmt(base_mb)} + {_fmt(models_mb)} + k x {_fmt(kf_mb)} <= {_fmt(M)} MB  ->  K = {K} "
                  f"(limited by {why})")
     arith.append(f"search S = min(target {s_target(K)}, floor(({_fmt(L)} - {_fmt(F)} - {K} x {_fmt(c_k)}) / "
@@ -1201,6 +1205,27 @@ class BudgetController:
                            for n, v in self.done.items()}}
 
 
+def clip_of(source: Any, fps: float | None = None) -> tuple[float, float]:
+    """(duration s, fps) of a frames.FrameSource from its timestamps (`fps` when they cannot tell)."""
+    n = len(source)
+    ts = getattr(source, "timestamps", None)
+    if ts is not None and n > 1 and float(ts[-1] - ts[0]) > 0:
+        f = (n - 1) / float(ts[-1] - ts[0])
+    elif fps:
+        f = float(fps)
+    else:
+        raise InputError(f"{getattr(source, 'name', 'source')}: cannot tell its frame rate; give --fps")
+    return n / f, f
+
+
+def controller_for(profile: Profile | str | os.PathLike, source: Any, trace: Trace, bundle: Any = None,
+                   conf: PlanConf | Mapping[str, Any] | None = None) -> BudgetController:
+    """Plan for a frame source under a profile and return the run-time controller (the pipeline's entry point).
+    The plan is recorded in the trace (`decisions["budget.plan"]`); BudgetError when nothing fits."""
+    duration, fps = clip_of(source)
+    return BudgetController(plan(profile, duration, fps, bundle, conf), trace)
+
+
 # ------------------------------------------------------------------------------------------ `mosaic plan`
 
 
@@ -1225,16 +1250,7 @@ def _clip_from_args(args: argparse.Namespace) -> tuple[float, float]:
             raise InputError("give either --video or --duration, not both")
         from .frames import open_source
 
-        src = open_source(args.video, **({"fps": args.fps} if args.fps else {}))
-        n = len(src)
-        ts = src.timestamps
-        if n > 1 and float(ts[-1] - ts[0]) > 0:
-            fps = (n - 1) / float(ts[-1] - ts[0])
-        elif args.fps:
-            fps = args.fps
-        else:
-            raise InputError(f"{args.video}: cannot tell its frame rate; give --fps")
-        return n / fps, fps
+        return clip_of(open_source(args.video, **({"fps": args.fps} if args.fps else {})), args.fps)
     if args.duration is None or args.fps is None:
         raise InputError("mosaic plan needs --video V, or --duration S and --fps F")
     return float(args.duration), float(args.fps)

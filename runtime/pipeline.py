@@ -41,6 +41,7 @@ class PipelineConfig:
     first_seen_from_search: bool = True  # first-seen times also from the frames the search scored
     min_keyframes: int = 3               # fewer passing frames are topped up uniformly (recorded)
     min_scored_per_keyframe: int = 3     # search budget >= this x K (capped at the candidates), recorded
+    cover_min_area: float = 0.02         # top-up coverage: an object counts as seen from this box area share on
     topup: bool = True                   # fewer than K passing: add the best other scored frames (recorded)
     whole_image_fallback: bool = True    # key frames unaligned with matches inside boxes: retry on whole images
     bridge_frames: int = 48              # at most this many extra frames to connect unaligned key frames (0 = off)
@@ -164,8 +165,14 @@ def select(source: FrameSource, targets: Sequence[str], cues: Sequence[str], per
     chosen = [int(i) for i in res.chosen]
     if conf.topup and len(chosen) < K and res.scores:
         names = tuple(dict.fromkeys(list(targets) + list(cues)))
-        seen = {i: {n for n, sc in zip(d.names, d.scores) if sc > 0} for (i, nm), d in det.cache.items() if nm == names}
-        chosen = _top_up(chosen, res.scores, K, max(1, len(source) // (4 * K)), trace, seen)
+        W, H = source.size
+        seen: dict[int, dict[str, float]] = {}  # frame -> name -> largest box area (share of the image)
+        for (i, nm), d in det.cache.items():
+            if nm == names:
+                for n, b in zip(d.names, d.boxes):
+                    a = float((b[2] - b[0]) * (b[3] - b[1])) / float(W * H)
+                    seen.setdefault(i, {})[n] = max(seen.get(i, {}).get(n, 0.0), a)
+        chosen = _top_up(chosen, res.scores, K, max(1, len(source) // (4 * K)), trace, seen, conf.cover_min_area)
     if len(chosen) < min(conf.min_keyframes, len(cands)):
         extra = [int(i) for i in uniform_keyframes(cands, KeyFrameConf.merged({"keyframes": conf.min_keyframes})).chosen
                  if int(i) not in chosen]
@@ -178,27 +185,30 @@ def select(source: FrameSource, targets: Sequence[str], cues: Sequence[str], per
 
 
 def _top_up(chosen: list[int], scores: dict[int, float], K: int, gap: int, trace: Trace,
-            seen: dict[int, set[str]] | None = None) -> list[int]:
+            seen: dict[int, dict[str, float]] | None = None, cover_min_area: float = 0.02) -> list[int]:
     """Fewer than K frames passed the threshold: add frames the search already scored (score > 0), skipping
-    frames within `gap` of one already chosen (near-duplicates add no view). Coverage first: while some object
-    the detector saw in a scored frame is in no chosen frame, the best-scoring frame showing one is added
-    (`seen`: frame -> names detected there); then the rest by score. Recorded."""
+    frames within `gap` of one already chosen (near-duplicates add no view). Coverage first: while an object the
+    detector saw in some scored frame has no view of at least `cover_min_area` of the image in a chosen frame,
+    the scored frame with its largest box is added (`seen`: frame -> name -> box area share); then the rest by
+    score. Recorded."""
     out = list(chosen)
     seen = seen or {}
 
     def ok(i: int) -> bool:
         return scores.get(i, 0) > 0 and i not in out and all(abs(i - j) >= gap for j in out)
 
-    covered = set().union(*[seen.get(i, set()) for i in out]) if out else set()
-    missing = set().union(*seen.values()) - covered if seen else set()
+    def covered() -> set[str]:
+        return {n for i in out for n, a in seen.get(i, {}).items() if a >= cover_min_area}
+
+    missing = {n for d in seen.values() for n in d} - covered()
     n_cov = 0
     while len(out) < K and missing:
-        cand = [i for i in seen if ok(i) and seen[i] & missing]
+        cand = [(a, i, n) for i in seen if ok(i) for n, a in seen[i].items() if n in missing]
         if not cand:
             break
-        i = max(cand, key=lambda i: (len(seen[i] & missing), scores[i], -i))
+        a, i, n = max(cand, key=lambda c: (c[0], -c[1]))
         out.append(int(i))
-        missing -= seen[i]
+        missing -= covered() | {n}
         n_cov += 1
     for i in sorted(scores, key=lambda i: (-scores[i], i)):
         if len(out) >= K:
@@ -207,8 +217,8 @@ def _top_up(chosen: list[int], scores: dict[int, float], K: int, gap: int, trace
             out.append(int(i))
     if len(out) > len(chosen):
         trace.event("degraded", f"{len(chosen)} of {K} key frames passed the threshold; added {len(out) - len(chosen)} "
-                    f"more of the scored frames ({n_cov} for objects no chosen frame showed, the rest by score; at "
-                    f"least {gap} frames apart)", stage="keyframes", passed=len(chosen), added=len(out) - len(chosen))
+                    f"more of the scored frames ({n_cov} for objects no chosen frame showed well, the rest by score; "
+                    f"at least {gap} frames apart)", stage="keyframes", passed=len(chosen), added=len(out) - len(chosen))
     return sorted(out)
 
 

@@ -393,3 +393,15 @@ def test_online_video_pass_is_not_in_the_question_latency():
     assert not any("cannot keep up" in n for n in p.notes)  # 2 ms per frame at 10 fps: x0.02 real time
     slow = B.parse_profile(_mutate(lambda d: d["costs"]["dedup"].update(ms_per_call=150)))
     assert any("cannot keep up" in n for n in B.plan(slow, 100, 10, conf={**HAND, "video_pass": "online"}).notes)
+
+
+def test_controller_for_a_frame_source(redkitchen):
+    from mosaicthinker.runtime.frames import open_source
+
+    src = open_source(redkitchen, fps=30)
+    duration, fps = B.clip_of(src)
+    assert duration * fps == pytest.approx(len(src))
+    trace = Trace()
+    ctl = B.controller_for("cpu-generic", src, trace, conf={"use_vlm": False})
+    assert ctl.plan.total_frames == len(src) and 2 <= ctl.keyframes <= 32
+    assert trace.decisions["budget.plan"]["keyframes"] == ctl.keyframes

@@ -75,3 +75,17 @@ def test_mosaic_demo_runs_without_model_files(tmp_path):
     assert "perception: oracle" in r.stdout and "mean score" in r.stdout
     assert r.stdout.count("   answer ") == 3 and r.stdout.count("   truth ") == 3
     assert (out / "map.png").is_file() and (out / "trace.json").is_file() and (out / "scene" / "scene.json").is_file()
+
+
+def test_inline_options_and_vlm_answerer_needs_a_bundle(tmp_path):
+    from mosaicthinker.runtime.commands.ask import split_inline_options
+    from mosaicthinker.runtime.semantic_map import SemanticMap
+
+    q, opts = split_inline_options("Which is closest to the tv? A. sofa B. chair C. door")
+    assert q == "Which is closest to the tv?" and opts == ["A. sofa", "B. chair", "C. door"]
+    assert split_inline_options("How many chair(s) are in this room?") == ("How many chair(s) are in this room?",
+                                                                            None)
+    m = tmp_path / "empty.json"
+    SemanticMap().save(m)
+    r = mosaic("ask", str(m), "How many chair(s) are in this room?", "--answerer", "vlm")
+    assert r.returncode == 2 and "vlm" in r.stderr

@@ -187,18 +187,32 @@ def test_efficientloftr_runtime(tiny_bundle, rgb):
     res = m.match(rgb, np.roll(rgb, 8, axis=1))
     assert res.uv0.shape == res.uv1.shape
     assert (res.scores > 0).all()
+    # pairs are image-0 cell i with its mutual match j (transformers pairs index-aligned cells, which breaks
+    # for any motion): even the random tiny net finds the 8 px shift at the cells it matches
+    assert len(res.uv0) > 0
+    dx = res.uv1[:, 0] - res.uv0[:, 0]
+    assert abs(float(np.median(dx)) - 8.0) <= 1.0
 
 
 def test_cli_export_tiny_role(tmp_path):
     """`mosaic export embedder --source tiny:siglip` end to end through the CLI (fp32)."""
     out = tmp_path / "cli_b"
     r = subprocess.run([sys.executable, "-m", "mosaicthinker.runtime.cli", "export", "embedder", "--source",
-                        "tiny:siglip", "--out", str(out), "--json"], capture_output=True, text=True, timeout=600)
+                        "tiny:siglip", "--precision", "fp32,fp16", "--out", str(out), "--json"],
+                       capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr[-2000:]
     res = json.loads(r.stdout)
-    assert res["bundle_roles"]["embedder"] == ["fp32"]
+    assert res["bundle_roles"]["embedder"] == ["fp16", "fp32"]
     man = json.loads((out / "manifest.json").read_text())
     assert man["roles"]["embedder"]["arch"] == "siglip"
+    assert man["roles"]["embedder"]["variants"]["fp16"]["parity"]["model"]["ok"]
+    # re-exporting the role from another architecture replaces it (no stale fp16 of the old model)
+    from mosaicthinker.export import hf_clip
+
+    hf_clip.export_embedder("tiny:clip", out, ["fp32"])
+    man = json.loads((out / "manifest.json").read_text())
+    assert man["roles"]["embedder"]["arch"] == "clip"
+    assert sorted(man["roles"]["embedder"]["variants"]) == ["fp32"]
 
 
 def test_tiny_source_errors():
@@ -231,3 +245,18 @@ def test_parity_catches_shapes_specialised_at_export(tmp_path):
     with pytest.raises(ExportError, match="parity"):
         hf_depth.export_variants(tmp_path / "b", "depth", [g], meta, ["fp32"])
     assert not (tmp_path / "b" / "manifest.json").exists()
+
+
+def test_checkpoint_sources_fail_clearly(tmp_path):
+    """`dir:` of a missing or non-checkpoint folder -> ExportError naming the source (no hub access needed)."""
+    from transformers import DepthAnythingForDepthEstimation
+
+    from mosaicthinker.export.hf_depth import load_source
+    from mosaicthinker.runtime.errors import ExportError
+
+    with pytest.raises(ExportError, match="does not exist"):
+        load_source(f"dir:{tmp_path / 'nope'}", "depth", DepthAnythingForDepthEstimation)
+    with pytest.raises(ExportError, match="could not load DepthAnythingForDepthEstimation"):
+        load_source(f"dir:{tmp_path}", "depth", DepthAnythingForDepthEstimation)
+    with pytest.raises(ExportError, match="expected hf:ID"):
+        load_source("s3://bucket/x", "depth", DepthAnythingForDepthEstimation)

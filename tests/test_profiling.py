@@ -33,12 +33,16 @@ def test_percentiles_and_random_feeds():
     class Sess:
         def get_inputs(self):
             return [Inp("img", [1, 8, 8, 3], "tensor(uint8)"), Inp("ids", ["batch", 5], "tensor(int64)"),
-                    Inp("x", [None, 2], "tensor(float)")]
+                    Inp("x", [None, 2], "tensor(float)"), Inp("past_key_0", [1, 2, "past", 8], "tensor(float)"),
+                    Inp("attention_mask", [1, "total"], "tensor(int64)")]
 
     f = P.random_feeds(Sess(), np.random.default_rng(0))
     assert f["img"].dtype == np.uint8 and f["img"].shape == (1, 8, 8, 3)
     assert f["ids"].dtype == np.int64 and f["ids"].shape == (1, 5)
     assert f["x"].dtype == np.float32 and f["x"].shape == (1, 2)
+    # a decoder step: a 16-token cache, one new token, the mask covers both
+    assert f["past_key_0"].shape == (1, 2, 16, 8) and f["attention_mask"].shape == (1, 17)
+    assert (f["attention_mask"] == 1).all()
 
 
 def test_mosaic_profile_report_on_shared_models(shared_bundle, tmp_path, capsys):
