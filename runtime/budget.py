@@ -83,6 +83,8 @@ COST_ITEMS: dict[str, tuple[tuple[str, ...], str]] = {
     "matcher": (("ms_per_call", "ms_per_pair", "load_ms", "resident_mb"),
                 "per key frame (features) + per matched pair"),
     "geometry": (("ms_per_call",), "per key frame: RANSAC on its tree edge, spanning tree, fusion into the map"),
+    "refine": (("ms_per_call",), "per key frame: occlusion refinement (project the map, re-segment what is "
+                                 "missing)"),
     "keyframe_state": (("mb_per_call",), "MB held per key frame (image, depth, masks, features)"),
     "vlm": (("ms_per_image", "ms_per_token", "load_ms", "resident_mb"),
             "per image (vision encoder + prefill of its tokens) and per generated token"),
@@ -732,6 +734,7 @@ def plan(profile: Profile | str | os.PathLike, duration_s: float, fps: float, bu
               "features": cost("matcher", "ms_per_call"),
               "matching": c.pairs_per_keyframe * cost("matcher", "ms_per_pair"),
               "geometry": cost("geometry", "ms_per_call"),
+              "refine": cost("refine", "ms_per_call"),
               "vlm_images": c.vlm_images_per_keyframe * cost("vlm", "ms_per_image")}
     c_k = sum(per_kf.values())
     F = sum(fixed.values())
@@ -821,7 +824,8 @@ def plan(profile: Profile | str | os.PathLike, duration_s: float, fps: float, bu
         "keyframes": StageBudget("keyframes", per_scored_ms=c_s),
         "perception": StageBudget("perception", per_keyframe_ms=per_kf["decode"] + per_kf["segmenter"]
                                   + per_kf["depth"] + per_kf["embedder"] + per_kf["features"]),
-        "alignment": StageBudget("alignment", per_keyframe_ms=per_kf["matching"] + per_kf["geometry"]),
+        "alignment": StageBudget("alignment", per_keyframe_ms=per_kf["matching"] + per_kf["geometry"]
+                                 + per_kf["refine"]),
         "answer": StageBudget("answer", fixed_ms=vlm_fixed, per_keyframe_ms=per_kf["vlm_images"]),
     }
     mem = {"process": base_mb, "models": models_mb, "keyframes": K * kf_mb}

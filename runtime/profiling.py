@@ -13,9 +13,10 @@ thread default):
 - with --video, one full question (`--question`, default "How many chairs are in this room?") through
   `pipeline.ask` in a fresh process: wall time, per-stage times and calls from its Trace, peak RSS.
 
-Outputs in --out: `report.json` (schema mosaicthinker.profile_report/1), `report.md`, `latency.png`,
-`memory.png` (Pillow charts, no matplotlib). `--update-profile` writes the measured costs back into the
-profile TOML (status "measured", today's date and the bundle hash). Random-weight models are marked everywhere:
+Outputs in --out: `report.json` (schema mosaicthinker.profile_report/1), `report.md`, `latency.png` (per call),
+`memory.png`, and `pipeline.png` (seconds per stage of the question) when one ran (Pillow charts, no
+matplotlib). `--update-profile` writes the measured costs back into the profile TOML (status "measured", today's
+date and the bundle hash). Random-weight models are marked everywhere:
 their timings are real, their outputs are not.
 """
 from __future__ import annotations
@@ -440,6 +441,8 @@ def _costs_from(report: dict[str, Any]) -> tuple[dict[str, dict[str, float]], di
     pl = report.get("pipeline") or {}
     if "dedup" not in costs and pl.get("frames") and "dedup" in pl.get("stages", {}):
         costs["dedup"] = {"ms_per_call": pl["stages"]["dedup"]["seconds"] * 1000 / pl["frames"]}
+    if pl.get("keyframes") and "refine" in pl.get("stages", {}):
+        costs["refine"] = {"ms_per_call": pl["stages"]["refine"]["seconds"] * 1000 / pl["keyframes"]}
     if "latency_ms" in cpu.get("ransac_pair", {}):
         costs["geometry"] = {"ms_per_call": cpu["ransac_pair"]["latency_ms"]["p50"]}
     costs["process"] = {"resident_mb": report["process"]["rss_baseline_mb"]}
@@ -453,6 +456,7 @@ COST_NOTES = {
     "geometry": "RANSAC on one 400-point pair only (the tree and fusion shares are not in this figure)",
     "process": "RSS after importing the runtime, numpy, OpenCV and onnxruntime (no frame cache yet)",
     "dedup": "redundant-frame-removal pass per video frame, including the decoding it does",
+    "refine": "occlusion refinement time of the full-question run divided by its key frames",
 }
 
 
@@ -696,7 +700,7 @@ def bar_chart(path: str | os.PathLike, title: str, labels: list[str], values: li
             d.line([x, y + 7, x, y + row - 9], fill="black", width=1)
         d.text((left + max(1, int(max(v, whiskers[i] if whiskers else v) * scale)) + 6, y + 4),
                f"{v:.1f} {unit}", fill="black", font=fs)
-    foot = legend if whiskers else ""
+    foot = legend if (whiskers or legend != "bars: p50, whisker: p90") else ""
     if marks and any(marks):
         foot += ("; " if foot else "") + "* random weights (timings real, outputs not)"
     d.text((10, H - 24), foot, fill=(90, 90, 90), font=f)
@@ -705,7 +709,7 @@ def bar_chart(path: str | os.PathLike, title: str, labels: list[str], values: li
 
 
 def write_report(report: dict[str, Any], out: str | os.PathLike) -> dict[str, str]:
-    """report.json, report.md, latency.png, memory.png into `out`."""
+    """report.json, report.md, latency.png, memory.png (and pipeline.png after a full question) into `out`."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     from .trace import jsonable
@@ -719,16 +723,20 @@ def write_report(report: dict[str, Any], out: str | os.PathLike) -> dict[str, st
     for k, v in report.get("cpu_side", {}).items():
         if "ms_per_frame" in v:
             lat_rows.append({"name": f"cpu: {k} / frame", "p50": v["ms_per_frame"], "p90": nan, "random": False})
-    for n, st in (report.get("pipeline") or {}).get("stages", {}).items():
-        lat_rows.append({"name": f"question: {n} (total)", "p50": st["seconds"] * 1000, "p90": nan,
-                         "random": False})
+    files = ["report.json", "report.md", "latency.png", "memory.png"]
+    stages = (report.get("pipeline") or {}).get("stages", {})
+    if stages:  # totals of one question, on their own scale (seconds, not ms per call)
+        bar_chart(out / "pipeline.png", f"one question, time per stage: {report['pipeline'].get('question')}",
+                  list(stages), [st["seconds"] for st in stages.values()], None, "s",
+                  legend="nested stages overlap (e.g. detect contains detector)")
+        files.append("pipeline.png")
     bar_chart(out / "latency.png", f"latency per model / stage (bundle {report['bundle_hash']})",
               [r["name"] for r in lat_rows], [r.get("p50", nan) for r in lat_rows],
               [r.get("p90", nan) for r in lat_rows], "ms", [r["random"] for r in lat_rows])
     bar_chart(out / "memory.png", f"resident memory per model (bundle {report['bundle_hash']})",
               [r["name"] for r in rows], [r.get("mem", nan) for r in rows], [r.get("peak", nan) for r in rows],
               "MB", [r["random"] for r in rows], legend="bars: RSS increase after load + runs, whisker: peak increase")
-    return {k: str(out / k) for k in ("report.json", "report.md", "latency.png", "memory.png")}
+    return {k: str(out / k) for k in files}
 
 
 # ------------------------------------------------------------------------------------------ `mosaic profile`
