@@ -44,7 +44,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--random-k", default="16,32")
     ap.add_argument("--matchers", default="sift,orb")
     ap.add_argument("--out", default=str(HERE / "results"))
+    ap.add_argument("--conf", action="append", default=[], metavar="KEY=VALUE",
+                    help="alignment config override (runtime.alignment.AlignConf), e.g. verify_top=3")
     a = ap.parse_args(argv)
+    conf = {k: json.loads(v) for k, v in (c.split("=", 1) for c in a.conf)}
     src = open_source(a.data, cache_size=260)
     runs: list[dict] = []
     uk = [int(k) for k in a.uniform_k.split(",") if k]
@@ -56,7 +59,7 @@ def main(argv: list[str] | None = None) -> int:
     matchers = {name: FeatureMatcher(name, cache_size=260) for name in a.matchers.split(",")}  # feature caches
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
-    meta = {"schema": "mosaicthinker.bench.pose_table/1", "data": str(a.data), "depth": "sensor",
+    meta = {"schema": "mosaicthinker.bench.pose_table/1", "data": str(a.data), "depth": "sensor", "conf": conf,
             "command": "python benchmarks/pose_table.py " + " ".join(argv if argv is not None else sys.argv[1:]),
             "machine": {"python": platform.python_version(), "cpu_count": os.cpu_count(),
                         "platform": platform.platform()}}
@@ -66,7 +69,7 @@ def main(argv: list[str] | None = None) -> int:
                 idx = pick_frames(len(src), k, sampling, seed)
                 for strategy in ("mst", "sequential"):
                     ext0 = fm.extract_seconds
-                    r = evaluate_pose(src, idx, fm, strategy)
+                    r = evaluate_pose(src, idx, fm, strategy, conf=conf or None)
                     row = {"matcher": matcher_name, "sampling": sampling, "K": k, "seed": seed, "strategy": strategy,
                            "ate_rmse_m": r["ate_rmse_m"], "rpe_trans_m": r["rpe_trans_m"],
                            "rpe_rot_deg": r["rpe_rot_deg"], "aligned_frames": r["aligned_frames"],

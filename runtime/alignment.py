@@ -45,6 +45,7 @@ class AlignConf:
     refine_m: float = 0.02             # final least-squares refit on matches within this distance (m; for
                                        # relative depth scaled like threshold_rel); 0 = off
     iterations: int = 1000
+    max_matches: int = 400             # matches with valid depth kept per pair, best scores first (0 = all)
     min_inliers: int = 20              # fewer inliers = failed edge
     min_inlier_ratio: float = 0.15     # inliers / matches with depth, below = failed edge (random matches)
     max_depth_m: float = 10.0          # ignore depth beyond this (sensor noise)
@@ -60,8 +61,28 @@ class AlignConf:
     icp_min_overlap: float = 0.2       # fraction of b's points paired in a, below = ICP rejected
     verify_top: int = 4                # geometric refinement: each frame's top-k similar frames are aligned first
                                        # and the tree prefers edges with more inliers (0 = order by S only)
+    verify_neighbours: int = 0         # ... plus each frame's n time neighbours (uneven key-frame gaps make
+                                       # them a weak prior; similarity alone is the paper's choice)
     max_attempts: int | None = None    # cap on pairwise alignments tried by Kruskal (None = as many as needed)
     seed: int = 0
+    # edge type: "rgbd" = 3D-3D RANSAC on depth-lifted matches (SE(3) metric / Sim(3) relative); "essential" =
+    # 5-point essential matrix for rotation + translation direction, the depth only sets the translation
+    # length (`align_pair_essential`); "auto" = essential when depth is relative (with_scale), else rgbd
+    edge: str = "auto"
+    essential_px: float = 1.0          # essential-matrix RANSAC threshold (pixels, Sampson distance)
+    essential_method: str = "magsac"   # OpenCV robust estimator: "magsac" (USAC_MAGSAC, local optimisation) or
+                                       # "ransac" (classic RANSAC)
+    essential_matches: int = 2000      # matches kept for the essential matrix, best scores first (0 = all)
+    essential_refine: bool = True     # Sampson-error least squares on the inliers after RANSAC
+    essential_check_deg: float = 0.0  # > 0: re-estimate with another sampler, fail the edge when the rotations
+                                       # differ by more than this (or the directions by 10x this)
+    min_parallax_deg: float = 1.0      # triangulated points with a smaller ray angle do not vote on the scale
+    min_scale_points: int = 8          # fewer voting points = failed edge
+    scale_mode: str = "graph"          # "chain": each frame's relative depth has its own scale, the edge carries
+                                       # the ratio (Sim(3) edge; scale composes along the tree); "graph": the same,
+                                       # but the per-frame scales are solved over ALL verified edges
+                                       # (`essential_frame_scales`) before composing; "shared": one scale for
+                                       # every frame's depth (rigid edge, baseline = geometric mean)
 
     @classmethod
     def merged(cls, conf: "AlignConf | Mapping[str, Any] | None" = None, **overrides: Any) -> "AlignConf":
@@ -89,6 +110,8 @@ class PairResult:
     reason: str = ""
     icp: str = ""         # "" (not tried), "applied", or why it was rejected
     icp_rms_m: float = float("nan")
+    scale_a: float = float("nan")  # essential edges: baseline length in frame a's / b's depth units
+    scale_b: float = float("nan")
 
     def to_dict(self) -> dict[str, Any]:
         return {"ok": self.ok, "matches": self.n_matches, "valid": self.n_valid, "inliers": self.n_inliers,
@@ -112,8 +135,13 @@ def align_pair(m: Matches, depth_a: np.ndarray, K_a: np.ndarray, depth_b: np.nda
     lim = conf.max_depth_m if not with_scale else np.inf
     ok = (za > 0) & (zb > 0) & (za < lim) & (zb < lim)
     if conf.edge_radius > 0:  # keypoints sit on corners, often on depth edges: their depth is unreliable
-        ok &= depth_smooth(depth_a, m.uv0, conf.edge_radius, conf.edge_rel)
-        ok &= depth_smooth(depth_b, m.uv1, conf.edge_radius, conf.edge_rel)
+        q = np.flatnonzero(ok)
+        ok[q] = depth_smooth(depth_a, m.uv0[q], conf.edge_radius, conf.edge_rel) & \
+            depth_smooth(depth_b, m.uv1[q], conf.edge_radius, conf.edge_rel)
+    if conf.max_matches and ok.sum() > conf.max_matches:  # keep the most distinctive matches (RANSAC cost ~ N)
+        q = np.flatnonzero(ok)
+        ok[:] = False
+        ok[q[np.argsort(-m.scores[q], kind="stable")[:conf.max_matches]]] = True
     nv = int(ok.sum())
     if nv < max(3, conf.min_inliers):
         return PairResult(np.eye(4), False, len(m), nv, 0, float("inf"), time.perf_counter() - t0,
@@ -155,6 +183,167 @@ def align_pair(m: Matches, depth_a: np.ndarray, K_a: np.ndarray, depth_b: np.nda
         else:
             T, icp = T2, "applied"
     return PairResult(T, good, len(m), nv, r.n_inliers, r.residual, time.perf_counter() - t0, reason, icp, icp_rms)
+
+
+def align_pair_essential(m: Matches, depth_a: np.ndarray, K_a: np.ndarray, depth_b: np.ndarray, K_b: np.ndarray,
+                         conf: AlignConf | None = None, dist_a: np.ndarray | None = None,
+                         dist_b: np.ndarray | None = None) -> PairResult:
+    """Pairwise alignment for relative (non-metric) depth: the 5-point essential matrix (OpenCV, RANSAC) gives
+    the rotation and the translation direction; the depth maps ([H, W], any consistent-per-frame unit, 0 =
+    invalid) only set the translation length.
+
+    Scale: the essential inliers are triangulated with a unit baseline; for points whose two rays meet at more
+    than `min_parallax_deg`, the predicted depth over the triangulated depth is the baseline length in that
+    frame's depth units; the median over the points gives s_a (frame a) and s_b (frame b). Returned T_ab (b camera
+    -> a camera) is the similarity [(s_a / s_b) R_ba, s_a t_ba] in a's depth units (`scale_mode` "chain"), so
+    composing edges along the tree keeps one global scale (the root's); "shared" assumes every frame's depth has
+    the same unit and returns the rigid [R_ba, sqrt(s_a s_b) t_ba].
+    Failed edges: too few matches or essential inliers, a degenerate essential matrix, or too few points with
+    parallax and depth to fix the scale (pure rotation / tiny baseline)."""
+    import cv2
+
+    conf = conf or AlignConf()
+    t0 = time.perf_counter()
+    n = len(m)
+
+    def fail(why: str, nv: int = 0, ninl: int = 0) -> PairResult:
+        return PairResult(np.eye(4), False, n, nv, ninl, float("inf"), time.perf_counter() - t0, why)
+
+    if n < max(8, conf.min_inliers):
+        return fail(f"only {n} matches (need {max(8, conf.min_inliers)})")
+    sel = np.arange(n)
+    if conf.essential_matches and n > conf.essential_matches:
+        sel = np.argsort(-m.scores, kind="stable")[:conf.essential_matches]
+    uva, uvb = m.uv0[sel].astype(np.float64), m.uv1[sel].astype(np.float64)
+    xa = cv2.undistortPoints(uva.reshape(-1, 1, 2), K_a, None if dist_a is None else np.asarray(dist_a, float))
+    xb = cv2.undistortPoints(uvb.reshape(-1, 1, 2), K_b, None if dist_b is None else np.asarray(dist_b, float))
+    xa, xb = xa.reshape(-1, 2), xb.reshape(-1, 2)
+    f = 0.25 * (K_a[0, 0] + K_a[1, 1] + K_b[0, 0] + K_b[1, 1])
+    method = {"magsac": cv2.USAC_MAGSAC, "accurate": cv2.USAC_ACCURATE, "ransac": cv2.RANSAC}.get(
+        conf.essential_method)
+    if method is None:
+        raise InputError(f"alignment config: essential_method must be 'magsac', 'accurate' or 'ransac', got "
+                         f"{conf.essential_method!r}")
+    E, mask = cv2.findEssentialMat(xa, xb, np.eye(3), method=method, prob=0.999,
+                                   threshold=conf.essential_px / f)
+    if E is None or E.shape[0] < 3:
+        return fail("no essential matrix", len(sel))
+    ninl, R, t, mask2 = cv2.recoverPose(E[:3], xa, xb, np.eye(3), mask=mask.copy())
+    inl = mask2.ravel() > 0
+    ninl = int(inl.sum())
+    if ninl < conf.min_inliers:
+        return fail(f"{ninl} essential inliers (need {conf.min_inliers})", len(sel), ninl)
+    if ninl < conf.min_inlier_ratio * len(sel):
+        return fail(f"essential inlier ratio {ninl / len(sel):.2f} below {conf.min_inlier_ratio}", len(sel), ninl)
+    if conf.essential_check_deg > 0:
+        # stability check: a second estimator (other sampler) must agree on the rotation and the translation
+        # direction; near-degenerate pairs (planar scenes, tiny baselines) give unstable decompositions
+        m2 = cv2.RANSAC if method != cv2.RANSAC else cv2.USAC_MAGSAC
+        E2, mk2 = cv2.findEssentialMat(xa, xb, np.eye(3), method=m2, prob=0.999, threshold=conf.essential_px / f)
+        if E2 is None or E2.shape[0] < 3:
+            return fail("unstable essential matrix (second estimate failed)", len(sel), ninl)
+        _n2, R2, t2, _m2 = cv2.recoverPose(E2[:3], xa, xb, np.eye(3), mask=mk2.copy())
+        dr = rotation_angle_deg(R.T @ R2)
+        dt = float(np.degrees(np.arccos(np.clip(float(t.ravel() @ t2.ravel()) /
+                                                max(np.linalg.norm(t) * np.linalg.norm(t2), 1e-12), -1, 1))))
+        if dr > conf.essential_check_deg or dt > 10 * conf.essential_check_deg:
+            return fail(f"unstable essential matrix: two estimates differ by {dr:.1f} deg rotation, {dt:.0f} deg "
+                        f"translation direction", len(sel), ninl)
+    t = t.reshape(3) / max(np.linalg.norm(t), 1e-12)  # x_b = R x_a + t, |t| = 1
+    if conf.essential_refine:
+        R, t = refine_essential(R, t, xa[inl], xb[inl], conf.essential_px / f)
+    Xh = cv2.triangulatePoints(np.eye(3, 4), np.hstack([R, t[:, None]]), xa[inl].T, xb[inl].T)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        X = (Xh[:3] / Xh[3]).T  # [M, 3] in camera a, unit baseline
+    Xb = X @ R.T + t
+    cb = -R.T @ t  # centre of b in a
+    ra, rb = X, X - cb
+    cosang = np.sum(ra * rb, 1) / np.maximum(np.linalg.norm(ra, axis=1) * np.linalg.norm(rb, axis=1), 1e-12)
+    par = np.degrees(np.arccos(np.clip(cosang, -1, 1)))
+    da = sample_depth(depth_a, uva[inl])
+    db = sample_depth(depth_b, uvb[inl])
+    ok = np.isfinite(X).all(1) & (X[:, 2] > 0) & (Xb[:, 2] > 0) & (par >= conf.min_parallax_deg) & (da > 0) & (db > 0)
+    nv = int(ok.sum())
+    if nv < conf.min_scale_points:
+        return fail(f"{nv} inliers with parallax >= {conf.min_parallax_deg} deg and depth (need "
+                    f"{conf.min_scale_points}): baseline too small to fix the scale", nv, ninl)
+    la = np.log(da[ok] / X[ok, 2])  # log baseline length in a's / b's depth units, per point
+    lb = np.log(db[ok] / Xb[ok, 2])
+    s_a, s_b = float(np.exp(np.median(la))), float(np.exp(np.median(lb)))
+    spread = float(np.median(np.abs(la - np.log(s_a))))  # robust log-scale spread (residual)
+    T = np.eye(4)
+    if conf.scale_mode == "shared":
+        T[:3, :3] = R.T
+        T[:3, 3] = -np.sqrt(s_a * s_b) * (R.T @ t)
+    else:
+        T[:3, :3] = (s_a / s_b) * R.T
+        T[:3, 3] = -s_a * (R.T @ t)
+    return PairResult(T, True, n, nv, ninl, spread, time.perf_counter() - t0, scale_a=s_a, scale_b=s_b)
+
+
+def refine_essential(R: np.ndarray, t: np.ndarray, xa: np.ndarray, xb: np.ndarray, scale: float
+                     ) -> tuple[np.ndarray, np.ndarray]:
+    """Least-squares refinement of a relative pose (x_b = R x_a + t, |t| = 1) on inlier correspondences in
+    normalised coordinates xa, xb [N, 2]: Sampson error, Huber loss at `scale`, rotation as a rotation vector
+    update and t on the unit sphere (2 tangent directions). Returns (R [3, 3], t [3])."""
+    from scipy.optimize import least_squares
+
+    from .geometry import rotation_about
+
+    ha = np.hstack([xa, np.ones((len(xa), 1))])
+    hb = np.hstack([xb, np.ones((len(xb), 1))])
+    u = np.cross(t, [1.0, 0, 0] if abs(t[0]) < 0.9 else [0, 1.0, 0])
+    u /= np.linalg.norm(u)
+    v = np.cross(t, u)
+
+    def pose(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        w = p[:3]
+        a = float(np.linalg.norm(w))
+        Rn = (rotation_about(w / a, a) if a > 1e-12 else np.eye(3)) @ R
+        tn = t + p[3] * u + p[4] * v
+        return Rn, tn / np.linalg.norm(tn)
+
+    def res(p: np.ndarray) -> np.ndarray:
+        Rn, tn = pose(p)
+        tx = np.array([[0, -tn[2], tn[1]], [tn[2], 0, -tn[0]], [-tn[1], tn[0], 0]])
+        E = tx @ Rn
+        Ea = ha @ E.T   # E x_a
+        Eb = hb @ E     # E^T x_b
+        num = np.sum(hb * Ea, 1)
+        den = np.sqrt(Ea[:, 0]**2 + Ea[:, 1]**2 + Eb[:, 0]**2 + Eb[:, 1]**2) + 1e-12
+        return num / den
+
+    sol = least_squares(res, np.zeros(5), loss="huber", f_scale=scale, method="trf", max_nfev=50)
+    return pose(sol.x)
+
+
+def essential_frame_scales(n: int, root: int, edges: Mapping[tuple[int, int], PairResult],
+                           rounds: int = 3) -> np.ndarray:
+    """Per-frame depth scales sigma [n] (global units per unit of frame k's relative depth, sigma[root] = 1) from
+    every verified essential edge (a, b) -> PairResult with scale_a/scale_b (the pair's baseline in a's and b's
+    depth units): the baseline is one length, so sigma_a * scale_a = sigma_b * scale_b. Solved in log space by
+    least squares over all verified edges (a graph, not only the tree: each frame's scale is averaged over its
+    edges instead of inheriting the errors of one path), re-weighted (Huber, 0.1 in log units) `rounds` times.
+    Frames without a verified edge keep 1."""
+    rows = [(a, b, np.log(r.scale_b) - np.log(r.scale_a), float(r.n_inliers))
+            for (a, b), r in edges.items() if r.ok and r.scale_a > 0 and r.scale_b > 0]
+    ls = np.zeros(n)
+    if not rows:
+        return np.ones(n)
+    A = np.zeros((len(rows) + 1, n))
+    y = np.zeros(len(rows) + 1)
+    w0 = np.ones(len(rows) + 1)
+    for k, (a, b, d, ninl) in enumerate(rows):  # log sigma_a - log sigma_b = log scale_b - log scale_a
+        A[k, a], A[k, b], y[k] = 1.0, -1.0, d
+        w0[k] = np.sqrt(ninl)
+    A[-1, root], w0[-1] = 1.0, 1e3  # gauge: sigma_root = 1
+    w = w0.copy()
+    for _ in range(max(1, rounds)):
+        ls = np.linalg.lstsq(A * w[:, None], y * w, rcond=None)[0]
+        r = np.abs(A @ ls - y)
+        w = w0 * np.where(r > 0.1, 0.1 / np.maximum(r, 1e-12), 1.0) ** 0.5
+        w[-1] = w0[-1]
+    return np.exp(ls)
 
 
 def _undistort(uv: np.ndarray, K: np.ndarray, dist: np.ndarray | None) -> np.ndarray:
@@ -271,14 +460,16 @@ def maximum_spanning_tree(S: np.ndarray, verify=None, max_attempts: int | None =
     return tree, failed
 
 
-def refine_with_inliers(S: np.ndarray, verify, inliers, top: int) -> np.ndarray:
+def refine_with_inliers(S: np.ndarray, verify, inliers, top: int,
+                        extra: Sequence[tuple[int, int]] = ()) -> np.ndarray:
     """Edge weights refined by geometric verification: every frame's `top` most similar frames (by S [K, K])
-    are aligned; a verified pair weighs 1 + its inlier count, a failed one -1 (never used), an untried one keeps
-    its similarity (in [-1, 1], so verified edges come first and untried ones are the next-best fallbacks).
-    verify(i, j) -> bool, inliers(i, j) -> int (after verify). Returns W [K, K]."""
+    are aligned, plus the `extra` pairs (e.g. time neighbours); a verified pair weighs 1 + its inlier count, a
+    failed one -1 (never used), an untried one keeps its similarity (in [-1, 1], so verified edges come first and
+    untried ones are the next-best fallbacks). verify(i, j) -> bool, inliers(i, j) -> int (after verify).
+    Returns W [K, K]."""
     K = len(S)
     W = np.array(S, dtype=np.float64)
-    cand = set()
+    cand = {(min(i, j), max(i, j)) for i, j in extra if i != j}
     for i in range(K):
         for j in np.argsort(-S[i])[:min(top, K - 1)]:
             if int(j) != i:
@@ -334,6 +525,7 @@ class AlignmentResult:
     similarity_kind: str = ""
     with_scale: bool = False
     seconds: dict[str, float] = field(default_factory=dict)
+    edge: str = "rgbd"    # pairwise edge type used: "rgbd" (3D-3D RANSAC) or "essential" (see AlignConf.edge)
 
     @property
     def aligned(self) -> list[int]:
@@ -342,7 +534,7 @@ class AlignmentResult:
     def to_dict(self) -> dict[str, Any]:
         return {"strategy": self.strategy, "root": self.root, "edges": [list(e) for e in self.edges],
                 "aligned": len(self.aligned), "unaligned": list(self.unaligned), "guessed": list(self.guessed),
-                "similarity": self.similarity_kind, "with_scale": self.with_scale,
+                "similarity": self.similarity_kind, "with_scale": self.with_scale, "edge": self.edge,
                 "pairs_tried": len(self.edge_stats), "pairs_failed": sum(not r.ok for r in self.edge_stats.values()),
                 "edge_stats": {f"{a}-{b}": r.to_dict() for (a, b), r in self.edge_stats.items()},
                 "seconds": {k: round(v, 4) for k, v in self.seconds.items()}}
@@ -392,6 +584,12 @@ def align_frames(frames: Sequence[Any], matcher: Any = "sift", strategy: str = "
     idx = [int(f.index) for f in frames]
     if len(set(idx)) != len(idx):
         raise InputError("align_frames: frame indices must be unique")
+    if conf.edge not in ("auto", "rgbd", "essential"):
+        raise InputError(f"alignment config: edge must be 'auto', 'rgbd' or 'essential', got {conf.edge!r}")
+    if conf.scale_mode not in ("chain", "graph", "shared"):
+        raise InputError(f"alignment config: scale_mode must be 'chain', 'graph' or 'shared', got "
+                         f"{conf.scale_mode!r}")
+    edge = conf.edge if conf.edge != "auto" else ("essential" if with_scale else "rgbd")
     m = _make_matcher(matcher)
     box_list = _as_list(boxes, frames, "boxes")
     stats: dict[tuple[int, int], PairResult] = {}
@@ -408,8 +606,12 @@ def align_frames(frames: Sequence[Any], matcher: Any = "sift", strategy: str = "
         else:
             mt = m.match(fa.rgb, fb.rgb, box_list[a], box_list[b])
         secs["match"] += time.perf_counter() - t0
-        r = align_pair(mt, fa.depth, fa.K, fb.depth, fb.K, conf, with_scale, rng, getattr(fa, "dist", None),
-                       getattr(fb, "dist", None))
+        if edge == "essential":
+            r = align_pair_essential(mt, fa.depth, fa.K, fb.depth, fb.K, conf, getattr(fa, "dist", None),
+                                     getattr(fb, "dist", None))
+        else:
+            r = align_pair(mt, fa.depth, fa.K, fb.depth, fb.K, conf, with_scale, rng, getattr(fa, "dist", None),
+                           getattr(fb, "dist", None))
         secs["ransac"] += r.seconds
         stats[(fa.index, fb.index)] = r
         if r.ok:
@@ -442,9 +644,14 @@ def align_frames(frames: Sequence[Any], matcher: Any = "sift", strategy: str = "
         t0 = time.perf_counter()
         W = S
         if conf.verify_top > 0:
-            W = refine_with_inliers(S, verify, stats_inliers, conf.verify_top)
+            order = sorted(range(len(frames)), key=lambda k: (frames[k].t, idx[k]))
+            nb = [(order[p], order[p + d]) for d in range(1, conf.verify_neighbours + 1)
+                  for p in range(len(order) - d)]
+            W = refine_with_inliers(S, verify, stats_inliers, conf.verify_top, nb)
         tree, _failed = maximum_spanning_tree(W, verify_cached, conf.max_attempts)
         secs["tree"] = time.perf_counter() - t0
+        if edge == "essential" and conf.scale_mode == "graph":
+            _rescale_essential(Tpair, tree, stats, idx, root)
         local, _parent = compose_tree(root, tree, Tpair)
         poses = {idx[k]: T for k, T in local.items()}
         edges = [(idx[i], idx[j]) for i, j in tree]
@@ -466,9 +673,11 @@ def align_frames(frames: Sequence[Any], matcher: Any = "sift", strategy: str = "
     secs["extract"] = getattr(m, "extract_seconds", 0.0) - extract0
     secs["match"] -= secs["extract"]  # match time excluding feature extraction
     unaligned = [i for i in idx if i not in poses]
-    res = AlignmentResult(poses, idx[root], edges, unaligned, strategy, guessed, stats, S, kind, with_scale, secs)
+    res = AlignmentResult(poses, idx[root], edges, unaligned, strategy, guessed, stats, S, kind, with_scale, secs,
+                          edge)
     if trace is not None:
         trace.decide("alignment.strategy", strategy)
+        trace.decide("alignment.edge", edge)
         trace.decide("alignment.similarity", kind or "time_order")
         trace.decide("alignment.root", idx[root])
         if unaligned:
@@ -478,6 +687,27 @@ def align_frames(frames: Sequence[Any], matcher: Any = "sift", strategy: str = "
             trace.event("degraded", f"sequential chaining: {len(guessed)} failed links kept the previous pose",
                         frames=guessed)
     return res
+
+
+def _rescale_essential(Tpair: dict[tuple[int, int], np.ndarray], tree: Sequence[tuple[int, int]],
+                       stats: Mapping[tuple[int, int], PairResult], idx: Sequence[int], root: int) -> None:
+    """Rewrite the tree's essential edges with per-frame scales solved over all verified edges: T_ab =
+    [(sigma_b / sigma_a) R_ab, (L_ab / sigma_a) d_ab], L_ab = geometric mean of sigma_a scale_a and sigma_b scale_b
+    (the baseline in global units), d_ab the unit translation direction; composing gives pose_k = [sigma_k R_k,
+    c_k], which maps frame k's depth points into the root frame (in the root's depth units)."""
+    pos = {int(f): k for k, f in enumerate(idx)}
+    by_pos = {(pos[a], pos[b]): r for (a, b), r in stats.items()}
+    sig = essential_frame_scales(len(idx), root, by_pos)
+    for a, b in tree:
+        r = by_pos[(a, b)]
+        T = Tpair[(a, b)]
+        R = T[:3, :3] / transform_scale(T)
+        d = T[:3, 3] / max(np.linalg.norm(T[:3, 3]), 1e-12)
+        L = np.sqrt(sig[a] * r.scale_a * sig[b] * r.scale_b)
+        Tn = np.eye(4)
+        Tn[:3, :3] = (sig[b] / sig[a]) * R
+        Tn[:3, 3] = (L / sig[a]) * d
+        Tpair[(a, b)] = Tn
 
 
 def pose_change(T_a: np.ndarray, T_b: np.ndarray) -> tuple[float, float]:

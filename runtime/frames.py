@@ -437,11 +437,18 @@ class VideoSource(FrameSource):
     """A video decoded sequentially with OpenCV.
 
     Opening scans the file once (grab only, no colour conversion) to count frames and read their timestamps,
-    because container frame counts are unreliable. Access decodes forward from the current position; going
-    backwards reopens the file. Decoded frames stay in an LRU cache (`cache_size` frames); `prefetch(indices)`
-    decodes a set of frames in one forward pass. Rotation metadata is applied by OpenCV
-    (CAP_PROP_ORIENTATION_AUTO) and recorded in `rotation_deg`.
+    because container frame counts are unreliable. Access decodes forward from the current position. A backward
+    access, or a jump more than `seek_min` frames ahead, seeks (CAP_PROP_POS_FRAMES: FFmpeg jumps to the
+    preceding key frame and decodes forward) and then checks the seek: the decoder's position and the frame's
+    timestamp must equal the ones recorded by the scan. A seek that lands elsewhere (inexact seeking in some
+    containers/codecs, or timestamps rebuilt from the nominal rate) switches the source to the exact slow path
+    for good: reopen and decode forward from frame 0 (recorded in `seek_mode`, "verified" or "sequential").
+    Decoded frames stay in an LRU cache (`cache_size` frames); `prefetch(indices)` decodes a set of frames in one
+    forward pass. Rotation metadata is applied by OpenCV (CAP_PROP_ORIENTATION_AUTO) and recorded in
+    `rotation_deg`.
     """
+
+    seek_min: int = 48  # forward jumps longer than this seek instead of decoding every frame in between
 
     def __init__(self, path: Path, hfov_deg: float = 60.0, K: np.ndarray | None = None,
                  dist: np.ndarray | None = None, cache_size: int = 64, max_frames: int | None = None):
@@ -471,6 +478,10 @@ class VideoSource(FrameSource):
         else:
             self.timestamp_source = "container"
         self.timestamps = t
+        # seeking is verified against the scan's container timestamps; without them only sequential decoding
+        # is exact
+        self.seek_mode = "verified" if self.timestamp_source == "container" else "sequential"
+        self.seek_note = "" if self.seek_mode == "verified" else "no container timestamps to verify seeks"
         self._cap = None
         self._pos = 0  # index of the next frame `grab()` returns
         first = self._decode(0)
@@ -493,7 +504,36 @@ class VideoSource(FrameSource):
         cap.set(cv2.CAP_PROP_ORIENTATION_AUTO, 1)
         return cap
 
+    def _seek(self, i: int) -> bool:
+        """Seek so that the next read returns frame i; False (and the capture reopened at 0) if inexact."""
+        cv2 = self._cv2
+        if self._cap is None:
+            self._cap, self._pos = self._open(), 0
+        if (self._cap.set(cv2.CAP_PROP_POS_FRAMES, float(i))
+                and int(round(self._cap.get(cv2.CAP_PROP_POS_FRAMES))) == i):
+            self._pos = i
+            return True
+        self._seek_failed(f"position {self._cap.get(cv2.CAP_PROP_POS_FRAMES)} after seeking to frame {i}")
+        return False
+
+    def _seek_failed(self, why: str) -> None:
+        self.seek_mode = "sequential"
+        self.seek_note = why
+        if self._cap is not None:
+            self._cap.release()
+        self._cap, self._pos = self._open(), 0
+
     def _decode(self, i: int) -> np.ndarray:
+        seek = (self.seek_mode == "verified" and self._cap is not None
+                and (i < self._pos or i - self._pos > self.seek_min))
+        if seek and self._seek(i):
+            ok, bgr = self._cap.read()
+            ms = self._cap.get(self._cv2.CAP_PROP_POS_MSEC)
+            if ok and bgr is not None and abs(ms / 1000.0 - self.timestamps[i]) < 1e-3:
+                self._pos = i + 1
+                return np.ascontiguousarray(bgr[:, :, ::-1])
+            self._seek_failed(f"frame {i}: timestamp {ms / 1000.0:.4f} s after seeking, scan gave "
+                              f"{self.timestamps[i]:.4f} s")
         if self._cap is None or i < self._pos:
             if self._cap is not None:
                 self._cap.release()
@@ -512,7 +552,10 @@ class VideoSource(FrameSource):
         return Frame(self._decode(i), float(self.timestamps[i]), i, self.K, dist=self.dist)
 
     def prefetch(self, indices: Sequence[int]) -> None:
-        for i in sorted(set(int(i) for i in indices)):
+        """Decode these frames in one forward pass (at most `cache_size` of them, the earliest: more would evict
+        the first before they are used; the rest are then reached by forward decoding anyway)."""
+        want = sorted(set(int(i) for i in indices if 0 <= int(i) < len(self)))
+        for i in want[:max(0, self._cache_size)]:
             if i not in self._cache:
                 self._remember(i, self._load(i))
 

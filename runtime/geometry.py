@@ -180,27 +180,45 @@ def ransac_transform(src: np.ndarray, dst: np.ndarray, threshold: float = 0.05, 
         return RansacResult(np.eye(4), np.zeros(n, bool), 0, float("inf"), False)
     best = np.zeros(n, bool)
     best_count, it, max_it = 0, 0, iterations
+    thr2 = threshold * threshold
+    pairs = ((0, 1), (0, 2), (1, 2))
     while it < max_it:  # hypotheses are drawn and scored in vectorised batches (same estimator, ~50x faster)
-        b = min(128, max_it - it)
+        b = min(256, max_it - it)
         it += b
         idx = rng.integers(0, n, size=(b, 3))
-        a = src[idx]  # [b, 3, 3]
-        area = np.linalg.norm(np.cross(a[:, 1] - a[:, 0], a[:, 2] - a[:, 0]), axis=1)
-        good = (area >= 1e-9) & (idx[:, 0] != idx[:, 1]) & (idx[:, 0] != idx[:, 2]) & (idx[:, 1] != idx[:, 2])
+        a, c = src[idx], dst[idx]  # [b, 3, 3]
+        good = (idx[:, 0] != idx[:, 1]) & (idx[:, 0] != idx[:, 2]) & (idx[:, 1] != idx[:, 2])
+        # distance pre-test (lossless): if all three points are inliers of some T, every pairwise distance is
+        # preserved to within 2 * threshold (times the scale for Sim(3)). Most samples holding an outlier fail
+        # here, before any SVD or scoring -- this is what makes failed pairs cheap.
+        da = np.stack([np.linalg.norm(a[:, i] - a[:, j], axis=1) for i, j in pairs], 1)  # [b, 3]
+        dc = np.stack([np.linalg.norm(c[:, i] - c[:, j], axis=1) for i, j in pairs], 1)
+        if with_scale:  # a common scale s with |s * da - dc| < 2 thr on all three pairs must exist
+            with np.errstate(divide="ignore", invalid="ignore"):
+                lo = ((dc - 2 * threshold) / da).max(1)
+                hi = ((dc + 2 * threshold) / da).min(1)
+            good &= (lo <= hi) & (hi > 0)
+        else:
+            good &= (np.abs(da - dc) < 2 * threshold).all(1)
         if not good.any():
             continue
-        Tb = umeyama_batch(a[good], dst[idx[good]], with_scale)  # [g, 4, 4]
+        a, c = a[good], c[good]
+        area = np.linalg.norm(np.cross(a[:, 1] - a[:, 0], a[:, 2] - a[:, 0]), axis=1)
+        ok_area = area >= 1e-9
+        if not ok_area.any():
+            continue
+        Tb = umeyama_batch(a[ok_area], c[ok_area], with_scale)  # [g, 4, 4]
         g = len(Tb)
         pred = (src @ Tb[:, :3, :3].reshape(3 * g, 3).T).reshape(n, g, 3)  # one GEMM for all hypotheses
         pred += Tb[None, :, :3, 3]
         pred -= dst[:, None, :]
-        inl_all = (np.einsum("ngk,ngk->gn", pred, pred) < threshold * threshold)  # [g, n]
+        inl_all = (np.einsum("ngk,ngk->gn", pred, pred) < thr2)  # [g, n]
         counts = inl_all.sum(1)
         k = int(np.argmax(counts))
-        c = int(counts[k])
-        if c > best_count:
-            best, best_count = inl_all[k], c
-            w = c / n
+        cnt = int(counts[k])
+        if cnt > best_count:
+            best, best_count = inl_all[k], cnt
+            w = cnt / n
             denom = np.log(max(1e-12, 1 - w**3))
             if denom < 0:
                 max_it = min(iterations, int(np.ceil(np.log(1 - confidence) / denom)) + 1)

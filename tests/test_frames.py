@@ -153,3 +153,36 @@ def test_frame_list():
     assert len(fl) == 3 and fl[1].index == 6 and fl.size == (64, 48)
     with pytest.raises(InputError):
         FrameList([])
+
+
+def _write_mp4(path: Path, n: int, fps: float = 15.0) -> bool:
+    """An mp4 (MPEG-4 part 2, key frame every 12 frames by OpenCV's default) whose frames all differ: a moving
+    textured pattern, so an off-by-one frame is detected."""
+    vw = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), fps, (96, 64))
+    if not vw.isOpened():
+        return False
+    rng = np.random.default_rng(0)
+    tex = rng.integers(0, 256, (64, 192, 3), dtype=np.uint8)
+    tex = cv2.GaussianBlur(tex, (5, 5), 0)
+    for i in range(n):
+        fr = np.ascontiguousarray(np.roll(tex, 3 * i, axis=1)[:, :96])
+        cv2.putText(fr, str(i), (5, 40), cv2.FONT_HERSHEY_SIMPLEX, 1.0, (255, 255, 255), 2)
+        vw.write(fr)
+    vw.release()
+    return path.exists() and path.stat().st_size > 0
+
+
+def test_mp4_random_access_equals_sequential(tmp_path):
+    p = tmp_path / "clip.mp4"
+    if not _write_mp4(p, 90):
+        pytest.skip("this OpenCV build cannot write mp4v video")
+    seq = [f.rgb.copy() for f in open_source(p, cache_size=0)]  # forward decoding only
+    assert len(seq) == 90
+    src = open_source(p, cache_size=4)
+    order = np.random.default_rng(1).permutation(90)[:40].tolist() + [89, 0, 60, 59, 5, 88, 1]
+    for i in order:  # backward seeks and long forward jumps
+        assert np.array_equal(src[i].rgb, seq[i]), f"frame {i} differs from sequential decoding ({src.seek_mode})"
+    assert src.seek_mode in ("verified", "sequential")
+    src.prefetch([70, 10, 40, 11])  # one sorted pass, then served from the cache
+    for i in (10, 11, 40, 70):
+        assert i in src._cache and np.array_equal(src[i].rgb, seq[i])

@@ -89,7 +89,7 @@ def test_adapters_interfaces(shared_bundle: Path, redkitchen: Path):
     m, _ = depth.predict_metric(rgb)  # no sensor: prior, recorded as degraded
     assert any(e["kind"] == "degraded" for e in tr.events) and m.max() > 0
     assert tr.providers["depth"]["used"] == "CPUExecutionProvider"
-    assert tr.stages["depth"].provider == "CPUExecutionProvider" and tr.stages["depth"].calls >= 2
+    assert tr.stages["depth.model"].provider == "CPUExecutionProvider" and tr.stages["depth.model"].calls >= 2
     assert any(e["kind"] == "fallback" and "CUDAExecutionProvider" in e["message"] for e in tr.events)
 
     det = load_role(shared_bundle, "detector", trace=tr)

@@ -1,5 +1,8 @@
 """Monocular depth adapter and the scale/shift recovery that makes relative depth metric-consistent.
 
+Trace: the graph run is timed as stage ``depth.model`` (pre/post-processing excluded), so that a caller's own
+``depth`` stage around `predict` is not double-counted.
+
 `DepthModel.predict(rgb [H, W, 3] uint8) -> [H, W] float32` returns the model's map resized to the input size
 with the manifest's semantics (`.semantics`):
 - ``metric_m``: z-depth in metres (0 = invalid);
@@ -199,7 +202,9 @@ class DepthModel(RoleModel):
     def predict_raw(self, rgb: np.ndarray) -> np.ndarray:
         """Model output at the model's resolution, [h, w] float32."""
         x = preprocess_image(rgb, self.spec.preprocessing)
-        with self._stage("depth"):
+        # "depth.model" (the graph alone), not "depth": callers time their whole depth step as "depth", and
+        # a nested stage of the same name was counted twice in the trace's per-stage totals
+        with self._stage("depth.model"):
             out = self.session().run({self._input: x})[self.conf.output]
         out = np.asarray(out, np.float32)
         return np.squeeze(out)
