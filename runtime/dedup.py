@@ -165,8 +165,9 @@ def remove_redundant(source_or_frames: Any, conf: DedupConf | Mapping[str, Any] 
         sampled = list(range(0, n, max(1, int(conf.stride))))
     sset = set(sampled)
     dropped: dict[int, str] = {}
-    if hasattr(src, "prefetch"):
-        src.prefetch(sampled)
+    # no prefetch of all sampled frames: it would decode them once into a bounded cache that evicts the first
+    # ones, and the loop below would then seek back and decode everything again; reading in increasing order
+    # decodes a video exactly once, forward
     idx_of = {p: index_at(p) for p in sampled}
     why = f"downsampled to {conf.sample_fps} fps" if conf.sample_fps else f"downsampled (stride {conf.stride})"
     for p in range(n):

@@ -182,8 +182,10 @@ def ransac_transform(src: np.ndarray, dst: np.ndarray, threshold: float = 0.05, 
     best_count, it, max_it = 0, 0, iterations
     thr2 = threshold * threshold
     pairs = ((0, 1), (0, 2), (1, 2))
+    bsize = 32  # batches grow 32, 64, 128, 256: easy pairs stop after one small batch by the confidence bound
     while it < max_it:  # hypotheses are drawn and scored in vectorised batches (same estimator, ~50x faster)
-        b = min(256, max_it - it)
+        b = min(bsize, max_it - it)
+        bsize = min(256, 2 * bsize)
         it += b
         idx = rng.integers(0, n, size=(b, 3))
         a, c = src[idx], dst[idx]  # [b, 3, 3]

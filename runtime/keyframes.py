@@ -347,12 +347,17 @@ def exhaustive_keyframes(candidates: Sequence[int], targets: Sequence[str], cues
 def iterative_search(candidates: Sequence[int], targets: Sequence[str], cues: Sequence[str], detect: DetectFn,
                      image: ImageFn | None = None, conf: KeyFrameConf | None = None,
                      trace: Any | None = None,
-                     histograms: MutableMapping[int, np.ndarray] | None = None) -> KeyFrameResult:
+                     histograms: MutableMapping[int, np.ndarray] | None = None,
+                     prefetch: Callable[[Sequence[int]], None] | None = None) -> KeyFrameResult:
     """The paper's iterative temporal search over `candidates` [M] frame indices.
 
     detect(frame_index, names) -> Detections scores one frame; image(frame_index) -> [H, W, 3] uint8 RGB feeds
     the histogram similarity that sets each kernel's width (without it every kernel uses sigma_min, noted);
     `histograms` (frame index -> colour histogram) is filled lazily and may be shared across questions.
+    `prefetch(frame indices)` (optional; default `image.prefetch` when the callable has one, e.g. a bound
+    `FrameSource.prefetch`) is called once per iteration with the batch's frames and their +-r neighbours, in
+    time order, before they are scored: a video source then decodes them in one forward pass instead of seeking
+    back and forth. It changes no result, only the decoding order.
     `trace` (a runtime.trace.Trace) receives a "degraded" event when fewer than K frames pass, a "fallback"
     event when the question names no object (uniform key frames), and the decision `keyframes.method`.
     """
@@ -368,6 +373,8 @@ def iterative_search(candidates: Sequence[int], targets: Sequence[str], cues: Se
                         stage="keyframes")
         return res
     weights = object_weights(targets, cues, conf)
+    if prefetch is None:
+        prefetch = getattr(image, "prefetch", None)
     max_score = sum(weights.values())
     budget = resolve_budget(m, conf)
     sizes = batch_sizes(budget, conf.iterations, conf.batch)
@@ -395,6 +402,10 @@ def iterative_search(candidates: Sequence[int], targets: Sequence[str], cues: Se
         if conf.record_distributions:
             dists.append(p.copy())
         batch = rng.choice(m, size=size, replace=False, p=p)
+        if prefetch is not None:
+            need = {int(c[j]) for b in batch for j in range(max(0, int(b) - conf.r), min(m, int(b) + conf.r + 1))
+                    if j == int(b) or hist is None or int(c[j]) not in hist.store}
+            prefetch(sorted(need))
         for pos in sorted(int(b) for b in batch):
             s = frame_score(detect(int(c[pos]), names), weights)
             pos_scores[pos] = s
@@ -442,10 +453,12 @@ def iterative_search(candidates: Sequence[int], targets: Sequence[str], cues: Se
 def select_keyframes(method: str, candidates: Sequence[int], targets: Sequence[str], cues: Sequence[str],
                      detect: DetectFn, image: ImageFn | None = None, conf: KeyFrameConf | None = None,
                      trace: Any | None = None,
-                     histograms: MutableMapping[int, np.ndarray] | None = None) -> KeyFrameResult:
-    """Run one of `METHODS` ("iterative", "uniform", "exhaustive") with the same inputs."""
+                     histograms: MutableMapping[int, np.ndarray] | None = None,
+                     prefetch: Callable[[Sequence[int]], None] | None = None) -> KeyFrameResult:
+    """Run one of `METHODS` ("iterative", "uniform", "exhaustive") with the same inputs (`prefetch`: see
+    `iterative_search`)."""
     if method == "iterative":
-        return iterative_search(candidates, targets, cues, detect, image, conf, trace, histograms)
+        return iterative_search(candidates, targets, cues, detect, image, conf, trace, histograms, prefetch)
     if method == "uniform":
         return uniform_keyframes(candidates, conf)
     if method == "exhaustive":

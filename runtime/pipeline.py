@@ -452,8 +452,9 @@ def build_map(source: FrameSource, targets: Sequence[str], cues: Sequence[str] =
     conf = conf if isinstance(conf, PipelineConfig) else PipelineConfig.merged(conf)
     trace = trace if trace is not None else Trace()
     names = list(dict.fromkeys(list(targets) + list(cues)))
-    if not names:
-        raise InputError("build_map: no object names to look for")
+    if not names:  # e.g. a room-size question: key frames are spread uniformly, the map holds the room only
+        trace.event("degraded", "no object names to look for: uniform key frames; the map holds the room extent "
+                    "and the camera track only", stage="keyframes")
     uses_model_depth = conf.depth == "model" or (conf.depth == "auto" and not getattr(source, "has_depth", False))
     if perception.depth_relative and not uses_model_depth:  # sensor depth is metric whatever the bundle holds
         perception = dataclasses.replace(perception, depth_relative=False)
@@ -930,7 +931,7 @@ def ask(source: Any, question: str, options: list[str] | None = None, *, percept
         smap = src
         trace.decide("map", {"source": "saved map", "instances": len(smap.instances)})
     else:
-        if not pq.objects:
+        if not pq.objects and pq.qtype != "room_size_estimation":
             raise InputError("the question names no object the pipeline can look for (see the trace's grounding); "
                              "nothing to build a map of")
         if perception is None:

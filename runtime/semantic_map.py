@@ -9,8 +9,9 @@ instances, occlusion refinement) follow further down.
 
 Room extent of a map built from boxes only (`room_from_boxes`): the floor polygon is the 2D convex hull of the
 floor-projected corners of every object box (the area the furnished space spans at least); floor z is the lowest
-box bottom, ceiling z the highest box top. A map built from video may instead set the room from the camera
-track and the floor fit. The benchmark's own `room_size`/`room_center` fields are never copied into the map
+box bottom, ceiling z the highest box top. A map built from video (`pipeline._room`) uses the floor-projected
+hull of everything the aligned key frames' depth saw (walls included), the object footprints and the camera track
+(source "observed_depth_hull"). The benchmark's own `room_size`/`room_center` fields are never copied into the map
 (`meta` keeps only the scene name and dataset), so room-size answers come from the map's extent.
 """
 from __future__ import annotations

@@ -172,8 +172,9 @@ def test_sequential_baseline_keeps_previous_pose():
 def test_sim3_edges_for_relative_depth():
     scales = [1.0, 0.5, 2.0, 1.3, 0.8]
     frames, scene, poses = _synthetic(5, seed=1, depth_scale=scales)
-    res = align_frames(frames, _OracleMatcher(scene), "mst", embeddings=_emb(5), with_scale=True)
-    assert len(res.poses) == 5
+    res = align_frames(frames, _OracleMatcher(scene), "mst", embeddings=_emb(5), with_scale=True,
+                       conf={"edge": "rgbd"})
+    assert len(res.poses) == 5 and res.edge == "rgbd"
     est = np.array([res.poses[f.index] for f in frames])
     gt = np.array([f.pose_gt for f in frames])
     ate, S = ate_rmse(est, gt, with_scale=True)
@@ -181,6 +182,55 @@ def test_sim3_edges_for_relative_depth():
     assert ate_rmse(est, gt, with_scale=False)[0] > 1e-3  # rigid alignment cannot undo the scale
     rt, rr = rpe(est, gt, S)
     assert rt < 1e-6 and rr < 1e-4
+
+
+@pytest.mark.parametrize("scale_mode", ["graph", "chain"])
+def test_essential_edges_for_relative_depth(scale_mode):
+    """Relative depth (a different unknown scale per frame) -> essential-matrix edges chosen automatically;
+    rotation and translation direction from the 5-point solver, lengths from the depth: exact up to one Sim(3)."""
+    scales = [1.0, 0.5, 2.0, 1.3, 0.8, 1.7]
+    frames, scene, poses = _synthetic(6, seed=2, depth_scale=scales)
+    res = align_frames(frames, _OracleMatcher(scene), "mst", embeddings=_emb(6), with_scale=True,
+                       conf={"scale_mode": scale_mode})
+    assert res.edge == "essential" and len(res.poses) == 6 and not res.unaligned
+    est = np.array([res.poses[f.index] for f in frames])
+    gt = np.array([f.pose_gt for f in frames])
+    ate, S = ate_rmse(est, gt, with_scale=True)
+    assert ate < 1e-4
+    rt, rr = rpe(est, gt, S)
+    assert rt < 1e-4 and rr < 0.01
+    # each pose maps its frame's (scaled) depth into the root frame: pose scale = frame scale / root scale
+    root = res.root - 10
+    for k, f in enumerate(frames):
+        assert G.transform_scale(res.poses[f.index]) == pytest.approx(scales[root] / scales[k], rel=1e-4)
+
+
+def test_essential_pair_and_frame_scales():
+    from mosaicthinker.runtime.alignment import AlignConf, PairResult, align_pair_essential, essential_frame_scales
+
+    frames, scene, poses = _synthetic(3, seed=3, depth_scale=[2.5, 1.0, 0.7])
+    (uva, va), (uvb, vb) = scene[0], scene[2]
+    both = va & vb
+    m = Matches(uva[both], uvb[both], np.ones(int(both.sum())))
+    r = align_pair_essential(m, frames[0].depth, frames[0].K, frames[2].depth, frames[2].K,
+                             AlignConf(scale_mode="chain"))
+    T_gt = G.relative_pose(poses[0], poses[2])
+    assert r.ok and r.n_inliers == int(both.sum())
+    s = G.transform_scale(r.T_ab)
+    assert s == pytest.approx(2.5 / 0.7, rel=1e-4)  # a's depth units per b's
+    assert G.rotation_angle_deg((r.T_ab[:3, :3] / s).T @ T_gt[:3, :3]) < 0.01
+    assert np.allclose(r.T_ab[:3, 3], 2.5 * T_gt[:3, 3], atol=1e-4)  # baseline in a's depth units
+    assert r.scale_a == pytest.approx(2.5 * np.linalg.norm(T_gt[:3, 3]), rel=1e-4)
+    # too few matches / pure noise -> a failed edge with a reason, never a pose
+    bad = align_pair_essential(Matches(uva[both][:5], uvb[both][:5], np.ones(5)), frames[0].depth, frames[0].K,
+                               frames[2].depth, frames[2].K)
+    assert not bad.ok and "matches" in bad.reason
+    # frame scales from a loop of consistent edges: sigma_a * scale_a = sigma_b * scale_b
+    sig = np.array([1.0, 2.0, 0.5, 4.0])
+    base = {(0, 1): 1.0, (1, 2): 0.3, (0, 2): 0.7, (2, 3): 0.2}
+    edges = {e: PairResult(np.eye(4), True, 50, 50, 50, 0.0, 0.0, scale_a=L / sig[e[0]], scale_b=L / sig[e[1]])
+             for e, L in base.items()}
+    assert np.allclose(essential_frame_scales(4, 0, edges), sig, rtol=1e-6)
 
 
 def test_align_frames_input_errors():
@@ -229,3 +279,24 @@ def test_real_redkitchen_accuracy(redkitchen):
         assert r["ate_rmse_m"] < 0.05, (strategy, r["ate_rmse_m"])  # measured 0.023 (mst), 0.026 (sequential)
         assert r["rpe_rot_deg"] < 3.0
     assert pick_frames(250, 16, "random", 3) == sorted(pick_frames(250, 16, "random", 3))
+
+
+def test_real_essential_edges_with_relative_depth(redkitchen):
+    """Relative depth on real frames: the sensor depth with an unknown scale per frame (x0.3 .. x3), SIFT
+    matches -> essential-matrix edges chosen automatically; the trajectory is right up to one Sim(3)."""
+    from dataclasses import replace
+
+    from mosaicthinker.runtime.matching import FeatureMatcher
+
+    src = open_source(redkitchen)
+    idx = list(range(0, 120, 15))
+    rng = np.random.default_rng(0)
+    frames = [replace(src[i], depth=(src[i].depth * rng.uniform(0.3, 3.0)).astype(np.float32)) for i in idx]
+    fm = FeatureMatcher("sift")
+    for strategy in ("mst", "sequential"):
+        res = align_frames(frames, fm, strategy, with_scale=True)
+        assert res.edge == "essential" and len(res.aligned) == 8
+        est = np.array([res.poses[f.index] for f in frames])
+        gt = np.array([f.pose_gt for f in frames])
+        ate = ate_rmse(est, gt, with_scale=True)[0]
+        assert ate < 0.05, (strategy, ate)

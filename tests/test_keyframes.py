@@ -271,3 +271,41 @@ def test_min_keyframes_tops_up_from_scored_frames_spread_out():
     assert sum(e["kind"] == "degraded" for e in tr.events) == 2
     with pytest.raises(InputError, match="min_keyframes"):
         kf.KeyFrameConf.merged(keyframes=4, min_keyframes=5)
+
+
+def test_prefetch_hook_sorted_batches_same_result():
+    """The search hands each iteration's frames (+-r neighbours) to prefetch in time order before it reads them;
+    the hook changes the decoding order only, never the selection."""
+    cands = list(range(0, 400, 4))
+    table = {f: {"chair": 0.9} for f in (40, 44, 48, 200, 204, 360)}
+    rng = np.random.default_rng(0)
+    imgs = {f: rng.integers(0, 256, (8, 8, 3), dtype=np.uint8) for f in cands}
+    conf = kf.KeyFrameConf.merged(keyframes=4, iterations=5, budget=40)
+    calls: list[list[int]] = []
+    read: list[int] = []
+
+    def image(f: int) -> np.ndarray:
+        read.append(f)
+        return imgs[f]
+
+    a = kf.iterative_search(cands, ["chair"], [], table_detector(table), image, conf)
+    b = kf.iterative_search(cands, ["chair"], [], table_detector(table), image, conf,
+                            prefetch=lambda idx: calls.append(list(idx)))
+    assert a.chosen.tolist() == b.chosen.tolist() and a.order == b.order
+    assert len(calls) == len(kf.batch_sizes(40, 5)) and all(c == sorted(set(c)) for c in calls)
+    scored = set(b.order)
+    assert scored <= set().union(*map(set, calls))  # every scored frame was announced before it was read
+
+    class Src:  # image callables with a .prefetch (e.g. a bound method's owner) are used by default
+        def __init__(self):
+            self.calls = 0
+
+        def __call__(self, f: int) -> np.ndarray:
+            return imgs[f]
+
+        def prefetch(self, idx) -> None:
+            self.calls += 1
+
+    s = Src()
+    c = kf.iterative_search(cands, ["chair"], [], table_detector(table), s, conf)
+    assert s.calls == len(calls) and c.chosen.tolist() == a.chosen.tolist()

@@ -80,7 +80,8 @@ def pick_frames(n: int, k: int, sampling: str, seed: int = 0) -> list[int]:
 def depth_to_metric_like(pred: np.ndarray, semantics: str) -> tuple[np.ndarray, bool]:
     """A depth model's output [H, W] -> (z-depth-like [H, W] float32, metric?). 'relative_inverse' (disparity up
     to scale and shift) is inverted; the shift is unknown, so the result is only approximately proportional to
-    depth and each edge then gets its own Sim(3)."""
+    depth. Non-metric depth makes alignment use essential-matrix edges whose translation lengths come from the
+    depth (`alignment.align_pair_essential`), and ATE is taken after a Sim(3) trajectory alignment."""
     d = np.asarray(pred, dtype=np.float32)
     if semantics == "metric_m":
         return d, True
@@ -143,7 +144,8 @@ def evaluate_pose(source: Any, indices: Sequence[int], matcher: Any = "sift", st
         "ate_rmse_m": ate, "rpe_trans_m": rt, "rpe_rot_deg": rr,
         "aligned_frames": len(res.aligned), "total_frames": len(frames),
         "unaligned_frames": list(res.unaligned), "guessed_frames": list(res.guessed),
-        "evaluated_frames": len(ev), "sim3": with_scale, "root": res.root, "frames": list(map(int, indices)),
+        "evaluated_frames": len(ev), "sim3": with_scale, "edge": res.edge, "root": res.root,
+        "frames": list(map(int, indices)),
         "seconds": secs + t_depth, "seconds_breakdown": {**res.seconds, "depth_model": t_depth},
         "alignment": res.to_dict(),
     }
