@@ -44,6 +44,8 @@ Manifest fields written (all under the RESERVED `android` keys of runtime/bundle
 """
 from __future__ import annotations
 
+import sys
+
 import argparse
 import contextlib
 import io
@@ -1045,21 +1047,9 @@ def render(result: dict[str, Any]) -> str:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """`python -m mosaicthinker.export.android BUNDLE`: the Android step alone on an existing bundle."""
-    from mosaicthinker.runtime.errors import MosaicError
+    from mosaicthinker.export.common import target_step_main
 
-    p = argparse.ArgumentParser(prog="python -m mosaicthinker.export.android", description=__doc__.split("\n")[0])
-    p.add_argument("bundle", metavar="BUNDLE")
-    p.add_argument("--json", action="store_true")
-    add_arguments(p)
-    args = p.parse_args(argv)
-    args.out = args.bundle
-    try:
-        res = run(args)
-    except MosaicError as e:
-        print(f"error: {e}")
-        return 2
-    print(json.dumps(res, default=str) if args.json else render(res))
-    return 0
+    return target_step_main(sys.modules[__name__], argv)
 
 
 if __name__ == "__main__":

@@ -381,3 +381,26 @@ def parse_precisions(text: str) -> list[str]:
     if "fp32" not in out:
         out.insert(0, "fp32")  # the reference every other precision is checked against
     return out
+
+
+def target_step_main(module: Any, argv: Sequence[str] | None = None) -> int:
+    """`python -m mosaicthinker.export.<target> BUNDLE`: run one deployment-target step (a module with
+    add_arguments/run/render) alone on an existing bundle."""
+    import argparse
+    import json
+
+    from mosaicthinker.runtime.errors import MosaicError
+
+    p = argparse.ArgumentParser(prog=f"python -m {module.__name__}", description=(module.__doc__ or "").split("\n")[0])
+    p.add_argument("bundle", metavar="BUNDLE")
+    p.add_argument("--json", action="store_true")
+    module.add_arguments(p)
+    args = p.parse_args(argv)
+    args.out = args.bundle
+    try:
+        res = module.run(args)
+    except MosaicError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    print(json.dumps(res, default=str) if args.json else module.render(res))
+    return 0

@@ -24,6 +24,8 @@ a profile for every dynamic input once any is given.
 """
 from __future__ import annotations
 
+import sys
+
 import argparse
 import re
 from dataclasses import dataclass, field, replace
@@ -391,23 +393,9 @@ def render(result: dict[str, Any]) -> str:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """`python -m mosaicthinker.export.jetson BUNDLE`: the Jetson step alone on an existing bundle."""
-    import json
+    from mosaicthinker.export.common import target_step_main
 
-    from mosaicthinker.runtime.errors import MosaicError
-
-    p = argparse.ArgumentParser(prog="python -m mosaicthinker.export.jetson", description=__doc__.split("\n")[0])
-    p.add_argument("bundle", metavar="BUNDLE")
-    p.add_argument("--json", action="store_true")
-    add_arguments(p)
-    args = p.parse_args(argv)
-    args.out = args.bundle
-    try:
-        res = run(args)
-    except MosaicError as e:
-        print(f"error: {e}")
-        return 2
-    print(json.dumps(res) if args.json else render(res))
-    return 0
+    return target_step_main(sys.modules[__name__], argv)
 
 
 if __name__ == "__main__":
