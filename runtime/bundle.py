@@ -242,6 +242,14 @@ class Bundle:
             raise BundleError(f"{self.manifest_path}: roles.{role}.variants.{vname}.components is empty")
         return RoleSpec(self, role, vname, meta, vmeta, comps)
 
+    def file(self, ref: dict | None, where: str) -> Path:
+        """A checked artifact path for a `{file, sha256}` reference of the manifest (e.g. a role's tokenizer):
+        refuses paths that escape the bundle, missing files and sha256 mismatches (`where` names the field)."""
+        ref = ref or {}
+        path = safe_path(self.root, ref.get("file", ""), where + ".file")
+        self._check_file(path, ref, where)
+        return path
+
     def _check_file(self, path: Path, ref: dict, where: str) -> None:
         key = str(path)
         if key in self._verified:

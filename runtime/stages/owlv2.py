@@ -12,7 +12,6 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from ..bundle import safe_path
 from ..errors import BundleError, InputError
 from ..perception import Detections
 from . import RoleModel
@@ -67,8 +66,7 @@ class OwlV2Detector(RoleModel):
 
         cfg = spec.config
         tok_ref = spec.meta.get("tokenizer") or {}
-        path = safe_path(spec.bundle.root, tok_ref.get("file", ""), "roles.detector.tokenizer.file")
-        spec.bundle._check_file(path, tok_ref, "roles.detector.tokenizer")
+        path = spec.bundle.file(tok_ref, "roles.detector.tokenizer")
         self.tokenizer = Tokenizer.from_file(str(path))
         self.text_length = int(cfg.get("text_length", 16))
         self.start_id = self.tokenizer.token_to_id(cfg.get("start_token", "<|startoftext|>"))

@@ -22,7 +22,6 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from ..bundle import safe_path
 from ..errors import BundleError, InputError
 from . import RoleModel, preprocess_image
 
@@ -149,8 +148,7 @@ class VLM(RoleModel):
         self.family = cfg["family"]
         self.conf = conf or VLMConf(max_new_tokens=int(cfg.get("max_new_tokens", 64)))
         tok_ref = spec.meta.get("tokenizer") or {}
-        tok_path = safe_path(spec.bundle.root, tok_ref.get("file", ""), "roles.vlm.tokenizer.file")
-        spec.bundle._check_file(tok_path, tok_ref, "roles.vlm.tokenizer")
+        tok_path = spec.bundle.file(tok_ref, "roles.vlm.tokenizer")
         self.tokenizer = load_tokenizer(str(tok_path))
         self.core = GreedyDecoder(self.session("vision"), self.session("embed"), self.session("decoder"), cfg)
         stops = cfg.get("stop_tokens") or TEMPLATES[self.family]["stop"]
