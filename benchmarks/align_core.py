@@ -72,8 +72,9 @@ def main(argv: list[str] | None = None) -> int:
         ate = ate_rmse(np.array([res.poses[f.index] for f in ev]), np.array([f.pose_gt for f in ev]))[0]
         n = len(res.edge_stats)
         out["strategies"][strategy] = {
-            "seconds_median": round(float(np.median(walls)), 4), "ransac_seconds_median": round(float(
-                np.median(ransac)), 4), "pairs_tried": n, "pairs_failed": sum(not r.ok for r in res.edge_stats.values()),
+            "seconds_median": round(float(np.median(walls)), 4),
+            "ransac_seconds_median": round(float(np.median(ransac)), 4), "pairs_tried": n,
+            "pairs_failed": sum(not r.ok for r in res.edge_stats.values()),
             "ms_per_pair": round(1000 * float(np.median(ransac)) / max(n, 1), 3), "ate_rmse_m": round(ate, 4),
             "aligned": len(res.aligned)}
     out["load_average_1min"] = os.getloadavg()[0]

@@ -74,7 +74,8 @@ def main(argv: list[str] | None = None) -> int:
            + " ".join(argv if argv is not None else sys.argv[1:]), "frames": len(src), "samples": len(pick),
            "open_s": round(t_open, 3), "random_s_per_frame": round(t_rand, 4),
            "sorted_prefetch_s_per_frame": round(t_sorted, 4), "sequential_s_per_frame": round(t_seq, 5),
-           "equal_to_sequential": f"{same}/{len(pick)}", "seek_mode": getattr(src, "seek_mode", None), "seek_note": getattr(src, "seek_note", None),
+           "equal_to_sequential": f"{same}/{len(pick)}", "seek_mode": getattr(src, "seek_mode", None),
+           "seek_note": getattr(src, "seek_note", None),
            "load_average_1min": os.getloadavg()[0], "date": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
     Path(a.out).parent.mkdir(parents=True, exist_ok=True)
     Path(a.out).write_text(json.dumps(res, indent=1))

@@ -26,7 +26,7 @@ import numpy as np
 from mosaicthinker.runtime.errors import ExportError
 
 from . import common as C
-from .hf_depth import GraphSpec, export_variants, load_source, run_exporter
+from .hf_common import GraphSpec, export_variants, load_source, run_exporter
 
 HF_DEFAULTS = {"superpoint-lightglue": "ETH-CVG/lightglue_superpoint", "efficientloftr": "zju-community/efficientloftr"}
 GRAY = (0.299, 0.587, 0.114)
@@ -193,10 +193,10 @@ def export_matcher(source: str, out: str | Path, precisions: Sequence[str], *, h
     def calib(names):
         if not calibration_frames:
             return None
-        from .hf_depth import preprocess_nchw
+        from mosaicthinker.runtime.stages import preprocess_image
 
         fr = calibration_frames
-        return lambda: [{n: preprocess_nchw(fr[(i + j) % len(fr)], pre) for j, n in enumerate(names)}
+        return lambda: [{n: preprocess_image(fr[(i + j) % len(fr)], pre) for j, n in enumerate(names)}
                         for i in range(len(fr))]
 
     if arch == "efficientloftr":

@@ -21,7 +21,7 @@ import numpy as np
 from mosaicthinker.runtime.errors import ExportError
 
 from . import common as C
-from .hf_depth import CLIP_MEAN, CLIP_STD, GraphSpec, export_variants, load_source, run_exporter
+from .hf_common import CLIP_MEAN, CLIP_STD, GraphSpec, export_variants, load_source, run_exporter
 
 HF_DEFAULTS = {"owlv2": "google/owlv2-base-patch16-ensemble"}
 _TINY_WORDS = ("a photo of the chair table sofa bed tv door window sink fridge lamp plant oven microwave "

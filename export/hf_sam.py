@@ -17,7 +17,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from . import common as C
-from .hf_depth import IMAGENET_MEAN, IMAGENET_STD, GraphSpec, export_variants, load_source, run_exporter
+from .hf_common import IMAGENET_MEAN, IMAGENET_STD, GraphSpec, export_variants, load_source, run_exporter
 
 HF_DEFAULTS = {"sam": "facebook/sam-vit-base", "slimsam": "nielsr/slimsam-50-uniform"}
 

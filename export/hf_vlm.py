@@ -21,7 +21,7 @@ import numpy as np
 from mosaicthinker.runtime.errors import ExportError
 
 from . import common as C
-from .hf_depth import GraphSpec, export_variants, load_source, run_exporter
+from .hf_common import GraphSpec, export_variants, load_source, run_exporter
 
 HF_DEFAULTS = {"smolvlm": "HuggingFaceTB/SmolVLM-256M-Instruct", "internvl": "OpenGVLab/InternVL3-1B-hf"}
 

@@ -15,10 +15,11 @@ Multi-frame (strategy "mst"):
 1. frame-similarity matrix S [K, K]: cosine similarity of per-frame embeddings when given, otherwise the
    correlation of colour histograms (HSV, 16 hue x 8 saturation x 4 value bins, OpenCV's HISTCMP_CORREL);
 2. root = frame with the largest total similarity;
-3. geometric refinement of S (`verify_top`, default 3; 4 for essential edges): each frame's 3 most similar
-   frames are aligned pairwise; a verified pair weighs 1 + its RANSAC inlier count, a failed pair is removed, untried pairs keep
-   their similarity (< 1, so they rank after every verified pair). Measured on 7-Scenes: colour histograms
-   alone pick wide-baseline pairs whose few inliers give 10-25 cm errors (ATE 0.11 m at K=32 instead of 0.05);
+3. geometric refinement of S (`verify_top`, default 4): each frame's 4 most similar frames are aligned
+   pairwise (plus time neighbours for essential edges); a verified pair weighs 1 + its RANSAC inlier count, a
+   failed pair is removed, untried pairs keep their similarity (< 1, so they rank after every verified pair).
+   Measured on 7-Scenes: colour histograms alone pick wide-baseline pairs whose few inliers give 10-25 cm
+   errors (ATE 0.11 m at K=32 instead of 0.05);
 4. maximum spanning tree by Kruskal over these weights. An edge that would join two components and has not
    been aligned yet is aligned then; when an alignment fails (too few inliers or too low an inlier ratio) the
    edge is dropped and Kruskal moves on to the next-best edge (failed-edge handling);
@@ -67,11 +68,11 @@ class AlignConf:
     icp_stride: int = 4
     icp_max_change: tuple[float, float] = (0.10, 5.0)  # (m, deg) larger ICP corrections are rejected
     icp_min_overlap: float = 0.2       # fraction of b's points paired in a, below = ICP rejected
-    verify_top: int | None = None      # geometric refinement: each frame's top-k similar frames are aligned first
-                                       # and the tree prefers edges with more inliers (0 = order by S only);
-                                       # None = 3 for rgbd edges (63 instead of 80 pairs at K=32, same ATE on
-                                       # 7-Scenes) and 4 for essential edges (K=32 PyDNet++/XFeat: ATE 0.08 m
-                                       # with 4, 0.13 m with 3)
+    verify_top: int = 4                # geometric refinement: each frame's top-k similar frames are aligned first
+                                       # and the tree prefers edges with more inliers (0 = order by S only).
+                                       # Measured: 3 keeps SIFT's accuracy with 63 instead of 80 pairs at K=32,
+                                       # but ORB's tree then takes wrong edges (uniform K=64 ATE 0.16 vs 0.05 m),
+                                       # and essential edges get worse (0.13 vs 0.08 m)
     verify_neighbours: int | None = None  # ... plus each frame's n time neighbours; None = 1 for essential edges
                                        # (their inlier counts favour short, ill-conditioned baselines: measured
                                        # ATE 0.12 -> 0.08 m at K=32) and 0 for rgbd edges (the paper's
@@ -647,13 +648,12 @@ def align_frames(frames: Sequence[Any], matcher: Any = "sift", strategy: str = "
         root = choose_root(S)
         t0 = time.perf_counter()
         W = S
-        top = conf.verify_top if conf.verify_top is not None else (4 if edge == "essential" else 3)
-        if top > 0:
+        if conf.verify_top > 0:
             order = sorted(range(len(frames)), key=lambda k: (frames[k].t, idx[k]))
             n_nb = conf.verify_neighbours if conf.verify_neighbours is not None else int(edge == "essential")
             nb = [(order[p], order[p + d]) for d in range(1, n_nb + 1)
                   for p in range(len(order) - d)]
-            W = refine_with_inliers(S, verify, stats_inliers, top, nb)
+            W = refine_with_inliers(S, verify, stats_inliers, conf.verify_top, nb)
         tree, _failed = maximum_spanning_tree(W, verify_cached, conf.max_attempts)
         secs["tree"] = time.perf_counter() - t0
         if edge == "essential" and conf.scale_mode == "graph":

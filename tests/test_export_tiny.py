@@ -231,19 +231,19 @@ def test_parity_catches_shapes_specialised_at_export(tmp_path):
     bakes the example's shape in): parity on fresh inputs of another batch size must fail the export."""
     import torch
 
-    from mosaicthinker.export import hf_depth
+    from mosaicthinker.export import hf_common
     from mosaicthinker.runtime.errors import ExportError
 
     class Net(torch.nn.Module):
         def forward(self, x):
             return torch.tanh(x).reshape(x.shape[0], -1).sum(1)
 
-    g = hf_depth.GraphSpec("model", Net().eval(), (torch.randn(1, 4),), ["x"], ["y"],
+    g = hf_common.GraphSpec("model", Net().eval(), (torch.randn(1, 4),), ["x"], ["y"],
                            lambda rng: {"x": rng.standard_normal((3, 4)).astype(np.float32)})
     meta = {"arch": "depth-anything-v2", "preprocessing": {}, "semantics": {"depth": "relative"},
             "provenance": {"source": "test"}, "licence": "Apache-2.0", "random_weights": True, "config": {}}
     with pytest.raises(ExportError, match="parity"):
-        hf_depth.export_variants(tmp_path / "b", "depth", [g], meta, ["fp32"])
+        hf_common.export_variants(tmp_path / "b", "depth", [g], meta, ["fp32"])
     assert not (tmp_path / "b" / "manifest.json").exists()
 
 
@@ -251,7 +251,7 @@ def test_checkpoint_sources_fail_clearly(tmp_path):
     """`dir:` of a missing or non-checkpoint folder -> ExportError naming the source (no hub access needed)."""
     from transformers import DepthAnythingForDepthEstimation
 
-    from mosaicthinker.export.hf_depth import load_source
+    from mosaicthinker.export.hf_common import load_source
     from mosaicthinker.runtime.errors import ExportError
 
     with pytest.raises(ExportError, match="does not exist"):
