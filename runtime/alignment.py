@@ -34,11 +34,12 @@ from __future__ import annotations
 
 import time
 from collections import deque
-from dataclasses import dataclass, field, fields, replace
-from typing import Any, Mapping, Sequence
+from dataclasses import dataclass, field, replace
+from typing import Any, ClassVar, Mapping, Sequence
 
 import numpy as np
 
+from .config import StageConf
 from .errors import AlignmentError, InputError
 from .geometry import (backproject_pixels, icp_point_to_plane, ransac_transform, rotation_angle_deg, sample_depth,
                        transform, transform_scale, umeyama)
@@ -46,8 +47,10 @@ from .matching import FeatureMatcher, Matches
 
 
 @dataclass
-class AlignConf:
-    """Defaults of the alignment stage."""
+class AlignConf(StageConf):
+    """Defaults of the alignment stage (`AlignConf.merged(overrides)`, see config.StageConf)."""
+
+    conf_name: ClassVar[str] = "alignment config"
 
     threshold_m: float = 0.05          # RANSAC inlier distance for metric depth (m)
     threshold_rel: float = 0.025       # ... for relative depth (with_scale): fraction of the median depth
@@ -100,15 +103,6 @@ class AlignConf:
                                        # (`essential_frame_scales`) before composing; "shared": one scale for
                                        # every frame's depth (rigid edge, baseline = geometric mean)
 
-    @classmethod
-    def merged(cls, conf: "AlignConf | Mapping[str, Any] | None" = None, **overrides: Any) -> "AlignConf":
-        base = conf if isinstance(conf, AlignConf) else cls()
-        upd = dict(conf) if isinstance(conf, Mapping) else {}
-        upd.update({k: v for k, v in overrides.items() if v is not None})
-        bad = set(upd) - {f.name for f in fields(cls)}
-        if bad:
-            raise InputError(f"alignment config: unknown keys {sorted(bad)}")
-        return replace(base, **upd)
 
 
 @dataclass
@@ -253,8 +247,10 @@ def align_pair_essential(m: Matches, depth_a: np.ndarray, K_a: np.ndarray, depth
     if ninl < conf.min_inlier_ratio * len(sel):
         return fail(f"essential inlier ratio {ninl / len(sel):.2f} below {conf.min_inlier_ratio}", len(sel), ninl)
     t = t.reshape(3) / max(np.linalg.norm(t), 1e-12)  # x_b = R x_a + t, |t| = 1
-    if conf.essential_refine:
-        R, t = refine_essential(R, t, xa[inl], xb[inl], px / f)
+    if conf.essential_refine:  # on at most 200 inliers, evenly picked (cost ~ points x iterations)
+        q = np.flatnonzero(inl)
+        q = q[np.linspace(0, len(q) - 1, min(len(q), 200)).astype(int)]
+        R, t = refine_essential(R, t, xa[q], xb[q], px / f)
     Xh = cv2.triangulatePoints(np.eye(3, 4), np.hstack([R, t[:, None]]), xa[inl].T, xb[inl].T)
     with np.errstate(divide="ignore", invalid="ignore"):
         X = (Xh[:3] / Xh[3]).T  # [M, 3] in camera a, unit baseline
@@ -653,7 +649,7 @@ def align_frames(frames: Sequence[Any], matcher: Any = "sift", strategy: str = "
             n_nb = conf.verify_neighbours if conf.verify_neighbours is not None else int(edge == "essential")
             nb = [(order[p], order[p + d]) for d in range(1, n_nb + 1)
                   for p in range(len(order) - d)]
-            W = refine_with_inliers(S, verify, stats_inliers, conf.verify_top, nb)
+            W = refine_with_inliers(S, verify_cached, stats_inliers, conf.verify_top, nb)
         tree, _failed = maximum_spanning_tree(W, verify_cached, conf.max_attempts)
         secs["tree"] = time.perf_counter() - t0
         if edge == "essential" and conf.scale_mode == "graph":

@@ -10,11 +10,12 @@ Every dropped frame gets a reason. `ssim` reproduces scikit-image's
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field, fields, replace
-from typing import Any, Mapping
+from dataclasses import dataclass, field
+from typing import Any, ClassVar, Mapping
 
 import numpy as np
 
+from .config import StageConf
 from .errors import InputError
 
 
@@ -68,8 +69,10 @@ def ssim(a: np.ndarray, b: np.ndarray, data_range: float | None = None, sigma: f
 
 
 @dataclass
-class DedupConf:
-    """Defaults of the preprocessing stage."""
+class DedupConf(StageConf):
+    """Defaults of the preprocessing stage (`DedupConf.merged(overrides)`, see config.StageConf)."""
+
+    conf_name: ClassVar[str] = "dedup config"
 
     sample_fps: float | None = 3.0   # uniform down-sampling rate (None: use `stride`)
     stride: int = 1                  # keep every stride-th frame when sample_fps is None
@@ -79,15 +82,6 @@ class DedupConf:
     max_motion: float = 0.04         # ... when the median keypoint displacement is below this x width
     ssim_threshold: float = 0.80     # candidates with SSIM above this are dropped as near-duplicates
 
-    @classmethod
-    def merged(cls, conf: "DedupConf | Mapping[str, Any] | None" = None, **overrides: Any) -> "DedupConf":
-        base = conf if isinstance(conf, DedupConf) else cls()
-        upd = dict(conf) if isinstance(conf, Mapping) else {}
-        upd.update({k: v for k, v in overrides.items() if v is not None})
-        bad = set(upd) - {f.name for f in fields(cls)}
-        if bad:
-            raise InputError(f"dedup config: unknown keys {sorted(bad)}")
-        return replace(base, **upd)
 
 
 @dataclass

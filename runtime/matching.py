@@ -10,11 +10,12 @@ however many pairs are tried.
 from __future__ import annotations
 
 from collections import OrderedDict
-from dataclasses import dataclass, fields, replace
-from typing import Any, Hashable, Mapping
+from dataclasses import dataclass, replace
+from typing import Any, ClassVar, Hashable, Mapping
 
 import numpy as np
 
+from .config import StageConf
 from .errors import InputError
 
 
@@ -43,8 +44,10 @@ class Matches:
 
 
 @dataclass
-class MatchConf:
+class MatchConf(StageConf):
     """Defaults: SIFT (Lowe 2004) and ORB (Rublee 2011) with mutual nearest neighbours and the ratio test."""
+
+    conf_name: ClassVar[str] = "matcher config"
 
     method: str = "sift"
     max_keypoints: int = 3000
@@ -59,20 +62,13 @@ class MatchConf:
 
     @classmethod
     def merged(cls, conf: "MatchConf | Mapping[str, Any] | None" = None, **overrides: Any) -> "MatchConf":
-        """Defaults merged with a conf object or dict and keyword overrides (unknown keys are an error)."""
-        base = conf if isinstance(conf, MatchConf) else cls()
-        upd = dict(conf) if isinstance(conf, Mapping) else {}
-        upd.update({k: v for k, v in overrides.items() if v is not None})
-        names = {f.name for f in fields(cls)}
-        bad = set(upd) - names
-        if bad:
-            raise InputError(f"matcher config: unknown keys {sorted(bad)} (known: {sorted(names)})")
-        out = replace(base, **upd)
-        if out.method not in ("sift", "orb"):
-            raise InputError(f"matcher config: method must be 'sift' or 'orb', got {out.method!r}")
-        if out.ratio is None:
-            out = replace(out, ratio=0.9 if out.method == "sift" else 0.8)
-        return out
+        """Defaults merged with a conf object or dict and keyword overrides; the ratio defaults per method."""
+        out = super().merged(conf, **overrides)
+        return out if out.ratio is not None else replace(out, ratio=0.9 if out.method == "sift" else 0.8)
+
+    def validate(self) -> None:
+        if self.method not in ("sift", "orb"):
+            raise InputError(f"matcher config: method must be 'sift' or 'orb', got {self.method!r}")
 
 
 @dataclass
