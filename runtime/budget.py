@@ -41,8 +41,9 @@ import sys
 import time
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
-from typing import Any, Callable, Mapping, Sequence
+from typing import Any, Callable, ClassVar, Mapping, Sequence
 
+from .config import StageConf
 from .errors import BudgetError, InputError, ProfileError
 from .trace import Trace, rss_mb
 
@@ -508,8 +509,11 @@ def update_profile_costs(path: str | os.PathLike, measured: Mapping[str, Mapping
 
 
 @dataclass
-class PlanConf:
-    """Planner parameters (device independent; the profile only sets budgets and costs)."""
+class PlanConf(StageConf):
+    """Planner parameters (device independent; the profile only sets budgets and costs).
+    `PlanConf.merged(mapping_or_conf, **overrides)` (None overrides are ignored; unknown keys are an error)."""
+
+    conf_name: ClassVar[str] = "plan config"
 
     keyframes_max: int = 32            # K never exceeds this (the map gains little beyond it)
     keyframes_min: int = 2             # alignment needs two frames; below this nothing fits
@@ -529,14 +533,8 @@ class PlanConf:
     video_pass: str = "question"       # question: decode + dedup run after the question (a clip is given);
                                        # online: they run while the video is captured (not in the latency)
 
-    @classmethod
-    def merged(cls, overrides: Mapping[str, Any] | None = None, **kw: Any) -> "PlanConf":
-        over = {**(overrides or {}), **{k: v for k, v in kw.items() if v is not None}}
-        known = {f.name for f in fields(cls)}
-        bad = sorted(set(over) - known)
-        if bad:
-            raise InputError(f"plan config: unknown key(s) {bad}; known: {sorted(known)}")
-        c = cls(**over)
+    def validate(self) -> None:
+        c = self
         if c.keyframes_min < 1 or c.keyframes_max < c.keyframes_min:
             raise InputError(f"plan config: need 1 <= keyframes_min <= keyframes_max (got {c.keyframes_min}, "
                              f"{c.keyframes_max})")
@@ -547,7 +545,6 @@ class PlanConf:
         if not 0 <= c.safety_fraction < 1 or c.iterations < 1 or c.min_scored_per_keyframe < 1:
             raise InputError("plan config: need 0 <= safety_fraction < 1, iterations >= 1, "
                              "min_scored_per_keyframe >= 1")
-        return c
 
 
 # pipeline stages the controller budgets (names the pipeline passes to start_stage/end_stage)

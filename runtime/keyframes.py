@@ -21,8 +21,9 @@ the search decides *which* frames to score:
    (candidate-index units) by the frame's mean normalised colour-histogram similarity to the candidates
    within +-r (r = 3, k = 2): a frame that looks like its neighbours spreads its evidence wider.
 4. If more frames pass than the key-frame budget K, the top K by score are kept; if fewer pass, fewer are
-   returned and a note says so (and a "degraded" trace event is recorded). `min_keyframes` (default 0, off)
-   tops the selection up from the best positive-score frames below the threshold, noted and recorded too.
+   returned and a note says so (and a "degraded" trace event is recorded). `min_keyframes` (default 0, off: the
+   paper's rule) tops the selection up from the scored positive frames below the threshold — objects no chosen
+   frame shows well first (when the image size is known), then by score, spaced — noted and recorded too.
 
 Measured (`mosaic eval keyframes`, README): with objects visible in 25-45% of the frames the scores are bimodal
 with a large positive mode, a positive frame then sits < 1.5 std above the mean (equal scores, positive share p:
@@ -40,12 +41,13 @@ oracle plug in the same way.
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, field, fields
-from typing import Any, Callable, Mapping, MutableMapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any, Callable, ClassVar, Mapping, MutableMapping, Sequence
 
 import cv2
 import numpy as np
 
+from .config import StageConf
 from .errors import InputError
 from .perception import Detections
 
@@ -56,8 +58,10 @@ METHODS = ("iterative", "uniform", "exhaustive")
 
 
 @dataclass
-class KeyFrameConf:
+class KeyFrameConf(StageConf):
     """Key-frame search parameters; defaults follow the paper. Merge overrides with `KeyFrameConf.merged`."""
+
+    conf_name: ClassVar[str] = "key-frame config"
 
     keyframes: int = 8              # K: key-frame budget
     threshold: float = 1.5          # z-score threshold (the paper's 1 / 1.5 / 2)
@@ -73,20 +77,11 @@ class KeyFrameConf:
     hist_bins: int = 8              # bins per RGB channel
     hist_size: int = 64             # images are downscaled to this width before the histogram
     min_keyframes: int = 0          # top up to this many from the best positive frames below the threshold
+    topup_gap: int | None = None    # top-up spacing in frame indices (>=); None: more than r candidates apart
+    topup_relax: bool = True        # after the spaced frames, the top-up may take nearer ones too
+    cover_min_area: float = 0.02    # top-up coverage: an object counts as well seen from this box-area share
     seed: int = 0
     record_distributions: bool = False
-
-    @classmethod
-    def merged(cls, overrides: Mapping[str, Any] | None = None, **kw: Any) -> "KeyFrameConf":
-        """Defaults merged with user overrides; an unknown key is an error naming it."""
-        over = {**(overrides or {}), **kw}
-        known = {f.name for f in fields(cls)}
-        bad = sorted(set(over) - known)
-        if bad:
-            raise InputError(f"key-frame config: unknown key(s) {bad}; known: {sorted(known)}")
-        conf = cls(**over)
-        conf.validate()
-        return conf
 
     def validate(self) -> None:
         if self.keyframes < 1:
@@ -105,6 +100,10 @@ class KeyFrameConf:
             raise InputError(f"key-frame config: budget must be >= 1 (got {self.budget})")
         if self.batch is not None and self.batch < 1:
             raise InputError(f"key-frame config: batch must be >= 1 (got {self.batch})")
+        if self.topup_gap is not None and self.topup_gap < 0:
+            raise InputError(f"key-frame config: topup_gap must be >= 0 (got {self.topup_gap})")
+        if not 0 <= self.cover_min_area <= 1:
+            raise InputError(f"key-frame config: cover_min_area must be in [0, 1] (got {self.cover_min_area})")
 
     @property
     def sigma_min(self) -> float:
@@ -114,8 +113,6 @@ class KeyFrameConf:
     def sigma_max(self) -> float:
         return max(self.r, 1) / self.k
 
-    def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
 
 
 @dataclass
@@ -293,20 +290,52 @@ def top_k(frames: Sequence[int], scores: Mapping[int, float], k: int) -> np.ndar
     return np.array(sorted(ranked), dtype=np.int64)
 
 
-def _fill(chosen: list[int], scores: Mapping[int, float], candidates: np.ndarray, n: int, gap: int) -> list[int]:
-    """Best positive-score frames not chosen, up to `n` in all: first those more than `gap` candidates away from
-    every chosen frame (near neighbours add no new view), then any."""
+def _fill(chosen: list[int], scores: Mapping[int, float], candidates: np.ndarray, n: int, conf: KeyFrameConf,
+          seen: Mapping[int, Mapping[str, float]] | None = None) -> tuple[list[int], int]:
+    """Top-up behind `min_keyframes`: positive-score frames not chosen, up to `n` in all. Returns (added frames,
+    how many of them were added for coverage).
+
+    1. Coverage (only with `seen`: frame -> name -> largest box area, share of the image): while an object the
+       detector saw in some scored frame has no view of at least `cover_min_area` in a chosen frame, add the
+       scored frame with its largest box;
+    2. then the rest by score;
+    both only among frames spaced from every chosen one (near neighbours add no new view): at least `topup_gap`
+    frame indices apart when set, else more than `r` candidates apart; 3. with `topup_relax`, then any by score.
+    """
     pos = {int(f): i for i, f in enumerate(candidates)}
-    ranked = [f for f in sorted(scores, key=lambda f: (-scores[f], f)) if scores[f] > 0 and f not in chosen]
     out: list[int] = []
-    for strict in (True, False):
+    taken = lambda: chosen + out  # noqa: E731
+
+    def spaced(f: int) -> bool:
+        if conf.topup_gap is not None:
+            return all(abs(f - g) >= conf.topup_gap for g in taken())
+        return all(abs(pos[f] - pos[g]) > conf.r for g in taken())
+
+    def free(f: int) -> bool:
+        return scores.get(f, 0) > 0 and f not in chosen and f not in out
+
+    n_cov = 0
+    if seen:
+        def covered() -> set[str]:
+            return {nm for f in taken() for nm, a in seen.get(f, {}).items() if a >= conf.cover_min_area}
+
+        missing = {nm for d in seen.values() for nm in d} - covered()
+        while len(chosen) + len(out) < n and missing:
+            cand = [(a, f, nm) for f in seen if free(f) and spaced(f) for nm, a in seen[f].items() if nm in missing]
+            if not cand:
+                break
+            a, f, nm = max(cand, key=lambda c: (c[0], -c[1]))
+            out.append(int(f))
+            missing -= covered() | {nm}
+            n_cov += 1
+    ranked = [f for f in sorted(scores, key=lambda f: (-scores[f], f))]
+    for strict in (True, False) if conf.topup_relax else (True,):
         for f in ranked:
             if len(chosen) + len(out) >= n:
-                return out
-            if f in out or (strict and any(abs(pos[f] - pos[g]) <= gap for g in chosen + out)):
-                continue
-            out.append(f)
-    return out
+                return out, n_cov
+            if free(f) and (not strict or spaced(f)):
+                out.append(int(f))
+    return out, n_cov
 
 
 def _check_candidates(candidates: Sequence[int]) -> np.ndarray:
@@ -348,7 +377,8 @@ def iterative_search(candidates: Sequence[int], targets: Sequence[str], cues: Se
                      image: ImageFn | None = None, conf: KeyFrameConf | None = None,
                      trace: Any | None = None,
                      histograms: MutableMapping[int, np.ndarray] | None = None,
-                     prefetch: Callable[[Sequence[int]], None] | None = None) -> KeyFrameResult:
+                     prefetch: Callable[[Sequence[int]], None] | None = None,
+                     image_size: tuple[int, int] | None = None) -> KeyFrameResult:
     """The paper's iterative temporal search over `candidates` [M] frame indices.
 
     detect(frame_index, names) -> Detections scores one frame; image(frame_index) -> [H, W, 3] uint8 RGB feeds
@@ -360,6 +390,8 @@ def iterative_search(candidates: Sequence[int], targets: Sequence[str], cues: Se
     back and forth. It changes no result, only the decoding order.
     `trace` (a runtime.trace.Trace) receives a "degraded" event when fewer than K frames pass, a "fallback"
     event when the question names no object (uniform key frames), and the decision `keyframes.method`.
+    `image_size` (W, H) lets the `min_keyframes` top-up cover objects first (the largest box per name is kept
+    per scored frame; see `_fill`); without it the top-up goes by score only.
     """
     conf = conf or KeyFrameConf()
     c = _check_candidates(candidates)
@@ -380,6 +412,8 @@ def iterative_search(candidates: Sequence[int], targets: Sequence[str], cues: Se
     sizes = batch_sizes(budget, conf.iterations, conf.batch)
     hist = _HistogramCache(c, image, conf, histograms) if image is not None else None
     rng = np.random.default_rng(conf.seed)
+    area = float(image_size[0] * image_size[1]) if image_size else None
+    seen: dict[int, dict[str, float]] = {}     # frame -> name -> largest box area share (top-up coverage)
 
     w = np.ones(m, dtype=np.float64)            # uniform start
     scored = np.zeros(m, dtype=bool)
@@ -407,7 +441,13 @@ def iterative_search(candidates: Sequence[int], targets: Sequence[str], cues: Se
                     if j == int(b) or hist is None or int(c[j]) not in hist.store}
             prefetch(sorted(need))
         for pos in sorted(int(b) for b in batch):
-            s = frame_score(detect(int(c[pos]), names), weights)
+            det = detect(int(c[pos]), names)
+            s = frame_score(det, weights)
+            if area is not None:
+                for nm, b in zip(det.names, det.boxes):
+                    a = float((b[2] - b[0]) * (b[3] - b[1])) / area
+                    d = seen.setdefault(int(c[pos]), {})
+                    d[nm] = max(d.get(nm, 0.0), a)
             pos_scores[pos] = s
             order.append(int(c[pos]))
             scored[pos] = True
@@ -435,11 +475,12 @@ def iterative_search(candidates: Sequence[int], targets: Sequence[str], cues: Se
             trace.event("degraded", "key frames: " + msg, stage="keyframes", chosen=len(chosen),
                         requested=conf.keyframes)
     if len(chosen) < conf.min_keyframes:
-        extra = _fill(chosen.tolist(), frame_scores, c, conf.min_keyframes, conf.r)
+        extra, n_cov = _fill(chosen.tolist(), frame_scores, c, conf.min_keyframes, conf, seen or None)
         if extra:
             chosen = np.array(sorted(chosen.tolist() + extra), dtype=np.int64)
             msg = (f"filled {len(extra)} key frame(s) from the scored frames below the threshold "
-                   f"(min_keyframes={conf.min_keyframes})")
+                   f"(min_keyframes={conf.min_keyframes}; {n_cov} for objects no chosen frame showed well, "
+                   f"the rest by score)")
             notes.append(msg)
             if trace is not None:
                 trace.event("degraded", "key frames: " + msg, stage="keyframes", filled=len(extra))
@@ -454,11 +495,13 @@ def select_keyframes(method: str, candidates: Sequence[int], targets: Sequence[s
                      detect: DetectFn, image: ImageFn | None = None, conf: KeyFrameConf | None = None,
                      trace: Any | None = None,
                      histograms: MutableMapping[int, np.ndarray] | None = None,
-                     prefetch: Callable[[Sequence[int]], None] | None = None) -> KeyFrameResult:
-    """Run one of `METHODS` ("iterative", "uniform", "exhaustive") with the same inputs (`prefetch`: see
-    `iterative_search`)."""
+                     prefetch: Callable[[Sequence[int]], None] | None = None,
+                     image_size: tuple[int, int] | None = None) -> KeyFrameResult:
+    """Run one of `METHODS` ("iterative", "uniform", "exhaustive") with the same inputs (`prefetch`,
+    `image_size`: see `iterative_search`)."""
     if method == "iterative":
-        return iterative_search(candidates, targets, cues, detect, image, conf, trace, histograms, prefetch)
+        return iterative_search(candidates, targets, cues, detect, image, conf, trace, histograms, prefetch,
+                                image_size)
     if method == "uniform":
         return uniform_keyframes(candidates, conf)
     if method == "exhaustive":

@@ -11,10 +11,11 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, ClassVar, Sequence
 
 import numpy as np
 
+from .config import StageConf
 from .errors import InputError, MosaicError
 from .frames import Frame, FrameSource
 from .perception import Detections
@@ -29,8 +30,11 @@ DepthFn = Callable[[Frame], np.ndarray]                          # -> metric dep
 
 
 @dataclass
-class PipelineConfig:
-    """One config for a run; stage configs are dicts merged into each stage's defaults."""
+class PipelineConfig(StageConf):
+    """One config for a run; stage configs are dicts merged into each stage's defaults
+    (`PipelineConfig.merged(mapping_or_conf, **overrides)`, unknown keys are an error)."""
+
+    conf_name: ClassVar[str] = "pipeline config"
 
     keyframe_method: str = "iterative"   # iterative | uniform | exhaustive
     keyframes: int = 16                  # K, the key-frame budget (the budget planner may lower it)
@@ -39,10 +43,10 @@ class PipelineConfig:
     gravity: str = "auto"                # auto (source if it knows gravity, else floor fit) | source | floor
     refine: bool = True                  # occlusion refinement
     first_seen_from_search: bool = True  # first-seen times also from the frames the search scored
-    min_keyframes: int = 3               # fewer passing frames are topped up uniformly (recorded)
+    min_keyframes: int = 3               # fallback: fewer key frames even after the top-up -> evenly spaced ones
     min_scored_per_keyframe: int = 3     # search budget >= this x K (capped at the candidates), recorded
     cover_min_area: float = 0.02         # top-up coverage: an object counts as seen from this box area share on
-    topup: bool = True                   # fewer than K passing: add the best other scored frames (recorded)
+    topup: bool = True                   # fewer than K passing: the search's `min_keyframes = K` top-up (recorded)
     whole_image_fallback: bool = True    # key frames unaligned with matches inside boxes: retry on whole images
     bridge_frames: int = 48              # at most this many extra frames to connect unaligned key frames (0 = off)
     bridge_gap_s: float = 0.25           # bridge frames are placed at most this far apart in time
@@ -59,14 +63,20 @@ class PipelineConfig:
     match: dict[str, Any] = field(default_factory=lambda: {"sift_contrast_threshold": 0.02})  # OpenCV matchers
     fusion: dict[str, Any] = field(default_factory=dict)
 
-    @classmethod
-    def merged(cls, overrides: dict[str, Any] | None = None) -> "PipelineConfig":
-        over = dict(overrides or {})
-        known = {f.name for f in dataclasses.fields(cls)}
-        bad = sorted(set(over) - known)
-        if bad:
-            raise InputError(f"pipeline config: unknown key(s) {bad}; known: {sorted(known)}")
-        return cls(**over)
+    def validate(self) -> None:
+        if self.keyframe_method not in ("iterative", "uniform", "exhaustive"):
+            raise InputError(f"pipeline config: keyframe_method must be iterative, uniform or exhaustive "
+                             f"(got {self.keyframe_method!r})")
+        if self.keyframes < 1:
+            raise InputError(f"pipeline config: keyframes must be >= 1 (got {self.keyframes})")
+        for name, allowed in (("depth", ("auto", "sensor", "model")), ("gravity", ("auto", "source", "floor"))):
+            if getattr(self, name) not in allowed:
+                raise InputError(f"pipeline config: {name} must be one of {', '.join(allowed)} "
+                                 f"(got {getattr(self, name)!r})")
+        if self.min_keyframes < 0 or self.min_scored_per_keyframe < 0 or self.bridge_frames < 0:
+            raise InputError("pipeline config: min_keyframes, min_scored_per_keyframe and bridge_frames must be >= 0")
+        if not 0 <= self.cover_min_area <= 1 or not 0 <= self.max_free_space_violation <= 1:
+            raise InputError("pipeline config: cover_min_area and max_free_space_violation must be in [0, 1]")
 
 
 default_conf = PipelineConfig()
@@ -158,21 +168,19 @@ def select(source: FrameSource, targets: Sequence[str], cues: Sequence[str], per
         # the paper's 25% of the candidates, but at least a few frames per key frame (short videos)
         frac = float(kc.get("budget_fraction", KeyFrameConf.budget_fraction))
         kc["budget"] = int(min(len(cands), max(np.ceil(frac * len(cands)), conf.min_scored_per_keyframe * K)))
+    if conf.topup and conf.keyframe_method == "iterative":
+        # fewer than K passing: the search tops up from the frames it scored (coverage first, then by score),
+        # at least len/(4K) frames apart; recorded by the search
+        kc.setdefault("min_keyframes", K)
+        kc.setdefault("topup_gap", max(1, len(source) // (4 * K)))
+        kc.setdefault("topup_relax", False)
+        kc.setdefault("cover_min_area", conf.cover_min_area)
     kconf = KeyFrameConf.merged(kc)
     with trace.stage("keyframes"):
         res = select_keyframes(conf.keyframe_method, cands, list(targets), list(cues), det,
-                               lambda i: source[int(i)].rgb, kconf, trace)
+                               lambda i: source[int(i)].rgb, kconf, trace,
+                               prefetch=getattr(source, "prefetch", None), image_size=tuple(source.size))
     chosen = [int(i) for i in res.chosen]
-    if conf.topup and len(chosen) < K and res.scores:
-        names = tuple(dict.fromkeys(list(targets) + list(cues)))
-        W, H = source.size
-        seen: dict[int, dict[str, float]] = {}  # frame -> name -> largest box area (share of the image)
-        for (i, nm), d in det.cache.items():
-            if nm == names:
-                for n, b in zip(d.names, d.boxes):
-                    a = float((b[2] - b[0]) * (b[3] - b[1])) / float(W * H)
-                    seen.setdefault(i, {})[n] = max(seen.get(i, {}).get(n, 0.0), a)
-        chosen = _top_up(chosen, res.scores, K, max(1, len(source) // (4 * K)), trace, seen, conf.cover_min_area)
     if len(chosen) < min(conf.min_keyframes, len(cands)):
         extra = [int(i) for i in uniform_keyframes(cands, KeyFrameConf.merged({"keyframes": conf.min_keyframes})).chosen
                  if int(i) not in chosen]
@@ -182,44 +190,6 @@ def select(source: FrameSource, targets: Sequence[str], cues: Sequence[str], per
                     f"{min(need, len(extra))} evenly spaced frames", stage="keyframes")
     trace.decide("keyframes", {**res.to_dict(), "chosen": chosen, "scores": None, "order": None})
     return sorted(chosen), det, res, cands
-
-
-def _top_up(chosen: list[int], scores: dict[int, float], K: int, gap: int, trace: Trace,
-            seen: dict[int, dict[str, float]] | None = None, cover_min_area: float = 0.02) -> list[int]:
-    """Fewer than K frames passed the threshold: add frames the search already scored (score > 0), skipping
-    frames within `gap` of one already chosen (near-duplicates add no view). Coverage first: while an object the
-    detector saw in some scored frame has no view of at least `cover_min_area` of the image in a chosen frame,
-    the scored frame with its largest box is added (`seen`: frame -> name -> box area share); then the rest by
-    score. Recorded."""
-    out = list(chosen)
-    seen = seen or {}
-
-    def ok(i: int) -> bool:
-        return scores.get(i, 0) > 0 and i not in out and all(abs(i - j) >= gap for j in out)
-
-    def covered() -> set[str]:
-        return {n for i in out for n, a in seen.get(i, {}).items() if a >= cover_min_area}
-
-    missing = {n for d in seen.values() for n in d} - covered()
-    n_cov = 0
-    while len(out) < K and missing:
-        cand = [(a, i, n) for i in seen if ok(i) for n, a in seen[i].items() if n in missing]
-        if not cand:
-            break
-        a, i, n = max(cand, key=lambda c: (c[0], -c[1]))
-        out.append(int(i))
-        missing -= covered() | {n}
-        n_cov += 1
-    for i in sorted(scores, key=lambda i: (-scores[i], i)):
-        if len(out) >= K:
-            break
-        if ok(i):
-            out.append(int(i))
-    if len(out) > len(chosen):
-        trace.event("degraded", f"{len(chosen)} of {K} key frames passed the threshold; added {len(out) - len(chosen)} "
-                    f"more of the scored frames ({n_cov} for objects no chosen frame showed well, the rest by score; "
-                    f"at least {gap} frames apart)", stage="keyframes", passed=len(chosen), added=len(out) - len(chosen))
-    return sorted(out)
 
 
 def depth_consistency(fa: Frame, fb: Frame, T_ab: np.ndarray, stride: int = 8) -> tuple[float, float, float]:
@@ -535,7 +505,7 @@ def build_map(source: FrameSource, targets: Sequence[str], cues: Sequence[str] =
     poses = {i: W @ T for i, T in al.poses.items()}
 
     # lift and fuse
-    fconf = dataclasses.replace(FusionConfig(), **conf.fusion) if conf.fusion else FusionConfig()
+    fconf = FusionConfig.merged(conf.fusion or None)
     obs: list[Observation] = []
     with trace.stage("fusion"):
         for f in frames:
@@ -647,12 +617,14 @@ def refine(instances: list[ObjectInstance], obs: list[Observation], frames: list
     n_pts = {}  # (instance name, frame) -> points of its observation there: prompts come from the best views
     for o in obs:
         n_pts[(o.name, o.frame)] = max(n_pts.get((o.name, o.frame), 0), len(o.points))
-    new_obs: list[Observation] = []
-    gained: set[int] = set()
-    for inst in instances:
-        seen = set(inst.frames)
-        for f in frames:
-            if f.index in seen or f.index not in poses:
+    found: dict[tuple[int, int], list[Observation]] = {}  # (instance position, frame position) -> recovered
+    # frame-major: a semantic segmenter caches its class map for the last image, so all instances of one frame
+    # share one segmenter run; the result is put back in instance-major order below (same fusion input)
+    for fi, f in enumerate(frames):
+        if f.index not in poses:
+            continue
+        for ii, inst in enumerate(instances):
+            if f.index in set(inst.frames):
                 continue
             box = expected_visible(inst, f.K, poses[f.index], (f.rgb.shape[1], f.rgb.shape[0]), f.depth)
             if box is None:
@@ -695,8 +667,9 @@ def refine(instances: list[ObjectInstance], obs: list[Observation], frames: list
                 inside = inst.box.contains(ob.points, margin=0.15)
                 if inside.mean() >= 0.5:
                     ob.points = ob.points[inside]
-                    new_obs.append(ob)
-                    gained.add(inst.id)
+                    found.setdefault((ii, fi), []).append(ob)
+    new_obs = [ob for key in sorted(found) for ob in found[key]]
+    gained = {instances[ii].id for ii, _ in found}
     if not new_obs:
         return instances, [np.zeros((0, 3))] * len(instances), 0
     trace.event("refinement", f"occlusion refinement recovered {len(new_obs)} view(s) of {len(gained)} "

@@ -19,10 +19,11 @@ from __future__ import annotations
 import json
 import os
 from dataclasses import dataclass, field
-from typing import Any, Iterable
+from typing import Any, ClassVar, Iterable
 
 import numpy as np
 
+from .config import StageConf
 from .errors import InputError
 from .geometry import OrientedBox, convex_hull_2d, polygon_area
 
@@ -212,8 +213,11 @@ def _plain(x: Any) -> Any:
 
 
 @dataclass
-class FusionConfig:
-    """Defaults chosen for metric indoor depth; all overridable (`default_fusion_conf` merged with overrides)."""
+class FusionConfig(StageConf):
+    """Defaults chosen for metric indoor depth; all overridable (`FusionConfig.merged(mapping_or_conf,
+    **overrides)`: unknown keys are an error)."""
+
+    conf_name: ClassVar[str] = "fusion config"
 
     stride: int = 2               # pixel stride when lifting masks (speed; masks are dense)
     erode_px: int = 2             # shrink masks so depth edges (object/background) do not bleed in
@@ -230,6 +234,16 @@ class FusionConfig:
     merge_footprint: bool = True  # after fusion, merge same-name instances whose floor footprints overlap
     min_instance_points: int = 40
     seed: int = 0
+
+    def validate(self) -> None:
+        if self.stride < 1 or self.erode_px < 0 or self.min_points < 1 or self.max_points < self.min_points:
+            raise InputError(f"fusion config: need stride >= 1, erode_px >= 0, 1 <= min_points <= max_points "
+                             f"(got {self.stride}, {self.erode_px}, {self.min_points}, {self.max_points})")
+        for name in ("max_depth_m", "voxel_m", "merge_radius_m", "merge_centre_m", "outlier_mad", "outlier_radius_m"):
+            if getattr(self, name) <= 0:
+                raise InputError(f"fusion config: {name} must be > 0 (got {getattr(self, name)})")
+        if not 0 <= self.merge_overlap <= 1:
+            raise InputError(f"fusion config: merge_overlap must be in [0, 1] (got {self.merge_overlap})")
 
 
 default_fusion_conf = FusionConfig()

@@ -159,6 +159,17 @@ def test_align_frames_exact_and_unaligned_frame():
     assert any(not r.ok for r in res.edge_stats.values())
 
 
+def test_each_pair_matched_and_verified_once():
+    frames, scene, _ = _synthetic(6)
+    om = _OracleMatcher(scene, isolated=4)
+    calls = []
+    inner = om.match
+    om.match = lambda a, b, b0=None, b1=None: calls.append((int(a[0, 0, 0]), int(b[0, 0, 0]))) or inner(a, b, b0, b1)
+    res = align_frames(frames, om, "mst", embeddings=_emb(6))
+    pairs = [tuple(sorted(c)) for c in calls]
+    assert len(pairs) == len(set(pairs)) == len(res.edge_stats)  # refinement + Kruskal share one verification
+
+
 def test_sequential_baseline_keeps_previous_pose():
     frames, scene, poses = _synthetic(6)
     res = align_frames(frames, _OracleMatcher(scene, isolated=2), "sequential")

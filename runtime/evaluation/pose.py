@@ -204,6 +204,8 @@ def render(r: dict[str, Any]) -> str:
     gs = r.get("guessed_frames", [])
     lines = [f"pose evaluation on {r.get('data')}: {r.get('keyframes')} frames ({r.get('sampling')}, seed "
              f"{r.get('seed')}), strategy {r.get('strategy')}, depth {r.get('depth')}, matcher {r.get('matcher')}",
+             f"  edges           {r.get('edge', 'rgbd')}" + ("  (essential matrix + depth scale: relative depth)"
+                                                          if r.get('edge') == 'essential' else ""),
              f"  ATE RMSE        {r['ate_rmse_m']:.4f} m{'  (Sim(3) alignment)' if r.get('sim3') else ''}",
              f"  RPE             {r['rpe_trans_m']:.4f} m, {r['rpe_rot_deg']:.2f} deg",
              f"  aligned frames  {r['aligned_frames']} / {r['total_frames']}"

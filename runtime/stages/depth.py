@@ -144,36 +144,25 @@ def scale_from_prior(pred: np.ndarray, median_m: float = 2.0, semantics: str = "
 
 
 def camera_height_prior(points: np.ndarray, height_m: float, up_hint: np.ndarray | None = None,
-                        iterations: int = 200, threshold: float = 0.02, rng: int = 0) -> float:
-    """Scale factor from a known camera height: RANSAC floor plane in camera points [N, 3] (up to scale);
-    returns height_m / distance(camera, plane). up_hint [3] (camera frame, e.g. gravity from an IMU, default
-    -y: OpenCV cameras look roughly horizontal) selects planes below the camera. Limit: needs visible floor."""
+                        iterations: int = 200, threshold: float = 0.02, rng: int = 0,
+                        max_tilt_deg: float = 25.8) -> float:
+    """Scale factor from a known camera height: the floor plane of camera points [N, 3] (up to scale), found by
+    the map's floor fit (`semantic_map.fit_floor_plane`, the one floor RANSAC); returns
+    height_m / distance(camera, plane). up_hint [3] (camera frame, e.g. gravity from an IMU, default -y: OpenCV
+    cameras look roughly horizontal) selects planes below the camera, within `max_tilt_deg` of horizontal;
+    `threshold` is relative to the points' median range (they have no unit yet). Limit: needs visible floor."""
+    from ..semantic_map import fit_floor_plane
+
     pts = np.asarray(points, np.float64).reshape(-1, 3)
     if len(pts) < 50:
         raise InputError("camera-height prior: fewer than 50 points")
     up = np.asarray(up_hint if up_hint is not None else [0.0, -1.0, 0.0], np.float64)
-    up /= np.linalg.norm(up)
-    g = np.random.default_rng(rng)
-    scale_ref = np.median(np.linalg.norm(pts, axis=1))
-    best, best_d = 0, None
-    for _ in range(iterations):
-        a, b, c = pts[g.choice(len(pts), 3, replace=False)]
-        n = np.cross(b - a, c - a)
-        nn = np.linalg.norm(n)
-        if nn < 1e-12:
-            continue
-        n /= nn
-        if abs(n @ up) < 0.9:  # floor normal must be close to vertical
-            continue
-        d = -n @ a
-        if (n @ up) * d > 0:  # plane must be below the camera (camera at origin on the up side)
-            n, d = -n, -d
-        inl = np.abs(pts @ n + d) < threshold * scale_ref
-        if inl.sum() > best:
-            best, best_d = int(inl.sum()), abs(d)
-    if best_d is None or best < 30:
+    scale_ref = float(np.median(np.linalg.norm(pts, axis=1)))
+    fit = fit_floor_plane(pts, -up / np.linalg.norm(up), max_tilt_deg=max_tilt_deg,
+                          threshold=threshold * scale_ref, iterations=iterations, rng=rng)
+    if fit is None or fit[1] <= 0 or fit[2] < 30:  # d > 0: the plane lies below the camera
         raise InputError("camera-height prior: no floor plane found below the camera")
-    return float(height_m / best_d)
+    return float(height_m / fit[1])
 
 
 def _check_semantics(semantics: str) -> None:
