@@ -572,7 +572,32 @@ def _room(instances: list[ObjectInstance], cams: list[tuple[float, np.ndarray]],
         return None
     P = np.concatenate(pts)
     top = max([float(o.box.aabb()[1][2]) for o in instances] + [2.4])
-    return Room(convex_hull_2d(P), 0.0, top, source)
+    return Room(convex_hull_2d(_hull_candidates(P)), 0.0, top, source)
+
+
+def _hull_candidates(P: np.ndarray, directions: int = 16) -> np.ndarray:
+    """Points [N, 2] that may be convex-hull vertices (Akl-Toussaint): the extreme points in `directions`
+    directions span a convex polygon; points clearly inside it (by more than 1e-9 of the extent) are dropped.
+    The hull is unchanged, the Python monotone chain just sees far fewer points."""
+    if len(P) < 64:
+        return P
+    ang = np.linspace(0, 2 * np.pi, directions, endpoint=False)
+    D = np.stack([np.cos(ang), np.sin(ang)], 1)
+    idx = np.unique(np.argmax(P @ D.T, 0))              # extreme points, ordered by direction below
+    V = P[idx]
+    c = V.mean(0)
+    V = V[np.argsort(np.arctan2(V[:, 1] - c[1], V[:, 0] - c[0]))]
+    if len(V) < 3:
+        return P
+    eps = 1e-9 * float(np.ptp(P, 0).max() + 1.0)
+    inside = np.ones(len(P), bool)
+    for a, b in zip(V, np.roll(V, -1, 0)):              # counter-clockwise: inside = left of every edge
+        e = b - a
+        nrm = float(np.hypot(*e))
+        if nrm == 0:
+            continue
+        inside &= (e[0] * (P[:, 1] - a[1]) - e[1] * (P[:, 0] - a[0])) / nrm > eps
+    return P[~inside]
 
 
 def _first_seen_from_search(instances: list[ObjectInstance], det: "_CachedDetector", names: list[str],

@@ -309,3 +309,31 @@ def test_prefetch_hook_sorted_batches_same_result():
     s = Src()
     c = kf.iterative_search(cands, ["chair"], [], table_detector(table), s, conf)
     assert s.calls == len(calls) and c.chosen.tolist() == a.chosen.tolist()
+
+
+def test_min_keyframes_topup_covers_objects_first():
+    """With the image size known, the top-up first adds, for each object no chosen frame shows well, the scored
+    frame with its largest box — before better-scoring frames — then goes by score; the conf is the shared
+    StageConf."""
+    m = 60
+    table = {f: {"chair": 0.9} for f in range(0, m, 2)}          # chair everywhere, big boxes
+    table.update({f: {"chair": 0.9, "tv": 0.2} for f in (30, 40)})  # tv: low score, box 12% at 40, 1% at 30
+    big, tv40, tv30 = (0, 0, 200, 200), (0, 0, 120, 100), (0, 0, 10, 10)
+
+    def detect(frame: int, names: list[str]) -> Detections:
+        hits = [(n, s) for n, s in table.get(frame, {}).items() if n in names]
+        boxes = [big if n == "chair" else (tv40 if frame == 40 else tv30) for n, _ in hits]
+        return Detections(np.array(boxes, np.float32).reshape(-1, 4), [s for _, s in hits], [n for n, _ in hits])
+
+    conf = kf.KeyFrameConf.merged({"keyframes": 2, "budget": m, "threshold": 5.0}, min_keyframes=2, topup_gap=5,
+                                  topup_relax=False)
+    assert isinstance(conf, kf.StageConf) and conf.to_dict()["topup_gap"] == 5
+    res = kf.iterative_search(range(m), ["chair"], ["tv"], detect, conf=conf, image_size=(320, 240))
+    # chair's largest view (earliest on ties), then the tv's largest view (40), not the top scores (30 and 40)
+    assert res.chosen.tolist() == [0, 40]
+    assert any("2 for objects no chosen frame showed well" in n for n in res.notes)
+    # without the image size the same top-up goes by score only: 30 and 40 (1.0 > 0.9)
+    res2 = kf.iterative_search(range(m), ["chair"], ["tv"], detect, conf=conf)
+    assert res2.chosen.tolist() == [30, 40] and any("0 for objects" in n for n in res2.notes)
+    with pytest.raises(InputError, match="topup_gap"):
+        kf.KeyFrameConf.merged(topup_gap=-1)

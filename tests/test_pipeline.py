@@ -137,6 +137,23 @@ def test_pipeline_config_rejects_unknown_keys():
 
     with pytest.raises(InputError, match="keyframez"):
         PipelineConfig.merged({"keyframez": 3})
+    # the shared StageConf merge: a mapping or an instance, keyword overrides (None = unset), validate()
+    from mosaicthinker.runtime.budget import PlanConf
+    from mosaicthinker.runtime.semantic_map import FusionConfig
+
+    c = PipelineConfig.merged({"keyframes": 8}, depth=None, matcher="orb")
+    assert (c.keyframes, c.depth, c.matcher) == (8, "auto", "orb") and c.to_dict()["keyframes"] == 8
+    assert PipelineConfig.merged(c, keyframes=4).keyframes == 4 and c.keyframes == 8
+    with pytest.raises(InputError, match="keyframe_method"):
+        PipelineConfig.merged(keyframe_method="random")
+    assert FusionConfig.merged({"voxel_m": 0.05}).voxel_m == 0.05
+    with pytest.raises(InputError, match="merge_overlap"):
+        FusionConfig.merged(merge_overlap=1.5)
+    with pytest.raises(InputError, match="fusion config: unknown"):
+        FusionConfig.merged({"voxel": 0.05})
+    assert PlanConf.merged(keyframes_max=None).keyframes_max == 32
+    with pytest.raises(InputError, match="video_pass"):
+        PlanConf.merged({"video_pass": "later"})
 
 
 def test_python_api_is_lazy_and_light():
@@ -145,3 +162,18 @@ def test_python_api_is_lazy_and_light():
             "assert callable(ask) and 'torch' not in sys.modules; print('ok')")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert out.stdout.strip() == "ok", out.stderr
+
+
+def test_room_hull_prefilter_keeps_the_hull():
+    """`_hull_candidates` (Akl-Toussaint) only drops points that cannot be hull vertices: same hull, also with
+    duplicates and collinear points."""
+    from mosaicthinker.runtime.geometry import convex_hull_2d
+    from mosaicthinker.runtime.pipeline import _hull_candidates
+
+    g = np.random.default_rng(3)
+    for P in (g.normal(size=(5000, 2)) * 3, np.round(g.uniform(-5, 5, (5000, 2)), 1),
+              np.c_[g.uniform(-1, 1, 500), np.zeros(500)]):
+        Q = _hull_candidates(P)
+        assert len(Q) <= len(P)
+        np.testing.assert_array_equal(convex_hull_2d(Q), convex_hull_2d(P))
+    assert len(_hull_candidates(g.normal(size=(5000, 2)))) < 500

@@ -126,3 +126,17 @@ print(json.dumps({{"heavy": heavy, "shape": list(z.shape)}}))
     assert out.returncode == 0, out.stderr
     res = json.loads(out.stdout.strip().splitlines()[-1])
     assert res == {"heavy": [], "shape": [120, 160]}
+
+
+def test_camera_height_prior_uses_the_floor_fit():
+    """Floor 1.5 m below an OpenCV camera plus a wall, all scaled by 0.5 (relative depth): the prior's scale
+    factor is 1.5 / 0.75 = 2 (the one floor RANSAC, `semantic_map.fit_floor_plane`)."""
+    from mosaicthinker.runtime.errors import InputError
+    from mosaicthinker.runtime.stages.depth import camera_height_prior
+
+    g = np.random.default_rng(0)
+    floor = np.c_[g.uniform(-2, 2, 2000), np.full(2000, 1.5), g.uniform(1, 5, 2000)]
+    wall = np.c_[g.uniform(-2, 2, 1000), g.uniform(-1, 1.5, 1000), np.full(1000, 5.0)]
+    assert camera_height_prior(np.r_[floor, wall] * 0.5, 1.5) == pytest.approx(2.0, rel=0.02)
+    with pytest.raises(InputError, match="no floor"):
+        camera_height_prior(wall * 0.5, 1.5)
