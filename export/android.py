@@ -105,30 +105,6 @@ class AndroidConfig:
 # ----------------------------------------------------------------------------------------------------------------
 # Fixed shapes
 
-_BATCH = re.compile(r"^(batch|batch_size|b|n|N|B|bs|num_images|images?)$|batch", re.I)
-_TEXT = re.compile(r"seq|token|text|length|len$", re.I)
-_PROMPTS = re.compile(r"prompt|box|object", re.I)
-_QUERIES = re.compile(r"quer|names?$|labels?$", re.I)
-_POINTS = re.compile(r"point", re.I)
-_KEYPOINTS = re.compile(r"keypoint|kpt|num_kp|top_?k", re.I)
-_PAST = re.compile(r"past|cache|total_seq|kv", re.I)
-
-
-def _image_axes(inp: dict[str, Any], pp: dict[str, Any]) -> dict[int, int]:
-    """Spatial axes of a 4-D image input -> sizes from the role's preprocessing (layout NCHW or NHWC)."""
-    size = pp.get("size")
-    shape = inp.get("shape") or []
-    if not size or len(shape) != 4:
-        return {}
-    h, w = int(size[0]), int(size[1])
-    layout = pp.get("layout")
-    if layout is None:  # guess from the channel axis
-        layout = "NHWC" if shape[3] == 3 else "NCHW"
-    if shape[3 if layout == "NHWC" else 1] not in (1, 3):  # not an image (e.g. a KV cache [1, heads, T, d])
-        return {}
-    return {1: h, 2: w} if layout == "NHWC" else {2: h, 3: w}
-
-
 def fixed_shape_plan(inputs: Sequence[dict[str, Any]], role_meta: dict[str, Any], component: str,
                      conf: AndroidConfig, role: str = "") -> tuple[dict[str, list[int]], dict[str, str]]:
     """Decide a static shape for every input with dynamic axes.
@@ -147,32 +123,33 @@ def fixed_shape_plan(inputs: Sequence[dict[str, Any]], role_meta: dict[str, Any]
         if not dyn:
             continue
         shape = [int(s) for s in inp.get("shape", [])]
-        img = _image_axes(inp, pp) if inp.get("dtype") in ("float32", "float16", "uint8") else {}
+        img = C.image_axes(inp, pp)
         ok = True
         for ax, name in sorted(dyn.items()):
+            kind = None if name in conf.overrides else C.axis_kind(name, inp, ax, role_meta)
             if name in conf.overrides:
                 shape[ax] = int(conf.overrides[name])
             elif role == "vlm" and ax != 0 and not img:
                 ok = False
                 left[f"{inp['name']}[{ax}]"] = (f"{name}: VLM token axis (prompt length, then 1 per generated "
                                                 f"token; see the fixed-window decoder variant)")
-            elif _PAST.search(name) or _PAST.search(inp["name"]):
+            elif kind in ("past", "total"):
                 ok = False
                 left[f"{inp['name']}[{ax}]"] = (f"{name}: KV-cache length grows while decoding (see the "
                                                 f"fixed-window decoder variant)")
-            elif ax == 0 and _BATCH.search(name) or (ax == 0 and name in ("d0", "0")):
+            elif kind in ("batch", "images"):
                 shape[ax] = conf.batch
-            elif ax in img:
+            elif kind == "image":
                 shape[ax] = img[ax]
-            elif _KEYPOINTS.search(name) and (cfg.get("top_k") or cfg.get("max_keypoints")):
+            elif kind == "keypoints":
                 shape[ax] = int(cfg.get("top_k") or cfg.get("max_keypoints"))
-            elif _PROMPTS.search(name):
+            elif kind == "prompts":
                 shape[ax] = conf.max_prompts
-            elif _QUERIES.search(name):
+            elif kind == "queries":
                 shape[ax] = conf.max_queries
-            elif _POINTS.search(name) or _POINTS.search(inp["name"]):
+            elif kind == "points":
                 shape[ax] = conf.max_points
-            elif _TEXT.search(name) or _TEXT.search(inp["name"]) or "input_ids" in inp["name"]:
+            elif kind == "text":
                 shape[ax] = int(cfg.get("max_text_len", conf.text_len))
             else:
                 ok = False

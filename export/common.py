@@ -19,6 +19,7 @@ into constants, and a check on the example input would not see that. A failing p
 from __future__ import annotations
 
 import os
+import re
 import shutil
 import sys
 import time
@@ -404,3 +405,59 @@ def target_step_main(module: Any, argv: Sequence[str] | None = None) -> int:
         return 2
     print(json.dumps(res, default=str) if args.json else module.render(res))
     return 0
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Dynamic axes: what a named axis means (shared by the Android fixed-shape step and the Jetson profile step)
+
+_AXIS_RULES = (  # checked in this order; the first match wins
+    ("past", re.compile(r"past|cache|kv", re.I)),
+    ("total", re.compile(r"total|mask_len", re.I)),
+    ("keypoints", re.compile(r"keypoint|kpt|num_kp|top_?k", re.I)),
+    ("prompts", re.compile(r"prompt|box|object", re.I)),
+    ("queries", re.compile(r"quer|names?$|labels?$", re.I)),
+    ("points", re.compile(r"point", re.I)),
+)
+_TEXT_AXIS = re.compile(r"seq|token|text|length|len$", re.I)
+_BATCH_AXIS = re.compile(r"batch|^(b|n|bs)$", re.I)
+
+
+def image_axes(inp: dict[str, Any], pp: dict[str, Any]) -> dict[int, int]:
+    """Spatial axes of a 4-D image input -> sizes from the role's preprocessing (layout NCHW or NHWC)."""
+    size = pp.get("size")
+    shape = inp.get("shape") or []
+    if not size or len(shape) != 4 or inp.get("dtype") not in ("float32", "float16", "uint8"):
+        return {}
+    h, w = int(size[0]), int(size[1])
+    layout = pp.get("layout")
+    if layout is None:  # guess from the channel axis
+        layout = "NHWC" if shape[3] == 3 else "NCHW"
+    if shape[3 if layout == "NHWC" else 1] not in (1, 3):  # not an image (e.g. a KV cache [1, heads, T, d])
+        return {}
+    return {1: h, 2: w} if layout == "NHWC" else {2: h, 3: w}
+
+
+def axis_kind(name: str, inp: dict[str, Any], ax: int, role_meta: dict[str, Any]) -> str | None:
+    """Kind of dynamic axis `ax` (symbolic `name`) of manifest input `inp`: "images" (a count of images on axis
+    0), "batch", "image" (a spatial axis fixed by the preprocessing size), "past" (KV-cache length), "total"
+    (past + new tokens), "keypoints" (fixed by the role's top_k), "prompts", "queries", "points", "text"
+    (sequence/token axes), or None when no rule applies (the caller asks for an explicit value)."""
+    iname = inp["name"]
+    cfg = role_meta.get("config") or {}
+    if ax == 0 and re.fullmatch(r"(num_)?images?", name, re.I):
+        return "images"
+    if ax == 0 and (_BATCH_AXIS.search(name) or name in ("d0", "0")):
+        return "batch"
+    for kind, rx in _AXIS_RULES[:2]:  # KV-cache axes first: a [1, heads, past, d] cache looks like an image
+        if rx.search(name) or (kind == "past" and rx.search(iname)):
+            return kind
+    if ax in image_axes(inp, role_meta.get("preprocessing") or {}):
+        return "image"
+    for kind, rx in _AXIS_RULES[2:]:
+        if kind == "keypoints" and not (cfg.get("top_k") or cfg.get("max_keypoints")):
+            continue
+        if rx.search(name) or (kind == "points" and rx.search(iname)):
+            return kind
+    if "input_ids" in iname or "position" in iname or _TEXT_AXIS.search(name) or _TEXT_AXIS.search(iname):
+        return "text"
+    return None

@@ -35,7 +35,7 @@ from typing import Any, Sequence
 from mosaicthinker.runtime import bundle as B
 from mosaicthinker.runtime.errors import ExportError
 
-from .android import _image_axes  # the same image-axis rule as the Android step (one home)
+from . import common as C
 
 SOURCE_PRECISIONS = ("fp32", "fp16", "int8-qdq")
 SCRIPT = "jetson/build_engines.sh"
@@ -43,14 +43,6 @@ NOT_RUN = ("TensorRT is not installed on the export machine: no engine was built
            "here. The provider options, profile shapes and trtexec lines are generated and checked for form "
            "only; the engines are built on the Jetson on first run (or with jetson/build_engines.sh).")
 
-_BATCH = re.compile(r"batch|^b$|^n$|^bs$", re.I)
-_PAST = re.compile(r"past|cache|kv", re.I)
-_TOTAL = re.compile(r"total|mask_len", re.I)
-_SEQ = re.compile(r"seq|token|length|len$", re.I)
-_PROMPTS = re.compile(r"prompt|box|object", re.I)
-_QUERIES = re.compile(r"quer|names?$|labels?$", re.I)
-_POINTS = re.compile(r"point", re.I)
-_KEYPOINTS = re.compile(r"keypoint|kpt|top_?k", re.I)
 
 
 @dataclass
@@ -82,32 +74,29 @@ def axis_range(name: str, inp: dict[str, Any], ax: int, role_meta: dict[str, Any
     iname = inp["name"]
     if name in conf.overrides:
         return tuple(int(v) for v in conf.overrides[name])  # type: ignore[return-value]
-    img = _image_axes(inp, role_meta.get("preprocessing") or {}) if inp.get("dtype") in (
-        "float32", "float16", "uint8") else {}
-    if ax == 0 and re.fullmatch(r"(num_)?images?", name, re.I):
+    kind = C.axis_kind(name, inp, ax, role_meta)
+    if kind == "images":
         return conf.images_range
-    if ax == 0 and (_BATCH.search(name) or name in ("d0",)):
+    if kind == "batch":
         return (1, 1, conf.max_batch)
-    if ax in img:
-        return (img[ax],) * 3  # type: ignore[return-value]
-    if _PAST.search(name) or _PAST.search(iname):
+    if kind == "image":
+        return (C.image_axes(inp, role_meta.get("preprocessing") or {})[ax],) * 3  # type: ignore[return-value]
+    if kind == "past":
         return conf.past_range
-    if _TOTAL.search(name):
-        # total = past + new tokens
+    if kind == "total":  # total = past + new tokens
         return (conf.past_range[0] + conf.seq_range[0], conf.past_range[1] + conf.seq_range[1],
                 conf.past_range[2] + conf.seq_range[2])
-    if _KEYPOINTS.search(name) and (cfg.get("top_k") or cfg.get("max_keypoints")):
+    if kind == "keypoints":
         k = int(cfg.get("top_k") or cfg.get("max_keypoints"))
         return (k, k, k)
-    if _PROMPTS.search(name):
+    if kind == "prompts":
         return conf.prompts_range
-    if _QUERIES.search(name):
+    if kind == "queries":
         return conf.queries_range
-    if _POINTS.search(name) or _POINTS.search(iname):
+    if kind == "points":
         return conf.points_range
-    if "input_ids" in iname or "position" in iname or _SEQ.search(name):
-        return conf.seq_range if role_meta.get("arch", "").endswith("vlm") or "vlm" in str(
-            role_meta.get("arch", "")) else conf.text_range
+    if kind == "text":
+        return conf.seq_range if "vlm" in str(role_meta.get("arch", "")) else conf.text_range
     raise ExportError(f"input {iname!r} axis {ax} ({name!r}): no rule gives its TensorRT profile range; pass "
                       f"--axis {name}=MIN:OPT:MAX")
 
@@ -126,7 +115,7 @@ def profile_shapes(inputs: Sequence[dict[str, Any]], role_meta: dict[str, Any],
         shp = {k: [int(s) for s in inp["shape"]] for k in out}
         for ax, name in dyn.items():
             lo, opt, hi = axis_range(name, inp, ax, role_meta, conf)
-            floor = 0 if (_PAST.search(name) or _PAST.search(inp["name"])) else 1  # empty cache on prefill
+            floor = 0 if C.axis_kind(name, inp, ax, role_meta) == "past" else 1  # empty cache on prefill
             if not (floor <= lo <= opt <= hi) or opt < 1:
                 raise ExportError(f"input {inp['name']!r} axis {ax} ({name}): range {lo}:{opt}:{hi} must satisfy "
                                   f"{floor} <= min <= opt <= max, opt >= 1")

@@ -257,3 +257,15 @@ def test_container_recipe_and_run_script(bundle):
     code = "\n".join(ln for ln in docker.splitlines() if not ln.lstrip().startswith("#"))
     assert "onnxruntime-gpu" in code and "TensorrtExecutionProvider" in code and "torch" not in code
     assert "pip install ." in code and "[export]" not in code  # runtime only
+
+
+def test_kv_cache_axis_is_not_mistaken_for_an_image_axis():
+    """A one-head KV cache [1, 1, past, d] has the 4-D shape of a 1-channel image: its past axis must get the
+    KV-cache range, not the image size (one axis classifier serves the Android and Jetson steps)."""
+    from mosaicthinker.export import common as C
+
+    meta = {"arch": "smolvlm", "preprocessing": {"size": [32, 32], "layout": "NCHW"}, "config": {}}
+    inp = {"name": "past_key_0", "shape": [1, 1, 0, 8], "dtype": "float32", "dynamic_axes": {"2": "past"}}
+    assert C.axis_kind("past", inp, 2, meta) == "past"
+    img = {"name": "pixel_values", "shape": [1, 3, 32, 32], "dtype": "float32", "dynamic_axes": {"2": "h"}}
+    assert C.axis_kind("h", img, 2, meta) == "image"
