@@ -383,3 +383,31 @@ def _image_calibration(frames: list[np.ndarray] | None, pre: dict[str, Any],
     if not frames:
         return None
     return lambda: [{name: preprocess_image(f, pre)} for f in frames]
+
+
+def word_level_tokenizer(vocab: dict[str, int], specials: Sequence[str], path: str | Path) -> Path:
+    """Write a whitespace WordLevel `tokenizer.json` (tiny test models): `vocab` token -> id with an "[UNK]"
+    entry; `specials` are added as special tokens (never split, not normalised)."""
+    from tokenizers import AddedToken, Tokenizer, models, pre_tokenizers
+
+    tok = Tokenizer(models.WordLevel(vocab, unk_token="[UNK]"))
+    tok.pre_tokenizer = pre_tokenizers.Whitespace()
+    tok.add_special_tokens([AddedToken(t, special=True, normalized=False) for t in specials])
+    path = Path(path)
+    tok.save(str(path))
+    return path
+
+
+def save_hf_tokenizer(source: str, dst: Path) -> None:
+    """tokenizer.json of a real checkpoint (`hf:ID[@rev]` or `dir:PATH`; the fast tokenizer saved by
+    transformers)."""
+    from transformers import AutoTokenizer
+
+    ident = source[3:].partition("@")[0] if source.startswith("hf:") else source[4:]
+    tok = AutoTokenizer.from_pretrained(ident)
+    with tempfile.TemporaryDirectory() as d:
+        tok.save_pretrained(d)
+        src = Path(d) / "tokenizer.json"
+        if not src.is_file():
+            raise ExportError(f"--source {source}: the tokenizer has no tokenizer.json (needs a fast tokenizer)")
+        dst.write_bytes(src.read_bytes())

@@ -21,7 +21,7 @@ import numpy as np
 from mosaicthinker.runtime.errors import ExportError
 
 from . import common as C
-from .hf_common import CLIP_MEAN, CLIP_STD, GraphSpec, export_variants, load_source, run_exporter
+from .hf_common import CLIP_MEAN, CLIP_STD, GraphSpec, export_variants, load_source, run_exporter, save_hf_tokenizer, word_level_tokenizer
 
 HF_DEFAULTS = {"owlv2": "google/owlv2-base-patch16-ensemble"}
 _TINY_WORDS = ("a photo of the chair table sofa bed tv door window sink fridge lamp plant oven microwave "
@@ -32,8 +32,6 @@ _TINY_WORDS = ("a photo of the chair table sofa bed tv door window sink fridge l
 def build_tiny_tokenizer(path: str | Path, vocab_size: int) -> Path:
     """WordLevel tokenizer.json for the tiny OWLv2: pad 0, [UNK] 1, words, start = vocab-2, end = vocab-1
     (the text tower pools at argmax(input_ids), i.e. at the end token, as with CLIP's vocabulary)."""
-    from tokenizers import AddedToken, Tokenizer, models, pre_tokenizers
-
     vocab = {"!": 0, "[UNK]": 1}
     for w in _TINY_WORDS:
         vocab.setdefault(w, len(vocab))
@@ -41,11 +39,7 @@ def build_tiny_tokenizer(path: str | Path, vocab_size: int) -> Path:
         raise ExportError("tiny OWLv2 tokenizer vocabulary exceeds the tiny model's vocab size")
     vocab["<|startoftext|>"] = vocab_size - 2
     vocab["<|endoftext|>"] = vocab_size - 1
-    tok = Tokenizer(models.WordLevel(vocab, unk_token="[UNK]"))
-    tok.pre_tokenizer = pre_tokenizers.Whitespace()
-    tok.add_special_tokens([AddedToken(t, special=True) for t in ("<|startoftext|>", "<|endoftext|>")])
-    tok.save(str(path))
-    return Path(path)
+    return word_level_tokenizer(vocab, ["<|startoftext|>", "<|endoftext|>"], path)
 
 
 def image_wrapper(model: Any):
@@ -103,9 +97,7 @@ def export_detector(source: str, out: str | Path, precisions: Sequence[str], *,
     if prov["random_weights"]:
         build_tiny_tokenizer(tok, V)
     else:
-        from .hf_vlm import _save_hf_tokenizer
-
-        _save_hf_tokenizer(source, tok)
+        save_hf_tokenizer(source, tok)
     img, txt = image_wrapper(model), text_wrapper(model)
     Bd = torch.export.Dim("batch", min=1, max=8)
     Qd = torch.export.Dim("queries", min=1, max=256)

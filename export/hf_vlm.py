@@ -12,7 +12,6 @@ sequence without it (must give the same tokens).
 """
 from __future__ import annotations
 
-import tempfile
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -21,7 +20,7 @@ import numpy as np
 from mosaicthinker.runtime.errors import ExportError
 
 from . import common as C
-from .hf_common import GraphSpec, export_variants, load_source, run_exporter
+from .hf_common import GraphSpec, export_variants, load_source, run_exporter, save_hf_tokenizer, word_level_tokenizer
 
 HF_DEFAULTS = {"smolvlm": "HuggingFaceTB/SmolVLM-256M-Instruct", "internvl": "OpenGVLab/InternVL3-1B-hf"}
 
@@ -47,17 +46,10 @@ def tiny_special_ids(family: str) -> dict[str, int]:
 
 def build_tiny_tokenizer(family: str, path: str | Path) -> Path:
     """A WordLevel tokenizer.json with the family's special/image tokens (ids < TINY_VOCAB)."""
-    from tokenizers import AddedToken, Tokenizer, models, pre_tokenizers
-
     vocab = {t: i for i, t in enumerate(_TINY_SPECIALS[family] + _TINY_WORDS)}
     if len(vocab) > TINY_VOCAB:
         raise ExportError("tiny tokenizer vocabulary exceeds the tiny model's vocab size")
-    tok = Tokenizer(models.WordLevel(vocab, unk_token="[UNK]"))
-    tok.pre_tokenizer = pre_tokenizers.Whitespace()
-    tok.add_special_tokens([AddedToken(t, special=True, normalized=False) for t in _TINY_SPECIALS[family]])
-    path = Path(path)
-    tok.save(str(path))
-    return path
+    return word_level_tokenizer(vocab, _TINY_SPECIALS[family], path)
 
 
 def _family_of(source: str) -> str:
@@ -232,7 +224,7 @@ def export_vlm(source: str, out: str | Path, precisions: Sequence[str], *, max_n
     if prov["random_weights"]:
         build_tiny_tokenizer(family, tok_dst)
     else:
-        _save_hf_tokenizer(source, tok_dst)
+        save_hf_tokenizer(source, tok_dst)
 
     vc = model.config.vision_config
     S = int(vc.image_size[0] if isinstance(vc.image_size, (list, tuple)) else vc.image_size)
@@ -313,20 +305,6 @@ def export_vlm(source: str, out: str | Path, precisions: Sequence[str], *, max_n
 
     meta["tokenizer"]["sha256"] = sha256_file(tok_dst)
     return export_variants(out, "vlm", graphs, meta, precisions, task_check=task)
-
-
-def _save_hf_tokenizer(source: str, dst: Path) -> None:
-    """tokenizer.json of a real checkpoint (fast tokenizer saved by transformers)."""
-    from transformers import AutoTokenizer
-
-    ident = source[3:].partition("@")[0] if source.startswith("hf:") else source[4:]
-    tok = AutoTokenizer.from_pretrained(ident)
-    with tempfile.TemporaryDirectory() as d:
-        tok.save_pretrained(d)
-        src = Path(d) / "tokenizer.json"
-        if not src.is_file():
-            raise ExportError(f"--source {source}: the tokenizer has no tokenizer.json (needs a fast tokenizer)")
-        dst.write_bytes(src.read_bytes())
 
 
 def export_role(role: str, source: str, precisions: Sequence[str], out: str | Path, *, calib: str | None = None,
