@@ -27,7 +27,7 @@ while [[ $# -gt 0 ]]; do
     --ort-src) ORT_SRC="${2:?--ort-src needs a folder}"; shift 2 ;;
     -h|--help) usage; exit 0 ;;
     -*) die "unknown option $1 (see --help)" ;;
-    *) [[ -z "$BUNDLE" ]] || die "one BUNDLE only"; BUNDLE="$1"; shift ;;
+    *) set_bundle "$1"; shift ;;
   esac
 done
 [[ -n "$BUNDLE" ]] || { usage; die "BUNDLE folder missing"; }

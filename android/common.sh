@@ -26,6 +26,13 @@ adb_run() {
   if [[ "$DRY_RUN" == 1 ]]; then show "${cmd[@]}"; else "${cmd[@]}"; fi
 }
 
+# The one BUNDLE positional argument: set_bundle ARG (call from the option loop), then check_bundle.
+set_bundle() { [[ -z "$BUNDLE" ]] || die "one BUNDLE only (got '$BUNDLE' and '$1')"; BUNDLE="$1"; }
+check_bundle() {
+  [[ -n "$BUNDLE" ]] || { usage; die "BUNDLE folder missing"; }
+  [[ -f "$BUNDLE/manifest.json" ]] || die "$BUNDLE/manifest.json not found (not a bundle folder)"
+}
+
 need_adb() {
   [[ "$DRY_RUN" == 1 ]] && return 0
   command -v "$ADB" >/dev/null 2>&1 || die "adb not found (install Android platform-tools or set ADB=...); use --dry-run to only print the commands"

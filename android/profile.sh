@@ -27,11 +27,10 @@ while [[ $# -gt 0 ]]; do
     --out) OUT="${2:?--out needs a folder}"; shift 2 ;;
     -h|--help) usage; exit 0 ;;
     -*) die "unknown option $1 (see --help)" ;;
-    *) [[ -z "$BUNDLE" ]] || die "one BUNDLE only"; BUNDLE="$1"; shift ;;
+    *) set_bundle "$1"; shift ;;
   esac
 done
-[[ -n "$BUNDLE" ]] || { usage; die "BUNDLE folder missing"; }
-[[ -f "$BUNDLE/manifest.json" ]] || die "$BUNDLE/manifest.json not found (not a bundle folder)"
+check_bundle
 [[ "$RUNS" =~ ^[1-9][0-9]*$ ]] || die "--runs must be a positive integer (got '$RUNS')"
 [[ "$THREADS" =~ ^[1-9][0-9]*$ ]] || die "--threads must be a positive integer (got '$THREADS')"
 OUT="${OUT:-$BUNDLE/android/profile}"

@@ -21,11 +21,10 @@ while [[ $# -gt 0 ]]; do
     --ort-lib) ORT_LIB="${2:?--ort-lib needs a path}"; shift 2 ;;
     -h|--help) usage; exit 0 ;;
     -*) die "unknown option $1 (see --help)" ;;
-    *) [[ -z "$BUNDLE" ]] || die "one BUNDLE only (got '$BUNDLE' and '$1')"; BUNDLE="$1"; shift ;;
+    *) set_bundle "$1"; shift ;;
   esac
 done
-[[ -n "$BUNDLE" ]] || { usage; die "BUNDLE folder missing"; }
-[[ -f "$BUNDLE/manifest.json" ]] || die "$BUNDLE/manifest.json not found (not a bundle folder)"
+check_bundle
 for f in "$PERF_TEST" "$ORT_LIB"; do [[ -z "$f" || -f "$f" ]] || die "$f: no such file"; done
 need_adb
 export DRY_RUN SERIAL
