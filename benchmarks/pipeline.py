@@ -137,7 +137,8 @@ def one_run(job: dict[str, Any]) -> dict[str, Any]:
     """One measured run in this (fresh) process."""
     import numpy as np  # noqa: F401
 
-    from mosaicthinker.runtime.budget import load_profile, peak_rss_mb, reset_peak_rss
+    from mosaicthinker.runtime.budget import load_profile
+    from mosaicthinker.runtime.trace import peak_rss_mb, reset_peak_rss
     from mosaicthinker.runtime.frames import open_source
     from mosaicthinker.runtime.pipeline import build_map, perception_from_bundle
     from mosaicthinker.runtime.trace import Trace, rss_mb
@@ -206,7 +207,7 @@ def main(argv: list[str] | None = None) -> int:
     bundle = ensure_bundle(work)
     meta = json.loads((scene / "scene.json").read_text())
     names = sorted(set(meta.get("object_counts", {})) & set(DETECTABLE)) or ["chair"]
-    from mosaicthinker.runtime.budget import bundle_hash
+    from mosaicthinker.runtime.bundle import bundle_hash
 
     result: dict[str, Any] = {"schema": "mosaicthinker.bench.pipeline/1", "date": time.strftime("%Y-%m-%d"),
                               "machine": {"cpus": os.cpu_count(), "load_average_1min": round(os.getloadavg()[0], 2)},

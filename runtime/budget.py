@@ -33,19 +33,19 @@ from __future__ import annotations
 
 import argparse
 import datetime as _dt
-import hashlib
 import json
 import math
 import os
 import sys
 import time
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Callable, ClassVar, Mapping, Sequence
 
 from .config import StageConf
 from .errors import BudgetError, InputError, ProfileError
-from .trace import Trace, rss_mb
+from .bundle import bundle_hash
+from .trace import Trace, peak_rss_mb, reset_peak_rss, rss_mb
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -446,18 +446,6 @@ def load_profile(name_or_path: str | os.PathLike) -> Profile:
 
 def list_profiles() -> list[Path]:
     return sorted(ROOT_PROFILES.glob("*.toml"))
-
-
-def bundle_hash(bundle: Any) -> str:
-    """Short content hash of a bundle: sha256 over every artifact's (manifest field, sha256), so it changes when
-    any model file changes but not when only the manifest's timestamps do. 16 hex characters."""
-    from .bundle import iter_file_refs, load_bundle
-
-    b = load_bundle(bundle, verify=False)
-    h = hashlib.sha256()
-    for where, ref in sorted(iter_file_refs(b.manifest), key=lambda x: x[0]):
-        h.update(f"{where}={ref.get('sha256')}\n".encode())
-    return h.hexdigest()[:16]
 
 
 def update_profile_costs(path: str | os.PathLike, measured: Mapping[str, Mapping[str, float]], *,
@@ -904,34 +892,6 @@ def plan(profile: Profile | str | os.PathLike, duration_s: float, fps: float, bu
 
 
 # ---------------------------------------------------------------------------------------------- run time
-
-
-def peak_rss_mb() -> float:
-    """Peak RSS of this process in MiB since the last `reset_peak_rss()` (Linux VmHWM), else since start."""
-    try:
-        with open("/proc/self/status") as f:
-            for line in f:
-                if line.startswith("VmHWM:"):
-                    return int(line.split()[1]) / 1024.0
-    except OSError:
-        pass
-    try:
-        import resource
-
-        r = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-        return r / 1024.0 if sys.platform != "darwin" else r / 2**20
-    except Exception:  # pragma: no cover - Windows
-        return rss_mb()
-
-
-def reset_peak_rss() -> bool:
-    """Reset the kernel's peak-RSS mark (Linux: write 5 to /proc/self/clear_refs). False where unsupported."""
-    try:
-        with open("/proc/self/clear_refs", "w") as f:
-            f.write("5")
-        return True
-    except OSError:
-        return False
 
 
 @dataclass

@@ -609,3 +609,13 @@ def render(result: dict[str, Any]) -> str:
             if vm.get("notes"):
                 lines.append(f"     notes: {vm['notes']}")
     return "\n".join(lines)
+
+
+def bundle_hash(bundle: Any) -> str:
+    """Short content hash of a bundle: sha256 over every artifact's (manifest field, sha256), so it changes when
+    any model file changes but not when only the manifest's timestamps do. 16 hex characters."""
+    b = load_bundle(bundle, verify=False)
+    h = hashlib.sha256()
+    for where, ref in sorted(iter_file_refs(b.manifest), key=lambda x: x[0]):
+        h.update(f"{where}={ref.get('sha256')}\n".encode())
+    return h.hexdigest()[:16]

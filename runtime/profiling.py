@@ -33,9 +33,10 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from .budget import (Profile, bundle_hash, load_profile, peak_rss_mb, reset_peak_rss, update_profile_costs)
+from .budget import Profile, load_profile, update_profile_costs
+from .bundle import bundle_hash
 from .errors import InputError, MosaicError
-from .trace import Trace, rss_mb
+from .trace import Trace, peak_rss_mb, reset_peak_rss, rss_mb
 
 REPORT_SCHEMA = "mosaicthinker.profile_report/1"
 _ORT_DTYPES = {"float": np.float32, "float16": np.float16, "double": np.float64, "uint8": np.uint8,

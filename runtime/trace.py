@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import os
+import sys
 import time
 import warnings
 from contextlib import contextmanager
@@ -22,6 +23,34 @@ TRACE_SCHEMA = "mosaicthinker.trace/1"
 def rss_mb() -> float:
     """Resident set size of this process in MiB."""
     return psutil.Process(os.getpid()).memory_info().rss / 2**20
+
+
+def peak_rss_mb() -> float:
+    """Peak RSS of this process in MiB since the last `reset_peak_rss()` (Linux VmHWM), else since start."""
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1]) / 1024.0
+    except OSError:
+        pass
+    try:
+        import resource
+
+        r = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+        return r / 1024.0 if sys.platform != "darwin" else r / 2**20
+    except Exception:  # pragma: no cover - Windows
+        return rss_mb()
+
+
+def reset_peak_rss() -> bool:
+    """Reset the kernel's peak-RSS mark (Linux: write 5 to /proc/self/clear_refs). False where unsupported."""
+    try:
+        with open("/proc/self/clear_refs", "w") as f:
+            f.write("5")
+        return True
+    except OSError:
+        return False
 
 
 @dataclass

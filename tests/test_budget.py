@@ -13,6 +13,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from mosaicthinker.runtime import budget as B
+from mosaicthinker.runtime.bundle import bundle_hash
+from mosaicthinker.runtime.trace import peak_rss_mb, reset_peak_rss
 from mosaicthinker.runtime.errors import BudgetError, ProfileError
 from mosaicthinker.runtime.trace import Trace, rss_mb
 
@@ -211,7 +213,7 @@ def test_plan_with_bundle_drops_missing_roles_and_reads_sizes(shared_bundle):
     d = p.to_dict()
     assert "vlm" not in d["providers"] and any("no vlm" in n for n in d["notes"])
     assert d["resolutions"]["depth"] == [640, 448] and d["resolutions"]["detector"] == [300, 300]
-    assert d["bundle_hash"] == B.bundle_hash(shared_bundle) and len(d["bundle_hash"]) == 16
+    assert d["bundle_hash"] == bundle_hash(shared_bundle) and len(d["bundle_hash"]) == 16
     assert d["stages"]["answer"]["planned_ms"] == 0
 
 
@@ -335,10 +337,10 @@ def test_memory_guard_releases_idle_sessions_then_refuses():
 
 
 def test_peak_rss_reset_and_read():
-    B.reset_peak_rss()
-    before = B.peak_rss_mb()
+    reset_peak_rss()
+    before = peak_rss_mb()
     x = np.ones(64 * 2**20 // 8)
-    assert B.peak_rss_mb() >= before + 50
+    assert peak_rss_mb() >= before + 50
     del x
 
 

@@ -10,6 +10,7 @@ import pytest
 from PIL import Image
 
 from mosaicthinker.runtime import budget as B
+from mosaicthinker.runtime.bundle import bundle_hash
 from mosaicthinker.runtime import profiling as P
 
 
@@ -57,7 +58,7 @@ def test_mosaic_profile_report_on_shared_models(shared_bundle, tmp_path, capsys)
     printed = capsys.readouterr().out
     assert "| detector (adapter) |" in printed
     rep = json.loads((out / "report.json").read_text())
-    assert rep["schema"] == P.REPORT_SCHEMA and rep["bundle_hash"] == B.bundle_hash(shared_bundle)
+    assert rep["schema"] == P.REPORT_SCHEMA and rep["bundle_hash"] == bundle_hash(shared_bundle)
     assert set(rep["roles"]) == {"detector", "embedder", "segmenter"}
     for role, r in rep["roles"].items():
         assert r["random_weights"] is False
