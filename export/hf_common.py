@@ -411,3 +411,16 @@ def save_hf_tokenizer(source: str, dst: Path) -> None:
         if not src.is_file():
             raise ExportError(f"--source {source}: the tokenizer has no tokenizer.json (needs a fast tokenizer)")
         dst.write_bytes(src.read_bytes())
+
+
+def write_tokenizer(out: str | Path, role: str, source: str, random_weights: bool,
+                    build_tiny: Callable[[Path], Path]) -> Path:
+    """`OUT/ROLE/tokenizer.json`: built by `build_tiny(path)` for a random-weight test model, else the real
+    checkpoint's own tokenizer (`save_hf_tokenizer`)."""
+    dst = Path(out) / role / "tokenizer.json"
+    dst.parent.mkdir(parents=True, exist_ok=True)
+    if random_weights:
+        build_tiny(dst)
+    else:
+        save_hf_tokenizer(source, dst)
+    return dst

@@ -21,7 +21,7 @@ import numpy as np
 from mosaicthinker.runtime.errors import ExportError
 
 from . import common as C
-from .hf_common import CLIP_MEAN, CLIP_STD, GraphSpec, export_variants, load_source, run_exporter, save_hf_tokenizer, word_level_tokenizer
+from .hf_common import CLIP_MEAN, CLIP_STD, GraphSpec, export_variants, load_source, run_exporter, word_level_tokenizer, write_tokenizer
 
 HF_DEFAULTS = {"owlv2": "google/owlv2-base-patch16-ensemble"}
 _TINY_WORDS = ("a photo of the chair table sofa bed tv door window sink fridge lamp plant oven microwave "
@@ -92,12 +92,7 @@ def export_detector(source: str, out: str | Path, precisions: Sequence[str], *,
     vc, tc = model.config.vision_config, model.config.text_config
     S, L, V = int(vc.image_size), int(tc.max_position_embeddings), int(tc.vocab_size)
     out = Path(out)
-    tok = out / "detector" / "tokenizer.json"
-    tok.parent.mkdir(parents=True, exist_ok=True)
-    if prov["random_weights"]:
-        build_tiny_tokenizer(tok, V)
-    else:
-        save_hf_tokenizer(source, tok)
+    tok = write_tokenizer(out, "detector", source, prov["random_weights"], lambda p: build_tiny_tokenizer(p, V))
     img, txt = image_wrapper(model), text_wrapper(model)
     Bd = torch.export.Dim("batch", min=1, max=8)
     Qd = torch.export.Dim("queries", min=1, max=256)

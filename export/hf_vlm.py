@@ -20,7 +20,7 @@ import numpy as np
 from mosaicthinker.runtime.errors import ExportError
 
 from . import common as C
-from .hf_common import GraphSpec, export_variants, load_source, run_exporter, save_hf_tokenizer, word_level_tokenizer
+from .hf_common import GraphSpec, export_variants, load_source, run_exporter, word_level_tokenizer, write_tokenizer
 
 HF_DEFAULTS = {"smolvlm": "HuggingFaceTB/SmolVLM-256M-Instruct", "internvl": "OpenGVLab/InternVL3-1B-hf"}
 
@@ -219,12 +219,7 @@ def export_vlm(source: str, out: str | Path, precisions: Sequence[str], *, max_n
     model.config.use_cache = True
     dims = _text_dims(model, family)
     out = Path(out)
-    tok_dst = out / "vlm" / "tokenizer.json"
-    tok_dst.parent.mkdir(parents=True, exist_ok=True)
-    if prov["random_weights"]:
-        build_tiny_tokenizer(family, tok_dst)
-    else:
-        save_hf_tokenizer(source, tok_dst)
+    tok_dst = write_tokenizer(out, "vlm", source, prov["random_weights"], lambda p: build_tiny_tokenizer(family, p))
 
     vc = model.config.vision_config
     S = int(vc.image_size[0] if isinstance(vc.image_size, (list, tuple)) else vc.image_size)
