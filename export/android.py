@@ -876,9 +876,7 @@ def ort_parity(ort_path: str | Path, onnx_path: str | Path, make_inputs: Callabl
     rounding-order differences: such an output still passes when >= 99 % of its elements agree within the
     tolerance and its cosine is >= 0.999, and the result says `selection_flips: true`.
     Returns the same fields as export/common.py `parity_check`; raises ExportError when it fails."""
-    import os
-
-    seed = int.from_bytes(os.urandom(4), "little") if seed is None else seed
+    seed, _ = C.parity_rng(seed)
     got_s = ort_session(ort_path, runtime_opt=runtime_opt)
     # the .ort holds the source graph optimised at ALL level (Fixed style) or at BASIC level plus replayable
     # QDQ fusions (Runtime style): compare with the source optimised the same way

@@ -327,11 +327,9 @@ def _parity(g: GraphSpec, path: Path, reference: Callable, precision: str, label
 
 
 def _agreement(g: GraphSpec, path: Path, reference: Callable, precision: str, *, require: bool,
-               trials: int = 2) -> dict[str, Any]:
-    import os
-
-    seed = int.from_bytes(os.urandom(4), "little")
-    rng = np.random.default_rng(seed)
+               trials: int | None = None) -> dict[str, Any]:
+    seed, rng = C.parity_rng()
+    trials = C.parity_trials(precision, trials)
     sess = C.ort_session(path)
     vals = []
     for _ in range(trials):

@@ -28,7 +28,8 @@ import numpy as np
 from mosaicthinker.runtime.errors import ExportError
 
 from .common import (add_variant_files, calibration_frames, export_torch, ort_run, ort_session, parity_check,
-                     progress, quantize_int8_dynamic, quantize_int8_qdq, record_skipped_variant, role_meta, to_fp16)
+                     parity_rng, parity_trials, progress, quantize_int8_dynamic, quantize_int8_qdq,
+                     record_skipped_variant, role_meta, to_fp16)
 
 DEFAULT_SIZE = (480, 640)   # H, W (multiples of 32, the net's stride constraint)
 DEFAULT_K = 1024
@@ -216,17 +217,15 @@ def export_xfeat(out: str | Path, precisions: list[str] = ("fp32",), *, size: tu
     return res
 
 
-def extractor_parity(path: Path, reference, make_inputs, *, precision: str = "fp32", trials: int = 2,
+def extractor_parity(path: Path, reference, make_inputs, *, precision: str = "fp32", trials: int | None = None,
                      require: bool = True) -> dict[str, Any]:
     """Parity of an extractor graph on fresh random images, keypoint-set based: top-K order and near-ties may
     legitimately differ, so keypoints are compared as sets of pixel positions (`kpt_overlap` = fraction of the
     reference's valid keypoints found at the same pixel), and scores / descriptors are compared on the common
     keypoints (`score_rel`, `desc_cos_min`). fp32 needs overlap >= 0.98, desc cosine >= 0.9999, score rel
     <= 1e-3; lower precisions overlap >= 0.5, desc cosine (median) >= 0.9 (the task check then decides)."""
-    import os as _os
-
-    seed = int.from_bytes(_os.urandom(4), "little")
-    rng = np.random.default_rng(seed)
+    seed, rng = parity_rng()
+    trials = parity_trials(precision, trials)
     sess = ort_session(path)
     worst = {"kpt_overlap": 1.0, "score_rel": 0.0, "desc_cos_min": 1.0, "desc_cos_median": 1.0}
     for _ in range(trials):

@@ -30,6 +30,11 @@ def test_mosaic_ask_prints_the_answer_and_writes_map_png_and_trace(scene, tmp_pa
     assert r.stdout.startswith("answer: ") and "wrote" in r.stdout
     ans = r.stdout.splitlines()[0].split("answer: ")[1]
     assert ans.isdigit()
+    truth = float(q["ground_truth"])  # from the scene's true boxes (oracle perception, built map)
+    if q["question_type"] == "object_counting":
+        assert int(ans) == truth, (q["question"], ans, truth)
+    else:
+        assert abs(float(ans) - truth) <= 0.25 * truth, (q["question"], ans, truth)
     png = (out / "map.png").read_bytes()
     assert png[:8] == b"\x89PNG\r\n\x1a\n"
     t = json.loads((out / "trace.json").read_text())

@@ -71,15 +71,13 @@ def test_mosaic_profile_report_on_shared_models(shared_bundle, tmp_path, capsys)
             assert comp["peak_rss_increase_mb"] >= comp["rss_increase_mb"] - 0.5
         ad = v["adapter"]
         assert "error" not in ad and ad["latency_ms"]["p50"] > 0
-    # the segmenter's per-image cache must not have hidden the real work
-    seg = rep["roles"]["segmenter"]["variants"]["fp32"]
-    assert seg["adapter"]["latency_ms"]["p50"] > 0.3 * seg["components"]["model"]["latency_ms"]["p50"]
+    # (adapter vs model time is a benchmark figure, not a unit-test assertion: see benchmarks/)
     assert rep["cpu_side"]["ransac_pair"]["latency_ms"]["p50"] > 0
     md = (out / "report.md").read_text()
     assert "p50 ms" in md and rep["bundle_hash"] in md
     for png in ("latency.png", "memory.png"):
         im = Image.open(out / png)
-        assert im.size[0] == 900 and im.size[1] > 100
+        assert min(im.size) > 100  # a chart, whatever its layout's exact pixel size
         assert len(np.unique(np.asarray(im.convert("RGB")).reshape(-1, 3), axis=0)) > 3  # bars and text drawn
     # measured costs written back and the profile still validates
     p = B.load_profile(prof)
@@ -121,3 +119,13 @@ def test_update_profile_needs_a_profile(shared_bundle):
 
     with pytest.raises(InputError, match="--update-profile needs --profile"):
         P.run_profile(shared_bundle, None, update_profile=True, progress=False)
+
+
+def test_profiled_frames_never_repeat():
+    """Adapters cache per image (segmenter classes, matcher features): the profiler must hand out a new image on
+    every call, across profilers too, or it would time cache hits instead of the model."""
+    frame = np.zeros((4, 5, 3), np.uint8)
+    a, b = P._Fresh(frame, 3), P._Fresh(frame, 3)
+    seen = [a() for _ in range(3)] + [b() for _ in range(3)]
+    keys = {f.tobytes() for f in seen}
+    assert len(keys) == 6 and all(f.shape == frame.shape for f in seen)

@@ -11,24 +11,13 @@ from mosaicthinker.runtime import providers as P
 from mosaicthinker.runtime.errors import ProviderError
 from mosaicthinker.runtime.trace import Trace
 
-onnx = pytest.importorskip("onnx")
+DATA = Path(__file__).parent / "data"
 
 
 def _graph(path: Path, bad_reshape: bool = False) -> Path:
-    from onnx import TensorProto as T
-    from onnx import helper as h
-
-    if bad_reshape:  # valid graph that fails at run time for these inputs (reshape [1,3] -> [5,5])
-        shape = h.make_tensor("s", T.INT64, [2], [5, 5])
-        g = h.make_graph([h.make_node("Reshape", ["x", "s"], ["y"])], "bad",
-                         [h.make_tensor_value_info("x", T.FLOAT, [1, 3])], [h.make_tensor_value_info("y", T.FLOAT, None)],
-                         [shape])
-    else:
-        g = h.make_graph([h.make_node("Add", ["x", "x"], ["y"])], "add",
-                         [h.make_tensor_value_info("x", T.FLOAT, ["n", 3])], [h.make_tensor_value_info("y", T.FLOAT, ["n", 3])])
-    m = h.make_model(g, opset_imports=[h.make_opsetid("", 18)])
-    m.ir_version = 9
-    onnx.save(m, str(path))
+    """A copy of a two-node test graph (y = x + x over [n, 3]; or a Reshape [1,3] -> [5,5] that is valid but fails
+    at run time). Committed as files, written once by the onnx package, so these tests run on the light runtime."""
+    path.write_bytes((DATA / ("bad_reshape.onnx" if bad_reshape else "add.onnx")).read_bytes())
     return path
 
 
@@ -48,7 +37,8 @@ def test_short_names():
 def test_fallback_over_missing_providers_ends_on_cpu(tmp_path: Path):
     avail = P.available_providers()
     missing = [p for p in ("tensorrt", "cuda", "nnapi", "qnn", "coreml") if P.normalize_provider(p) not in avail]
-    assert missing, "this test expects accelerator providers to be missing on the CI machine"
+    if not missing:
+        pytest.skip("every accelerator provider is present on this machine: nothing to fall back over")
     tr = Trace()
     s = P.create_session(_graph(tmp_path / "g.onnx"), "depth", missing + ["cpu"], threads=1, trace=tr)
     assert s.provider == "CPUExecutionProvider"
@@ -63,14 +53,23 @@ def test_fallback_over_missing_providers_ends_on_cpu(tmp_path: Path):
     assert rec["create_s"] >= 0 and rec["first_run_s"] is not None and rec["rss_peak_mb"] > 0
 
 
+def _a_missing_provider() -> str:
+    avail = P.available_providers()
+    for p in ("tensorrt", "cuda", "nnapi", "qnn", "coreml", "rocm"):
+        if P.normalize_provider(p) not in avail:
+            return p
+    pytest.skip("every accelerator provider is present on this machine")
+
+
 def test_cpu_appended_unless_disabled(tmp_path: Path):
     g = _graph(tmp_path / "g.onnx")
     tr = Trace()
-    s = P.create_session(g, "matcher", ["cuda"], trace=tr)
+    gone = _a_missing_provider()
+    s = P.create_session(g, "matcher", [gone], trace=tr)
     assert s.provider == "CPUExecutionProvider"
     assert any("falling back to CPUExecutionProvider" in e["message"] for e in tr.fallbacks())
     with pytest.raises(ProviderError, match="CPU fallback is disabled"):
-        P.create_session(g, "matcher", ["cuda"], config=P.SessionConfig(allow_cpu_fallback=False))
+        P.create_session(g, "matcher", [gone], config=P.SessionConfig(allow_cpu_fallback=False))
 
 
 def test_first_run_failure_tries_next_provider_then_fails_clearly(tmp_path: Path):
