@@ -145,6 +145,7 @@ def evaluate_pose(source: Any, indices: Sequence[int], matcher: Any = "sift", st
         "aligned_frames": len(res.aligned), "total_frames": len(frames),
         "unaligned_frames": list(res.unaligned), "guessed_frames": list(res.guessed),
         "evaluated_frames": len(ev), "sim3": with_scale, "edge": res.edge, "root": res.root,
+        "poses": {f.index: res.poses[f.index] for f in ev}, "gt_poses": {f.index: f.pose_gt for f in ev},
         "frames": list(map(int, indices)),
         "seconds": secs + t_depth, "seconds_breakdown": {**res.seconds, "depth_model": t_depth},
         "alignment": res.to_dict(),
