@@ -259,3 +259,23 @@ def test_margin_rules_remove_and_count():
     assert removed["object_rel_direction_easy"]["candidates"] == 60
     assert [q["ground_truth"] for q in qs if q["question_type"] == "room_size_estimation"] == ["20.0"]
     assert [q["ground_truth"] for q in qs if q["question_type"] == "object_counting"] == ["2"]
+
+
+@pytest.mark.slow
+def test_map_reasoner_against_the_box_key_on_benchmark_rooms(vsibench_dir):
+    """The reasoner under test, on the exact map of every benchmark room, against this independent key."""
+    from mosaicthinker.runtime.answer import MapReasoner
+    from mosaicthinker.runtime.semantic_map import SemanticMap
+
+    meta = json.loads((vsibench_dir / "meta_info.json").read_text())
+    per: dict[str, list[bool]] = defaultdict(list)
+    for name, entry in meta.items():
+        qs, _ = bt.generate_questions(entry, name, rng=11, per_type=1)
+        reasoner = MapReasoner(SemanticMap.from_meta_info(entry, name))
+        for q in qs:
+            if q["question_type"] == "room_size_estimation":  # the box-only map has no room scan: a lower bound
+                continue
+            per[q["question_type"]].append(reasoner.answer(q["question"], q["options"]).text == q["ground_truth"])
+    assert set(per) == set(bt.BOX_QTYPES) - {"room_size_estimation"}
+    for t, ok in per.items():
+        assert len(ok) >= 25 and np.mean(ok) >= 0.99, (t, len(ok), np.mean(ok))
