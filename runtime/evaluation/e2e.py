@@ -103,11 +103,12 @@ def map_quality(smap: Any, poses_world: dict[int, np.ndarray], source: Any, meta
 
 def generate_scenes(n: int, seed: int, data: Path, size: tuple[int, int], fps: float, duration: float,
                     room: str = "medium") -> list[Path]:
-    """Generate (or reuse) N synthetic scenes under `data`; returns their folders."""
-    from ..synth.generate import write_scene
+    """Generate (or reuse) N synthetic scenes under `data`; returns their folders and the answer key's report.
+    A reused scene's questions are rewritten by the current generator (answers from `box_truth`)."""
+    from ..synth.generate import load_scene, write_questions, write_scene
     from ..synth.scene import SceneConfig
 
-    out = []
+    out, removed = [], {}
     for k in range(n):
         s = seed + k
         lvl = LEVELS[k % 3]
@@ -118,9 +119,15 @@ def generate_scenes(n: int, seed: int, data: Path, size: tuple[int, int], fps: f
 
                 shutil.rmtree(d)
             write_scene(SceneConfig(seed=s, objects=lvl, room=room, duration=duration, fps=fps, width=size[0],
-                                    height=size[1]), d, video=False)
+                                    height=size[1]), d, video=False, questions=False)
+        _, rep = write_questions(load_scene(d), d)
+        for t, r in rep["removed"].items():  # candidate questions, kept, asked and each margin rule's removals
+            for k, v in r.items():
+                removed.setdefault(t, {}).setdefault(k, 0)
+                removed[t][k] += v
         out.append(d)
-    return out
+    return out, {"source": "evaluation.box_truth (true oriented boxes and first-seen times; not the reasoner)",
+                 "margins": rep["margins"] if out else None, "removed": removed}
 
 
 def _score(q: dict[str, Any], ans: Any) -> float:
@@ -287,7 +294,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                                              Path(tempfile.mkdtemp(prefix="mosaic_e2e_")))
     data.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    dirs = generate_scenes(args.scenes, args.seed, data, (w, h), args.fps, args.duration)
+    dirs, key = generate_scenes(args.scenes, args.seed, data, (w, h), args.fps, args.duration)
     t_gen = time.perf_counter() - t0
     records, maps = [], []
     conf = {"matcher": args.matcher}
@@ -300,7 +307,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
            "settings": {"size": [w, h], "fps": args.fps, "duration": args.duration, "keyframes": args.keyframes,
                         "map_per": args.map_per, "miss_rate": args.miss_rate, "matcher": args.matcher,
                         "seed": args.seed, "depth": "sensor"},
-           "summary": summ, "targets": _targets(summ), "seconds": {"generate": round(t_gen, 1),
+           "answer_key": key, "summary": summ, "targets": _targets(summ), "seconds": {"generate": round(t_gen, 1),
                                                                  "total": round(time.perf_counter() - t0, 1)},
            "maps": maps, "records": records}
     if args.out:
@@ -353,6 +360,11 @@ def render(r: dict[str, Any]) -> str:
             lines.append(f"map quality [{m}]: instance recall {q['instance_recall']}, centre error median "
                          f"{q['centre_err_median_m']} m, unmatched built instances {q['unmatched_built']}, "
                          f"{q['seconds_per_map']} s per map, failed builds {q['failed_builds']}")
+    rem = r.get("answer_key", {}).get("removed", {})
+    if rem:
+        cut = sum(v for x in rem.values() for k, v in x.items() if k not in ("candidates", "kept", "asked"))
+        lines.append(f"ground truth from the boxes (box_truth); margin rules removed {cut} of "
+                     f"{sum(x['candidates'] for x in rem.values())} candidate questions")
     for k, v in r.get("targets", {}).items():
         lines.append(f"target {k}: {v}")
     return "\n".join(lines)
