@@ -174,3 +174,23 @@ def test_question_records_follow_the_vsibench_schema(scenes, vsibench_dir):
             names = {o["name"] for o in meta["instances"] if o["id"] in q["instances"]}
             assert names and all(n in q["question"] for n in names) or q["question_type"] == "room_size_estimation"
         assert len(ids) == len(qs)
+
+
+@pytest.mark.slow
+def test_reasoner_on_the_exact_map_without_margins(scenes):
+    """With the answers from the boxes, the reasoner on the true map is measured, not assumed: every candidate
+    question (no margin rule applied; appearance gap kept) answered and scored against box_truth's key."""
+    from mosaicthinker.runtime.answer import MapReasoner
+    from mosaicthinker.runtime.synth.questions import generate_questions, ground_truth_map
+
+    zero = {"angle_deg": 0.0, "turn_deg": 0.0, "rel_dist_m": 0.0, "min_sep_m": 0.0, "pool": 150}
+    n = 0
+    for meta, _, _ in scenes:
+        qs, rep = generate_questions(meta, seed=meta["seed"], margins=zero, per_type={t: 10 ** 6 for t in QTYPES})
+        assert all(set(r) <= {"candidates", "kept", "asked", "order_gap"} for r in rep["removed"].values())
+        reasoner = MapReasoner(ground_truth_map(meta))
+        wrong = [(q["question"], q["ground_truth"], a.text) for q in qs
+                 if (a := reasoner.answer(q["question"], q["options"])).text != q["ground_truth"]]
+        assert not wrong, wrong[:5]
+        n += len(qs)
+    assert n >= 500

@@ -175,12 +175,13 @@ def write_scene(conf: SceneConfig, out_dir: str | os.PathLike, workers: int = 1,
             "seconds": round(time.perf_counter() - t0, 2), **timing}
 
 
-def write_questions(meta: dict[str, Any], out: Path) -> tuple[int, dict[str, Any]]:
+def write_questions(meta: dict[str, Any], out: Path, margins: dict[str, float] | None = None,
+                    per_type: dict[str, int] | None = None) -> tuple[int, dict[str, Any]]:
     """(Re)write `questions.jsonl` of a scene from its ground truth (deterministic in the scene's seed)
     -> (number of questions, the generator's report: margin removals per type)."""
     from .questions import generate_questions
 
-    qs, report = generate_questions(meta, seed=int(meta["seed"]))
+    qs, report = generate_questions(meta, seed=int(meta["seed"]), margins=margins, per_type=per_type)
     (Path(out) / "questions.jsonl").write_text("".join(json.dumps(q) + "\n" for q in qs))
     return len(qs), report
 
