@@ -87,6 +87,7 @@ def test_truth_functions_by_hand():
     # bed rotated 90 deg: y in [-4, -2]; sofa bottom y = -0.45 -> 1.55
     assert bt.abs_distance_m(b, "sofa", "bed") == pytest.approx(1.55)
     assert bt.closest_of(b, "sofa", ["bed", "desk", "tv"]) == "desk"
+    assert bt.nearest_of_all(b, "sofa") == "desk" and bt.nearest_of_all(b, "tv") == "chair"  # hypot(2.15, 1.7) m
     # nearest chair instance counts: chair (3, 2) to desk: x 2.75 - 2.7 = 0.05, y 1.75 - 0.85 = 0.9
     assert bt.abs_distance_m(b, "desk", "chair") == pytest.approx(math.hypot(0.05, 0.9))
     assert bt.direction(b, "sofa", "tv", "lamp", "easy") == "left"

@@ -11,7 +11,8 @@ Boxes are VSI-Bench meta_info `object_bbox` entries: centroid, axesLengths (full
 - counting: number of boxes of the category;
 - size: longest box side in cm, rounded to an integer (the largest instance when there are several);
 - absolute distance: distance between the closest points of the two solid boxes (m), over instance pairs;
-- relative distance: the candidate whose closest instance is nearest (closest points) to the target;
+- relative distance: the candidate whose closest instance is nearest (closest points) to the target
+  (`nearest_of_all`: among every other category);
 - directions, on the floor plane, standing at the centre of the `stand` box facing the centre of the `face` box,
   θ = counter-clockwise angle (left positive) of the `obj` centre: easy "left" for 0 < θ < 180 else "right";
   medium "back" when the turn is at least 135° (135 <= θ <= 225), else left/right; hard the quadrants
@@ -161,6 +162,12 @@ def candidate_distances(boxes: list[Box], target: str, candidates: list[str]) ->
 def closest_of(boxes: list[Box], target: str, candidates: list[str]) -> str:
     d = candidate_distances(boxes, target, candidates)
     return min(candidates, key=lambda c: d[c])
+
+
+def nearest_of_all(boxes: list[Box], target: str) -> str:
+    """The category (other than target's) whose nearest box is closest to any box of target (closest points)."""
+    others = sorted({b.category for b in boxes} - {target})
+    return closest_of(boxes, target, others)
 
 
 def _bearing(p: np.ndarray, q: np.ndarray) -> float:
