@@ -146,6 +146,31 @@ class CostEntry:
         return {k: v for k, v in asdict(self).items() if v is not None and k != "name"}
 
 
+# When a bundle lacks the profile's precision for a role, the closest one it has, in this order: an accelerator's
+# int8 QDQ falls back to dynamic int8 (same arithmetic, CPU kernels), then fp16, then fp32; fp16 to fp32 first.
+NEAREST_PRECISION = {"int8-qdq": ("int8-qdq", "int8-dynamic", "fp16", "fp32"),
+                     "int8-dynamic": ("int8-dynamic", "int8-qdq", "fp32", "fp16"),
+                     "fp16": ("fp16", "fp32", "int8-qdq", "int8-dynamic"),
+                     "fp32": ("fp32", "fp16", "int8-dynamic", "int8-qdq")}
+
+
+def nearest_variant(want: str, variants: dict[str, Any]) -> str | None:
+    """The variant name to run for a requested one: `want` itself, else the variant whose precision is nearest
+    (NEAREST_PRECISION; a variant's `precision` field, so `android-ort-int8-qdq` counts as int8-qdq, exact names
+    first). None when nothing matches (an unknown variant name: the bundle's default)."""
+    if want in variants:
+        return want
+    order = NEAREST_PRECISION.get(want)
+    if order is None:  # a variant named by the profile, e.g. android-ort-fp16: match its precision suffix
+        order = next((v for k, v in NEAREST_PRECISION.items() if want.endswith(k)), ())
+    for prec in order:
+        names = sorted((n for n, vm in variants.items() if (vm or {}).get("precision") == prec or n == prec),
+                       key=lambda n: (n != prec, n))
+        if names:
+            return names[0]
+    return None
+
+
 @dataclass
 class RoleSettings:
     """`[roles.<role>]`: precision and int8 kind, bundle variant, provider override, input size."""
@@ -198,21 +223,22 @@ class Profile:
         return self.roles.get(role) or RoleSettings(role)
 
     def variant_in(self, role: str, bundle: Any, trace: Trace | None = None) -> str | None:
-        """The profile's variant for `role` if the bundle has it, else None (= the bundle's default variant; the
-        substitution is recorded in the trace as a "degraded" event)."""
+        """The bundle variant that runs `role` under this profile: the profile's own if the bundle has it, else
+        the nearest precision the bundle has (NEAREST_PRECISION, recorded as a "degraded" event that `ask` prints);
+        None when the profile does not set the role or the bundle lacks it (= the bundle's default variant)."""
         if role not in self.roles:
             return None
-        want = self.roles[role].bundle_variant
         from .bundle import load_bundle
 
-        b = load_bundle(bundle, verify=False)
-        have = list(b.role_meta(role).get("variants", {})) if b.has_role(role) else []
-        if want in have:
-            return want
-        if trace is not None and have:
-            trace.event("degraded", f"profile {self.name} asks for {role} variant {want!r}; the bundle has "
-                        f"{have}: using its default", stage=role, requested=want)
-        return None
+        b = load_bundle(bundle, verify=False) if not hasattr(bundle, "role_meta") else bundle
+        if not b.has_role(role):
+            return None
+        got = nearest_variant(self.roles[role].bundle_variant, b.role_meta(role).get("variants", {}))
+        want = self.roles[role].bundle_variant
+        if got is not None and got != want and trace is not None:
+            trace.event("degraded", f"profile {self.name} asks for {role} {want!r}, which the bundle does not have: "
+                        f"running its nearest variant {got!r}", stage=role, requested=want, used=got)
+        return got
 
     def cost(self, name: str) -> CostEntry | None:
         return self.costs.get(name)
@@ -833,6 +859,11 @@ def plan(profile: Profile | str | os.PathLike, duration_s: float, fps: float, bu
                         "here": next((p for p in chain if p in here), "CPUExecutionProvider"),
                         "precision": rs.precision + (f"-{rs.int8_kind}" if rs.int8_kind else ""),
                         "variant": rs.bundle_variant}
+        if b is not None and b.has_role(r):  # what will run: the nearest variant the bundle has
+            have = nearest_variant(rs.bundle_variant, b.role_meta(r).get("variants", {}))
+            providers[r]["variant"] = have or b.role_meta(r).get("default_variant")
+            if have != rs.bundle_variant:
+                notes.append(f"{r}: the bundle has no {rs.bundle_variant!r} variant; the nearest, {have!r}, runs")
         size = list(rs.input_size_px) if rs.input_size_px else None
         if b is not None and b.has_role(r):
             pre = b.role_meta(r).get("preprocessing", {})

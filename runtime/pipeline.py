@@ -708,17 +708,14 @@ def refine(instances: list[ObjectInstance], obs: list[Observation], frames: list
 PERCEPTION_ROLES = ("detector", "segmenter", "depth", "matcher", "embedder")
 
 
-def _role_kwargs(profile: Any, role: str) -> dict[str, Any]:
+def _role_kwargs(profile: Any, role: str, bundle: Any = None, trace: Trace | None = None) -> dict[str, Any]:
     if profile is None:
         return {}
     out: dict[str, Any] = {"providers": profile.providers_for(role)}
     if getattr(profile, "intra_op_threads", None):
         out["threads"] = profile.intra_op_threads
-    variant = None
-    try:
-        variant = profile.role(role).bundle_variant if profile.uses(role) else None
-    except Exception:  # a profile without settings for this role: the bundle's default variant
-        variant = None
+    # the profile's precision, or the nearest the bundle has (said in the trace and the printed answer)
+    variant = profile.variant_in(role, bundle, trace) if bundle is not None and profile.uses(role) else None
     if variant:
         out["variant"] = variant
     return out
@@ -748,7 +745,7 @@ def perception_from_bundle(bundle: Any, conf: PipelineConfig | dict | None = Non
     desc: dict[str, Any] = {}
 
     def load(role: str) -> Any:
-        m = load_role(b, role, trace=trace, **_role_kwargs(profile, role))
+        m = load_role(b, role, trace=trace, **_role_kwargs(profile, role, b, trace))
         desc[role] = m.describe() if hasattr(m, "describe") else role
         return m
 
@@ -820,7 +817,7 @@ def load_vlm(bundle: Any, trace: Trace | None = None, profile: Any = None) -> An
         return None
     from .stages import load_role
 
-    vlm = load_role(b, "vlm", trace=trace, **_role_kwargs(profile, "vlm"))
+    vlm = load_role(b, "vlm", trace=trace, **_role_kwargs(profile, "vlm", b, trace))
     if trace is not None:
         trace.decide("vlm", vlm.describe() if hasattr(vlm, "describe") else "vlm")
     return vlm

@@ -292,6 +292,7 @@ def test_real_redkitchen_accuracy(redkitchen):
     assert pick_frames(250, 16, "random", 3) == sorted(pick_frames(250, 16, "random", 3))
 
 
+@pytest.mark.slow
 def test_real_essential_edges_with_relative_depth(redkitchen):
     """Relative depth on real frames: the sensor depth with an unknown scale per frame (x0.3 .. x3), SIFT
     matches -> essential-matrix edges chosen automatically; the trajectory is right up to one Sim(3)."""

@@ -17,6 +17,9 @@ pytest.importorskip("onnx")
 from mosaicthinker.export import android as A  # noqa: E402
 from mosaicthinker.runtime import bundle as B  # noqa: E402
 
+pytestmark = [pytest.mark.export, pytest.mark.slow]
+
+
 REPO = Path(__file__).resolve().parents[1]
 SCRIPTS = ["common.sh", "push.sh", "profile.sh", "build_ort.sh"]
 

@@ -180,6 +180,18 @@ def test_plan_arithmetic_by_hand():
     assert p.keyframes == 32 and p.limited_by.startswith("keyframes_max")
 
 
+def test_paper_example_one_second_at_40_ms_per_scored_frame_gives_25_frames():
+    """The paper's own example: with 1 s for the search and 40 ms to score a frame, the search scores 25 frames."""
+    prof = hand_profile(1000, 1000)
+    for name, c in prof["costs"].items():  # everything free except scoring a frame with the detector
+        for k in ("ms_per_call", "ms_per_pair", "load_ms"):
+            if k in c:
+                c[k] = 0
+    prof["costs"]["detector"]["ms_per_call"] = 40
+    p = B.plan(B.parse_profile(prof), 100, 10, conf=HAND)
+    assert p.scored_frames == 25 and p.search_ms == pytest.approx(1000)
+
+
 def test_plan_nothing_fits_says_which_budget_and_by_how_much():
     # K = 2: 2300 + 8 x 11 + 2 x 91 = 2570 ms > 2000 ms -> fails by 570 ms
     with pytest.raises(BudgetError, match=r"latency budget 2,000 ms fails by 570 ms"):
@@ -208,6 +220,7 @@ def test_more_budget_never_gives_fewer_keyframes(l1, dl, m1, dm, dur, fps):
     assert k(l1, m1) <= k(l1, m1 + dm)
 
 
+@pytest.mark.export
 def test_plan_with_bundle_drops_missing_roles_and_reads_sizes(shared_bundle):
     p = B.plan("cpu-generic", 60, 15, bundle=shared_bundle)
     d = p.to_dict()
@@ -378,11 +391,41 @@ def test_stage_aliases_and_candidates_after_dedup():
     assert trace.decisions["budget.candidates"] == 20
 
 
+@pytest.mark.export
 def test_profile_variant_in_bundle(shared_bundle):
     trace = Trace()
     assert B.load_profile("cpu-generic").variant_in("depth", shared_bundle, trace) == "fp32"
-    assert B.load_profile("jetson-orin-nano-8gb").variant_in("depth", shared_bundle, trace) is None  # no fp16
-    assert any(e["kind"] == "degraded" and e.get("requested") == "fp16" for e in trace.events)
+    # no fp16 depth in this bundle: the nearest precision it has runs, and the trace says so
+    assert B.load_profile("jetson-orin-nano-8gb").variant_in("depth", shared_bundle, trace) == "fp32"
+    assert any(e["kind"] == "degraded" and e.get("requested") == "fp16" and e.get("used") == "fp32"
+               for e in trace.events)
+
+
+def test_nearest_variant_by_precision():
+    have = {"fp32": {"precision": "fp32"}, "android-ort-int8-qdq": {"precision": "int8-qdq"},
+            "int8-dynamic": {"precision": "int8-dynamic"}}
+    assert B.nearest_variant("fp32", have) == "fp32"
+    assert B.nearest_variant("int8-qdq", have) == "android-ort-int8-qdq"  # same precision, another target
+    assert B.nearest_variant("fp16", {"fp32": {"precision": "fp32"}, "int8-qdq": {"precision": "int8-qdq"}}) == "fp32"
+    assert B.nearest_variant("int8-qdq", {"fp32": {"precision": "fp32"}, "fp16": {"precision": "fp16"}}) == "fp16"
+    assert B.nearest_variant("custom", have) is None
+
+
+@pytest.mark.export
+def test_phone_profile_runs_the_shared_bundle_on_its_nearest_variants(shared_bundle):
+    """`--profile pixel-8gb` on a bundle without int8-qdq variants: planned and loaded on the nearest ones, loudly
+    (it used to fail with "role 'detector' has no variant 'int8-qdq'")."""
+    from mosaicthinker.runtime.pipeline import perception_from_bundle
+
+    prof = B.load_profile("pixel-8gb")
+    plan = B.plan(prof, 60, 15, bundle=shared_bundle)
+    assert all(p["variant"] == "fp32" for p in plan.to_dict()["providers"].values())
+    assert any("nearest" in n for n in plan.notes)
+    trace = Trace()
+    perc = perception_from_bundle(shared_bundle, trace=trace, profile=prof)
+    assert perc is not None
+    used = [e for e in trace.events if e["kind"] == "degraded" and e.get("used") == "fp32"]
+    assert used and all("int8-qdq" in e["message"] or "fp16" in e["message"] for e in used)
 
 
 def test_online_video_pass_is_not_in_the_question_latency():

@@ -17,6 +17,9 @@ from mosaicthinker.runtime.errors import BundleError, ExportError
 
 onnx = pytest.importorskip("onnx")  # the export extra (CI installs it)
 
+pytestmark = [pytest.mark.export]
+
+
 
 def _tiny_graph(path: Path, scale: float = 2.0) -> Path:
     """y = x * scale, x: [1, 4] float32 (dynamic batch)."""

@@ -21,6 +21,7 @@ def scene(tmp_path_factory) -> Path:
     return synthetic_scene(tmp_path_factory)
 
 
+@pytest.mark.slow
 def test_mosaic_ask_prints_the_answer_and_writes_map_png_and_trace(scene, tmp_path):
     qs = [json.loads(l) for l in (scene / "questions.jsonl").read_text().splitlines()]
     q = next(q for q in qs if q["question_type"] == "object_counting" or q["question_type"] == "object_size_estimation")
@@ -50,6 +51,7 @@ def test_mosaic_ask_prints_the_answer_and_writes_map_png_and_trace(scene, tmp_pa
     assert d["schema"] == "mosaicthinker.ask/1" and d["answer"] == ans and d["keyframes"] is None
 
 
+@pytest.mark.slow
 def test_mosaic_map_then_ask_the_map_without_perception(scene, tmp_path):
     m = tmp_path / "out" / "map.json"
     r = mosaic("map", str(scene), "--detector", "oracle", "--keyframes", "5", "--objects", "door,cabinet,stove",
@@ -72,6 +74,7 @@ def test_mosaic_map_then_ask_the_map_without_perception(scene, tmp_path):
     assert r.returncode == 2 and "detector" in r.stderr
 
 
+@pytest.mark.slow
 def test_mosaic_demo_runs_without_model_files(tmp_path):
     out = tmp_path / "demo"
     r = mosaic("demo", "--out", str(out), "--size", "320x240", "--duration", "6", "--fps", "4", "--keyframes", "6",

@@ -16,7 +16,7 @@ import pytest
 pytest.importorskip("torch")
 pytest.importorskip("transformers")
 
-pytestmark = pytest.mark.export
+pytestmark = [pytest.mark.export, pytest.mark.slow]
 
 ROLES = ("depth", "segmenter", "detector", "embedder", "matcher")  # vlm: tests/test_vlm.py
 

@@ -18,6 +18,9 @@ pytest.importorskip("onnx")
 
 from mosaicthinker.export import common as C  # noqa: E402
 from mosaicthinker.export import jetson as J  # noqa: E402
+
+pytestmark = [pytest.mark.export]
+
 from mosaicthinker.runtime import bundle as B  # noqa: E402
 from mosaicthinker.runtime.errors import ExportError  # noqa: E402
 

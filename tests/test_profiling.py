@@ -46,6 +46,8 @@ def test_percentiles_and_random_feeds():
     assert (f["attention_mask"] == 1).all()
 
 
+@pytest.mark.export
+@pytest.mark.slow
 def test_mosaic_profile_report_on_shared_models(shared_bundle, tmp_path, capsys):
     from mosaicthinker.runtime.cli import main
 
@@ -93,6 +95,7 @@ def test_mosaic_profile_report_on_shared_models(shared_bundle, tmp_path, capsys)
     assert not any(item in stale for item in ("detector", "embedder", "segmenter"))
 
 
+@pytest.mark.export
 def test_profile_marks_random_weights_and_reports_fallback(shared_bundle, tmp_path):
     # a copy of the bundle whose embedder claims random weights, profiled under the Jetson provider chain
     from mosaicthinker.runtime.bundle import read_manifest, write_manifest
@@ -114,6 +117,7 @@ def test_profile_marks_random_weights_and_reports_fallback(shared_bundle, tmp_pa
     assert "RANDOM WEIGHTS" in (tmp_path / "r" / "report.md").read_text()
 
 
+@pytest.mark.export
 def test_update_profile_needs_a_profile(shared_bundle):
     from mosaicthinker.runtime.errors import InputError
 

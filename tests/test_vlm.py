@@ -11,6 +11,9 @@ from mosaicthinker.runtime.stages.vlm import TEMPLATES, build_prompt
 pytest.importorskip("torch")
 pytest.importorskip("transformers")
 
+pytestmark = [pytest.mark.export]
+
+
 
 @pytest.fixture(scope="module")
 def vlm_bundle(tmp_path_factory):
@@ -32,7 +35,7 @@ def test_build_prompt_expands_images():
     assert set(TEMPLATES) == {"smolvlm", "internvl"}
 
 
-@pytest.mark.export
+@pytest.mark.slow
 def test_export_parity_and_token_agreement(vlm_bundle):
     from mosaicthinker.runtime.bundle import load_bundle
 
@@ -45,7 +48,7 @@ def test_export_parity_and_token_agreement(vlm_bundle):
     assert task["kv_cache_consistent"] is True
 
 
-@pytest.mark.export
+@pytest.mark.slow
 def test_runtime_generate_matches_transformers(vlm_bundle):
     """load_role -> VLM.generate_ids on a real (random) image == SmolVLMForConditionalGeneration.generate."""
     from mosaicthinker.export import hf_vlm, tiny
@@ -69,7 +72,7 @@ def test_runtime_generate_matches_transformers(vlm_bundle):
     assert not np.allclose(f1, f2)
 
 
-@pytest.mark.export
+@pytest.mark.slow
 def test_kv_cache_decoding_equals_full_recompute(vlm_bundle):
     from mosaicthinker.runtime.stages import load_role
 
@@ -87,7 +90,7 @@ def test_kv_cache_decoding_equals_full_recompute(vlm_bundle):
     np.testing.assert_allclose(last[0, -1], full[0, -1], rtol=1e-4, atol=1e-5)
 
 
-@pytest.mark.export
+@pytest.mark.slow
 def test_image_token_count_mismatch_is_an_error(vlm_bundle):
     from mosaicthinker.runtime.errors import InputError
     from mosaicthinker.runtime.stages import load_role

