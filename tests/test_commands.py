@@ -24,18 +24,16 @@ def scene(tmp_path_factory) -> Path:
 @pytest.mark.slow
 def test_mosaic_ask_prints_the_answer_and_writes_map_png_and_trace(scene, tmp_path):
     qs = [json.loads(l) for l in (scene / "questions.jsonl").read_text().splitlines()]
-    q = next(q for q in qs if q["question_type"] == "object_counting" or q["question_type"] == "object_size_estimation")
+    # a multiple-choice question: its answer is exact (sizes of partly seen objects are the e2e benchmark's
+    # business: built boxes of the tall door run short with 6 key frames, docs/pipeline.md)
+    q = next(q for q in qs if q["question_type"] == "object_rel_direction_easy")
+    truth = next(o.split(". ", 1)[1] for o in q["options"] if o.startswith(q["ground_truth"] + "."))
     out = tmp_path / "ask"
     r = mosaic("ask", str(scene), q["question"], "--detector", "oracle", "--keyframes", "6", "--out", str(out))
     assert r.returncode == 0, r.stderr
     assert r.stdout.startswith("answer: ") and "wrote" in r.stdout
     ans = r.stdout.splitlines()[0].split("answer: ")[1]
-    assert ans.isdigit()
-    truth = float(q["ground_truth"])  # from the scene's true boxes (oracle perception, built map)
-    if q["question_type"] == "object_counting":
-        assert int(ans) == truth, (q["question"], ans, truth)
-    else:
-        assert abs(float(ans) - truth) <= 0.25 * truth, (q["question"], ans, truth)
+    assert ans == truth, (q["question"], ans, truth)  # truth from the scene's boxes; oracle perception, built map
     png = (out / "map.png").read_bytes()
     assert png[:8] == b"\x89PNG\r\n\x1a\n"
     t = json.loads((out / "trace.json").read_text())
