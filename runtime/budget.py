@@ -42,6 +42,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Callable, ClassVar, Mapping, Sequence
 
+from .answer import VLMConfig
 from .config import StageConf
 from .errors import BudgetError, InputError, ProfileError
 from .bundle import bundle_hash
@@ -541,7 +542,7 @@ class PlanConf(StageConf):
                                        # pipeline benchmark tried 38 pairs at K = 16 and 82 at K = 32)
     vlm_images: int = 1                # the visual prompt (map image)
     vlm_images_per_keyframe: float = 0.0  # key-frame images given to the VLM as well (0: map prompt only)
-    vlm_max_new_tokens: int = 32
+    vlm_max_new_tokens: int = VLMConfig.max_new_tokens  # owned by the answerer's config: plan what it asks
     use_vlm: bool = True               # False: the map reasoner answers (no VLM costs)
     safety_fraction: float = 0.0       # keep this share of the latency budget unplanned
     video_pass: str = "question"       # question: decode + dedup run after the question (a clip is given);

@@ -915,13 +915,9 @@ def ask(source: Any, question: str, options: list[str] | None = None, *, percept
         pq = ground(question, options, vlm, frames_for_grounding, trace)
     build = None
     if budget is None and profile is not None and not isinstance(src, SemanticMap):
-        from .budget import BudgetController, plan
+        from .budget import controller_for
 
-        ts = np.asarray(src.timestamps, float)
-        dur = float(ts[-1] - ts[0]) if len(ts) > 1 else 1.0
-        fps = (len(ts) - 1) / dur if dur > 0 else 30.0
-        budget = BudgetController(plan(profile, max(dur, 1e-3), fps, bundle), trace)
-        trace.decide("budget.plan", {"keyframes": budget.keyframes, "scored_frames": budget.scored_frames})
+        budget = controller_for(profile, src, trace, bundle)  # the planner's own clip length and frame rate
     if isinstance(src, SemanticMap):
         smap = src
         trace.decide("map", {"source": "saved map", "instances": len(smap.instances)})

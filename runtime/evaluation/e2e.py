@@ -280,6 +280,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--map-per", choices=["scene", "question"], default="scene")
     p.add_argument("--miss-rate", type=float, default=0.1, help="oracle detector miss rate")
     p.add_argument("--matcher", choices=["orb", "sift"], default="sift")
+    p.add_argument("--gravity", choices=["auto", "source", "floor"], default="auto",
+                   help="'down' for the map: auto/source = the root frame's ground-truth rotation (an IMU "
+                        "stand-in the synthetic scenes provide); floor = the floor-plane fit alone")
     p.add_argument("--all-candidates", action="store_true",
                    help="ask every candidate question: box_truth margin rules off, no per-type limit (rewrites "
                         "the scenes' questions.jsonl)")
@@ -307,7 +310,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                                 all_candidates=args.all_candidates)
     t_gen = time.perf_counter() - t0
     records, maps = [], []
-    conf = {"matcher": args.matcher}
+    conf = {"matcher": args.matcher, "gravity": args.gravity}
     for d in dirs:
         r = evaluate_scene(d, modes, conf, args.bundle, args.map_per, args.keyframes, args.miss_rate, args.seed)
         records += r["records"]
@@ -316,7 +319,8 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     res = {"schema": "mosaicthinker.eval.e2e/1", "scenes": [d.name for d in dirs], "modes": modes,
            "settings": {"size": [w, h], "fps": args.fps, "duration": args.duration, "keyframes": args.keyframes,
                         "map_per": args.map_per, "miss_rate": args.miss_rate, "matcher": args.matcher,
-                        "seed": args.seed, "depth": "sensor", "all_candidates": args.all_candidates},
+                        "seed": args.seed, "depth": "sensor", "all_candidates": args.all_candidates,
+                        "gravity": args.gravity},
            "answer_key": key, "summary": summ, "targets": _targets(summ), "seconds": {"generate": round(t_gen, 1),
                                                                  "total": round(time.perf_counter() - t0, 1)},
            "maps": maps, "records": records}
