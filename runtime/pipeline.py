@@ -421,6 +421,8 @@ def build_map(source: FrameSource, targets: Sequence[str], cues: Sequence[str] =
         raise InputError("build_map needs a Perception (bundle models or the synthetic oracle)")
     conf = conf if isinstance(conf, PipelineConfig) else PipelineConfig.merged(conf)
     trace = trace if trace is not None else Trace()
+    for note in getattr(source, "notes", []):  # partial decode, mixed depth, greyscale, downscale: in the answer
+        trace.event("degraded", note, stage="input")
     names = list(dict.fromkeys(list(targets) + list(cues)))
     if not names:  # e.g. a room-size question: key frames are spread uniformly, the map holds the room only
         trace.event("degraded", "no object names to look for: uniform key frames; the map holds the room extent "

@@ -58,7 +58,10 @@ class VisualPrompt:
     def save_png(self, path: str) -> None:
         if self.image is None:
             raise ValueError("text-only prompt has no image")
-        cv2.imwrite(str(path), cv2.cvtColor(self.image, cv2.COLOR_RGB2BGR))
+        from .outputs import encode_png  # checked encode, path-safe write (never a silent imwrite failure)
+
+        with open(path, "wb") as f:
+            f.write(encode_png(self.image))
 
 
 def distinct_colours(n: int) -> list[tuple[int, int, int]]:
