@@ -56,6 +56,8 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         question, options = split_inline_options(question)
     trace = Trace()
     profile = load_profile(args.profile) if args.profile else None
+    if profile is not None:
+        profile.apply_to_machine(trace)  # core_affinity applied (or refused loudly), threads fit to the cores
     conf = {"depth": args.depth, "matcher": args.matcher, "keyframe_method": args.keyframe_method}
     perception = None
     src = Path(args.source)

@@ -85,6 +85,8 @@ def _run(args: argparse.Namespace, src: Path, outs: RunOutputs, paths: tuple[Pat
     trace = Trace()
     note_outputs(outs, trace)
     profile = load_profile(args.profile) if args.profile else None
+    if profile is not None:
+        profile.apply_to_machine(trace)  # core_affinity applied (or refused loudly), threads fit to the cores
     if args.objects:
         raw = [s.strip() for s in args.objects.split(",") if s.strip()]
         names = [canonical_name(s) for s in raw]
