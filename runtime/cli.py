@@ -94,8 +94,9 @@ def _emit(result: dict[str, Any], words: tuple[str, ...], as_json: bool, module:
     result.setdefault("schema", f"mosaicthinker.{'.'.join(words)}/1")
     if as_json:
         sys.stdout.write(json.dumps(result) + "\n")
-    elif hasattr(module, "render"):
-        sys.stdout.write(module.render(result).rstrip() + "\n")
+    elif hasattr(module, "render"):  # paths with undecodable bytes print as \xNN, never a UnicodeEncodeError
+        text = module.render(result).rstrip() + "\n"
+        sys.stdout.write(text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace"))
     else:
         sys.stdout.write(json.dumps(result, indent=2) + "\n")
 

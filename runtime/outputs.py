@@ -50,6 +50,13 @@ def _pid_alive(pid: int) -> bool:
     return True
 
 
+def _age_s(path: Path) -> float:
+    try:
+        return time.time() - path.stat().st_mtime
+    except OSError:
+        return 1e9
+
+
 def check_out_dir(folder: Path, what: str = "--out") -> None:
     """Refuse, before any work, an output folder that is a file, cannot be created, is read-only or full."""
     if folder.exists() and not folder.is_dir():
@@ -82,9 +89,13 @@ class RunOutputs:
         self.notes: list[str] = []
         self._locked = False
         check_out_dir(self.folder, what)
-        self._lock()
-        self._clean_stale_temps()
-        self._write_run_file("running", [])
+        try:
+            self._lock()
+            self._clean_stale_temps()
+            self._write_run_file("running", [])
+        except BaseException:  # incl. a SIGTERM landing here: never leave our lock behind
+            self.close()
+            raise
 
     # -- lock -----------------------------------------------------------------------------------------------
     def _lock(self) -> None:
@@ -96,7 +107,10 @@ class RunOutputs:
                 fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
             except FileExistsError:
                 held = self._read_lock(lock)
-                if held is not None and (held.get("host") != socket.gethostname() or _pid_alive(held["pid"])):
+                if held is None and _age_s(lock) < 10.0:  # just created, not yet written: another run's
+                    held = {"pid": "?", "run_id": "starting"}
+                if held is not None and (held.get("host") != socket.gethostname() or held["pid"] == "?"
+                                         or _pid_alive(held["pid"])):
                     raise OutputError(f"{self.what} {self.folder}: another run (pid {held['pid']}, run id "
                                      f"{held.get('run_id')}) is writing there; wait for it to finish or choose "
                                      f"another {self.what} folder") from None
@@ -107,9 +121,9 @@ class RunOutputs:
                 who = f"pid {held['pid']}, run id {held.get('run_id')}" if held else "unreadable lock file"
                 self.notes.append(f"took over a stale lock on {self.folder} ({who}: process gone)")
                 continue
+            self._locked = True  # before writing: an interrupt from here on removes the lock in close()
             with os.fdopen(fd, "wb") as f:
                 f.write(body)
-            self._locked = True
             return
         raise OutputError(f"{self.what} {self.folder}: could not take the folder's lock {lock}; remove it if no "
                          f"run is writing there")
