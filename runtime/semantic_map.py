@@ -316,10 +316,14 @@ def room_from_boxes(boxes: Iterable[OrientedBox], extra_xy: np.ndarray | None = 
     e.g. camera positions of a walk-through, which also lie inside the room), floor = lowest box bottom,
     ceiling = highest box top. None without boxes. A lower bound of the true floor area: the space between the
     furniture and the walls is not seen by boxes alone."""
-    corners = [b.corners() for b in boxes]
-    if not corners:
+    boxes = list(boxes)
+    if not boxes:
         return None
-    c = np.concatenate(corners, 0)
+    # every box's 8 corners at once (OrientedBox.corners, vectorised: a 10 k-object map in milliseconds)
+    signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], dtype=np.float64)
+    half = signs[None] * (np.array([b.axes_lengths for b in boxes], np.float64)[:, None, :] / 2.0)
+    c = (np.array([b.centroid for b in boxes], np.float64)[:, None, :]
+         + half @ np.array([b.axes for b in boxes], np.float64)).reshape(-1, 3)
     xy = c[:, :2] if extra_xy is None else np.concatenate([c[:, :2], np.asarray(extra_xy, np.float64).reshape(-1, 2)])
     src = "object_boxes_hull" if extra_xy is None else "object_boxes_and_cameras_hull"
     return Room(convex_hull_2d(xy), float(c[:, 2].min()), float(c[:, 2].max()), src)
