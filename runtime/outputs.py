@@ -163,8 +163,10 @@ class RunOutputs:
 
     def add_json(self, name: str, obj: dict[str, Any], indent: int | None = 1) -> Path:
         """Stage a JSON object (a `run_id` field is added)."""
-        obj = {**obj, "run_id": self.run_id}
-        return self._stage(name, (json.dumps(obj, indent=indent) + "\n").encode())
+        from .trace import jsonable
+
+        obj = {**jsonable(obj), "run_id": self.run_id}
+        return self._stage(name, (json.dumps(obj, indent=indent, default=str) + "\n").encode())
 
     def add_png(self, name: str, rgb: np.ndarray) -> Path:
         """Stage an RGB image [H, W, 3] uint8 as PNG with the run id in a tEXt chunk; a failed encode raises."""
@@ -275,3 +277,19 @@ def note_outputs(outs: RunOutputs | None, trace: Any) -> None:
     trace.decide("output", {"folder": str(outs.folder), "run_id": outs.run_id})
     for n in outs.notes:
         trace.event("output", n)
+
+
+def write_group(folder: str | os.PathLike, items: list[tuple[str, str, Any]], result: dict[str, Any],
+                trace: Any = None) -> dict[str, Any]:
+    """For commands that only write at the end (eval ...): lock `folder`, write `items` as one group (see
+    `save_run`) and record the outcome in `result` (`files`, `run_id`, and `write_error` + `exit_code` when
+    the write failed: the CLI still prints the result). Check the folder with `check_out_dir` before the
+    long work starts."""
+    with RunOutputs(folder) as outs:
+        note_outputs(outs, trace) if trace is not None else None
+        files, err, code = save_run(outs, items)
+        result.update({"run_id": outs.run_id, "files": files, **({"write_error": err, "exit_code": code}
+                                                                  if err else {})})
+        for n in outs.notes:
+            result.setdefault("warnings", []).append(n)
+    return result
