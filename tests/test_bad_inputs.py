@@ -399,6 +399,9 @@ def test_non_utf8_file_names_and_out_path(tmp_path, capsys):
         (d / name).write_bytes(buf.tobytes())
     src = open_source(d)
     assert len(src) == 3 and src[2].rgb.shape == (48, 64, 3)
+    v = write_video(tmp_path / "plain.avi", 12, (64, 48)).rename(tmp_path / os.fsdecode(b"v\xff.avi"))
+    vs = open_source(v)
+    assert len(vs) == 12 and vs[11].rgb.shape == (48, 64, 3)
     out = tmp_path / os.fsdecode(b"out-\xff")
     code, stdout, err = run_cli(capsys, ["ask", str(small_map(tmp_path / "m.json")), Q_COUNT, "--out", str(out)])
     assert code == 0, err
