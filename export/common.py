@@ -84,8 +84,8 @@ def add_variant_files(out: str | os.PathLike, role: str, variant: str, files: di
                       extra: dict[str, Any] | None = None) -> Path:
     """Copy (or move) graph files into `out/<role>/<variant>/<component><suffix>` and record the variant.
 
-    files: {component name: path to a self-contained .onnx/.ort file}; a sibling external-data file
-    (`<file>.data`) is copied too and listed in `extra_files`. meta: from `role_meta`. component_meta: extra
+    files: {component name: path to a .onnx/.ort file}; every external-data file the graph references is
+    copied too (same relative name) and listed with its sha256 in `extra_files`. meta: from `role_meta`. component_meta: extra
     per-component fields (e.g. {"pair": {"k": 1024}}). The bundle (and manifest.json) is created if needed.
     Returns the manifest path.
     """
@@ -101,11 +101,14 @@ def add_variant_files(out: str | os.PathLike, role: str, variant: str, files: di
         if src.resolve() != dst.resolve():
             (shutil.move if move else shutil.copyfile)(str(src), str(dst))
         c: dict[str, Any] = {"file": dst.relative_to(out).as_posix(), **(component_meta or {}).get(cname, {})}
-        data = src.with_name(src.name + ".data")
-        if data.is_file():
-            ddst = dst.with_name(dst.name + ".data")
-            shutil.copyfile(data, ddst)
-            c["extra_files"] = [{"file": ddst.relative_to(out).as_posix(), "sha256": ""}]
+        if src.suffix == ".onnx":  # external data keeps the name the graph refers to; add_variant lists it
+            for loc in B.external_data_locations(src):
+                if Path(loc).is_absolute() or ".." in Path(loc).parts:
+                    raise ExportError(f"{src}: external data location {loc!r} leaves the graph's folder")
+                ddst = dst.parent / loc
+                if (src.parent / loc).resolve() != ddst.resolve():
+                    ddst.parent.mkdir(parents=True, exist_ok=True)
+                    (shutil.move if move else shutil.copyfile)(str(src.parent / loc), str(ddst))
         comps[cname] = c
     return B.add_variant(out, role, variant, comps, role_meta=meta, precision=precision, target=target,
                          parity=parity, notes=notes, default=default, extra=extra)

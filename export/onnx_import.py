@@ -25,7 +25,7 @@ from typing import Any, Callable
 import numpy as np
 
 from mosaicthinker.runtime import bundle as B
-from mosaicthinker.runtime.errors import ExportError
+from mosaicthinker.runtime.errors import ExportError, InputError
 
 from .common import (Feeds, add_variant_files, calibration_frames, progress, quantize_variant,
                      record_skipped_variant, role_meta)
@@ -168,31 +168,44 @@ def import_onnx(out: str | os.PathLike, role: str, path: str | os.PathLike, meta
     return res
 
 
-def read_sidecar(path: Path, meta_file: str | os.PathLike | None) -> dict[str, Any]:
+def read_sidecar(path: Path, meta_file: str | os.PathLike | None, weights: str | None = None) -> dict[str, Any]:
+    """The role metadata of an imported graph. weights: "real" | "random" from --real-weights /
+    --random-weights, required when the sidecar has no boolean `random_weights`."""
     side = Path(meta_file) if meta_file else path.with_name(path.name + ".mosaic.json")
     if not side.is_file():
         raise ExportError(f"--source onnx:{path}: metadata sidecar {side} not found; write it (see "
                           f"export/onnx_import.py) or pass --meta FILE")
     try:
-        raw = json.loads(side.read_text())
-    except json.JSONDecodeError as e:
-        raise ExportError(f"{side}: not valid JSON ({e})") from e
+        raw = B.strict_json_loads(side.read_bytes(), str(side))
+    except InputError as e:
+        raise ExportError(str(e)) from e
+    if not isinstance(raw, dict):
+        raise ExportError(f"{side}: expected a JSON object")
     for k in ("arch", "licence", "preprocessing", "semantics"):
         if k not in raw:
             raise ExportError(f"{side}: field {k!r} is required")
+    rw = raw.get("random_weights")
+    if rw is None and weights is None:
+        raise ExportError(f"{side}: field 'random_weights' is missing; add \"random_weights\": false (trained "
+                          f"weights) or true (a test model), or say --real-weights / --random-weights")
+    if rw is not None and not isinstance(rw, bool):
+        raise ExportError(f"{side}: field 'random_weights' must be true or false (a JSON boolean), got {rw!r}")
+    if rw is not None and weights is not None and rw != (weights == "random"):
+        raise ExportError(f"{side}: 'random_weights': {str(rw).lower()} contradicts --{weights}-weights; fix one")
+    rw = rw if rw is not None else weights == "random"
     prov = dict(raw.get("provenance", {}))
     prov.setdefault("source", f"onnx:{path.name}")
     prov.setdefault("sha256", B.sha256_file(path))
     return role_meta(raw["arch"], preprocessing=raw["preprocessing"], semantics=raw["semantics"], provenance=prov,
-                     licence=raw["licence"], random_weights=bool(raw.get("random_weights", False)),
+                     licence=raw["licence"], random_weights=rw,
                      config=raw.get("config", {}))
 
 
 def export_role(role: str, source: str, precisions: list[str], out: Path, *, calib: str | None = None,
-                meta_file: str | None = None, **_: Any) -> dict[str, Any]:
+                meta_file: str | None = None, weights: str | None = None, **_: Any) -> dict[str, Any]:
     """`mosaic export ROLE --source onnx:PATH` entry point."""
     path = Path(source.split(":", 1)[1])
-    meta = read_sidecar(path, meta_file)
+    meta = read_sidecar(path, meta_file, weights)
     return import_onnx(out, role, path, meta, precisions, calib=calib)
 
 

@@ -247,6 +247,22 @@ class Profile:
     def uses(self, role: str) -> bool:
         return role in self.costs
 
+    def apply_to_machine(self, trace: Trace | None = None) -> None:
+        """Fit the runtime settings to this machine before any session is made: pin to `core_affinity`
+        (refused loudly where impossible) and lower thread counts above the usable cores (recorded)."""
+        self.apply_affinity(trace)
+        try:
+            cores = len(os.sched_getaffinity(0))
+        except (AttributeError, OSError):
+            cores = os.cpu_count() or 1
+        for k in ("intra_op_threads", "inter_op_threads"):
+            n = getattr(self, k)
+            if n and n > cores:
+                setattr(self, k, cores)
+                if trace is not None:
+                    trace.event("degraded", f"profile {self.name}: runtime.{k} = {n} but this machine has {cores} "
+                                f"usable cores; using {cores}", stage="budget")
+
     def apply_affinity(self, trace: Trace | None = None) -> list[int] | None:
         """Pin this process to `core_affinity` where the OS allows it (Linux, Android); recorded in the trace."""
         if not self.core_affinity:
@@ -268,6 +284,12 @@ class Profile:
                 trace.event("degraded", f"profile {self.name}: core_affinity {self.core_affinity} not applied ({e})",
                             warn=True)
             return None
+
+
+MAX_THREADS = 256         # no edge device has more cores; larger values are typos (100000 took 10 GB)
+MAX_CLIP_S = 86400.0      # 24 h: longer clips are not one question's video (and overflow frame counts)
+MAX_FPS = 1000.0
+MIN_MAP_FRAMES = 2        # alignment needs two views
 
 
 def _where(path: Path | None) -> str:
@@ -361,12 +383,15 @@ def parse_profile(data: Mapping[str, Any], path: str | os.PathLike | None = None
     rt = data["runtime"]
     chain = _check_providers(rt["providers"], f"{w}: runtime.providers")
     for k in ("intra_op_threads", "inter_op_threads"):
-        if k in rt and rt[k] < 1:
-            raise ProfileError(f"{w}: runtime.{k} must be >= 1 (got {rt[k]})")
+        if k in rt and not 1 <= rt[k] <= MAX_THREADS:  # 100000 threads grew to 10 GB before failing
+            raise ProfileError(f"{w}: runtime.{k} must be 1..{MAX_THREADS} (got {rt[k]}); use the device's core "
+                               f"count")
     aff = rt.get("core_affinity")
     if aff is not None and (not aff or not all(isinstance(c, int) and not isinstance(c, bool) and c >= 0
                                                for c in aff)):
         raise ProfileError(f"{w}: runtime.core_affinity must be a non-empty list of CPU ids >= 0 (got {aff!r})")
+    if aff is not None and (len(set(aff)) != len(aff) or max(aff) >= MAX_THREADS):
+        raise ProfileError(f"{w}: runtime.core_affinity has repeated or impossible CPU ids (got {aff!r})")
 
     roles: dict[str, RoleSettings] = {}
     for role, rt_ in (data.get("roles") or {}).items():
@@ -392,7 +417,7 @@ def parse_profile(data: Mapping[str, Any], path: str | os.PathLike | None = None
                                f"accelerators or give the role a CPU provider chain")
         size = rt_.get("input_size_px")
         if size is not None:
-            if (len(size) != 2 or not all(isinstance(s, int) and not isinstance(s, bool) and s > 0 for s in size)):
+            if (not isinstance(size, list) or len(size) != 2 or not all(isinstance(s, int) and not isinstance(s, bool) and s > 0 for s in size)):
                 raise ProfileError(f"{rw}.input_size_px: expected [width, height] positive integers, got {size!r}")
             size = (int(size[0]), int(size[1]))
         for k in ("variant", "notes"):
@@ -468,6 +493,12 @@ def load_profile(name_or_path: str | os.PathLike) -> Profile:
             data = tomllib.load(f)
     except tomllib.TOMLDecodeError as e:
         raise ProfileError(f"{path}: not valid TOML ({e})") from e
+    except UnicodeDecodeError as e:
+        raise ProfileError(f"{path}: not UTF-8 text ({e.reason} at byte {e.start}); save the profile as UTF-8") from e
+    except RecursionError as e:
+        raise ProfileError(f"{path}: tables or arrays nested too deeply to read; a profile is two levels deep") from e
+    except OSError as e:
+        raise ProfileError(f"{path}: cannot read the profile ({e.strerror})") from e
     return parse_profile(data, path)
 
 
@@ -683,10 +714,16 @@ def plan(profile: Profile | str | os.PathLike, duration_s: float, fps: float, bu
     """
     prof = profile if isinstance(profile, Profile) else load_profile(profile)
     c = conf if isinstance(conf, PlanConf) else PlanConf.merged(conf)
-    if not (duration_s > 0 and math.isfinite(duration_s)):
-        raise InputError(f"plan: duration must be > 0 seconds (got {duration_s})")
-    if not (fps > 0 and math.isfinite(fps)):
-        raise InputError(f"plan: fps must be > 0 (got {fps})")
+    if not (duration_s > 0 and math.isfinite(duration_s)) or duration_s > MAX_CLIP_S:
+        raise InputError(f"plan: duration must be > 0 and at most {MAX_CLIP_S:g} s (24 h) (got {duration_s:g}); "
+                         f"give the clip length in seconds")
+    if not (fps > 0 and math.isfinite(fps)) or fps > MAX_FPS:
+        raise InputError(f"plan: fps must be > 0 and at most {MAX_FPS:g} (got {fps:g})")
+    if candidates is not None and candidates < 2:
+        raise InputError(f"plan: --candidates must be >= 2 (frames kept by dedup; got {candidates})")
+    if duration_s * fps + 1 < MIN_MAP_FRAMES:  # frames at t = 0, 1/fps, ...: a 0.001 s clip is one frame
+        raise InputError(f"plan: a {duration_s:g} s clip at {fps:g} fps has {int(duration_s * fps) + 1} frame(s); "
+                         f"a map needs at least {MIN_MAP_FRAMES} views of the scene")
     notes: list[str] = []
     arith: list[str] = []
     total_frames = max(1, int(round(duration_s * fps)))

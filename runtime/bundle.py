@@ -61,7 +61,7 @@ from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath
 from typing import Any, Iterator
 
-from .errors import BundleError
+from .errors import BundleError, InputError
 
 SCHEMA = "mosaicthinker.bundle/1"
 SUPPORTED_SCHEMAS = (SCHEMA,)
@@ -258,7 +258,7 @@ class Bundle:
             raise BundleError(f"{self.manifest_path}: {where}.file {ref.get('file')!r} is missing ({path}); "
                               f"re-export the role or restore the file")
         digest = sha256_file(path)
-        if digest != ref.get("sha256"):
+        if digest != str(ref.get("sha256", "")).lower():  # hex digests are case-insensitive
             raise BundleError(f"{path}: sha256 mismatch ({where}.sha256 says {str(ref.get('sha256'))[:12]}..., "
                               f"file has {digest[:12]}...): the file was modified or corrupted; re-export it")
         self._verified.add(key)
@@ -266,14 +266,44 @@ class Bundle:
     def verify(self) -> dict[str, Any]:
         """Check every artifact reference (paths + sha256). Raises BundleError on the first problem;
         returns {"files": n, "bytes": total, "roles": {...}} when all is well."""
-        n, total = 0, 0
+        n, total, listed = 0, 0, set()
         for where, ref in iter_file_refs(self.manifest):
             path = safe_path(self.root, ref.get("file"), where + ".file")
             self._check_file(path, ref, where)
+            listed.add(os.path.normpath(path.relative_to(self.root)))
             n += 1
             total += path.stat().st_size
+        self._check_external_data()
+        self._refuse_unlisted(listed)
         return {"files": n, "bytes": total,
                 "roles": {r: sorted(m.get("variants", {})) for r, m in self.manifest.get("roles", {}).items()}}
+
+    def _refuse_unlisted(self, listed: set[str]) -> None:
+        """Every file in the bundle folder must be a listed artifact: a graph can load any file beside it
+        (ONNX external data), so an unlisted file is weights nobody hash-checked."""
+        for dirpath, dirnames, filenames in os.walk(self.root, followlinks=False):
+            for name in filenames + [d for d in dirnames if os.path.islink(os.path.join(dirpath, d))]:
+                rel = os.path.normpath(os.path.relpath(os.path.join(dirpath, name), self.root))
+                if rel != MANIFEST and rel not in listed:
+                    raise BundleError(f"{self.root / rel}: file is not listed in {self.manifest_path} (unlisted "
+                                      f"files could be loaded by a graph without a hash check); remove it, or "
+                                      f"re-export the role so the manifest lists it with its sha256")
+
+    def _check_external_data(self) -> None:
+        """Every external-data file an ONNX component references must be in its `extra_files` (read from the
+        protobuf here, so the runtime needs no `onnx`)."""
+        for where, ref in iter_file_refs(self.manifest):
+            if ref.get("format", "onnx") != "onnx" or not str(ref.get("file", "")).endswith(".onnx"):
+                continue
+            path = safe_path(self.root, ref["file"], where + ".file")
+            base = PurePosixPath(ref["file"]).parent
+            extra = {os.path.normpath(str(e.get("file", ""))) for e in ref.get("extra_files", [])
+                     if isinstance(e, dict)}  # bundle-relative, like `file`
+            for loc in external_data_locations(path):
+                rel = os.path.normpath(str(base / loc))
+                if rel not in extra or ".." in PurePosixPath(loc).parts or PurePosixPath(loc).is_absolute():
+                    raise BundleError(f"{path}: the graph loads external data {loc!r} that {where}.extra_files "
+                                      f"does not list with a sha256; re-export the role")
 
     def summary(self) -> dict[str, Any]:
         """A compact description of every role and variant (for `mosaic bundle show`)."""
@@ -324,6 +354,7 @@ def check_schema(manifest: Any, where: str = MANIFEST) -> None:
                 raise BundleError(f"{where}: roles.{r}.{k} is missing")
         if not isinstance(m["variants"], dict):
             raise BundleError(f"{where}: roles.{r}.variants must be an object")
+        _check_role_types(m, f"{where}: roles.{r}")
         if r == "depth":
             d = m.get("semantics", {}).get("depth")
             if d not in DEPTH_SEMANTICS:
@@ -338,9 +369,102 @@ def check_schema(manifest: Any, where: str = MANIFEST) -> None:
             if not isinstance(vm, dict) or not isinstance(vm.get("components"), dict):
                 raise BundleError(f"{where}: roles.{r}.variants.{v}.components must be an object")
             for c, cm in vm["components"].items():
+                if not isinstance(cm, dict):
+                    raise BundleError(f"{where}: roles.{r}.variants.{v}.components.{c} must be an object")
                 for k in _COMPONENT_REQUIRED:
                     if k not in cm:
                         raise BundleError(f"{where}: roles.{r}.variants.{v}.components.{c}.{k} is missing")
+                _check_component_types(cm, f"{where}: roles.{r}.variants.{v}.components.{c}")
+
+
+_HEX = frozenset("0123456789abcdefABCDEF")
+
+
+def _is_num(x: Any) -> bool:
+    return isinstance(x, (int, float)) and not isinstance(x, bool) and x == x and abs(x) != float("inf")
+
+
+def _bad(field: str, want: str, got: Any) -> BundleError:
+    return BundleError(f"{field} must be {want}, got {type(got).__name__} {got!r:.60}; fix the manifest or "
+                       f"re-export the role")
+
+
+def _check_role_types(m: dict[str, Any], w: str) -> None:
+    """Field types of one role: a wrong type would be misread silently (labels as a string become letters)
+    or crash later, far from the manifest."""
+    if not isinstance(m["random_weights"], bool):
+        raise _bad(f"{w}.random_weights", "true or false (JSON boolean)", m["random_weights"])
+    for k in ("semantics", "preprocessing", "config", "provenance"):
+        if k in m and not isinstance(m[k], dict):
+            raise _bad(f"{w}.{k}", "an object", m[k])
+    if "default_variant" in m and not (isinstance(m["default_variant"], str) and m["default_variant"] in m["variants"]):
+        raise _bad(f"{w}.default_variant", f"one of the variant names {sorted(m['variants'])}", m["default_variant"])
+    labels = m.get("semantics", {}).get("labels")
+    if labels is not None and not (isinstance(labels, list) and all(isinstance(x, str) for x in labels)):
+        raise _bad(f"{w}.semantics.labels", "a list of strings", labels)
+    pp = m.get("preprocessing", {})
+    size = pp.get("size")
+    if size is not None and not (isinstance(size, list) and len(size) == 2 and all(
+            isinstance(x, int) and not isinstance(x, bool) and 0 < x <= 16384 for x in size)):
+        raise _bad(f"{w}.preprocessing.size", "[height, width] as two positive integers", size)
+    if "scale" in pp and pp["scale"] is not None and not (_is_num(pp["scale"]) and pp["scale"] > 0):
+        raise _bad(f"{w}.preprocessing.scale", "a positive number", pp["scale"])
+    if "dtype" in pp and pp["dtype"] not in ("float32", "float16", "uint8"):
+        raise _bad(f"{w}.preprocessing.dtype", "one of float32, float16, uint8", pp["dtype"])
+    for k in ("mean", "std"):
+        v = pp.get(k)
+        if v is not None and not (isinstance(v, list) and len(v) in (1, 3) and all(_is_num(x) for x in v)
+                                  and (k == "mean" or all(x != 0 for x in v))):
+            raise _bad(f"{w}.preprocessing.{k}", "a list of 3 numbers" + (" (non-zero)" if k == "std" else ""), v)
+    for k, allowed in (("layout", ("NHWC", "NCHW")), ("channel_order", ("RGB", "BGR"))):
+        if k in pp and not (isinstance(pp[k], str) and pp[k].upper() in allowed):
+            raise _bad(f"{w}.preprocessing.{k}", " or ".join(allowed), pp[k])
+
+
+def _check_component_types(cm: dict[str, Any], w: str) -> None:
+    sha = cm["sha256"]
+    if not (isinstance(sha, str) and len(sha) == 64 and set(sha) <= _HEX):
+        raise _bad(f"{w}.sha256", "64 hex digits", sha)
+    for k in ("inputs", "outputs"):
+        if not isinstance(cm[k], list) or not all(isinstance(io, dict) for io in cm[k]):
+            raise _bad(f"{w}.{k}", "a list of objects", cm[k])
+        for i, io in enumerate(cm[k]):
+            shape = io.get("shape", [])
+            if not (isinstance(shape, list) and all(isinstance(x, int) and not isinstance(x, bool) for x in shape)):
+                raise _bad(f"{w}.{k}[{i}].shape", "a list of integers", shape)
+            if "dtype" in io and not isinstance(io["dtype"], str):
+                raise _bad(f"{w}.{k}[{i}].dtype", "a string", io["dtype"])
+    ef = cm.get("extra_files", [])
+    if not (isinstance(ef, list) and all(isinstance(e, dict) and "file" in e and "sha256" in e for e in ef)):
+        raise _bad(f"{w}.extra_files", "a list of {file, sha256} objects", ef)
+
+
+def strict_json_loads(data: bytes | str, where: str) -> Any:
+    """json.loads that refuses what the standard parser accepts silently or crashes on: duplicate keys (the
+    last one would win unseen), NaN/Infinity literals, non-UTF-8 bytes and nesting too deep to parse.
+    Raises InputError naming `where`."""
+    def pairs(kv: list[tuple[str, Any]]) -> dict[str, Any]:
+        d: dict[str, Any] = {}
+        for k, v in kv:
+            if k in d:
+                raise InputError(f"{where}: duplicate key {k!r} in one JSON object; keep exactly one")
+            d[k] = v
+        return d
+
+    def no_const(name: str) -> Any:
+        raise InputError(f"{where}: {name} is not valid JSON; write a finite number")
+
+    if isinstance(data, bytes):
+        try:
+            data = data.decode("utf-8")
+        except UnicodeDecodeError as e:
+            raise InputError(f"{where}: not UTF-8 text ({e}); save the file as UTF-8") from e
+    try:
+        return json.loads(data, object_pairs_hook=pairs, parse_constant=no_const)
+    except json.JSONDecodeError as e:
+        raise InputError(f"{where}: not valid JSON ({e})") from e
+    except RecursionError as e:
+        raise InputError(f"{where}: JSON nested too deeply to read; flatten it") from e
 
 
 def read_manifest(root: str | os.PathLike) -> dict[str, Any]:
@@ -350,10 +474,11 @@ def read_manifest(root: str | os.PathLike) -> dict[str, Any]:
         raise BundleError(f"{root}: bundle folder does not exist")
     if not mp.is_file():
         raise BundleError(f"{mp}: manifest.json is missing; is {root} a bundle folder?")
+    safe_path(root, MANIFEST, "manifest.json (a symlink out of the bundle)")
     try:
-        manifest = json.loads(mp.read_text())
-    except json.JSONDecodeError as e:
-        raise BundleError(f"{mp}: not valid JSON ({e})") from e
+        manifest = strict_json_loads(mp.read_bytes(), str(mp))
+    except InputError as e:
+        raise BundleError(str(e)) from e
     check_schema(manifest, str(mp))
     return manifest
 
@@ -398,6 +523,7 @@ def write_manifest(root: str | os.PathLike, manifest: dict[str, Any]) -> Path:
     with os.fdopen(fd, "w") as f:
         json.dump(manifest, f, indent=2, sort_keys=False)
         f.write("\n")
+    os.chmod(tmp, 0o644)  # mkstemp makes 0600; a bundle is read by other users/services
     os.replace(tmp, root / MANIFEST)
     return root / MANIFEST
 
@@ -480,9 +606,10 @@ def add_variant(root: str | os.PathLike, role: str, variant: str, components: di
             c.setdefault("inputs", ins)
             c.setdefault("outputs", outs)
         c.setdefault("opset", _onnx_opset(path) if c["format"] == "onnx" else None)
-        for e in c.get("extra_files", []):
-            ep = safe_path(root, e["file"], f"roles.{role}.variants.{variant}.components.{cname}.extra_files")
-            e["sha256"] = sha256_file(ep)
+        c["extra_files"] = _extra_files(root, path, c.get("extra_files", []),
+                                        f"roles.{role}.variants.{variant}.components.{cname}.extra_files")
+        if not c["extra_files"]:
+            del c["extra_files"]
         comps[cname] = c
     vm = {"precision": precision, "target": target, "components": comps, "parity": parity or {},
           "notes": notes, "android": {}, "jetson": {}, **(extra or {})}
@@ -493,6 +620,24 @@ def add_variant(root: str | os.PathLike, role: str, variant: str, components: di
     return write_manifest(root, manifest)
 
 
+def _extra_files(root: Path, graph: Path, given: list[dict], where: str) -> list[dict]:
+    """The given extra files plus every external-data file the graph references, each with its sha256
+    (bundle-relative paths), so verification can hash-check everything the graph loads."""
+    files = [dict(e) for e in given]
+    if graph.suffix == ".onnx":
+        have = {os.path.normpath(e["file"]) for e in files}
+        for loc in external_data_locations(graph):
+            rel = (graph.parent / loc).relative_to(root).as_posix() if not PurePosixPath(loc).is_absolute() else loc
+            if os.path.normpath(rel) not in have:
+                files.append({"file": rel})
+    for e in files:
+        ep = safe_path(root, e["file"], where)
+        if not ep.is_file():
+            raise BundleError(f"{ep}: external data of {graph} is missing ({where}); copy it into the bundle")
+        e["sha256"] = sha256_file(ep)
+    return files
+
+
 def _onnx_opset(path: Path) -> int | None:
     """Default-domain opset read from the ONNX protobuf without the `onnx` package (tiny varint parser)."""
     try:
@@ -500,6 +645,80 @@ def _onnx_opset(path: Path) -> int | None:
     except OSError:
         return None
     return _parse_opset(data)
+
+
+def _fields(buf: Any) -> Iterator[tuple[int, int, Any]]:
+    """(field number, wire type, value) of one protobuf message; value is a memoryview for length-delimited
+    fields, else an int (fixed-size fields are skipped as 0)."""
+    i, n = 0, len(buf)
+    while i < n:
+        key, i = _varint(buf, i)
+        fnum, wt = key >> 3, key & 7
+        if wt == 0:
+            val, i = _varint(buf, i)
+            yield fnum, wt, val
+        elif wt in (1, 5):
+            i += 8 if wt == 1 else 4
+            yield fnum, wt, 0
+        elif wt == 2:
+            ln, i = _varint(buf, i)
+            yield fnum, wt, buf[i:i + ln]
+            i += ln
+        else:
+            raise ValueError(f"unsupported protobuf wire type {wt}")
+
+
+# Sub-messages that can hold tensors: GraphProto node=1 initializer=5 sparse_initializer=15; NodeProto
+# attribute=5; AttributeProto t=5 g=6 tensors=10 graphs=11; SparseTensorProto values=1 indices=2.
+_GRAPH_TENSOR_FIELDS = {1: "node", 5: "tensor", 15: "sparse"}
+_ATTR_FIELDS = {5: "tensor", 6: "graph", 10: "tensor", 11: "graph"}
+
+
+def _tensor_locations(buf: Any, out: set[str]) -> None:
+    for f, wt, v in _fields(buf):  # TensorProto external_data=13: StringStringEntryProto key=1 value=2
+        if f == 13 and wt == 2:
+            kv = {k: bytes(x).decode("utf-8", "replace") for k, w, x in _fields(v) if w == 2}
+            if kv.get(1) == "location" and 2 in kv:
+                out.add(kv[2])
+
+
+def _graph_locations(buf: Any, out: set[str], depth: int = 0) -> None:
+    if depth > 64:
+        raise ValueError("graph nesting deeper than 64")
+    for f, wt, v in _fields(buf):
+        kind = _GRAPH_TENSOR_FIELDS.get(f) if wt == 2 else None
+        if kind == "tensor":
+            _tensor_locations(v, out)
+        elif kind == "sparse":
+            for f2, w2, v2 in _fields(v):
+                if f2 in (1, 2) and w2 == 2:
+                    _tensor_locations(v2, out)
+        elif kind == "node":
+            for f2, w2, attr in _fields(v):
+                if f2 == 5 and w2 == 2:
+                    for f3, w3, v3 in _fields(attr):
+                        k3 = _ATTR_FIELDS.get(f3) if w3 == 2 else None
+                        if k3 == "tensor":
+                            _tensor_locations(v3, out)
+                        elif k3 == "graph":
+                            _graph_locations(v3, out, depth + 1)
+
+
+def external_data_locations(path: str | os.PathLike) -> list[str]:
+    """The external-data file names (relative to the graph's folder) an ONNX file references, read from the
+    protobuf without the `onnx` package. ModelProto field 7 is the graph. Raises BundleError on a file that
+    is not a readable ONNX protobuf."""
+    out: set[str] = set()
+    try:
+        buf = memoryview(Path(path).read_bytes())  # views, not copies, for the nested messages
+        if not len(buf):
+            raise ValueError("empty file")
+        for fnum, wt, v in _fields(buf):
+            if fnum == 7 and wt == 2:
+                _graph_locations(v, out)
+    except (ValueError, IndexError, OSError) as e:
+        raise BundleError(f"{path}: not a readable ONNX file ({e}); re-export the role") from e
+    return sorted(out)
 
 
 def _varint(buf: bytes, i: int) -> tuple[int, int]:

@@ -43,6 +43,7 @@ def add_common_flags(p: argparse.ArgumentParser) -> None:
     g.add_argument("--profile", metavar="FILE", help="device profile (profiles/*.toml)")
     g.add_argument("--json", action="store_true", help="print one JSON object (with a `schema` field) on stdout")
     g.add_argument("--out", metavar="DIR", help="output folder")
+    g.add_argument("--debug", action="store_true", help="print the traceback of an internal error")
 
 
 def add_stage_flags(p: argparse.ArgumentParser, *, depth: bool = False, matcher: bool = False,
@@ -93,8 +94,9 @@ def _emit(result: dict[str, Any], words: tuple[str, ...], as_json: bool, module:
     result.setdefault("schema", f"mosaicthinker.{'.'.join(words)}/1")
     if as_json:
         sys.stdout.write(json.dumps(result) + "\n")
-    elif hasattr(module, "render"):
-        sys.stdout.write(module.render(result).rstrip() + "\n")
+    elif hasattr(module, "render"):  # paths with undecodable bytes print as \xNN, never a UnicodeEncodeError
+        text = module.render(result).rstrip() + "\n"
+        sys.stdout.write(text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace"))
     else:
         sys.stdout.write(json.dumps(result, indent=2) + "\n")
 
@@ -112,7 +114,23 @@ def _missing_extra(e: ModuleNotFoundError, words: tuple[str, ...], extra: str | 
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """Run one command; every outcome maps to one exit code (docs/reliability.md): 0 answered / not_found /
+    unsupported, 2 bad input (`error:` naming the file or field and what to do), 1 internal error (one line;
+    the traceback with --debug). No exception escapes and no signal kills the process silently."""
     argv = list(sys.argv[1:] if argv is None else argv)
+    debug = "--debug" in argv
+    from .errors import handle_signals
+
+    try:
+        with handle_signals():
+            code = _main(argv)
+            sys.stdout.flush()  # an EPIPE surfaces here, not in the interpreter's exit flush
+            return code
+    except BaseException as e:  # noqa: BLE001 - the one place every outcome becomes an exit code
+        return report_exception(e, debug)
+
+
+def _main(argv: list[str]) -> int:
     words, rest = _resolve(argv)
     if words is None:
         groups = _groups()
@@ -137,9 +155,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     args.command = words
     try:
         result = module.run(args) if not hasattr(module, "run_for") else module.run_for(words[1], args)
-    except MosaicError as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 2
     except ModuleNotFoundError as e:  # heavy modules are imported lazily, inside the command
         if _missing_extra(e, words, extra):
             return 2
@@ -147,7 +162,42 @@ def main(argv: Sequence[str] | None = None) -> int:
     if isinstance(result, int):
         return result
     _emit(result, words, args.json, module)
+    if isinstance(result, dict) and result.get("write_error"):  # the answer is out; the files failed
+        sys.stdout.flush()
+        print(result["write_error"], file=sys.stderr)
     return int(result.get("exit_code", 0)) if isinstance(result, dict) else 0
+
+
+def report_exception(e: BaseException, debug: bool = False) -> int:
+    """Print one line for an exception and return its exit code (the outcome-class table)."""
+    from .errors import exit_code_for, message_for
+
+    if isinstance(e, SystemExit):  # argparse (2 with its own message) or an explicit exit
+        return e.code if isinstance(e.code, int) else (0 if e.code is None else 2)
+    if isinstance(e, BrokenPipeError):  # the reader (e.g. `| head`) stopped reading: not a failure
+        _silence_stdout()
+        return 0
+    code = exit_code_for(e)
+    try:
+        print(message_for(e), file=sys.stderr)
+        if debug:
+            import traceback
+
+            traceback.print_exception(type(e), e, e.__traceback__, file=sys.stderr)
+    except (BrokenPipeError, OSError):
+        pass
+    return code
+
+
+def _silence_stdout() -> None:
+    """After EPIPE, point stdout at /dev/null so the interpreter's final flush does not raise again."""
+    import os
+
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+    except (OSError, ValueError):
+        pass
 
 
 if __name__ == "__main__":

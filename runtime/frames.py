@@ -57,15 +57,67 @@ class Frame:
 # ----------------------------------------------------------------------------- readers (errors name the file)
 
 
-def _imread_rgb(path: Path) -> np.ndarray:
+# Longest image side kept at decode: every model input is <= 1024 px and matching/back-projection gain nothing from
+# more, while an 8000x6000 frame is 144 MB (x the frame cache). Larger frames are downscaled (K scaled to match).
+MAX_DECODE_SIDE = 1920
+MIN_FRAME_SIDE = 16  # below this no feature, box or depth statistic means anything (and OpenCV asserts)
+
+
+def _read_bytes(path: Path, what: str) -> np.ndarray:
+    """File bytes as a uint8 array. Reading through Python, not cv2.imread(str(path)), keeps file names that
+    are not valid UTF-8 (undecodable bytes as surrogates) from reaching OpenCV's C++ path handling."""
+    if not path.is_file():
+        raise InputError(f"{_show(path)}: {what} file is missing")
+    try:
+        return np.frombuffer(path.read_bytes(), np.uint8)
+    except OSError as e:
+        raise InputError(f"{_show(path)}: cannot read the {what} file ({e.strerror})") from None
+
+
+def imread_path(path: str | os.PathLike, flags: int | None = None, what: str = "image") -> np.ndarray | None:
+    """cv2.imdecode of a file read through Python (path-safe for any file name); None if it does not decode.
+    flags: cv2.IMREAD_* (default IMREAD_UNCHANGED). Missing file: InputError."""
     import cv2
 
-    if not path.is_file():
-        raise InputError(f"{path}: image file is missing")
-    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    buf = _read_bytes(Path(path), what)
+    return cv2.imdecode(buf, cv2.IMREAD_UNCHANGED if flags is None else flags) if buf.size else None
+
+
+def imwrite_path(path: str | os.PathLike, img: np.ndarray, params: Sequence[int] = ()) -> None:
+    """cv2.imencode by the file's extension, checked, then written through Python (path-safe). Raises OSError
+    when encoding or writing fails: an image write is never silently skipped."""
+    import cv2
+
+    ok, buf = cv2.imencode(Path(path).suffix or ".png", img, list(params))
+    if not ok:
+        raise OSError(f"cannot encode {Path(path).suffix} image of shape {img.shape} for {_show(path)}")
+    Path(path).write_bytes(buf.tobytes())
+
+
+def _show(path: Path | str) -> str:
+    """A path printable on any terminal (undecodable bytes shown as \\xNN)."""
+    return os.fsdecode(path).encode("utf-8", "backslashreplace").decode("utf-8") if isinstance(path, (str, Path)) \
+        else str(path)
+
+
+def _imread_rgb(path: Path, notes: list[str] | None = None) -> np.ndarray:
+    """Colour image -> [H, W, 3] uint8 RGB. A greyscale file is expanded to 3 channels and noted in `notes`."""
+    import cv2
+
+    buf = _read_bytes(path, "image")
+    img = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED) if buf.size else None
     if img is None or img.size == 0:
-        raise InputError(f"{path}: cannot decode the image (corrupt, empty or not an image); "
+        raise InputError(f"{_show(path)}: cannot decode the image (corrupt, empty or not an image); "
                          f"replace or remove the file")
+    if img.dtype != np.uint8:  # 16-bit colour: keep the top 8 bits
+        img = (img >> 8).astype(np.uint8) if img.dtype == np.uint16 else np.clip(img, 0, 255).astype(np.uint8)
+    if img.ndim == 2 or img.shape[2] == 1:
+        if notes is not None and not any(n.startswith("greyscale") for n in notes):
+            notes.append(f"greyscale images (first: {_show(path.name)}) converted to 3-channel grey: colour cues "
+                         f"are unavailable to the models")
+        img = cv2.cvtColor(img.reshape(img.shape[:2]), cv2.COLOR_GRAY2BGR)
+    elif img.shape[2] == 4:
+        img = cv2.cvtColor(img, cv2.COLOR_BGRA2BGR)
     return np.ascontiguousarray(img[:, :, ::-1])
 
 
@@ -73,19 +125,109 @@ def _imread_depth(path: Path, scale: float, invalid: Sequence[int] = ()) -> np.n
     """uint16 depth PNG -> [H, W] float32 metres, given `scale` units per metre (1000 for mm, 5000 for TUM)."""
     import cv2
 
-    if not path.is_file():
-        raise InputError(f"{path}: depth file is missing")
-    d = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    buf = _read_bytes(path, "depth")
+    d = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED) if buf.size else None
     if d is None or d.size == 0:
-        raise InputError(f"{path}: cannot decode the depth image (corrupt or empty)")
+        raise InputError(f"{_show(path)}: cannot decode the depth image (corrupt or empty); restore or remove it")
     if d.ndim != 2 or d.dtype != np.uint16:
-        raise InputError(f"{path}: depth must be a single-channel uint16 PNG, got {d.dtype} with shape {d.shape}")
+        raise InputError(f"{_show(path)}: depth must be a single-channel uint16 PNG, got {d.dtype} with shape "
+                         f"{d.shape}")
     bad = d == 0
     for v in invalid:
         bad |= d == v
     out = d.astype(np.float32) / np.float32(scale)
     out[bad] = 0.0
     return out
+
+
+def check_depth_units(depth: np.ndarray, path: Path, scale: float) -> None:
+    """Refuse depth whose values cannot be metres after dividing by `scale` (indoor scenes: 0.1..20 m median).
+    Depth saved in metres or centimetres into a millimetre PNG would otherwise give a 1000x smaller room."""
+    v = depth[depth > 0]
+    if v.size < 0.01 * depth.size:
+        return  # too little valid depth to judge (checked on the next file with depth)
+    med = float(np.median(v))
+    if not 0.1 <= med <= 20.0:
+        raw = med * scale
+        guess = "metres" if raw < 30 else ("centimetres" if raw < 3000 else "sub-millimetre units")
+        raise InputError(f"{_show(path)}: median depth {med:.3g} m after dividing the stored values (median "
+                         f"{raw:.0f}) by {scale:g}; the file seems to hold {guess}, not 1/{scale:g} m units. "
+                         f"Convert the depth PNGs to {'millimetres' if scale == 1000 else f'1/{scale:g} m'}")
+
+
+def check_intrinsics(K: np.ndarray, size: tuple[int, int], where: str) -> np.ndarray:
+    """A plausible pinhole K for an image of `size` (W, H): finite, fx, fy > 0 (a negative focal length mirrors
+    the map, zero gives NaN geometry), field of view 5..175 degrees, principal point inside the image."""
+    K = np.asarray(K, dtype=np.float64)
+    W, H = size
+    if K.shape != (3, 3) or not np.isfinite(K).all():
+        raise InputError(f"{where}: intrinsics must be a finite 3x3 matrix")
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    if fx <= 0 or fy <= 0:
+        raise InputError(f"{where}: focal lengths fx={fx:g}, fy={fy:g} must be positive (in pixels); fix the "
+                         f"intrinsics (a negative value mirrors the scene, zero makes geometry undefined)")
+    fov = np.degrees(2 * np.arctan(W / (2 * fx)))
+    if not 5.0 <= fov <= 175.0 or not 0.2 <= fx / fy <= 5.0:
+        raise InputError(f"{where}: fx={fx:g}, fy={fy:g} px give a {fov:.1f} degree horizontal field of view for "
+                         f"{W}x{H} images; check the units (pixels) and that K matches this image size")
+    if not (0 <= cx <= W and 0 <= cy <= H) or not np.allclose(K[2], [0, 0, 1]):
+        raise InputError(f"{where}: principal point ({cx:g}, {cy:g}) is outside the {W}x{H} image or the last row "
+                         f"is not [0 0 1]; check that K matches this image size")
+    return K
+
+
+def check_pose(T: np.ndarray, where: str) -> np.ndarray:
+    """A rigid camera-to-world pose [4, 4]: rotation orthonormal with det +1, last row [0 0 0 1]. All-zero or
+    scaled matrices (invalid ground truth) are refused here instead of failing later in fusion."""
+    R = T[:3, :3]
+    if (not np.allclose(T[3], [0, 0, 0, 1]) or abs(np.linalg.det(R) - 1) > 0.05
+            or np.abs(R @ R.T - np.eye(3)).max() > 0.05):
+        raise InputError(f"{where}: not a rigid camera-to-world pose (rotation must be orthonormal, det +1, last "
+                         f"row 0 0 0 1); fix or remove the pose file")
+    return T
+
+
+def check_gravity(source: "FrameSource", where: str, max_deg: float = 75.0) -> None:
+    """The source's gravity (down, world frame) seen from its cameras must point roughly along camera +y
+    (image down): a handheld or robot video is seldom tilted by more than `max_deg` on median. A flipped or
+    wrong-axis vector would stand the map on its side."""
+    if source.gravity is None or not source.has_pose or len(source) == 0:
+        return
+    idx = np.unique(np.linspace(0, len(source) - 1, min(len(source), 24)).round().astype(int))
+    ang = []
+    for i in idx:
+        g = source.gravity_camera(int(i))
+        if g is not None:
+            ang.append(np.degrees(np.arccos(np.clip(g[1], -1.0, 1.0))))
+    if ang and float(np.median(ang)) > max_deg:
+        raise InputError(f"{where}: gravity points {np.median(ang):.0f} degrees away from the cameras' down axis "
+                         f"(median over {len(ang)} frames; a video is rarely tilted over {max_deg:.0f}); it must "
+                         f"point DOWN in the pose frame: check its sign and axes, or delete it to use a floor fit")
+
+
+def _fit_size(W: int, H: int, where: str, max_side: int) -> float:
+    """Scale factor (<= 1) that brings the longest side to `max_side`; refuses frames too small to use."""
+    if min(W, H) < MIN_FRAME_SIDE:
+        raise InputError(f"{where}: frames are {W}x{H} px; at least {MIN_FRAME_SIDE}x{MIN_FRAME_SIDE} is needed")
+    return min(1.0, max_side / float(max(W, H)))
+
+
+def _downscale(img: np.ndarray, s: float, nearest: bool = False) -> np.ndarray:
+    import cv2
+
+    if s >= 1.0:
+        return img
+    h, w = img.shape[:2]
+    size = (max(1, int(round(w * s))), max(1, int(round(h * s))))
+    return cv2.resize(img, size, interpolation=cv2.INTER_NEAREST if nearest else cv2.INTER_AREA)
+
+
+def _scale_K(K: np.ndarray, s: float) -> np.ndarray:
+    if s >= 1.0:
+        return K
+    K = np.array(K, dtype=np.float64)
+    K[:2] *= s
+    return K
 
 
 def _loadtxt(path: Path, shape: tuple[int, ...] | None = None, what: str = "numbers") -> np.ndarray:
@@ -163,6 +305,9 @@ class FrameSource:
     def __init__(self, cache_size: int = 32):
         self._cache: OrderedDict[int, Frame] = OrderedDict()
         self._cache_size = int(cache_size)
+        # what the reader had to degrade (greyscale, missing depth, partial decode, downscaling): the pipeline
+        # records each as a `degraded` trace event, which the answer prints as a note
+        self.notes: list[str] = []
 
     def __len__(self) -> int:
         return len(self.timestamps)
@@ -216,7 +361,22 @@ class FrameSource:
     def describe(self) -> dict[str, Any]:
         return {"name": self.name, "kind": type(self).__name__, "frames": len(self), "size": list(self.size),
                 "has_depth": self.has_depth, "has_pose": self.has_pose,
-                "fx": float(self.K[0, 0]), "fy": float(self.K[1, 1])}
+                "fx": float(self.K[0, 0]), "fy": float(self.K[1, 1]), "notes": list(self.notes)}
+
+    def _set_size(self, first: np.ndarray, where: str, max_side: int) -> None:
+        """Record the decoded size (`orig_size`) and the size frames are delivered at (`size`, after the
+        decode-time downscale `scale`), noting a downscale."""
+        H, W = first.shape[:2]
+        self.orig_size = (W, H)
+        self.scale = _fit_size(W, H, where, max_side)
+        self.size = (W, H) if self.scale >= 1 else _downscale(first, self.scale).shape[1::-1]
+        if self.scale < 1:
+            self.notes.append(f"{W}x{H} frames downscaled to {self.size[0]}x{self.size[1]} at decode (intrinsics "
+                              f"scaled to match; the models need no more)")
+
+    def _set_K(self, K: np.ndarray, where: str) -> None:
+        """Check K against the decoded size, then scale it to the delivered size."""
+        self.K = _scale_K(check_intrinsics(K, self.orig_size, where), self.scale)
 
 
 class FrameList(FrameSource):
@@ -251,7 +411,7 @@ class SevenScenesSource(FrameSource):
     t = frame number / `fps` (7-Scenes records at 30 fps)."""
 
     def __init__(self, root: Path, fps: float = 30.0, hfov_deg: float | None = None, cache_size: int = 32,
-                 depth_scale: float = 1000.0):
+                 depth_scale: float = 1000.0, max_side: int = MAX_DECODE_SIDE):
         super().__init__(cache_size)
         self.root = Path(root)
         self.name = self.root.name
@@ -267,42 +427,58 @@ class SevenScenesSource(FrameSource):
         self.has_depth = all(p.exists() for p in self.depth_paths)
         self.has_pose = all(p.exists() for p in self.pose_paths)
         self.depth_scale = depth_scale
+        self._note_missing([p for p in self.depth_paths if not p.exists()], "depth", "those frames take model "
+                           "depth, the others sensor depth (mixed depth sources)")
+        self._note_missing([p for p in self.pose_paths if not p.exists()], "pose", "ground-truth poses are unused")
         ts = self.root / "timestamps.txt"
         self.timestamps = (_read_timestamps(ts, len(colors), self.stems) if ts.exists()
                            else self.numbers.astype(np.float64) / fps)
-        first = _imread_rgb(colors[0])
-        H, W = first.shape[:2]
-        self.size = (W, H)
+        first = _imread_rgb(colors[0], self.notes)
+        self._set_size(first, _show(colors[0]), max_side)
+        W, H = self.orig_size
         kf = self.root / "camera-intrinsics.txt"
         if kf.exists():
-            self.K = _loadtxt(kf, (3, 3), "a 3x3 intrinsics matrix")
+            self._set_K(_loadtxt(kf, (3, 3), "a 3x3 intrinsics matrix"), _show(kf))
         elif hfov_deg is not None:
-            self.K = intrinsics_from_fov(W, H, hfov_deg)
+            self._set_K(intrinsics_from_fov(W, H, hfov_deg), f"hfov_deg={hfov_deg}")
         else:
-            self.K = SEVEN_SCENES_K.copy()
             if (W, H) != (640, 480):
-                raise InputError(f"{kf}: missing and the images are {W}x{H}, not 7-Scenes' 640x480; "
+                raise InputError(f"{_show(kf)}: missing and the images are {W}x{H}, not 7-Scenes' 640x480; "
                                  f"add camera-intrinsics.txt or pass hfov_deg")
+            self._set_K(SEVEN_SCENES_K.copy(), "7-Scenes intrinsics")
+        first_depth = next((p for p in self.depth_paths if p.exists()), None)
+        if first_depth is not None:
+            check_depth_units(_imread_depth(first_depth, depth_scale, (65535,)), first_depth, depth_scale)
         df = self.root / "distortion.txt"
         self.dist = _loadtxt(df, None, "distortion coefficients") if df.exists() else None
         gf = self.root / "gravity-direction.txt"
         if gf.exists():
             g = _loadtxt(gf, (3,), "a gravity direction")
             if np.linalg.norm(g) < 1e-9:
-                raise InputError(f"{gf}: gravity direction is zero")
+                raise InputError(f"{_show(gf)}: gravity direction is zero")
             self.gravity = g / np.linalg.norm(g)
+            check_gravity(self, _show(gf))
+
+    def _note_missing(self, missing: list[Path], what: str, effect: str) -> None:
+        n = len(self.color_paths)
+        if 0 < len(missing) < n:
+            names = ", ".join(_show(p.name) for p in missing[:3]) + (" ..." if len(missing) > 3 else "")
+            self.notes.append(f"{len(missing)} of {n} frames have no {what} file ({names}): {effect}")
 
     def _load(self, i: int) -> Frame:
-        rgb = _imread_rgb(self.color_paths[i])
+        rgb = _imread_rgb(self.color_paths[i], self.notes)
         depth = None
         if self.depth_paths[i].exists():
             depth = _imread_depth(self.depth_paths[i], self.depth_scale, invalid=(65535,))
             if depth.shape != rgb.shape[:2]:
-                raise InputError(f"{self.depth_paths[i]}: depth is {depth.shape[::-1]} but the colour image is "
-                                 f"{rgb.shape[1::-1]}")
+                raise InputError(f"{_show(self.depth_paths[i])}: depth is {depth.shape[::-1]} but the colour image "
+                                 f"is {rgb.shape[1::-1]}")
+            depth = _downscale(depth, self.scale, nearest=True)  # nearest: never blend across depth edges
+        rgb = _downscale(rgb, self.scale)
         pose = None
         if self.pose_paths[i].exists():
-            pose = _loadtxt(self.pose_paths[i], (4, 4), "a 4x4 camera-to-world pose")
+            pose = check_pose(_loadtxt(self.pose_paths[i], (4, 4), "a 4x4 camera-to-world pose"),
+                              _show(self.pose_paths[i]))
         return Frame(rgb, float(self.timestamps[i]), i, self.K, depth, pose, self.dist)
 
 
@@ -345,7 +521,8 @@ class TUMSource(FrameSource):
     (within `max_dt` s, as TUM's associate.py); unmatched ones are None. Ground truth is converted from
     TUM's `tx ty tz qx qy qz qw` to a 4x4 camera-to-world pose."""
 
-    def __init__(self, root: Path, hfov_deg: float | None = None, max_dt: float = 0.02, cache_size: int = 32):
+    def __init__(self, root: Path, hfov_deg: float | None = None, max_dt: float = 0.02, cache_size: int = 32,
+                 max_side: int = MAX_DECODE_SIDE):
         super().__init__(cache_size)
         self.root = Path(root)
         self.name = self.root.name
@@ -371,27 +548,42 @@ class TUMSource(FrameSource):
                     if len(v) != 7:
                         raise InputError(f"{gt}: expected 'timestamp tx ty tz qx qy qz qw', got {len(v) + 1} fields")
                     v = np.array(v, dtype=np.float64)
+                    if not np.isfinite(v).all() or not 0.5 < np.linalg.norm(v[3:]) < 2.0:
+                        raise InputError(f"{_show(gt)}: pose at t={gts[k]} is not finite or its quaternion is not "
+                                         f"unit length; fix or drop that line")
                     self.poses[i] = make_pose(_quat_to_R(v[3:]), v[:3])
         self.has_depth = all(p is not None for p in self.depth_paths)
         self.has_pose = all(p is not None for p in self.poses)
-        first = _imread_rgb(self.rgb_paths[0])
-        H, W = first.shape[:2]
-        self.size = (W, H)
+        n_no_depth = sum(p is None for p in self.depth_paths)
+        if 0 < n_no_depth < len(rgb):
+            self.notes.append(f"{n_no_depth} of {len(rgb)} RGB frames have no depth within {max_dt} s in depth.txt: "
+                              f"those frames take model depth, the others sensor depth (mixed depth sources)")
+        first = _imread_rgb(self.rgb_paths[0], self.notes)
+        self._set_size(first, _show(self.rgb_paths[0]), max_side)
+        W, H = self.orig_size
         kf = self.root / "camera-intrinsics.txt"
         if kf.exists():
-            self.K, self.dist = _loadtxt(kf, (3, 3), "a 3x3 intrinsics matrix"), None
+            self._set_K(_loadtxt(kf, (3, 3), "a 3x3 intrinsics matrix"), _show(kf))
+            self.dist = None
         elif hfov_deg is not None:
-            self.K, self.dist = intrinsics_from_fov(W, H, hfov_deg), None
+            self._set_K(intrinsics_from_fov(W, H, hfov_deg), f"hfov_deg={hfov_deg}")
+            self.dist = None
         else:
             key = next((k for k in TUM_CALIB if k in str(self.root).lower()), "default")
+            if (W, H) != (640, 480):
+                raise InputError(f"{_show(kf)}: missing and the images are {W}x{H}, not TUM's 640x480 (the "
+                                 f"published calibrations are for that size); add camera-intrinsics.txt")
             (fx, fy, cx, cy), dist = TUM_CALIB[key]
-            self.K = np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1.0]])
+            self._set_K(np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1.0]]), f"TUM calibration {key}")
             self.dist = None if dist is None else np.array(dist)
+        first_depth = next((p for p in self.depth_paths if p is not None), None)
+        if first_depth is not None:
+            check_depth_units(_imread_depth(first_depth, 5000.0), first_depth, 5000.0)
 
     def _load(self, i: int) -> Frame:
-        rgb = _imread_rgb(self.rgb_paths[i])
+        rgb = _downscale(_imread_rgb(self.rgb_paths[i], self.notes), self.scale)
         dp = self.depth_paths[i]
-        depth = None if dp is None else _imread_depth(dp, 5000.0)
+        depth = None if dp is None else _downscale(_imread_depth(dp, 5000.0), self.scale, nearest=True)
         return Frame(rgb, float(self.timestamps[i]), i, self.K, depth, self.poses[i], self.dist)
 
 
@@ -402,7 +594,7 @@ class ImageFolderSource(FrameSource):
     """A folder of images in natural sort order; t from `timestamps.txt` or index / `fps`."""
 
     def __init__(self, root: Path, fps: float = 30.0, hfov_deg: float = 60.0, K: np.ndarray | None = None,
-                 cache_size: int = 32):
+                 cache_size: int = 32, max_side: int = MAX_DECODE_SIDE):
         super().__init__(cache_size)
         self.root = Path(root)
         self.name = self.root.name
@@ -414,23 +606,23 @@ class ImageFolderSource(FrameSource):
         ts = self.root / "timestamps.txt"
         self.timestamps = (_read_timestamps(ts, len(paths), [p.stem for p in paths]) if ts.exists()
                            else np.arange(len(paths), dtype=np.float64) / fps)
-        first = _imread_rgb(paths[0])
-        H, W = first.shape[:2]
-        self.size = (W, H)
+        first = _imread_rgb(paths[0], self.notes)
+        self._set_size(first, _show(paths[0]), max_side)
+        W, H = self.orig_size
         kf = self.root / "camera-intrinsics.txt"
         if K is not None:
-            self.K = np.asarray(K, dtype=np.float64)
+            self._set_K(K, "K")
         elif kf.exists():
-            self.K = _loadtxt(kf, (3, 3), "a 3x3 intrinsics matrix")
+            self._set_K(_loadtxt(kf, (3, 3), "a 3x3 intrinsics matrix"), _show(kf))
         else:
-            self.K = intrinsics_from_fov(W, H, hfov_deg)
+            self._set_K(intrinsics_from_fov(W, H, hfov_deg), f"hfov_deg={hfov_deg}")
 
     def _load(self, i: int) -> Frame:
-        rgb = _imread_rgb(self.paths[i])
-        if rgb.shape[1::-1] != self.size:
-            raise InputError(f"{self.paths[i]}: image is {rgb.shape[1]}x{rgb.shape[0]}, the folder's first image "
-                             f"is {self.size[0]}x{self.size[1]}; all frames must have one size")
-        return Frame(rgb, float(self.timestamps[i]), i, self.K)
+        rgb = _imread_rgb(self.paths[i], self.notes)
+        if rgb.shape[1::-1] != self.orig_size:
+            raise InputError(f"{_show(self.paths[i])}: image is {rgb.shape[1]}x{rgb.shape[0]}, the folder's first "
+                             f"image is {self.orig_size[0]}x{self.orig_size[1]}; all frames must have one size")
+        return Frame(_downscale(rgb, self.scale), float(self.timestamps[i]), i, self.K)
 
 
 class VideoSource(FrameSource):
@@ -451,17 +643,20 @@ class VideoSource(FrameSource):
     seek_min: int = 48  # forward jumps longer than this seek instead of decoding every frame in between
 
     def __init__(self, path: Path, hfov_deg: float = 60.0, K: np.ndarray | None = None,
-                 dist: np.ndarray | None = None, cache_size: int = 64, max_frames: int | None = None):
+                 dist: np.ndarray | None = None, cache_size: int = 64, max_frames: int | None = None,
+                 max_side: int = MAX_DECODE_SIDE):
         super().__init__(cache_size)
         self.path = Path(path)
         self.name = self.path.stem
         if not self.path.is_file():
-            raise InputError(f"{self.path}: video file not found")
+            raise InputError(f"{_show(self.path)}: video file not found")
         if self.path.stat().st_size == 0:
-            raise InputError(f"{self.path}: video file is empty")
+            raise InputError(f"{_show(self.path)}: video file is empty")
+        self._cv_path = self._opencv_path(self.path)
         cap = self._open()
         self.rotation_deg = int(cap.get(self._cv2.CAP_PROP_ORIENTATION_META) or 0)
         fps = cap.get(self._cv2.CAP_PROP_FPS) or 0.0
+        self.container_frames = int(cap.get(self._cv2.CAP_PROP_FRAME_COUNT) or 0)
         ts: list[float] = []
         while max_frames is None or len(ts) < max_frames:
             if not cap.grab():
@@ -470,7 +665,12 @@ class VideoSource(FrameSource):
             ts.append(ms / 1000.0 if ms > 0 or not ts else (len(ts) / fps if fps > 0 else float(len(ts))))
         cap.release()
         if not ts:
-            raise InputError(f"{self.path}: no decodable video frames (corrupt file or unsupported codec)")
+            raise InputError(f"{_show(self.path)}: no decodable video frames (corrupt file or unsupported codec)")
+        self.decoded_frames = len(ts)
+        if max_frames is None and self.container_frames > len(ts) + 1:  # the header promised more: truncated
+            self.notes.append(f"partial video: decoded {len(ts)} of the {self.container_frames} frames the "
+                              f"container announces (truncated or corrupt file); the answer covers the first "
+                              f"{len(ts) / fps if fps > 0 else len(ts):.1f} {'s' if fps > 0 else 'frames'} only")
         t = np.array(ts, dtype=np.float64)
         if np.any(np.diff(t) <= 0):  # broken container timestamps: fall back to the nominal rate
             t = np.arange(len(ts), dtype=np.float64) / (fps if fps > 0 else 30.0)
@@ -484,11 +684,31 @@ class VideoSource(FrameSource):
         self.seek_note = "" if self.seek_mode == "verified" else "no container timestamps to verify seeks"
         self._cap = None
         self._pos = 0  # index of the next frame `grab()` returns
+        self.scale = 1.0
         first = self._decode(0)
-        H, W = first.shape[:2]
-        self.size = (W, H)
-        self.K = np.asarray(K, dtype=np.float64) if K is not None else intrinsics_from_fov(W, H, hfov_deg)
+        self._set_size(first, _show(self.path), max_side)
+        W, H = self.orig_size
+        self._set_K(K if K is not None else intrinsics_from_fov(W, H, hfov_deg), "K" if K is not None else
+                    f"hfov_deg={hfov_deg}")
         self.dist = None if dist is None else np.asarray(dist, dtype=np.float64)
+
+    def _opencv_path(self, path: Path) -> str:
+        """A path OpenCV can open: the file itself, or (for a name that is not valid UTF-8, which OpenCV's
+        C++ side mishandles) a symlink with a plain name in a private temp folder."""
+        s = os.fsdecode(path)
+        try:
+            s.encode("utf-8")
+            return s
+        except UnicodeEncodeError:
+            import atexit
+            import shutil
+            import tempfile
+
+            d = tempfile.mkdtemp(prefix="mosaic_video_")
+            atexit.register(shutil.rmtree, d, True)
+            link = os.path.join(d, "video" + "".join(c for c in path.suffix if c.isascii()))
+            os.symlink(os.path.abspath(path), link)
+            return link
 
     @property
     def _cv2(self):
@@ -498,9 +718,10 @@ class VideoSource(FrameSource):
 
     def _open(self):
         cv2 = self._cv2
-        cap = cv2.VideoCapture(str(self.path))
+        cap = cv2.VideoCapture(self._cv_path)
         if not cap.isOpened():
-            raise InputError(f"{self.path}: OpenCV cannot open this video (corrupt file or unsupported format)")
+            raise InputError(f"{_show(self.path)}: OpenCV cannot open this video (corrupt file or unsupported "
+                             f"format)")
         cap.set(cv2.CAP_PROP_ORIENTATION_AUTO, 1)
         return cap
 
@@ -531,7 +752,7 @@ class VideoSource(FrameSource):
             ms = self._cap.get(self._cv2.CAP_PROP_POS_MSEC)
             if ok and bgr is not None and abs(ms / 1000.0 - self.timestamps[i]) < 1e-3:
                 self._pos = i + 1
-                return np.ascontiguousarray(bgr[:, :, ::-1])
+                return _downscale(np.ascontiguousarray(bgr[:, :, ::-1]), self.scale)
             self._seek_failed(f"frame {i}: timestamp {ms / 1000.0:.4f} s after seeking, scan gave "
                               f"{self.timestamps[i]:.4f} s")
         if self._cap is None or i < self._pos:
@@ -540,13 +761,13 @@ class VideoSource(FrameSource):
             self._cap, self._pos = self._open(), 0
         while self._pos < i:
             if not self._cap.grab():
-                raise InputError(f"{self.path}: decoding stopped at frame {self._pos} of {len(self)}")
+                raise InputError(f"{_show(self.path)}: decoding stopped at frame {self._pos} of {len(self)}")
             self._pos += 1
         ok, bgr = self._cap.read()
         if not ok or bgr is None:
-            raise InputError(f"{self.path}: cannot decode frame {i}")
+            raise InputError(f"{_show(self.path)}: cannot decode frame {i}")
         self._pos += 1
-        return np.ascontiguousarray(bgr[:, :, ::-1])
+        return _downscale(np.ascontiguousarray(bgr[:, :, ::-1]), self.scale)
 
     def _load(self, i: int) -> Frame:
         return Frame(self._decode(i), float(self.timestamps[i]), i, self.K, dist=self.dist)
@@ -574,7 +795,7 @@ def open_source(path: str | os.PathLike, **opts: Any) -> FrameSource:
     p = Path(path)
     opts = {k: v for k, v in opts.items() if v is not None}
     if not p.exists():
-        raise InputError(f"{p}: no such file or folder")
+        raise InputError(f"{_show(p)}: no such file or folder")
     if p.is_file():
         if p.suffix.lower() in IMAGE_EXTS:
             raise InputError(f"{p}: a single image is not a frame source; give its folder")

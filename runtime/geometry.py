@@ -309,6 +309,8 @@ def convex_hull_2d(points: np.ndarray) -> np.ndarray:
     pts = np.unique(np.asarray(points, dtype=np.float64).reshape(-1, 2), axis=0)
     if len(pts) < 3:
         return pts
+    if len(pts) > 64:
+        pts = pts[~_inside_extremes(pts)]  # same hull, far fewer points for the Python loop below
 
     def half(seq: np.ndarray) -> list[np.ndarray]:
         h: list[np.ndarray] = []
@@ -321,6 +323,23 @@ def convex_hull_2d(points: np.ndarray) -> np.ndarray:
 
     lower, upper = half(pts), half(pts[::-1])
     return np.array(lower[:-1] + upper[:-1])
+
+
+def _inside_extremes(pts: np.ndarray) -> np.ndarray:
+    """Mask of points strictly inside the polygon of the extreme points along x, y, x+y and x-y
+    (Akl-Toussaint): they cannot be hull vertices. Vectorised; boundary points are kept."""
+    keys = (pts[:, 0], pts[:, 1], pts[:, 0] + pts[:, 1], pts[:, 0] - pts[:, 1])
+    idx = {int(np.argmin(k)) for k in keys} | {int(np.argmax(k)) for k in keys}
+    poly = pts[sorted(idx)]
+    if len(poly) < 3:
+        return np.zeros(len(pts), bool)
+    c = poly.mean(0)
+    poly = poly[np.argsort(np.arctan2(poly[:, 1] - c[1], poly[:, 0] - c[0]))]  # counter-clockwise
+    inside = np.ones(len(pts), bool)
+    for a, b in zip(poly, np.roll(poly, -1, axis=0)):
+        cross = (b[0] - a[0]) * (pts[:, 1] - a[1]) - (b[1] - a[1]) * (pts[:, 0] - a[0])
+        inside &= cross > 1e-12 * max(1.0, float(np.abs(pts).max()))
+    return inside
 
 
 def polygon_area(polygon: np.ndarray) -> float:

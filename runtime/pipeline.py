@@ -421,6 +421,8 @@ def build_map(source: FrameSource, targets: Sequence[str], cues: Sequence[str] =
         raise InputError("build_map needs a Perception (bundle models or the synthetic oracle)")
     conf = conf if isinstance(conf, PipelineConfig) else PipelineConfig.merged(conf)
     trace = trace if trace is not None else Trace()
+    for note in getattr(source, "notes", []):  # partial decode, mixed depth, greyscale, downscale: in the answer
+        trace.event("degraded", note, stage="input")
     names = list(dict.fromkeys(list(targets) + list(cues)))
     if not names:  # e.g. a room-size question: key frames are spread uniformly, the map holds the room only
         trace.event("degraded", "no object names to look for: uniform key frames; the map holds the room extent "
@@ -872,13 +874,14 @@ def ask(source: Any, question: str, options: list[str] | None = None, *, percept
         bundle: Any = None, profile: Any = None, conf: PipelineConfig | dict | None = None,
         answerer: str = "auto", method: str = "mosaic", prompt_mode: str = "grid", vlm: Any = None,
         trace: Trace | None = None, keyframes: int | None = None, budget: Any = None,
-        direct_frames: int = 8) -> AskResult:
+        direct_frames: int = 8, render_image: bool = True) -> AskResult:
     """Answer a spatial question about a video, frame folder or saved map.
 
     source: a path (video, image/RGB-D folder, `map.json`), a `FrameSource` or a `SemanticMap`; options:
     multiple-choice options ("A. ...") or None. perception: injected models (default: built from `bundle`);
     answerer: "map" | "vlm" | "auto"; method: "mosaic" (map + visual prompt) or "direct" (the baseline: frames
-    sampled uniformly straight to the VLM); prompt_mode: "grid" | "points" | "text".
+    sampled uniformly straight to the VLM); prompt_mode: "grid" | "points" | "text"; render_image=False skips
+    the map image when nothing will show it (no VLM, no file written: on a 10 k-object map it dominates).
     """
     from . import prompt as vprompt
     from .answer import answer_question, answer_with_vlm
@@ -936,7 +939,8 @@ def ask(source: Any, question: str, options: list[str] | None = None, *, percept
             pts = np.concatenate([c for c in build.clouds if len(c)] or [np.zeros((0, 3))])
             ids = np.concatenate([np.full(len(c), o.id) for o, c in zip(smap.instances, build.clouds)
                                   if len(c)] or [np.zeros(0, int)])
-        vp = vprompt.render(smap, {"mode": prompt_mode}, pts, ids)
+        if render_image or vlm is not None:
+            vp = vprompt.render(smap, {"mode": prompt_mode}, pts, ids)
     with trace.stage("answer"):
         ans = answer_question(smap, question, options, answerer, vlm, vp, trace, pq)
     trace.decide("answer", {k: v for k, v in ans.to_dict().items() if k != "parsed"})

@@ -184,8 +184,11 @@ def test_onnx_import_with_sidecar_and_precisions(tmp_path: Path):
     side.write_text(json.dumps({"arch": "embedding_generic", "licence": "MIT", "preprocessing": {},
                                 "semantics": {"dim": 4}}))
     out = tmp_path / "b"
-    rc = main(["export", "embedder", "--source", f"onnx:{g}", "--meta", str(side), "--precision", "fp32,fp16",
-               "--out", str(out), "--json"])
+    args = ["export", "embedder", "--source", f"onnx:{g}", "--meta", str(side), "--precision", "fp32,fp16",
+            "--out", str(out), "--json"]
+    assert main(args) == 2  # the sidecar does not say whether the weights are real: refused
+    assert not (out / "manifest.json").exists()
+    rc = main(args + ["--real-weights"])
     assert rc == 0
     b = B.load_bundle(out)
     role = b.role_meta("embedder")

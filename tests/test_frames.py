@@ -107,8 +107,9 @@ def test_tum_layout(tmp_path):
     rgb_lines, depth_lines, gt_lines = ["# rgb"], ["# depth"], ["# gt"]
     for i in range(3):
         t = 100.0 + 0.1 * i
-        cv2.imwrite(str(tmp_path / f"rgb/{t:.4f}.png"), _img(i)[:, :, ::-1])
-        cv2.imwrite(str(tmp_path / f"depth/{t + 0.005:.4f}.png"), np.full((48, 64), 5000 * (i + 1), np.uint16))
+        big = cv2.resize(_img(i), (640, 480), interpolation=cv2.INTER_NEAREST)  # TUM's published K is for 640x480
+        cv2.imwrite(str(tmp_path / f"rgb/{t:.4f}.png"), big[:, :, ::-1])
+        cv2.imwrite(str(tmp_path / f"depth/{t + 0.005:.4f}.png"), np.full((480, 640), 5000 * (i + 1), np.uint16))
         rgb_lines.append(f"{t:.4f} rgb/{t:.4f}.png")
         depth_lines.append(f"{t + 0.005:.4f} depth/{t + 0.005:.4f}.png")
         gt_lines.append(f"{t + 0.001:.4f} {i} 0 0 0 0 0.7071068 0.7071068")  # 90 deg about z
@@ -117,7 +118,8 @@ def test_tum_layout(tmp_path):
     src = open_source(tmp_path)
     assert isinstance(src, TUMSource) and len(src) == 3 and src.has_depth and src.has_pose
     f = src[1]
-    assert np.array_equal(f.rgb, _img(1)) and f.depth[3, 3] == pytest.approx(2.0)  # 10000 / 5000
+    big = cv2.resize(_img(1), (640, 480), interpolation=cv2.INTER_NEAREST)
+    assert np.array_equal(f.rgb, big) and f.depth[3, 3] == pytest.approx(2.0)  # 10000 / 5000
     assert np.allclose(f.pose_gt[:3, 3], [1, 0, 0]) and np.allclose(f.pose_gt[:3, 0], [0, 1, 0], atol=1e-6)
     assert f.K[0, 0] == 525.0  # ROS default (no freiburg name)
 

@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import InputError
+from ..outputs import RunOutputs, note_outputs, save_run
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -55,6 +56,8 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         question, options = split_inline_options(question)
     trace = Trace()
     profile = load_profile(args.profile) if args.profile else None
+    if profile is not None:
+        profile.apply_to_machine(trace)  # core_affinity applied (or refused loudly), threads fit to the cores
     conf = {"depth": args.depth, "matcher": args.matcher, "keyframe_method": args.keyframe_method}
     perception = None
     src = Path(args.source)
@@ -69,28 +72,35 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                                        if args.matcher != "model" else "sift")
         trace.decide("perception", perception.describe)
     out = Path(args.out) if args.out else None
-    if out is not None:
-        out.mkdir(parents=True, exist_ok=True)
-    res = pipeline.ask(args.source, question, options, perception=perception, bundle=args.bundle,
-                       profile=profile, conf=conf, answerer=args.answerer, method=args.method,
-                       prompt_mode=args.prompt, trace=trace, keyframes=args.keyframes)
-    files = {}
-    if out is not None:
-        if res.prompt is not None and res.prompt.image is not None:
-            res.prompt.save_png(out / "map.png")
-            files["map_png"] = str(out / "map.png")
-        if res.map is not None:
-            res.map.save(out / "map.json")
-            files["map_json"] = str(out / "map.json")
-        (out / "trace.json").write_text(__import__("json").dumps(trace.to_dict(), indent=1))
-        files["trace_json"] = str(out / "trace.json")
+    outs = RunOutputs(out) if out is not None else None  # checked and locked before the pipeline runs
+    try:
+        note_outputs(outs, trace)
+        res = pipeline.ask(args.source, question, options, perception=perception, bundle=args.bundle,
+                           profile=profile, conf=conf, answerer=args.answerer, method=args.method,
+                           prompt_mode=args.prompt, trace=trace, keyframes=args.keyframes,
+                           render_image=out is not None)
+        files, write_error, code = {}, None, 0
+        if outs is not None:
+            items = []
+            if res.prompt is not None and res.prompt.image is not None:
+                items.append(("map_png", "map.png", res.prompt.image))
+            if res.map is not None:
+                items.append(("map_json", "map.json", res.map.to_dict()))
+            items.append(("trace_json", "trace.json", trace.to_dict()))
+            files, write_error, code = save_run(outs, items)
+    finally:
+        if outs is not None:
+            outs.close()
     d = res.to_dict()
     d.update({"schema": "mosaicthinker.ask/1", "question": question, "options": options, "files": files,
               "warnings": [e["message"] for e in trace.events if e["kind"] in ("fallback", "degraded",
                                                                                  "random_weights", "not_in_map",
-                                                                                 "unknown_objects")],
+                                                                                 "unknown_objects", "output",
+                                                                                 "input")],
               "random_weights_used": trace.random_weights_used,
               "seconds": trace.to_dict()["wall_seconds"]})
+    if outs is not None:
+        d.update({"run_id": outs.run_id, "write_error": write_error, "exit_code": code or d.get("exit_code", 0)})
     return d
 
 

@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import InputError
+from ..outputs import RunOutputs, note_outputs, save_run
 
 DEMO_TYPES = ("object_counting", "object_size_estimation", "object_abs_distance", "object_rel_distance",
               "object_rel_direction_hard", "object_rel_direction_medium", "route_planning", "obj_appearance_order",
@@ -38,6 +39,19 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
+    try:
+        w, h = (int(x) for x in args.size.lower().split("x"))
+    except ValueError:
+        raise InputError(f"--size must be WxH, got {args.size!r}") from None
+    out = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix="mosaic_demo_"))
+    outs = RunOutputs(out)  # checked and locked before the scene is generated
+    try:
+        return _run(args, out, outs, (w, h))
+    finally:
+        outs.close()
+
+
+def _run(args: argparse.Namespace, out: Path, outs: "RunOutputs", size: tuple[int, int]) -> dict[str, Any]:
     from ..answer import answer_question
     from ..evaluation.oracle_perception import oracle_perception
     from ..evaluation.vsibench import score_answer
@@ -49,15 +63,11 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     from ..synth.scene import SceneConfig
     from ..trace import Trace
 
-    try:
-        w, h = (int(x) for x in args.size.lower().split("x"))
-    except ValueError:
-        raise InputError(f"--size must be WxH, got {args.size!r}") from None
-    out = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix="mosaic_demo_"))
-    out.mkdir(parents=True, exist_ok=True)
+    w, h = size
     scene_dir = out / "scene"
     t0 = time.perf_counter()
     trace = Trace()
+    note_outputs(outs, trace)
     with trace.stage("synth"):
         if scene_dir.exists() and (scene_dir / "scene.json").is_file():
             info = {"reused": str(scene_dir)}
@@ -102,15 +112,15 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         rows.append({"type": q["question_type"], "question": q["question"], "options": q.get("options"),
                      "answer": a.text, "value": a.value, "truth": q["ground_truth"], "score": round(score, 3),
                      "explanation": a.explanation})
-    vp.save_png(out / "map.png")
-    build.map.save(out / "map.json")
-    (out / "trace.json").write_text(json.dumps(trace.to_dict(), indent=1))
-    return {"schema": "mosaicthinker.demo/1", "scene": str(scene_dir), "scene_info": info, "perception": how,
+    files, write_error, code = save_run(outs, [("map_png", "map.png", vp.image),
+                                               ("map_json", "map.json", build.map.to_dict()),
+                                               ("trace_json", "trace.json", trace.to_dict())])
+    return {"schema": "mosaicthinker.demo/1", "run_id": outs.run_id, "write_error": write_error,
+            "exit_code": code, "scene": str(scene_dir), "scene_info": info, "perception": how,
             "objects": targets + cues, "keyframes": build.keyframes, "instances": len(build.map.instances),
             "counts": build.map.counts(), "recovered_by_refinement": build.recovered, "questions": rows,
             "mean_score": round(sum(r["score"] for r in rows) / len(rows), 3),
-            "files": {"map_png": str(out / "map.png"), "map_json": str(out / "map.json"),
-                      "trace_json": str(out / "trace.json")},
+            "files": files,
             "stage_seconds": {k: round(v["seconds"], 2) for k, v in trace.to_dict()["stages"].items()},
             "seconds": round(time.perf_counter() - t0, 1)}
 

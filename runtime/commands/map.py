@@ -8,11 +8,11 @@ mapped onto the vocabulary; an open-vocabulary model needs --objects).
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 from typing import Any
 
 from ..errors import InputError
+from ..outputs import RunOutputs, note_outputs, save_run
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -35,10 +35,8 @@ def _out_paths(out: str | None, source: Path) -> tuple[Path, Path, Path]:
     if out is None:
         raise InputError("mosaic map needs --out (map.json or a folder)")
     o = Path(out)
-    if o.suffix.lower() == ".json":
-        o.parent.mkdir(parents=True, exist_ok=True)
+    if o.suffix.lower() == ".json":  # the folder itself is checked (file-shaped, read-only, full) by RunOutputs
         return o, o.with_suffix(".png"), o.parent / (o.stem + ".trace.json")
-    o.mkdir(parents=True, exist_ok=True)
     return o / "map.json", o / "map.png", o / "trace.json"
 
 
@@ -67,16 +65,28 @@ def default_objects(args: argparse.Namespace, source: Path) -> list[str]:
 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
+    src = Path(args.source)
+    map_path, png_path, trace_path = _out_paths(args.out, src)
+    outs = RunOutputs(map_path.parent)  # checked and locked before the pipeline runs
+    try:
+        return _run(args, src, outs, (map_path, png_path, trace_path))
+    finally:
+        outs.close()
+
+
+def _run(args: argparse.Namespace, src: Path, outs: RunOutputs, paths: tuple[Path, Path, Path]) -> dict[str, Any]:
     from .. import pipeline
     from ..budget import load_profile
     from ..grounding import canonical_name
     from ..prompt import render as render_prompt
     from ..trace import Trace
 
-    src = Path(args.source)
-    map_path, png_path, trace_path = _out_paths(args.out, src)
+    map_path, png_path, trace_path = paths
     trace = Trace()
+    note_outputs(outs, trace)
     profile = load_profile(args.profile) if args.profile else None
+    if profile is not None:
+        profile.apply_to_machine(trace)  # core_affinity applied (or refused loudly), threads fit to the cores
     if args.objects:
         raw = [s.strip() for s in args.objects.split(",") if s.strip()]
         names = [canonical_name(s) for s in raw]
@@ -102,7 +112,6 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     from ..frames import open_source
 
     build = pipeline.build_map(open_source(src), names, [], perception, conf, trace, args.keyframes)
-    build.map.save(map_path)
     pts = ids = None
     if args.prompt == "points":
         import numpy as np
@@ -110,14 +119,17 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         pts = np.concatenate([c for c in build.clouds if len(c)] or [np.zeros((0, 3))])
         ids = np.concatenate([np.full(len(c), o.id) for o, c in zip(build.map.instances, build.clouds)
                               if len(c)] or [np.zeros(0, int)])
-    render_prompt(build.map, {"mode": args.prompt}, pts, ids).save_png(png_path)
-    trace_path.write_text(json.dumps(trace.to_dict(), indent=1))
-    return {"schema": "mosaicthinker.map/1", "objects": names, "instances": len(build.map.instances),
+    image = render_prompt(build.map, {"mode": args.prompt}, pts, ids).image
+    files, write_error, code = save_run(outs, [("map_json", map_path.name, build.map.to_dict()),
+                                               ("map_png", png_path.name, image),
+                                               ("trace_json", trace_path.name, trace.to_dict())])
+    return {"schema": "mosaicthinker.map/1", "run_id": outs.run_id, "write_error": write_error, "exit_code": code, "objects": names, "instances": len(build.map.instances),
             "counts": build.map.counts(), "keyframes": build.keyframes, "unaligned": build.unaligned,
             "recovered_by_refinement": build.recovered,
-            "files": {"map_json": str(map_path), "map_png": str(png_path), "trace_json": str(trace_path)},
+            "files": files,
             "warnings": [e["message"] for e in trace.events if e["kind"] in ("fallback", "degraded",
-                                                                             "random_weights", "not_in_map")],
+                                                                             "random_weights", "not_in_map",
+                                                                             "output", "input")],
             "seconds": trace.to_dict()["wall_seconds"]}
 
 
@@ -128,6 +140,7 @@ def render(r: dict[str, Any]) -> str:
         lines.append(f"  note: {w}")
     for v in r["files"].values():
         lines.append(f"  wrote {v}")
-    lines.append(f"  ask it: mosaic ask {r['files']['map_json']} \"How many chair(s) are in this room?\"")
+    if r["files"].get("map_json"):
+        lines.append(f"  ask it: mosaic ask {r['files']['map_json']} \"How many chair(s) are in this room?\"")
     lines.append(f"  ({r['seconds']:.1f} s)")
     return "\n".join(lines)

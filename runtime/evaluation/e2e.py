@@ -302,6 +302,10 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         w, h = (int(x) for x in args.size.lower().split("x"))
     except ValueError:
         raise InputError(f"--size must be WxH, got {args.size!r}") from None
+    if args.out:
+        from ..outputs import check_out_dir
+
+        check_out_dir(Path(args.out))  # before generating and evaluating, not after
     data = Path(args.data) if args.data else (Path(args.out) / "scenes" if args.out else
                                              Path(tempfile.mkdtemp(prefix="mosaic_e2e_")))
     data.mkdir(parents=True, exist_ok=True)
@@ -325,8 +329,9 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                                                                  "total": round(time.perf_counter() - t0, 1)},
            "maps": maps, "records": records}
     if args.out:
-        Path(args.out).mkdir(parents=True, exist_ok=True)
-        (Path(args.out) / "e2e.json").write_text(json.dumps(res, indent=1))
+        from ..outputs import write_group
+
+        write_group(args.out, [("e2e_json", "e2e.json", dict(res))], res)
     return res
 
 

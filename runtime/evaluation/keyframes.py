@@ -179,7 +179,9 @@ def _image_reader(scene_dir: Path) -> Callable[[int], np.ndarray]:
 
     def image(f: int) -> np.ndarray:
         p = scene_dir / f"frame-{int(f):06d}.color.jpg"
-        bgr = cv2.imread(str(p), cv2.IMREAD_COLOR)
+        from ..frames import imread_path
+
+        bgr = imread_path(p, cv2.IMREAD_COLOR)
         if bgr is None:
             raise InputError(f"{p}: cannot read the frame image")
         return bgr[:, :, ::-1]

@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import time
 from dataclasses import replace
+from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
@@ -175,6 +176,10 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
 
     trace = Trace()
     t0 = time.perf_counter()
+    if args.out:
+        from ..outputs import check_out_dir
+
+        check_out_dir(Path(args.out))  # before the evaluation runs, not after
     src = open_source(args.data)
     if not src.has_pose:
         raise InputError(f"{args.data}: needs ground-truth poses for every frame (7-Scenes .pose.txt or TUM "
@@ -188,15 +193,10 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                 "seed": args.seed, "strategy": args.strategy, "depth": args.depth, "matcher": args.matcher,
                 "events": trace.events})
     if args.out:
-        import json
-        from pathlib import Path
+        from ..outputs import write_group
 
-        from ..trace import jsonable
-
-        p = Path(args.out)
-        p.mkdir(parents=True, exist_ok=True)
-        (p / "eval_pose.json").write_text(json.dumps(jsonable(out), indent=2))
-        trace.save(p / "trace.json")
+        write_group(args.out, [("eval_pose_json", "eval_pose.json", dict(out)),
+                               ("trace_json", "trace.json", trace.to_dict())], out, trace)
     return out
 
 

@@ -215,6 +215,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
+    if args.out:
+        from ..outputs import check_out_dir
+
+        check_out_dir(Path(args.out))  # before scoring, not after
     questions = load_questions(args.questions)
     meta = load_meta(args.meta)
     summary, records = evaluate(questions, meta, args.types, args.limit)
@@ -237,9 +241,9 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     if args.records:
         result["records"] = records
     if args.out:
-        Path(args.out).mkdir(parents=True, exist_ok=True)
-        with open(Path(args.out) / "vsibench.json", "w") as f:
-            json.dump(result, f, indent=1, default=str)
+        from ..outputs import write_group
+
+        write_group(args.out, [("vsibench_json", "vsibench.json", dict(result))], result)
     return result
 
 

@@ -128,9 +128,44 @@ def load_role(bundle_or_dir: Bundle | str | os.PathLike, role: str, variant: str
                               f"is {comp.format!r}; the runtime loads onnx or ort")
         stage = role if len(spec.components) == 1 else f"{role}.{cname}"
         sessions[cname] = create_session(comp.path, stage, providers, threads=threads, trace=trace)
+        check_image_input(spec, cname, sessions[cname])
     trace.decide(f"model.{role}", {"arch": spec.arch, "variant": spec.variant, "bundle": str(b.root),
                                    "random_weights": spec.random_weights})
     return cls(spec, sessions, trace)
+
+
+_ORT_DTYPES = {"tensor(float)": "float32", "tensor(float16)": "float16", "tensor(uint8)": "uint8"}
+
+
+def check_image_input(spec: RoleSpec, cname: str, sess: Any) -> None:
+    """The manifest's `preprocessing` (size, layout, dtype) must fit the graph's image input, or every run
+    would fail inside the provider with a message that names neither. Checked on the one rank-4 input with 3
+    channels where the layout puts them; graphs without such an input (decoders, text branches) are skipped."""
+    pp = spec.preprocessing
+    if not pp.get("size") and not pp.get("dtype"):
+        return
+    nchw = str(pp.get("layout", "NHWC")).upper() == "NCHW"
+    ins = [i for i in sess.get_inputs() if len(i.shape or []) == 4]
+    if len(ins) != 1:
+        return
+    inp, w = ins[0], f"{spec.bundle.manifest_path}: roles.{spec.role}.preprocessing"
+    name = spec.components[cname].path.name
+    chan, other = (inp.shape[1], inp.shape[3]) if nchw else (inp.shape[3], inp.shape[1])
+    if chan != 3 and other != 3:
+        return  # not an RGB image input (feature maps, masks)
+    if chan != 3 and isinstance(chan, int):
+        raise BundleError(f"{w}.layout is {'NCHW' if nchw else 'NHWC'} but the graph {name} input {inp.name!r} "
+                          f"is {list(inp.shape)}; fix preprocessing.layout or re-export the role")
+    hw = list(inp.shape[2:4] if nchw else inp.shape[1:3])
+    size = pp.get("size")
+    if size and any(isinstance(g, int) and g > 0 and g != int(s) for g, s in zip(hw, size)):
+        raise BundleError(f"{w}.size is {list(size)} but the graph {name} input {inp.name!r} is "
+                          f"{list(inp.shape)}; fix preprocessing.size or re-export the role")
+    want = str(pp.get("dtype", "float32"))
+    got = _ORT_DTYPES.get(inp.type)
+    if got is not None and got != want:
+        raise BundleError(f"{w}.dtype is {want!r} but the graph {name} input "
+                          f"{inp.name!r} takes {got}; fix preprocessing.dtype or re-export the role")
 
 
 # ---------------------------------------------------------------------------------------------------------------

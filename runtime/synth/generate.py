@@ -74,10 +74,12 @@ def _render_one(i: int) -> tuple[int, bytes, np.ndarray, np.ndarray, np.ndarray]
     res = r.render(T_wc, frame_seed=i)
     stem = out / f"frame-{i:06d}"
     bgr = np.ascontiguousarray(res.rgb[:, :, ::-1])
-    cv2.imwrite(f"{stem}.color.jpg", bgr, [cv2.IMWRITE_JPEG_QUALITY, 92])
+    from ..frames import imwrite_path  # checked, path-safe writes (any folder name)
+
+    imwrite_path(f"{stem}.color.jpg", bgr, [cv2.IMWRITE_JPEG_QUALITY, 92])
     mm = np.clip(np.round(res.depth * 1000.0), 0, 65534).astype(np.uint16)
-    cv2.imwrite(f"{stem}.depth.png", mm, [cv2.IMWRITE_PNG_COMPRESSION, 1])
-    cv2.imwrite(f"{stem}.instances.png", res.instances, [cv2.IMWRITE_PNG_COMPRESSION, 1])
+    imwrite_path(f"{stem}.depth.png", mm, [cv2.IMWRITE_PNG_COMPRESSION, 1])
+    imwrite_path(f"{stem}.instances.png", res.instances, [cv2.IMWRITE_PNG_COMPRESSION, 1])
     np.savetxt(f"{stem}.pose.txt", T_wc, fmt="%.9f")
     inf = in_frame_fraction(r.scene, r.K, T_wc, r.W, r.H)
     return i, bgr.tobytes(), res.visible, res.covered, inf

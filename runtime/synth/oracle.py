@@ -53,7 +53,9 @@ class OracleDetector:
         if not 0 <= int(frame_index) < self.n_frames:
             raise IndexError(f"{self.root}: frame {frame_index} out of range (0..{self.n_frames - 1})")
         p = self.root / f"frame-{int(frame_index):06d}.instances.png"
-        m = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
+        from ..frames import imread_path
+
+        m = imread_path(p, cv2.IMREAD_UNCHANGED, "instance mask")
         if m is None or m.ndim != 2:
             raise InputError(f"{p}: missing or not a single-channel instance mask")
         return m

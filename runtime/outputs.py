@@ -1,0 +1,295 @@
+"""Output folders of a run: checked before the pipeline runs, locked, written atomically and as one group.
+
+One `RunOutputs` per command run:
+
+    outs = RunOutputs(folder)          # checks the folder (a file? read-only? full?) and takes its lock
+    outs.add_json("map.json", d)       # staged in a hidden temp file beside the target, nothing replaced yet
+    outs.add_png("map.png", rgb)       # encoded in memory first: a failed encode raises, never a silent skip
+    outs.commit()                      # fsync + rename every staged file, then `run.json` (status complete)
+    outs.close()                       # drops the lock and any temp file left (also on errors: use `with`)
+
+Why: a kill -9 during a plain `open(...).write` leaves a truncated map.json beside a new map.png, and two runs
+into one folder mix their files. Here every file carries the run id, `run.json` says which run the folder
+holds and whether it finished (status "running" from the start until every rename is done), and a second run
+on a locked folder is refused. A lock whose process is gone is taken over and the result says so.
+"""
+from __future__ import annotations
+
+import errno
+import json
+import os
+import secrets
+import shutil
+import socket
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .errors import OutputError
+
+LOCK = ".mosaic.lock"
+RUN_FILE = "run.json"
+TMP_PREFIX = ".mosaic-tmp."
+MIN_FREE_MB = 64  # below this the folder counts as full: a map + trace + image of a large room is ~10 MB
+
+
+def new_run_id() -> str:
+    """`20261201T203000Z-1a2b3c4d`: sortable by start time, unique across concurrent runs."""
+    return time.strftime("%Y%m%dT%H%M%SZ", time.gmtime()) + "-" + secrets.token_hex(4)
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # exists, owned by someone else
+        return True
+    return True
+
+
+def _age_s(path: Path) -> float:
+    try:
+        return time.time() - path.stat().st_mtime
+    except OSError:
+        return 1e9
+
+
+def check_out_dir(folder: Path, what: str = "--out") -> None:
+    """Refuse, before any work, an output folder that is a file, cannot be created, is read-only or full."""
+    if folder.exists() and not folder.is_dir():
+        raise OutputError(f"{what} {folder}: is a file, not a folder; give a folder path (it is created if needed)")
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise OutputError(f"{what} {folder}: cannot create the folder ({e.strerror}); choose a writable place") from e
+    probe = folder / f"{TMP_PREFIX}probe-{os.getpid()}"
+    try:
+        with open(probe, "wb") as f:
+            f.write(b"x")
+        probe.unlink()
+    except OSError as e:
+        raise OutputError(f"{what} {folder}: not writable ({e.strerror}); choose a writable folder") from e
+    free_mb = shutil.disk_usage(folder).free / 2**20
+    if free_mb < MIN_FREE_MB:
+        raise OutputError(f"{what} {folder}: only {free_mb:.0f} MB free (need {MIN_FREE_MB} MB); free space or "
+                         f"choose another folder")
+
+
+class RunOutputs:
+    """The files one run leaves in one folder (see the module docstring). Not thread-safe."""
+
+    def __init__(self, folder: str | os.PathLike, run_id: str | None = None, *, what: str = "--out"):
+        self.folder = Path(folder)
+        self.run_id = run_id or new_run_id()
+        self.what = what
+        self.staged: list[tuple[Path, Path]] = []  # (temp, final)
+        self.notes: list[str] = []
+        self._locked = False
+        check_out_dir(self.folder, what)
+        try:
+            self._lock()
+            self._clean_stale_temps()
+            self._write_run_file("running", [])
+        except BaseException:  # incl. a SIGTERM landing here: never leave our lock behind
+            self.close()
+            raise
+
+    # -- lock -----------------------------------------------------------------------------------------------
+    def _lock(self) -> None:
+        lock = self.folder / LOCK
+        body = json.dumps({"pid": os.getpid(), "host": socket.gethostname(), "run_id": self.run_id,
+                           "started": time.time()}).encode()
+        for _ in range(3):
+            try:
+                fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+            except FileExistsError:
+                held = self._read_lock(lock)
+                if held is None and _age_s(lock) < 10.0:  # just created, not yet written: another run's
+                    held = {"pid": "?", "run_id": "starting"}
+                if held is not None and (held.get("host") != socket.gethostname() or held["pid"] == "?"
+                                         or _pid_alive(held["pid"])):
+                    raise OutputError(f"{self.what} {self.folder}: another run (pid {held['pid']}, run id "
+                                     f"{held.get('run_id')}) is writing there; wait for it to finish or choose "
+                                     f"another {self.what} folder") from None
+                try:  # the holder is gone (killed): take the lock over and say so
+                    lock.unlink()
+                except FileNotFoundError:
+                    pass
+                who = f"pid {held['pid']}, run id {held.get('run_id')}" if held else "unreadable lock file"
+                self.notes.append(f"took over a stale lock on {self.folder} ({who}: process gone)")
+                continue
+            self._locked = True  # before writing: an interrupt from here on removes the lock in close()
+            with os.fdopen(fd, "wb") as f:
+                f.write(body)
+            return
+        raise OutputError(f"{self.what} {self.folder}: could not take the folder's lock {lock}; remove it if no "
+                         f"run is writing there")
+
+    @staticmethod
+    def _read_lock(lock: Path) -> dict[str, Any] | None:
+        try:
+            d = json.loads(lock.read_text())
+            return d if isinstance(d, dict) and isinstance(d.get("pid"), int) else None
+        except (OSError, ValueError):
+            return None
+
+    def _clean_stale_temps(self) -> None:
+        for p in self.folder.glob(TMP_PREFIX + "*"):
+            try:
+                p.unlink()
+            except OSError:
+                pass
+
+    # -- staging --------------------------------------------------------------------------------------------
+    def _stage(self, name: str, data: bytes) -> Path:
+        final = self.folder / name
+        tmp = self.folder / f"{TMP_PREFIX}{self.run_id}.{name}"
+        try:
+            with open(tmp, "wb") as f:
+                f.write(data)
+                f.flush()
+                os.fsync(f.fileno())
+        except OSError as e:
+            try:
+                tmp.unlink()
+            except OSError:
+                pass
+            raise OSError(e.errno, f"writing {final}: {e.strerror}") from e
+        self.staged = [s for s in self.staged if s[1] != final] + [(tmp, final)]
+        return final
+
+    def add_json(self, name: str, obj: dict[str, Any], indent: int | None = 1) -> Path:
+        """Stage a JSON object (a `run_id` field is added)."""
+        from .trace import jsonable
+
+        obj = {**jsonable(obj), "run_id": self.run_id}
+        return self._stage(name, (json.dumps(obj, indent=indent, default=str) + "\n").encode())
+
+    def add_png(self, name: str, rgb: np.ndarray) -> Path:
+        """Stage an RGB image [H, W, 3] uint8 as PNG with the run id in a tEXt chunk; a failed encode raises."""
+        data = encode_png(rgb, {"mosaicthinker_run_id": self.run_id})
+        return self._stage(name, data)
+
+    def commit(self) -> list[str]:
+        """Rename every staged file into place, then mark the run complete in run.json. Returns the paths."""
+        done = []
+        for tmp, final in self.staged:
+            os.replace(tmp, final)
+            done.append(str(final))
+        self.staged = []
+        self._write_run_file("complete", done)
+        _fsync_dir(self.folder)
+        return done
+
+    def _write_run_file(self, status: str, files: list[str]) -> None:
+        rec = {"schema": "mosaicthinker.run/1", "run_id": self.run_id, "status": status, "pid": os.getpid(),
+               "files": [Path(f).name for f in files], "time": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
+        tmp = self.folder / f"{TMP_PREFIX}{self.run_id}.{RUN_FILE}"
+        with open(tmp, "w") as f:
+            json.dump(rec, f)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, self.folder / RUN_FILE)
+
+    def close(self) -> None:
+        for tmp, _ in self.staged:
+            try:
+                tmp.unlink()
+            except OSError:
+                pass
+        self.staged = []
+        if self._locked:
+            try:
+                (self.folder / LOCK).unlink()
+            except OSError:
+                pass
+            self._locked = False
+
+    def __enter__(self) -> "RunOutputs":
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+
+def _fsync_dir(folder: Path) -> None:
+    try:
+        fd = os.open(folder, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
+def encode_png(rgb: np.ndarray, text: dict[str, str] | None = None) -> bytes:
+    """RGB [H, W, 3] uint8 -> PNG bytes (Pillow, so text chunks can carry the run id). Raises on failure."""
+    import io
+
+    from PIL import Image, PngImagePlugin
+
+    if rgb is None or rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.size == 0:
+        raise ValueError(f"cannot encode an image of shape {getattr(rgb, 'shape', None)} as PNG")
+    info = PngImagePlugin.PngInfo()
+    for k, v in (text or {}).items():
+        info.add_text(k, v)
+    buf = io.BytesIO()
+    Image.fromarray(np.ascontiguousarray(rgb, dtype=np.uint8)).save(buf, format="PNG", pnginfo=info)
+    return buf.getvalue()
+
+
+def write_error_message(e: OSError, folder: Path) -> str:
+    """One `error:` line for a write that failed after the answer was computed."""
+    why = "the disk is full" if e.errno == errno.ENOSPC else (e.strerror or str(e))
+    return (f"error: could not write the output files in {folder} ({why}); the answer above is complete, the "
+            f"files are not (the folder keeps the previous run's files); free space / fix permissions and rerun")
+
+
+def save_run(outs: RunOutputs, items: list[tuple[str, str, Any]]) -> tuple[dict[str, str], str | None, int]:
+    """Stage then commit every item `(key, file name, dict | RGB [H, W, 3] uint8)` as one group.
+
+    Returns ({key: path}, None, 0) when all were written, else ({}, one `error:` line, exit code): the caller
+    still prints its answer, and the folder keeps the previous run's files (nothing was renamed)."""
+    try:
+        for _, name, obj in items:
+            if isinstance(obj, np.ndarray):
+                outs.add_png(name, obj)
+            else:
+                outs.add_json(name, obj)
+        outs.commit()
+    except OSError as e:
+        return {}, write_error_message(e, outs.folder), 2
+    except ValueError as e:  # an image that cannot be encoded: a bug upstream, said so
+        return {}, f"internal error: could not encode an output file in {outs.folder} ({e}); report it", 1
+    return {key: str(outs.folder / name) for key, name, _ in items}, None, 0
+
+
+def note_outputs(outs: RunOutputs | None, trace: Any) -> None:
+    """Record what the output folder handling did (stale lock taken over, run id) in the trace."""
+    if outs is None:
+        return
+    trace.decide("output", {"folder": str(outs.folder), "run_id": outs.run_id})
+    for n in outs.notes:
+        trace.event("output", n)
+
+
+def write_group(folder: str | os.PathLike, items: list[tuple[str, str, Any]], result: dict[str, Any],
+                trace: Any = None) -> dict[str, Any]:
+    """For commands that only write at the end (eval ...): lock `folder`, write `items` as one group (see
+    `save_run`) and record the outcome in `result` (`files`, `run_id`, and `write_error` + `exit_code` when
+    the write failed: the CLI still prints the result). Check the folder with `check_out_dir` before the
+    long work starts."""
+    with RunOutputs(folder) as outs:
+        note_outputs(outs, trace) if trace is not None else None
+        files, err, code = save_run(outs, items)
+        result.update({"run_id": outs.run_id, "files": files, **({"write_error": err, "exit_code": code}
+                                                                  if err else {})})
+        for n in outs.notes:
+            result.setdefault("warnings", []).append(n)
+    return result
