@@ -16,6 +16,7 @@ import json
 import sys
 from typing import Any, Sequence
 
+from . import progress
 from .errors import MosaicError
 
 # (command words) -> (module, one-line help, extra needed or None)
@@ -123,6 +124,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(_top_help())
         return 0 if not argv or argv[0] in ("-h", "--help") else 2
     mod_name, help_, extra = COMMANDS[words]
+    progress.first_line(words, help_, rest)
     try:
         module = importlib.import_module(mod_name)
     except ModuleNotFoundError as e:
@@ -136,7 +138,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(rest)
     args.command = words
     try:
-        result = module.run(args) if not hasattr(module, "run_for") else module.run_for(words[1], args)
+        with progress.session(summary=not args.json):
+            result = module.run(args) if not hasattr(module, "run_for") else module.run_for(words[1], args)
     except MosaicError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2

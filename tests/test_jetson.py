@@ -141,6 +141,11 @@ def test_provider_options_by_precision(bundle):
     det = m["roles"]["detector"]["variants"]["fp32"]["jetson"]["components"]["model"]
     assert det["qdq"]["qdq"] and not det["qdq"]["trt_int8_compatible"]
     assert det["warnings"] and "symmetric int8" in det["warnings"][0]
+    # ... so neither the provider options nor the build script ask TensorRT for int8 on it
+    assert det["providers"][0][1]["trt_int8_enable"] is False and det["trtexec"] is None
+    script = (root / J.SCRIPT).read_text()
+    assert "detector/fp32/model: no engine" in script
+    assert all("--int8" not in ln for ln in script.splitlines() if "/detector/" in ln)
     assert m["jetson"]["provider_chain"][0] == "TensorrtExecutionProvider"
     assert "not installed" in m["jetson"]["not_run"]
     B.load_bundle(root, verify=True)
@@ -183,7 +188,7 @@ def test_build_script_runs_with_stand_in_trtexec(bundle, tmp_path):
     assert r.returncode == 0, r.stderr
     engines = sorted(p.relative_to(cache).as_posix() for p in cache.rglob("*.engine"))
     assert "vlm/fp32/decoder.engine" in engines and "segmenter/fp32-trtfp16/model.engine" in engines
-    assert "detector/fp32/model.engine" in engines and "vlm/int8-qdq/decoder.engine" in engines
+    assert "detector/fp32/model.engine" not in engines and "vlm/int8-qdq/decoder.engine" in engines
 
 
 def test_runtime_takes_the_provider_chain(bundle):
