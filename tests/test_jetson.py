@@ -165,13 +165,12 @@ def test_trtexec_commands_match_provider_options(bundle):
     assert "--fp16" not in argv and "--int8" not in argv
 
 
-def test_build_script_runs_with_stand_in_trtexec(bundle, tmp_path):
+def test_build_script_runs_with_stand_in_trtexec(bundle, tmp_path, shellcheck):
     root, _ = bundle
     script = root / J.SCRIPT
     subprocess.run(["bash", "-n", str(script)], check=True)
-    if shutil.which("shellcheck"):
-        r = subprocess.run(["shellcheck", str(script)], capture_output=True, text=True)
-        assert r.returncode == 0, r.stdout
+    r = subprocess.run([shellcheck, str(script)], capture_output=True, text=True)
+    assert r.returncode == 0, r.stdout
     fake = tmp_path / "bin" / "trtexec"
     fake.parent.mkdir()
     # stand-in: checks the ONNX path exists and the shape flags are well formed, then "writes" the engine
@@ -235,13 +234,12 @@ def test_axis_rules_and_errors():
         J.config_from_args(argparse.Namespace(axis=["x=1:2"]))
 
 
-def test_container_recipe_and_run_script(bundle):
+def test_container_recipe_and_run_script(bundle, shellcheck):
     repo = Path(__file__).resolve().parents[1]
     run = repo / "jetson" / "run.sh"
     subprocess.run(["bash", "-n", str(run)], check=True)
-    if shutil.which("shellcheck"):
-        r = subprocess.run(["shellcheck", str(run)], capture_output=True, text=True)
-        assert r.returncode == 0, r.stdout
+    r = subprocess.run([shellcheck, str(run)], capture_output=True, text=True)
+    assert r.returncode == 0, r.stdout
     root, _ = bundle
     r = subprocess.run(["bash", str(run), "--dry-run", "--cache", "/tmp/trt", str(root), "--", "profile",
                         "--bundle", "/bundle"], capture_output=True, text=True)
