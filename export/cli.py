@@ -49,6 +49,9 @@ def _load(ref: str):
     return getattr(importlib.import_module(f"mosaicthinker.export.{mod}"), fn)
 
 
+COMMON_FLAGS = ("out",)  # --out BUNDLE: the bundle folder to create or extend
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("role", choices=ROLES + ("shared-models",), help="model role to export")
     parser.add_argument("--source", required=False,
@@ -58,8 +61,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--target", default="cpu", help="cpu (default) | android | jetson (comma list)")
     parser.add_argument("--calib", metavar="DIR_OR_VIDEO", help="calibration frames for int8-qdq (and task checks)")
     parser.add_argument("--meta", metavar="FILE", help="metadata JSON for --source onnx:PATH")
-    parser.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",
+    from mosaicthinker.runtime.commands.flags import deprecated_alias
+
+    parser.add_argument("--set", dest="set", action="append", default=[], metavar="KEY=VALUE",
                         help="exporter option (e.g. k=1024, height=480, width=640); repeatable")
+    deprecated_alias(parser, "--option", "--set KEY=VALUE", "set", append=True)  # `ask --option` is an answer
     from . import android, jetson  # flags of the --target android|jetson steps (issue 7)
 
     android.add_arguments(parser)
@@ -72,9 +78,9 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     out = Path(args.out)
     precisions = parse_precisions(args.precision)
     options = {}
-    for kv in args.option:
+    for kv in args.set:
         if "=" not in kv:
-            raise ExportError(f"--option {kv!r}: expected KEY=VALUE")
+            raise ExportError(f"--set {kv!r}: expected KEY=VALUE")
         k, v = kv.split("=", 1)
         options[k.strip()] = v.strip()
     if args.role == "shared-models":

@@ -350,7 +350,7 @@ def _agreement(g: GraphSpec, path: Path, reference: Callable, precision: str, *,
 def run_exporter(fn: Callable[..., dict], source: str, precisions: Sequence[str], out: str | Path, *,
                  calib: str | None = None, options: dict[str, str] | None = None) -> dict[str, Any]:
     """The `mosaic export` entry (export/cli.py signature) around an `export_<role>(source, out, precisions,
-    **kw)` function: --option KEY=VALUE become keyword arguments (ints/floats parsed), --calib frames are
+    **kw)` function: --set KEY=VALUE become keyword arguments (ints/floats parsed), --calib frames are
     read for int8-qdq calibration."""
     kw: dict[str, Any] = {}
     for k, v in (options or {}).items():

@@ -553,6 +553,9 @@ def _parse_opset(buf: bytes) -> int | None:
 # ----------------------------------------------------------------------------------------------------------------
 # `mosaic bundle verify|show`
 
+COMMON_FLAGS = ("bundle",)  # verify/show read a bundle and write nothing: no --profile, no --out
+
+
 def add_arguments_for(sub: str, parser: argparse.ArgumentParser) -> None:
     parser.add_argument("dir", nargs="?", metavar="DIR", help="bundle folder (or use --bundle)")
 

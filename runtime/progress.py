@@ -19,7 +19,7 @@ import time
 from contextlib import contextmanager
 from contextvars import ContextVar
 from dataclasses import dataclass, field
-from typing import Any, Iterator, TextIO
+from typing import Any, Iterable, Iterator, TextIO
 
 # facts printed in the summary, in this order (others follow in the order noted)
 FACT_ORDER = ("frames", "candidates", "scored", "keyframes", "aligned", "unaligned", "instances")
@@ -167,6 +167,15 @@ def phase(name: str, total: int | None = None, unit: str = "step") -> Iterator[B
 def ticking(seq: Any, bar: Bar) -> Any:
     """`seq` seen through `bar` (see `Ticking`); `seq` itself outside a session."""
     return seq if isinstance(bar, _NoBar) else Ticking(seq, bar)
+
+
+def ticked(items: Iterable[Any], name: str, unit: str = "step") -> Iterator[Any]:
+    """Iterate `items` under a phase: one tick per item (an evaluation's scenes or questions)."""
+    items = list(items)
+    with phase(name, len(items), unit) as bar:
+        for x in items:
+            yield x
+            bar.update()
 
 
 class Ticking:

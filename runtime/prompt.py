@@ -55,6 +55,14 @@ class VisualPrompt:
         return np.stack([self.origin_px[0] + xy[:, 0] * self.px_per_m,
                          self.origin_px[1] - xy[:, 1] * self.px_per_m], 1)
 
+    def save_text(self, path: str, question: str | None = None, options: list[str] | None = None) -> None:
+        """Write the text the VLM gets with the image (`prompt.txt`): the whole prompt for a question
+        (`vlm_prompt`), else the object block."""
+        from pathlib import Path
+
+        body = vlm_prompt(question, options, self.text, self.mode) if question else self.text
+        Path(path).write_text(body.rstrip() + "\n")
+
     def save_png(self, path: str) -> None:
         if self.image is None:
             raise ValueError("text-only prompt has no image")

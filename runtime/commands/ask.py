@@ -15,17 +15,17 @@ from ..errors import InputError
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     from ..cli import add_stage_flags
+    from .flags import add_answerer, add_keyframes
 
     p.add_argument("source", help="video file, image / RGB-D folder, or a saved map (map.json)")
     p.add_argument("question", help="the question (VSI-Bench wording is answered exactly by the map reasoner)")
     p.add_argument("--option", action="append", default=None, metavar="TEXT",
                    help='a multiple-choice option, repeat for each ("A. left")')
-    p.add_argument("--answerer", choices=["map", "vlm", "auto"], default="auto",
-                   help="map reasoner, VLM on the visual prompt, or auto (reasoner when it recognises the question)")
+    add_answerer(p)
     p.add_argument("--method", choices=["mosaic", "direct"], default="mosaic",
                    help="mosaic (semantic map) or direct (Direct Input baseline: sampled frames to the VLM)")
     p.add_argument("--prompt", choices=["grid", "points", "text"], default="grid", help="visual prompt mode")
-    p.add_argument("--keyframes", type=int, default=None, help="key-frame budget K (default 16)")
+    add_keyframes(p)
     p.add_argument("--keyframe-method", choices=["iterative", "uniform", "exhaustive"], default="iterative")
     add_stage_flags(p, matcher=True, detector=True)
     p.set_defaults(detector="model")
@@ -79,6 +79,9 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         if res.prompt is not None and res.prompt.image is not None:
             res.prompt.save_png(out / "map.png")
             files["map_png"] = str(out / "map.png")
+        if res.prompt is not None:  # the text the VLM gets (with the image unless --prompt text)
+            res.prompt.save_text(out / "prompt.txt", question, options)
+            files["prompt_txt"] = str(out / "prompt.txt")
         if res.map is not None:
             res.map.save(out / "map.json")
             files["map_json"] = str(out / "map.json")

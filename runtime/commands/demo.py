@@ -25,19 +25,32 @@ DEMO_TYPES = ("object_counting", "object_size_estimation", "object_abs_distance"
               "room_size_estimation")
 
 
+COMMON_FLAGS = ("bundle", "out")
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
+    from .flags import add_answerer, add_clip, add_complexity, add_keyframes, add_size, deprecated_alias
+
     p.add_argument("--seed", type=int, default=4, help="scene seed")
-    p.add_argument("--objects", choices=["low", "med", "high"], default="low", help="object-number level")
+    add_complexity(p, "low")
     p.add_argument("--room", choices=["small", "medium", "large"], default="medium", help="room-size level")
-    p.add_argument("--duration", type=float, default=16.0, help="video length (s)")
-    p.add_argument("--fps", type=float, default=6.0)
-    p.add_argument("--size", default="480x360", help="frame size WxH")
-    p.add_argument("--keyframes", type=int, default=12, help="key-frame budget K")
-    p.add_argument("--questions", type=int, default=6, help="how many questions to ask (one per type)")
-    p.add_argument("--answerer", choices=["map", "vlm", "auto"], default="auto")
+    add_clip(p, 16.0, 6.0)
+    add_size(p, "480x360")
+    add_keyframes(p, 12, "the demo's 16 s clip")
+    p.add_argument("--num-questions", type=int, default=6, metavar="N",
+                   help="how many questions to ask, one per type (default 6)")
+    deprecated_alias(p, "--questions", "--num-questions", "num_questions", type=int)
+    add_answerer(p)
 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
+    if not args.out:  # nothing left behind: the scene and the files live in a folder removed afterwards
+        with tempfile.TemporaryDirectory(prefix="mosaic_demo_") as tmp:
+            return {**_run(args, Path(tmp)), "files": {}, "scene": "(a temporary folder, removed: keep it with --out DIR)"}
+    return _run(args, Path(args.out))
+
+
+def _run(args: argparse.Namespace, out: Path) -> dict[str, Any]:
     from ..answer import answer_question
     from ..evaluation.oracle_perception import oracle_perception
     from ..evaluation.vsibench import score_answer
@@ -49,11 +62,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     from ..synth.scene import SceneConfig
     from ..trace import Trace
 
-    try:
-        w, h = (int(x) for x in args.size.lower().split("x"))
-    except ValueError:
-        raise InputError(f"--size must be WxH, got {args.size!r}") from None
-    out = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix="mosaic_demo_"))
+    w, h = args.size
     out.mkdir(parents=True, exist_ok=True)
     scene_dir = out / "scene"
     t0 = time.perf_counter()
@@ -62,14 +71,14 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         if scene_dir.exists() and (scene_dir / "scene.json").is_file():
             info = {"reused": str(scene_dir)}
         else:
-            info = write_scene(SceneConfig(seed=args.seed, objects=args.objects, room=args.room,
+            info = write_scene(SceneConfig(seed=args.seed, objects=args.complexity, room=args.room,
                                            duration=args.duration, fps=args.fps, width=w, height=h),
                                scene_dir, video=False)
     qs = [json.loads(line) for line in (scene_dir / "questions.jsonl").read_text().splitlines() if line.strip()]
     picked: list[dict[str, Any]] = []
     for t in DEMO_TYPES:  # one question per type, in this order, up to --questions
         q = next((q for q in qs if q["question_type"] == t), None)
-        if q is not None and len(picked) < args.questions:
+        if q is not None and len(picked) < args.num_questions:
             picked.append(q)
     if not picked:
         raise InputError(f"{scene_dir}: the generated scene has no questions; try another --seed")
@@ -103,13 +112,15 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                      "answer": a.text, "value": a.value, "truth": q["ground_truth"], "score": round(score, 3),
                      "explanation": a.explanation})
     vp.save_png(out / "map.png")
+    vp.save_text(out / "prompt.txt")
     build.map.save(out / "map.json")
     (out / "trace.json").write_text(json.dumps(trace.to_dict(), indent=1))
     return {"schema": "mosaicthinker.demo/1", "scene": str(scene_dir), "scene_info": info, "perception": how,
             "objects": targets + cues, "keyframes": build.keyframes, "instances": len(build.map.instances),
             "counts": build.map.counts(), "recovered_by_refinement": build.recovered, "questions": rows,
             "mean_score": round(sum(r["score"] for r in rows) / len(rows), 3),
-            "files": {"map_png": str(out / "map.png"), "map_json": str(out / "map.json"),
+            "files": {"map_png": str(out / "map.png"), "prompt_txt": str(out / "prompt.txt"),
+                      "map_json": str(out / "map.json"),
                       "trace_json": str(out / "trace.json")},
             "stage_seconds": {k: round(v["seconds"], 2) for k, v in trace.to_dict()["stages"].items()},
             "seconds": round(time.perf_counter() - t0, 1)}

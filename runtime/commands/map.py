@@ -17,11 +17,12 @@ from ..errors import InputError
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     from ..cli import add_stage_flags
+    from .flags import add_keyframes
 
     p.add_argument("source", help="video file or image / RGB-D folder")
     p.add_argument("--objects", default=None, help="comma-separated object names to map (default: all the "
                                                    "detector can detect)")
-    p.add_argument("--keyframes", type=int, default=24, help="key-frame budget K (default 24)")
+    add_keyframes(p)
     p.add_argument("--keyframe-method", choices=["iterative", "uniform", "exhaustive"], default="iterative")
     p.add_argument("--prompt", choices=["grid", "points"], default="grid", help="map image mode")
     add_stage_flags(p, matcher=True, detector=True)
@@ -110,12 +111,18 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         pts = np.concatenate([c for c in build.clouds if len(c)] or [np.zeros((0, 3))])
         ids = np.concatenate([np.full(len(c), o.id) for o, c in zip(build.map.instances, build.clouds)
                               if len(c)] or [np.zeros(0, int)])
-    render_prompt(build.map, {"mode": args.prompt}, pts, ids).save_png(png_path)
+    vp = render_prompt(build.map, {"mode": args.prompt}, pts, ids)
+    vp.save_png(png_path)
+    # the text the VLM gets with map.png: prompt.txt beside it (NAME.prompt.txt beside NAME.png)
+    txt_path = png_path.with_name("prompt.txt" if png_path.name == "map.png" else png_path.stem + ".prompt.txt")
+    vp.save_text(txt_path)
     trace_path.write_text(json.dumps(trace.to_dict(), indent=1))
     return {"schema": "mosaicthinker.map/1", "objects": names, "instances": len(build.map.instances),
             "counts": build.map.counts(), "keyframes": build.keyframes, "unaligned": build.unaligned,
             "recovered_by_refinement": build.recovered,
-            "files": {"map_json": str(map_path), "map_png": str(png_path), "trace_json": str(trace_path)},
+            "files": {"map_json": str(map_path), "map_png": str(png_path),
+                      "prompt_txt": str(txt_path),
+                      "trace_json": str(trace_path)},
             "warnings": [e["message"] for e in trace.events if e["kind"] in ("fallback", "degraded",
                                                                              "random_weights", "not_in_map")],
             "seconds": trace.to_dict()["wall_seconds"]}
