@@ -170,7 +170,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser(words, module).parse_args(rest)
     args.command = words
     try:
-        with progress.session(summary=not args.json):
+        with progress.session(quiet=args.json):
             result = module.run(args) if not hasattr(module, "run_for") else module.run_for(words[1], args)
     except MosaicError as e:
         print(f"error: {e}", file=sys.stderr)

@@ -14,6 +14,7 @@ printed (stderr) whenever `--json` is not given, so logs keep them too.
 """
 from __future__ import annotations
 
+import os
 import sys
 import time
 from contextlib import contextmanager
@@ -43,6 +44,13 @@ class PhaseRecord:
         return f"  {self.name:<12} {self.seconds:6.1f} s   " + ", ".join(what)
 
 
+def _columns(file: TextIO) -> int:
+    try:
+        return os.get_terminal_size(file.fileno()).columns
+    except (AttributeError, OSError, ValueError):
+        return 0
+
+
 class Bar:
     """One phase's bar (a tqdm bar when drawing, else nothing) and its record."""
 
@@ -52,8 +60,10 @@ class Bar:
         if draw:
             from tqdm import tqdm
 
+            known = _columns(file) > 0  # tqdm draws nothing on a terminal of unknown size (0 x 0): assume one
             self._tq = tqdm(total=total, desc=record.name, unit=record.unit, file=file, leave=False,
-                            dynamic_ncols=True, mininterval=0.2)
+                            dynamic_ncols=known, ncols=None if known else 100, nrows=None if known else 24,
+                            mininterval=0.2)
 
     def update(self, n: int = 1) -> None:
         """Advance by n units."""
@@ -126,9 +136,10 @@ def stderr_is_terminal() -> bool:
 
 
 @contextmanager
-def session(*, draw: bool | None = None, summary: bool = True, file: TextIO | None = None) -> Iterator[Session]:
-    """Open a progress session (the CLI, around one command). draw=None: bars when stderr is a terminal."""
-    s = Session(stderr_is_terminal() if draw is None else draw, summary, file)
+def session(*, quiet: bool = False, draw: bool | None = None, file: TextIO | None = None) -> Iterator[Session]:
+    """Open a progress session (the CLI, around one command). quiet (--json): no bars, no summary; draw=None:
+    bars when stderr is a terminal."""
+    s = Session(not quiet and (stderr_is_terminal() if draw is None else draw), not quiet, file)
     token = _current.set(s)
     try:
         yield s
