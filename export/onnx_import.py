@@ -3,7 +3,7 @@ models in ../shared/models (PyDNet++ depth, SSD MobileNet v1 COCO detector, Deep
 MobileNetV1 embedding) with their metadata.
 
 Metadata for a generic import comes from a sidecar JSON file (`PATH.mosaic.json` next to the model, or
-`--meta FILE`) holding the `role_meta` fields::
+`--meta FILE`) holding the `role_meta` fields (documented with a worked example in docs/bundle-and-adapters.md)::
 
     {"arch": "pydnet", "licence": "Apache-2.0", "random_weights": false,
      "preprocessing": {"size": [448, 640], "layout": "NHWC", "channel_order": "RGB", "dtype": "float32",
@@ -185,7 +185,7 @@ def read_sidecar(path: Path, meta_file: str | os.PathLike | None) -> dict[str, A
     prov.setdefault("sha256", B.sha256_file(path))
     return role_meta(raw["arch"], preprocessing=raw["preprocessing"], semantics=raw["semantics"], provenance=prov,
                      licence=raw["licence"], random_weights=bool(raw.get("random_weights", False)),
-                     config=raw.get("config", {}))
+                     config=raw.get("config", {}), **({"notes": raw["notes"]} if raw.get("notes") else {}))
 
 
 def export_role(role: str, source: str, precisions: list[str], out: Path, *, calib: str | None = None,
