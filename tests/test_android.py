@@ -507,3 +507,17 @@ def test_vlm_decoder_without_position_input_stays_cpu_only(tmp_path):
     assert set(comps) == {"decoder"}  # no window variant shipped
     assert not comps["decoder"]["kv_window_check"]["ok"] and comps["decoder"]["kv_window_check"]["max_rel"] > 1e-2
     assert comps["decoder"]["providers"] == ["XNNPACK", "CPU"]
+
+
+def test_export_target_step_honours_android_roles(real_bundle, tmp_path):
+    """`mosaic export ... --target android --android-roles embedder` converts only the embedder, not every role
+    just exported."""
+    import argparse
+
+    root, _ = real_bundle
+    copy = tmp_path / "bundle"
+    shutil.copytree(root, copy)
+    res = A.target_step(copy, ["detector", "segmenter", "embedder"], argparse.Namespace(android_roles="embedder"))
+    assert sorted(res["roles"]) == ["embedder"]
+    with pytest.raises(Exception, match="nope"):
+        A.target_step(copy, ["embedder"], argparse.Namespace(android_roles="nope"))

@@ -272,3 +272,17 @@ def test_kv_cache_axis_is_not_mistaken_for_an_image_axis():
     assert C.axis_kind("past", inp, 2, meta) == "past"
     img = {"name": "pixel_values", "shape": [1, 3, 32, 32], "dtype": "float32", "dynamic_axes": {"2": "h"}}
     assert C.axis_kind("h", img, 2, meta) == "image"
+
+
+def test_export_target_step_honours_jetson_roles_and_says_what_it_wrote(bundle, tmp_path, capsys):
+    import argparse
+
+    root, _ = bundle
+    copy = tmp_path / "bundle"
+    shutil.copytree(root, copy)
+    res = J.target_step(copy, ["detector", "segmenter", "vlm"], argparse.Namespace(jetson_roles="segmenter"))
+    assert sorted(res["roles"]) == ["segmenter"]
+    err = capsys.readouterr().err
+    assert "jetson settings written into" in err and "segmenter/fp32/model: trtexec" in err and J.SCRIPT in err
+    res = J.target_step(copy, ["segmenter", "vlm"], argparse.Namespace())  # no --jetson-roles: the exported ones
+    assert sorted(res["roles"]) == ["segmenter", "vlm"]
