@@ -53,8 +53,9 @@ def brief(text: str, limit: int = 300) -> str:
 
 def progress(msg: str) -> None:
     """One progress line on stderr (long steps: export, quantisation, calibration, parity)."""
-    sys.stderr.write(f"[export {time.strftime('%H:%M:%S')}] {msg}\n")
-    sys.stderr.flush()
+    from mosaicthinker.runtime.progress import write
+
+    write(f"[export {time.strftime('%H:%M:%S')}] {msg}")
 
 
 # ---------------------------------------------------------------------------------------------------------------

@@ -17,6 +17,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from mosaicthinker.runtime.errors import ExportError
+from mosaicthinker.runtime.progress import ticked
 
 from . import common as C
 
@@ -165,9 +166,7 @@ def export_variants(out: str | Path, role: str, graphs: list[GraphSpec], meta: d
                             component_meta=cmeta, default=True, extra={"task_check": task} if task else None)
         report["variants"]["fp32"] = {"components": {g.name: "fp32" for g in graphs}, "parity": par32, "task": task}
 
-        for variant in precisions:
-            if variant == "fp32":
-                continue
+        for variant in ticked([p for p in precisions if p != "fp32"], f"export {role}", "variant"):
             files, parity, cmeta, fell_back = {}, {}, {}, []
             for g in graphs:
                 res = _lower_precision(g, variant, fp32[g.name], work)

@@ -26,6 +26,7 @@ import numpy as np
 
 from mosaicthinker.runtime import bundle as B
 from mosaicthinker.runtime.errors import ExportError
+from mosaicthinker.runtime.progress import ticked
 
 from .common import (Feeds, add_variant_files, calibration_frames, progress, quantize_variant,
                      record_skipped_variant, role_meta)
@@ -151,9 +152,7 @@ def import_onnx(out: str | os.PathLike, role: str, path: str | os.PathLike, meta
         name = B.io_spec_from_onnx(path)[0][0]["name"]
         calib_feeds = [{name: preprocess_image(f, meta["preprocessing"])} for f in calibration_frames(calib, 16)]
     with tempfile.TemporaryDirectory() as td:
-        for prec in precisions:
-            if prec == "fp32":
-                continue
+        for prec in ticked([p for p in precisions if p != "fp32"], f"export {role}", "variant"):
             q = quantize_variant(path, Path(td) / f"{prec}.onnx", prec, make_inputs=make_inputs,
                                  calibration=calib_feeds, outputs=outputs)
             if q["ok"]:

@@ -37,11 +37,11 @@ class PhaseRecord:
     calls: int = 0
     facts: dict[str, Any] = field(default_factory=dict)
 
-    def line(self) -> str:
+    def line(self, width: int = 12) -> str:
         facts = [k for k in FACT_ORDER if k in self.facts] + [k for k in self.facts if k not in FACT_ORDER]
         what = [f"{self.count} {self.unit}{'' if self.count == 1 else 's'}"] if self.count else []
         what += [f"{k.replace('_', ' ')} {self.facts[k]}" for k in facts]
-        return f"  {self.name:<12} {self.seconds:6.1f} s   " + ", ".join(what)
+        return f"  {self.name:<{width}} {self.seconds:6.1f} s   " + ", ".join(what)
 
 
 def _columns(file: TextIO) -> int:
@@ -122,7 +122,8 @@ class Session:
         self.open: list[Bar] = []
 
     def lines(self) -> list[str]:
-        return [r.line() for r in self.records.values()]
+        width = max([12] + [len(n) for n in self.records])
+        return [r.line(width) for r in self.records.values()]
 
 
 _current: ContextVar[Session | None] = ContextVar("mosaic_progress", default=None)
@@ -207,6 +208,17 @@ class Ticking:
 
     def __getattr__(self, name: str) -> Any:
         return getattr(self._seq, name)
+
+
+def write(msg: str) -> None:
+    """A log line on stderr that does not break a bar being drawn (printed above it)."""
+    s = _current.get()
+    drawn = [b._tq for b in (s.open if s else []) if b._tq is not None]
+    if drawn:
+        drawn[0].write(msg, file=s.file)
+    else:
+        sys.stderr.write(msg + "\n")
+        sys.stderr.flush()
 
 
 def first_line(words: tuple[str, ...], help_: str, argv: list[str]) -> None:
