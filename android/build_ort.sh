@@ -36,6 +36,11 @@ CONFIG="$(cd "$BUNDLE" && pwd)/android/required_operators.config"
 [[ "$API" =~ ^[0-9]+$ ]] || die "--api must be a number"
 [[ -n "$ORT_SRC" ]] || die "--ort-src DIR (an onnxruntime source checkout) is required"
 
+# SDK/NDK paths expanded here; unset (a dry run on a machine without them): a "$NAME" the shell expands when the
+# printed line is run where they are set
+for v in ANDROID_HOME ANDROID_NDK_HOME; do
+  [[ -n "${!v:-}" || "$DRY_RUN" != 1 ]] || echo "# note: $v is not set here: set it before running the line" >&2
+done
 cmd=(./build.sh --config MinSizeRel --android
      --android_sdk_path "${ANDROID_HOME:-\$ANDROID_HOME}" --android_ndk_path "${ANDROID_NDK_HOME:-\$ANDROID_NDK_HOME}"
      --android_abi "$ABI" --android_api "$API"
@@ -44,6 +49,7 @@ cmd=(./build.sh --config MinSizeRel --android
 [[ "$NNAPI" == 1 ]] && cmd+=(--use_nnapi)
 [[ "$XNNPACK" == 1 ]] && cmd+=(--use_xnnpack)
 [[ "$QNN" == 1 ]] && cmd+=(--use_qnn --qnn_home "${QNN_SDK_ROOT:-\$QNN_SDK_ROOT}")
+[[ "$QNN" != 1 || -n "${QNN_SDK_ROOT:-}" || "$DRY_RUN" != 1 ]] || echo "# note: QNN_SDK_ROOT is not set here" >&2
 
 if [[ "$DRY_RUN" == 1 ]]; then
   echo "cd $ORT_SRC"

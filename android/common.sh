@@ -9,11 +9,14 @@ DEVICE_DIR="${DEVICE_DIR:-/data/local/tmp/mosaic}"
 
 die() { echo "error: $*" >&2; exit 2; }
 
-# Print a command as a copy-pasteable shell line.
+# Print a command as a copy-pasteable shell line. An argument that is exactly $NAME (an unset variable the
+# scripts leave to the shell that runs the line) is printed as "$NAME", so it expands there.
 show() {
   local a out="" q="'"
   for a in "$@"; do
-    if [[ "$a" =~ ^[A-Za-z0-9_./:=,@%+-]+$ ]]; then out+="$a "; else out+="'${a//$q/$q\\$q$q}' "; fi
+    if [[ "$a" =~ ^[A-Za-z0-9_./:=,@%+-]+$ ]]; then out+="$a "
+    elif [[ "$a" =~ ^\$[A-Z_][A-Z0-9_]*$ ]]; then out+="\"$a\" "
+    else out+="'${a//$q/$q\\$q$q}' "; fi
   done
   echo "${out% }"
 }

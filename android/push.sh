@@ -25,7 +25,12 @@ while [[ $# -gt 0 ]]; do
   esac
 done
 check_bundle
-for f in "$PERF_TEST" "$ORT_LIB"; do [[ -z "$f" || -f "$f" ]] || die "$f: no such file"; done
+for f in "$PERF_TEST" "$ORT_LIB"; do
+  [[ -z "$f" || -f "$f" ]] && continue
+  # a dry run only prints the commands: the binaries need not be built yet
+  if [[ "$DRY_RUN" == 1 ]]; then echo "# note: $f not found here (build it with android/build_ort.sh first)" >&2
+  else die "$f: no such file (build it with android/build_ort.sh, or leave out the option)"; fi
+done
 need_adb
 export DRY_RUN SERIAL
 

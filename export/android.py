@@ -988,7 +988,8 @@ def config_from_args(args: argparse.Namespace) -> AndroidConfig:
 
 def target_step(out: str | Path, roles: Sequence[str], args: argparse.Namespace) -> dict[str, Any]:
     """`mosaic export ROLE ... --target android` (export/cli.py TARGETS): the roles just exported."""
-    conf = replace(config_from_args(args), roles=tuple(roles))
+    conf = config_from_args(args)  # --android-roles when given, else the roles just exported
+    conf = conf if conf.roles else replace(conf, roles=tuple(roles))
     res = export_android(out, conf)
     C.progress(render({"bundle": str(out), **res}))
     return res

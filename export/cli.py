@@ -17,11 +17,17 @@ Exporter entry points share one signature::
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
+import logging
+import textwrap
+import warnings
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator
 
 from mosaicthinker.runtime.errors import ExportError
+
+from mosaicthinker.runtime.bundle import parity_text
 
 from .common import parse_precisions
 
@@ -49,6 +55,9 @@ def _load(ref: str):
     return getattr(importlib.import_module(f"mosaicthinker.export.{mod}"), fn)
 
 
+COMMON_FLAGS = ("out",)  # --out BUNDLE: the bundle folder to create or extend
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("role", choices=ROLES + ("shared-models",), help="model role to export")
     parser.add_argument("--source", required=False,
@@ -63,23 +72,72 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                    help="onnx:PATH holds trained weights (needed when its metadata omits random_weights)")
     w.add_argument("--random-weights", dest="weights", action="store_const", const="random",
                    help="onnx:PATH is a random-weight test model (outputs meaningless; warned on every load)")
-    parser.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",
+    from mosaicthinker.runtime.commands.flags import deprecated_alias
+
+    parser.add_argument("--set", dest="set", action="append", default=[], metavar="KEY=VALUE",
                         help="exporter option (e.g. k=1024, height=480, width=640); repeatable")
+    deprecated_alias(parser, "--option", "--set KEY=VALUE", "set", append=True)  # `ask --option` is an answer
+    parser.add_argument("--verbose", action="store_true",
+                        help="show the libraries' own warnings (torch, torchvision, onnxruntime quantisation)")
     from . import android, jetson  # flags of the --target android|jetson steps (issue 7)
 
     android.add_arguments(parser)
     jetson.add_arguments(parser)
 
 
+LIBRARIES = ("torch", "torchvision", "onnx", "onnxruntime", "onnxscript", "transformers")
+
+
+@contextlib.contextmanager
+def library_noise_hidden(counts: dict[str, int]) -> Iterator[None]:
+    """Hide what the export libraries print on their own (onnxruntime's quantiser logs dozens of `WARNING:root:
+    Expected bias ... to be an initializer`; torch/torchvision raise UserWarnings) and count it in `counts`.
+    Our own progress lines, errors and warnings stay visible. Only for `mosaic export`."""
+
+    class _Root(logging.Filter):  # the quantiser logs through the root logger
+        def filter(self, record: logging.LogRecord) -> bool:
+            if record.name == "root" and record.levelno <= logging.WARNING:
+                counts["log"] = counts.get("log", 0) + 1
+                return False
+            return True
+
+    def show(message, category, filename, lineno, file=None, line=None):  # noqa: ANN001
+        parts = Path(filename).parts
+        if any(lib in parts for lib in LIBRARIES) and "mosaicthinker" not in parts:
+            counts["warnings"] = counts.get("warnings", 0) + 1
+            return
+        previous(message, category, filename, lineno, file, line)
+
+    root, filt = logging.getLogger(), _Root()
+    with warnings.catch_warnings():
+        previous = warnings.showwarning
+        warnings.showwarning = show
+        root.addFilter(filt)
+        try:
+            yield
+        finally:
+            root.removeFilter(filt)
+
+
 def run(args: argparse.Namespace) -> dict[str, Any]:
+    if args.verbose:
+        return _run(args)
+    counts: dict[str, int] = {}
+    with library_noise_hidden(counts):
+        res = _run(args)
+    res["library_messages_hidden"] = counts
+    return res
+
+
+def _run(args: argparse.Namespace) -> dict[str, Any]:
     if not args.out:
         raise ExportError("--out BUNDLE is required (the bundle folder to create or extend)")
     out = Path(args.out)
     precisions = parse_precisions(args.precision)
     options = {}
-    for kv in args.option:
+    for kv in args.set:
         if "=" not in kv:
-            raise ExportError(f"--option {kv!r}: expected KEY=VALUE")
+            raise ExportError(f"--set {kv!r}: expected KEY=VALUE")
         k, v = kv.split("=", 1)
         options[k.strip()] = v.strip()
     if args.role == "shared-models":
@@ -120,13 +178,33 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
             "bundle_roles": {r: sorted(b.manifest["roles"][r]["variants"]) for r in b.roles}}
 
 
-def render(result: dict[str, Any]) -> str:
-    lines = [f"bundle {result['bundle']}:"]
+def _rows(result: dict[str, Any]) -> list[tuple[str, str, str, str]]:
+    rows = []
     for role, r in result["roles"].items():
         for v, p in (r.get("variants") or {}).items():
-            lines.append(f"  {role}/{v}: parity {p}")
+            rows.append((role, v, "shipped", parity_text(p.get("parity", p) if isinstance(p, dict) and
+                                                          "components" in p else p)))
         for v, why in (r.get("skipped") or {}).items():
-            lines.append(f"  {role}/{v}: NOT shipped ({why})")
+            rows.append((role, v, "REFUSED", str(why)))
+    return rows
+
+
+def render(result: dict[str, Any]) -> str:
+    """A short table: every variant shipped or refused, and why (long reasons wrapped, never cut)."""
+    rows = _rows(result)
+    w_role = max([len(r[0]) for r in rows] + [4])
+    w_var = max([len(r[1]) for r in rows] + [7])
+    head = f"  {'role':<{w_role}}  {'variant':<{w_var}}  {'result':<8} "
+    lines = [f"bundle {result['bundle']}:", head + "parity / why"]
+    indent = " " * len(head)
+    for role, v, res, why in rows:
+        lines.append(textwrap.fill(why or "-", width=max(100, len(head) + 40), initial_indent=
+                                   f"  {role:<{w_role}}  {v:<{w_var}}  {res:<8} ", subsequent_indent=indent,
+                                   break_long_words=False, break_on_hyphens=False))
     for r, vs in result["bundle_roles"].items():
         lines.append(f"  bundle now has {r}: {', '.join(vs)}")
+    hidden = result.get("library_messages_hidden") or {}
+    if any(hidden.values()):
+        lines.append(f"  ({hidden.get('log', 0)} library log line(s) and {hidden.get('warnings', 0)} library "
+                     f"warning(s) hidden; --verbose shows them)")
     return "\n".join(lines)

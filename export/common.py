@@ -46,10 +46,20 @@ PARITY_TOL = {
 PARITY_TRIALS = {"fp32": 4, "fp16": 16, "int8-dynamic": 16, "int8-qdq": 16}
 
 
+def brief(text: str, limit: int = 300) -> str:
+    """A long library message shortened at a space (never mid-word), marked with ' ...'."""
+    text = " ".join(str(text).split())
+    if len(text) <= limit:
+        return text
+    cut = text.rfind(" ", 0, limit)
+    return text[:cut if cut > limit // 2 else limit] + " ..."
+
+
 def progress(msg: str) -> None:
     """One progress line on stderr (long steps: export, quantisation, calibration, parity)."""
-    sys.stderr.write(f"[export {time.strftime('%H:%M:%S')}] {msg}\n")
-    sys.stderr.flush()
+    from mosaicthinker.runtime.progress import write
+
+    write(f"[export {time.strftime('%H:%M:%S')}] {msg}")
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -373,7 +383,13 @@ def quantize_variant(fp32: str | os.PathLike, dst: str | os.PathLike, variant: s
         raise
     except Exception as e:  # noqa: BLE001
         return {"ok": False, "path": None, "parity": None, "task": None,
-                "reason": f"{variant} conversion failed: {type(e).__name__}: {str(e)[:300]}"}
+                "reason": f"{variant} conversion failed: {type(e).__name__}: {brief(e)}"}
+    try:  # a converted graph onnxruntime cannot even load is refused, not a crash
+        ort_session(dst)
+    except Exception as e:  # noqa: BLE001
+        dst.unlink(missing_ok=True)
+        return {"ok": False, "path": None, "parity": None, "task": None,
+                "reason": f"{variant} conversion gave a graph onnxruntime cannot load: {brief(e)}"}
     ref = ort_session(fp32)
     par = parity_check(dst, lambda feeds: ort_run(ref, feeds), make_inputs, precision=variant, outputs=outputs,
                        rel_tol=rel_tol, cos_min=cos_min, require=False, label=f"{dst.name} vs fp32")

@@ -17,6 +17,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from mosaicthinker.runtime.errors import ExportError
+from mosaicthinker.runtime.progress import ticked
 
 from . import common as C
 
@@ -165,9 +166,7 @@ def export_variants(out: str | Path, role: str, graphs: list[GraphSpec], meta: d
                             component_meta=cmeta, default=True, extra={"task_check": task} if task else None)
         report["variants"]["fp32"] = {"components": {g.name: "fp32" for g in graphs}, "parity": par32, "task": task}
 
-        for variant in precisions:
-            if variant == "fp32":
-                continue
+        for variant in ticked([p for p in precisions if p != "fp32"], f"export {role}", "variant"):
             files, parity, cmeta, fell_back = {}, {}, {}, []
             for g in graphs:
                 res = _lower_precision(g, variant, fp32[g.name], work)
@@ -348,7 +347,7 @@ def _agreement(g: GraphSpec, path: Path, reference: Callable, precision: str, *,
 def run_exporter(fn: Callable[..., dict], source: str, precisions: Sequence[str], out: str | Path, *,
                  calib: str | None = None, options: dict[str, str] | None = None) -> dict[str, Any]:
     """The `mosaic export` entry (export/cli.py signature) around an `export_<role>(source, out, precisions,
-    **kw)` function: --option KEY=VALUE become keyword arguments (ints/floats parsed), --calib frames are
+    **kw)` function: --set KEY=VALUE become keyword arguments (ints/floats parsed), --calib frames are
     read for int8-qdq calibration."""
     kw: dict[str, Any] = {}
     for k, v in (options or {}).items():

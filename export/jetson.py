@@ -275,9 +275,13 @@ def export_jetson(bundle_dir: str | Path, conf: JetsonConfig | None = None) -> d
                     continue
                 profile = profile_shapes(cm.get("inputs", []), rm, conf)
                 q = qdq_info(B.safe_path(root, cm["file"]))
-                prec = "int8-qdq" if q["qdq"] else v  # Q/DQ nodes need the int8 builder flag
+                # Q/DQ nodes TensorRT takes need the int8 builder flag; ones it cannot take (uint8, non-zero zero
+                # points) get no int8 flag and no standalone engine: trtexec would fail on them
+                trt_int8 = q["qdq"] and q["trt_int8_compatible"]
+                prec = "int8-qdq" if trt_int8 else ("fp16" if v == "int8-qdq" else v)
                 opts = trt_provider_options(role, v, c, prec, profile, conf)
-                argv = trtexec_command(cm["file"], role, v, c, prec, profile, conf)
+                argv = None if q["qdq"] and not trt_int8 else trtexec_command(cm["file"], role, v, c, prec,
+                                                                              profile, conf)
                 entry = {"trt_profile_shapes": profile if profile["min"] else {},
                          "providers": provider_chain(opts), "trtexec": argv, "qdq": q, "warnings": []}
                 if q["qdq"] and not q["trt_int8_compatible"]:
@@ -302,13 +306,17 @@ def export_jetson(bundle_dir: str | Path, conf: JetsonConfig | None = None) -> d
                 vm["jetson"] = {"components": comps, "precision": v,
                                 "int8": ("explicit (QDQ nodes), no calibration table" if v == "int8-qdq" else None),
                                 "engine_built_here": False}
-                role_sum[v] = {c: {"profile": d["trt_profile_shapes"], "trtexec": " ".join(d["trtexec"]),
+                role_sum[v] = {c: {"profile": d["trt_profile_shapes"],
+                                   "trtexec": " ".join(d["trtexec"]) if d["trtexec"] else None,
                                    "warnings": d["warnings"]} for c, d in comps.items()}
         rm["jetson"] = {"variants": sorted(role_sum)}
         summary["roles"][role] = role_sum
     for role, rm in manifest["roles"].items():  # the script covers every role with Jetson settings so far
         for v, vm in rm["variants"].items():
             for c, d in ((vm.get("jetson") or {}).get("components") or {}).items():
+                if not d["trtexec"] and not d.get("trtexec_fp16_engine"):
+                    lines.append(f"# {role}/{v}/{c}: no engine (TensorRT cannot take its int8 Q/DQ; "
+                                 f"onnxruntime runs those nodes on CUDA/CPU)")
                 for argv in (d["trtexec"], d.get("trtexec_fp16_engine")):
                     if argv:
                         lines.append(f'mkdir -p "{Path(argv[2].split("=", 1)[1]).parent}"'
@@ -357,8 +365,11 @@ def config_from_args(args: argparse.Namespace) -> JetsonConfig:
 
 def target_step(out: str | Path, roles: Sequence[str], args: argparse.Namespace) -> dict[str, Any]:
     """`mosaic export ROLE ... --target jetson` (export/cli.py TARGETS): the roles just exported."""
-    conf = replace(config_from_args(args), roles=tuple(roles))
-    return export_jetson(out, conf)
+    conf = config_from_args(args)  # --jetson-roles when given, else the roles just exported
+    conf = conf if conf.roles else replace(conf, roles=tuple(roles))
+    res = export_jetson(out, conf)
+    C.progress(render({"bundle": str(out), **res}))
+    return res
 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
@@ -374,7 +385,7 @@ def render(result: dict[str, Any]) -> str:
     for role, vs in result["roles"].items():
         for v, comps in vs.items():
             for c, d in comps.items():
-                lines.append(f"  {role}/{v}/{c}: {d['trtexec']}")
+                lines.append(f"  {role}/{v}/{c}: {d['trtexec'] or 'no standalone engine (see warnings)'}")
                 lines += [f"    WARNING: {w}" for w in d.get("warnings", [])]
     lines += [f"engine build script: {result['script']}", result["not_run"]]
     return "\n".join(lines)

@@ -3,7 +3,7 @@ models in ../shared/models (PyDNet++ depth, SSD MobileNet v1 COCO detector, Deep
 MobileNetV1 embedding) with their metadata.
 
 Metadata for a generic import comes from a sidecar JSON file (`PATH.mosaic.json` next to the model, or
-`--meta FILE`) holding the `role_meta` fields::
+`--meta FILE`) holding the `role_meta` fields (documented with a worked example in docs/bundle-and-adapters.md)::
 
     {"arch": "pydnet", "licence": "Apache-2.0", "random_weights": false,
      "preprocessing": {"size": [448, 640], "layout": "NHWC", "channel_order": "RGB", "dtype": "float32",
@@ -16,7 +16,6 @@ random inputs; one that fails is not shipped and the reason is recorded in `skip
 """
 from __future__ import annotations
 
-import json
 import os
 import tempfile
 from pathlib import Path
@@ -26,6 +25,7 @@ import numpy as np
 
 from mosaicthinker.runtime import bundle as B
 from mosaicthinker.runtime.errors import ExportError, InputError
+from mosaicthinker.runtime.progress import ticked
 
 from .common import (Feeds, add_variant_files, calibration_frames, progress, quantize_variant,
                      record_skipped_variant, role_meta)
@@ -151,9 +151,7 @@ def import_onnx(out: str | os.PathLike, role: str, path: str | os.PathLike, meta
         name = B.io_spec_from_onnx(path)[0][0]["name"]
         calib_feeds = [{name: preprocess_image(f, meta["preprocessing"])} for f in calibration_frames(calib, 16)]
     with tempfile.TemporaryDirectory() as td:
-        for prec in precisions:
-            if prec == "fp32":
-                continue
+        for prec in ticked([p for p in precisions if p != "fp32"], f"export {role}", "variant"):
             q = quantize_variant(path, Path(td) / f"{prec}.onnx", prec, make_inputs=make_inputs,
                                  calibration=calib_feeds, outputs=outputs)
             if q["ok"]:
@@ -198,7 +196,7 @@ def read_sidecar(path: Path, meta_file: str | os.PathLike | None, weights: str |
     prov.setdefault("sha256", B.sha256_file(path))
     return role_meta(raw["arch"], preprocessing=raw["preprocessing"], semantics=raw["semantics"], provenance=prov,
                      licence=raw["licence"], random_weights=rw,
-                     config=raw.get("config", {}))
+                     config=raw.get("config", {}), **({"notes": raw["notes"]} if raw.get("notes") else {}))
 
 
 def export_role(role: str, source: str, precisions: list[str], out: Path, *, calib: str | None = None,

@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from mosaicthinker.runtime.errors import ExportError
+from mosaicthinker.runtime.progress import ticked
 
 from .common import (add_variant_files, calibration_frames, export_torch, ort_run, ort_session, parity_check,
                      parity_rng, parity_trials, progress, quantize_int8_dynamic, quantize_int8_qdq,
@@ -177,9 +178,7 @@ def export_xfeat(out: str | Path, precisions: list[str] = ("fp32",), *, size: tu
 
             cal = [{"image": cv2.resize(f, (W, H)).transpose(2, 0, 1)[None].astype(np.float32)}
                    for f in calibration_frames(calib, 16)]
-        for prec in precisions:
-            if prec == "fp32":
-                continue
+        for prec in ticked([p for p in precisions if p != "fp32"], "export matcher", "variant"):
             qpath = td / f"extractor.{prec}.onnx"
             try:
                 if prec == "fp16":

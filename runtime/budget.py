@@ -933,7 +933,7 @@ def plan(profile: Profile | str | os.PathLike, duration_s: float, fps: float, bu
                  f"{c.vlm_max_new_tokens} tokens x {_fmt(cost('vlm', 'ms_per_token'))} ms = {_fmt(vlm_fixed)} ms"
                  if used.get("vlm") else "      + VLM 0 ms (not used: map reasoner)")
     arith.append(f"      = {_fmt(F)} ms")
-    arith.append(f"per key frame = " + " + ".join(f"{n} {_fmt(v)}" for n, v in per_kf.items() if v)
+    arith.append("per key frame = " + " + ".join(f"{n} {_fmt(v)}" for n, v in per_kf.items() if v)
                  + f" = {_fmt(c_k)} ms   (segmenter incl. {c.prompts_per_keyframe:g} prompts, matching "
                    f"{c.pairs_per_keyframe:g} pairs)")
     arith.append(f"K = largest k <= min(keyframes_max {c.keyframes_max}, candidates {n_c}) with "
@@ -1259,19 +1259,23 @@ def controller_for(profile: Profile | str | os.PathLike, source: Any, trace: Tra
 # ------------------------------------------------------------------------------------------ `mosaic plan`
 
 
+COMMON_FLAGS = ("bundle", "profile")
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from .commands.flags import add_answerer, add_clip
+
     src = parser.add_argument_group("clip (one of)")
     src.add_argument("--video", metavar="V", help="video, image folder or RGB-D folder: its length and fps")
-    src.add_argument("--duration", type=float, metavar="S", help="clip length in seconds")
-    parser.add_argument("--fps", type=float, metavar="F", help="frames per second (with --duration, or for an "
-                                                              "image folder)")
+    add_clip(src, None, None, "clip (with --fps; or the --fps of an image folder)")
     parser.add_argument("--candidates", type=int, help="frames kept by redundant-frame removal, if known "
                                                        "(default: an estimate)")
     parser.add_argument("--keyframes-max", type=int, help="upper bound for K (default 32)")
     parser.add_argument("--online", action="store_true",
                         help="decode + dedup run while the video is captured: not in the per-question latency")
-    parser.add_argument("--answerer", choices=["vlm", "map"], default="vlm",
-                        help="vlm: plan the VLM's costs when the profile and bundle have one; map: the map reasoner")
+    add_answerer(parser, "the answerer `mosaic ask` will use: vlm or auto (default) plan the VLM's costs when the "
+                         "profile and bundle have one (auto: the VLM answers what the map reasoner does not "
+                         "recognise); map: the map reasoner only, no VLM costs")
 
 
 def _clip_from_args(args: argparse.Namespace) -> tuple[float, float]:
@@ -1291,7 +1295,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         raise InputError("mosaic plan needs --profile (a file, or a name from profiles/: "
                          + ", ".join(p.stem for p in list_profiles()) + ")")
     duration, fps = _clip_from_args(args)
-    conf = PlanConf.merged(keyframes_max=args.keyframes_max, use_vlm=args.answerer == "vlm",
+    conf = PlanConf.merged(keyframes_max=args.keyframes_max, use_vlm=args.answerer != "map",
                            video_pass="online" if args.online else "question")
     p = plan(args.profile, duration, fps, bundle=args.bundle, conf=conf, candidates=args.candidates)
     return p.to_dict()

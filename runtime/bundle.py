@@ -57,6 +57,7 @@ import hashlib
 import json
 import os
 import tempfile
+import textwrap
 from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath
 from typing import Any, Iterator
@@ -322,7 +323,7 @@ class Bundle:
             roles[r] = {"arch": m.get("arch"), "licence": m.get("licence"), "random_weights": m.get("random_weights"),
                         "semantics": m.get("semantics", {}), "preprocessing": m.get("preprocessing", {}),
                         "provenance": m.get("provenance", {}), "default_variant": m.get("default_variant"),
-                        "variants": variants}
+                        "variants": variants, "skipped_variants": m.get("skipped_variants", {})}
         return {"bundle": str(self.root), "schema_version": self.manifest.get("schema"),
                 "created": self.manifest.get("created"), "roles": roles}
 
@@ -772,6 +773,9 @@ def _parse_opset(buf: bytes) -> int | None:
 # ----------------------------------------------------------------------------------------------------------------
 # `mosaic bundle verify|show`
 
+COMMON_FLAGS = ("bundle",)  # verify/show read a bundle and write nothing: no --profile, no --out
+
+
 def add_arguments_for(sub: str, parser: argparse.ArgumentParser) -> None:
     parser.add_argument("dir", nargs="?", metavar="DIR", help="bundle folder (or use --bundle)")
 
@@ -823,11 +827,34 @@ def render(result: dict[str, Any]) -> str:
                 lines.append(f"     {c}: {cm['file']} ({cm['format']}, opset {cm['opset']}, {size})")
                 lines.append(f"       in : {' '.join(cm['inputs'])}")
                 lines.append(f"       out: {' '.join(cm['outputs'])}")
-            if vm.get("parity"):
-                lines.append(f"     parity: {json.dumps(vm['parity'])[:300]}")
-            if vm.get("notes"):
-                lines.append(f"     notes: {vm['notes']}")
+            for key in ("parity", "notes"):  # wrapped at spaces, never cut
+                if vm.get(key):
+                    text = parity_text(vm[key]) if key == "parity" else str(vm[key])
+                    lines.append(textwrap.fill(text, 110, initial_indent=f"     {key}: ", subsequent_indent=" " * 7,
+                                               break_long_words=False, break_on_hyphens=False))
+        for v, why in (m.get("skipped_variants") or {}).items():
+            lines.append(textwrap.fill(str(why), 110, initial_indent=f"  {v:<14} NOT shipped: ",
+                                       subsequent_indent=" " * 7, break_long_words=False, break_on_hyphens=False))
     return "\n".join(lines)
+
+
+def parity_text(p: Any) -> str:
+    """A parity record in a few words, never cut (`bundle show`, the export table; the manifest keeps it all):
+    a check's {"worst": {rel, cosine}, "tolerance": ...}, a per-component mapping of those, or a plain dict."""
+    if not isinstance(p, dict):
+        return "" if p is None else str(p)
+    if p.get("copied"):
+        return "copied unchanged (the reference)"
+    if isinstance(p.get("worst"), dict):
+        w, tol = p["worst"], p.get("tolerance") or {}
+        return (f"parity rel {w.get('rel', float('nan')):.3g}" + (f" (tol {tol['rel']:g})" if "rel" in tol else "")
+                + f", cosine {w.get('cosine', float('nan')):.4f}"
+                + (f" (min {tol['cosine_min']:g})" if "cosine_min" in tol else ""))
+    if p and all(isinstance(v, dict) for v in p.values()):  # per component: {component: check or worst}
+        return "; ".join(f"{c}: {parity_text(v if 'rel' not in v else {'worst': v})}" for c, v in p.items())
+    parts = [f"{k}={v}" for k, v in p.items() if not isinstance(v, (dict, list)) and v is not None]
+    return ", ".join(parts) or "recorded in the manifest"
+
 
 
 def bundle_hash(bundle: Any) -> str:

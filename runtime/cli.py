@@ -4,6 +4,7 @@ Commands are looked up in `COMMANDS` and their modules imported only when run, s
 runtime command work without the `export` extra (torch, transformers, onnx).
 
 A command module provides:
+    COMMON_FLAGS = ("bundle", "out")                  # optional: the common flags it reads (default: all four)
     add_arguments(parser: argparse.ArgumentParser) -> None
     run(args: argparse.Namespace) -> dict            # the JSON result (a `schema` field is added if missing)
     render(result: dict) -> str                       # optional human-readable output
@@ -16,7 +17,7 @@ import json
 import sys
 from typing import Any, Sequence
 
-from .errors import MosaicError
+from . import progress
 
 # (command words) -> (module, one-line help, extra needed or None)
 COMMANDS: dict[tuple[str, ...], tuple[str, str, str | None]] = {
@@ -36,14 +37,28 @@ COMMANDS: dict[tuple[str, ...], tuple[str, str, str | None]] = {
 }
 
 
-def add_common_flags(p: argparse.ArgumentParser) -> None:
-    """Flags shared by every command."""
+COMMON = {"bundle": ("DIR", "model bundle folder (manifest.json + artifacts)"),
+          "profile": ("FILE", "device profile (profiles/*.toml)"),
+          "out": ("DIR", "output folder")}
+
+
+def add_common_flags(p: argparse.ArgumentParser, which: Sequence[str] = tuple(COMMON)) -> None:
+    """Flags shared by the commands: --json for every one, the others only where the command reads them (a
+    module's `COMMON_FLAGS`), so no command lists a flag that does nothing."""
     g = p.add_argument_group("common")
-    g.add_argument("--bundle", metavar="DIR", help="model bundle folder (manifest.json + artifacts)")
-    g.add_argument("--profile", metavar="FILE", help="device profile (profiles/*.toml)")
+    for name in (n for n in COMMON if n in which):
+        g.add_argument(f"--{name}", metavar=COMMON[name][0], help=COMMON[name][1])
     g.add_argument("--json", action="store_true", help="print one JSON object (with a `schema` field) on stdout")
-    g.add_argument("--out", metavar="DIR", help="output folder")
     g.add_argument("--debug", action="store_true", help="print the traceback of an internal error")
+
+
+def version() -> str:
+    from importlib.metadata import PackageNotFoundError, version as _v
+
+    try:
+        return _v("mosaicthinker")
+    except PackageNotFoundError:  # running from a source tree that was not installed
+        return "unknown (not installed)"
 
 
 def add_stage_flags(p: argparse.ArgumentParser, *, depth: bool = False, matcher: bool = False,
@@ -71,7 +86,7 @@ def _top_help() -> str:
     for words, (_, help_, extra) in COMMANDS.items():
         note = f"  [needs the `{extra}` extra]" if extra else ""
         lines.append(f"  {' '.join(words):<18} {help_}{note}")
-    lines += ["", "Run `mosaic COMMAND --help` for a command's options."]
+    lines += ["", "Run `mosaic COMMAND --help` for a command's options; `mosaic --version` for the version."]
     return "\n".join(lines)
 
 
@@ -113,6 +128,22 @@ def _missing_extra(e: ModuleNotFoundError, words: tuple[str, ...], extra: str | 
     return False
 
 
+def build_parser(words: tuple[str, ...], module: Any) -> argparse.ArgumentParser:
+    """The parser of one command (its module imported): the common flags it reads, then its own."""
+    parser = argparse.ArgumentParser(prog="mosaic " + " ".join(words), description=COMMANDS[words][1])
+    add_common_flags(parser, getattr(module, "COMMON_FLAGS", tuple(COMMON)))
+    module.add_arguments(parser) if len(words) == 1 or not hasattr(module, "add_arguments_for") \
+        else module.add_arguments_for(words[1], parser)
+    return parser
+
+
+def _group_help(head: str) -> str:
+    subs = [w for w in COMMANDS if w[0] == head]
+    lines = [f"usage: mosaic {head} {{{', '.join(w[1] for w in subs)}}} [options]", "", "subcommands:"]
+    lines += [f"  {w[1]:<12} {COMMANDS[w][1]}" for w in subs]
+    return "\n".join(lines + ["", f"Run `mosaic {head} SUBCOMMAND --help` for its options."])
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run one command; every outcome maps to one exit code (docs/reliability.md): 0 answered / not_found /
     unsupported, 2 bad input (`error:` naming the file or field and what to do), 1 internal error (one line;
@@ -131,30 +162,33 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def _main(argv: list[str]) -> int:
+    if argv[:1] in (["--version"], ["-V"]):
+        print(f"mosaic {version()}")
+        return 0
     words, rest = _resolve(argv)
     if words is None:
         groups = _groups()
         if argv and argv[0] in groups:  # a group without a valid subcommand, e.g. `mosaic eval`
-            subs = ", ".join(w[1] for w in groups[argv[0]])
-            print(f"usage: mosaic {argv[0]} {{{subs}}} [options]", file=sys.stderr if argv[1:] else sys.stdout)
-            return 2 if argv[1:] and argv[1] not in ("-h", "--help") else 0
+            bad = bool(argv[1:]) and argv[1] not in ("-h", "--help")
+            if bad:
+                print(f"error: mosaic {argv[0]}: unknown subcommand {argv[1]!r}", file=sys.stderr)
+            print(_group_help(argv[0]), file=sys.stderr if bad else sys.stdout)
+            return 2 if bad else 0
         print(_top_help())
         return 0 if not argv or argv[0] in ("-h", "--help") else 2
     mod_name, help_, extra = COMMANDS[words]
+    progress.first_line(words, help_, rest)
     try:
         module = importlib.import_module(mod_name)
     except ModuleNotFoundError as e:
         if _missing_extra(e, words, extra):
             return 2
         raise
-    parser = argparse.ArgumentParser(prog="mosaic " + " ".join(words), description=help_)
-    add_common_flags(parser)
-    module.add_arguments(parser) if len(words) == 1 or not hasattr(module, "add_arguments_for") \
-        else module.add_arguments_for(words[1], parser)
-    args = parser.parse_args(rest)
+    args = build_parser(words, module).parse_args(rest)
     args.command = words
     try:
-        result = module.run(args) if not hasattr(module, "run_for") else module.run_for(words[1], args)
+        with progress.session(quiet=args.json):
+            result = module.run(args) if not hasattr(module, "run_for") else module.run_for(words[1], args)
     except ModuleNotFoundError as e:  # heavy modules are imported lazily, inside the command
         if _missing_extra(e, words, extra):
             return 2

@@ -173,6 +173,10 @@ class RunOutputs:
         data = encode_png(rgb, {"mosaicthinker_run_id": self.run_id})
         return self._stage(name, data)
 
+    def add_text(self, name: str, text: str) -> Path:
+        """Stage a text file; its last line names the run."""
+        return self._stage(name, (text.rstrip("\n") + f"\n# run_id: {self.run_id}\n").encode())
+
     def commit(self) -> list[str]:
         """Rename every staged file into place, then mark the run complete in run.json. Returns the paths."""
         done = []
@@ -252,7 +256,7 @@ def write_error_message(e: OSError, folder: Path) -> str:
 
 
 def save_run(outs: RunOutputs, items: list[tuple[str, str, Any]]) -> tuple[dict[str, str], str | None, int]:
-    """Stage then commit every item `(key, file name, dict | RGB [H, W, 3] uint8)` as one group.
+    """Stage then commit every item `(key, file name, dict | str | RGB [H, W, 3] uint8)` as one group.
 
     Returns ({key: path}, None, 0) when all were written, else ({}, one `error:` line, exit code): the caller
     still prints its answer, and the folder keeps the previous run's files (nothing was renamed)."""
@@ -260,6 +264,8 @@ def save_run(outs: RunOutputs, items: list[tuple[str, str, Any]]) -> tuple[dict[
         for _, name, obj in items:
             if isinstance(obj, np.ndarray):
                 outs.add_png(name, obj)
+            elif isinstance(obj, str):
+                outs.add_text(name, obj)
             else:
                 outs.add_json(name, obj)
         outs.commit()

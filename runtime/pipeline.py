@@ -19,6 +19,7 @@ from .config import StageConf
 from .errors import InputError, MosaicError
 from .frames import Frame, FrameSource
 from .perception import Detections
+from .progress import phase, start, ticking
 from .semantic_map import (FusionConfig, ObjectInstance, Observation, Room, SemanticMap, expected_visible,
                            fit_floor_plane, fuse_observations, gravity_world_transform, lift_observations)
 from .trace import Trace
@@ -122,8 +123,10 @@ class MapBuild:
 def _candidates(source: FrameSource, conf: PipelineConfig, trace: Trace) -> list[int]:
     from .dedup import remove_redundant
 
-    with trace.stage("dedup"):
-        res = remove_redundant(source, conf.dedup or None)
+    with trace.stage("dedup"), phase("dedup", len(source), "frame") as bar:
+        res = remove_redundant(ticking(source, bar), conf.dedup or None)
+        bar.to(len(source))
+        bar.note(candidates=len(res.kept))
     kept = [int(i) for i in res.kept]
     trace.decide("dedup", {"frames": len(source), "kept": len(kept), "dropped": len(source) - len(kept),
                            "reasons": _count_reasons(res.dropped)})
@@ -144,12 +147,15 @@ class _CachedDetector:
     def __init__(self, source: FrameSource, detect: DetectFn, trace: Trace):
         self.source, self.fn, self.trace = source, detect, trace
         self.cache: dict[tuple[int, tuple[str, ...]], Detections] = {}
+        self.on_call: Callable[[], None] | None = None  # progress of the key-frame search
 
     def __call__(self, index: int, names: list[str]) -> Detections:
         key = (int(index), tuple(names))
         if key not in self.cache:
             with self.trace.stage("detect"):
                 self.cache[key] = self.fn(self.source[int(index)], list(names))
+            if self.on_call is not None:
+                self.on_call()
         return self.cache[key]
 
 
@@ -176,10 +182,13 @@ def select(source: FrameSource, targets: Sequence[str], cues: Sequence[str], per
         kc.setdefault("topup_relax", False)
         kc.setdefault("cover_min_area", conf.cover_min_area)
     kconf = KeyFrameConf.merged(kc)
-    with trace.stage("keyframes"):
+    with trace.stage("keyframes"), phase("keyframes", kc.get("budget", K), "frame") as bar:
+        det.on_call = bar.update  # one tick per frame scored
         res = select_keyframes(conf.keyframe_method, cands, list(targets), list(cues), det,
                                lambda i: source[int(i)].rgb, kconf, trace,
                                prefetch=getattr(source, "prefetch", None), image_size=tuple(source.size))
+        det.on_call = None
+        bar.note(keyframes=len(res.chosen))
     chosen = [int(i) for i in res.chosen]
     if len(chosen) < min(conf.min_keyframes, len(cands)):
         extra = [int(i) for i in uniform_keyframes(cands, KeyFrameConf.merged({"keyframes": conf.min_keyframes})).chosen
@@ -443,6 +452,7 @@ def build_map(source: FrameSource, targets: Sequence[str], cues: Sequence[str] =
     # perception per key frame
     frames: list[Frame] = []
     dets: dict[int, Detections] = {}
+    bar = start("perception", len(chosen), "key frame")
     for i in chosen:
         if budget is not None and not budget.check_headroom(50.0):
             trace.event("reduced_plan", f"memory guard: stopped adding key frames at {len(frames)}",
@@ -455,6 +465,8 @@ def build_map(source: FrameSource, targets: Sequence[str], cues: Sequence[str] =
                 d = dataclasses.replace(d, masks=perception.segment(f, d))
         dets[i] = d
         frames.append(dataclasses.replace(f, depth=_depth_for(f, conf, perception, trace)))
+        bar.update()
+    bar.done()
     if len(frames) < 2:
         raise MosaicError(f"only {len(frames)} key frame(s) available: need at least 2 to build a map")
 
@@ -470,14 +482,17 @@ def build_map(source: FrameSource, targets: Sequence[str], cues: Sequence[str] =
     # one matcher: features are cached across the rounds below
     matcher = (FeatureMatcher(perception.matcher, conf.match or None) if isinstance(perception.matcher, str)
                else _make_matcher(perception.matcher))
+    bar = start("alignment", unit="round")
     with trace.stage("alignment"):
         al = align_frames(frames, matcher, "mst", conf.alignment or None, emb, boxes,
                           with_scale=perception.depth_relative, trace=trace)
+    bar.update()
     if al.unaligned and conf.whole_image_fallback:
         # too few matches inside the task objects' boxes (small or few objects): match whole images instead
         with trace.stage("alignment"):
             al2 = align_frames(frames, matcher, "mst", conf.alignment or None, emb, None,
                                with_scale=perception.depth_relative, trace=None)
+        bar.update()
         trace.event("fallback", f"alignment inside object boxes left {len(al.unaligned)} of {len(frames)} key frames "
                     f"unaligned; whole-image matching left {len(al2.unaligned)}", stage="alignment",
                     boxes_unaligned=list(al.unaligned), whole_unaligned=list(al2.unaligned))
@@ -495,12 +510,14 @@ def build_map(source: FrameSource, targets: Sequence[str], cues: Sequence[str] =
         # bridge frames come from the whole video (consecutive frames match best), not only dedup's candidates
         al, bridges = _bridge(al, frames, boxes, list(range(len(source))), source, blocked, perception, conf,
                               trace, used)
+        bar.update()
         if not bridges:
             break
         used = bridges
         if check:
             with trace.stage("alignment.verify"):
                 al = verify_tree(al, {f.index: f for f in frames + bridges}, conf, trace)
+    bar.done(aligned=f"{sum(f.index in al.poses for f in frames)}/{len(frames)} key frames")
     root = al.root
     with trace.stage("gravity"):
         W = _gravity(frames, al.poses, source, root, conf, trace)
@@ -509,14 +526,16 @@ def build_map(source: FrameSource, targets: Sequence[str], cues: Sequence[str] =
     # lift and fuse
     fconf = FusionConfig.merged(conf.fusion or None)
     obs: list[Observation] = []
-    with trace.stage("fusion"):
+    with trace.stage("fusion"), phase("fusion", len(frames), "key frame") as bar:
         for f in frames:
             if f.index not in poses:
                 continue
             d = dets[f.index]
             obs += lift_observations(f.rgb.shape[:2], f.depth, f.K, poses[f.index], d.boxes, d.names, d.scores,
                                      d.masks, f.index, f.t, fconf, d.instance_ids)
+            bar.update()
         instances, clouds = fuse_observations(obs, fconf)
+        bar.note(instances=len(instances))
     recovered = 0
     if conf.refine and (perception.segment_points is not None or perception.segment_class is not None):
         with trace.stage("refine"):

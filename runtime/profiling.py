@@ -756,13 +756,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--question", default="How many chairs are in this room?",
                         help="with --video: one full question through the pipeline, timed per stage")
     parser.add_argument("--no-question", action="store_true", help="skip the full-question run")
-    parser.add_argument("--keyframes", type=int, help="K for the full-question run (default: the pipeline's)")
+    from .commands.flags import add_keyframes
+
+    add_keyframes(parser)  # K of the full-question run
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument("--in-process", action="store_true",
                         help="profile every role in this process (faster; memory figures then flatter later roles)")
 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
+    from .progress import stderr_is_terminal
+
     if not args.bundle:
         raise InputError("mosaic profile needs --bundle DIR")
     if args.runs < 1 or args.warmup < 1:
@@ -770,6 +774,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     return run_profile(args.bundle, args.profile, video=args.video, out=args.out, runs=args.runs,
                        warmup=args.warmup, variants=args.variants,
                        roles=[r.strip() for r in args.roles.split(",")] if args.roles else None,
-                       update_profile=args.update_profile, progress=not args.no_progress,
+                       update_profile=args.update_profile,
+                       progress=not (args.no_progress or args.json) and stderr_is_terminal(),
                        isolate=not args.in_process, question=None if args.no_question else args.question,
                        keyframes=args.keyframes)

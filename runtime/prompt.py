@@ -55,6 +55,17 @@ class VisualPrompt:
         return np.stack([self.origin_px[0] + xy[:, 0] * self.px_per_m,
                          self.origin_px[1] - xy[:, 1] * self.px_per_m], 1)
 
+    def full_text(self, question: str | None = None, options: list[str] | None = None) -> str:
+        """The text the VLM gets with the image (`prompt.txt`): the whole prompt for a question (`vlm_prompt`),
+        else the object block."""
+        body = vlm_prompt(question, options, self.text, self.mode) if question else self.text
+        return body.rstrip() + "\n"
+
+    def save_text(self, path: str, question: str | None = None, options: list[str] | None = None) -> None:
+        from pathlib import Path
+
+        Path(path).write_text(self.full_text(question, options))
+
     def save_png(self, path: str) -> None:
         if self.image is None:
             raise ValueError("text-only prompt has no image")
@@ -179,14 +190,6 @@ def render(smap: SemanticMap, conf: PromptConfig | dict[str, Any] | None = None,
                 cv2.fillPoly(overlay, [poly - np.array([x0, y0], np.int32)], col)
                 roi[:] = cv2.addWeighted(overlay, 0.45, roi, 0.55, 0)
         cv2.polylines(img, [poly], True, col, 2, cv2.LINE_AA)
-    for o in smap.instances:  # labels last so boxes never cover them
-        c = vp.world_to_px(np.asarray(o.box.centroid)[None, :2])[0]
-        label = f"{o.name} {o.id}"
-        (tw, th), _ = cv2.getTextSize(label, font, conf.font_scale, 1)
-        org = (int(c[0] - tw / 2), int(c[1] + th / 2))
-        cv2.putText(img, label, org, font, conf.font_scale, (255, 255, 255), 3, cv2.LINE_AA)
-        cv2.putText(img, label, org, font, conf.font_scale, tuple(int(v * 0.6) for v in colours[o.id]), 1, cv2.LINE_AA)
-
     # cameras: dot + heading (camera z axis projected on the floor)
     for i, (_, T) in enumerate(smap.cameras):
         if i % max(1, conf.camera_stride):
@@ -199,6 +202,12 @@ def render(smap: SemanticMap, conf: PromptConfig | dict[str, Any] | None = None,
         cv2.circle(img, (int(p[0]), int(p[1])), 3, (0, 0, 0), -1, cv2.LINE_AA)
         cv2.arrowedLine(img, (int(p[0]), int(p[1])), (int(q[0]), int(q[1])), (0, 0, 0), 1, cv2.LINE_AA,
                         tipLength=0.3)
+
+    title = f"Semantic map, top view: {len(smap.instances)} object(s), {len(smap.cameras)} camera(s), grid {g:g} m"
+    (tw, th), _ = cv2.getTextSize(title, font, conf.font_scale * 1.1, 1)
+    t_org = (conf.margin_px // 2, max(th + 2, conf.margin_px // 2))
+    cv2.putText(img, title, t_org, font, conf.font_scale * 1.1, (0, 0, 0), 1, cv2.LINE_AA)
+    _draw_labels(img, vp, smap, colours, conf, [np.array([t_org[0], 0, t_org[0] + tw, t_org[1] + 4])])
 
     # scale bar (bottom left) and axes (bottom right)
     bar_m = _nice_length(0.3 * span[0])
@@ -218,6 +227,60 @@ def render(smap: SemanticMap, conf: PromptConfig | dict[str, Any] | None = None,
     return vp
 
 
+def place_labels(anchors: np.ndarray, sizes: np.ndarray, image_wh: tuple[int, int], pad: int = 2,
+                 reserved: list[np.ndarray] | None = None) -> np.ndarray:
+    """Greedy label placement: each label [w, h] px goes centred on its anchor [u, v] px if that overlaps no label
+    placed before it, else at the nearest free spot on rings around the anchor (8 directions, growing radius),
+    inside the image. anchors [N, 2], sizes [N, 2] -> top-left corners [N, 2] float. Labels are placed in the
+    given order; a label with no free spot within reach keeps its centred place (drawn over). reserved: boxes
+    [x0, y0, x1, y1] no label may cover (the title)."""
+    anchors = np.asarray(anchors, np.float64).reshape(-1, 2)
+    sizes = np.asarray(sizes, np.float64).reshape(-1, 2)
+    W, H = image_wh
+    placed: list[np.ndarray] = [np.asarray(r, np.float64) for r in reserved or []]  # [x0, y0, x1, y1]
+    out = np.zeros_like(anchors)
+    dirs = np.array([[0, -1], [0, 1], [1, 0], [-1, 0], [1, -1], [-1, -1], [1, 1], [-1, 1]], np.float64)
+    for i, (a, (w, h)) in enumerate(zip(anchors, sizes)):
+        cands = [a - (w / 2, h / 2)]
+        for r in np.arange(1, 9) * (h + 2 * pad):
+            cands += [a + d * (w / 2 + r if d[0] else r, r) - (w / 2, h / 2) for d in dirs]
+        best = cands[0]
+        for tl in cands:
+            tl = np.clip(tl, 0, [max(0.0, W - w), max(0.0, H - h)])
+            box = np.array([tl[0] - pad, tl[1] - pad, tl[0] + w + pad, tl[1] + h + pad])
+            if all(box[0] >= q[2] or box[2] <= q[0] or box[1] >= q[3] or box[3] <= q[1] for q in placed):
+                best = tl
+                break
+        out[i] = best
+        placed.append(np.array([best[0] - pad, best[1] - pad, best[0] + w + pad, best[1] + h + pad]))
+    return out
+
+
+def _draw_labels(img: np.ndarray, vp: VisualPrompt, smap: SemanticMap, colours: dict[int, tuple[int, int, int]],
+                 conf: PromptConfig, reserved: list[np.ndarray]) -> None:
+    """Object labels without overlaps (`place_labels`); a label moved off its box centre gets a leader line."""
+    font = cv2.FONT_HERSHEY_SIMPLEX
+    insts = sorted(smap.instances, key=lambda o: -float(np.prod(np.asarray(o.box.axes_lengths)[:2])))
+    if not insts:
+        return
+    labels = [f"{o.name} {o.id}" for o in insts]
+    sizes = [cv2.getTextSize(t, font, conf.font_scale, 1) for t in labels]
+    wh = np.array([[tw, th + base] for (tw, th), base in sizes], np.float64)
+    anchors = np.concatenate([vp.world_to_px(np.asarray(o.box.centroid)[None, :2]) for o in insts])
+    tls = place_labels(anchors, wh, (img.shape[1], img.shape[0]), reserved=reserved)
+    for o, t, a, tl, (w, h), ((_, th), _) in zip(insts, labels, anchors, tls, wh, sizes):
+        dark = tuple(int(v * 0.6) for v in colours[o.id])
+        centre = tl + (w / 2, h / 2)
+        if np.linalg.norm(centre - a) > max(w, h) / 2:
+            end = np.clip(a, tl, tl + (w, h))  # nearest point of the label box
+            cv2.line(img, (int(a[0]), int(a[1])), (int(end[0]), int(end[1])), dark, 1, cv2.LINE_AA)
+            cv2.circle(img, (int(a[0]), int(a[1])), 2, dark, -1, cv2.LINE_AA)
+        x0, y0 = int(tl[0]), int(tl[1])
+        sub = img[max(0, y0 - 1):y0 + int(h) + 1, max(0, x0 - 2):x0 + int(w) + 2]
+        sub[:] = (0.25 * sub + 0.75 * 255).astype(np.uint8)  # a light plate under the text: readable on any fill
+        cv2.putText(img, t, (x0, y0 + th), font, conf.font_scale, dark, 1, cv2.LINE_AA)
+
+
 def _footprint(box) -> np.ndarray:
     """Floor footprint `[4, 2]` of an oriented box (corners of the bottom face, in order)."""
     c = np.asarray(box.centroid)[:2]
@@ -232,7 +295,7 @@ def _footprint(box) -> np.ndarray:
 def vlm_prompt(question: str, options: list[str] | None, block: str, mode: str = "grid") -> str:
     """The paper's prompt structure: what the image is, the object text block, the question, the answer format."""
     head = {"grid": "The image is a top-down map of the room built from the video: each coloured box is an "
-                    "object (label inside), black dots with arrows are the camera positions and headings, the "
+                    "object (its label on it, or next to it joined by a thin line), black dots with arrows are the camera positions and headings, the "
                     "scale bar gives metres, x points right and y up the image.",
             "points": "The image is a top-down view of the 3D points of the objects seen in the video, one colour "
                       "per object; black dots with arrows are the camera positions and headings.",

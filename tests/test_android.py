@@ -268,19 +268,18 @@ def test_operator_config_roundtrip(tmp_path):
 # ------------------------------------------------------------------------------------------------ scripts
 
 @pytest.mark.parametrize("script", SCRIPTS)
-def test_script_syntax(script):
+def test_script_syntax(script, shellcheck):
     path = REPO / "android" / script
     assert path.is_file()
     subprocess.run(["bash", "-n", str(path)], check=True)
-    if shutil.which("shellcheck"):
-        r = subprocess.run(["shellcheck", "-x", "-P", str(REPO), str(path)], capture_output=True, text=True,
-                           cwd=REPO)
-        assert r.returncode == 0, r.stdout + r.stderr
+    r = subprocess.run([shellcheck, "-x", "-P", str(REPO), str(path)], capture_output=True, text=True, cwd=REPO)
+    assert r.returncode == 0, r.stdout + r.stderr
 
 
-def _run(args, **kw):
-    env = {**os.environ, "PYTHON": sys.executable,
-           "PATH": os.environ.get("PATH", "") + os.pathsep + str(Path(sys.executable).parent)}
+def _run(args, env_over=None, **kw):
+    base = os.environ if env_over is None else env_over
+    env = {**base, "PYTHON": sys.executable,
+           "PATH": base.get("PATH", "") + os.pathsep + str(Path(sys.executable).parent)}
     return subprocess.run(["bash", *map(str, args)], capture_output=True, text=True, env=env, **kw)
 
 
@@ -326,6 +325,33 @@ def test_script_argument_errors(real_bundle, tmp_path):
     line = r.stdout.splitlines()[-1]
     assert f"--include_ops_by_config {(root / A.OPS_CONFIG).resolve()}" in line
     assert "--minimal_build extended" in line and "--use_qnn" in line and "--use_nnapi" in line
+
+
+def test_build_ort_expands_sdk_paths(real_bundle, tmp_path):
+    """The SDK/NDK paths are the environment's when set; unset, the line keeps "$NAME" for the shell that runs
+    it (never a quoted '$NAME' that would be passed literally) and a note says what to set."""
+    root, _ = real_bundle
+    cmd = [REPO / "android/build_ort.sh", "--dry-run", "--ort-src", "/src/onnxruntime", root]
+    env = {k: v for k, v in os.environ.items() if k not in ("ANDROID_HOME", "ANDROID_NDK_HOME")}
+    r = _run(cmd, env_over={**env, "ANDROID_HOME": str(tmp_path / "sdk"), "ANDROID_NDK_HOME": str(tmp_path / "ndk")})
+    line = r.stdout.splitlines()[-1]
+    assert r.returncode == 0 and f"--android_sdk_path {tmp_path / 'sdk'}" in line
+    assert f"--android_ndk_path {tmp_path / 'ndk'}" in line and "note:" not in r.stderr
+    r = _run(cmd, env_over=env)
+    line = r.stdout.splitlines()[-1]
+    assert r.returncode == 0 and "'$ANDROID_HOME'" not in line and '--android_sdk_path "$ANDROID_HOME"' in line
+    assert "ANDROID_HOME is not set" in r.stderr and "ANDROID_NDK_HOME is not set" in r.stderr
+
+
+def test_push_dry_run_needs_no_binaries(real_bundle, tmp_path):
+    """--dry-run lists the pushes of binaries not built yet (with a note); a real run refuses them."""
+    root, _ = real_bundle
+    missing = tmp_path / "build" / "onnxruntime_perf_test"
+    r = _run([REPO / "android/push.sh", "--dry-run", "--perf-test", missing, root])
+    assert r.returncode == 0, r.stderr
+    assert any(f"push {missing} " in ln for ln in r.stdout.splitlines()) and "not found here" in r.stderr
+    r = _run([REPO / "android/push.sh", "--perf-test", missing, root], env_over={**os.environ, "ADB": "true"})
+    assert r.returncode == 2 and "no such file" in r.stderr
 
 
 # Output format of onnxruntime_perf_test -s (onnxruntime/test/perftest/performance_runner.cc), as profile.sh
@@ -500,3 +526,17 @@ def test_vlm_decoder_without_position_input_stays_cpu_only(tmp_path):
     assert set(comps) == {"decoder"}  # no window variant shipped
     assert not comps["decoder"]["kv_window_check"]["ok"] and comps["decoder"]["kv_window_check"]["max_rel"] > 1e-2
     assert comps["decoder"]["providers"] == ["XNNPACK", "CPU"]
+
+
+def test_export_target_step_honours_android_roles(real_bundle, tmp_path):
+    """`mosaic export ... --target android --android-roles embedder` converts only the embedder, not every role
+    just exported."""
+    import argparse
+
+    root, _ = real_bundle
+    copy = tmp_path / "bundle"
+    shutil.copytree(root, copy)
+    res = A.target_step(copy, ["detector", "segmenter", "embedder"], argparse.Namespace(android_roles="embedder"))
+    assert sorted(res["roles"]) == ["embedder"]
+    with pytest.raises(Exception, match="nope"):
+        A.target_step(copy, ["embedder"], argparse.Namespace(android_roles="nope"))

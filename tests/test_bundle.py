@@ -212,3 +212,99 @@ def test_failing_parity_fails_the_export(tmp_path: Path):
     assert parse_precisions("fp16,int8") == ["fp32", "fp16", "int8-dynamic", "int8-qdq"]
     with pytest.raises(ExportError, match="unknown precision"):
         parse_precisions("int4")
+
+
+def test_export_output_is_a_table_of_shipped_and_refused_with_library_noise_hidden(tmp_path: Path, capsys):
+    """`mosaic export` prints one row per variant (shipped / REFUSED and why, long reasons wrapped at spaces,
+    never cut); the quantiser's root-logger warnings are hidden and counted, our own lines stay."""
+    from mosaicthinker.export.cli import render
+    from mosaicthinker.runtime.cli import main
+
+    code = ("import logging, warnings\n"
+            "from mosaicthinker.export.cli import library_noise_hidden\n"
+            "counts = {}\n"
+            "with library_noise_hidden(counts):\n"
+            "    logging.basicConfig()\n"
+            "    for _ in range(3):\n"
+            "        logging.warning(\"Expected bias 'conv/bias_dequant' to be an initializer\")\n"
+            "    warnings.warn_explicit('a library warning', UserWarning, '/x/site-packages/torchvision/io.py', 1)\n"
+            "    warnings.warn('our own warning', RuntimeWarning)\n"
+            "logging.warning('after the export')\n"
+            "print(counts)\n")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.strip() == "{'log': 3, 'warnings': 1}"
+    assert "Expected bias" not in r.stderr and "a library warning" not in r.stderr
+    assert "our own warning" in r.stderr and "after the export" in r.stderr  # only hidden inside
+
+    long_reason = "parity vs fp32 failed: " + " ".join(f"word{i}" for i in range(60))
+    text = render({"bundle": "B", "roles": {"detector": {
+        "variants": {"fp32": {"ok": True, "copied": True},
+                     "int8-qdq": {"worst": {"rel": 0.05, "cosine": 0.999}, "tolerance": {"rel": 0.15}}},
+        "skipped": {"fp16": long_reason}}}, "bundle_roles": {"detector": ["fp32", "int8-qdq"]},
+        "library_messages_hidden": {"log": 3}})
+    rows = text.splitlines()
+    assert rows[1].split() == ["role", "variant", "result", "parity", "/", "why"]
+    assert rows[2].split()[:3] == ["detector", "fp32", "shipped"] and "rel 0.05 (tol 0.15)" in rows[3]
+    refused = rows[4:][:[i for i, r in enumerate(rows[4:]) if "bundle now has" in r][0]]
+    assert refused[0].split()[:3] == ["detector", "fp16", "REFUSED"]
+    assert " ".join(" ".join(refused).split()[3:]) == long_reason  # all of it, wrapped only at spaces
+    assert "3 library log line(s)" in rows[-1]
+
+    # the real command: a refused variant (int8 of a one-Mul graph has nothing to quantise -> parity fails or it
+    # is shipped; either way a row) and no root-logger noise on stderr
+    g = _tiny_graph(tmp_path / "g.onnx", scale=3.0)
+    side = tmp_path / "meta.json"
+    side.write_text(json.dumps({"arch": "embedding_generic", "licence": "MIT", "preprocessing": {},
+                                "semantics": {"dim": 4}}))
+    rc = main(["export", "embedder", "--source", f"onnx:{g}", "--meta", str(side), "--precision", "fp32,fp16",
+               "--out", str(tmp_path / "b")])
+    out = capsys.readouterr()
+    assert rc == 0 and "WARNING:root" not in out.err
+    assert [r.split()[:3] for r in out.out.splitlines()[2:4]] == [["embedder", "fp32", "shipped"],
+                                                                  ["embedder", "fp16", "shipped"]]
+
+
+def test_bundle_show_never_cuts_parity_or_notes(tiny_bundle: Path):
+    from mosaicthinker.export.common import record_skipped_variant
+
+    m = B.read_manifest(tiny_bundle)
+    vm = m["roles"]["embedder"]["variants"]["fp32"]
+    vm["parity"] = {"model": {"ok": True, "worst": {"rel": 0.0123, "cosine": 0.99987}, "tolerance": {"rel": 0.02},
+                              "outputs": [{"name": f"output_{i}", "rel": 0.01} for i in range(40)]}}
+    vm["notes"] = " ".join(f"note{i}" for i in range(80))
+    B.write_manifest(tiny_bundle, m)
+    record_skipped_variant(tiny_bundle, "embedder", "int8-qdq", " ".join(f"why{i}" for i in range(70)))
+    r = subprocess.run([sys.executable, "-m", "mosaicthinker.runtime.cli", "bundle", "show", str(tiny_bundle)],
+                       capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    words = r.stdout.split()
+    assert "rel 0.0123 (tol 0.02), cosine 0.9999" in " ".join(words)
+    assert all(f"note{i}" in words for i in range(80)) and all(f"why{i}" in words for i in range(70))
+    assert "NOT shipped:" in r.stdout and max(len(ln) for ln in r.stdout.splitlines()) < 140
+
+
+def test_the_documented_onnx_sidecar_example_imports(tmp_path: Path, shared_models: Path, capsys):
+    """The sidecar JSON of docs/bundle-and-adapters.md imports the real embedding model as documented."""
+    import re
+
+    from mosaicthinker.runtime.cli import main
+
+    doc = (Path(__file__).resolve().parents[1] / "docs" / "bundle-and-adapters.md").read_text()
+    sec = doc[doc.index("### The `onnx:` metadata sidecar"):]
+    side = tmp_path / "embedder.mosaic.json"
+    side.write_text(re.search(r"```json\n(.*?)```", sec, re.S).group(1))
+    model = shared_models / "mobilenet-v1-embedding" / "mobilenet_v1_embedding.onnx"
+    rc = main(["export", "embedder", "--source", f"onnx:{model}", "--meta", str(side), "--precision", "fp32",
+               "--out", str(tmp_path / "B")])
+    assert rc == 0
+    role = B.load_bundle(tmp_path / "B").role_meta("embedder")
+    assert role["arch"] == "mobilenet_embedding" and role["semantics"]["dim"] == 1024
+    assert role["provenance"]["sha256"] == B.sha256_file(model) and "already int8" in role["variants"]["fp32"]["notes"]
+    bad = json.loads(side.read_text())
+    del bad["semantics"]
+    side.write_text(json.dumps(bad))
+    capsys.readouterr()
+    rc = main(["export", "embedder", "--source", f"onnx:{model}", "--meta", str(side), "--out", str(tmp_path / "C")])
+    err = capsys.readouterr().err
+    assert rc == 2 and err.startswith("error:") and str(side) in err and "'semantics'" in err

@@ -144,6 +144,11 @@ def test_provider_options_by_precision(bundle):
     det = m["roles"]["detector"]["variants"]["fp32"]["jetson"]["components"]["model"]
     assert det["qdq"]["qdq"] and not det["qdq"]["trt_int8_compatible"]
     assert det["warnings"] and "symmetric int8" in det["warnings"][0]
+    # ... so neither the provider options nor the build script ask TensorRT for int8 on it
+    assert det["providers"][0][1]["trt_int8_enable"] is False and det["trtexec"] is None
+    script = (root / J.SCRIPT).read_text()
+    assert "detector/fp32/model: no engine" in script
+    assert all("--int8" not in ln for ln in script.splitlines() if "/detector/" in ln)
     assert m["jetson"]["provider_chain"][0] == "TensorrtExecutionProvider"
     assert "not installed" in m["jetson"]["not_run"]
     B.load_bundle(root, verify=True)
@@ -163,13 +168,12 @@ def test_trtexec_commands_match_provider_options(bundle):
     assert "--fp16" not in argv and "--int8" not in argv
 
 
-def test_build_script_runs_with_stand_in_trtexec(bundle, tmp_path):
+def test_build_script_runs_with_stand_in_trtexec(bundle, tmp_path, shellcheck):
     root, _ = bundle
     script = root / J.SCRIPT
     subprocess.run(["bash", "-n", str(script)], check=True)
-    if shutil.which("shellcheck"):
-        r = subprocess.run(["shellcheck", str(script)], capture_output=True, text=True)
-        assert r.returncode == 0, r.stdout
+    r = subprocess.run([shellcheck, str(script)], capture_output=True, text=True)
+    assert r.returncode == 0, r.stdout
     fake = tmp_path / "bin" / "trtexec"
     fake.parent.mkdir()
     # stand-in: checks the ONNX path exists and the shape flags are well formed, then "writes" the engine
@@ -186,7 +190,7 @@ def test_build_script_runs_with_stand_in_trtexec(bundle, tmp_path):
     assert r.returncode == 0, r.stderr
     engines = sorted(p.relative_to(cache).as_posix() for p in cache.rglob("*.engine"))
     assert "vlm/fp32/decoder.engine" in engines and "segmenter/fp32-trtfp16/model.engine" in engines
-    assert "detector/fp32/model.engine" in engines and "vlm/int8-qdq/decoder.engine" in engines
+    assert "detector/fp32/model.engine" not in engines and "vlm/int8-qdq/decoder.engine" in engines
 
 
 def test_runtime_takes_the_provider_chain(bundle):
@@ -233,13 +237,12 @@ def test_axis_rules_and_errors():
         J.config_from_args(argparse.Namespace(axis=["x=1:2"]))
 
 
-def test_container_recipe_and_run_script(bundle):
+def test_container_recipe_and_run_script(bundle, shellcheck):
     repo = Path(__file__).resolve().parents[1]
     run = repo / "jetson" / "run.sh"
     subprocess.run(["bash", "-n", str(run)], check=True)
-    if shutil.which("shellcheck"):
-        r = subprocess.run(["shellcheck", str(run)], capture_output=True, text=True)
-        assert r.returncode == 0, r.stdout
+    r = subprocess.run([shellcheck, str(run)], capture_output=True, text=True)
+    assert r.returncode == 0, r.stdout
     root, _ = bundle
     r = subprocess.run(["bash", str(run), "--dry-run", "--cache", "/tmp/trt", str(root), "--", "profile",
                         "--bundle", "/bundle"], capture_output=True, text=True)
@@ -272,3 +275,17 @@ def test_kv_cache_axis_is_not_mistaken_for_an_image_axis():
     assert C.axis_kind("past", inp, 2, meta) == "past"
     img = {"name": "pixel_values", "shape": [1, 3, 32, 32], "dtype": "float32", "dynamic_axes": {"2": "h"}}
     assert C.axis_kind("h", img, 2, meta) == "image"
+
+
+def test_export_target_step_honours_jetson_roles_and_says_what_it_wrote(bundle, tmp_path, capsys):
+    import argparse
+
+    root, _ = bundle
+    copy = tmp_path / "bundle"
+    shutil.copytree(root, copy)
+    res = J.target_step(copy, ["detector", "segmenter", "vlm"], argparse.Namespace(jetson_roles="segmenter"))
+    assert sorted(res["roles"]) == ["segmenter"]
+    err = capsys.readouterr().err
+    assert "jetson settings written into" in err and "segmenter/fp32/model: trtexec" in err and J.SCRIPT in err
+    res = J.target_step(copy, ["segmenter", "vlm"], argparse.Namespace())  # no --jetson-roles: the exported ones
+    assert sorted(res["roles"]) == ["segmenter", "vlm"]

@@ -229,7 +229,7 @@ def small_eval(tmp_path_factory):
     buf = io.StringIO()
     with contextlib.redirect_stdout(buf):
         rc = main(["eval", "keyframes", "--scenes", "1", "--seed", "0", "--duration", "40", "--fps", "5",
-                   "--width", "96", "--height", "72", "--keyframes", "6", "--out", str(out), "--json",
+                   "--size", "96x72", "--keyframes", "6", "--out", str(out), "--json",
                    "--variant", 'topup={"min_keyframes": 6}'])
     assert rc == 0
     return json.loads(buf.getvalue())

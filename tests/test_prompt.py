@@ -186,3 +186,33 @@ def test_direct_input_baseline_sends_uniform_frames_to_the_vlm():
     assert "frames sampled uniformly" in vlm.prompts[-1] and "Question: If I am standing" in vlm.prompts[-1]
     with pytest.raises(InputError, match="vlm"):
         ask(FrameList(frames), q, None, method="direct")
+
+
+def test_labels_of_overlapping_boxes_do_not_overlap_and_the_map_has_a_title():
+    """Three chairs around one spot and a table under them: every label is drawn, no two label boxes
+    intersect, all stay visible in the picture, and there is a title."""
+    from mosaicthinker.runtime.prompt import place_labels
+
+    inst = [ObjectInstance(i, n, _box(c, s), 1.0) for i, (n, c, s) in enumerate([
+        ("table", [0.0, 0.0, 0.4], [1.4, 0.9, 0.8]), ("chair", [0.02, 0.01, 0.45], [0.5, 0.5, 0.9]),
+        ("chair", [-0.01, 0.0, 0.45], [0.5, 0.5, 0.9]), ("chair", [0.0, -0.02, 0.45], [0.5, 0.5, 0.9])])]
+    smap = SemanticMap(inst, None, [(0.0, np.eye(4))])
+    anchors = np.array([[100, 100], [102, 101], [98, 100], [100, 97]], float)
+    sizes = np.array([[60, 14], [60, 14], [60, 14], [60, 14]], float)
+    tl = place_labels(anchors, sizes, (400, 300))
+    boxes = np.concatenate([tl, tl + sizes], 1)
+    for i in range(4):
+        assert (boxes[i, :2] >= 0).all() and boxes[i, 2] <= 400 and boxes[i, 3] <= 300
+        for j in range(i):
+            a, b = boxes[i], boxes[j]
+            assert a[0] >= b[2] or a[2] <= b[0] or a[1] >= b[3] or a[3] <= b[1], (i, j)
+    assert np.allclose(tl[0], anchors[0] - sizes[0] / 2)  # the first label stays on its box centre
+    # chairs on one spot: their labels are moved apart, so every label stays visible (a label drawn over
+    # another would leave almost none of the first one's colour)
+    vp = render(smap, {"size_px": 640})
+    img = vp.image.reshape(-1, 3).astype(int)
+    for o in smap.instances:
+        dark = np.array([int(x * 0.6) for x in vp.colours[o.id]])
+        assert (np.abs(img - dark).sum(1) <= 30).sum() >= 25, f"label of {o.name} {o.id} hidden"
+    # a title in black along the top margin
+    assert (vp.image[:24, 20:300] < 40).all(-1).sum() > 50

@@ -16,17 +16,17 @@ from ..outputs import RunOutputs, note_outputs, save_run
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     from ..cli import add_stage_flags
+    from .flags import add_answerer, add_keyframes
 
     p.add_argument("source", help="video file, image / RGB-D folder, or a saved map (map.json)")
     p.add_argument("question", help="the question (VSI-Bench wording is answered exactly by the map reasoner)")
     p.add_argument("--option", action="append", default=None, metavar="TEXT",
                    help='a multiple-choice option, repeat for each ("A. left")')
-    p.add_argument("--answerer", choices=["map", "vlm", "auto"], default="auto",
-                   help="map reasoner, VLM on the visual prompt, or auto (reasoner when it recognises the question)")
+    add_answerer(p)
     p.add_argument("--method", choices=["mosaic", "direct"], default="mosaic",
                    help="mosaic (semantic map) or direct (Direct Input baseline: sampled frames to the VLM)")
     p.add_argument("--prompt", choices=["grid", "points", "text"], default="grid", help="visual prompt mode")
-    p.add_argument("--keyframes", type=int, default=None, help="key-frame budget K (default 16)")
+    add_keyframes(p)
     p.add_argument("--keyframe-method", choices=["iterative", "uniform", "exhaustive"], default="iterative")
     add_stage_flags(p, matcher=True, detector=True)
     p.set_defaults(detector="model")
@@ -84,6 +84,8 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
             items = []
             if res.prompt is not None and res.prompt.image is not None:
                 items.append(("map_png", "map.png", res.prompt.image))
+            if res.prompt is not None:  # the text the VLM gets (with the image unless --prompt text)
+                items.append(("prompt_txt", "prompt.txt", res.prompt.full_text(question, options)))
             if res.map is not None:
                 items.append(("map_json", "map.json", res.map.to_dict()))
             items.append(("trace_json", "trace.json", trace.to_dict()))

@@ -26,27 +26,38 @@ DEMO_TYPES = ("object_counting", "object_size_estimation", "object_abs_distance"
               "room_size_estimation")
 
 
+COMMON_FLAGS = ("bundle", "out")
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
+    from .flags import add_answerer, add_clip, add_complexity, add_keyframes, add_size, deprecated_alias
+
     p.add_argument("--seed", type=int, default=4, help="scene seed")
-    p.add_argument("--objects", choices=["low", "med", "high"], default="low", help="object-number level")
+    add_complexity(p, "low")
     p.add_argument("--room", choices=["small", "medium", "large"], default="medium", help="room-size level")
-    p.add_argument("--duration", type=float, default=16.0, help="video length (s)")
-    p.add_argument("--fps", type=float, default=6.0)
-    p.add_argument("--size", default="480x360", help="frame size WxH")
-    p.add_argument("--keyframes", type=int, default=12, help="key-frame budget K")
-    p.add_argument("--questions", type=int, default=6, help="how many questions to ask (one per type)")
-    p.add_argument("--answerer", choices=["map", "vlm", "auto"], default="auto")
+    add_clip(p, 16.0, 6.0)
+    add_size(p, "480x360")
+    add_keyframes(p, 12, "the demo's 16 s clip")
+    p.add_argument("--num-questions", type=int, default=6, metavar="N",
+                   help="how many questions to ask, one per type (default 6)")
+    deprecated_alias(p, "--questions", "--num-questions", "num_questions", type=int)
+    add_answerer(p)
 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
-    try:
-        w, h = (int(x) for x in args.size.lower().split("x"))
-    except ValueError:
-        raise InputError(f"--size must be WxH, got {args.size!r}") from None
-    out = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix="mosaic_demo_"))
+    size = tuple(args.size)
+    if not args.out:  # nothing left behind: the scene and the files live in a folder removed afterwards
+        with tempfile.TemporaryDirectory(prefix="mosaic_demo_") as tmp:
+            outs = RunOutputs(Path(tmp))
+            try:
+                res = _run(args, Path(tmp), outs, size)
+            finally:
+                outs.close()
+            return {**res, "files": {}, "scene": "(a temporary folder, removed: keep it with --out DIR)"}
+    out = Path(args.out)
     outs = RunOutputs(out)  # checked and locked before the scene is generated
     try:
-        return _run(args, out, outs, (w, h))
+        return _run(args, out, outs, size)
     finally:
         outs.close()
 
@@ -72,14 +83,14 @@ def _run(args: argparse.Namespace, out: Path, outs: "RunOutputs", size: tuple[in
         if scene_dir.exists() and (scene_dir / "scene.json").is_file():
             info = {"reused": str(scene_dir)}
         else:
-            info = write_scene(SceneConfig(seed=args.seed, objects=args.objects, room=args.room,
+            info = write_scene(SceneConfig(seed=args.seed, objects=args.complexity, room=args.room,
                                            duration=args.duration, fps=args.fps, width=w, height=h),
                                scene_dir, video=False)
     qs = [json.loads(line) for line in (scene_dir / "questions.jsonl").read_text().splitlines() if line.strip()]
     picked: list[dict[str, Any]] = []
     for t in DEMO_TYPES:  # one question per type, in this order, up to --questions
         q = next((q for q in qs if q["question_type"] == t), None)
-        if q is not None and len(picked) < args.questions:
+        if q is not None and len(picked) < args.num_questions:
             picked.append(q)
     if not picked:
         raise InputError(f"{scene_dir}: the generated scene has no questions; try another --seed")
@@ -113,6 +124,7 @@ def _run(args: argparse.Namespace, out: Path, outs: "RunOutputs", size: tuple[in
                      "answer": a.text, "value": a.value, "truth": q["ground_truth"], "score": round(score, 3),
                      "explanation": a.explanation})
     files, write_error, code = save_run(outs, [("map_png", "map.png", vp.image),
+                                               ("prompt_txt", "prompt.txt", vp.full_text()),
                                                ("map_json", "map.json", build.map.to_dict()),
                                                ("trace_json", "trace.json", trace.to_dict())])
     return {"schema": "mosaicthinker.demo/1", "run_id": outs.run_id, "write_error": write_error,

@@ -17,11 +17,12 @@ from ..outputs import RunOutputs, note_outputs, save_run
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     from ..cli import add_stage_flags
+    from .flags import add_keyframes
 
     p.add_argument("source", help="video file or image / RGB-D folder")
     p.add_argument("--objects", default=None, help="comma-separated object names to map (default: all the "
                                                    "detector can detect)")
-    p.add_argument("--keyframes", type=int, default=24, help="key-frame budget K (default 24)")
+    add_keyframes(p)
     p.add_argument("--keyframe-method", choices=["iterative", "uniform", "exhaustive"], default="iterative")
     p.add_argument("--prompt", choices=["grid", "points"], default="grid", help="map image mode")
     add_stage_flags(p, matcher=True, detector=True)
@@ -119,9 +120,12 @@ def _run(args: argparse.Namespace, src: Path, outs: RunOutputs, paths: tuple[Pat
         pts = np.concatenate([c for c in build.clouds if len(c)] or [np.zeros((0, 3))])
         ids = np.concatenate([np.full(len(c), o.id) for o, c in zip(build.map.instances, build.clouds)
                               if len(c)] or [np.zeros(0, int)])
-    image = render_prompt(build.map, {"mode": args.prompt}, pts, ids).image
+    vp = render_prompt(build.map, {"mode": args.prompt}, pts, ids)
+    # the text the VLM gets with map.png: prompt.txt beside it (NAME.prompt.txt beside NAME.png)
+    txt_name = "prompt.txt" if png_path.name == "map.png" else png_path.stem + ".prompt.txt"
     files, write_error, code = save_run(outs, [("map_json", map_path.name, build.map.to_dict()),
-                                               ("map_png", png_path.name, image),
+                                               ("map_png", png_path.name, vp.image),
+                                               ("prompt_txt", txt_name, vp.full_text()),
                                                ("trace_json", trace_path.name, trace.to_dict())])
     return {"schema": "mosaicthinker.map/1", "run_id": outs.run_id, "write_error": write_error, "exit_code": code, "objects": names, "instances": len(build.map.instances),
             "counts": build.map.counts(), "keyframes": build.keyframes, "unaligned": build.unaligned,

@@ -162,6 +162,19 @@ def _detectable(bundle: Any, names: list[str]) -> tuple[set[str], list[str]]:
     return set(mapping), missing
 
 
+def _oracle_matcher(conf: dict[str, Any], bundle: Any, trace: Any) -> Any:
+    """The oracle mode's matcher: OpenCV by name, or the bundle's matcher model for --matcher model."""
+    if conf.get("matcher", "sift") != "model":
+        return conf.get("matcher", "sift")
+    from ..bundle import load_bundle
+    from ..stages import load_role
+
+    b = load_bundle(bundle)
+    if not b.has_role("matcher"):
+        raise InputError(f"{bundle}: --matcher model needs a bundle with a `matcher` role")
+    return load_role(b, "matcher", trace=trace)
+
+
 def evaluate_scene(d: Path, modes: list[str], conf: dict[str, Any], bundle: Any, map_per: str,
                    keyframes: int, miss_rate: float, seed: int) -> dict[str, Any]:
     """All questions of one scene under each mode -> per-question records and per-map quality."""
@@ -207,7 +220,8 @@ def evaluate_scene(d: Path, modes: list[str], conf: dict[str, Any], bundle: Any,
             t0 = time.perf_counter()
             try:
                 if mode == "oracle":
-                    perc = oracle_perception(d, miss_rate=miss_rate, seed=seed, matcher=conf.get("matcher", "sift"))
+                    perc = oracle_perception(d, miss_rate=miss_rate, seed=seed,
+                                             matcher=_oracle_matcher(conf, bundle, trace))
                 else:
                     perc = perception_from_bundle(bundle, {**conf, "depth": "sensor"}, trace)
                 mb = build_map(src, targets, cues, perc, {**conf, "depth": "sensor"}, trace, keyframes)
@@ -267,19 +281,24 @@ def summarise(records: list[dict[str, Any]], maps: list[dict[str, Any]]) -> dict
     return out
 
 
+COMMON_FLAGS = ("bundle", "out")
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
+    from ..cli import add_stage_flags
+    from ..commands.flags import add_clip, add_keyframes, add_size
+
     p.add_argument("--scenes", type=int, default=3, help="number of synthetic scenes")
     p.add_argument("--seed", type=int, default=0, help="first scene seed")
     p.add_argument("--modes", default="gt,oracle", help="comma list of gt, oracle, models (models needs --bundle)")
-    p.add_argument("--data", default=None, help="folder to generate / reuse scenes in (default: --out/scenes or "
+    p.add_argument("--data", default=None, metavar="DIR", help="folder to generate / reuse scenes in (default: --out/scenes or "
                                                 "a temporary folder)")
-    p.add_argument("--size", default="640x480", help="frame size WxH")
-    p.add_argument("--fps", type=float, default=10.0)
-    p.add_argument("--duration", type=float, default=30.0, help="seconds of video per scene")
-    p.add_argument("--keyframes", type=int, default=16, help="key-frame budget K per map")
+    add_size(p, "640x480")
+    add_clip(p, 30.0, 10.0, "video per scene")
+    add_keyframes(p)
     p.add_argument("--map-per", choices=["scene", "question"], default="scene")
     p.add_argument("--miss-rate", type=float, default=0.1, help="oracle detector miss rate")
-    p.add_argument("--matcher", choices=["orb", "sift"], default="sift")
+    add_stage_flags(p, matcher=True)  # model: the bundle's matcher role, in the oracle and models modes
     p.add_argument("--gravity", choices=["auto", "source", "floor"], default="auto",
                    help="'down' for the map: auto/source = the root frame's ground-truth rotation (an IMU "
                         "stand-in the synthetic scenes provide); floor = the floor-plane fit alone")
@@ -298,10 +317,9 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     if "models" in modes and not args.bundle:
         raise InputError("--modes models needs --bundle (e.g. a bundle of ../shared/models built with "
                          "export/onnx_import.py)")
-    try:
-        w, h = (int(x) for x in args.size.lower().split("x"))
-    except ValueError:
-        raise InputError(f"--size must be WxH, got {args.size!r}") from None
+    if args.matcher == "model" and not args.bundle:
+        raise InputError("--matcher model needs --bundle (a bundle with a `matcher` role)")
+    w, h = args.size
     if args.out:
         from ..outputs import check_out_dir
 
@@ -315,7 +333,13 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     t_gen = time.perf_counter() - t0
     records, maps = [], []
     conf = {"matcher": args.matcher, "gravity": args.gravity}
-    for d in dirs:
+    if args.keyframes is None:
+        from ..commands.flags import pipeline_keyframes
+
+        args.keyframes = pipeline_keyframes()  # recorded in the settings as the K used
+    from ..progress import ticked
+
+    for d in ticked(dirs, "scenes", "scene"):
         r = evaluate_scene(d, modes, conf, args.bundle, args.map_per, args.keyframes, args.miss_rate, args.seed)
         records += r["records"]
         maps += r["maps"]

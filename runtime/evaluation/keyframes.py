@@ -139,7 +139,10 @@ def _scene_config(i: int, args: argparse.Namespace) -> tuple[Any, str]:
         kw["room"] = level
     else:
         kw["duration"] = DURATION_LEVELS[level] * args.duration / DURATION_LEVELS["medium"]
-    conf = SceneConfig(seed=args.seed * 1000 + i, fps=args.fps, width=args.width, height=args.height, **kw)
+    from ..commands.flags import size_of
+
+    w, h = size_of(args)
+    conf = SceneConfig(seed=args.seed * 1000 + i, fps=args.fps, width=w, height=h, **kw)
     return conf, level
 
 
@@ -285,19 +288,22 @@ def evaluate_scene(scene_dir: Path, level: str, args: argparse.Namespace,
 # ------------------------------------------------------------------------------------------------ command
 
 
+COMMON_FLAGS = ("bundle", "out")
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     from ..cli import add_stage_flags
+    from ..commands.flags import add_clip, add_deprecated_size_parts, add_keyframes, add_size
 
     p.add_argument("--scenes", type=int, default=3, help="number of generated scenes (default 3)")
     p.add_argument("--seed", type=int, default=0, help="scene i uses seed 1000*S + i; also the oracle's seed")
-    p.add_argument("--keyframes", type=int, default=8, metavar="K", help="key-frame budget K (default 8)")
+    add_keyframes(p, 8, "the key-frame study's budget")
     add_stage_flags(p, detector=True)
     p.add_argument("--vary", choices=sorted(LEVELS), default="objects",
                    help="complexity factor cycled over low/medium/high across the scenes (default objects)")
-    p.add_argument("--duration", type=float, default=60.0, help="video seconds at the medium level (default 60)")
-    p.add_argument("--fps", type=float, default=15.0)
-    p.add_argument("--width", type=int, default=320)
-    p.add_argument("--height", type=int, default=240)
+    add_clip(p, 60.0, 15.0, "video (at the medium level of --vary duration)")
+    add_size(p, "320x240")
+    add_deprecated_size_parts(p)
     p.add_argument("--workers", type=int, default=1, help="rendering processes")
     p.add_argument("--miss-rate", type=float, default=0.1, help="oracle detector miss rate (default 0.1)")
     p.add_argument("--score-noise", type=float, default=0.1, help="oracle detector score noise (default 0.1)")
@@ -339,8 +345,10 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         tmp = root
     records: list[dict[str, Any]] = []
     scenes: list[dict[str, Any]] = []
+    from ..progress import ticked
+
     try:
-        for i in range(args.scenes):
+        for i in ticked(range(args.scenes), "scenes", "scene"):
             sconf, level = _scene_config(i, args)
             sdir = root / f"scene-{sconf.seed:05d}-{args.vary}-{level}"
             gen = _ensure_scene(sconf, sdir, args.workers)
@@ -367,9 +375,11 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def _argv(args: argparse.Namespace) -> list[str]:
-    keep = ["scenes", "seed", "keyframes", "detector", "vary", "duration", "fps", "width", "height", "miss_rate",
-            "score_noise", "min_visible"]
-    out = [f"--{k.replace('_', '-')} {getattr(args, k)}" for k in keep]
+    from ..commands.flags import size_of
+
+    keep = ["scenes", "seed", "keyframes", "detector", "vary", "duration", "fps", "miss_rate", "score_noise",
+            "min_visible"]
+    out = [f"--{k.replace('_', '-')} {getattr(args, k)}" for k in keep] + ["--size {}x{}".format(*size_of(args))]
     if args.no_dedup:
         out.append("--no-dedup")
     if args.conf:

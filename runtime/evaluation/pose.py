@@ -156,12 +156,16 @@ def evaluate_pose(source: Any, indices: Sequence[int], matcher: Any = "sift", st
 # ----------------------------------------------------------------------------- command
 
 
+COMMON_FLAGS = ("bundle", "out")
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from ..cli import add_stage_flags
+    from ..commands.flags import add_keyframes
 
     parser.add_argument("--data", required=True, metavar="DIR",
                         help="RGB-D folder with ground-truth poses (7-Scenes or TUM layout)")
-    parser.add_argument("--keyframes", type=int, default=32, metavar="K", help="number of frames to align")
+    add_keyframes(parser, 32, "the number of frames the pose benchmark aligns")
     parser.add_argument("--sampling", choices=["uniform", "random"], default="uniform",
                         help="evenly spaced frames, or a random subset kept in time order")
     parser.add_argument("--seed", type=int, default=0, help="seed of the random subset")
@@ -187,7 +191,11 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     idx = pick_frames(len(src), args.keyframes, args.sampling, args.seed)
     depth_model = _load_role(args.bundle, "depth", trace) if args.depth == "model" else None
     matcher = _load_role(args.bundle, "matcher", trace) if args.matcher == "model" else args.matcher
-    out = evaluate_pose(src, idx, matcher, args.strategy, depth_model, trace=trace)
+    from ..progress import phase
+
+    with phase("alignment", len(idx), "frame") as bar:  # one call: the bar shows the time it takes
+        out = evaluate_pose(src, idx, matcher, args.strategy, depth_model, trace=trace)
+        bar.to(len(idx))
     out["seconds"] = time.perf_counter() - t0
     out.update({"schema": SCHEMA, "data": str(args.data), "keyframes": args.keyframes, "sampling": args.sampling,
                 "seed": args.seed, "strategy": args.strategy, "depth": args.depth, "matcher": args.matcher,

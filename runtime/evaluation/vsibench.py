@@ -24,6 +24,7 @@ import numpy as np
 
 from ..answer import Answer, MapReasoner, NUMERIC_QTYPES
 from ..errors import InputError
+from ..progress import ticked
 from ..semantic_map import SemanticMap
 
 SCHEMA = "mosaicthinker.eval.vsibench/1"
@@ -89,7 +90,7 @@ def evaluate(questions: list[dict[str, Any]], meta: dict[str, Any], types: list[
     records: list[dict[str, Any]] = []
     skipped: dict[str, int] = defaultdict(int)
     t0 = time.perf_counter()
-    for q in questions:
+    for q in ticked(questions, "questions", "question"):
         qt = q["question_type"]
         if types and qt not in types:
             continue
@@ -205,9 +206,12 @@ def find_disagreements(questions: list[dict[str, Any]], records: list[dict[str, 
 # ----------------------------------------------------------------------------- command
 
 
+COMMON_FLAGS = ("out",)
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--questions", metavar="Q.jsonl", required=True, help="VSI-Bench questions.jsonl")
-    parser.add_argument("--meta", metavar="META.json", required=True, help="VSI-Bench meta_info.json")
+    parser.add_argument("--meta", metavar="FILE", required=True, help="VSI-Bench meta_info.json")
     parser.add_argument("--types", nargs="*", help="only these question types")
     parser.add_argument("--limit", type=int, help="at most this many questions")
     parser.add_argument("--disagreements", metavar="FILE", help="write the disagreement list (JSON) here")

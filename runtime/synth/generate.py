@@ -36,6 +36,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..geometry import intrinsics_from_fov, project
+from ..progress import start
 from .scene import Scene, SceneConfig, config_dict, generate_scene
 
 SCENE_SCHEMA = "mosaicthinker.synth.scene/1"
@@ -127,7 +128,9 @@ def render_frames(scene: Scene, out: Path, K: np.ndarray, poses: np.ndarray, wor
             visible.append({"id": int(k), "pixels": int(vis[k]), "fraction": round(frac, 4),
                             "in_frame": round(float(inf[k]), 4), "visibility": round(frac * float(inf[k]), 4)})
         rows[i] = {"index": int(i), "visible": visible}
+        bar.update()
 
+    bar = start("render", n, "frame")
     if workers == 1:
         for i in range(n):
             consume(_render_one(i))
@@ -138,6 +141,7 @@ def render_frames(scene: Scene, out: Path, K: np.ndarray, poses: np.ndarray, wor
         with mp.get_context("spawn").Pool(workers, initializer=_init_worker, initargs=init_args) as pool:
             for item in pool.imap(_render_one, range(n), chunksize=4):
                 consume(item)
+    bar.done()
     if writer is not None:
         writer.release()
     _G.clear()

@@ -1,0 +1,114 @@
+"""One vocabulary of command-line flags: each flag that several commands take is defined once, here.
+
+`tests/test_cli_vocabulary.py` walks every command's parser and checks that a flag name means the same thing
+everywhere (same type, choices and default), that a command only lists the common flags it reads, and that
+the deprecated aliases still work and warn.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from typing import Any, Sequence
+
+COMPLEXITY = ("low", "med", "high")   # object-number levels of a generated scene (VSI-Bench terciles)
+ANSWERERS = ("map", "vlm", "auto")    # map reasoner, VLM on the visual prompt, auto (reasoner when it knows)
+
+
+def parse_size(text: str) -> tuple[int, int]:
+    """'640x480' -> (640, 480): frame size as WxH (argparse type)."""
+    try:
+        w, h = (int(x) for x in str(text).lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--size must be WxH, e.g. 640x480 (got {text!r})") from None
+    if w < 16 or h < 16:
+        raise argparse.ArgumentTypeError(f"--size must be at least 16x16 (got {text!r})")
+    return w, h
+
+
+def add_size(p: argparse.ArgumentParser, default: str, what: str = "frame size") -> None:
+    p.add_argument("--size", type=parse_size, default=parse_size(default), metavar="WxH",
+                   help=f"{what} WxH (default {default})")
+
+
+def parse_duration(text: str) -> float:
+    """'45' -> 45.0 s; 'short' | 'medium' | 'long' -> the synthetic levels (30 | 60 | 120 s) (argparse type)."""
+    from ..synth.scene import DURATION_LEVELS
+
+    if text in DURATION_LEVELS:
+        return float(DURATION_LEVELS[text])
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--duration: seconds or one of {list(DURATION_LEVELS)}, got {text!r}") \
+            from None
+
+
+def add_clip(p: argparse.ArgumentParser, duration: float | None, fps: float | None, what: str = "video") -> None:
+    """--duration S and --fps F of a clip (generated, or planned). None: no default (given or derived)."""
+    p.add_argument("--duration", type=parse_duration, default=duration, metavar="S",
+                   help=f"{what} length in seconds, or short|medium|long (30|60|120 s)"
+                        + (f" (default {duration:g})" if duration is not None else ""))
+    p.add_argument("--fps", type=float, default=fps, metavar="F",
+                   help="frames per second" + (f" (default {fps:g})" if fps is not None else ""))
+
+
+def pipeline_keyframes() -> int:
+    """The pipeline's key-frame budget K: the one owner of the default (`PipelineConfig.keyframes`)."""
+    from ..pipeline import default_conf
+
+    return int(default_conf.keyframes)
+
+
+def add_keyframes(p: argparse.ArgumentParser, default: int | None = None, why: str = "") -> None:
+    """--keyframes K. default None: the pipeline's K; a command with its own default says why in its help."""
+    if default is None:
+        help_ = f"key-frame budget K (default {pipeline_keyframes()}, the pipeline's; the budget may lower it)"
+    else:
+        help_ = f"key-frame budget K (default {default}: {why})"
+    p.add_argument("--keyframes", type=int, default=default, metavar="K", help=help_)
+
+
+def add_answerer(p: argparse.ArgumentParser, help_: str | None = None) -> None:
+    p.add_argument("--answerer", choices=list(ANSWERERS), default="auto",
+                   help=help_ or "map reasoner, VLM on the visual prompt, or auto (the reasoner when it recognises "
+                                 "the question, else the VLM) (default auto)")
+
+
+class _Deprecated(argparse.Action):
+    """An old flag name kept working: sets the new flag's value and says on stderr to use the new name."""
+
+    def __init__(self, option_strings: Sequence[str], dest: str, new: str = "", append: bool = False, **kw: Any):
+        self.new, self.append = new, append
+        super().__init__(option_strings, dest, **kw)
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any,
+                 option_string: str | None = None) -> None:
+        print(f"warning: {option_string} is deprecated here, use {self.new}", file=sys.stderr)
+        if self.append:  # a repeatable flag: add to the new flag's list
+            values = list(getattr(namespace, self.dest, None) or []) + [values]
+        setattr(namespace, self.dest, values)
+
+
+def deprecated_alias(p: argparse.ArgumentParser, old: str, new: str, dest: str, **kw: Any) -> None:
+    """`old` keeps working as `new` (same dest), hidden from --help, with a warning on stderr."""
+    p.add_argument(old, dest=dest, action=_Deprecated, new=new, help=argparse.SUPPRESS, **kw)
+
+
+def add_complexity(p: argparse.ArgumentParser, default: str) -> None:
+    """--complexity low|med|high (object number of a generated scene). `--objects` names objects to map in
+    `mosaic map`; here it is kept as a deprecated alias of --complexity."""
+    p.add_argument("--complexity", choices=list(COMPLEXITY), default=default,
+                   help=f"object-number level: low 1-3, med 4-7, high 8-17 objects (default {default})")
+    deprecated_alias(p, "--objects", "--complexity", "complexity", choices=list(COMPLEXITY))
+
+
+def add_deprecated_size_parts(p: argparse.ArgumentParser) -> None:
+    """--width W / --height H, kept as deprecated aliases of --size WxH (read by `size_of`)."""
+    for name in ("width", "height"):
+        deprecated_alias(p, f"--{name}", "--size WxH", f"old_{name}", type=int, default=None)
+
+
+def size_of(args: argparse.Namespace) -> tuple[int, int]:
+    """--size, with the deprecated --width/--height overriding their part when given."""
+    w, h = args.size
+    return (getattr(args, "old_width", None) or w, getattr(args, "old_height", None) or h)
