@@ -256,7 +256,7 @@ def test_export_output_is_a_table_of_shipped_and_refused_with_library_noise_hidd
     g = _tiny_graph(tmp_path / "g.onnx", scale=3.0)
     side = tmp_path / "meta.json"
     side.write_text(json.dumps({"arch": "embedding_generic", "licence": "MIT", "preprocessing": {},
-                                "semantics": {"dim": 4}}))
+                                "semantics": {"dim": 4}, "random_weights": True}))
     rc = main(["export", "embedder", "--source", f"onnx:{g}", "--meta", str(side), "--precision", "fp32,fp16",
                "--out", str(tmp_path / "b")])
     out = capsys.readouterr()
