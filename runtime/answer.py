@@ -228,6 +228,8 @@ class MapReasoner:
             return Answer(self._format_number(pq.qtype, value, unit), value, "ok", expl, [], pq.qtype, pq, unit)
         if not options and isinstance(value, dict) and "text" in value:
             return Answer(value["text"], value, "ok", expl, [], pq.qtype, pq)
+        if not options and isinstance(value, str):  # an object or a direction, in the question's own words
+            return Answer(pq.phrase(value), value, "ok", expl, [], pq.qtype, pq)
         letter, text = self._choose(value, options)
         if letter is None:
             return Answer(f"unsupported: the answer {value!r} fits none of the options", value, "unsupported",
@@ -250,10 +252,14 @@ class MapReasoner:
         with the same vocabulary name (synonyms). [] when the map has none."""
         phrase = self._pq.phrase(name) if self._pq is not None else name
         for cand in (phrase, name):
-            if name_key(cand) in self._idx:
-                return self._idx[name_key(cand)]
-        canon = canonical_name(phrase) or canonical_name(name)
-        return [o for k in self._by_canon.get(canon or "", []) for o in self._idx[k]] if canon else []
+            k, canon = name_key(cand), canonical_name(cand)
+            if k in self._idx and canon != k:  # a specific map name ("office chair", "computer tower")
+                return self._idx[k]
+            if canon in self._by_canon:  # the name and its kinds / synonyms ("chair": chair, office chair)
+                return [o for key in self._by_canon[canon] for o in self._idx[key]]
+            if k in self._idx:
+                return self._idx[k]
+        return []
 
     def _hints(self, name: str) -> list[str]:
         import difflib
@@ -753,8 +759,9 @@ def answer_question(smap: SemanticMap, question: str, options: list[str] | None 
             trace.decide("answer.answerer", "none")
             trace.event("degraded", "the question matches no template and the bundle has no VLM: unanswered",
                         stage="answer")
-        return Answer("unsupported: not a recognised question template and no VLM in the bundle", None,
-                      "unsupported", "add a `vlm` role to the bundle to answer free-form questions", [], None, pq)
+        ans = reasoner.answer(question, opts, parsed=pq)  # the "not understood" reply with example wordings
+        ans.explanation += "; no VLM in the bundle (add a `vlm` role to answer free-form questions)"
+        return ans
     if vlm is None:
         raise InputError("--answerer vlm needs a bundle with a `vlm` role")
     missing = [n for n in pq.objects if not smap.by_name(n)]
@@ -766,7 +773,8 @@ def answer_question(smap: SemanticMap, question: str, options: list[str] | None 
     from .prompt import render, vlm_prompt
 
     vp = prompt if prompt is not None else render(smap)
-    text = vlm_prompt(question, opts, vp.text, vp.mode)
+    hint = "" if pq.qtype is None else f"\nHow a text parser read the question (a hint, may be wrong): {pq.describe()}"
+    text = vlm_prompt(question, opts, vp.text + hint, vp.mode)
     images = [vp.image] if vp.image is not None else []
     if trace is not None:
         trace.decide("answer.answerer", "vlm")

@@ -38,7 +38,7 @@ VOCABULARY: dict[str, tuple[str, ...]] = {
     "table": ("table", "dining table", "dinning table", "coffee table", "side table", "end table",
               "kitchen table", "work table"),
     "sofa": ("sofa", "couch", "loveseat", "love seat", "settee", "sectional", "seater sofa", "sofa couch"),
-    "tv": ("tv", "television", "tv monitor", "tv_monitor", "television set", "tv set", "tv screen",
+    "tv": ("tv", "television", "telly", "tv monitor", "tv_monitor", "television set", "tv set", "tv screen",
            "flat screen tv", "flatscreen tv"),
     "stool": ("stool", "bar stool", "footstool", "foot stool", "step stool"),
     "bed": ("bed", "bunk bed", "double bed", "single bed", "queen bed", "king bed"),

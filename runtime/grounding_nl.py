@@ -53,6 +53,11 @@ please thanks roughly approximately approx around exactly just only really actua
 first second third fourth fifth last order appear appears appeared appearance came come comes seen
 cm centimeter centimeters centimetre centimetres mm millimeter millimeters millimetre millimetres m meter meters
 metre metres ft foot feet inch inches sq
+for about like per upon unto via else off out over onto into than
+wonder wondering wondered suppose supposing imagine say know want wanted need think tell give let guess curious
+question quick hey hi hello ok okay so um please r u ur pls plz separate separates separated sits lies lie
+edge edges extent way ways spot part parts portion
+maximum max minimum min overall total approximate rough
 me myself mine origin axis y-axis x-axis cartesian plane quadrant quadrants degrees degree
 """.split())
 # content words that are also function words: "tv stand", "trash can", "side table", "front door"
@@ -223,7 +228,7 @@ def _has(joined: str, rx: str) -> bool:
     return re.search(rx, joined) is not None
 
 
-_CLOSE = r"\b(?:closest|nearest|closer|nearer|close|near)\b"
+_CLOSE = r"\b(?:closest|nearest|closer|nearer)\b"
 _FAR = r"\b(?:farthest|furthest|farther|further)\b"
 
 
@@ -238,9 +243,10 @@ def _intent(j: str, n_obj: int, has_opts: bool) -> str | None:
     if stance and _has(j, r"\b(?:standing|stand|stood|sitting|sit|i am|i'm|im|i was|you are|from|at|by|next to|"
                           r"beside|near|positioned|located)\b"):
         return "direction"
-    if _has(j, r"\b(?:distance|how far|far apart|far away|how close|gap between|separat\w*|how many (?:m|meters?|"
+    if _has(j, r"\b(?:distance|how far|far apart|far away|how close|gap between|separat\w*|how much (?:space|room|"
+               r"gap)|how many (?:m|meters?|"
                r"metres?|cm|centimet\w+|feet|foot|ft|inch(?:es)?|mm)\b.*\b(?:between|from|apart|away|to)\b)"):
-        if _has(j, r"\b(?:which|what|whichever)\b") or _has(j, r"\bor\b") or _has(j, _CLOSE + "|" + _FAR):
+        if _has(j, _CLOSE + "|" + _FAR):
             return "rel_distance"
         return "abs_distance"
     if _has(j, _CLOSE + "|" + _FAR) and _has(j, r"\b(?:which|what|whichever|what's|is|are)\b"):
@@ -306,6 +312,13 @@ def _attachments(toks: list[str], nps: list[dict[str, Any]]) -> list[dict[str, A
     return out
 
 
+_TRIGGERS = {"count": {"many", "count", "number", "quantity"},
+             "size": {"big", "large", "long", "tall", "wide", "high", "deep", "size", "dimension", "dimensions",
+                      "length", "height", "width", "depth", "measure", "longest", "biggest", "largest"},
+             "existence": {"there", "see", "spot", "find", "notice", "have", "contain", "any", "exist", "exists"},
+             "where": {"where", "where's", "locate", "location", "position", "whereabouts"}}
+
+
 def parse_natural(question: str, options: list[str] | None = None) -> ParsedQuestion:
     """Parse a natural English question (see the module docstring). `question` is already cleaned
     (`grounding.safe_text`); the result's qtype is None when the intent or its objects are not understood, with
@@ -327,6 +340,9 @@ def parse_natural(question: str, options: list[str] | None = None) -> ParsedQues
                "where": _where, "list": _list, "obj_appearance_order": _order}[intent]
     keep_attach = intent not in ("rel_distance", "direction")
     nps = _attachments(toks, nps_all) if keep_attach else nps_all
+    first = next((i for i, t in enumerate(toks) if t in _TRIGGERS.get(intent, ())), None)
+    if first is not None:  # "Quick question: how many chairs ...": the object comes after the question's cue
+        nps = [p for p in nps if p["start"] > first] or nps
     handler(pq, toks, joined, nps, extra)
     pq.targets = list(dict.fromkeys(pq.targets))
     pq.cues = [c for c in dict.fromkeys(pq.cues) if c not in pq.targets]
@@ -421,6 +437,12 @@ def _reference_index(toks: list[str], nps: list[dict[str, Any]]) -> int | None:
             return k
         if re.fullmatch(_CLOSE + "|" + _FAR, before[-1]):
             return k
+    if re.search(r"\b(?:closest|nearest|closer|nearer|farthest|furthest|farther|further)\b(?: \w+)? (?:to |from )?"
+                 r"(?:me|myself|i am|i'm|where i am)\b", " ".join(toks)):
+        for k, p in enumerate(nps):  # "if I'm at the stove, which ... is closest to me?"
+            before = _before(toks, p, 2)
+            if before and (before[-1] in ("at", "by", "beside", "near") or " ".join(before) == "next to"):
+                return k
     for k, p in enumerate(nps):  # "which of these is the closest one? (reference: ... to the tv)"
         before = _before(toks, p, 1)
         if before and before[-1] in ("to", "from"):
@@ -471,11 +493,12 @@ def _stance(toks: list[str], nps: list[dict[str, Any]]) -> tuple[int | None, int
         if face is None and (last in _FACE1 or two in _FACE2):
             face = k
             continue
-        if rel is None and last == "of" and len(b) >= 2 and b[-2] in ("left", "right", "front", "behind", "back"):
+        if rel is None and last == "of" and len(b) >= 2 and b[-2] in ("left", "right", "front", "behind", "back",
+                                                                     "side"):
             rel = k
             continue
         if pos is None and (last in ("by", "at", "beside", "near", "from") or two in ("next to", "close to",
-                                                                                    "front of")):
+                                                                                    "front of", "from where")):
             pos = k
     return pos, face, rel
 
