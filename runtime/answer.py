@@ -274,7 +274,7 @@ class MapReasoner:
     def _missing(self, names: list[str]) -> None:
         missing = [n for n in dict.fromkeys(names) if not self._find(n)]
         if missing:
-            shown = [self._pq.phrase(n) if self._pq is not None else n for n in missing]
+            shown = [name_key(self._ph(n)) or n for n in missing]  # the question's words, singular
             raise _NotFound(shown, [h for n in missing for h in self._hints(n)])
 
     def _instances(self, name: str) -> list[ObjectInstance]:
@@ -518,7 +518,8 @@ class MapReasoner:
         d = describe_direction(th, back)
         asked = pq.params.get("asked") or []
         if len(asked) == 1:
-            hit = asked[0] in (d["side"], d["quadrant"], d["medium"], d["front_back"])
+            hit = asked[0] in (d["quadrant"], d["front_back"]) or (asked[0] == d["side"] and
+                                                                 d["words"] not in ("straight ahead", "behind"))
             d["text"] = ("yes" if hit else "no") + f" ({d['words']})"
             d["asked"], d["answer"] = asked[0], hit
         else:

@@ -230,6 +230,7 @@ def _has(joined: str, rx: str) -> bool:
 
 _CLOSE = r"\b(?:closest|nearest|closer|nearer)\b"
 _FAR = r"\b(?:farthest|furthest|farther|further)\b"
+_WHICH = r"\b(?:which|whichever|what|what's|or|than)\b"  # a choice is asked (else a closeness word selects)
 
 
 def _intent(j: str, n_obj: int, has_opts: bool) -> str | None:
@@ -246,10 +247,10 @@ def _intent(j: str, n_obj: int, has_opts: bool) -> str | None:
     if _has(j, r"\b(?:distance|how far|far apart|far away|how close|gap between|separat\w*|how much (?:space|room|"
                r"gap)|how many (?:m|meters?|"
                r"metres?|cm|centimet\w+|feet|foot|ft|inch(?:es)?|mm)\b.*\b(?:between|from|apart|away|to)\b)"):
-        if _has(j, _CLOSE + "|" + _FAR):
+        if _has(j, _CLOSE + "|" + _FAR) and _has(j, _WHICH):
             return "rel_distance"
-        return "abs_distance"
-    if _has(j, _CLOSE + "|" + _FAR) and _has(j, r"\b(?:which|what|whichever|what's|is|are)\b"):
+        return "abs_distance"  # "how far is the chair nearest the door from the tv": a selector, not the question
+    if _has(j, _CLOSE + "|" + _FAR) and _has(j, _WHICH):
         return "rel_distance"
     if _has(j, r"\b(?:how (?:big|large) is (?:the |this |our )?(?:room|space|kitchen|bedroom|bathroom|apartment|"
                r"flat|office|house|living room|area)\b|floor (?:area|space|size)|square (?:meters?|metres?|feet)|"
@@ -524,9 +525,11 @@ def _direction(pq, toks, joined, nps, extra) -> None:
         level = "hard"
     elif "back" in asked:
         level = "medium"
-    elif opts or ("left" in asked and "right" in asked):
+    elif opts or len(set(asked)) > 1:
         level = "easy"
     else:
+        level = "free"
+    if not opts and len(set(asked)) <= 1:  # "is the lamp on my left?", "where is the lamp?": yes/no or words
         level = "free"
     pq.params = {"position": names[pos], "facing": names[face], "query": query, **extra}
     if rel is not None:
