@@ -78,6 +78,38 @@ HARD = ["If I stand by the {A} and face the {B}, is the {C} front-left, front-ri
         "standing beside the {A} and facing the {B}, which way is the {C} (front-left, front-right, back-left, "
         "back-right)"]
 
+# a second, held-out set of wordings, written after the parser was built and scored once before any fix
+# (`--pool holdout`): a check of wording the parser was not developed on
+HOLDOUT = {
+    "count": ["What number of {Ps} is in the scene?", "do we have many {Ps}? how many exactly?",
+              "Give me a count of the {Ps}.", "How many {Ps} have been placed in this room?",
+              "total {Ps} in here?", "How many {Ps} exist in the space?"],
+    "size": [("Approximately how large is the {X} in centimetres?", "cm"),
+             ("What is the largest dimension of the {X}?", "cm"), ("the {X} - how big, in cm?", "cm"),
+             ("Estimate the size of the {X} (its longest side) in metres.", "m"),
+             ("How big would you say the {X} is?", "cm"), ("What's the max length of the {X} along any axis?", "cm")],
+    "abs": [("What's the gap from the {A} to the {B} in metres?", "m"),
+            ("Tell me how far the {A} is from the {B}.", "m"), ("how far away is the {B} from the {A}", "m"),
+            ("Could you measure the distance from the {A} to the {B}?", "m"),
+            ("Between the {A} and the {B}, how much distance is there?", "m"),
+            ("What's the shortest distance between the {A} and the {B}, in cm?", "cm")],
+    "rel": ["Which one is {sup} the {R}?", "Closest to the {R} - which is it: {L}?",
+            "Tell me which of {L} is {sup} the {R}.", "{L} - which of these is {sup} the {R}?",
+            "Of these objects, which is {sup} the {R}?", "which item lies {sup} the {R}: {L}"],
+    "easy": ["If I'm next to the {A} and I'm looking at the {B}, is the {C} to the left or to the right of the {B}?",
+             "Positioned at the {A}, facing toward the {B}: does the {C} lie to the left or right?",
+             "With me standing by the {A} and facing the {B}, is the {C} left of the {B} or right of it?"],
+    "medium": ["I'm standing next to the {A}, facing the {B}. Is the {C} left of me, right of me, or behind me?",
+               "Standing by the {A} and looking toward the {B}, would I find the {C} on my left, on my right, or "
+               "behind me?",
+               "When I stand beside the {A} and face the {B}, where is the {C}: to the left, to the right or behind?"],
+    "hard": ["I'm at the {A}, facing the {B}. In which quadrant is the {C}: front-left, front-right, back-left or "
+             "back-right?",
+             "Standing next to the {A} and looking toward the {B}, is the {C} front left, front right, back left or "
+             "back right of me?",
+             "If I am beside the {A} facing the {B}, which quadrant does the {C} fall in?"],
+}
+
 TEMPLATES = {  # the benchmark's own wording, to take the objects out
     "object_counting": r"How many (.+?)\(s\) are in this room",
     "object_size_estimation": r"\(length, width, or height\) of the (.+?), measured in centimeters",
@@ -109,6 +141,13 @@ def _casual(q: str, rng: random.Random) -> str:
     if rng.random() < 0.1:
         q = q.rstrip("?")
     return q
+
+
+def use_holdout() -> None:
+    """Swap the wording pools for the held-out ones."""
+    global COUNT, SIZE, ABS, REL, EASY, MEDIUM, HARD
+    COUNT, SIZE, ABS, REL = HOLDOUT["count"], HOLDOUT["size"], HOLDOUT["abs"], HOLDOUT["rel"]
+    EASY, MEDIUM, HARD = HOLDOUT["easy"], HOLDOUT["medium"], HOLDOUT["hard"]
 
 
 def rewrite(q: dict, rng: random.Random) -> dict | None:
@@ -159,8 +198,12 @@ def main() -> None:
     ap.add_argument("--questions", default=str(HERE.parent.parent / "shared" / "data" / "vsibench" / "questions.jsonl"))
     ap.add_argument("--per-type", type=int, default=48)
     ap.add_argument("--seed", type=int, default=15)
-    ap.add_argument("--out", default=str(HERE / "data" / "vsibench_paraphrases.jsonl"))
+    ap.add_argument("--out", default=None, help="default benchmarks/data/vsibench_paraphrases[_holdout].jsonl")
+    ap.add_argument("--pool", choices=["main", "holdout"], default="main")
     a = ap.parse_args()
+    if a.pool == "holdout":
+        use_holdout()
+    a.out = a.out or str(HERE / "data" / f"vsibench_paraphrases{'_holdout' if a.pool == 'holdout' else ''}.jsonl")
     rng = random.Random(a.seed)
     qs = [json.loads(line) for line in open(a.questions) if line.strip()]
     by_type: dict[str, list[dict]] = {}
@@ -172,7 +215,7 @@ def main() -> None:
         pick = rng.sample(by_type[qt], min(a.per_type, len(by_type[qt])))
         rows += [r for r in (rewrite(q, rng) for q in sorted(pick, key=lambda q: q["id"])) if r is not None]
     for i, r in enumerate(rows):
-        r["id"] = 100000 + i
+        r["id"] = (200000 if a.pool == "holdout" else 100000) + i
     Path(a.out).parent.mkdir(parents=True, exist_ok=True)
     with open(a.out, "w") as f:
         for r in rows:

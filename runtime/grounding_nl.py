@@ -57,6 +57,9 @@ for about like per upon unto via else off out over onto into than
 wonder wondering wondered suppose supposing imagine say know want wanted need think tell give let guess curious
 question quick hey hi hello ok okay so um please r u ur pls plz separate separates separated sits lies lie
 edge edges extent way ways spot part parts portion
+exist exists existing fall falls belong belongs hang hangs hanging rest rests resting lying kept mounted put
+placed shown fit fits go goes come comes get gets got keep keeps contain contains include includes hold holds
+lie lies occupy occupies measure
 maximum max minimum min overall total approximate rough
 me myself mine origin axis y-axis x-axis cartesian plane quadrant quadrants degrees degree
 """.split())
@@ -244,7 +247,7 @@ def _intent(j: str, n_obj: int, has_opts: bool) -> str | None:
     if stance and _has(j, r"\b(?:standing|stand|stood|sitting|sit|i am|i'm|im|i was|you are|from|at|by|next to|"
                           r"beside|near|positioned|located)\b"):
         return "direction"
-    if _has(j, r"\b(?:distance|how far|far apart|far away|how close|gap between|separat\w*|how much (?:space|room|"
+    if _has(j, r"\b(?:distance|how far|far apart|far away|how close|gap (?:between|from)|separat\w*|how much (?:space|room|"
                r"gap)|how many (?:m|meters?|"
                r"metres?|cm|centimet\w+|feet|foot|ft|inch(?:es)?|mm)\b.*\b(?:between|from|apart|away|to)\b)"):
         if _has(j, _CLOSE + "|" + _FAR) and _has(j, _WHICH):
@@ -261,7 +264,7 @@ def _intent(j: str, n_obj: int, has_opts: bool) -> str | None:
                r"measure|measures|measurements?|longest side|longest edge)\b|how many (?:cm|centimet\w+|mm|"
                r"millimet\w+|m|meters?|metres?|feet|foot|ft|inch(?:es)?)\b"):
         return "size"
-    if _has(j, r"\bhow many\b|\bcount\b|\bnumber of\b|\bquantity of\b|\btotal of\b"):
+    if _has(j, r"\bhow many\b|\bcount\b|\bnumber of\b|\bquantity of\b|\btotal of\b|^(?:the )?total\b"):
         return "count"
     if _has(j, r"^(?:is|are) there\b|\b(?:do|can|did|could) (?:you|i|we) (?:see|spot|find|notice)\b|"
                r"\b(?:does|do) (?:the|this|our|your) \w+(?: \w+)? (?:have|contain|include|hold)\b|\bexists?\b|"
@@ -313,7 +316,7 @@ def _attachments(toks: list[str], nps: list[dict[str, Any]]) -> list[dict[str, A
     return out
 
 
-_TRIGGERS = {"count": {"many", "count", "number", "quantity"},
+_TRIGGERS = {"count": {"many", "count", "number", "quantity", "total"},
              "size": {"big", "large", "long", "tall", "wide", "high", "deep", "size", "dimension", "dimensions",
                       "length", "height", "width", "depth", "measure", "longest", "biggest", "largest"},
              "existence": {"there", "see", "spot", "find", "notice", "have", "contain", "any", "exist", "exists"},

@@ -243,3 +243,21 @@ def test_the_parser_reads_only_the_question_and_options():
     assert (p.qtype, p.params, p.how) == ("object_counting", {"object": "stool"}, "natural")
     p = parse_question("How many stool(s) are in this room?")
     assert (p.qtype, p.how) == ("object_counting", "template")
+
+
+def test_scoring_uses_only_the_question_text_and_options(tmp_path):
+    """A file whose question_type disagrees with its text: the answer follows the text (question_type is only
+    used to score), and any room set in meta_info format and any question file score the same way."""
+    from mosaicthinker.runtime.evaluation.vsibench import evaluate
+
+    meta = {"room1": {"object_bbox": {n: [{"centroid": list(c), "axesLengths": list(s),
+                                           "normalizedAxes": np.eye(3).reshape(-1).tolist()}
+                                          for m, c, s in ROOM if m == n] for n in {r[0] for r in ROOM}}}}
+    qs = [{"id": 1, "scene_name": "room1", "question_type": "object_counting", "options": None,
+           "question": "How big is the whiteboard?", "ground_truth": "200"},
+          {"id": 2, "scene_name": "room1", "question_type": "object_abs_distance", "options": None,
+           "question": "how far apart are the desk and the radiator, in meters?",
+           "ground_truth": str(round(min_gap("desk", "radiator"), 2))}]
+    _, rec = evaluate(qs, meta)
+    assert rec[0]["value"] == pytest.approx(200.0) and rec[0]["score"] == 1.0  # the size (a count would be 1)
+    assert rec[1]["status"] == "ok" and rec[1]["score"] == 1.0
