@@ -129,8 +129,8 @@ def _norm(s: str) -> str:
 
 
 def _measure(o: ObjectInstance, what: str) -> float:
-    """A box measure in metres: longest side, height (vertical extent), length / width (the longer / shorter
-    horizontal side), volume (m^3) or top (highest z)."""
+    """A box measure in metres: longest side, height (vertical extent), length and width (the longer horizontal
+    side, as furniture is sold: W x D x H), depth (the shorter horizontal side), volume (m^3) or top (highest z)."""
     b = o.box
     lengths = np.asarray(b.axes_lengths, float)
     if what == "longest":
@@ -144,7 +144,7 @@ def _measure(o: ObjectInstance, what: str) -> float:
         return float(z.max())
     up = int(np.argmax(np.abs(np.asarray(b.axes, float)[:, 2])))
     horiz = sorted((float(lengths[i]) for i in range(3) if i != up), reverse=True)
-    return horiz[0] if what == "length" else horiz[1]
+    return horiz[1] if what == "depth" else horiz[0]  # length / width: the longer horizontal side (W x D x H)
 
 
 # selector word -> (measure, pick)
@@ -395,6 +395,8 @@ class MapReasoner:
             raise _Unsupported(f"counting only some {self._ph(pq.params['object'])} "
                                f"('{sel.get('phrase') or 'near the ' + sel['near']}') is not supported; ask how many "
                                f"{self._ph(pq.params['object'])} there are")
+        if pq.params["object"] == "*" or name_key(pq.params["object"]) in ("thing", "object", "item"):
+            return len(self.map.instances), f"{len(self.map.instances)} object(s) in the map"
         n = len(self._instances(pq.params["object"]))
         return n, f"{n} instance(s) of {self._ph(pq.params['object'])} in the map"
 
@@ -513,10 +515,12 @@ class MapReasoner:
 
     def _object_direction(self, pq: ParsedQuestion) -> tuple[Any, str]:
         """Free-form direction: every reading of the angle; "is it on my left?" -> yes/no for the asked word."""
+        asked = pq.params.get("asked") or []
+        if pq.params.get("candidates"):
+            return self._direction_choice(pq, asked)
         th, expl = self._angle(pq)
         back = pq.params.get("back_deg", self.conf.back_deg)
         d = describe_direction(th, back)
-        asked = pq.params.get("asked") or []
         if len(asked) == 1:
             hit = asked[0] in (d["quadrant"], d["front_back"]) or (asked[0] == d["side"] and
                                                                  d["words"] not in ("straight ahead", "behind"))
@@ -525,6 +529,24 @@ class MapReasoner:
         else:
             d["text"] = d["words"]
         return d, f"{expl} -> {d['words']}"
+
+    def _direction_choice(self, pq: ParsedQuestion, asked: list[str]) -> tuple[Any, str]:
+        """"Standing by A facing B, what's on my right: the C or the D?" -> the candidates in that direction."""
+        from dataclasses import replace
+
+        if len(asked) != 1:
+            raise _Unsupported("several objects and several directions: ask 'is the C on my left?' per object")
+        where: dict[str, dict[str, Any]] = {}
+        expls = []
+        for c in pq.params["candidates"]:
+            sub = replace(pq, params={**pq.params, "query": c, "candidates": None}, selectors=pq.selectors)
+            th, e = self._angle(sub)
+            where[c] = describe_direction(th, pq.params.get("back_deg", self.conf.back_deg))
+            expls.append(e)
+        hits = [c for c, d in where.items() if asked[0] in (d["quadrant"], d["front_back"])
+                or (asked[0] == d["side"] and d["words"] not in ("straight ahead", "behind"))]
+        text = " and ".join(self._ph(c) for c in hits) if hits else "none of them"
+        return {"text": text, "matches": hits, "asked": asked[0], "directions": where}, "; ".join(expls)
 
     def _object_where(self, pq: ParsedQuestion) -> tuple[Any, str]:
         """Where an object is: its nearest other objects (closest points, side by box centres) and, when the map
@@ -538,7 +560,8 @@ class MapReasoner:
         marks = [{"object": x.name, "instance": int(x.id), "distance_m": round(float(d), 3)} for d, x in near]
         value: dict[str, Any] = {"object": o.name, "instance": int(o.id), "n_instances": len(inst),
                                  "centre": np.round(o.center, 3).tolist(), "landmarks": marks}
-        words = [f"{m['distance_m']:.1f} m from the {m['object']}" for m in marks]
+        words = [f"touching the {m['object']}" if m["distance_m"] < 0.05 else
+                 f"{m['distance_m']:.1f} m from the {m['object']}" for m in marks]
         if self.map.cameras:
             cam = describe_from_camera(self.map.cameras[-1][1], o.center, self.conf.back_deg)
             value["camera"] = cam

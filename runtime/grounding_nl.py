@@ -61,6 +61,7 @@ exist exists existing fall falls belong belongs hang hangs hanging rest rests re
 placed shown fit fits go goes come comes get gets got keep keeps contain contains include includes hold holds
 lie lies occupy occupies measure
 maximum max minimum min overall total approximate rough
+everything anything something nothing everyone all
 me myself mine origin axis y-axis x-axis cartesian plane quadrant quadrants degrees degree
 """.split())
 # content words that are also function words: "tv stand", "trash can", "side table", "front door"
@@ -134,7 +135,7 @@ def tokens(text: str) -> list[str]:
 
 def _is_content(toks: list[str], i: int, in_np: bool) -> bool:
     t = toks[i]
-    if not re.match(r"[a-z0-9]", t) or t in _DET:
+    if not re.match(r"[a-z0-9]", t) or t in _DET or "'" in t:  # contractions: i'd, don't, what's ...
         return False
     nxt = toks[i + 1] if i + 1 < len(toks) else ""
     nxt_content = bool(nxt) and re.match(r"[a-z]", nxt) is not None and nxt not in _STOP and nxt not in _DET
@@ -211,15 +212,15 @@ _PREAMBLE = [  # phrases that would be misread as the question's own words
     re.compile(r"(?:measuring|measured|measure|as measured)?\s*(?:from|between)?\s*(?:the\s+)?(?:closest|nearest)"
                r"\s+points?(?:\s+(?:of|on)\s+(?:each|the|both|two)(?:\s+(?:two|the))?\s+objects?)?"),
     re.compile(r"(?:closest|nearest)[- ]point[- ]to[- ](?:closest|nearest)[- ]point"),
-    re.compile(r"(?:an object is (?:to )?my back|(?:it|something) counts as (?:behind|back)) if .{0,120}?"
-               r"(?:face it|degrees)\b"),
+    re.compile(r"(?:an object is (?:to )?my back|(?:it|something) counts as (?:behind|back)|count (?:it|that|"
+               r"something) as (?:behind|back)) if .{0,120}?(?:face it|degrees(?: or more)?)\b"),
     re.compile(r"(?:the )?directions? (?:refer|refers|are) .{0,160}?(?:y-axis|y axis|quadrants?)\b\)?"),
 ]
 
 
 def _strip_preamble(joined: str) -> tuple[str, dict[str, Any]]:
     extra: dict[str, Any] = {}
-    m = re.search(r"(?:turn|turning) (?:at least|more than|over)\s+(\d+)\s+degrees", joined)
+    m = re.search(r"(?:turn|turning) (?:at least |more than |over |by )?(\d+)\s+degrees", joined)
     if m:
         extra["back_deg"] = float(m.group(1))
     for rx in _PREAMBLE:
@@ -255,6 +256,8 @@ def _intent(j: str, n_obj: int, has_opts: bool) -> str | None:
         return "abs_distance"  # "how far is the chair nearest the door from the tv": a selector, not the question
     if _has(j, _CLOSE + "|" + _FAR) and _has(j, _WHICH):
         return "rel_distance"
+    if _has(j, r"\b(?:what|what's|which)\b(?: \w+){0,3} (?:next to|beside|near|by)\b"):
+        return "rel_distance"  # "what's next to the desk?": the nearest other object
     if _has(j, r"\b(?:how (?:big|large) is (?:the |this |our )?(?:room|space|kitchen|bedroom|bathroom|apartment|"
                r"flat|office|house|living room|area)\b|floor (?:area|space|size)|square (?:meters?|metres?|feet)|"
                r"\bsq\b|(?:size|area|footprint) of (?:the |this )?(?:room|space|kitchen|bedroom|bathroom|apartment|"
@@ -378,8 +381,28 @@ def _single(pq: ParsedQuestion, nps: list[dict[str, Any]], what: str, qtype: str
     return names[0]
 
 
+_LOCATION = {"on", "in", "at", "near", "by", "under", "behind", "beside", "above", "below", "inside", "against",
+             "around", "next", "between", "over", "beneath", "underneath", "along", "across", "close"}
+
+
+def _conditions(toks: list[str], nps: list[dict[str, Any]]) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
+    """Split phrases into the objects asked about and the ones after a location word ("on the desk")."""
+    objs, conds = [], []
+    for p in nps:
+        b = _before(toks, p, 1)
+        (conds if objs and b and b[-1] in _LOCATION else objs).append(p)
+    return objs, conds
+
+
 def _count(pq, toks, joined, nps, extra) -> None:
-    n = _single(pq, nps, "count", "object_counting")
+    if not nps and _has(joined, r"\b(?:objects|things|items|pieces of furniture)\b"):
+        pq.qtype, pq.params = "object_counting", {"object": "*"}  # every object in the map
+        return
+    objs, conds = _conditions(toks, nps)
+    if len(objs) > 1:
+        return _fail(pq, "a count of " + " and ".join(f"'{' '.join(p['words'])}'" for p in objs),
+                     "one count for several objects; ask about one object at a time")
+    n = _single(pq, objs + conds, "count", "object_counting")
     if n is not None:
         pq.targets, pq.params = [n], {"object": n}
 
@@ -387,7 +410,13 @@ def _count(pq, toks, joined, nps, extra) -> None:
 def _existence(pq, toks, joined, nps, extra) -> None:
     if not nps:
         return _fail(pq, "an is-there question", "which object it is about")
-    names = _refs(pq, nps)
+    objs, conds = _conditions(toks, nps)
+    if conds:
+        where = ", ".join(" ".join(p["words"]) for p in conds)
+        return _fail(pq, "an is-there question about " + ", ".join(f"'{' '.join(p['words'])}'" for p in objs),
+                     f"the location ('{where}'): the map answers whether there is one at all; ask 'is there a "
+                     f"{' '.join(objs[0]['words'])}?' or 'where is the {' '.join(objs[0]['words'])}?'")
+    names = _refs(pq, objs)
     pq.qtype = "object_existence"
     pq.targets, pq.params = names, {"objects": names, "all": " and " in f" {joined} "}
 
@@ -405,8 +434,8 @@ def _size(pq, toks, joined, nps, extra) -> None:
         dim = "width"
     elif _has(joined, r"\bhow long\b|\blength\b|\blong\b"):
         dim = "length"
-    elif _has(joined, r"\bhow deep\b|\bdepth\b"):
-        dim = "width"
+    elif _has(joined, r"\bhow deep\b|\bdepth\b|\bdeep\b"):
+        dim = "depth"
     else:
         dim = "longest"
     pq.targets = [n]
@@ -447,6 +476,10 @@ def _reference_index(toks: list[str], nps: list[dict[str, Any]]) -> int | None:
             before = _before(toks, p, 2)
             if before and (before[-1] in ("at", "by", "beside", "near") or " ".join(before) == "next to"):
                 return k
+    for k, p in enumerate(nps):  # "what's next to the desk?"
+        before = _before(toks, p, 2)
+        if before and (before[-1] in ("beside", "near", "by") or " ".join(before[-2:]) == "next to"):
+            return k
     for k, p in enumerate(nps):  # "which of these is the closest one? (reference: ... to the tv)"
         before = _before(toks, p, 1)
         if before and before[-1] in ("to", "from"):
@@ -518,9 +551,8 @@ def _direction(pq, toks, joined, nps, extra) -> None:
         return _fail(pq, "a direction question" + (f" ({', '.join(got)})" if got else ""), ", ".join(miss) +
                      " (say e.g. 'standing by the sofa facing the tv, is the lamp to my left?')")
     query = names[rest[0]]
-    if len(rest) > 1:
-        pq.notes.append("more than one object to locate: " + ", ".join(pq.phrase(names[k]) for k in rest) +
-                        f"; answered for '{pq.phrase(query)}'")
+    if len(rest) > 1:  # "what's on my right: the radiator or the laptop?"
+        pq.params["candidates"] = [names[k] for k in rest]
     opts = split_options(pq.options)
     asked = [d for _, t in opts for d in direction_words(t)[:1]] if opts else direction_words(
         " ".join(t for i, t in enumerate(toks) if not any(p["start"] <= i < p["end"] for p in nps)))
@@ -534,10 +566,12 @@ def _direction(pq, toks, joined, nps, extra) -> None:
         level = "free"
     if not opts and len(set(asked)) <= 1:  # "is the lamp on my left?", "where is the lamp?": yes/no or words
         level = "free"
-    pq.params = {"position": names[pos], "facing": names[face], "query": query, **extra}
+    pq.params = {"position": names[pos], "facing": names[face], "query": query, **extra, **pq.params}
     if rel is not None:
         pq.params["relative_to"] = names[rel]
-    pq.targets, pq.cues = [query], [names[pos], names[face]]
+    pq.targets, pq.cues = pq.params.get("candidates", [query]), [names[pos], names[face]]
+    if pq.params.get("candidates") and not opts:
+        level = "free"
     if level == "free":
         pq.qtype = "object_direction"
         pq.params["asked"] = list(dict.fromkeys(asked))

@@ -156,6 +156,22 @@ def test_free_form_directions_against_the_angle(q_obj):
     assert a.value["angle_deg"] == pytest.approx(th, abs=0.1)
 
 
+def test_choices_conditions_and_generic_words():
+    th = {n: ccw_deg("couch", "whiteboard", n) for n in ("radiator", "laptop", "telephone")}
+    a = ask("standing at the couch facing the whiteboard, what's on my left: the radiator, the laptop or the "
+            "telephone?")
+    assert a.ok and set(a.value["matches"]) == {n for n, t in th.items() if t > 0}
+    others = {n for n, _, _ in ROOM} - {"desk"}
+    a = ask("What's next to the desk?")
+    assert a.ok and min_gap(a.value["object"], "desk") == pytest.approx(min(min_gap(n, "desk") for n in others))
+    a = ask("Are there any monitors on the desk?")  # a location the map cannot check is refused, not dropped
+    assert a.status == "unsupported" and "desk" in a.text
+    assert ask("How many objects are there?").value == len(ROOM)
+    assert ask("How many things are in this room?").value == len(ROOM)
+    a = ask("how many chairs and couches are there?")
+    assert a.status == "unsupported" and "one object at a time" in a.text
+
+
 # ----------------------------------------------------------------------------- selectors, units, options
 
 
@@ -180,8 +196,9 @@ def test_units_in_and_out():
     assert a.unit == "cm" and float(a.text) == pytest.approx(d * 100, abs=0.5)
     a = ask("How tall is the whiteboard in inches?")
     assert a.value == pytest.approx(120 / 2.54)
-    a = ask("How wide is the couch in meters?")
+    a = ask("How deep is the couch in meters?")
     assert a.value == pytest.approx(0.9) and a.text == "0.90"
+    assert ask("How wide is the whiteboard?").value == pytest.approx(200.0)  # W x D x H: width along the wall
 
 
 def test_options_in_free_text_and_synonym_options():
