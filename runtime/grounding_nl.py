@@ -237,6 +237,19 @@ _FAR = r"\b(?:farthest|furthest|farther|further)\b"
 _WHICH = r"\b(?:which|whichever|what|what's|or|than)\b"  # a choice is asked (else a closeness word selects)
 
 
+_ROOMS = r"(?:room|space|kitchen|bedroom|bathroom|apartment|flat|office|house|living room|area|whole space)"
+_UNITS_RX = r"(?:cm|centimet\w+|mm|millimet\w+|m|meters?|metres?|feet|foot|ft|inch(?:es)?)"
+_SIMPLE_INTENTS = [(name, re.compile(rx)) for name, rx in (  # tried in this order, after the choice questions
+    ("room_size", rf"\bhow (?:big|large) is (?:the |this |our )?{_ROOMS}\b|floor (?:area|space|size)|square "
+                  rf"(?:meters?|metres?|feet)|\bsq\b|(?:size|area|footprint) of (?:the |this )?{_ROOMS}\b"),
+    ("size", rf"\bhow (?:big|large|long|tall|wide|high|deep)\b|\b(?:size|dimensions?|length|height|width|depth|"
+             rf"measure|measures|measurements?|longest side|longest edge)\b|how many {_UNITS_RX}\b"),
+    ("count", r"\bhow many\b|\bcount\b|\bnumber of\b|\bquantity of\b|\btotal of\b|^(?:the )?total\b"),
+    ("existence", r"^(?:is|are) there\b|\b(?:do|can|did|could) (?:you|i|we) (?:see|spot|find|notice)\b|"
+                  r"\b(?:does|do) (?:the|this|our|your) \w+(?: \w+)? (?:have|contain|include|hold)\b|\bexists?\b|"
+                  r"^(?:any|got any)\b|\bis (?:a|an) [^?]{1,80}? (?:in|here)\b"))]
+
+
 def _intent(j: str, n_obj: int, has_opts: bool) -> str | None:
     """The intent from cue words (order matters: the more specific first)."""
     stance = _has(j, r"\b(?:facing|face|faces|looking at|look at|looking towards?|look towards?|turned towards?|"
@@ -258,21 +271,9 @@ def _intent(j: str, n_obj: int, has_opts: bool) -> str | None:
         return "rel_distance"
     if _has(j, r"\b(?:what|what's|which)\b(?: \w+){0,3} (?:next to|beside|near|by)\b"):
         return "rel_distance"  # "what's next to the desk?": the nearest other object
-    if _has(j, r"\b(?:how (?:big|large) is (?:the |this |our )?(?:room|space|kitchen|bedroom|bathroom|apartment|"
-               r"flat|office|house|living room|area)\b|floor (?:area|space|size)|square (?:meters?|metres?|feet)|"
-               r"\bsq\b|(?:size|area|footprint) of (?:the |this )?(?:room|space|kitchen|bedroom|bathroom|apartment|"
-               r"flat|office|house|living room|whole space))"):
-        return "room_size"
-    if _has(j, r"\bhow (?:big|large|long|tall|wide|high|deep)\b|\b(?:size|dimensions?|length|height|width|depth|"
-               r"measure|measures|measurements?|longest side|longest edge)\b|how many (?:cm|centimet\w+|mm|"
-               r"millimet\w+|m|meters?|metres?|feet|foot|ft|inch(?:es)?)\b"):
-        return "size"
-    if _has(j, r"\bhow many\b|\bcount\b|\bnumber of\b|\bquantity of\b|\btotal of\b|^(?:the )?total\b"):
-        return "count"
-    if _has(j, r"^(?:is|are) there\b|\b(?:do|can|did|could) (?:you|i|we) (?:see|spot|find|notice)\b|"
-               r"\b(?:does|do) (?:the|this|our|your) \w+(?: \w+)? (?:have|contain|include|hold)\b|\bexists?\b|"
-               r"^(?:any|got any)\b|\bis (?:a|an) .+ (?:in|here)\b"):
-        return "existence"
+    for intent, rx in _SIMPLE_INTENTS:
+        if rx.search(j):
+            return intent
     if _has(j, r"\b(?:where|whereabouts|locate|location of|position of)\b"):
         return "direction" if _has(j, r"\b(?:if i|standing|when i)\b") and stance else "where"
     if _has(j, r"\b(?:list|enumerate|inventory)\b|\b(?:what|which) (?:objects|things|items|furniture)\b|"
