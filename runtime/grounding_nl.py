@@ -61,9 +61,10 @@ exist exists existing fall falls belong belongs hang hangs hanging rest rests re
 placed shown fit fits go goes come comes get gets got keep keeps contain contains include includes hold holds
 lie lies occupy occupies measure
 maximum max minimum min overall total approximate rough
-everything anything something nothing everyone all
+everything anything something nothing everyone all anywhere somewhere everywhere
 me myself mine origin axis y-axis x-axis cartesian plane quadrant quadrants degrees degree
 """.split())
+_COPULA = {"is", "are", "was", "were", "be", "been", "being", "get", "got", "gets"}
 # content words that are also function words: "tv stand", "trash can", "side table", "front door"
 _SOFT_AFTER_NOUN = {"stand", "can", "light", "lights", "top", "set", "table"}
 _SOFT_BEFORE_NOUN = {"side", "end", "top", "back", "front", "corner", "coffee", "night", "standing", "sitting",
@@ -76,6 +77,7 @@ _COLOURS = {"red", "blue", "green", "yellow", "black", "white", "grey", "gray", 
             "leather", "plastic", "glass", "fabric", "striped", "old", "new", "modern", "broken", "open", "closed"}
 _ORDINALS = {"first", "second", "third", "fourth", "fifth", "last", "other", "left", "right", "middle", "1st",
              "2nd", "3rd"}
+_RANKS = {"second", "third", "fourth", "fifth", "2nd", "3rd", "4th", "5th", "penultimate"}
 _SUPERLATIVE = {"biggest": ("volume", max), "largest": ("volume", max), "smallest": ("volume", min),
                 "tallest": ("height", max), "shortest": ("height", min), "highest": ("top", max),
                 "lowest": ("top", min), "longest": ("length", max), "widest": ("width", max)}
@@ -136,6 +138,8 @@ def tokens(text: str) -> list[str]:
 def _is_content(toks: list[str], i: int, in_np: bool) -> bool:
     t = toks[i]
     if not re.match(r"[a-z0-9]", t) or t in _DET or "'" in t:  # contractions: i'd, don't, what's ...
+        return False
+    if t.endswith("ed") and i > 0 and toks[i - 1] in _COPULA:  # "are plugged in": a verb, not a name
         return False
     nxt = toks[i + 1] if i + 1 < len(toks) else ""
     nxt_content = bool(nxt) and re.match(r"[a-z]", nxt) is not None and nxt not in _STOP and nxt not in _DET
@@ -264,9 +268,9 @@ def _intent(j: str, n_obj: int, has_opts: bool) -> str | None:
     if _has(j, r"\b(?:distance|how far|far apart|far away|how close|gap (?:between|from)|separat\w*|how much (?:space|room|"
                r"gap)|how many (?:m|meters?|"
                r"metres?|cm|centimet\w+|feet|foot|ft|inch(?:es)?|mm)\b.*\b(?:between|from|apart|away|to)\b)"):
-        if _has(j, _CLOSE + "|" + _FAR) and _has(j, _WHICH):
+        if _has(j, _CLOSE + "|" + _FAR) and _has(j, r"\b(?:which|whichever|or|than)\b"):
             return "rel_distance"
-        return "abs_distance"  # "how far is the chair nearest the door from the tv": a selector, not the question
+        return "abs_distance"  # "what is the distance from the laptop to the nearest chair": instances' minimum  # "how far is the chair nearest the door from the tv": a selector, not the question
     if _has(j, _CLOSE + "|" + _FAR) and _has(j, _WHICH):
         return "rel_distance"
     if _has(j, r"\b(?:what|what's|which)\b(?: \w+){0,3} (?:next to|beside|near|by)\b"):
@@ -351,6 +355,13 @@ def parse_natural(question: str, options: list[str] | None = None) -> ParsedQues
     first = next((i for i, t in enumerate(toks) if t in _TRIGGERS.get(intent, ())), None)
     if first is not None:  # "Quick question: how many chairs ...": the object comes after the question's cue
         nps = [p for p in nps if p["start"] > first] or nps
+    used = {w for sel in (p["sel"] for p in nps_all) for w in sel}
+    ordinal = [w for w in toks if w in _RANKS and w not in used]
+    if ordinal:  # "the second closest object": a rank the reasoner does not compute; never dropped silently
+        _fail(pq, f"a {intent.replace('_', ' ')} question", f"the rank '{ordinal[0]}' (only the nearest / farthest "
+                                                            f"or one object at a time)")
+        pq.how = "none"
+        return pq
     handler(pq, toks, joined, nps, extra)
     pq.targets = list(dict.fromkeys(pq.targets))
     pq.cues = [c for c in dict.fromkeys(pq.cues) if c not in pq.targets]

@@ -170,6 +170,20 @@ def test_choices_conditions_and_generic_words():
     assert ask("How many things are in this room?").value == len(ROOM)
     a = ask("how many chairs and couches are there?")
     assert a.status == "unsupported" and "one object at a time" in a.text
+    a = ask("What's the second closest object to the desk?")  # a rank is refused, never read as "closest"
+    assert a.status == "unsupported" and "second" in a.text
+    a = ask("what is the distance from the laptop to the nearest office chair?")
+    assert a.ok and a.value == pytest.approx(min_gap("laptop", "office chair"))
+    assert ask("Is there a printer anywhere?").value["exists"] is False
+
+
+def test_the_questions_own_back_rule():
+    th = abs(ccw_deg("desk", "whiteboard", "radiator"))
+    q = ("From the desk, facing the whiteboard, is the radiator left, right, or behind (count it as behind if I'd "
+         "have to turn {} degrees or more)?")
+    opts = ["A. left", "B. right", "C. back"]
+    assert parse_question(q.format(50)).params["back_deg"] == 50.0
+    assert ask(q.format(int(th) - 1), opts).value == "back" and ask(q.format(int(th) + 1), opts).value != "back"
 
 
 # ----------------------------------------------------------------------------- selectors, units, options
@@ -278,3 +292,20 @@ def test_scoring_uses_only_the_question_text_and_options(tmp_path):
     _, rec = evaluate(qs, meta)
     assert rec[0]["value"] == pytest.approx(200.0) and rec[0]["score"] == 1.0  # the size (a count would be 1)
     assert rec[1]["status"] == "ok" and rec[1]["score"] == 1.0
+
+
+def test_the_vlm_gets_the_raw_question_and_the_parsers_reading_as_a_hint():
+    from mosaicthinker.runtime.answer import answer_question
+
+    class Recorder:  # a VLM stand-in that records its prompt and replies with an option letter
+        prompts: list[str] = []
+
+        def generate(self, images, prompt, max_new_tokens=16):
+            self.prompts.append(prompt)
+            return "B"
+
+    vlm = Recorder()
+    q = "Which is closer to the desk, the couch or the radiator?"
+    a = answer_question(room_map(), q, ["A. couch", "B. radiator"], answerer="vlm", vlm=vlm)
+    assert a.text == "B" and q in vlm.prompts[0]
+    assert "text parser read the question" in vlm.prompts[0] and "object_rel_distance" in vlm.prompts[0]
