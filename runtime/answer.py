@@ -1,6 +1,9 @@
 """The map reasoner: answers VSI-Bench question types exactly from a `SemanticMap`.
 
-`MapReasoner(map).answer(question, options) -> Answer`. The question is parsed by `grounding.parse_question`;
+`MapReasoner(map).answer(question, options) -> Answer`. The question is parsed by `grounding.parse_question`
+(the VSI-Bench templates, then natural wording: `grounding_nl`, which adds existence, where, list, nearest among
+everything and free-form directions; see docs/reasoner-vsibench.md); names resolve to the map's own categories
+(`MapReasoner._find`), units follow the question (`Answer.unit`);
 an object the map does not hold gives `status="not_found"` (never a guess), a question the templates do not
 cover or the map cannot decide gives `status="unsupported"`.
 
@@ -566,7 +569,8 @@ class MapReasoner:
             cam = describe_from_camera(self.map.cameras[-1][1], o.center, self.conf.back_deg)
             value["camera"] = cam
             words.insert(0, f"{cam['words']} of the last camera view, {cam['distance_m']:.1f} m away")
-        value["text"] = f"the {self._ph(name)} is " + (", ".join(words) if words else "the only object in the map")
+        verb = "are" if name_key(self._ph(name)) != self._ph(name).lower() else "is"  # "the office chairs are"
+        value["text"] = f"the {self._ph(name)} {verb} " + (", ".join(words) if words else "the only object in the map")
         if len(inst) > 1:
             value["text"] += f" (one of {len(inst)}; #{o.id})"
         return value, value["text"]
