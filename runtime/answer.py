@@ -1,6 +1,9 @@
 """The map reasoner: answers VSI-Bench question types exactly from a `SemanticMap`.
 
-`MapReasoner(map).answer(question, options) -> Answer`. The question is parsed by `grounding.parse_question`;
+`MapReasoner(map).answer(question, options) -> Answer`. The question is parsed by `grounding.parse_question`
+(the VSI-Bench templates, then natural wording: `grounding_nl`, which adds existence, where, list, nearest among
+everything and free-form directions; see docs/reasoner-vsibench.md); names resolve to the map's own categories
+(`MapReasoner._find`), units follow the question (`Answer.unit`);
 an object the map does not hold gives `status="not_found"` (never a guess), a question the templates do not
 cover or the map cannot decide gives `status="unsupported"`.
 
@@ -33,10 +36,12 @@ from typing import Any
 import numpy as np
 
 from .geometry import box_distance
-from .grounding import ParsedQuestion, parse_question, split_options
+from .grounding import ParsedQuestion, canonical_name, name_key, parse_question, safe_text, split_options
 from .semantic_map import ObjectInstance, SemanticMap
 
 NUMERIC_QTYPES = ("object_counting", "object_size_estimation", "room_size_estimation", "object_abs_distance")
+UNIT_M = {"m": 1.0, "cm": 0.01, "mm": 0.001, "ft": 0.3048, "in": 0.0254}
+UNIT_WORDS = {"m": "m", "cm": "cm", "mm": "mm", "ft": "feet", "in": "inches", "m2": "m^2", "ft2": "sq ft"}
 
 
 @dataclass
@@ -46,6 +51,9 @@ class ReasonerConfig:
     back_deg: float = 135.0  # medium directions and route turns: "back" from this turn angle on
     distance_decimals: int = 1  # metres
     room_decimals: int = 1  # square metres
+    option_rel_tol: float = 0.5  # a number picks the nearest option only within this relative difference
+    n_landmarks: int = 2  # "where is X": the nearest other objects named
+    n_hints: int = 3  # "not in the map": this many similar map names offered
 
 
 @dataclass
@@ -62,6 +70,8 @@ class Answer:
     missing: list[str] = field(default_factory=list)
     qtype: str | None = None
     parsed: ParsedQuestion | None = None
+    unit: str | None = None  # of a numeric value: cm / m / mm / ft / in / m2 / ft2
+    hints: list[str] = field(default_factory=list)  # map names close to a name that is not in the map
 
     @property
     def ok(self) -> bool:
@@ -69,14 +79,15 @@ class Answer:
 
     def to_dict(self) -> dict[str, Any]:
         return {"text": self.text, "value": self.value, "status": self.status, "explanation": self.explanation,
-                "missing": list(self.missing), "qtype": self.qtype,
+                "missing": list(self.missing), "qtype": self.qtype, "unit": self.unit, "hints": list(self.hints),
                 "parsed": None if self.parsed is None else self.parsed.to_dict()}
 
 
 class _NotFound(Exception):
-    def __init__(self, names: list[str]):
+    def __init__(self, names: list[str], hints: list[str] | None = None):
         super().__init__(", ".join(names))
         self.names = names
+        self.hints = hints or []
 
 
 class _Unsupported(Exception):
@@ -120,78 +131,247 @@ def _norm(s: str) -> str:
     return " ".join(str(s).lower().replace(",", " , ").split())
 
 
+def _measure(o: ObjectInstance, what: str) -> float:
+    """A box measure in metres: longest side, height (vertical extent), length and width (the longer horizontal
+    side, as furniture is sold: W x D x H), depth (the shorter horizontal side), volume (m^3) or top (highest z)."""
+    b = o.box
+    lengths = np.asarray(b.axes_lengths, float)
+    if what == "longest":
+        return float(np.max(lengths))
+    if what == "volume":
+        return float(np.prod(lengths))
+    z = b.corners()[:, 2]
+    if what == "height":
+        return float(z.max() - z.min())
+    if what == "top":
+        return float(z.max())
+    up = int(np.argmax(np.abs(np.asarray(b.axes, float)[:, 2])))
+    horiz = sorted((float(lengths[i]) for i in range(3) if i != up), reverse=True)
+    return horiz[1] if what == "depth" else horiz[0]  # length / width: the longer horizontal side (W x D x H)
+
+
+# selector word -> (measure, pick)
+_SUPERLATIVES = {"biggest": ("volume", max), "largest": ("volume", max), "smallest": ("volume", min),
+                 "tallest": ("height", max), "shortest": ("height", min), "highest": ("top", max),
+                 "lowest": ("top", min), "longest": ("length", max), "widest": ("width", max)}
+
+
+def describe_direction(theta_deg: float, back_deg: float = 135.0) -> dict[str, Any]:
+    """Every reading of a counter-clockwise angle from the facing direction: side (left/right), front_back,
+    quadrant (front-left ...), medium (left/right/back), eight-way words and the angle."""
+    side = direction_label(theta_deg, "easy")
+    quad = direction_label(theta_deg, "hard")
+    med = direction_label(theta_deg, "medium", back_deg)
+    a = abs(((theta_deg + 180.0) % 360.0) - 180.0)
+    fb = "front" if a < 90.0 else "back"
+    if a <= 22.5:
+        words = "straight ahead"
+    elif a >= 157.5:
+        words = "behind"
+    elif 67.5 <= a <= 112.5:
+        words = f"to the {side}"
+    else:
+        words = f"{'ahead' if fb == 'front' else 'behind'} and to the {side}"
+    return {"side": side, "front_back": fb, "quadrant": quad, "medium": med, "words": words,
+            "angle_deg": round(float(theta_deg), 1)}
+
+
+def describe_from_camera(T_wc: np.ndarray, point: np.ndarray, back_deg: float = 135.0) -> dict[str, Any]:
+    """Direction of a world point `[3]` from a camera `T_wc [4, 4]` (OpenCV axes: x right, z forward), on the
+    floor plane: `describe_direction` of the angle plus the horizontal distance (m)."""
+    T = np.asarray(T_wc, float)
+    fwd = T[:3, 2][:2]
+    if np.linalg.norm(fwd) < 1e-6:  # looking straight down: the image's up direction is "forward"
+        fwd = -T[:3, 1][:2]
+    v = np.asarray(point, float)[:2] - T[:2, 3]
+    d = describe_direction(signed_angle_deg(fwd, v), back_deg)
+    d["distance_m"] = round(float(np.linalg.norm(v)), 3)
+    return d
+
+
 class MapReasoner:
-    """Answers questions from a `SemanticMap` (see the module docstring for the conventions)."""
+    """Answers questions from a `SemanticMap` (see the module docstring for the conventions).
+
+    Names resolve against the map's own categories (`_find`): the question's words when they are a map name,
+    else the vocabulary name or a listed synonym (`grounding.canonical_name`); never another category. Instances
+    are indexed by name once, so a question costs O(instances of the named categories)."""
 
     def __init__(self, smap: SemanticMap, conf: ReasonerConfig | dict | None = None):
         self.map = smap
         self.conf = conf if isinstance(conf, ReasonerConfig) else ReasonerConfig(**(conf or {}))
+        self._idx: dict[str, list[ObjectInstance]] = {}
+        for o in smap.instances:
+            self._idx.setdefault(name_key(o.name), []).append(o)
+        self._by_canon: dict[str, list[str]] = {}
+        for k in self._idx:
+            self._by_canon.setdefault(canonical_name(k) or k, []).append(k)
+        self._pq: ParsedQuestion | None = None
 
     # ------------------------------------------------------------------ entry point
     def answer(self, question: str, options: list[str] | None = None,
                parsed: ParsedQuestion | None = None) -> Answer:
-        """Answer one question. `parsed` may be given (e.g. from a VLM grounding); else the templates parse it."""
+        """Answer one question. `parsed` may be given (e.g. from a VLM grounding); else `parse_question`."""
         pq = parsed if parsed is not None else parse_question(question, options)
         if options is None:
             options = pq.options
+        self._pq = pq
         if pq.qtype is None:
-            return Answer("unsupported: not a recognised question template", None, "unsupported",
-                          "no VSI-Bench template matches; use the VLM answerer", [], None, pq)
+            return self._not_understood(pq)
         try:
             value, expl = getattr(self, "_" + pq.qtype)(pq)
         except _NotFound as e:
+            hint = f" (the map has no such name; similar names in the map: {', '.join(e.hints)})" if e.hints else ""
             return Answer(f"not found: {', '.join(e.names)}", 0 if pq.qtype == "object_counting" else None,
-                          "not_found", f"not in the map: {', '.join(e.names)}", e.names, pq.qtype, pq)
+                          "not_found", f"not in the map: {', '.join(e.names)}{hint}", e.names, pq.qtype, pq,
+                          hints=e.hints)
         except _Unsupported as e:
             return Answer(f"unsupported: {e}", None, "unsupported", str(e), [], pq.qtype, pq)
+        unit = pq.params.get("unit") if pq.qtype in NUMERIC_QTYPES else None
         if pq.qtype in NUMERIC_QTYPES and not options:
-            return Answer(self._format_number(pq.qtype, value), value, "ok", expl, [], pq.qtype, pq)
+            return Answer(self._format_number(pq.qtype, value, unit), value, "ok", expl, [], pq.qtype, pq, unit)
+        if not options and isinstance(value, dict) and "text" in value:
+            return Answer(value["text"], value, "ok", expl, [], pq.qtype, pq)
+        if not options and isinstance(value, str):  # an object or a direction, in the question's own words
+            return Answer(pq.phrase(value), value, "ok", expl, [], pq.qtype, pq)
         letter, text = self._choose(value, options)
         if letter is None:
-            return Answer(f"unsupported: computed {value!r} matches no option", value, "unsupported",
-                          expl + f"; options: {options}", [], pq.qtype, pq)
+            return Answer(f"unsupported: the answer {value!r} fits none of the options", value, "unsupported",
+                          expl + f"; options: {options}", [], pq.qtype, pq, unit)
         if options:
             expl += f" -> option {letter}. {text}"
-        return Answer(letter, value, "ok", expl, [], pq.qtype, pq)
+        return Answer(letter, value, "ok", expl, [], pq.qtype, pq, unit)
+
+    def _not_understood(self, pq: ParsedQuestion) -> Answer:
+        from .grounding_nl import examples
+
+        why = "; ".join(pq.notes) or "not a question type the map reasoner knows"
+        ex = examples()[::4][:4]
+        return Answer(f"unsupported: {safe_text(why, 240)}. Try e.g.: " + " | ".join(ex), None, "unsupported",
+                      f"{why}; `mosaic ask --examples` lists the wordings the map reasoner understands", [], None, pq)
+
+    # ------------------------------------------------------------------ names and instances
+    def _find(self, name: str) -> list[ObjectInstance]:
+        """Instances for a question name: the question's words or the name as a map name, else the map names
+        with the same vocabulary name (synonyms). [] when the map has none."""
+        phrase = self._pq.phrase(name) if self._pq is not None else name
+        for cand in (phrase, name):
+            k, canon = name_key(cand), canonical_name(cand)
+            if k in self._idx and canon != k:  # a specific map name ("office chair", "computer tower")
+                return self._idx[k]
+            if canon in self._by_canon:  # the name and its kinds / synonyms ("chair": chair, office chair)
+                return [o for key in self._by_canon[canon] for o in self._idx[key]]
+            if k in self._idx:
+                return self._idx[k]
+        return []
+
+    def _hints(self, name: str) -> list[str]:
+        import difflib
+
+        phrase = self._pq.phrase(name) if self._pq is not None else name
+        names = sorted({o.name for v in self._idx.values() for o in v})
+        words = set(name_key(phrase).split())
+        close = difflib.get_close_matches(name_key(phrase), names, self.conf.n_hints, 0.6)
+        share = [n for n in names if words & set(name_key(n).split())]
+        return list(dict.fromkeys(close + share))[:self.conf.n_hints]
+
+    def _missing(self, names: list[str]) -> None:
+        missing = [n for n in dict.fromkeys(names) if not self._find(n)]
+        if missing:
+            shown = [name_key(self._ph(n)) or n for n in missing]  # the question's words, singular
+            raise _NotFound(shown, [h for n in missing for h in self._hints(n)])
+
+    def _instances(self, name: str) -> list[ObjectInstance]:
+        self._missing([name])
+        return self._select(name, self._find(name))
+
+    def _require(self, names: list[str]) -> dict[str, list[ObjectInstance]]:
+        self._missing(names + [s["near"] for n in names for s in [self._sel(n)] if s.get("near")])
+        return {n: self._select(n, self._find(n)) for n in names}
+
+    def _sel(self, name: str) -> dict[str, Any]:
+        return self._pq.selectors.get(name, {}) if self._pq is not None else {}
+
+    def _select(self, name: str, inst: list[ObjectInstance]) -> list[ObjectInstance]:
+        """Apply the question's selector for `name` ("the biggest table", "the chair nearest the door"); colours,
+        materials and ordinals are not in a map: unsupported, said so."""
+        sel = self._sel(name)
+        if not sel:
+            return inst
+        words = [w for w in sel.get("words", []) if w not in _SUPERLATIVES]
+        if words and name_key(sel.get("phrase", "")) not in self._idx:
+            raise _Unsupported(f"'{sel['phrase']}': the map has no colours, materials or order of instances, so "
+                               f"it cannot tell which {self._pq.phrase(name)} that is; ask about the "
+                               f"{self._pq.phrase(name)} without '{' '.join(words)}'")
+        out = inst
+        for w in sel.get("words", []):
+            if w in _SUPERLATIVES:
+                key, pick = _SUPERLATIVES[w]
+                out = [pick(out, key=lambda o: _measure(o, key))]
+        if sel.get("near"):
+            ref = self._find(sel["near"])
+            out = [min(out, key=lambda o: min(box_distance(o.box, r.box) for r in ref if r is not o))]
+        return out
 
     # ------------------------------------------------------------------ helpers
-    def _format_number(self, qtype: str, v: float) -> str:
-        if qtype in ("object_counting", "object_size_estimation"):
+    def _format_number(self, qtype: str, v: float, unit: str | None = None) -> str:
+        if qtype == "object_counting":
             return str(int(round(v)))
-        d = self.conf.room_decimals if qtype == "room_size_estimation" else self.conf.distance_decimals
+        if qtype == "object_size_estimation" and unit in (None, "cm", "mm"):
+            return str(int(round(v)))
+        if qtype == "room_size_estimation":
+            d = self.conf.room_decimals
+        elif qtype == "object_abs_distance" and unit in (None, "m"):
+            d = self.conf.distance_decimals
+        else:  # other units keep the precision of a centimetre
+            d = {"m": 2, "ft": 2, "in": 1, "cm": 0, "mm": 0}.get(unit or "m", 2)
         return f"{round(float(v), d):.{d}f}"
 
+    def _option_key(self, text: str) -> str:
+        """An option's text as a comparable value: a direction word, a turn list, or an object's map key."""
+        from .grounding_nl import direction_words
+
+        t = _norm(text)
+        dirs = direction_words(t)
+        if dirs and len(t.split()) <= 6 and not re.search(r"\bturn\b", t):
+            return dirs[0]
+        return t
+
+    def _value_key(self, value: Any) -> str:
+        return _norm(", ".join(value) if isinstance(value, list) else value)
+
     def _choose(self, value: Any, options: list[str] | None) -> tuple[str | None, Any]:
-        """Option letter for a computed value: exact text match (case/space-insensitive), or the nearest number."""
+        """Option letter for a computed value: the same text, direction or object (through the map's names and
+        synonyms), else the nearest number when it is plausibly close (`option_rel_tol`)."""
         if not options:
             return (str(value) if not isinstance(value, list) else ", ".join(value)), value
         opts = split_options(options)
-        want = _norm(", ".join(value) if isinstance(value, list) else value)
+        want = self._value_key(value)
         for letter, text in opts:
-            if _norm(text) == want:
+            if _norm(text) == want or (isinstance(value, str) and self._option_key(text) == want):
                 return letter, text
-        if isinstance(value, (int, float, np.floating, np.integer)):
+        if isinstance(value, str) and self._find(value):  # "A. couch" for the map's sofa
+            ids = {id(o) for o in self._find(value)}
+            for letter, text in opts:
+                from .grounding_nl import noun_phrases, tokens
+
+                nps = [p for p in noun_phrases(tokens(text)) if not p["scene"]]
+                name = " ".join(nps[0]["words"]) if nps else text
+                saved, self._pq = self._pq, None
+                hit = {id(o) for o in self._find(name)}
+                self._pq = saved
+                if hit and hit == ids:
+                    return letter, text
+        if isinstance(value, (int, float, np.floating, np.integer)) and not isinstance(value, bool):
             nums = []
             for letter, text in opts:
                 m = re.match(r"\s*([-+]?\d+(?:\.\d+)?)", text)  # "2.5", "2.5 m", "160 cm"
                 if m:
-                    nums.append((abs(float(m.group(1)) - float(value)), letter, text))
+                    nums.append((abs(float(m.group(1)) - float(value)), letter, text, float(m.group(1))))
             if nums:
-                _, letter, text = min(nums)
-                return letter, text
+                d, letter, text, x = min(nums)
+                if d <= self.conf.option_rel_tol * max(abs(x), abs(float(value)), 1e-9):
+                    return letter, text
         return None, value
-
-    def _instances(self, name: str) -> list[ObjectInstance]:
-        inst = self.map.by_name(name)
-        if not inst:
-            raise _NotFound([name])
-        return inst
-
-    def _require(self, names: list[str]) -> dict[str, list[ObjectInstance]]:
-        missing = [n for n in dict.fromkeys(names) if not self.map.by_name(n)]
-        if missing:
-            raise _NotFound(missing)
-        return {n: self.map.by_name(n) for n in names}
 
     @staticmethod
     def _min_distance(a: list[ObjectInstance], b: list[ObjectInstance]) -> tuple[float, ObjectInstance,
@@ -216,37 +396,95 @@ class MapReasoner:
             raise _Unsupported("the two objects are the same single instance")
         return best
 
+    def _ph(self, name: str) -> str:
+        return self._pq.phrase(name) if self._pq is not None else name
+
     # ------------------------------------------------------------------ question types
     def _object_counting(self, pq: ParsedQuestion) -> tuple[Any, str]:
+        if self._sel(pq.params["object"]):
+            sel = self._sel(pq.params["object"])
+            raise _Unsupported(f"counting only some {self._ph(pq.params['object'])} "
+                               f"('{sel.get('phrase') or 'near the ' + sel['near']}') is not supported; ask how many "
+                               f"{self._ph(pq.params['object'])} there are")
+        if pq.params["object"] == "*" or name_key(pq.params["object"]) in ("thing", "object", "item"):
+            return len(self.map.instances), f"{len(self.map.instances)} object(s) in the map"
         n = len(self._instances(pq.params["object"]))
-        return n, f"{n} instance(s) of {pq.params['object']} in the map"
+        return n, f"{n} instance(s) of {self._ph(pq.params['object'])} in the map"
+
+    def _object_existence(self, pq: ParsedQuestion) -> tuple[Any, str]:
+        names = pq.params["objects"]
+        for n in names:
+            if self._sel(n):
+                raise _Unsupported(f"'is there a {self._ph(n)} ...' with a condition is not supported; ask whether "
+                                   f"there is a {self._ph(n)} at all")
+        found = {self._ph(n): len(self._find(n)) for n in names}
+        yes = all(found.values()) if pq.params.get("all") else any(found.values())
+        hints = {self._ph(n): self._hints(n) for n in names if not found[self._ph(n)]}
+        expl = "; ".join(f"{k}: {v} in the map" for k, v in found.items())
+        if hints:
+            expl += "; not in the map (similar names: " + "; ".join(f"{k} -> {', '.join(v) or 'none'}"
+                                                                    for k, v in hints.items()) + ")"
+        return {"text": "yes" if yes else "no", "exists": yes, "counts": found}, expl
 
     def _object_size_estimation(self, pq: ParsedQuestion) -> tuple[Any, str]:
         inst = self._instances(pq.params["object"])
-        sizes = [float(np.max(o.box.axes_lengths)) * 100.0 for o in inst]
+        dim = pq.params.get("dimension", "longest")
+        unit = pq.params.get("unit", "cm")
+        sizes = [_measure(o, dim) / UNIT_M[unit] for o in inst]
         i = int(np.argmax(sizes))
         note = "" if len(inst) == 1 else f" (largest of {len(inst)} instances)"
-        return sizes[i], f"longest box dimension of {pq.params['object']} #{inst[i].id}: {sizes[i]:.1f} cm{note}"
+        what = "longest box dimension" if dim == "longest" else f"box {dim}"
+        return sizes[i], f"{what} of {self._ph(pq.params['object'])} #{inst[i].id}: {sizes[i]:.1f} {unit}{note}"
 
     def _room_size_estimation(self, pq: ParsedQuestion) -> tuple[Any, str]:
         area = self.map.room_area()
         if area is None:
             raise _Unsupported("the map has no room extent and no objects")
         src = self.map.room.source if self.map.room is not None else "object_boxes_hull"
-        return area, f"floor area of the map's room extent ({src}): {area:.2f} m^2"
+        if pq.params.get("unit") == "ft2":
+            area = area / 0.3048 ** 2
+        return area, f"floor area of the map's room extent ({src}): {area:.2f} {pq.params.get('unit', 'm2')}"
 
     def _object_abs_distance(self, pq: ParsedQuestion) -> tuple[Any, str]:
         a, b = pq.params["a"], pq.params["b"]
         inst = self._require([a, b])
         d, x, y = self._min_distance(inst[a], inst[b])
-        return d, f"closest points of {a} #{x.id} and {b} #{y.id}: {d:.3f} m"
+        unit = pq.params.get("unit", "m")
+        v = d / UNIT_M[unit]
+        return v, f"closest points of {self._ph(a)} #{x.id} and {self._ph(b)} #{y.id}: {v:.3f} {unit}"
 
     def _object_rel_distance(self, pq: ParsedQuestion) -> tuple[Any, str]:
         ref, cands = pq.params["reference"], pq.params["candidates"]
         inst = self._require([ref] + cands)
-        dists = {c: self._min_distance(inst[c], inst[ref])[0] for c in cands}
+        dists = {c: self._min_distance(inst[c], inst[ref])[0] for c in cands if c != ref}
+        if not dists:
+            raise _Unsupported("no candidate other than the reference object itself")
         pick = (min if pq.params.get("extreme", "closest") == "closest" else max)(dists, key=dists.get)
-        return pick, "closest-point distances to " + ref + ": " + ", ".join(f"{c} {d:.2f} m" for c, d in dists.items())
+        return pick, f"closest-point distances to {self._ph(ref)}: " + ", ".join(
+            f"{self._ph(c)} {d:.2f} m" for c, d in dists.items())
+
+    def _object_nearest(self, pq: ParsedQuestion) -> tuple[Any, str]:
+        """Nearest (farthest) object among everything in the map, other than the reference's own category."""
+        ref = pq.params["reference"]
+        rinst = self._instances(ref)
+        own = {id(o) for o in self._find(ref)}
+        dist: dict[str, tuple[float, ObjectInstance]] = {}
+        for key, inst in self._idx.items():
+            others = [o for o in inst if id(o) not in own]
+            if others:
+                d, o, _ = self._min_distance(others, rinst)
+                dist[key] = (d, o)
+        if not dist:
+            raise _Unsupported(f"the map holds nothing but {self._ph(ref)}")
+        far = pq.params.get("extreme") == "farthest"
+        key = (max if far else min)(dist, key=lambda k: dist[k][0])
+        d, o = dist[key]
+        ranked = sorted(dist, key=lambda k: dist[k][0], reverse=far)[:4]
+        value = {"text": o.name, "object": o.name, "instance": int(o.id), "distance_m": round(d, 3)}
+        if pq.options:
+            value = o.name
+        return value, f"{'farthest' if far else 'nearest'} to {self._ph(ref)}: " + ", ".join(
+            f"{k} {dist[k][0]:.2f} m" for k in ranked)
 
     def _pick_unique(self, name: str, near: list[np.ndarray]) -> tuple[ObjectInstance, str]:
         """The instance of `name` to use as a position: the only one, or the one nearest the other objects."""
@@ -255,22 +493,27 @@ class MapReasoner:
             return inst[0], ""
         c = np.mean(near, 0)
         o = min(inst, key=lambda o: float(np.linalg.norm(o.center[:2] - c[:2])))
-        return o, f"; {name}: {len(inst)} instances, used #{o.id} (nearest the other objects)"
+        return o, f"; {self._ph(name)}: {len(inst)} instances, used #{o.id} (nearest the other objects)"
 
-    def _rel_direction(self, pq: ParsedQuestion, level: str) -> tuple[Any, str]:
+    def _angle(self, pq: ParsedQuestion) -> tuple[float, str]:
         p = pq.params
-        self._require([p["position"], p["facing"], p["query"]])
-        others = lambda *ns: [o.center for n in ns for o in self.map.by_name(n)]  # noqa: E731
+        inst = self._require([p["position"], p["facing"], p["query"]])
+        others = lambda *ns: [o.center for n in ns for o in inst[n]]  # noqa: E731
         A, na = self._pick_unique(p["position"], others(p["facing"], p["query"]))
         B, nb = self._pick_unique(p["facing"], [A.center])
         C, nc = self._pick_unique(p["query"], [A.center, B.center])
         f = B.center[:2] - A.center[:2]
         if np.linalg.norm(f) < 1e-9:
-            raise _Unsupported(f"standing by {p['position']} and facing {p['facing']}: same position")
+            raise _Unsupported(f"standing by {self._ph(p['position'])} and facing {self._ph(p['facing'])}: "
+                               f"same position")
         th = signed_angle_deg(f, C.center[:2] - A.center[:2])
-        lab = direction_label(th, level, self.conf.back_deg)
-        return lab, (f"at {p['position']} facing {p['facing']}: {p['query']} at {th:+.1f} deg "
-                     f"(counter-clockwise) -> {lab}{na}{nb}{nc}")
+        return th, (f"at {self._ph(p['position'])} facing {self._ph(p['facing'])}: {self._ph(p['query'])} at "
+                    f"{th:+.1f} deg (counter-clockwise){na}{nb}{nc}")
+
+    def _rel_direction(self, pq: ParsedQuestion, level: str) -> tuple[Any, str]:
+        th, expl = self._angle(pq)
+        lab = direction_label(th, level, pq.params.get("back_deg", self.conf.back_deg))
+        return lab, f"{expl} -> {lab}"
 
     def _object_rel_direction_easy(self, pq: ParsedQuestion) -> tuple[Any, str]:
         return self._rel_direction(pq, "easy")
@@ -281,14 +524,89 @@ class MapReasoner:
     def _object_rel_direction_hard(self, pq: ParsedQuestion) -> tuple[Any, str]:
         return self._rel_direction(pq, "hard")
 
+    def _object_direction(self, pq: ParsedQuestion) -> tuple[Any, str]:
+        """Free-form direction: every reading of the angle; "is it on my left?" -> yes/no for the asked word."""
+        asked = pq.params.get("asked") or []
+        if pq.params.get("candidates"):
+            return self._direction_choice(pq, asked)
+        th, expl = self._angle(pq)
+        back = pq.params.get("back_deg", self.conf.back_deg)
+        d = describe_direction(th, back)
+        if len(asked) == 1:
+            hit = asked[0] in (d["quadrant"], d["front_back"]) or (asked[0] == d["side"] and
+                                                                 d["words"] not in ("straight ahead", "behind"))
+            d["text"] = ("yes" if hit else "no") + f" ({d['words']})"
+            d["asked"], d["answer"] = asked[0], hit
+        else:
+            d["text"] = d["words"]
+        return d, f"{expl} -> {d['words']}"
+
+    def _direction_choice(self, pq: ParsedQuestion, asked: list[str]) -> tuple[Any, str]:
+        """"Standing by A facing B, what's on my right: the C or the D?" -> the candidates in that direction."""
+        from dataclasses import replace
+
+        if len(asked) != 1:
+            raise _Unsupported("several objects and several directions: ask 'is the C on my left?' per object")
+        where: dict[str, dict[str, Any]] = {}
+        expls = []
+        for c in pq.params["candidates"]:
+            sub = replace(pq, params={**pq.params, "query": c, "candidates": None}, selectors=pq.selectors)
+            th, e = self._angle(sub)
+            where[c] = describe_direction(th, pq.params.get("back_deg", self.conf.back_deg))
+            expls.append(e)
+        hits = [c for c, d in where.items() if asked[0] in (d["quadrant"], d["front_back"])
+                or (asked[0] == d["side"] and d["words"] not in ("straight ahead", "behind"))]
+        text = " and ".join(self._ph(c) for c in hits) if hits else "none of them"
+        return {"text": text, "matches": hits, "asked": asked[0], "directions": where}, "; ".join(expls)
+
+    def _object_where(self, pq: ParsedQuestion) -> tuple[Any, str]:
+        """Where an object is: its nearest other objects (closest points, side by box centres) and, when the map
+        has a camera track, its direction from the last camera."""
+        name = pq.params["object"]
+        inst = self._instances(name)
+        o = inst[0]
+        own = {id(x) for x in inst}
+        near = sorted(((box_distance(o.box, x.box), x) for v in self._idx.values() for x in v if id(x) not in own),
+                      key=lambda t: t[0])[:self.conf.n_landmarks]
+        marks = [{"object": x.name, "instance": int(x.id), "distance_m": round(float(d), 3)} for d, x in near]
+        value: dict[str, Any] = {"object": o.name, "instance": int(o.id), "n_instances": len(inst),
+                                 "centre": np.round(o.center, 3).tolist(), "landmarks": marks}
+        words = [f"touching the {m['object']}" if m["distance_m"] < 0.05 else
+                 f"{m['distance_m']:.1f} m from the {m['object']}" for m in marks]
+        if self.map.cameras:
+            cam = describe_from_camera(self.map.cameras[-1][1], o.center, self.conf.back_deg)
+            value["camera"] = cam
+            words.insert(0, f"{cam['words']} of the last camera view, {cam['distance_m']:.1f} m away")
+        verb = "are" if name_key(self._ph(name)) != self._ph(name).lower() else "is"  # "the office chairs are"
+        value["text"] = f"the {self._ph(name)} {verb} " + (", ".join(words) if words else "the only object in the map")
+        if len(inst) > 1:
+            value["text"] += f" (one of {len(inst)}; #{o.id})"
+        return value, value["text"]
+
+    def _object_list(self, pq: ParsedQuestion) -> tuple[Any, str]:
+        names = pq.params.get("objects") or []
+        if names:
+            self._missing(names)
+            inst = [o for n in names for o in self._find(n)]
+        else:
+            inst = list(self.map.instances)
+        counts: dict[str, int] = {}
+        for o in inst:
+            counts[o.name] = counts.get(o.name, 0) + 1
+        text = ", ".join(f"{c} {n}" for n, c in sorted(counts.items())) or "nothing"
+        value = {"text": text, "counts": counts,
+                 "instances": [{"object": o.name, "instance": int(o.id), "centre": np.round(o.center, 3).tolist()}
+                               for o in inst]}
+        return value, f"{len(inst)} object(s) in the map: {text}"
+
     def _route_planning(self, pq: ParsedQuestion) -> tuple[Any, str]:
         p = pq.params
         if "steps" not in p:
             raise _Unsupported(p.get("parse_error", "route not parsed"))
         names = [p["start"], p["facing"]] + [s["until"] for s in p["steps"] if s["action"] == "forward"]
         self._require(names)
-        start = self.map.by_name(p["start"])
-        face = self.map.by_name(p["facing"])
+        start = self._find(p["start"])
+        face = self._find(p["facing"])
         pairs = [(a, b) for a in start for b in face if a is not b]
         if not pairs:
             raise _Unsupported(f"beginning at {p['start']} facing the same {p['facing']}: heading unknown")
@@ -300,7 +618,7 @@ class MapReasoner:
             if s["action"] == "turn":
                 pending = True
                 continue
-            tgt = min(self.map.by_name(s["until"]), key=lambda o: float(np.linalg.norm(o.center[:2] - pos)))
+            tgt = min(self._find(s["until"]), key=lambda o: float(np.linalg.norm(o.center[:2] - pos)))
             move = tgt.center[:2] - pos
             if np.linalg.norm(move) < 1e-6:
                 if pending:
@@ -328,6 +646,7 @@ class MapReasoner:
             first[c] = min(ts)
         order = sorted(cats, key=lambda c: first[c])
         return order, "first seen: " + ", ".join(f"{c} {first[c]:.2f} s" for c in order)
+
 
 
 # ----------------------------------------------------------------------------- parsing free-text replies (VLM)
@@ -476,8 +795,9 @@ def answer_question(smap: SemanticMap, question: str, options: list[str] | None 
             trace.decide("answer.answerer", "none")
             trace.event("degraded", "the question matches no template and the bundle has no VLM: unanswered",
                         stage="answer")
-        return Answer("unsupported: not a recognised question template and no VLM in the bundle", None,
-                      "unsupported", "add a `vlm` role to the bundle to answer free-form questions", [], None, pq)
+        ans = reasoner.answer(question, opts, parsed=pq)  # the "not understood" reply with example wordings
+        ans.explanation += "; no VLM in the bundle (add a `vlm` role to answer free-form questions)"
+        return ans
     if vlm is None:
         raise InputError("--answerer vlm needs a bundle with a `vlm` role")
     missing = [n for n in pq.objects if not smap.by_name(n)]
@@ -489,7 +809,8 @@ def answer_question(smap: SemanticMap, question: str, options: list[str] | None 
     from .prompt import render, vlm_prompt
 
     vp = prompt if prompt is not None else render(smap)
-    text = vlm_prompt(question, opts, vp.text, vp.mode)
+    hint = "" if pq.qtype is None else f"\nHow a text parser read the question (a hint, may be wrong): {pq.describe()}"
+    text = vlm_prompt(question, opts, vp.text + hint, vp.mode)
     images = [vp.image] if vp.image is not None else []
     if trace is not None:
         trace.decide("answer.answerer", "vlm")

@@ -29,65 +29,80 @@ QTYPES = ("object_counting", "object_size_estimation", "room_size_estimation", "
 
 # canonical name -> synonyms (lower case, singular; plurals are handled by `canonical_name`)
 VOCABULARY: dict[str, tuple[str, ...]] = {
+    # Only true synonyms and kinds of the same thing ("couch" is a sofa, "office chair" is a chair). Objects
+    # that are merely related get their own entry (desk, monitor, freezer, dryer, radiator, cushion ...): a name
+    # must never be read as a different object (computer tower != laptop, ceiling light != lamp).
     # the VSI-Bench / ARKitScenes categories
     "chair": ("chair", "armchair", "arm chair", "desk chair", "office chair", "dining chair", "recliner",
-              "wicker chair"),
-    "table": ("table", "dining table", "dinning table", "coffee table", "side table", "end table", "desk",
-              "kitchen table", "work table"),  # ARKitScenes labels desks as tables
-    "sofa": ("sofa", "couch", "loveseat", "love seat", "settee", "sectional", "seater sofa", "futon"),
-    "tv": ("tv", "television", "tv monitor", "tv_monitor", "monitor", "computer monitor", "screen",
-           "tv screen", "flat screen"),
-    "stool": ("stool", "bar stool", "footstool", "foot stool", "ottoman", "pouf"),
-    "bed": ("bed", "mattress", "bunk bed", "double bed", "single bed"),
+              "wicker chair", "rocking chair", "swivel chair"),
+    "table": ("table", "dining table", "dinning table", "coffee table", "side table", "end table",
+              "kitchen table", "work table"),
+    "sofa": ("sofa", "couch", "loveseat", "love seat", "settee", "sectional", "seater sofa", "sofa couch"),
+    "tv": ("tv", "television", "telly", "tv monitor", "tv_monitor", "television set", "tv set", "tv screen",
+           "flat screen tv", "flatscreen tv"),
+    "stool": ("stool", "bar stool", "footstool", "foot stool", "step stool"),
+    "bed": ("bed", "bunk bed", "double bed", "single bed", "queen bed", "king bed"),
     "toilet": ("toilet", "wc", "toilet bowl"),
-    "stove": ("stove", "gas stove", "cooktop", "cooker", "range", "hob", "stovetop", "stove top"),
+    "stove": ("stove", "gas stove", "cooktop", "cooker", "hob", "stovetop", "stove top", "electric stove"),
     "bathtub": ("bathtub", "bath tub", "bathtube", "tub", "bath"),
-    "washer": ("washer", "washing machine", "laundry machine", "clothes washer", "dryer"),
-    "refrigerator": ("refrigerator", "fridge", "freezer"),
+    "washer": ("washer", "washing machine", "laundry machine", "clothes washer"),
+    "refrigerator": ("refrigerator", "fridge", "refridgerator", "frige"),
     "fireplace": ("fireplace", "fire place", "hearth"),
     "dishwasher": ("dishwasher", "dish washer"),
     # other common indoor objects (the synthetic scenes and detectors use these)
-    "lamp": ("lamp", "floor lamp", "standing lamp", "table lamp", "desk lamp", "light"),
-    "plant": ("plant", "potted plant", "houseplant", "house plant", "flower pot", "flowers", "flower",
-              "christmas tree", "bouquet", "green plant"),
-    "cabinet": ("cabinet", "cupboard", "kitchen cabinet", "display cabinet", "filing cabinet", "sideboard",
-                "counter", "kitchen counter", "dresser", "chest of drawers", "drawer"),
-    "wardrobe": ("wardrobe", "closet", "armoire"),
+    "lamp": ("lamp", "floor lamp", "standing lamp", "table lamp", "desk lamp", "bedside lamp"),
+    "plant": ("plant", "potted plant", "houseplant", "house plant", "green plant", "pot plant"),
+    "cabinet": ("cabinet", "cupboard", "kitchen cabinet", "display cabinet", "filing cabinet", "file cabinet"),
+    "wardrobe": ("wardrobe", "armoire"),
     "nightstand": ("nightstand", "night stand", "bedside table", "night table"),
-    "shelf": ("shelf", "bookshelf", "book shelf", "bookcase", "shelves", "shelving"),
-    "door": ("door", "doorway", "doorframe", "door frame", "entrance", "entry", "terrace door", "kitchen door"),
-    "window": ("window", "windows"),
+    "shelf": ("shelf", "shelves", "shelving"),
+    "bookshelf": ("bookshelf", "book shelf", "bookcase", "book case"),
+    "door": ("door", "terrace door", "kitchen door"),
+    "window": ("window",),
     "sink": ("sink", "bathroom sink", "kitchen sink", "basin", "washbasin", "wash basin"),
     "mirror": ("mirror",),
-    "oven": ("oven", "microwave oven"),
-    "microwave": ("microwave",),
-    "trash bin": ("trash bin", "trash can", "garbage bin", "garbage can", "waste bin", "wastebasket", "bin",
-                  "dustbin", "bucket"),
-    "heater": ("heater", "radiator"),
-    "laptop": ("laptop", "computer", "notebook computer", "pc"),
-    "picture": ("picture", "painting", "poster", "frame", "photo"),
-    "clock": ("clock",),
-    "rug": ("rug", "carpet", "mat"),
-    "pillow": ("pillow", "cushion"),
-    "curtain": ("curtain", "blind"),
+    "oven": ("oven",),
+    "microwave": ("microwave", "microwave oven"),
+    "trash bin": ("trash bin", "trash can", "garbage bin", "garbage can", "waste bin", "wastebasket",
+                  "waste basket", "dustbin", "rubbish bin", "trashcan"),
+    "heater": ("heater", "space heater"),
+    "laptop": ("laptop", "notebook computer", "laptop computer"),
+    "picture": ("picture", "painting", "photo", "photograph"),
+    "clock": ("clock", "wall clock"),
+    "rug": ("rug", "carpet", "area rug"),
+    "pillow": ("pillow",),
+    "curtain": ("curtain", "drape", "drapes"),
     "shower": ("shower",),
-    "towel": ("towel", "towel rack"),
+    "towel": ("towel",),
     "vase": ("vase",),
     "printer": ("printer",),
     "piano": ("piano",),
     "fan": ("fan", "electric fan", "corner fan"),
     "speaker": ("speaker", "loudspeaker"),
-    "backpack": ("backpack", "bag"),
+    "backpack": ("backpack", "rucksack"),
     "bottle": ("bottle",),
-    "cup": ("cup", "mug"),
+    "cup": ("cup",),
     "book": ("book",),
     "remote": ("remote", "tv remote", "remote control"),
-    "stairs": ("stairs", "stair", "staircase"),
+    "stairs": ("stairs", "stair", "staircase", "stairway"),
     "wall": ("wall",),
     "teddy bear": ("teddy bear",),
     "candle": ("candle",),
     "keyboard": ("keyboard",),
     "bench": ("bench",),
+    # related but different objects: their own names (ScanNet / ScanNet++ keep them apart)
+    "desk": ("desk", "writing desk", "computer desk", "office desk"),
+    "monitor": ("monitor", "computer monitor"),
+    "telephone": ("telephone", "phone"),
+    "whiteboard": ("whiteboard", "white board", "dry erase board"),
+    "radiator": ("radiator",),
+    "counter": ("counter", "kitchen counter", "countertop", "counter top"),
+    "dresser": ("dresser", "chest of drawers"),
+    "ottoman": ("ottoman", "pouf", "pouffe"),
+    "freezer": ("freezer",),
+    "dryer": ("dryer", "clothes dryer", "tumble dryer"),
+    "cushion": ("cushion",),
+    "mug": ("mug",),
 }
 
 _SYN: dict[str, str] = {s: canon for canon, syns in VOCABULARY.items() for s in (canon, *syns)}
@@ -99,44 +114,74 @@ _PREPOSITIONS = {"by", "on", "near", "next", "with", "in", "under", "beside", "b
                  "facing", "is", "positioned", "from", "to", "into", "between", "that", "which", "where"}
 
 
-def _singular(w: str) -> str:
-    if len(w) > 4 and w.endswith("lves"):  # shelves -> shelf
+_IRREGULAR = {"people": "person", "children": "child", "men": "man", "women": "woman", "mice": "mouse",
+              "feet": "foot", "teeth": "tooth", "knives": "knife", "leaves": "leaf", "shelves": "shelf",
+              "wives": "wife", "loaves": "loaf", "halves": "half", "dice": "die", "geese": "goose",
+              "cacti": "cactus", "radii": "radius", "series": "series", "species": "species", "scissors": "scissors",
+              "glasses": "glasses", "pants": "pants", "stairs": "stairs", "drapes": "drapes", "blinds": "blinds",
+              "shoes": "shoe", "tvs": "tv", "tv's": "tv", "boxes": "box", "buses": "bus", "lenses": "lens",
+              "vases": "vase", "bases": "base", "cases": "case", "houses": "house", "blouses": "blouse"}
+_NO_S = ("ss", "us", "is", "ics")  # glass, cactus, chassis, electronics: not plurals
+
+
+def singular(w: str) -> str:
+    """English singular of one lower-case word ("shelves" -> "shelf", "benches" -> "bench", "tvs" -> "tv")."""
+    if w in _IRREGULAR:
+        return _IRREGULAR[w]
+    if len(w) > 4 and w.endswith(("lves", "rves")):  # shelves, scarves -> shelf, scarf
         return w[:-3] + "f"
+    if len(w) > 4 and w.endswith("ives"):  # knives -> knife
+        return w[:-3] + "fe"
     if len(w) > 3 and w.endswith("ies"):
         return w[:-3] + "y"
-    if len(w) > 3 and re.search(r"(ches|shes|sses|xes)$", w):
+    if len(w) > 3 and w.endswith(("ches", "shes", "sses", "xes", "zzes")):
         return w[:-2]
-    if len(w) > 2 and w.endswith("s") and not w.endswith("ss"):
+    if len(w) > 3 and w.endswith("oes") and w not in ("shoes", "toes"):  # potatoes
+        return w[:-2]
+    if len(w) > 2 and w.endswith("s") and not w.endswith(_NO_S):
         return w[:-1]
     return w
 
 
+_singular = singular  # the old private name, used by other modules
+
+
 def _words(s: str) -> list[str]:
-    s = s.lower().replace("(s)", "").replace("_", " ")
+    s = s.lower().replace("(s)", "").replace("(es)", "").replace("_", " ").replace("\u2019", "'")
+    s = re.sub(r"'s\b", "", s)  # possessive: "the sofa's" -> "the sofa"
     s = re.sub(r"[^a-z0-9\- ]+", " ", s)
     return [w for w in s.split() if w]
 
 
 def _match(words: list[str]) -> str | None:
-    """Rightmost, longest vocabulary n-gram in `words` (the head noun of an English noun phrase is last)."""
-    best: tuple[int, int, str] | None = None  # (end, length, canonical)
+    """The vocabulary name of the longest n-gram that ENDS at the last word (the head noun of an English noun
+    phrase is last: "kitchen sink" -> sink, "3-seater sofa" -> sofa), or None. Only the head is matched, so a
+    phrase whose head is not in the vocabulary ("computer tower", "ceiling light") names nothing in it."""
+    if not words:
+        return None
     for n in range(min(_MAX_NGRAM, len(words)), 0, -1):
-        for i in range(len(words) - n + 1):
-            gram = words[i:i + n]
-            for cand in (" ".join(gram), " ".join(gram[:-1] + [_singular(gram[-1])])):
-                if cand in _SYN:
-                    key = (i + n, n, _SYN[cand])
-                    if best is None or key[:2] > best[:2]:
-                        best = key
-                    break
-    return None if best is None else best[2]
+        gram = words[len(words) - n:]
+        for cand in (" ".join(gram), " ".join(gram[:-1] + [singular(gram[-1])])):
+            if cand in _SYN:
+                return _SYN[cand]
+    return None
+
+
+def name_key(s: str) -> str:
+    """A name's comparison key: lower case, articles dropped, the last word singular ("The Office Chairs" ->
+    "office chair"). Map categories and question phrases are compared by this key before synonyms."""
+    words = [w for w in _words(s) if w not in _ARTICLES]
+    if words:
+        words[-1] = singular(words[-1])
+    return " ".join(words)
 
 
 def canonical_name(s: str) -> str | None:
     """Canonical vocabulary name for an object phrase, or None when it names nothing in the vocabulary.
 
     "couch" -> "sofa", "fridge" -> "refrigerator", "chair(s)" -> "chair", "the stool by the piano" -> "stool",
-    "kitchen sink" -> "sink", "edge of the bed" -> "bed" (a part's owner when the part is not an object).
+    "kitchen sink" -> "sink", "edge of the bed" -> "bed" (a part's owner when the part is not an object);
+    "computer tower", "ceiling light", "monitor" -> not laptop / lamp / tv (see `VOCABULARY`).
     """
     words = [w for w in _words(s) if w not in _ARTICLES]
     if not words:
@@ -144,16 +189,16 @@ def canonical_name(s: str) -> str | None:
     joined = " ".join(words)
     if joined in _SYN:
         return _SYN[joined]
+    while len(words) > 1 and words[0] in _PREPOSITIONS:  # "closest sofa", "nearest chair"
+        words = words[1:]
     head: list[str] = []
     for w in words:
         if w in _PREPOSITIONS or w == "of":
             break
         head.append(w)
-    found = _match(head) if head else None
+    found = _match(head)
     if found is None and "of" in words:  # "edge of the bed", "corner of the table"
-        found = _match(words[words.index("of") + 1:])
-    if found is None and head != words:
-        found = _match(words)
+        found = _match([w for w in words[words.index("of") + 1:] if w not in _PREPOSITIONS][:_MAX_NGRAM])
     return found
 
 
@@ -181,21 +226,87 @@ class ParsedQuestion:
     unknown: list[str] = field(default_factory=list)
     question: str = ""
     options: list[str] | None = None
+    phrases: dict[str, str] = field(default_factory=dict)  # name -> the object phrase as the question wrote it
+    selectors: dict[str, dict[str, Any]] = field(default_factory=dict)  # name -> how one instance is selected
+    notes: list[str] = field(default_factory=list)  # parts of the question that were not understood / not used
+    how: str = "template"  # "template" (VSI-Bench wording) | "natural" (grounding_nl) | "none"
 
     @property
     def objects(self) -> list[str]:
         """Targets then cues, without repeats."""
         return list(dict.fromkeys(self.targets + self.cues))
 
+    def phrase(self, name: str) -> str:
+        """The question's own words for the object called `name` (the name itself when none was recorded)."""
+        return self.phrases.get(name, name)
+
+    def describe(self) -> str:
+        """One line saying how the question was read (for replies and as a hint in the VLM prompt)."""
+        if self.qtype is None:
+            return "not understood" + (f" ({'; '.join(self.notes)})" if self.notes else "")
+        ps = {k: v for k, v in self.params.items() if k not in ("steps",)}
+        return f"{self.qtype} {ps}" + (f"; not used: {'; '.join(self.notes)}" if self.notes else "")
+
     def to_dict(self) -> dict[str, Any]:
         return {"qtype": self.qtype, "targets": self.targets, "cues": self.cues, "params": self.params,
-                "unknown": self.unknown}
+                "unknown": self.unknown, "phrases": self.phrases, "selectors": self.selectors,
+                "notes": self.notes, "how": self.how}
 
 
 # ----------------------------------------------------------------------------- options
 
 
 _OPT_RE = re.compile(r"^\s*([A-Z])\s*[.)::]\s*(.*?)\s*$")
+
+
+MAX_QUESTION_CHARS = 2000  # longer questions are refused (InputError): no real question is that long
+MAX_OPTIONS = 26
+_ANSI = re.compile(r"\x1b\[[0-?]*[ -/]*[@-~]|\x1b\][^\x07\x1b]{0,200}(?:\x07|\x1b\\)?|\x1b.?")
+
+
+def safe_text(s: Any, limit: int | None = None) -> str:
+    """`s` with ANSI escapes removed and other control characters shown as `\\xNN` (never echoed raw);
+    newlines and tabs become spaces. `limit`: cut to this many characters (with "...")."""
+    t = _ANSI.sub("", str(s))
+    t = "".join(c if c.isprintable() else (" " if c in "\n\r\t" else f"\\x{ord(c):02x}" if ord(c) < 256
+                                            else f"\\u{ord(c):04x}") for c in t)
+    return t if limit is None or len(t) <= limit else t[:limit] + "..."
+
+
+def check_question(question: Any, options: list[str] | None = None) -> None:
+    """Refuse questions over `MAX_QUESTION_CHARS` and option lists that are too long (InputError)."""
+    from .errors import InputError
+
+    n = len(str(question))
+    if n > MAX_QUESTION_CHARS:
+        raise InputError(f"question: {n} characters, over the {MAX_QUESTION_CHARS}-character limit; ask a shorter "
+                         f"question (one object relation at a time)")
+    if options is not None and (len(options) > MAX_OPTIONS or sum(len(str(o)) for o in options) > MAX_QUESTION_CHARS):
+        raise InputError(f"options: {len(options)} options / {sum(len(str(o)) for o in options)} characters, over "
+                         f"the limit ({MAX_OPTIONS} options, {MAX_QUESTION_CHARS} characters)")
+
+
+_INLINE_OPT = re.compile(r"(?<![A-Za-z])([A-Z])[.)]\s")
+
+
+def split_inline_options(question: str) -> tuple[str, list[str] | None]:
+    """'... ? A. left B. right C. back' -> (question, ['A. left', 'B. right', 'C. back']) when present.
+
+    One pass over the letter marks (linear in the question's length): the first run A, B, C ... in order."""
+    marks = [(m.start(), m.group(1)) for m in _INLINE_OPT.finditer(question)]
+    for i, (pos, letter) in enumerate(marks):
+        if letter != "A":
+            continue
+        run = [pos]
+        for pos2, l2 in marks[i + 1:]:
+            if l2 == chr(ord("A") + len(run)):
+                run.append(pos2)
+        if len(run) < 2:
+            continue
+        head = re.sub(r"\s*\boptions?\s*:\s*$", "", question[:pos], flags=re.I).rstrip()
+        parts = [question[a:b].strip() for a, b in zip(run, run[1:] + [len(question)])]
+        return head, parts
+    return question, None
 
 
 def split_options(options: list[str] | None) -> list[tuple[str, str]]:
@@ -209,7 +320,9 @@ def split_options(options: list[str] | None) -> list[tuple[str, str]]:
 
 # ----------------------------------------------------------------------------- templates
 
-_O = r"(?:the\s+)*(.+?)"  # an object phrase (leading articles dropped, lazily up to the template's next words)
+# an object phrase (leading articles dropped, lazily up to the template's next words); bounded and without
+# commas / question marks so that a template with three phrases cannot backtrack cubically on long input
+_O = r"(?:the\s+)*([^,?]{1,80}?)"
 
 _TEMPLATES: list[tuple[str, re.Pattern[str]]] = [
     ("object_counting", re.compile(rf"^how many {_O}\s*(?:\(s\))? (?:are|is) (?:there )?in (?:this|the) room", re.I)),
@@ -232,6 +345,9 @@ _TEMPLATES: list[tuple[str, re.Pattern[str]]] = [
 ]
 
 
+_TEMPLATE_WINDOW = 1200
+
+
 def _ref(phrase: str) -> ObjectRef:
     phrase = re.sub(r"^(?:the\s+)+", "", phrase.strip().rstrip(".?,"), flags=re.I).strip()
     return ObjectRef(phrase, canonical_name(phrase))
@@ -242,12 +358,15 @@ def _name(r: ObjectRef) -> str:
 
 
 def parse_question(question: str, options: list[str] | None = None) -> ParsedQuestion:
-    """Parse a VSI-Bench-style question. Returns qtype None when no template matches (the VLM's job then)."""
-    q = " ".join(str(question).split())
-    pq = ParsedQuestion(None, question=question, options=list(options) if options is not None else None)
+    """Parse a question: the VSI-Bench templates first (exact wording), then natural wording
+    (`grounding_nl.parse_natural`). qtype None: not understood (`notes` say what was and was not).
+    Questions over `MAX_QUESTION_CHARS` are an InputError. Only the text and the options are used."""
+    check_question(question, options)
+    q = " ".join(safe_text(question).split())
+    pq = ParsedQuestion(None, question=q, options=list(options) if options is not None else None)
     refs: list[ObjectRef] = []
     for qtype, rx in _TEMPLATES:
-        m = rx.search(q)
+        m = rx.search(q[:_TEMPLATE_WINDOW])  # the benchmark's questions are < 600 characters
         if not m:
             continue
         pq.qtype = qtype
@@ -289,6 +408,11 @@ def parse_question(question: str, options: list[str] | None = None) -> ParsedQue
         elif qtype == "route_planning":
             refs = _parse_route(q, pq)
         break
+    if pq.qtype is None:
+        from .grounding_nl import parse_natural
+
+        return parse_natural(q, pq.options)
+    pq.phrases = {_name(r): r.phrase for r in refs}
     pq.targets = list(dict.fromkeys(pq.targets))
     pq.cues = [c for c in dict.fromkeys(pq.cues) if c not in pq.targets]
     pq.unknown = list(dict.fromkeys(r.phrase for r in refs if r.name is None))

@@ -944,9 +944,14 @@ def ask(source: Any, question: str, options: list[str] | None = None, *, percept
         smap = src
         trace.decide("map", {"source": "saved map", "instances": len(smap.instances)})
     else:
-        if not pq.objects and pq.qtype != "room_size_estimation":
-            raise InputError("the question names no object the pipeline can look for (see the trace's grounding); "
-                             "nothing to build a map of")
+        if not pq.objects and pq.qtype not in ("room_size_estimation", "object_list"):
+            from .answer import MapReasoner
+
+            # nothing to look for: the reasoner's "not understood" reply (status unsupported, exit 0, trace kept)
+            ans = MapReasoner(SemanticMap()).answer(question, options, parsed=pq)
+            trace.event("degraded", f"the question names no object to look for: {ans.explanation}", stage="grounding")
+            trace.decide("answer", {k: v for k, v in ans.to_dict().items() if k != "parsed"})
+            return AskResult(ans, None, trace, None, None, pq, "mosaic")
         if perception is None:
             perception = perception_from_bundle(bundle, conf, trace, profile)
         build = build_map(src, pq.targets, pq.cues, perception, conf, trace, keyframes, budget)

@@ -6,20 +6,22 @@ Thin argument parsing over `pipeline.ask` (the Python API). Options of a multipl
 from __future__ import annotations
 
 import argparse
-import re
 from pathlib import Path
 from typing import Any
 
 from ..errors import InputError
 from ..outputs import RunOutputs, note_outputs, save_run
+from ..grounding import split_inline_options  # linear; lives with the question parser
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     from ..cli import add_stage_flags
     from .flags import add_answerer, add_keyframes
 
-    p.add_argument("source", help="video file, image / RGB-D folder, or a saved map (map.json)")
-    p.add_argument("question", help="the question (VSI-Bench wording is answered exactly by the map reasoner)")
+    p.add_argument("source", nargs="?", help="video file, image / RGB-D folder, or a saved map (map.json)")
+    p.add_argument("question", nargs="?", help="the question in plain English (`--examples` lists wordings the "
+                                               "map reasoner understands)")
+    p.add_argument("--examples", action="store_true", help="list example questions the map reasoner answers")
     p.add_argument("--option", action="append", default=None, metavar="TEXT",
                    help='a multiple-choice option, repeat for each ("A. left")')
     add_answerer(p)
@@ -35,15 +37,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--miss-rate", type=float, default=0.1, help="oracle detector miss rate (synthetic scenes)")
 
 
-def split_inline_options(question: str) -> tuple[str, list[str] | None]:
-    """'... ? A. left B. right C. back' -> (question, ['A. left', 'B. right', 'C. back']) when present."""
-    m = re.search(r"(?:\boptions?\s*:\s*)?(?<![A-Za-z])A[.)]\s+.+?\s+B[.)]\s+.+", question, re.I | re.S)
-    if not m:
-        return question, None
-    head, tail = question[:m.start()].rstrip(), question[m.start():]
-    tail = re.sub(r"^\s*options?\s*:\s*", "", tail, flags=re.I)
-    parts = re.split(r"\s+(?=[B-Z][.)]\s)", tail.strip())
-    return (head, parts) if len(parts) >= 2 else (question, None)
 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
@@ -51,7 +44,17 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     from ..budget import load_profile
     from ..trace import Trace
 
+    if args.examples:
+        from ..grounding_nl import EXAMPLES
+
+        return {"schema": "mosaicthinker.ask.examples/1", "examples": EXAMPLES}
+    if not args.source or not args.question:
+        raise InputError("ask: give SOURCE and QUESTION (`mosaic ask map.json \"How many chairs are there?\"`), "
+                         "or --examples")
+    from ..grounding import check_question
+
     question, options = args.question, args.option
+    check_question(question, options)
     if options is None:
         question, options = split_inline_options(question)
     trace = Trace()
@@ -107,6 +110,8 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def render(r: dict[str, Any]) -> str:
+    if "examples" in r:
+        return "\n".join(f"{k}:\n" + "\n".join(f"  {e}" for e in v) for k, v in r["examples"].items())
     lines = [f"answer: {r['answer']}"]
     if r.get("explanation"):
         lines.append(f"  how: {r['explanation']}")

@@ -121,7 +121,8 @@ def evaluate(questions: list[dict[str, Any]], meta: dict[str, Any], types: list[
                    if st["ok"] else None}
         if qt in NUMERIC_QTYPES and st["ok"]:  # systematic bias of the computed numbers against the benchmark
             ratio = [float(r["value"]) / float(r["ground_truth"]) for r in rs
-                     if r["status"] == "ok" and float(r["ground_truth"]) != 0]
+                     if r["status"] == "ok" and isinstance(r["value"], (int, float)) and not isinstance(r["value"], bool)
+                     and float(r["ground_truth"]) != 0]
             per[qt]["median_value_over_gt"] = float(np.median(ratio)) if ratio else None
     summary = {"n_questions": len(records), "per_type": per,
                "overall": float(np.mean([p["score"] for p in per.values()])) if per else None,
@@ -216,6 +217,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--limit", type=int, help="at most this many questions")
     parser.add_argument("--disagreements", metavar="FILE", help="write the disagreement list (JSON) here")
     parser.add_argument("--records", action="store_true", help="include every question's record in the output")
+    parser.add_argument("--paired", metavar="Q.jsonl",
+                        help="the benchmark's own questions: questions with a `source_id` (e.g. a paraphrase set) "
+                             "are compared per type with the source questions in this file")
+    parser.add_argument("--result", metavar="FILE.json", help="also write the JSON result to this file")
 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
@@ -242,13 +247,39 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                        "abs_distance_excess_m": _excess_stats(records), "n": len(dis), "per_type": dict(n_type),
                        "share_per_type": share, "cases": dis}, f, indent=1)
         result["disagreements"] = {"file": str(args.disagreements), "n": len(dis), "share_per_type": share}
+    if getattr(args, "paired", None):
+        result["paired"] = paired_scores(records, questions, load_questions(args.paired), meta)
     if args.records:
         result["records"] = records
+    if getattr(args, "result", None):
+        Path(args.result).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.result).write_text(json.dumps(result, indent=1, default=str))
     if args.out:
         from ..outputs import write_group
 
         write_group(args.out, [("vsibench_json", "vsibench.json", dict(result))], result)
     return result
+
+
+def paired_scores(records: list[dict[str, Any]], questions: list[dict[str, Any]], sources: list[dict[str, Any]],
+                  meta: dict[str, Any]) -> dict[str, Any]:
+    """Per type: the score of the questions that name a `source_id` and of their source questions in the
+    benchmark's wording (answered and scored the same way), and the difference."""
+    by_id = {q.get("id"): q for q in sources}
+    src_of = {q.get("id"): q.get("source_id") for q in questions}
+    pairs = [(r, by_id[src_of[r["id"]]]) for r in records if src_of.get(r["id"]) in by_id]
+    if not pairs:
+        return {"n": 0, "note": "no question has a source_id found in the paired file"}
+    _, src_rec = evaluate([s for _, s in pairs], meta)
+    src_score = {r["id"]: r["score"] for r in src_rec}
+    out: dict[str, Any] = {}
+    for qt in sorted({r["question_type"] for r, _ in pairs}):
+        ps = [(r["score"], src_score[s.get("id")]) for r, s in pairs if r["question_type"] == qt
+              and s.get("id") in src_score]
+        if ps:
+            a, b = float(np.mean([p for p, _ in ps])), float(np.mean([q for _, q in ps]))
+            out[qt] = {"n": len(ps), "score": round(a, 4), "source_score": round(b, 4), "diff": round(a - b, 4)}
+    return out
 
 
 def render(result: dict[str, Any]) -> str:
@@ -260,6 +291,10 @@ def render(result: dict[str, Any]) -> str:
         lines.append(f"{'overall (mean of types)':<30} {'':>5} {'':>8} {result['overall']:>7.3f}")
     for k, v in result.get("skipped", {}).items():
         lines.append(f"skipped {k}: {v['n']} ({v['reason']})")
+    for qt, p in (result.get("paired") or {}).items():
+        if isinstance(p, dict):
+            lines.append(f"paired {qt:<23} {p['n']:>5} {p['score']:>7.3f} vs benchmark wording {p['source_score']:.3f}"
+                         f" ({p['diff']:+.3f})")
     if "disagreements" in result:
         d = result["disagreements"]
         lines.append(f"disagreements: {d['n']} -> {d['file']} (share per type {d['share_per_type']})")

@@ -1,0 +1,617 @@
+"""Task grounding without a VLM for questions as people type them (the VSI-Bench templates are `grounding.py`).
+
+`parse_natural(question, options) -> ParsedQuestion` reads the intent, the object phrases and their roles, the
+units and free-text options of an English question, in one pass over its tokens (linear in its length):
+
+- intents (qtype): the VSI-Bench types `object_counting`, `object_size_estimation`, `room_size_estimation`,
+  `object_abs_distance`, `object_rel_distance`, `object_rel_direction_{easy,medium,hard}`,
+  `obj_appearance_order`, plus `object_existence`, `object_where`, `object_list`, `object_nearest` (nearest /
+  farthest among everything in the map) and `object_direction` (free-form direction, no options);
+- object phrases are the runs of content words between function words ("the computer tower", "office chairs",
+  "the kitchen's sink" -> "sink"); each keeps the question's words (`ParsedQuestion.phrases`) and a
+  vocabulary name when it is one or a listed synonym (`grounding.canonical_name`); others stay as written (an
+  open vocabulary: the map's own category names resolve them, `answer.MapReasoner`);
+- selectors that pick one instance: size superlatives ("the biggest table"), "the X nearest/closest to/next to
+  the Y"; colours, materials and ordinals cannot be resolved from a map and are reported as such;
+- units: "in cm / meters / mm / feet / inches" (params["unit"]); options in free text ("..., the lamp, the sofa
+  or the tv?") become the candidates.
+
+Nothing here looks at a map: which names exist is the reasoner's business.
+"""
+from __future__ import annotations
+
+import re
+from typing import Any
+
+from .grounding import _SYN, ParsedQuestion, canonical_name, name_key, split_options
+
+UNIT_M = {"m": 1.0, "cm": 0.01, "mm": 0.001, "ft": 0.3048, "in": 0.0254}
+_UNIT_WORDS = {"m": "m", "meter": "m", "meters": "m", "metre": "m", "metres": "m", "cm": "cm", "centimeter": "cm",
+               "centimeters": "cm", "centimetre": "cm", "centimetres": "cm", "mm": "mm", "millimeter": "mm",
+               "millimeters": "mm", "millimetre": "mm", "millimetres": "mm", "ft": "ft", "foot": "ft", "feet": "ft",
+               "inch": "in", "inches": "in"}
+_DET = {"the", "a", "an", "my", "this", "that", "these", "those", "your", "our", "any", "some", "each", "every",
+        "all", "its", "his", "her", "their", "another", "other"}
+_STOP = set("""
+i me you we us he she it they one ones i'm im you're we're it's what's where's that's there's here's who's how's
+is are am was were be been being do does did don't doesn't have has had will would should could can may might must
+if when while as so and or nor but then than also too either neither both whether not no yes
+what which who whom whose where how why there here
+of in on at by to from with without into onto toward towards near nearby beside besides next between among amongst
+around about across along behind under over above below beneath inside outside within against up down through via
+left right front back rear ahead forward forwards backward backwards side sides front-left front-right back-left
+back-right left-hand right-hand front-right-hand straight directly direction directions located positioned
+situated placed sits sit sitting stand standing stood stands face facing faced faces look looking looked looks
+turn turned turning walk walking go going see seen saw spot notice find found show tell give list name named
+closest nearest farthest furthest closer nearer farther further close far apart away distance distances gap
+many much more most less least number count total quantity amount
+big bigger biggest large larger largest small smaller smallest tall taller tallest short shorter shortest long
+longer longest wide wider widest high higher highest low lower lowest deep size sizes dimension dimensions length
+width height depth measure measures measured measuring measurement measurements area footprint square
+point points object objects thing things item items stuff furniture piece pieces kind kinds type types
+please thanks roughly approximately approx around exactly just only really actually about estimate guess
+first second third fourth fifth last order appear appears appeared appearance came come comes seen
+cm centimeter centimeters centimetre centimetres mm millimeter millimeters millimetre millimetres m meter meters
+metre metres ft foot feet inch inches sq
+for about like per upon unto via else off out over onto into than
+wonder wondering wondered suppose supposing imagine say know want wanted need think tell give let guess curious
+question quick hey hi hello ok okay so um please r u ur pls plz separate separates separated sits lies lie
+edge edges extent way ways spot part parts portion
+exist exists existing fall falls belong belongs hang hangs hanging rest rests resting lying kept mounted put
+placed shown fit fits go goes come comes get gets got keep keeps contain contains include includes hold holds
+lie lies occupy occupies measure
+maximum max minimum min overall total approximate rough
+everything anything something nothing everyone all anywhere somewhere everywhere
+me myself mine origin axis y-axis x-axis cartesian plane quadrant quadrants degrees degree
+""".split())
+_COPULA = {"is", "are", "was", "were", "be", "been", "being", "get", "got", "gets"}
+# content words that are also function words: "tv stand", "trash can", "side table", "front door"
+_SOFT_AFTER_NOUN = {"stand", "can", "light", "lights", "top", "set", "table"}
+_SOFT_BEFORE_NOUN = {"side", "end", "top", "back", "front", "corner", "coffee", "night", "standing", "sitting",
+                     "long", "high", "low", "light", "square", "first", "second"}
+_SCENE = {"room", "rooms", "kitchen", "bedroom", "bathroom", "living", "dining", "space", "scene", "video", "house",
+          "apartment", "flat", "office", "place", "area", "home", "floor", "hall", "hallway", "corridor", "here",
+          "interior", "map", "image", "picture"}
+_COLOURS = {"red", "blue", "green", "yellow", "black", "white", "grey", "gray", "brown", "orange", "pink", "purple",
+            "beige", "silver", "gold", "golden", "dark", "light-coloured", "wooden", "wood", "metal", "metallic",
+            "leather", "plastic", "glass", "fabric", "striped", "old", "new", "modern", "broken", "open", "closed"}
+_ORDINALS = {"first", "second", "third", "fourth", "fifth", "last", "other", "left", "right", "middle", "1st",
+             "2nd", "3rd"}
+_RANKS = {"second", "third", "fourth", "fifth", "2nd", "3rd", "4th", "5th", "penultimate"}
+_SUPERLATIVE = {"biggest": ("volume", max), "largest": ("volume", max), "smallest": ("volume", min),
+                "tallest": ("height", max), "shortest": ("height", min), "highest": ("top", max),
+                "lowest": ("top", min), "longest": ("length", max), "widest": ("width", max)}
+_NEAR_CUES = {"nearest", "closest", "next", "beside", "near", "by", "nearer", "closer"}
+_DIR_PHRASES = [  # (regex over the joined tokens, canonical direction)
+    (r"front-left|front left|left front|forward left|ahead (?:and )?(?:to the )?left", "front-left"),
+    (r"front-right|front right|right front|forward right|ahead (?:and )?(?:to the )?right", "front-right"),
+    (r"back-left|back left|rear left|left rear|behind (?:and )?(?:to the )?left|left behind", "back-left"),
+    (r"back-right|back right|rear right|right rear|behind (?:and )?(?:to the )?right|right behind", "back-right"),
+    (r"\bleft\b", "left"), (r"\bright\b", "right"), (r"\bbehind\b|\bback\b|\brear\b", "back"),
+    (r"\bin front\b|\bahead\b|\bfront\b", "front")]
+_DIR_RX = [(re.compile(rx), lab) for rx, lab in _DIR_PHRASES]
+QUADRANTS = ("front-left", "front-right", "back-left", "back-right")
+
+EXAMPLES: dict[str, list[str]] = {
+    "object_counting": ["How many chairs are there?", "Count the cushions in the room."],
+    "object_existence": ["Is there a fridge in this kitchen?", "Do you see any trash cans?"],
+    "object_size_estimation": ["How big is the sofa?", "How tall is the lamp in inches?",
+                               "What is the longest side of the bed, in cm?"],
+    "object_abs_distance": ["How far is the table from the tv?", "What's the distance between the sofa and the "
+                            "stove in feet?"],
+    "object_rel_distance": ["Which is closest to the tv: the chair, the stool or the sofa?",
+                            "Is the bed or the sofa farther from the door?"],
+    "object_nearest": ["What is the nearest object to the fridge?", "What's farthest from the bed?"],
+    "object_rel_direction": ["Standing by the sofa facing the tv, is the lamp to my left?",
+                             "If I stand at the stove and look at the fridge, is the table front-left, front-right, "
+                             "back-left or back-right of me?"],
+    "object_where": ["Where is the printer?", "Where's the trash can?"],
+    "object_list": ["What objects are in the room?", "List the chairs."],
+    "room_size_estimation": ["How big is this room?", "What is the floor area of the room in square meters?"],
+    "obj_appearance_order": ["Which did I see first, the tv or the sofa?"],
+}
+
+
+def examples() -> list[str]:
+    """Example wordings the map reasoner understands (also listed by `mosaic ask --examples`)."""
+    return [e for es in EXAMPLES.values() for e in es]
+
+
+# ----------------------------------------------------------------------------- tokens and noun phrases
+
+_TOK = re.compile(r"[a-z0-9]+(?:[-'][a-z0-9]+)*|[?,.;:!()/&]")
+_KEEP_S = {"what's", "where's", "it's", "that's", "there's", "here's", "who's", "how's", "let's"}
+
+
+def tokens(text: str) -> list[str]:
+    """Lower-case word and punctuation tokens; a possessive "'s" is its own token."""
+    s = text.lower().replace("\u2019", "'").replace("(s)", "").replace("(es)", "").replace("_", " ")
+    out: list[str] = []
+    for t in _TOK.findall(s):
+        if t.endswith("'s") and len(t) > 2 and t not in _KEEP_S:
+            out += [t[:-2], "'s"]
+        else:
+            out.append(t)
+    return out
+
+
+def _is_content(toks: list[str], i: int, in_np: bool) -> bool:
+    t = toks[i]
+    if not re.match(r"[a-z0-9]", t) or t in _DET or "'" in t:  # contractions: i'd, don't, what's ...
+        return False
+    if t.endswith("ed") and i > 0 and toks[i - 1] in _COPULA:  # "are plugged in": a verb, not a name
+        return False
+    nxt = toks[i + 1] if i + 1 < len(toks) else ""
+    nxt_content = bool(nxt) and re.match(r"[a-z]", nxt) is not None and nxt not in _STOP and nxt not in _DET
+    if t in _SOFT_AFTER_NOUN and in_np and nxt not in ("you", "i", "we", "one", "be", "it"):
+        return True
+    if t in _SOFT_BEFORE_NOUN and nxt_content and nxt not in _SCENE:
+        return True
+    return t not in _STOP and not t.isdigit()
+
+
+def noun_phrases(toks: list[str]) -> list[dict[str, Any]]:
+    """Object phrases: maximal runs of content words. Each: start, end (token span), words, sel (selector words
+    before the head: colours, ordinals, superlatives), scene (a room word, not an object)."""
+    nps: list[dict[str, Any]] = []
+    i = 0
+    while i < len(toks):
+        if not _is_content(toks, i, False) and not (toks[i] in _SUPERLATIVE and i + 1 < len(toks)
+                                                     and _is_content(toks, i + 1, False)):
+            i += 1
+            continue
+        j, words = i, []
+        while j < len(toks) and (_is_content(toks, j, bool(words)) or (not words and toks[j] in _SUPERLATIVE)):
+            words.append(toks[j])
+            j += 1
+            if j + 1 < len(toks) and toks[j] == "'s" and _is_content(toks, j + 1, False):
+                words, j = [], j + 1  # "the kitchen's sink": the owner only qualifies the object
+        sel = []
+        while len(words) > 1 and (words[0] in _SUPERLATIVE or words[0] in _COLOURS or words[0] in _ORDINALS):
+            if name_key(" ".join(words)) in _SYN:  # "white board" is a name, not a white board
+                break
+            sel.append(words.pop(0))
+        if words:
+            nps.append({"start": i, "end": j, "words": words, "sel": sel,
+                        "scene": all(w in _SCENE for w in words)})
+        i = max(j, i + 1)
+    return nps
+
+
+def _before(toks: list[str], np_: dict[str, Any], k: int = 3) -> list[str]:
+    """Up to k tokens before a phrase, determiners skipped."""
+    out, i = [], np_["start"] - 1
+    while i >= 0 and len(out) < k:
+        if toks[i] not in _DET:
+            out.insert(0, toks[i])
+        i -= 1
+    return out
+
+
+def direction_words(text: str) -> list[str]:
+    """Canonical directions named in a text, in order of appearance, each span once ("front-left", "left", "back",
+    "front" ...)."""
+    s = " " + " ".join(tokens(text)) + " "
+    found: list[tuple[int, str]] = []
+    for rx, lab in _DIR_RX:
+        for m in rx.finditer(s):
+            found.append((m.start(), lab))
+        s = rx.sub(lambda m: " " * len(m.group(0)), s)
+    return [lab for _, lab in sorted(found)]
+
+
+def _unit(joined: str, default: str) -> str:
+    m = re.search(r"\b(?:in|into|using|as|how many|number of|many)\s+(?:the\s+)?([a-z]+)\b", joined)
+    if m and m.group(1) in _UNIT_WORDS:
+        return _UNIT_WORDS[m.group(1)]
+    for w in joined.split():
+        if w in _UNIT_WORDS and len(w) > 2:
+            return _UNIT_WORDS[w]
+    return default
+
+
+# ----------------------------------------------------------------------------- intents
+
+_PREAMBLE = [  # phrases that would be misread as the question's own words
+    re.compile(r"(?:measuring|measured|measure|as measured)?\s*(?:from|between)?\s*(?:the\s+)?(?:closest|nearest)"
+               r"\s+points?(?:\s+(?:of|on)\s+(?:each|the|both|two)(?:\s+(?:two|the))?\s+objects?)?"),
+    re.compile(r"(?:closest|nearest)[- ]point[- ]to[- ](?:closest|nearest)[- ]point"),
+    re.compile(r"(?:an object is (?:to )?my back|(?:it|something) counts as (?:behind|back)|count (?:it|that|"
+               r"something) as (?:behind|back)) if .{0,120}?(?:face it|degrees(?: or more)?)\b"),
+    re.compile(r"(?:the )?directions? (?:refer|refers|are) .{0,160}?(?:y-axis|y axis|quadrants?)\b\)?"),
+]
+
+
+def _strip_preamble(joined: str) -> tuple[str, dict[str, Any]]:
+    extra: dict[str, Any] = {}
+    m = re.search(r"(?:turn|turning) (?:at least |more than |over |by )?(\d+)\s+degrees", joined)
+    if m:
+        extra["back_deg"] = float(m.group(1))
+    for rx in _PREAMBLE:
+        joined = rx.sub(" ", joined)
+    return " ".join(joined.split()), extra
+
+
+def _has(joined: str, rx: str) -> bool:
+    return re.search(rx, joined) is not None
+
+
+_CLOSE = r"\b(?:closest|nearest|closer|nearer)\b"
+_FAR = r"\b(?:farthest|furthest|farther|further)\b"
+_WHICH = r"\b(?:which|whichever|what|what's|or|than)\b"  # a choice is asked (else a closeness word selects)
+
+
+_ROOMS = r"(?:room|space|kitchen|bedroom|bathroom|apartment|flat|office|house|living room|area|whole space)"
+_UNITS_RX = r"(?:cm|centimet\w+|mm|millimet\w+|m|meters?|metres?|feet|foot|ft|inch(?:es)?)"
+_SIMPLE_INTENTS = [(name, re.compile(rx)) for name, rx in (  # tried in this order, after the choice questions
+    ("room_size", rf"\bhow (?:big|large) is (?:the |this |our )?{_ROOMS}\b|floor (?:area|space|size)|square "
+                  rf"(?:meters?|metres?|feet)|\bsq\b|(?:size|area|footprint) of (?:the |this )?{_ROOMS}\b"),
+    ("size", rf"\bhow (?:big|large|long|tall|wide|high|deep)\b|\b(?:size|dimensions?|length|height|width|depth|"
+             rf"measure|measures|measurements?|longest side|longest edge)\b|how many {_UNITS_RX}\b"),
+    ("count", r"\bhow many\b|\bcount\b|\bnumber of\b|\bquantity of\b|\btotal of\b|^(?:the )?total\b"),
+    ("existence", r"^(?:is|are) there\b|\b(?:do|can|did|could) (?:you|i|we) (?:see|spot|find|notice)\b|"
+                  r"\b(?:does|do) (?:the|this|our|your) \w+(?: \w+)? (?:have|contain|include|hold)\b|\bexists?\b|"
+                  r"^(?:any|got any)\b|\bis (?:a|an) [^?]{1,80}? (?:in|here)\b"))]
+
+
+def _intent(j: str, n_obj: int, has_opts: bool) -> str | None:
+    """The intent from cue words (order matters: the more specific first)."""
+    stance = _has(j, r"\b(?:facing|face|faces|looking at|look at|looking towards?|look towards?|turned towards?|"
+                     r"looking in the direction of)\b")
+    if _has(j, r"\b(?:appear|appears|appeared|appearance|show up|showed up|came into view)\b|"
+               r"\b(?:see|saw|seen|spot|spotted|notice|noticed)\b.*\bfirst\b|\bfirst\b.*\b(?:see|saw|seen)\b|"
+               r"\bin (?:what|which) order\b"):
+        return "obj_appearance_order"
+    if stance and _has(j, r"\b(?:standing|stand|stood|sitting|sit|i am|i'm|im|i was|you are|from|at|by|next to|"
+                          r"beside|near|positioned|located)\b"):
+        return "direction"
+    if _has(j, r"\b(?:distance|how far|far apart|far away|how close|gap (?:between|from)|separat\w*|how much (?:space|room|"
+               r"gap)|how many (?:m|meters?|"
+               r"metres?|cm|centimet\w+|feet|foot|ft|inch(?:es)?|mm)\b.*\b(?:between|from|apart|away|to)\b)"):
+        if _has(j, _CLOSE + "|" + _FAR) and _has(j, r"\b(?:which|whichever|or|than)\b"):
+            return "rel_distance"
+        return "abs_distance"  # "what is the distance from the laptop to the nearest chair": instances' minimum  # "how far is the chair nearest the door from the tv": a selector, not the question
+    if _has(j, _CLOSE + "|" + _FAR) and _has(j, _WHICH):
+        return "rel_distance"
+    if _has(j, r"\b(?:what|what's|which)\b(?: \w+){0,3} (?:next to|beside|near|by)\b"):
+        return "rel_distance"  # "what's next to the desk?": the nearest other object
+    for intent, rx in _SIMPLE_INTENTS:
+        if rx.search(j):
+            return intent
+    if _has(j, r"\b(?:where|whereabouts|locate|location of|position of)\b"):
+        return "direction" if _has(j, r"\b(?:if i|standing|when i)\b") and stance else "where"
+    if _has(j, r"\b(?:list|enumerate|inventory)\b|\b(?:what|which) (?:objects|things|items|furniture)\b|"
+               r"\bwhat(?:'s| is| are) (?:in|there)\b|\bwhat do you see\b|\bwhat can you see\b"):
+        return "list"
+    if _has(j, r"\bon my (?:left|right)\b|\bto my (?:left|right|back|front)\b|\bbehind me\b|\bin front of me\b"):
+        return "direction"
+    return None
+
+
+def _refs(pq: ParsedQuestion, nps: list[dict[str, Any]]) -> list[str]:
+    """Record each phrase: its name (vocabulary name, else the phrase itself), the question's words, selectors,
+    unknown names. Returns the names in order."""
+    names = []
+    for p in nps:
+        phrase = " ".join(p["words"])
+        canon = canonical_name(phrase)
+        name = canon or name_key(phrase)
+        if canon is None:
+            pq.unknown.append(phrase)
+        pq.phrases.setdefault(name, phrase)
+        if p["sel"]:
+            pq.selectors[name] = {"words": p["sel"], "phrase": " ".join(p["sel"] + p["words"])}
+        if p.get("attach") is not None:
+            pq.selectors.setdefault(name, {})["near"] = p["attach"]
+        names.append(name)
+    return names
+
+
+def _attachments(toks: list[str], nps: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """"the chair nearest (to) the door", "the lamp next to the bed": the second phrase selects among the first's
+    instances; returns the phrases that remain (attached ones folded into their owner's `attach`)."""
+    out: list[dict[str, Any]] = []
+    for p in nps:
+        if out:
+            prev = out[-1]
+            gap = [t for t in toks[prev["end"]:p["start"]] if t not in _DET]
+            if gap and gap[0] in _NEAR_CUES and all(t in _NEAR_CUES | {"to", "the", "one", "from"} for t in gap) \
+                    and len(gap) <= 3 and prev.get("attach") is None:
+                prev["attach"] = canonical_name(" ".join(p["words"])) or name_key(" ".join(p["words"]))
+                prev["attach_phrase"] = " ".join(p["words"])
+                continue
+        out.append(p)
+    return out
+
+
+_TRIGGERS = {"count": {"many", "count", "number", "quantity", "total"},
+             "size": {"big", "large", "long", "tall", "wide", "high", "deep", "size", "dimension", "dimensions",
+                      "length", "height", "width", "depth", "measure", "longest", "biggest", "largest"},
+             "existence": {"there", "see", "spot", "find", "notice", "have", "contain", "any", "exist", "exists"},
+             "where": {"where", "where's", "locate", "location", "position", "whereabouts"}}
+
+
+def parse_natural(question: str, options: list[str] | None = None) -> ParsedQuestion:
+    """Parse a natural English question (see the module docstring). `question` is already cleaned
+    (`grounding.safe_text`); the result's qtype is None when the intent or its objects are not understood, with
+    `notes` saying what was understood and what was not."""
+    pq = ParsedQuestion(None, question=question, options=list(options) if options is not None else None,
+                        how="natural")
+    toks = tokens(question)
+    joined, extra = _strip_preamble(" ".join(toks))
+    toks = joined.split()
+    nps_all = [p for p in noun_phrases(toks) if not p["scene"]]
+    intent = _intent(joined, len(nps_all), bool(options))
+    if intent is None:
+        pq.notes.append("no question type recognised (counting, existence, size, distance, nearest, direction, "
+                        "where, list, room size, appearance order)")
+        pq.how = "none"
+        return pq
+    handler = {"count": _count, "existence": _existence, "size": _size, "room_size": _room_size,
+               "abs_distance": _abs_distance, "rel_distance": _rel_distance, "direction": _direction,
+               "where": _where, "list": _list, "obj_appearance_order": _order}[intent]
+    keep_attach = intent not in ("rel_distance", "direction")
+    nps = _attachments(toks, nps_all) if keep_attach else nps_all
+    first = next((i for i, t in enumerate(toks) if t in _TRIGGERS.get(intent, ())), None)
+    if first is not None:  # "Quick question: how many chairs ...": the object comes after the question's cue
+        nps = [p for p in nps if p["start"] > first] or nps
+    used = {w for sel in (p["sel"] for p in nps_all) for w in sel}
+    ordinal = [w for w in toks if w in _RANKS and w not in used]
+    if ordinal:  # "the second closest object": a rank the reasoner does not compute; never dropped silently
+        _fail(pq, f"a {intent.replace('_', ' ')} question", f"the rank '{ordinal[0]}' (only the nearest / farthest "
+                                                            f"or one object at a time)")
+        pq.how = "none"
+        return pq
+    handler(pq, toks, joined, nps, extra)
+    pq.targets = list(dict.fromkeys(pq.targets))
+    pq.cues = [c for c in dict.fromkeys(pq.cues) if c not in pq.targets]
+    for sel in pq.selectors.values():  # attached objects are needed to resolve the selector
+        if sel.get("near") and sel["near"] not in pq.targets:
+            pq.cues.append(sel["near"])
+    pq.unknown = list(dict.fromkeys(pq.unknown))
+    if pq.qtype is None:
+        pq.how = "none"
+    return pq
+
+
+def _fail(pq: ParsedQuestion, understood: str, missing: str) -> None:
+    pq.qtype = None
+    pq.notes.append(f"understood: {understood}; not understood: {missing}")
+
+
+def _single(pq: ParsedQuestion, nps: list[dict[str, Any]], what: str, qtype: str, allow_extra: bool = False) -> str | None:
+    if not nps:
+        _fail(pq, what, "which object it is about")
+        return None
+    names = _refs(pq, nps)
+    if len(names) > 1 and not allow_extra:
+        extra = ", ".join(f"'{pq.phrase(n)}'" for n in names[1:])
+        pq.notes.append(f"{extra}: a location or condition that cannot be applied to a {what}")
+        _fail(pq, f"a {what} of '{pq.phrase(names[0])}'", f"what {extra} means for it")
+        return None
+    pq.qtype = qtype
+    return names[0]
+
+
+_LOCATION = {"on", "in", "at", "near", "by", "under", "behind", "beside", "above", "below", "inside", "against",
+             "around", "next", "between", "over", "beneath", "underneath", "along", "across", "close"}
+
+
+def _conditions(toks: list[str], nps: list[dict[str, Any]]) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
+    """Split phrases into the objects asked about and the ones after a location word ("on the desk")."""
+    objs, conds = [], []
+    for p in nps:
+        b = _before(toks, p, 1)
+        (conds if objs and b and b[-1] in _LOCATION else objs).append(p)
+    return objs, conds
+
+
+def _count(pq, toks, joined, nps, extra) -> None:
+    if not nps and _has(joined, r"\b(?:objects|things|items|pieces of furniture)\b"):
+        pq.qtype, pq.params = "object_counting", {"object": "*"}  # every object in the map
+        return
+    objs, conds = _conditions(toks, nps)
+    if len(objs) > 1:
+        return _fail(pq, "a count of " + " and ".join(f"'{' '.join(p['words'])}'" for p in objs),
+                     "one count for several objects; ask about one object at a time")
+    n = _single(pq, objs + conds, "count", "object_counting")
+    if n is not None:
+        pq.targets, pq.params = [n], {"object": n}
+
+
+def _existence(pq, toks, joined, nps, extra) -> None:
+    if not nps:
+        return _fail(pq, "an is-there question", "which object it is about")
+    objs, conds = _conditions(toks, nps)
+    if conds:
+        where = ", ".join(" ".join(p["words"]) for p in conds)
+        return _fail(pq, "an is-there question about " + ", ".join(f"'{' '.join(p['words'])}'" for p in objs),
+                     f"the location ('{where}'): the map answers whether there is one at all; ask 'is there a "
+                     f"{' '.join(objs[0]['words'])}?' or 'where is the {' '.join(objs[0]['words'])}?'")
+    names = _refs(pq, objs)
+    pq.qtype = "object_existence"
+    pq.targets, pq.params = names, {"objects": names, "all": " and " in f" {joined} "}
+
+
+def _size(pq, toks, joined, nps, extra) -> None:
+    n = _single(pq, nps, "size question", "object_size_estimation")
+    if n is None:
+        return
+    if _has(joined, r"\b(?:longest|biggest|largest|maximum|max|greatest)\b(?: \w+)? (?:side|dimension|edge|extent|"
+                    r"length)|\bsize\b|\bhow (?:big|large)\b|\bdimensions?\b"):
+        dim = "longest"
+    elif _has(joined, r"\bhow (?:tall|high)\b|\bheight\b|\btall\b"):
+        dim = "height"
+    elif _has(joined, r"\bhow wide\b|\bwidth\b|\bwide\b"):
+        dim = "width"
+    elif _has(joined, r"\bhow long\b|\blength\b|\blong\b"):
+        dim = "length"
+    elif _has(joined, r"\bhow deep\b|\bdepth\b|\bdeep\b"):
+        dim = "depth"
+    else:
+        dim = "longest"
+    pq.targets = [n]
+    pq.params = {"object": n, "dimension": dim, "unit": _unit(joined, "cm")}
+
+
+def _room_size(pq, toks, joined, nps, extra) -> None:
+    pq.qtype = "room_size_estimation"
+    unit = "ft2" if _has(joined, r"square (?:feet|foot)|sq ?ft") else "m2"
+    pq.params = {"unit": unit}
+
+
+def _abs_distance(pq, toks, joined, nps, extra) -> None:
+    names = _refs(pq, nps)
+    if len(names) != 2:
+        got = ", ".join(f"'{pq.phrase(n)}'" for n in names) or "no object"
+        return _fail(pq, f"a distance question naming {got}", "exactly two objects to measure between")
+    pq.qtype = "object_abs_distance"
+    pq.targets = names
+    pq.params = {"a": names[0], "b": names[1], "unit": _unit(joined, "m")}
+
+
+def _reference_index(toks: list[str], nps: list[dict[str, Any]]) -> int | None:
+    """The phrase the distances are measured to: right after a closeness word ("nearest the tv"), or after
+    "to/from" following one ("closest to the tv", "farthest away from the bed")."""
+    for k, p in enumerate(nps):
+        before = _before(toks, p, 4)
+        if not before:
+            continue
+        if before[-1] in ("to", "from") and any(re.fullmatch(_CLOSE + "|" + _FAR + r"|\baway\b|\bfar\b|\bapart\b",
+                                                             w) for w in before[:-1]):
+            return k
+        if re.fullmatch(_CLOSE + "|" + _FAR, before[-1]):
+            return k
+    if re.search(r"\b(?:closest|nearest|closer|nearer|farthest|furthest|farther|further)\b(?: \w+)? (?:to |from )?"
+                 r"(?:me|myself|i am|i'm|where i am)\b", " ".join(toks)):
+        for k, p in enumerate(nps):  # "if I'm at the stove, which ... is closest to me?"
+            before = _before(toks, p, 2)
+            if before and (before[-1] in ("at", "by", "beside", "near") or " ".join(before) == "next to"):
+                return k
+    for k, p in enumerate(nps):  # "what's next to the desk?"
+        before = _before(toks, p, 2)
+        if before and (before[-1] in ("beside", "near", "by") or " ".join(before[-2:]) == "next to"):
+            return k
+    for k, p in enumerate(nps):  # "which of these is the closest one? (reference: ... to the tv)"
+        before = _before(toks, p, 1)
+        if before and before[-1] in ("to", "from"):
+            return k
+    return None
+
+
+def _rel_distance(pq, toks, joined, nps, extra) -> None:
+    far = _has(joined, _FAR + r"|\bfar\b") and not _has(joined, _CLOSE)
+    k = _reference_index(toks, nps)
+    if k is None:
+        return _fail(pq, "a which-is-closest question", "the object the distances are measured to "
+                                                         "(e.g. '... closest to the tv')")
+    names = _refs(pq, nps)
+    ref = names[k]
+    opts = split_options(pq.options)
+    if opts:
+        cands = []
+        for _, text in opts:
+            onps = [p for p in noun_phrases(tokens(text)) if not p["scene"]]
+            cands.append(_refs(pq, onps[:1])[0] if onps else name_key(text))
+    else:
+        cands = [n for i, n in enumerate(names) if i != k]
+    extreme = "farthest" if far else "closest"
+    pq.cues = [ref]
+    if not cands:
+        pq.qtype = "object_nearest"
+        pq.targets, pq.cues = [], [ref]
+        pq.params = {"reference": ref, "extreme": extreme}
+        return
+    pq.qtype = "object_rel_distance"
+    pq.targets = cands
+    pq.params = {"reference": ref, "candidates": cands, "extreme": extreme}
+
+
+_FACE1 = {"facing", "face", "faces", "towards", "toward"}
+_FACE2 = {"looking at", "look at", "looked at", "staring at", "turned to", "direction of", "looking toward",
+          "look toward", "looking towards", "look towards"}
+
+
+def _stance(toks: list[str], nps: list[dict[str, Any]]) -> tuple[int | None, int | None, int | None]:
+    """Indices of the phrases for where I stand, what I face, and the object a side is relative to."""
+    pos = face = rel = None
+    for k, p in enumerate(nps):
+        b = _before(toks, p, 3)
+        last = b[-1] if b else ""
+        two = " ".join(b[-2:])
+        if face is None and (last in _FACE1 or two in _FACE2):
+            face = k
+            continue
+        if rel is None and last == "of" and len(b) >= 2 and b[-2] in ("left", "right", "front", "behind", "back",
+                                                                     "side"):
+            rel = k
+            continue
+        if pos is None and (last in ("by", "at", "beside", "near", "from") or two in ("next to", "close to",
+                                                                                    "front of", "from where")):
+            pos = k
+    return pos, face, rel
+
+
+def _direction(pq, toks, joined, nps, extra) -> None:
+    pos, face, rel = _stance(toks, nps)
+    names = _refs(pq, nps)
+    rest = [k for k in range(len(nps)) if k not in (pos, face, rel)]
+    if pos is None or face is None or not rest:
+        have = {"where I stand": pos, "what I face": face, "the object asked about": rest[0] if rest else None}
+        got = [f"{k} = '{pq.phrase(names[v])}'" for k, v in have.items() if v is not None]
+        miss = [k for k, v in have.items() if v is None]
+        return _fail(pq, "a direction question" + (f" ({', '.join(got)})" if got else ""), ", ".join(miss) +
+                     " (say e.g. 'standing by the sofa facing the tv, is the lamp to my left?')")
+    query = names[rest[0]]
+    if len(rest) > 1:  # "what's on my right: the radiator or the laptop?"
+        pq.params["candidates"] = [names[k] for k in rest]
+    opts = split_options(pq.options)
+    asked = [d for _, t in opts for d in direction_words(t)[:1]] if opts else direction_words(
+        " ".join(t for i, t in enumerate(toks) if not any(p["start"] <= i < p["end"] for p in nps)))
+    if any(d in QUADRANTS for d in asked):
+        level = "hard"
+    elif "back" in asked:
+        level = "medium"
+    elif opts or len(set(asked)) > 1:
+        level = "easy"
+    else:
+        level = "free"
+    if not opts and len(set(asked)) <= 1:  # "is the lamp on my left?", "where is the lamp?": yes/no or words
+        level = "free"
+    pq.params = {"position": names[pos], "facing": names[face], "query": query, **extra, **pq.params}
+    if rel is not None:
+        pq.params["relative_to"] = names[rel]
+    pq.targets, pq.cues = pq.params.get("candidates", [query]), [names[pos], names[face]]
+    if pq.params.get("candidates") and not opts:
+        level = "free"
+    if level == "free":
+        pq.qtype = "object_direction"
+        pq.params["asked"] = list(dict.fromkeys(asked))
+    else:
+        pq.qtype = f"object_rel_direction_{level}"
+
+
+def _where(pq, toks, joined, nps, extra) -> None:
+    n = _single(pq, nps, "where-is question", "object_where")
+    if n is not None:
+        pq.targets, pq.params = [n], {"object": n}
+
+
+def _list(pq, toks, joined, nps, extra) -> None:
+    names = _refs(pq, nps)
+    pq.qtype = "object_list"
+    pq.targets = names
+    pq.params = {"objects": names}
+
+
+def _order(pq, toks, joined, nps, extra) -> None:
+    names = _refs(pq, nps)
+    opts = split_options(pq.options)
+    if len(names) < 2 and opts:  # "in which order did these appear?" with the orders as options
+        names = list(dict.fromkeys(n for _, t in opts for n in _refs(pq, [p for p in noun_phrases(tokens(t))
+                                                                            if not p["scene"]])))
+    if len(names) < 2:
+        return _fail(pq, "an appearance-order question", "at least two objects to order")
+    pq.qtype = "obj_appearance_order"
+    pq.targets = names
+    pq.params = {"categories": names}

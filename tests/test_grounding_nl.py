@@ -1,0 +1,311 @@
+"""Natural questions on a made-up ScanNet-style room: intents, open vocabulary, selectors, units, options.
+
+Every expected answer is computed here from the room's axis-aligned boxes (gaps, centres, cross products),
+never by the reasoner."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from mosaicthinker.runtime.answer import MapReasoner
+from mosaicthinker.runtime.errors import InputError
+from mosaicthinker.runtime.geometry import OrientedBox
+from mosaicthinker.runtime.grounding import MAX_QUESTION_CHARS, parse_question, safe_text, split_inline_options
+from mosaicthinker.runtime.grounding_nl import direction_words, examples, noun_phrases, tokens
+from mosaicthinker.runtime.semantic_map import ObjectInstance, SemanticMap
+
+# name, centre (x, y, z), size (x, y, z): axis-aligned, metres, z up
+ROOM = [("desk", (0.0, 0.0, 0.38), (1.4, 0.7, 0.76)),
+        ("office chair", (0.0, -0.8, 0.5), (0.6, 0.6, 1.0)),
+        ("office chair", (2.5, -0.8, 0.5), (0.6, 0.6, 1.0)),
+        ("chair", (-2.0, 2.0, 0.45), (0.5, 0.5, 0.9)),
+        ("computer tower", (0.55, 0.1, 0.98), (0.2, 0.45, 0.44)),
+        ("monitor", (-0.2, 0.15, 1.0), (0.6, 0.2, 0.45)),
+        ("telephone", (-0.5, -0.1, 0.8), (0.2, 0.2, 0.08)),
+        ("whiteboard", (0.0, 2.9, 1.5), (2.0, 0.05, 1.2)),
+        ("radiator", (3.4, 1.0, 0.4), (0.1, 1.2, 0.6)),
+        ("power strip", (0.4, 0.2, 0.02), (0.3, 0.06, 0.04)),
+        ("ceiling light", (1.0, 1.0, 2.6), (0.4, 0.4, 0.1)),
+        ("trash can", (-0.9, -0.2, 0.2), (0.3, 0.3, 0.4)),
+        ("couch", (-2.5, -1.5, 0.4), (2.0, 0.9, 0.8)),
+        ("laptop", (3.0, -1.2, 0.8), (0.35, 0.25, 0.03))]
+
+
+def room_map(drop: tuple[str, ...] = (), cameras=None) -> SemanticMap:
+    inst = [ObjectInstance(i, n, OrientedBox(np.array(c, float), np.array(s, float), np.eye(3)))
+            for i, (n, c, s) in enumerate(ROOM) if n not in drop]
+    return SemanticMap(inst, None, cameras or [])
+
+
+def boxes(name: str) -> list[tuple[np.ndarray, np.ndarray]]:
+    return [(np.array(c) - np.array(s) / 2, np.array(c) + np.array(s) / 2) for n, c, s in ROOM if n == name]
+
+
+def gap(a: tuple[np.ndarray, np.ndarray], b: tuple[np.ndarray, np.ndarray]) -> float:
+    """Closest-point distance of two axis-aligned boxes."""
+    d = np.maximum(0.0, np.maximum(a[0] - b[1], b[0] - a[1]))
+    return float(np.linalg.norm(d))
+
+
+def min_gap(x: str, y: str) -> float:
+    return min(gap(a, b) for a in boxes(x) for b in boxes(y))
+
+
+def centre(name: str) -> np.ndarray:
+    return np.array([c for n, c, _ in ROOM if n == name][0], float)
+
+
+def ccw_deg(stand: str, face: str, obj: str) -> float:
+    f, t = centre(face)[:2] - centre(stand)[:2], centre(obj)[:2] - centre(stand)[:2]
+    return math.degrees(math.atan2(f[0] * t[1] - f[1] * t[0], f @ t))
+
+
+def ask(q, options=None, smap=None):
+    return MapReasoner(smap or room_map()).answer(q, options)
+
+
+# ----------------------------------------------------------------------------- open vocabulary
+
+
+def test_names_resolve_only_to_the_same_object_or_a_listed_synonym():
+    a = ask("How big is the computer tower?")
+    assert a.ok and a.value == pytest.approx(45.0) and a.unit == "cm"  # the tower's longest side, not the laptop's
+    a = ask("How far is the computer tower from the whiteboard?")
+    assert a.ok and a.value == pytest.approx(min_gap("computer tower", "whiteboard"))
+    a = ask("How tall is the ceiling light?", smap=room_map(drop=("ceiling light",)))
+    assert a.status == "not_found" and a.missing == ["ceiling light"] and a.value is None  # never the lamp
+    a = ask("how many monitors are there?")
+    assert a.ok and a.value == 1  # the monitor is not the tv and the tv is not the monitor
+    assert ask("How many TVs are there?").status == "not_found"
+    # kinds of a thing count as it; the specific name counts only itself
+    assert ask("How many chairs are in the room?").value == 3
+    assert ask("How many office chairs can you see?").value == 2
+    # synonyms: couch / sofa, trash can / garbage bin, phone / telephone
+    assert ask("How long is the sofa?").value == pytest.approx(200.0)
+    assert ask("is there a garbage bin?").value["exists"] is True
+    assert ask("Where's the phone?").ok
+
+
+def test_not_in_the_map_gives_hints_from_the_map_names():
+    a = ask("How many grand zithers are there?")
+    assert a.status == "not_found" and a.missing == ["grand zither"] and a.value == 0
+    a = ask("How far is the desk lamp from the chair?")
+    assert a.status == "not_found" and "desk lamp" in a.missing and "desk" in a.hints
+    a = ask("Is there a heater?")  # a radiator is not a heater
+    assert a.ok and a.value["exists"] is False and a.text == "no"
+
+
+# ----------------------------------------------------------------------------- intents with structured answers
+
+
+def test_existence_yes_no_against_the_boxes():
+    for name in ("radiator", "whiteboard", "power strip", "telephone"):
+        a = ask(f"Is there a {name} in this room?")
+        assert a.ok and a.text == "yes" and a.value["exists"] is True
+        a = ask(f"Do you see any {name}s?", smap=room_map(drop=(name,)))
+        assert a.ok and a.text == "no" and a.value["exists"] is False
+
+
+def test_where_names_the_nearest_landmarks_and_the_camera_side():
+    a = ask("Where is the radiator?")
+    expected = sorted((min_gap("radiator", n), n) for n in {r[0] for r in ROOM} - {"radiator"})
+    assert a.ok and [m["object"] for m in a.value["landmarks"]] == [n for _, n in expected[:2]]
+    assert a.value["landmarks"][0]["distance_m"] == pytest.approx(expected[0][0], abs=1e-3)
+    # a camera at the origin looking along +y (OpenCV: z forward = +y, x right = +x, y down = -z)
+    T = np.eye(4)
+    T[:3, 0], T[:3, 1], T[:3, 2] = [1, 0, 0], [0, 0, -1], [0, 1, 0]
+    a = ask("where's the couch?", smap=room_map(cameras=[(0.0, T)]))
+    c = centre("couch")  # x < 0 (left of a camera looking along +y), y < 0 (behind it)
+    assert a.value["camera"]["side"] == ("left" if c[0] < 0 else "right")
+    assert a.value["camera"]["front_back"] == ("front" if c[1] > 0 else "back")
+
+
+def test_list_objects_and_a_category():
+    a = ask("What objects are in the room?")
+    want: dict[str, int] = {}
+    for n, _, _ in ROOM:
+        want[n] = want.get(n, 0) + 1
+    assert a.ok and a.value["counts"] == want
+    a = ask("List the office chairs.")
+    assert a.value["counts"] == {"office chair": 2} and len(a.value["instances"]) == 2
+
+
+def test_nearest_and_farthest_among_everything():
+    others = {n for n, _, _ in ROOM} - {"whiteboard"}
+    near = min(others, key=lambda n: min_gap(n, "whiteboard"))
+    far = max(others, key=lambda n: min_gap(n, "whiteboard"))
+    a = ask("What is the closest object to the whiteboard?")
+    assert a.ok and a.value["object"] == near and a.value["distance_m"] == pytest.approx(min_gap(near, "whiteboard"),
+                                                                                         abs=1e-3)
+    assert ask("What's farthest from the whiteboard?").value["object"] == far
+
+
+@pytest.mark.parametrize("q_obj", ["radiator", "laptop", "couch", "telephone", "trash can"])
+def test_free_form_directions_against_the_angle(q_obj):
+    th = ccw_deg("desk", "whiteboard", q_obj)
+    side = "left" if th > 0 else "right"
+    a = ask(f"Standing by the desk facing the whiteboard, is the {q_obj} on my left?")
+    assert a.ok and a.text.startswith("yes" if side == "left" else "no") and a.value["side"] == side
+    a = ask(f"If I stand at the desk and look at the whiteboard, is the {q_obj} to my left or my right?")
+    assert a.ok and a.text == side
+    a = ask(f"I'm by the desk facing the whiteboard: is the {q_obj} behind me?")
+    assert a.value["answer"] is (abs(th) >= 90)
+    a = ask(f"From the desk, looking at the whiteboard, where is the {q_obj}?")
+    assert a.value["angle_deg"] == pytest.approx(th, abs=0.1)
+
+
+def test_choices_conditions_and_generic_words():
+    th = {n: ccw_deg("couch", "whiteboard", n) for n in ("radiator", "laptop", "telephone")}
+    a = ask("standing at the couch facing the whiteboard, what's on my left: the radiator, the laptop or the "
+            "telephone?")
+    assert a.ok and set(a.value["matches"]) == {n for n, t in th.items() if t > 0}
+    others = {n for n, _, _ in ROOM} - {"desk"}
+    a = ask("What's next to the desk?")
+    assert a.ok and min_gap(a.value["object"], "desk") == pytest.approx(min(min_gap(n, "desk") for n in others))
+    a = ask("Are there any monitors on the desk?")  # a location the map cannot check is refused, not dropped
+    assert a.status == "unsupported" and "desk" in a.text
+    assert ask("How many objects are there?").value == len(ROOM)
+    assert ask("How many things are in this room?").value == len(ROOM)
+    a = ask("how many chairs and couches are there?")
+    assert a.status == "unsupported" and "one object at a time" in a.text
+    a = ask("What's the second closest object to the desk?")  # a rank is refused, never read as "closest"
+    assert a.status == "unsupported" and "second" in a.text
+    a = ask("what is the distance from the laptop to the nearest office chair?")
+    assert a.ok and a.value == pytest.approx(min_gap("laptop", "office chair"))
+    assert ask("Is there a printer anywhere?").value["exists"] is False
+
+
+def test_the_questions_own_back_rule():
+    th = abs(ccw_deg("desk", "whiteboard", "radiator"))
+    q = ("From the desk, facing the whiteboard, is the radiator left, right, or behind (count it as behind if I'd "
+         "have to turn {} degrees or more)?")
+    opts = ["A. left", "B. right", "C. back"]
+    assert parse_question(q.format(50)).params["back_deg"] == 50.0
+    assert ask(q.format(int(th) - 1), opts).value == "back" and ask(q.format(int(th) + 1), opts).value != "back"
+
+
+# ----------------------------------------------------------------------------- selectors, units, options
+
+
+def test_selectors_resolved_or_refused():
+    # "the office chair nearest the laptop": the one at x = 2.5
+    a = ask("How far is the office chair nearest the laptop from the radiator?")
+    want = gap(boxes("office chair")[1], boxes("radiator")[0])
+    assert a.ok and a.value == pytest.approx(want)
+    a = ask("How far is the biggest office chair from the desk?")  # same size: either; still a number
+    assert a.ok
+    a = ask("How many red chairs are there?")
+    assert a.status == "unsupported" and "red" in a.text
+    a = ask("How big is the second chair?")
+    assert a.status == "unsupported" and "second" in a.text
+
+
+def test_units_in_and_out():
+    d = min_gap("desk", "radiator")
+    a = ask("How far is the desk from the radiator in feet?")
+    assert a.ok and a.unit == "ft" and a.value == pytest.approx(d / 0.3048)
+    a = ask("what's the distance between the desk and the radiator in cm")
+    assert a.unit == "cm" and float(a.text) == pytest.approx(d * 100, abs=0.5)
+    a = ask("How tall is the whiteboard in inches?")
+    assert a.value == pytest.approx(120 / 2.54)
+    a = ask("How deep is the couch in meters?")
+    assert a.value == pytest.approx(0.9) and a.text == "0.90"
+    assert ask("How wide is the whiteboard?").value == pytest.approx(200.0)  # W x D x H: width along the wall
+
+
+def test_options_in_free_text_and_synonym_options():
+    d = {n: min_gap(n, "desk") for n in ("trash can", "couch", "radiator")}
+    best = min(d, key=d.get)
+    a = ask("Which is closer to the desk, the trash can, the couch or the radiator?")
+    assert a.ok and a.text == best
+    a = ask("Which one is the closest to the desk?", ["A. sofa", "B. radiator", "C. garbage bin"])
+    assert a.ok and a.text == {"couch": "A", "radiator": "B", "trash can": "C"}[best]
+    # a count of 3 never becomes "100"
+    a = ask("How many chairs are there?", ["A. 100", "B. 250"])
+    assert a.status == "unsupported" and "none of the options" in a.text
+    assert ask("How many chairs are there?", ["A. 100", "B. 3"]).text == "B"
+    q, opts = split_inline_options("Standing by the desk facing the whiteboard, is the couch to my left, right or "
+                                   "back? A. left B. right C. back")
+    assert opts == ["A. left", "B. right", "C. back"]
+    th = ccw_deg("desk", "whiteboard", "couch")
+    want = "back" if abs(th) >= 135 else ("left" if th > 0 else "right")
+    assert ask(q, opts).text == "ABC"[["left", "right", "back"].index(want)]
+
+
+# ----------------------------------------------------------------------------- robustness and replies
+
+
+def test_unparseable_questions_say_what_was_understood_and_give_examples():
+    a = ask("What colour is the couch?")
+    assert a.status == "unsupported" and "Try e.g." in a.text and a.qtype is None
+    a = ask("How far is the desk?")
+    assert a.status == "unsupported" and "two objects" in a.text
+    a = ask("Standing by the desk, is the couch on my left?")
+    assert a.status == "unsupported" and "what I face" in a.text
+    assert len(examples()) >= 15
+
+
+def test_long_questions_are_refused_and_control_characters_never_echoed():
+    with pytest.raises(InputError, match=str(MAX_QUESTION_CHARS)):
+        parse_question("how many chairs " * 10000)
+    a = ask("How many \x1b[31mgrand\x1b[0m zithers\x07 are there?")
+    assert "\x1b" not in a.text and "\x07" not in a.text and a.status == "not_found"
+    assert safe_text("a\x1b[2Jb\x00c") == "ab\\x00c"
+    # a question at the limit still parses (linear-time pieces: tokens, phrases, option marks)
+    q = ("is the chair by the desk " * 200)[:MAX_QUESTION_CHARS - 1] + "?"
+    assert parse_question(q).question
+    assert split_inline_options("Which? A. a B. b") == ("Which?", ["A. a", "B. b"])
+    assert split_inline_options("x " + "A. a " * 10000)[1] is None  # no B.: no options
+
+
+def test_tokens_phrases_and_directions():
+    assert tokens("The sofa's cushions") == ["the", "sofa", "'s", "cushions"]
+    nps = noun_phrases(tokens("is the tv stand next to the trash can by the white board"))
+    assert [" ".join(p["words"]) for p in nps] == ["tv stand", "trash can", "white board"]
+    nps = noun_phrases(tokens("how many red office chairs"))
+    assert nps[0]["words"] == ["office", "chairs"] and nps[0]["sel"] == ["red"]
+    assert direction_words("is it front left, back-right or behind me") == ["front-left", "back-right", "back"]
+
+
+def test_the_parser_reads_only_the_question_and_options():
+    p = parse_question("How many stools are there?")
+    assert (p.qtype, p.params, p.how) == ("object_counting", {"object": "stool"}, "natural")
+    p = parse_question("How many stool(s) are in this room?")
+    assert (p.qtype, p.how) == ("object_counting", "template")
+
+
+def test_scoring_uses_only_the_question_text_and_options(tmp_path):
+    """A file whose question_type disagrees with its text: the answer follows the text (question_type is only
+    used to score), and any room set in meta_info format and any question file score the same way."""
+    from mosaicthinker.runtime.evaluation.vsibench import evaluate
+
+    meta = {"room1": {"object_bbox": {n: [{"centroid": list(c), "axesLengths": list(s),
+                                           "normalizedAxes": np.eye(3).reshape(-1).tolist()}
+                                          for m, c, s in ROOM if m == n] for n in {r[0] for r in ROOM}}}}
+    qs = [{"id": 1, "scene_name": "room1", "question_type": "object_counting", "options": None,
+           "question": "How big is the whiteboard?", "ground_truth": "200"},
+          {"id": 2, "scene_name": "room1", "question_type": "object_abs_distance", "options": None,
+           "question": "how far apart are the desk and the radiator, in meters?",
+           "ground_truth": str(round(min_gap("desk", "radiator"), 2))}]
+    _, rec = evaluate(qs, meta)
+    assert rec[0]["value"] == pytest.approx(200.0) and rec[0]["score"] == 1.0  # the size (a count would be 1)
+    assert rec[1]["status"] == "ok" and rec[1]["score"] == 1.0
+
+
+def test_the_vlm_gets_the_raw_question_and_the_parsers_reading_as_a_hint():
+    from mosaicthinker.runtime.answer import answer_question
+
+    class Recorder:  # a VLM stand-in that records its prompt and replies with an option letter
+        prompts: list[str] = []
+
+        def generate(self, images, prompt, max_new_tokens=16):
+            self.prompts.append(prompt)
+            return "B"
+
+    vlm = Recorder()
+    q = "Which is closer to the desk, the couch or the radiator?"
+    a = answer_question(room_map(), q, ["A. couch", "B. radiator"], answerer="vlm", vlm=vlm)
+    assert a.text == "B" and q in vlm.prompts[0]
+    assert "text parser read the question" in vlm.prompts[0] and "object_rel_distance" in vlm.prompts[0]
