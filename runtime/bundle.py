@@ -319,7 +319,8 @@ class Bundle:
                                 "inputs": [f"{i['name']}{_shape_str(i)}:{i.get('dtype')}" for i in cm.get("inputs", [])],
                                 "outputs": [f"{o['name']}{_shape_str(o)}:{o.get('dtype')}" for o in cm.get("outputs", [])]}
                 variants[v] = {"precision": vm.get("precision"), "target": vm.get("target"), "components": comps,
-                               "parity": vm.get("parity", {}), "notes": vm.get("notes")}
+                               "parity": vm.get("parity", {}), "task": task_text(vm.get("task_check")),
+                               "notes": vm.get("notes")}
             roles[r] = {"arch": m.get("arch"), "licence": m.get("licence"), "random_weights": m.get("random_weights"),
                         "semantics": m.get("semantics", {}), "preprocessing": m.get("preprocessing", {}),
                         "provenance": m.get("provenance", {}), "default_variant": m.get("default_variant"),
@@ -827,7 +828,7 @@ def render(result: dict[str, Any]) -> str:
                 lines.append(f"     {c}: {cm['file']} ({cm['format']}, opset {cm['opset']}, {size})")
                 lines.append(f"       in : {' '.join(cm['inputs'])}")
                 lines.append(f"       out: {' '.join(cm['outputs'])}")
-            for key in ("parity", "notes"):  # wrapped at spaces, never cut
+            for key in ("parity", "task", "notes"):  # wrapped at spaces, never cut
                 if vm.get(key):
                     text = parity_text(vm[key]) if key == "parity" else str(vm[key])
                     lines.append(textwrap.fill(text, 110, initial_indent=f"     {key}: ", subsequent_indent=" " * 7,
@@ -836,6 +837,19 @@ def render(result: dict[str, Any]) -> str:
             lines.append(textwrap.fill(str(why), 110, initial_indent=f"  {v:<14} NOT shipped: ",
                                        subsequent_indent=" " * 7, break_long_words=False, break_on_hyphens=False))
     return "\n".join(lines)
+
+
+def task_text(task: Any) -> str | None:
+    """An export's task check in words: a VLM's greedy-token agreement with transformers and the threshold it
+    shipped at (lower precisions ship at >= 0.5, not at full agreement: say so wherever the variant is shown)."""
+    if not isinstance(task, dict):
+        return None
+    if "token_agreement" in task:
+        need = task.get("accepted_at")
+        return (f"token agreement {task['token_agreement']:.2f} with transformers over {task.get('tokens', '?')} "
+                f"greedy tokens" + (f" (ships at >= {need:g}" + (": not full agreement)" if need < 1 else ")")
+                                    if isinstance(need, (int, float)) else ""))
+    return ", ".join(f"{k}={v}" for k, v in task.items() if not isinstance(v, (dict, list))) or None
 
 
 def parity_text(p: Any) -> str:

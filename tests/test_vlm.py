@@ -100,3 +100,12 @@ def test_image_token_count_mismatch_is_an_error(vlm_bundle):
     with pytest.raises(InputError, match="image tokens"):
         vlm.core.prefill_embeds(ids + [vlm.core.image_token_id], None)
     assert vlm.generate([], "hello", max_new_tokens=3) is not None
+
+
+def test_bundle_show_states_the_token_agreement_a_low_precision_vlm_shipped_at():
+    from mosaicthinker.runtime.bundle import task_text
+
+    t = task_text({"ok": True, "accepted_at": 0.5, "token_agreement": 0.54, "tokens": 24})
+    assert "token agreement 0.54" in t and "ships at >= 0.5" in t and "not full agreement" in t
+    assert "not full" not in task_text({"ok": True, "accepted_at": 1.0, "token_agreement": 1.0, "tokens": 24})
+    assert task_text(None) is None
