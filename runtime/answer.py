@@ -31,10 +31,12 @@ from __future__ import annotations
 import math
 import re
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
+from .config import StageConf
+from .errors import InputError
 from .geometry import box_distance
 from .grounding import ParsedQuestion, canonical_name, name_key, parse_question, safe_text, split_options
 from .semantic_map import ObjectInstance, SemanticMap
@@ -45,8 +47,10 @@ UNIT_WORDS = {"m": "m", "cm": "cm", "mm": "mm", "ft": "feet", "in": "inches", "m
 
 
 @dataclass
-class ReasonerConfig:
+class ReasonerConfig(StageConf):
     """Question conventions (defaults reproduce VSI-Bench)."""
+
+    conf_name: ClassVar[str] = "reasoner config"
 
     back_deg: float = 135.0  # medium directions and route turns: "back" from this turn angle on
     distance_decimals: int = 1  # metres
@@ -198,7 +202,7 @@ class MapReasoner:
 
     def __init__(self, smap: SemanticMap, conf: ReasonerConfig | dict | None = None):
         self.map = smap
-        self.conf = conf if isinstance(conf, ReasonerConfig) else ReasonerConfig(**(conf or {}))
+        self.conf = ReasonerConfig.merged(conf)
         self._idx: dict[str, list[ObjectInstance]] = {}
         for o in smap.instances:
             self._idx.setdefault(name_key(o.name), []).append(o)
@@ -711,12 +715,19 @@ def parse_number(reply: str) -> float | None:
 
 
 @dataclass
-class VLMConfig:
+class VLMConfig(StageConf):
     """How the VLM is asked. max_new_tokens: reply length limit; retries: extra attempts (with a stricter format
     reminder) when the reply cannot be parsed."""
 
     max_new_tokens: int = 16
     retries: int = 1
+
+    conf_name: ClassVar[str] = "vlm config"
+
+    def validate(self) -> None:
+        if not (1 <= self.max_new_tokens <= 4096 and 0 <= self.retries <= 5):
+            raise InputError(f"vlm config: need 1 <= max_new_tokens <= 4096 and 0 <= retries <= 5 (got "
+                             f"{self.max_new_tokens}, {self.retries})")
 
 
 def answer_with_vlm(vlm: Any, question: str, options: list[str] | None, prompt_text: str,
@@ -729,7 +740,7 @@ def answer_with_vlm(vlm: Any, question: str, options: list[str] | None, prompt_t
     (`parse_number`). An unusable reply gives status "unparsed" with the raw reply in the explanation (and a
     "degraded" trace event), never a made-up letter.
     """
-    conf = conf or VLMConfig()
+    conf = VLMConfig.merged(conf)
     pq = parsed if parsed is not None else parse_question(question, options)
     opts = options if options is not None else pq.options
     replies: list[str] = []

@@ -11,25 +11,38 @@ The image is drawn in the map's z-up world seen from above: +x to the right, +y 
 from __future__ import annotations
 
 import colorsys
-from dataclasses import dataclass, field, replace
-from typing import Any
+from dataclasses import dataclass, field
+from typing import Any, ClassVar
 
 import cv2
 import numpy as np
 
+from .config import StageConf
+from .errors import InputError
 from .semantic_map import SemanticMap
 
 MODES = ("grid", "points", "text")
 
 
 @dataclass
-class PromptConfig:
+class PromptConfig(StageConf):
     mode: str = "grid"
     size_px: int = 768          # longest image side
     margin_px: int = 48
     grid_m: float = 1.0         # grid spacing (m)
     font_scale: float = 0.45
     camera_stride: int = 1      # draw every n-th camera
+
+    conf_name: ClassVar[str] = "prompt config"
+
+    def validate(self) -> None:
+        if self.mode not in MODES:
+            raise InputError(f"prompt config: mode must be one of {MODES}, got {self.mode!r}")
+        if not (64 <= self.size_px <= 8192 and 0 <= self.margin_px < self.size_px // 2):
+            raise InputError(f"prompt config: need 64 <= size_px <= 8192 and 0 <= margin_px < size_px / 2 "
+                             f"(got {self.size_px}, {self.margin_px})")
+        if not (self.grid_m > 0 and self.font_scale > 0 and self.camera_stride >= 1):
+            raise InputError("prompt config: grid_m and font_scale must be > 0, camera_stride >= 1")
 
 
 default_conf = PromptConfig()
@@ -136,11 +149,7 @@ def render(smap: SemanticMap, conf: PromptConfig | dict[str, Any] | None = None,
     points: [N, 3] world points for the ``points`` mode (optional in other modes); point_ids: [N] instance ids.
     Returns a `VisualPrompt` (image [H, W, 3] uint8 RGB unless mode is ``text``).
     """
-    if isinstance(conf, dict):
-        conf = replace(default_conf, **conf)
-    conf = conf or default_conf
-    if conf.mode not in MODES:
-        raise ValueError(f"prompt mode must be one of {MODES}, got {conf.mode!r}")
+    conf = PromptConfig.merged(conf)  # defaults + overrides; an unknown key or a bad value names itself
     text = text_block(smap)
     ids = [o.id for o in smap.instances]
     colours = dict(zip(ids, distinct_colours(len(ids))))

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from mosaicthinker.runtime import errors
 from mosaicthinker.runtime.answer import answer_question, answer_with_vlm, parse_choice, parse_number
 from mosaicthinker.runtime.geometry import OrientedBox, rotation_about
 from mosaicthinker.runtime.grounding import ground, parse_grounding_reply
@@ -87,7 +88,7 @@ def test_text_block_and_modes():
     vp = render(smap, {"mode": "points"}, pts, ids)
     u, v = vp.world_to_px(pts[:1, :2])[0].round().astype(int)
     assert tuple(vp.image[v, u]) == vp.colours[0]
-    with pytest.raises(ValueError):
+    with pytest.raises(errors.InputError, match="mode"):
         render(smap, {"mode": "3d"})
     p = vlm_prompt("Which is closest?", ["A. sofa", "B. chair"], t, "grid")
     assert p.index("top-down map") < p.index("Objects in the map") < p.index("Question:") < p.index("A. sofa")
@@ -216,3 +217,24 @@ def test_labels_of_overlapping_boxes_do_not_overlap_and_the_map_has_a_title():
         assert (np.abs(img - dark).sum(1) <= 30).sum() >= 25, f"label of {o.name} {o.id} hidden"
     # a title in black along the top margin
     assert (vp.image[:24, 20:300] < 40).all(-1).sum() > 50
+
+
+def test_prompt_reasoner_and_vlm_configs_merge_like_every_stage_config():
+    """One merge rule (config.StageConf): overrides by mapping, unknown keys and bad values named."""
+    from mosaicthinker.runtime.answer import MapReasoner, VLMConfig
+    from mosaicthinker.runtime.errors import InputError
+    from mosaicthinker.runtime.prompt import PromptConfig, render
+
+    smap = _map()
+    small = render(smap, {"size_px": 256})
+    assert max(small.image.shape[:2]) == 256
+    with pytest.raises(InputError, match="unknown key"):
+        render(smap, {"size": 3})
+    with pytest.raises(InputError, match="mode"):
+        PromptConfig.merged(mode="sketch")
+    assert MapReasoner(smap, {"distance_decimals": 2}).conf.distance_decimals == 2
+    with pytest.raises(InputError, match="unknown key"):
+        MapReasoner(smap, {"decimals": 2})
+    assert VLMConfig.merged({"max_new_tokens": 8}).max_new_tokens == 8
+    with pytest.raises(InputError, match="max_new_tokens"):
+        VLMConfig.merged(max_new_tokens=0)
