@@ -5,36 +5,44 @@ the search decides *which* frames to score:
 
 1. Frame likelihood score: the weighted sum over the task objects of each object's highest detector confidence
    in the frame, targets weigh 1, cues 0.5 (`frame_score`).
-2. Threshold: the paper's threshold values (1, 1.5, 2) are applied to the score **standardised against the
-   scores seen so far** (a z-score over every frame scored up to and including the current iteration,
-   population standard deviation). Default 1.5, i.e. "1.5 standard deviations above what the search has seen".
-   The raw score cannot carry the paper's values directly here: its range depends on how many objects a
-   question names (a one-object question never reaches 1.5), while the z-score makes 1 / 1.5 / 2 mean the same
-   selectivity for every question. A frame whose z-score reaches the threshold at the end of any iteration
-   becomes a key frame and stays one (later iterations concentrate on positive regions, which raises the mean;
-   re-judging earlier key frames against that biased sample would drop exactly the frames that found them).
-3. Iterative temporal search: a sampling distribution over candidate indices starts uniform (weight 1 each).
-   Each iteration draws a batch of not-yet-scored candidates from it (default batch: scoring budget /
-   iterations, spread so that the total is exactly the budget). Every scored frame adds a Gaussian kernel at
-   its candidate index: amplitude `gain * score / max_score` (max_score = sum of the object weights, so the
-   amplitude is in [0, gain]); width sigma interpolated linearly between sigma_min = 1/k and sigma_max = r/k
-   (candidate-index units) by the frame's mean normalised colour-histogram similarity to the candidates
-   within +-r (r = 3, k = 2): a frame that looks like its neighbours spreads its evidence wider.
+2. Threshold (`threshold_mode`): "z" (default) applies the paper's values (1, 1.5, 2) to the score
+   **standardised against the scores seen so far** (z over every frame scored up to and including the current
+   iteration, population std); "raw" to the score itself (one target at most 1: with 1.5 or 2 a one-object
+   question can never pass). Default z >= 1.5. A frame that passes at the end of any iteration stays a key
+   frame (later iterations concentrate on positive regions, which raises the mean).
+3. Iterative temporal search. Each iteration draws a batch of not-yet-scored candidates (default batch: scoring
+   budget / iterations, spread so that the total is exactly the budget) from a sampling distribution built from
+   one Gaussian kernel per scored frame, at its candidate index, of width sigma interpolated linearly between
+   sigma_min = 1/k and sigma_max = r/k (candidate-index units) by the frame's mean colour-histogram similarity to
+   the candidates within +-r (r = 3, k = 2): a frame that looks like its neighbours spreads its evidence wider.
+   `sampling`:
+   - "expected" (default): the kernel-weighted expected score of every candidate (`expected_scores`,
+     Nadaraya-Watson: near a positive frame its score, near zero-score frames ~0, elsewhere the mean score
+     seen, weighted by `gap_novelty`: distance to the nearest scored frame / its mean, squared), drawn one at a
+     time within a batch (`draw="sequential"`: each pick counts as explored for the next). The exploitation /
+     exploration ratio follows the data: a needle (objects in a few % of the frames) gives a small mean and
+     the draws close in on the hits; objects everywhere give a flat estimate and the draws stay spread. Far
+     from any hit the gap novelty makes exploration coarse to fine (widest unscored gaps first).
+   - "paper": weights start at 1 per candidate and each scored frame adds a kernel of amplitude
+     `gain * score / max_score` (max_score = sum of the object weights); batches drawn iid (`draw="iid"`).
+     Measured (benchmarks/keyframes_long.py): the kernels hardly move this distribution (a kernel's mass
+     ~2.5 sigma against M for the uniform part), so it behaves as random scoring.
+   gain 0 switches the kernels off in both (expected: the novelty-weighted mean everywhere).
 4. If more frames pass than the key-frame budget K, the top K by score are kept; if fewer pass, fewer are
    returned and a note says so (and a "degraded" trace event is recorded). `min_keyframes` (default 0, off: the
-   paper's rule) tops the selection up from the scored positive frames below the threshold — objects no chosen
-   frame shows well first (when the image size is known), then by score, spaced — noted and recorded too.
+   paper's rule; the pipeline sets K) tops the selection up from the scored positive frames below the
+   threshold -- objects no chosen frame shows well first (when the image size is known), then by score,
+   spaced -- noted and recorded too.
+5. The budget (`budget`, e.g. the planner's scored-frame count, or `budget_fraction` of the candidates) is what
+   the search spends; when it exceeds the candidates all are scored and a note and a "budget" trace event say
+   that the candidates ran out first.
 
-Measured (`mosaic eval keyframes`, README): with objects visible in 25-45% of the frames the scores are bimodal
-with a large positive mode, a positive frame then sits < 1.5 std above the mean (equal scores, positive share p:
-z = sqrt((1 - p) / p) < 1.5 once p > 0.31), so the default often returns fewer than K (or none) frames; the
-top-up fixes that. The kernels did not help on those scenes (gain 0 ~ gain 1 > gain 3).
-
-Baselines in the same terms: `uniform_keyframes` (K evenly spaced candidates, nothing scored) and
-`exhaustive_keyframes` (score every candidate, keep the top K with a positive score).
+Baselines in the same terms: `uniform_keyframes` (K evenly spaced candidates, nothing scored),
+`random_keyframes` (K random candidates, nothing scored) and `exhaustive_keyframes` (score every candidate,
+keep the top K with a positive score).
 
 Histograms are computed lazily, only for frames with a positive score and their +-r neighbours, from a
-downscaled copy.
+downscaled copy (zero-score frames' kernels use sigma_max and need no image).
 The detector is injected: `detect(frame_index, names) -> Detections`, so a bundle detector or the synthetic
 oracle plug in the same way.
 """
