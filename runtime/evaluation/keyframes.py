@@ -17,6 +17,10 @@ Metrics per question (ground truth: `scene.json` per-frame `visibility`, the que
     scored     detector calls / candidates (`scored_candidates`) and / all frames (`scored_frames`).
 Questions that name no object (room size) and questions whose objects are never >= min-visible are skipped and
 counted. Results are reported per method, per complexity level and per question type.
+
+Long videos (issue 17): `evaluate_long_video` scores a `synth.longvideo.LongVideo` (every frame a candidate,
+ground truth from the renderer) with the same metrics plus `found` (recall over every frame the search scored);
+benchmarks/keyframes_long.py drives it.
 """
 from __future__ import annotations
 
