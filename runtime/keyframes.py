@@ -271,7 +271,10 @@ def gap_novelty(m: int, centres: np.ndarray, power: float = 2.0) -> np.ndarray:
     c = np.asarray(centres, np.int64)
     if c.size == 0 or power == 0:
         return np.ones(m)
-    d = np.abs(np.arange(m)[:, None] - np.sort(c)[None, :]).min(1).astype(np.float64)
+    c = np.sort(c)
+    j = np.arange(m)
+    k = np.searchsorted(c, j)  # nearest scored candidate: the one at or after j, or the one before
+    d = np.minimum(np.abs(c[np.minimum(k, len(c) - 1)] - j), np.abs(j - c[np.maximum(k - 1, 0)])).astype(np.float64)
     mean = d.mean()
     return (d / mean) ** power if mean > 0 else np.ones(m)
 
