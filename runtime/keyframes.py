@@ -5,36 +5,44 @@ the search decides *which* frames to score:
 
 1. Frame likelihood score: the weighted sum over the task objects of each object's highest detector confidence
    in the frame, targets weigh 1, cues 0.5 (`frame_score`).
-2. Threshold: the paper's threshold values (1, 1.5, 2) are applied to the score **standardised against the
-   scores seen so far** (a z-score over every frame scored up to and including the current iteration,
-   population standard deviation). Default 1.5, i.e. "1.5 standard deviations above what the search has seen".
-   The raw score cannot carry the paper's values directly here: its range depends on how many objects a
-   question names (a one-object question never reaches 1.5), while the z-score makes 1 / 1.5 / 2 mean the same
-   selectivity for every question. A frame whose z-score reaches the threshold at the end of any iteration
-   becomes a key frame and stays one (later iterations concentrate on positive regions, which raises the mean;
-   re-judging earlier key frames against that biased sample would drop exactly the frames that found them).
-3. Iterative temporal search: a sampling distribution over candidate indices starts uniform (weight 1 each).
-   Each iteration draws a batch of not-yet-scored candidates from it (default batch: scoring budget /
-   iterations, spread so that the total is exactly the budget). Every scored frame adds a Gaussian kernel at
-   its candidate index: amplitude `gain * score / max_score` (max_score = sum of the object weights, so the
-   amplitude is in [0, gain]); width sigma interpolated linearly between sigma_min = 1/k and sigma_max = r/k
-   (candidate-index units) by the frame's mean normalised colour-histogram similarity to the candidates
-   within +-r (r = 3, k = 2): a frame that looks like its neighbours spreads its evidence wider.
+2. Threshold (`threshold_mode`): "z" (default) applies the paper's values (1, 1.5, 2) to the score
+   **standardised against the scores seen so far** (z over every frame scored up to and including the current
+   iteration, population std); "raw" to the score itself (one target at most 1: with 1.5 or 2 a one-object
+   question can never pass). Default z >= 1.5. A frame that passes at the end of any iteration stays a key
+   frame (later iterations concentrate on positive regions, which raises the mean).
+3. Iterative temporal search. Each iteration draws a batch of not-yet-scored candidates (default batch: scoring
+   budget / iterations, spread so that the total is exactly the budget) from a sampling distribution built from
+   one Gaussian kernel per scored frame, at its candidate index, of width sigma interpolated linearly between
+   sigma_min = 1/k and sigma_max = r/k (candidate-index units) by the frame's mean colour-histogram similarity to
+   the candidates within +-r (r = 3, k = 2): a frame that looks like its neighbours spreads its evidence wider.
+   `sampling`:
+   - "expected" (default): the kernel-weighted expected score of every candidate (`expected_scores`,
+     Nadaraya-Watson: near a positive frame its score, near zero-score frames ~0, elsewhere the mean score
+     seen, weighted by `gap_novelty`: distance to the nearest scored frame / its mean, squared), drawn one at a
+     time within a batch (`draw="sequential"`: each pick counts as explored for the next). The exploitation /
+     exploration ratio follows the data: a needle (objects in a few % of the frames) gives a small mean and
+     the draws close in on the hits; objects everywhere give a flat estimate and the draws stay spread. Far
+     from any hit the gap novelty makes exploration coarse to fine (widest unscored gaps first).
+   - "paper": weights start at 1 per candidate and each scored frame adds a kernel of amplitude
+     `gain * score / max_score` (max_score = sum of the object weights); batches drawn iid (`draw="iid"`).
+     Measured (benchmarks/keyframes_long.py): the kernels hardly move this distribution (a kernel's mass
+     ~2.5 sigma against M for the uniform part), so it behaves as random scoring.
+   gain 0 switches the kernels off in both (expected: the novelty-weighted mean everywhere).
 4. If more frames pass than the key-frame budget K, the top K by score are kept; if fewer pass, fewer are
    returned and a note says so (and a "degraded" trace event is recorded). `min_keyframes` (default 0, off: the
-   paper's rule) tops the selection up from the scored positive frames below the threshold — objects no chosen
-   frame shows well first (when the image size is known), then by score, spaced — noted and recorded too.
+   paper's rule; the pipeline sets K) tops the selection up from the scored positive frames below the
+   threshold -- objects no chosen frame shows well first (when the image size is known), then by score,
+   spaced -- noted and recorded too.
+5. The budget (`budget`, e.g. the planner's scored-frame count, or `budget_fraction` of the candidates) is what
+   the search spends; when it exceeds the candidates all are scored and a note and a "budget" trace event say
+   that the candidates ran out first.
 
-Measured (`mosaic eval keyframes`, README): with objects visible in 25-45% of the frames the scores are bimodal
-with a large positive mode, a positive frame then sits < 1.5 std above the mean (equal scores, positive share p:
-z = sqrt((1 - p) / p) < 1.5 once p > 0.31), so the default often returns fewer than K (or none) frames; the
-top-up fixes that. The kernels did not help on those scenes (gain 0 ~ gain 1 > gain 3).
-
-Baselines in the same terms: `uniform_keyframes` (K evenly spaced candidates, nothing scored) and
-`exhaustive_keyframes` (score every candidate, keep the top K with a positive score).
+Baselines in the same terms: `uniform_keyframes` (K evenly spaced candidates, nothing scored),
+`random_keyframes` (K random candidates, nothing scored) and `exhaustive_keyframes` (score every candidate,
+keep the top K with a positive score).
 
 Histograms are computed lazily, only for frames with a positive score and their +-r neighbours, from a
-downscaled copy.
+downscaled copy (zero-score frames' kernels use sigma_max and need no image).
 The detector is injected: `detect(frame_index, names) -> Detections`, so a bundle detector or the synthetic
 oracle plug in the same way.
 """
@@ -54,7 +62,7 @@ from .perception import Detections
 DetectFn = Callable[[int, list[str]], Detections]
 ImageFn = Callable[[int], np.ndarray]
 
-METHODS = ("iterative", "uniform", "exhaustive")
+METHODS = ("iterative", "uniform", "random", "exhaustive")
 
 
 @dataclass
@@ -80,6 +88,11 @@ class KeyFrameConf(StageConf):
     topup_gap: int | None = None    # top-up spacing in frame indices (>=); None: more than r candidates apart
     topup_relax: bool = True        # after the spaced frames, the top-up may take nearer ones too
     cover_min_area: float = 0.02    # top-up coverage: an object counts as well seen from this box-area share
+    threshold_mode: str = "z"       # "z": z-score against the scores seen so far; "raw": the score itself
+    sampling: str = "expected"      # "expected": kernel-weighted expected score; "paper": 1 + sum of kernels
+    draw: str = "sequential"        # "sequential": each pick of a batch counts as explored; "iid": paper
+    prior_weight: float = 1.0       # "expected": pseudo-observations of the mean score at every candidate
+    novelty: float = 2.0            # "expected": prior weighted by (gap to the nearest scored frame) ** novelty
     seed: int = 0
     record_distributions: bool = False
 
@@ -104,6 +117,13 @@ class KeyFrameConf(StageConf):
             raise InputError(f"key-frame config: topup_gap must be >= 0 (got {self.topup_gap})")
         if not 0 <= self.cover_min_area <= 1:
             raise InputError(f"key-frame config: cover_min_area must be in [0, 1] (got {self.cover_min_area})")
+        for name, val, ok in (("threshold_mode", self.threshold_mode, ("z", "raw")),
+                              ("sampling", self.sampling, ("expected", "paper")),
+                              ("draw", self.draw, ("sequential", "iid"))):
+            if val not in ok:
+                raise InputError(f"key-frame config: {name} must be one of {', '.join(ok)} (got {val!r})")
+        if self.prior_weight <= 0:
+            raise InputError(f"key-frame config: prior_weight must be > 0 (got {self.prior_weight})")
 
     @property
     def sigma_min(self) -> float:
@@ -237,6 +257,52 @@ def resolve_budget(n_candidates: int, conf: KeyFrameConf) -> int:
     return int(min(max(b, 1), n_candidates))
 
 
+def kernel_matrix(m: int, centres: np.ndarray, sigmas: np.ndarray) -> np.ndarray:
+    """[n, m] float64: row i is the unit-amplitude Gaussian of width sigmas[i] at candidate centres[i]."""
+    j = np.arange(m, dtype=np.float64)[None, :]
+    c = np.asarray(centres, np.float64)[:, None]
+    return np.exp(-0.5 * ((j - c) / np.asarray(sigmas, np.float64)[:, None]) ** 2)
+
+
+def gap_novelty(m: int, centres: np.ndarray, power: float = 2.0) -> np.ndarray:
+    """[m] how unexplored each candidate is: (distance to the nearest scored candidate / its mean over the
+    candidates) ** power; all ones before anything is scored. Weighting the prior by it sends exploration into
+    the widest unscored gaps first (coarse to fine) instead of anywhere at random."""
+    c = np.asarray(centres, np.int64)
+    if c.size == 0 or power == 0:
+        return np.ones(m)
+    c = np.sort(c)
+    j = np.arange(m)
+    k = np.searchsorted(c, j)  # nearest scored candidate: the one at or after j, or the one before
+    d = np.minimum(np.abs(c[np.minimum(k, len(c) - 1)] - j), np.abs(j - c[np.maximum(k - 1, 0)])).astype(np.float64)
+    mean = d.mean()
+    return (d / mean) ** power if mean > 0 else np.ones(m)
+
+
+def expected_scores(m: int, centres: np.ndarray, scores: np.ndarray, sigmas: np.ndarray, gain: float = 1.0,
+                    prior_weight: float = 1.0, novelty: float = 0.0, parts: bool = False) -> Any:
+    """Kernel-weighted expected score [m] of every candidate from the frames scored so far (Nadaraya-Watson
+    with a prior): (w0 * mean + gain * sum_i s_i G_i(j)) / (w0 + gain * sum_i G_i(j)).
+
+    Far from every scored frame the estimate is the mean score seen (w0 = `prior_weight` pseudo-observations of
+    it); near a positive frame it rises towards that frame's score, near zero-score frames it falls towards 0.
+    Sampling in proportion to it explores where nothing is known and exploits around positives, in a ratio
+    set by the data: when positives are rare (a needle in a long video) the mean is small and the draws
+    concentrate around them; when most frames are positive (a short walk in one room) it stays near uniform.
+    `novelty` > 0 weights the prior by `gap_novelty` (coarse-to-fine exploration). parts=True returns
+    (numerator [m], denominator [m], mean [m]) without the novelty, for a caller that updates it."""
+    s = np.asarray(scores, np.float64)
+    mean = np.full(m, float(s.mean()) if s.size else 0.0)
+    if s.size == 0 or gain <= 0:
+        num, den = np.zeros(m), np.full(m, float(prior_weight))
+    else:
+        G = gain * kernel_matrix(m, centres, sigmas)
+        num, den = s @ G, prior_weight + G.sum(0)
+    if parts:  # (kernel numerator, denominator, mean): the caller applies its own novelty
+        return num, den, mean
+    return (prior_weight * mean * gap_novelty(m, centres, novelty) + num) / den
+
+
 # ------------------------------------------------------------------------------------------- histograms
 
 
@@ -355,6 +421,16 @@ def uniform_keyframes(candidates: Sequence[int], conf: KeyFrameConf | None = Non
     return KeyFrameResult("uniform", c[pos], {}, [], 0, len(c), conf.keyframes, notes=notes)
 
 
+def random_keyframes(candidates: Sequence[int], conf: KeyFrameConf | None = None) -> KeyFrameResult:
+    """Baseline: K candidates drawn at random (seed `conf.seed`, without replacement); nothing is scored."""
+    conf = conf or KeyFrameConf()
+    c = _check_candidates(candidates)
+    k = min(conf.keyframes, len(c))
+    pick = np.sort(np.random.default_rng([int(conf.seed), 5]).choice(len(c), size=k, replace=False))
+    notes = [f"only {len(c)} candidates for {conf.keyframes} key frames"] if len(c) < conf.keyframes else []
+    return KeyFrameResult("random", c[pick], {}, [], 0, len(c), conf.keyframes, notes=notes)
+
+
 def exhaustive_keyframes(candidates: Sequence[int], targets: Sequence[str], cues: Sequence[str],
                          detect: DetectFn, conf: KeyFrameConf | None = None) -> KeyFrameResult:
     """Baseline: score every candidate, keep the top K among those with a positive score."""
@@ -373,6 +449,91 @@ def exhaustive_keyframes(candidates: Sequence[int], targets: Sequence[str], cues
                           notes=notes)
 
 
+class _Search:
+    """State of one iterative search over M candidates: scored positions, their scores and kernel widths, the
+    paper's sampling weights (`sampling="paper"`) and the passes of the threshold."""
+
+    def __init__(self, m: int, conf: KeyFrameConf, max_score: float):
+        self.m, self.conf, self.max_score = m, conf, max_score
+        self.w = np.ones(m, dtype=np.float64)   # paper: uniform start, + one kernel per scored frame
+        self.scored = np.zeros(m, dtype=bool)
+        self.pos: list[int] = []
+        self.score: list[float] = []
+        self.sigma: list[float] = []
+        self.passed: dict[int, float] = {}      # candidate position -> z (or raw score) when it passed
+        self._kernel_part: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+
+    def add(self, pos: int, score: float, sigma: float) -> None:
+        self.pos.append(pos), self.score.append(score), self.sigma.append(sigma)
+        self.scored[pos] = True
+        amp = self.conf.gain * score / self.max_score if self.max_score > 0 else 0.0
+        if self.conf.sampling == "paper" and amp > 0:
+            self.w = update_distribution(self.w, pos, amp, sigma)
+
+    def probabilities(self, pending: Sequence[int] = ()) -> np.ndarray:
+        """[M] probabilities of drawing each not-yet-scored candidate next; `pending` (drawn for this batch, not
+        scored yet) are excluded and count as explored for the gap novelty."""
+        taken = self.scored.copy()
+        taken[list(pending)] = True
+        if self.conf.sampling == "paper":
+            return sampling_probabilities(self.w, taken)
+        pos = np.array(self.pos, np.int64)
+        explored = np.concatenate([pos, np.asarray(pending, np.int64)])
+        nov = gap_novelty(self.m, explored, self.conf.novelty)
+        if self._kernel_part is None:  # the scored frames' part is the same for the whole batch
+            self._kernel_part = expected_scores(self.m, pos, np.array(self.score), np.array(self.sigma),
+                                                self.conf.gain, self.conf.prior_weight, 0.0, parts=True)
+        num, den, prior = self._kernel_part
+        p = sampling_probabilities((self.conf.prior_weight * prior * nov + num) / den, taken)
+        # nothing positive seen yet: explore by the gaps alone
+        return p if p.sum() > 0 else sampling_probabilities(nov + 1e-9, taken)
+
+    def draw(self, size: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+        """A batch of `size` candidates: `draw="sequential"` one at a time, each pick counting as explored for
+        the next (a batch spreads over the gaps instead of clumping in the widest); `"iid"` (the paper's) all at
+        once from the same distribution. Returns (positions, the distribution of the first pick)."""
+        self._kernel_part = None
+        p0 = self.probabilities()
+        size = min(size, int((p0 > 0).sum()))
+        if self.conf.draw == "iid":
+            return rng.choice(self.m, size=size, replace=False, p=p0), p0
+        picks: list[int] = []
+        p = p0
+        for _ in range(size):
+            picks.append(int(rng.choice(self.m, p=p)))
+            if len(picks) < size:
+                p = self.probabilities(picks)
+        return np.array(picks, np.int64), p0
+
+    def threshold(self) -> None:
+        """Judge every scored frame against all scores seen so far (z) or the raw score; a pass is kept."""
+        v = np.array(self.score)
+        stat = zscores(v) if self.conf.threshold_mode == "z" else v
+        for q, sq, zq in zip(self.pos, v, stat):
+            if zq >= self.conf.threshold and sq > 0 and q not in self.passed:
+                self.passed[q] = float(zq)
+
+
+
+def _record_boxes(seen: dict[int, dict[str, float]], frame: int, det: Detections, area: float | None) -> None:
+    if area is None:
+        return
+    for nm, b in zip(det.names, det.boxes):
+        d = seen.setdefault(frame, {})
+        d[nm] = max(d.get(nm, 0.0), float((b[2] - b[0]) * (b[3] - b[1])) / area)
+
+
+def _budget_note(m: int, conf: KeyFrameConf, trace: Any | None) -> list[str]:
+    """The budget asked for more frames than there are candidates: say so (all are scored)."""
+    if conf.budget is None or conf.budget <= m:
+        return []
+    msg = (f"candidates ran out before the budget: {conf.budget} frames could be scored but only {m} candidates "
+           f"exist (all are scored; the search decides nothing beyond the threshold)")
+    if trace is not None:
+        trace.event("budget", "key frames: " + msg, stage="keyframes", budget=conf.budget, candidates=m)
+    return [msg]
+
+
 def iterative_search(candidates: Sequence[int], targets: Sequence[str], cues: Sequence[str], detect: DetectFn,
                      image: ImageFn | None = None, conf: KeyFrameConf | None = None,
                      trace: Any | None = None,
@@ -389,7 +550,8 @@ def iterative_search(candidates: Sequence[int], targets: Sequence[str], cues: Se
     time order, before they are scored: a video source then decodes them in one forward pass instead of seeking
     back and forth. It changes no result, only the decoding order.
     `trace` (a runtime.trace.Trace) receives a "degraded" event when fewer than K frames pass, a "fallback"
-    event when the question names no object (uniform key frames), and the decision `keyframes.method`.
+    event when the question names no object (uniform key frames), a "budget" event when the budget exceeds the
+    candidates, and the decisions `keyframes.method`, `keyframes.frames_scored`.
     `image_size` (W, H) lets the `min_keyframes` top-up cover objects first (the largest box per name is kept
     per scored frame; see `_fill`); without it the top-up goes by score only.
     """
@@ -407,35 +569,25 @@ def iterative_search(candidates: Sequence[int], targets: Sequence[str], cues: Se
     weights = object_weights(targets, cues, conf)
     if prefetch is None:
         prefetch = getattr(image, "prefetch", None)
-    max_score = sum(weights.values())
-    budget = resolve_budget(m, conf)
-    sizes = batch_sizes(budget, conf.iterations, conf.batch)
     hist = _HistogramCache(c, image, conf, histograms) if image is not None else None
     rng = np.random.default_rng(conf.seed)
     area = float(image_size[0] * image_size[1]) if image_size else None
     seen: dict[int, dict[str, float]] = {}     # frame -> name -> largest box area share (top-up coverage)
-
-    w = np.ones(m, dtype=np.float64)            # uniform start
-    scored = np.zeros(m, dtype=bool)
-    pos_scores: dict[int, float] = {}           # candidate position -> score
+    st = _Search(m, conf, sum(weights.values()))
     order: list[int] = []
-    passed: dict[int, float] = {}               # candidate position -> z when it passed
     dists: list[np.ndarray] = []
-    notes: list[str] = []
+    notes = _budget_note(m, conf, trace)
     if hist is None:
         notes.append("no images given: every kernel uses sigma_min (histogram similarity unavailable)")
 
-    for size in sizes:
-        free = int((~scored).sum())
-        if free == 0:
+    for size in batch_sizes(resolve_budget(m, conf), conf.iterations, conf.batch):
+        if st.scored.all():
             break
-        size = min(size, free)
         if size == 0:
             continue
-        p = sampling_probabilities(w, scored)
+        batch, p = st.draw(size, rng)
         if conf.record_distributions:
             dists.append(p.copy())
-        batch = rng.choice(m, size=size, replace=False, p=p)
         if prefetch is not None:
             need = {int(c[j]) for b in batch for j in range(max(0, int(b) - conf.r), min(m, int(b) + conf.r + 1))
                     if j == int(b) or hist is None or int(c[j]) not in hist.store}
@@ -443,33 +595,33 @@ def iterative_search(candidates: Sequence[int], targets: Sequence[str], cues: Se
         for pos in sorted(int(b) for b in batch):
             det = detect(int(c[pos]), names)
             s = frame_score(det, weights)
-            if area is not None:
-                for nm, b in zip(det.names, det.boxes):
-                    a = float((b[2] - b[0]) * (b[3] - b[1])) / area
-                    d = seen.setdefault(int(c[pos]), {})
-                    d[nm] = max(d.get(nm, 0.0), a)
-            pos_scores[pos] = s
+            _record_boxes(seen, int(c[pos]), det, area)
             order.append(int(c[pos]))
-            scored[pos] = True
-            amp = conf.gain * s / max_score if max_score > 0 else 0.0
-            if amp > 0:  # a zero-score frame adds nothing: no histograms needed for it
-                sim = hist.neighbour_similarity(pos) if hist is not None else 0.0
-                w = update_distribution(w, pos, amp, sigma_from_similarity(sim, conf))
-        # threshold every scored frame against all scores seen so far; a pass is kept
-        ps = np.array(list(pos_scores), dtype=np.int64)
-        z = zscores(np.array([pos_scores[q] for q in ps]))
-        for q, zq in zip(ps, z):
-            if zq >= conf.threshold and pos_scores[int(q)] > 0 and int(q) not in passed:
-                passed[int(q)] = float(zq)
+            st.add(pos, s, _kernel_sigma(pos, s, hist, conf))
+        st.threshold()
+    return _finish(c, st, order, conf, notes, trace, seen, dists)
 
-    frame_scores = {int(c[q]): s for q, s in pos_scores.items()}
-    passed_frames = [int(c[q]) for q in passed]
+
+def _kernel_sigma(pos: int, score: float, hist: _HistogramCache | None, conf: KeyFrameConf) -> float:
+    """A positive frame's kernel width from its histogram similarity (sigma_min without images); a zero-score
+    frame's (used by `sampling="expected"` as evidence of absence) is sigma_max, computed without images."""
+    if score <= 0:
+        return conf.sigma_max
+    return sigma_from_similarity(hist.neighbour_similarity(pos) if hist is not None else 0.0, conf)
+
+
+def _finish(c: np.ndarray, st: _Search, order: list[int], conf: KeyFrameConf, notes: list[str], trace: Any | None,
+            seen: dict[int, dict[str, float]], dists: list[np.ndarray]) -> KeyFrameResult:
+    """Top K of the passes by rank score, the `min_keyframes` top-up, notes and trace events."""
+    m = len(c)
+    frame_scores = {int(c[q]): s for q, s in zip(st.pos, st.score)}
+    passed_frames = [int(c[q]) for q in st.passed]
     chosen = top_k(passed_frames, frame_scores, conf.keyframes)
     if len(passed_frames) > conf.keyframes:
         notes.append(f"{len(passed_frames)} frames passed the threshold: kept the top {conf.keyframes} by score")
     if len(chosen) < conf.keyframes:
         msg = (f"fewer than K: {len(chosen)} of {conf.keyframes} key frames passed the threshold "
-               f"(z >= {conf.threshold}) after scoring {len(order)} of {m} candidates")
+               f"({conf.threshold_mode} >= {conf.threshold}) after scoring {len(order)} of {m} candidates")
         notes.append(msg)
         if trace is not None:
             trace.event("degraded", "key frames: " + msg, stage="keyframes", chosen=len(chosen),
@@ -488,7 +640,7 @@ def iterative_search(candidates: Sequence[int], targets: Sequence[str], cues: Se
         trace.decide("keyframes.method", "iterative")
         trace.decide("keyframes.frames_scored", len(order))
     return KeyFrameResult("iterative", chosen, frame_scores, order, len(order), m, conf.keyframes,
-                          zscores={int(c[q]): z for q, z in passed.items()}, distributions=dists, notes=notes)
+                          zscores={int(c[q]): z for q, z in st.passed.items()}, distributions=dists, notes=notes)
 
 
 def select_keyframes(method: str, candidates: Sequence[int], targets: Sequence[str], cues: Sequence[str],
@@ -497,13 +649,15 @@ def select_keyframes(method: str, candidates: Sequence[int], targets: Sequence[s
                      histograms: MutableMapping[int, np.ndarray] | None = None,
                      prefetch: Callable[[Sequence[int]], None] | None = None,
                      image_size: tuple[int, int] | None = None) -> KeyFrameResult:
-    """Run one of `METHODS` ("iterative", "uniform", "exhaustive") with the same inputs (`prefetch`,
+    """Run one of `METHODS` ("iterative", "uniform", "random", "exhaustive") with the same inputs (`prefetch`,
     `image_size`: see `iterative_search`)."""
     if method == "iterative":
         return iterative_search(candidates, targets, cues, detect, image, conf, trace, histograms, prefetch,
                                 image_size)
     if method == "uniform":
         return uniform_keyframes(candidates, conf)
+    if method == "random":
+        return random_keyframes(candidates, conf)
     if method == "exhaustive":
         return exhaustive_keyframes(candidates, targets, cues, detect, conf)
     raise InputError(f"key frames: unknown method {method!r}; choose one of {', '.join(METHODS)}")

@@ -173,7 +173,8 @@ def select(source: FrameSource, targets: Sequence[str], cues: Sequence[str], per
     if "budget" not in kc and conf.min_scored_per_keyframe > 0:
         # the paper's 25% of the candidates, but at least a few frames per key frame (short videos)
         frac = float(kc.get("budget_fraction", KeyFrameConf.budget_fraction))
-        kc["budget"] = int(min(len(cands), max(np.ceil(frac * len(cands)), conf.min_scored_per_keyframe * K)))
+        # not capped at the candidates: the search says when they run out before the budget
+        kc["budget"] = int(max(np.ceil(frac * len(cands)), conf.min_scored_per_keyframe * K))
     if conf.topup and conf.keyframe_method == "iterative":
         # fewer than K passing: the search tops up from the frames it scored (coverage first, then by score),
         # at least len/(4K) frames apart; recorded by the search

@@ -83,12 +83,14 @@ def test_batch_sizes_spend_exactly_the_budget():
 
 
 def test_distribution_after_first_iteration_is_the_kernel_update():
-    """One frame scored at iteration 1 -> the iteration-2 distribution is exactly uniform + its kernel."""
+    """The paper's sampling: one frame scored at iteration 1 -> the iteration-2 distribution is exactly uniform +
+    its kernel."""
     m = 9
     table = {f: {"chair": 0.8} for f in range(100, 100 + m)}
     detect = table_detector(table)
     grey = np.full((8, 8, 3), 120, np.uint8)  # identical frames: similarity 1 -> sigma_max
-    conf = kf.KeyFrameConf.merged(iterations=2, batch=1, gain=2.0, record_distributions=True, seed=3)
+    conf = kf.KeyFrameConf.merged(iterations=2, batch=1, gain=2.0, record_distributions=True, seed=3,
+                                  sampling="paper", draw="iid")
     res = kf.iterative_search(range(100, 100 + m), ["chair"], [], detect, image=lambda f: grey, conf=conf)
     assert len(res.distributions) == 2
     np.testing.assert_allclose(res.distributions[0], np.full(m, 1 / m))
@@ -191,7 +193,7 @@ def test_iterative_is_deterministic_and_validates():
     with pytest.raises(InputError, match="no candidate"):
         kf.iterative_search([], ["tv"], [], table_detector(table))
     with pytest.raises(InputError, match="unknown method"):
-        kf.select_keyframes("random", range(5), ["tv"], [], table_detector(table))
+        kf.select_keyframes("bogus", range(5), ["tv"], [], table_detector(table))
     tr = Trace()
     res = kf.iterative_search(range(80), [], [], table_detector(table), conf=conf, trace=tr)
     assert res.method == "uniform" and any(e["kind"] == "fallback" for e in tr.events)
@@ -337,3 +339,166 @@ def test_min_keyframes_topup_covers_objects_first():
     assert res2.chosen.tolist() == [30, 40] and any("0 for objects" in n for n in res2.notes)
     with pytest.raises(InputError, match="topup_gap"):
         kf.KeyFrameConf.merged(topup_gap=-1)
+
+
+# ------------------------------------------------------------------ expected-score sampling (issue 17)
+
+
+def test_gap_novelty_and_expected_scores_exact():
+    nov = kf.gap_novelty(5, np.array([0]), power=1.0)
+    d = np.arange(5.0)
+    np.testing.assert_allclose(nov, d / d.mean())
+    np.testing.assert_allclose(kf.gap_novelty(4, np.array([], np.int64)), np.ones(4))
+    # one positive (0.8 at 2) and one zero (at 6), sigma 1, no novelty: Nadaraya-Watson with the mean 0.4 as prior
+    m = 8
+    e = kf.expected_scores(m, np.array([2, 6]), np.array([0.8, 0.0]), np.array([1.0, 1.0]), novelty=0.0)
+    g2, g6 = kf.gaussian_kernel(m, 2, 1.0, 1.0), kf.gaussian_kernel(m, 6, 1.0, 1.0)
+    np.testing.assert_allclose(e, (0.4 + 0.8 * g2) / (1 + g2 + g6))
+    assert e[2] > e[0] > e[6]  # near the positive > far > near the zero
+    # gain 0: kernels off, the prior (mean) everywhere
+    np.testing.assert_allclose(kf.expected_scores(m, np.array([2]), np.array([0.8]), np.array([1.0]), gain=0.0),
+                               np.full(m, 0.8))
+
+
+def test_sequential_draw_spreads_a_batch_over_the_gaps():
+    """Before anything is scored, a sequential batch of 4 from 100 candidates spreads out (each pick counts as
+    explored for the next): its closest pair is on average much farther apart than the paper's iid draw's."""
+    def min_gap(draw: str, seed: int) -> int:
+        st = kf._Search(100, kf.KeyFrameConf.merged(draw=draw, novelty=4.0), 1.0)
+        picks, _ = st.draw(4, np.random.default_rng(seed))
+        assert len(set(picks.tolist())) == 4
+        return int(np.diff(np.sort(picks)).min())
+
+    seq = np.mean([min_gap("sequential", s) for s in range(30)])
+    iid = np.mean([min_gap("iid", s) for s in range(30)])
+    assert seq >= 12 and seq >= 1.5 * iid
+
+
+def test_needle_search_beats_random_scoring():
+    """Short object stretches (6 candidates each) in 600: at 10% scored, the default search (expected score,
+    coarse-to-fine) finds more stretches than the paper's iid sampling with the kernels off (random scoring),
+    averaged over seeds."""
+    m, starts = 600, (37, 151, 260, 333, 452, 540)
+    peaks = {f: 0.5 + 0.08 * (3 - abs(f - s - 2.5)) for s in starts for f in range(s, s + 6)}
+    table = _peaks_table(m, peaks)
+
+    def found(over: dict) -> float:
+        hits = []
+        for seed in range(8):
+            res = kf.iterative_search(range(m), ["tv"], [], table_detector(table),
+                                      conf=kf.KeyFrameConf.merged({"keyframes": 6, "budget_fraction": 0.1,
+                                                                   "seed": seed, **over}))
+            hits.append(sum(any(s <= f < s + 6 for f in res.order) for s in starts))
+        return float(np.mean(hits))
+
+    default, rand = found({}), found({"sampling": "paper", "draw": "iid", "gain": 0.0})
+    assert default >= rand + 1.0 and default >= 3.5  # a perfect 1-in-10 grid expects 3.6 of 6
+
+
+def test_raw_threshold_mode_and_validation():
+    table = _peaks_table(40, {5: 0.9, 6: 0.6, 20: 1.0})
+    conf = kf.KeyFrameConf.merged(keyframes=4, budget=40, threshold=0.8, threshold_mode="raw")
+    res = kf.iterative_search(range(40), ["tv"], [], table_detector(table), conf=conf)
+    assert sorted(res.zscores) == [5, 20] and res.chosen.tolist() == [5, 20]
+    assert res.zscores[20] == pytest.approx(1.0)  # the raw score is what passed
+    for bad in ({"threshold_mode": "zz"}, {"sampling": "x"}, {"draw": "x"}, {"prior_weight": 0}):
+        with pytest.raises(InputError):
+            kf.KeyFrameConf.merged(bad)
+
+
+def test_budget_beyond_the_candidates_is_said():
+    """The planner's scored-frame count exceeds the candidates (as on the kitchen: 125 for 50): all are scored,
+    a note and a "budget" trace event say so."""
+    table = _peaks_table(50, {10: 0.9})
+    tr = Trace()
+    res = kf.iterative_search(range(50), ["tv"], [], table_detector(table),
+                              conf=kf.KeyFrameConf(keyframes=4, budget=125), trace=tr)
+    assert res.frames_scored == 50
+    assert any("candidates ran out before the budget: 125" in n for n in res.notes)
+    ev = [e for e in tr.events if e["kind"] == "budget"]
+    assert len(ev) == 1 and ev[0]["budget"] == 125 and ev[0]["candidates"] == 50
+    res = kf.iterative_search(range(50), ["tv"], [], table_detector(table), conf=kf.KeyFrameConf(budget=20))
+    assert not any("ran out" in n for n in res.notes)
+
+
+def test_random_baseline_scores_nothing_and_is_seeded():
+    a = kf.select_keyframes("random", range(100), ["tv"], [], table_detector({}), conf=kf.KeyFrameConf(seed=3))
+    b = kf.random_keyframes(range(100), kf.KeyFrameConf(seed=3))
+    assert a.chosen.tolist() == b.chosen.tolist() and len(a.chosen) == 8 and a.frames_scored == 0
+    assert a.chosen.tolist() == sorted(set(a.chosen.tolist()))
+
+
+# ------------------------------------------------------------------------------ long videos (issue 17)
+
+
+@pytest.fixture(scope="module")
+def tiny_long_video():
+    from mosaicthinker.runtime.synth.longvideo import LongVideoConf, make_long_video
+
+    return make_long_video(LongVideoConf(seed=3, rooms=2, room_seconds=6, corridor_seconds=4, fps=2, width=64,
+                                         height=48))
+
+
+def test_long_video_segments_and_ground_truth(tiny_long_video):
+    v = tiny_long_video
+    assert len(v) == 12 + 8 + 12 and [s["kind"] for s in v.rooms] == ["room", "corridor", "room"]
+    assert v.rgb.shape == (32, 48, 64, 3) and v.room.tolist() == [0] * 12 + [1] * 8 + [2] * 12
+    assert all(not row for row in v.visible[12:20])  # an empty corridor shows no object
+    for f, row in enumerate(v.visible):  # objects are seen only in their own room; boxes inside the image
+        for i, r in row.items():
+            assert v.room_of[i] == v.room[f] and 0 <= r["visibility"] <= 1
+            x0, y0, x1, y1 = v.boxes[f][i]
+            assert 0 <= x0 < x1 <= 64 and 0 <= y0 < y1 <= 48
+
+
+def test_long_questions_keep_rare_objects_only(tiny_long_video):
+    from mosaicthinker.runtime.synth.longvideo import long_questions
+
+    v = tiny_long_video
+    qs, skipped = long_questions(v, max_share=0.3)
+    px = v.seen_min_pixels
+    for q in qs:
+        share = np.mean([any(row.get(i, {}).get("pixels", 0) >= px for i in q["instances"]) for row in v.visible])
+        assert share == pytest.approx(q["share"], abs=1e-4) and share < 0.3
+        assert {v.names[i] for i in q["instances"]} == set(q["targets"])
+    everything, _ = long_questions(v, max_share=1.01)
+    singles = {q["targets"][0]: q["share"] for q in everything if q["qtype"] == "single"}
+    kept = {q["targets"][0] for q in qs if q["qtype"] == "single"}
+    assert kept == {n for n, sh in singles.items() if sh < 0.3} and skipped["too visible"] >= len(singles) - len(kept)
+
+
+def test_long_video_oracle_misses_and_false_positives(tiny_long_video):
+    from mosaicthinker.runtime.synth.longvideo import LongVideoOracle
+
+    v = tiny_long_video
+    names = sorted(set(v.names.values()))
+    perfect = LongVideoOracle(v, miss_rate=0.0, score_noise=0.0, false_positive_rate=0.0)
+    for f in (0, 5, 25):
+        d = perfect.detect(f, names)
+        want = {i for i, r in v.visible[f].items() if r["pixels"] >= v.seen_min_pixels}
+        assert set(d.instance_ids.tolist()) == want
+    blind = LongVideoOracle(v, miss_rate=1.0, false_positive_rate=1.0, seed=1)
+    d = blind.detect(3, ["chair"])
+    assert d.names == ["chair"] and d.instance_ids.tolist() == [-1] and 0.05 <= d.scores[0] <= 0.9
+    noisy = LongVideoOracle(v, seed=2)
+    a, b = noisy.detect(7, names), noisy.detect(7, names[::-1])  # same draws whatever the order asked
+    assert sorted(zip(a.names, a.scores.tolist())) == sorted(zip(b.names, b.scores.tolist()))
+    with pytest.raises(InputError):
+        LongVideoOracle(v, false_positive_rate=2.0)
+
+
+def test_evaluate_long_video_records(tiny_long_video):
+    from mosaicthinker.runtime.evaluation.keyframes import evaluate_long_video, summarise
+    from mosaicthinker.runtime.synth.longvideo import LongVideoOracle, long_questions
+
+    v = tiny_long_video
+    qs, _ = long_questions(v, max_share=0.5)
+    assert qs
+    conf = kf.KeyFrameConf(keyframes=3, budget_fraction=0.25, min_keyframes=3)
+    methods = {m: (m, conf) for m in kf.METHODS}
+    recs = evaluate_long_video(v, qs, LongVideoOracle(v, miss_rate=0.0, false_positive_rate=0.0).detect, methods)
+    assert len(recs) == len(qs) * len(methods)
+    s = summarise(recs, list(methods))
+    assert s["exhaustive"]["all"]["found"] == 1.0 and s["exhaustive"]["all"]["scored_candidates"] == 1.0
+    assert s["iterative"]["all"]["scored_candidates"] == pytest.approx(0.25, abs=0.02)
+    assert s["uniform"]["all"]["scored_candidates"] == 0.0

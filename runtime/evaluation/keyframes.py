@@ -17,6 +17,10 @@ Metrics per question (ground truth: `scene.json` per-frame `visibility`, the que
     scored     detector calls / candidates (`scored_candidates`) and / all frames (`scored_frames`).
 Questions that name no object (room size) and questions whose objects are never >= min-visible are skipped and
 counted. Results are reported per method, per complexity level and per question type.
+
+Long videos (issue 17): `evaluate_long_video` scores a `synth.longvideo.LongVideo` (every frame a candidate,
+ground truth from the renderer) with the same metrics plus `found` (recall over every frame the search scored);
+benchmarks/keyframes_long.py drives it.
 """
 from __future__ import annotations
 
@@ -84,6 +88,8 @@ def _summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
         return {"questions": 0}
     a = {k: np.array([r[k] for r in rows], dtype=np.float64)
          for k in ("precision", "recall", "f1", "scored_candidates", "scored_frames", "chosen")}
+    if all("found" in r for r in rows):  # long videos: recall over every scored frame (what the search saw)
+        a["found"] = np.array([r["found"] for r in rows], dtype=np.float64)
     return {"questions": len(rows), **{k: round(float(v.mean()), 4) for k, v in a.items()},
             "empty_selections": int((a["chosen"] == 0).sum()),
             "fewer_than_k": int(sum(any(n.startswith("fewer than K") for n in r["notes"]) for r in rows))}
@@ -207,7 +213,15 @@ def _detector(scene_dir: Path, args: argparse.Namespace, image: Callable[[int], 
     from ..stages import load_role
 
     model = load_role(args.bundle, "detector")
-    per_frame: dict[int, Detections] = {}
+    return vocabulary_detector(model, image, vocabulary), f"bundle detector ({args.bundle}: " \
+        f"{getattr(model, 'name', 'detector')})"
+
+
+def vocabulary_detector(model: Any, image: Callable[[int], np.ndarray], vocabulary: list[str],
+                        cache: dict[int, Detections] | None = None) -> Callable[[int, list[str]], Detections]:
+    """detect(frame, names) over a model run once per frame on the whole `vocabulary` (`cache`: frame ->
+    Detections, may be shared and saved); each call keeps the names it asks for."""
+    per_frame: dict[int, Detections] = {} if cache is None else cache
 
     def detect(f: int, names: list[str]) -> Detections:
         if f not in per_frame:
@@ -217,7 +231,7 @@ def _detector(scene_dir: Path, args: argparse.Namespace, image: Callable[[int], 
         out.undetectable = [n for n in d.undetectable if n in names]
         return out
 
-    return detect, f"bundle detector ({args.bundle}: {getattr(model, 'name', 'detector')})"
+    return detect
 
 
 class _Memo:
@@ -283,6 +297,41 @@ def evaluate_scene(scene_dir: Path, level: str, args: argparse.Namespace,
             "duration_s": meta.get("camera", {}).get("duration"), "skipped": skipped,
             "histograms_computed": len(histograms)}
     return records, info
+
+
+# ------------------------------------------------------------------------------------------------ long videos
+
+
+def evaluate_long_video(video: Any, questions: list[dict[str, Any]], detect: Callable[[int, list[str]], Detections],
+                        methods: dict[str, tuple[str, KeyFrameConf]], min_visible: float = 0.2,
+                        name: str = "long", seed: int = 0) -> list[dict[str, Any]]:
+    """Every question of a `synth.longvideo.LongVideo` x every method (label -> (method, config)) -> records
+    as `evaluate_scene`'s (level = `name`). Every frame is a candidate; each question's search gets its own seed
+    (1000 * seed + question id), so the random draws are not shared by the questions of one video."""
+    import dataclasses
+
+    vis = video.visibility()
+    cands = list(range(len(video)))
+    histograms: dict[int, np.ndarray] = {}
+    records = []
+    for q in questions:
+        memo = _Memo(detect)  # every method sees identical detections
+        for label, (m, conf) in methods.items():
+            qc = dataclasses.replace(conf, seed=1000 * int(seed) + int(q["id"]))
+            t0 = time.perf_counter()
+            res = select_keyframes(m, cands, q["targets"], q["cues"], memo, lambda f: video.rgb[f], qc,
+                                   histograms=histograms, image_size=video.size)
+            sc = score_selection([int(f) for f in res.chosen], set(q["instances"]), vis, min_visible)
+            found = score_selection(res.order, set(q["instances"]), vis, min_visible).recall if res.order \
+                else sc.recall
+            records.append({
+                "scene": name, "level": name, "question": int(q["id"]), "qtype": q["qtype"], "method": label,
+                "targets": q["targets"], "cues": q["cues"], "instances": q["instances"], "share": q["share"],
+                "precision": sc.precision, "recall": sc.recall, "f1": sc.f1, "chosen": sc.chosen,
+                "found": found, "scored_candidates": res.frames_scored / len(cands),
+                "scored_frames": res.frames_scored / len(cands), "notes": res.notes,
+                "seconds": round(time.perf_counter() - t0, 4)})
+    return records
 
 
 # ------------------------------------------------------------------------------------------------ command

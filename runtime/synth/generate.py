@@ -68,6 +68,17 @@ def in_frame_fraction(scene: Scene, K: np.ndarray, T_wc: np.ndarray, W: int, H: 
     return np.bincount(ids, ok.astype(float), n) / np.maximum(np.bincount(ids, None, n), 1)
 
 
+def visibility_entries(visible: np.ndarray, covered: np.ndarray, in_frame: np.ndarray) -> list[dict[str, Any]]:
+    """One frame's `visible` rows of scene.json from the renderer's per-id counts (`RenderResult.visible`,
+    `.covered`, each [N + 1]) and `in_frame_fraction` [N + 1]: every instance with a visible pixel."""
+    out = []
+    for k in np.flatnonzero(visible[1:] > 0) + 1:
+        frac = float(min(1.0, visible[k] / max(covered[k], 1)))
+        out.append({"id": int(k), "pixels": int(visible[k]), "fraction": round(frac, 4),
+                    "in_frame": round(float(in_frame[k]), 4), "visibility": round(frac * float(in_frame[k]), 4)})
+    return out
+
+
 def _render_one(i: int) -> tuple[int, bytes, np.ndarray, np.ndarray, np.ndarray]:
     r = _G["renderer"]
     out: Path = _G["out"]
@@ -122,12 +133,7 @@ def render_frames(scene: Scene, out: Path, K: np.ndarray, poses: np.ndarray, wor
         i, buf, vis, cov, inf = item
         if writer is not None:
             writer.write(np.frombuffer(buf, np.uint8).reshape(conf.height, conf.width, 3))
-        visible = []
-        for k in np.flatnonzero(vis[1:] > 0) + 1:
-            frac = float(min(1.0, vis[k] / max(cov[k], 1)))
-            visible.append({"id": int(k), "pixels": int(vis[k]), "fraction": round(frac, 4),
-                            "in_frame": round(float(inf[k]), 4), "visibility": round(frac * float(inf[k]), 4)})
-        rows[i] = {"index": int(i), "visible": visible}
+        rows[i] = {"index": int(i), "visible": visibility_entries(vis, cov, inf)}
         bar.update()
 
     bar = start("render", n, "frame")

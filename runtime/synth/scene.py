@@ -49,6 +49,8 @@ class SceneConfig:
     eye_height: float = 1.5  # camera height (m), +-0.05 per scene
     noise_sigma: float = 2.0  # RGB sensor noise (grey levels)
     stats_path: str | None = None  # statistics JSON or a meta_info.json (default: the checked-in statistics)
+    room_dims: tuple[float, float] | None = None  # (Lx, Ly) metres instead of a drawn floor area (a corridor)
+    vsibench_objects: bool = True  # False: no objects drawn from the statistics, the extras only (a corridor)
 
     def validate(self) -> None:
         stats_levels = ("low", "med", "high")
@@ -60,6 +62,8 @@ class SceneConfig:
             raise InputError(f"--duration and --fps must be positive (got {self.duration}, {self.fps})")
         if self.width < 32 or self.height < 24:
             raise InputError(f"--size must be at least 32x24, got {self.width}x{self.height}")
+        if self.room_dims is not None and min(self.room_dims) < 1.5:
+            raise InputError(f"room_dims must be at least 1.5 m each way, got {self.room_dims}")
 
 
 # ----------------------------------------------------------------------------- primitives
@@ -490,12 +494,16 @@ def generate_scene(conf: SceneConfig) -> Scene:
     conf.validate()
     stats = load_stats(conf.stats_path)
     rng = np.random.default_rng([int(conf.seed), 7919])
-    lo, hi = stats["levels"]["room"][conf.room]
-    area = sample_quantiles(stats["room_size_quantiles"], rng, lo, hi)
-    aspect = rng.uniform(1.0, 1.6)
-    Lx = math.sqrt(area * aspect)
+    if conf.room_dims is None:
+        lo, hi = stats["levels"]["room"][conf.room]
+        area = sample_quantiles(stats["room_size_quantiles"], rng, lo, hi)
+        aspect = rng.uniform(1.0, 1.6)
+        Lx = math.sqrt(area * aspect)
+    else:
+        Lx, Ly = (float(d) for d in conf.room_dims)
+        area, aspect = Lx * Ly, Lx / Ly
     room = RoomShape(Lx, area / Lx, float(rng.uniform(2.5, 2.9)))
-    comp = _draw_composition(stats, conf.objects, rng)
+    comp = _draw_composition(stats, conf.objects, rng) if conf.vsibench_objects else {}
     # ordered request list: (name, size (long, short, height), source)
     req: list[tuple[str, np.ndarray, str]] = []
     for name in sorted(comp):

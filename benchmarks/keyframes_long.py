@@ -1,0 +1,270 @@
+"""Key-frame search on long videos (issue 17): writes benchmarks/results/keyframes_long.json and .md.
+
+    nice -n 10 python benchmarks/keyframes_long.py [--videos 16] [--ssd-videos 4] [--cache DIR]
+
+Settings, all in one table so that no setting hides another:
+  long / oracle   `--videos` synthetic walk-throughs (runtime/synth/longvideo.py: 6-10 rooms joined by empty
+                  corridors, 5-9 min at 2 frames/s, every frame a candidate, 160x120), questions whose objects
+                  are visible in < 5% of the frames; the oracle detector with misses (10%), score noise (0.1),
+                  false positives (2% per frame and name) and a confidence that grows with visibility.
+  long / SSD      the first `--ssd-videos` of them with the real SSD MobileNet v1 COCO (../shared/models) on the
+                  rendered frames, only questions whose names the closed label set can detect.
+  short / oracle  `mosaic eval keyframes --scenes 6 --seed 1 --keyframes 8 --detector oracle --vary objects`
+                  (the single-room scenes of the earlier measurement), same method set.
+  kitchen / SSD   7-Scenes redkitchen (../shared/data/7scenes-redkitchen) through `pipeline.select` with the
+                  planner's K and scored-frame count (profiles/cpu-generic.toml): no ground truth visibility,
+                  so the search's own figures (candidates, planned vs spent, passes, trace events).
+Methods at 5 / 10 / 25% of the candidates scored: uniform, random (K frames, nothing scored), exhaustive (all
+scored), iterative (default), iterative with the kernels off (gain 0), the paper's sampling (1 + sum of kernels,
+iid draws) with and without kernels; every iterative variant tops up to K (`min_keyframes = K`, as the pipeline
+does). Sweeps on long / oracle at 10%: threshold 1 / 1.5 / 2 as z-score and as raw score (without the top-up,
+the paper's rule alone, and with it), iterations 11 / 14 / 20 / 33 / 100 (fixed budget, and fixed batch so that
+the fraction scored grows with the iterations as in the paper's table).
+"""
+from __future__ import annotations
+
+import argparse
+import contextlib
+import hashlib
+import io
+import json
+import pickle
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+SHARED = HERE.parent.parent / "shared"
+OUT = HERE / "results" / "keyframes_long.json"
+FRACTIONS = (0.05, 0.10, 0.25)
+PAPER = {"sampling": "paper", "draw": "iid"}
+
+
+def _video(seed: int, cache: Path) -> Any:
+    from mosaicthinker.runtime.synth.longvideo import LongVideoConf, make_long_video
+
+    conf = LongVideoConf(seed=seed)
+    key = hashlib.sha1(json.dumps(conf.__dict__, sort_keys=True).encode()).hexdigest()[:10]
+    p = cache / f"longvideo-{seed}-{key}.pkl"
+    if p.exists():
+        return pickle.loads(p.read_bytes())
+    v = make_long_video(conf)
+    cache.mkdir(parents=True, exist_ok=True)
+    p.write_bytes(pickle.dumps(v))
+    return v
+
+
+def _methods(K: int) -> dict[str, tuple[str, dict[str, Any]]]:
+    out: dict[str, tuple[str, dict[str, Any]]] = {m: (m, {}) for m in ("uniform", "random", "exhaustive")}
+    for fr in FRACTIONS:
+        base = {"budget_fraction": fr, "min_keyframes": K}
+        out[f"iterative@{fr:.0%}"] = ("iterative", base)
+        out[f"iterative kernels off@{fr:.0%}"] = ("iterative", {**base, "gain": 0.0})
+        out[f"paper sampling@{fr:.0%}"] = ("iterative", {**base, **PAPER})
+        out[f"paper sampling kernels off@{fr:.0%}"] = ("iterative", {**base, **PAPER, "gain": 0.0})
+    return out
+
+
+def _sweeps(K: int, n_min: int) -> dict[str, tuple[str, dict[str, Any]]]:
+    out: dict[str, tuple[str, dict[str, Any]]] = {}
+    for mode in ("z", "raw"):
+        for th in (1.0, 1.5, 2.0):
+            for topup in (0, K):
+                out[f"threshold {mode} {th}{' + top-up' if topup else ''}@10%"] = (
+                    "iterative", {"budget_fraction": 0.10, "threshold_mode": mode, "threshold": th,
+                                  "min_keyframes": topup})
+    for fr in (0.10, 0.25):  # wider kernels than the paper's (sigma 2-6 instead of 0.5-1.5 candidates)
+        out[f"iterative k=0.5@{fr:.0%}"] = ("iterative", {"budget_fraction": fr, "k": 0.5, "min_keyframes": K})
+    batch = max(1, int(round(0.10 * n_min / 20)))  # 20 iterations of this batch = 10% of the shortest video
+    for it in (11, 14, 20, 33, 100):
+        out[f"iterations {it} (budget 10%)"] = ("iterative", {"budget_fraction": 0.10, "iterations": it,
+                                                              "min_keyframes": K})
+        out[f"iterations {it} (batch {batch})"] = ("iterative", {"budget_fraction": 1.0, "iterations": it,
+                                                                 "batch": batch, "min_keyframes": K})
+    return out
+
+
+def _confs(methods: dict[str, tuple[str, dict[str, Any]]], K: int) -> dict[str, tuple[str, Any]]:
+    from mosaicthinker.runtime.keyframes import KeyFrameConf
+
+    return {lab: (m, KeyFrameConf.merged({**ov, "keyframes": K})) for lab, (m, ov) in methods.items()}
+
+
+def _ssd(bundle: Path) -> Any:
+    from mosaicthinker.runtime.stages import load_role
+
+    if not (bundle / "manifest.json").exists():
+        from mosaicthinker.export.onnx_import import import_shared_models
+
+        with contextlib.redirect_stdout(io.StringIO()):
+            import_shared_models(SHARED / "models", bundle, roles=["detector"])
+    return load_role(bundle, "detector", threads=1)
+
+
+def grid_bound(video: Any, questions: list[dict[str, Any]], spacing: int) -> list[float]:
+    """Per question: the recall a perfect 1-in-`spacing` grid (random offset) plus a perfect local search would
+    reach with a detector that never misses: an instance is found when the grid hits one of the frames in
+    which it is detectable (>= seen_min_pixels). An upper bound for any search scoring 1/spacing of the frames
+    without seeing the others."""
+    px = video.seen_min_pixels
+    out = []
+    for q in questions:
+        per = [len({f % spacing for f, row in enumerate(video.visible) if row.get(i, {}).get("pixels", 0) >= px})
+               / spacing for i in q["instances"]]
+        out.append(float(np.mean(per)))
+    return out
+
+
+def run_long(args: argparse.Namespace) -> dict[str, Any]:
+    from mosaicthinker.runtime.evaluation.keyframes import evaluate_long_video, summarise, vocabulary_detector
+    from mosaicthinker.runtime.stages.detector import map_names
+    from mosaicthinker.runtime.synth.longvideo import LongVideoOracle, long_questions
+
+    cache = Path(args.cache)
+    videos = [(s, _video(s, cache)) for s in range(args.seed, args.seed + args.videos)]
+    n_min = min(len(v) for _, v in videos)
+    main, sweeps = _confs(_methods(args.keyframes), args.keyframes), _confs(_sweeps(args.keyframes, n_min),
+                                                                           args.keyframes)
+    rec_o, rec_s, info = [], [], []
+    bound: dict[str, list[float]] = {"5%": [], "10%": [], "25%": []}
+    model = _ssd(Path(args.cache) / "bundle-ssd") if args.ssd_videos else None
+    for i, (seed, v) in enumerate(videos):
+        qs, skipped = long_questions(v, seed=seed)
+        orc = LongVideoOracle(v, seed=seed)
+        for lab, g in (("5%", 20), ("10%", 10), ("25%", 4)):
+            bound[lab] += grid_bound(v, qs, g)
+        rec_o += evaluate_long_video(v, qs, orc.detect, {**main, **sweeps}, name=f"long-{seed}", seed=seed)
+        row = {"seed": seed, "frames": len(v), "minutes": round(len(v) / v.conf.fps / 60, 2),
+               "rooms": sum(s["kind"] == "room" for s in v.rooms), "questions": len(qs), "skipped": skipped,
+               "mean_share": round(float(np.mean([q["share"] for q in qs])), 4) if qs else None}
+        if model is not None and i < args.ssd_videos:
+            vocab = sorted({n for q in qs for n in q["targets"]})
+            ok = set(map_names(vocab, model.labels)[0])
+            sq = [q for q in qs if all(n in ok for n in q["targets"])]
+            dp = cache / f"ssd-{seed}-{len(v)}.pkl"
+            det_cache = pickle.loads(dp.read_bytes()) if dp.exists() else {}
+            detect = vocabulary_detector(model, lambda f: v.rgb[f], sorted(ok), det_cache)
+            rec_s += evaluate_long_video(v, sq, detect, main, name=f"long-{seed}", seed=seed)
+            dp.write_bytes(pickle.dumps(det_cache))
+            row["ssd_questions"] = len(sq)
+        info.append(row)
+        print(f"long video {seed}: {row}", file=sys.stderr)
+    return {"videos": info, "coverage_bound": {k: round(float(np.mean(b)), 4) for k, b in bound.items()},
+            "question_share_mean": round(float(np.mean([r["share"] for r in rec_o if r["method"] == "uniform"])), 4),
+            "oracle": summarise(rec_o, list(main) + list(sweeps)),
+            "ssd": summarise(rec_s, list(main)) if rec_s else None}
+
+
+def run_short(args: argparse.Namespace) -> dict[str, Any]:
+    """The short-scene measurement through `mosaic eval keyframes`, with this benchmark's method set."""
+    from mosaicthinker.runtime.cli import add_common_flags
+    from mosaicthinker.runtime.evaluation import keyframes as ev
+
+    p = argparse.ArgumentParser()
+    add_common_flags(p)
+    ev.add_arguments(p)
+    variants = [f"{lab}={json.dumps(ov)}" for lab, (m, ov) in _methods(args.keyframes).items()
+                if m == "iterative"]
+    a = p.parse_args(["--scenes", "6", "--seed", "1", "--keyframes", str(args.keyframes), "--detector", "oracle",
+                      "--vary", "objects", "--out", str(Path(args.cache) / "short")]
+                     + [x for v in variants for x in ("--variant", v)])
+    r = ev.run(a)
+    return {"command": r["command"].split(" --variant")[0] + " --out DIR (+ this benchmark's variants)",
+            "methods": r["methods"], "scenes": [{k: s[k] for k in ("scene", "frames", "candidates")}
+                                                 for s in r["scenes"]]}
+
+
+def run_kitchen(args: argparse.Namespace) -> dict[str, Any]:
+    """The planner's K and scored-frame count on the kitchen, spent by `pipeline.select` with the SSD."""
+    from mosaicthinker.runtime.budget import plan
+    from mosaicthinker.runtime.frames import open_source
+    from mosaicthinker.runtime.grounding import parse_question
+    from mosaicthinker.runtime.pipeline import Perception, PipelineConfig, select
+    from mosaicthinker.runtime.trace import Trace
+
+    src = open_source(SHARED / "data" / "7scenes-redkitchen")
+    model = _ssd(Path(args.cache) / "bundle-ssd")
+    duration = float(src[len(src) - 1].t - src[0].t)
+    fps = (len(src) - 1) / duration  # 7-Scenes frame numbers at 30 fps, every 2nd frame kept here
+    pl = plan(HERE.parent / "profiles" / "cpu-generic.toml", duration, fps)
+    out = {"frames": len(src), "fps": round(fps, 3), "planned_keyframes": pl.keyframes,
+           "planned_scored_frames": pl.scored_frames, "questions": {}}
+    for q in ("How many chair(s) are in this room?", "What is the length of the longest dimension (length, width, "
+              "or height) of the refrigerator, measured in centimeters?"):
+        pq = parse_question(q)
+        for label, kc in (("planner budget", {"budget": pl.scored_frames}), ("default 25%", {})):
+            tr = Trace()
+            conf = PipelineConfig.merged({"keyframe": kc})
+            chosen, _, res, cands = select(src, pq.targets, pq.cues, Perception(lambda fr, n: model.detect(fr.rgb, n)),
+                                           conf, tr, keyframes=pl.keyframes)
+            out["questions"].setdefault(q, {})[label] = {
+                "candidates": len(cands), "budget": kc.get("budget"), "frames_scored": res.frames_scored,
+                "positive": sum(s > 0 for s in res.scores.values()), "passed": len(res.zscores),
+                "chosen": len(chosen), "keyframes": pl.keyframes, "notes": res.notes,
+                "events": [e["message"] for e in tr.events if e.get("stage") == "keyframes"]}
+    return out
+
+
+def _row(setting: str, label: str, s: dict[str, Any]) -> str:
+    a = s["all"]
+    if not a.get("questions"):
+        return f"| {setting} | {label} | 0 | | | | | |"
+    found = f"{a['found']:.3f}" if "found" in a else ""
+    return (f"| {setting} | {label} | {a['questions']} | {a['precision']:.3f} | {a['recall']:.3f} | "
+            f"{a['f1']:.3f} | {found} | {a['scored_candidates']:.3f} |")
+
+
+def markdown(r: dict[str, Any]) -> str:
+    lines = [f"# Key-frame search: long and short videos (`{r['command']}`)", "",
+             "| setting | method | n | P | R | F1 | found | scored / candidates |", "|---|---|---|---|---|---|---|---|"]
+    for setting, summ in (("long / oracle", r["long"]["oracle"]), ("long / SSD", r["long"]["ssd"]),
+                          ("short / oracle", (r.get("short") or {}).get("methods"))):
+        for lab, s in (summ or {}).items():
+            lines.append(_row(setting, lab, s))
+    lines += ["", f"Upper bound on found/recall at 5 / 10 / 25% scored (perfect grid + local search, no misses): "
+                  f"{r['long']['coverage_bound']}; mean visible share of a long-video question: "
+                  f"{r['long']['question_share_mean']}"]
+    k = r.get("kitchen")
+    if k:
+        lines += ["", f"Kitchen ({k['frames']} frames, planner K={k['planned_keyframes']}, scored frames "
+                      f"{k['planned_scored_frames']}):", "",
+                  "| question | budget | candidates | scored | positive | passed | chosen |", "|---|---|---|---|---|---|---|"]
+        for q, d in k["questions"].items():
+            for lab, x in d.items():
+                lines.append(f"| {q[:40]} | {lab} ({x['budget']}) | {x['candidates']} | {x['frames_scored']} | "
+                             f"{x['positive']} | {x['passed']} | {x['chosen']} |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--videos", type=int, default=16)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--keyframes", type=int, default=8)
+    p.add_argument("--ssd-videos", type=int, default=4)
+    p.add_argument("--no-short", action="store_true")
+    p.add_argument("--no-kitchen", action="store_true")
+    p.add_argument("--cache", default="/tmp/mosaic-keyframes-long", help="rendered videos, SSD answers, scenes")
+    p.add_argument("--out", default=str(OUT))
+    args = p.parse_args(argv)
+    t0 = time.perf_counter()
+    cmd = "python benchmarks/keyframes_long.py " + " ".join(argv if argv is not None else sys.argv[1:])
+    r: dict[str, Any] = {"schema": "mosaicthinker.bench.keyframes_long/1", "command": cmd.strip(),
+                         "keyframes": args.keyframes, "long": run_long(args)}
+    if not args.no_short:
+        r["short"] = run_short(args)
+    if not args.no_kitchen:
+        r["kitchen"] = run_kitchen(args)
+    r["seconds"] = round(time.perf_counter() - t0, 1)
+    out = Path(args.out)
+    out.write_text(json.dumps(r, indent=1))
+    out.with_suffix(".md").write_text(markdown(r))
+    print(markdown(r))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
