@@ -120,10 +120,16 @@ class MapBuild:
 # ----------------------------------------------------------------------------- stages
 
 
-def _candidates(source: FrameSource, conf: PipelineConfig, trace: Trace) -> list[int]:
+def _stage(budget: Any, trace: Trace, name: str) -> Any:
+    """A stage of the plan: timed in the trace and, under a budget, measured against its share when it ends (an
+    overrun re-plans the stages after it: budget.BudgetController.end_stage)."""
+    return budget.stage(name) if budget is not None else trace.stage(name)
+
+
+def _candidates(source: FrameSource, conf: PipelineConfig, trace: Trace, budget: Any = None) -> list[int]:
     from .dedup import remove_redundant
 
-    with trace.stage("dedup"), phase("dedup", len(source), "frame") as bar:
+    with _stage(budget, trace, "dedup"), phase("dedup", len(source), "frame") as bar:
         res = remove_redundant(ticking(source, bar), conf.dedup or None)
         bar.to(len(source))
         bar.note(candidates=len(res.kept))
@@ -161,15 +167,20 @@ class _CachedDetector:
 
 def select(source: FrameSource, targets: Sequence[str], cues: Sequence[str], perception: Perception,
            conf: PipelineConfig, trace: Trace, detector: _CachedDetector | None = None,
-           keyframes: int | None = None) -> tuple[list[int], _CachedDetector, Any, list[int]]:
+           keyframes: int | None = None, budget: Any = None) -> tuple[list[int], _CachedDetector, Any, list[int]]:
     """Dedup + key-frame search. Returns (key frame indices in time order, the cached detector, the search
-    result, the candidate frames kept by dedup)."""
+    result, the candidate frames kept by dedup). Under a budget the search spends the plan's scored frames as
+    they stand after dedup (its candidate count, or a re-plan after a slow dedup)."""
     from .keyframes import KeyFrameConf, select_keyframes, uniform_keyframes
 
-    cands = _candidates(source, conf, trace)
+    cands = _candidates(source, conf, trace, budget)
     det = detector or _CachedDetector(source, perception.detect, trace)
     K = int(keyframes or conf.keyframes)
     kc = {**conf.keyframe, "keyframes": K}
+    if budget is not None:
+        budget.update_candidates(len(cands))
+        K = min(K, int(budget.keyframes))
+        kc = {**kc, "keyframes": K, "budget": int(budget.scored_frames)}
     if "budget" not in kc and conf.min_scored_per_keyframe > 0:
         # the paper's 25% of the candidates, but at least a few frames per key frame (short videos)
         frac = float(kc.get("budget_fraction", KeyFrameConf.budget_fraction))
@@ -183,7 +194,7 @@ def select(source: FrameSource, targets: Sequence[str], cues: Sequence[str], per
         kc.setdefault("topup_relax", False)
         kc.setdefault("cover_min_area", conf.cover_min_area)
     kconf = KeyFrameConf.merged(kc)
-    with trace.stage("keyframes"), phase("keyframes", kc.get("budget", K), "frame") as bar:
+    with _stage(budget, trace, "keyframes"), phase("keyframes", kc.get("budget", K), "frame") as bar:
         det.on_call = bar.update  # one tick per frame scored
         res = select_keyframes(conf.keyframe_method, cands, list(targets), list(cues), det,
                                lambda i: source[int(i)].rgb, kconf, trace,
@@ -198,8 +209,20 @@ def select(source: FrameSource, targets: Sequence[str], cues: Sequence[str], per
         chosen = sorted(chosen + extra[:need])
         trace.event("degraded", f"only {len(res.chosen)} frames passed the key-frame threshold; topped up with "
                     f"{min(need, len(extra))} evenly spaced frames", stage="keyframes")
+    if budget is not None and len(chosen) > budget.keyframes:  # the search overran and the plan was reduced
+        chosen = _reduce_keyframes(sorted(chosen), int(budget.keyframes), budget, trace)
     trace.decide("keyframes", {**res.to_dict(), "chosen": chosen, "scores": None, "order": None})
     return sorted(chosen), det, res, cands
+
+
+def _reduce_keyframes(chosen: list[int], k: int, budget: Any, trace: Trace) -> list[int]:
+    """Keep `k` of the chosen key frames, evenly spread in time (the map still covers the clip), and say why."""
+    keep = sorted({chosen[int(j)] for j in np.linspace(0, len(chosen) - 1, max(k, 2)).round()})
+    why = budget.reasons[-1].removeprefix("reduced plan: ") if getattr(budget, "reasons", None) else \
+        "the budget was re-planned"
+    trace.event("reduced_plan", f"reduced plan: {len(chosen)} -> {len(keep)} key frames, because {why}",
+                stage="keyframes", keyframes=len(keep))
+    return keep
 
 
 def depth_consistency(fa: Frame, fb: Frame, T_ab: np.ndarray, stride: int = 8) -> tuple[float, float, float]:
@@ -443,30 +466,27 @@ def build_map(source: FrameSource, targets: Sequence[str], cues: Sequence[str] =
     K = int(keyframes or getattr(budget, "keyframes", None) or conf.keyframes)
     if budget is not None:
         K = int(budget.allow_keyframes(K))
-        if getattr(budget, "scored_frames", None) and "budget" not in conf.keyframe:
-            conf = dataclasses.replace(conf, keyframe={**conf.keyframe, "budget": int(budget.scored_frames)})
         trace.decide("budget.keyframes", K)
-    chosen, det, _, cands_all = select(source, targets, cues, perception, conf, trace, keyframes=K)
-    if budget is not None and hasattr(budget, "update_candidates"):
-        budget.update_candidates(len(cands_all))
+    chosen, det, _, cands_all = select(source, targets, cues, perception, conf, trace, keyframes=K, budget=budget)
 
     # perception per key frame
     frames: list[Frame] = []
     dets: dict[int, Detections] = {}
     bar = start("perception", len(chosen), "key frame")
-    for i in chosen:
-        if budget is not None and not budget.check_headroom(50.0):
-            trace.event("reduced_plan", f"memory guard: stopped adding key frames at {len(frames)}",
-                        stage="perception")
-            break
-        f = source[i]
-        d = det(i, names)
-        if d.masks is None and perception.segment is not None and len(d):
-            with trace.stage("segment"):
-                d = dataclasses.replace(d, masks=perception.segment(f, d))
-        dets[i] = d
-        frames.append(dataclasses.replace(f, depth=_depth_for(f, conf, perception, trace)))
-        bar.update()
+    with _stage(budget, trace, "perception"):
+        for i in chosen:
+            if budget is not None and not budget.check_headroom(50.0):
+                trace.event("reduced_plan", f"memory guard: stopped adding key frames at {len(frames)}",
+                            stage="perception")
+                break
+            f = source[i]
+            d = det(i, names)
+            if d.masks is None and perception.segment is not None and len(d):
+                with trace.stage("segment"):
+                    d = dataclasses.replace(d, masks=perception.segment(f, d))
+            dets[i] = d
+            frames.append(dataclasses.replace(f, depth=_depth_for(f, conf, perception, trace)))
+            bar.update()
     bar.done()
     if len(frames) < 2:
         raise MosaicError(f"only {len(frames)} key frame(s) available: need at least 2 to build a map")
@@ -483,6 +503,8 @@ def build_map(source: FrameSource, targets: Sequence[str], cues: Sequence[str] =
     # one matcher: features are cached across the rounds below
     matcher = (FeatureMatcher(perception.matcher, conf.match or None) if isinstance(perception.matcher, str)
                else _make_matcher(perception.matcher))
+    if budget is not None:  # one plan stage from matching to refinement (fusion is an alias of alignment)
+        budget.start_stage("alignment")
     bar = start("alignment", unit="round")
     with trace.stage("alignment"):
         al = align_frames(frames, matcher, "mst", conf.alignment or None, emb, boxes,
@@ -506,6 +528,11 @@ def build_map(source: FrameSource, targets: Sequence[str], cues: Sequence[str] =
     used: list[Frame] = []
     for _ in range(conf.bridge_rounds):
         if not al.unaligned or conf.bridge_frames <= 0:
+            break
+        if budget is not None and budget.remaining_ms() < 0:
+            trace.event("reduced_plan", f"reduced plan: bridge rounds skipped ({len(al.unaligned)} key frame(s) stay "
+                        f"unaligned), because the run is {-budget.remaining_ms():.0f} ms over its budget",
+                        stage="alignment")
             break
         blocked = _BlockPairs(matcher, getattr(al, "rejected_edges", []))  # never re-use a rejected edge
         # bridge frames come from the whole video (consecutive frames match best), not only dedup's candidates
@@ -538,10 +565,15 @@ def build_map(source: FrameSource, targets: Sequence[str], cues: Sequence[str] =
         instances, clouds = fuse_observations(obs, fconf)
         bar.note(instances=len(instances))
     recovered = 0
-    if conf.refine and (perception.segment_points is not None or perception.segment_class is not None):
+    if conf.refine and budget is not None and budget.reduced and budget.remaining_ms() < 0:
+        trace.event("reduced_plan", f"reduced plan: occlusion refinement skipped, because the run is "
+                    f"{-budget.remaining_ms():.0f} ms over its {budget.budget_ms:.0f} ms budget", stage="refine")
+    elif conf.refine and (perception.segment_points is not None or perception.segment_class is not None):
         with trace.stage("refine"):
             instances, clouds, recovered = refine(instances, obs, frames, poses, dets, perception, fconf, trace,
                                                   matcher=matcher)
+    if budget is not None:
+        budget.end_stage("alignment")
     trace.decide("instances", {"count": len(instances), "recovered_by_refinement": recovered,
                                "by_name": {n: sum(o.name == n for o in instances) for n in names},
                                "list": [{"id": o.id, "name": o.name, "centre": np.round(o.center, 3).tolist(),

@@ -177,3 +177,64 @@ def test_room_hull_prefilter_keeps_the_hull():
         assert len(Q) <= len(P)
         np.testing.assert_array_equal(convex_hull_2d(Q), convex_hull_2d(P))
     assert len(_hull_candidates(g.normal(size=(5000, 2)))) < 500
+
+
+def _budget_profile(latency_ms: float) -> dict:
+    """A profile whose figures promise a fast run (1-2 ms per call), so a slow stage overruns its share."""
+    from mosaicthinker.runtime import budget as B
+
+    est = {"status": "estimated", "source": "test figure"}
+    return {"schema": B.PROFILE_SCHEMA, "device": {"name": "tiny-budget"},
+            "budget": {"latency_budget_ms": latency_ms, "memory_budget_mb": 100000},
+            "runtime": {"providers": ["CPUExecutionProvider"], "intra_op_threads": 1},
+            "costs": {"process": {"resident_mb": 100, **est}, "video_decode": {"ms_per_call": 1, **est},
+                      "dedup": {"ms_per_call": 7, **est}, "grounding": {"ms_per_call": 0, **est},
+                      "detector": {"ms_per_call": 1, "load_ms": 0, "resident_mb": 1, **est},
+                      "depth": {"ms_per_call": 1, "load_ms": 0, "resident_mb": 1, **est},
+                      "matcher": {"ms_per_call": 1, "ms_per_pair": 1, "load_ms": 0, "resident_mb": 1, **est},
+                      "geometry": {"ms_per_call": 1, **est}, "keyframe_state": {"mb_per_call": 1, **est}}}
+
+
+def test_a_slow_stage_reduces_the_plan_of_the_stages_after_it(scene):
+    """Through the real pipeline: the key-frame search is forced slow (50 ms a detector call against the 1 ms
+    planned), its stage overruns its share, and the controller re-plans: fewer key frames reach perception,
+    the map is built from them, refinement is skipped once the run is over budget, and the trace says why."""
+    import dataclasses
+    import time
+
+    from mosaicthinker.runtime import Trace, build_map, open_source
+    from mosaicthinker.runtime import budget as B
+    from mosaicthinker.runtime.evaluation.oracle_perception import oracle_perception
+    from mosaicthinker.runtime.synth.generate import load_scene
+
+    names = sorted(load_scene(scene)["object_counts"])
+    src = open_source(scene)
+    perc = oracle_perception(scene)
+    slow = dataclasses.replace(perc, detect=lambda f, n: (time.sleep(0.05), perc.detect(f, n))[1])
+    trace = Trace()
+    ctl = B.controller_for(B.parse_profile(_budget_profile(1500)), src, trace)
+    planned = ctl.keyframes
+    assert planned >= 6
+    mb = build_map(src, names, [], slow, None, trace, budget=ctl)  # K from the plan
+    assert mb.reduced_plan and 2 <= len(mb.keyframes) < min(planned, ctl.plan.candidates)
+    kinds = [e["kind"] for e in trace.events]
+    assert "replan" in kinds and any(e["message"].startswith("reduced plan:") for e in trace.events)
+    reduced = [e for e in trace.events if e["kind"] == "reduced_plan"]
+    assert any("key frames, because" in e["message"] for e in reduced)
+    assert any("refinement skipped" in e["message"] for e in reduced)  # the budget was spent before fusion
+    assert set(ctl.done) >= {"frames", "keyframes", "perception", "alignment"}  # every plan stage measured
+
+
+def test_without_overrun_the_plan_is_kept(scene):
+    from mosaicthinker.runtime import Trace, build_map, open_source
+    from mosaicthinker.runtime import budget as B
+    from mosaicthinker.runtime.evaluation.oracle_perception import oracle_perception
+    from mosaicthinker.runtime.synth.generate import load_scene
+
+    names = sorted(load_scene(scene)["object_counts"])
+    src = open_source(scene)
+    trace = Trace()
+    ctl = B.controller_for(B.parse_profile(_budget_profile(600000)), src, trace)
+    mb = build_map(src, names, [], oracle_perception(scene), None, trace, keyframes=6, budget=ctl)
+    assert not mb.reduced_plan and len(mb.keyframes) == 6
+    assert not [e for e in trace.events if e["kind"] in ("replan", "reduced_plan")]

@@ -14,6 +14,10 @@ from ..outputs import RunOutputs, note_outputs, save_run
 from ..grounding import split_inline_options  # linear; lives with the question parser
 
 
+# trace events the printed answer repeats (a degraded or re-planned run says so next to its answer)
+WARNING_KINDS = ("fallback", "degraded", "random_weights", "not_in_map", "unknown_objects", "output", "input",
+                 "replan", "reduced_plan")
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     from ..cli import add_stage_flags
     from .flags import add_answerer, add_keyframes
@@ -98,10 +102,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
             outs.close()
     d = res.to_dict()
     d.update({"schema": "mosaicthinker.ask/1", "question": question, "options": options, "files": files,
-              "warnings": [e["message"] for e in trace.events if e["kind"] in ("fallback", "degraded",
-                                                                                 "random_weights", "not_in_map",
-                                                                                 "unknown_objects", "output",
-                                                                                 "input")],
+              "warnings": [e["message"] for e in trace.events if e["kind"] in WARNING_KINDS],
               "random_weights_used": trace.random_weights_used,
               "seconds": trace.to_dict()["wall_seconds"]})
     if outs is not None:
