@@ -40,6 +40,7 @@ from .errors import InputError
 from .geometry import box_distance
 from .grounding import ParsedQuestion, canonical_name, name_key, parse_question, safe_text, split_options
 from .semantic_map import ObjectInstance, SemanticMap
+from .trace import as_trace
 
 NUMERIC_QTYPES = ("object_counting", "object_size_estimation", "room_size_estimation", "object_abs_distance")
 UNIT_M = {"m": 1.0, "cm": 0.01, "mm": 0.001, "ft": 0.3048, "in": 0.0254}
@@ -740,16 +741,14 @@ def answer_with_vlm(vlm: Any, question: str, options: list[str] | None, prompt_t
     (`parse_number`). An unusable reply gives status "unparsed" with the raw reply in the explanation (and a
     "degraded" trace event), never a made-up letter.
     """
+    trace = as_trace(trace)
     conf = VLMConfig.merged(conf)
     pq = parsed if parsed is not None else parse_question(question, options)
     opts = options if options is not None else pq.options
     replies: list[str] = []
     text = prompt_text
     for attempt in range(1 + max(0, conf.retries)):
-        if trace is not None:
-            with trace.stage("vlm"):
-                reply = str(vlm.generate(images, text, max_new_tokens=conf.max_new_tokens))
-        else:
+        with trace.stage("vlm"):
             reply = str(vlm.generate(images, text, max_new_tokens=conf.max_new_tokens))
         replies.append(reply)
         if opts:
@@ -765,9 +764,8 @@ def answer_with_vlm(vlm: Any, question: str, options: list[str] | None, prompt_t
                 value: Any = int(round(num)) if pq.qtype == "object_counting" else num
                 return Answer(str(value), value, "ok", f"VLM reply {reply!r}", [], pq.qtype, pq)
             text = prompt_text + "\n\nReply with a single number only."
-    if trace is not None:
-        trace.event("degraded", f"VLM reply could not be parsed to an answer: {replies[-1]!r}", stage="answer",
-                    replies=replies)
+    trace.event("degraded", f"VLM reply could not be parsed to an answer: {replies[-1]!r}", stage="answer",
+                replies=replies)
     return Answer("unparsed: " + replies[-1][:80], None, "unparsed",
                   f"VLM replies {replies!r} name no option/number", [], pq.qtype, pq)
 
@@ -785,6 +783,7 @@ def answer_question(smap: SemanticMap, question: str, options: list[str] | None 
     None and the VLM is used). Objects the question needs but the map lacks give status "not_found" whichever
     answerer is used (the VLM is not asked to guess them).
     """
+    trace = as_trace(trace)
     from .errors import InputError
 
     if answerer not in ANSWERERS:
@@ -795,17 +794,14 @@ def answer_question(smap: SemanticMap, question: str, options: list[str] | None 
     if answerer == "map" or (answerer == "auto" and pq.qtype is not None):
         ans = reasoner.answer(question, opts, parsed=pq)
         if answerer == "auto" and ans.status == "unsupported" and vlm is not None and pq.qtype is not None:
-            if trace is not None:
-                trace.event("fallback", f"map reasoner: {ans.explanation}; asking the VLM", stage="answer")
+            trace.event("fallback", f"map reasoner: {ans.explanation}; asking the VLM", stage="answer")
         else:
-            if trace is not None:
-                trace.decide("answer.answerer", "map")
+            trace.decide("answer.answerer", "map")
             return ans
     if answerer == "auto" and pq.qtype is None and vlm is None:
-        if trace is not None:
-            trace.decide("answer.answerer", "none")
-            trace.event("degraded", "the question matches no template and the bundle has no VLM: unanswered",
-                        stage="answer")
+        trace.decide("answer.answerer", "none")
+        trace.event("degraded", "the question matches no template and the bundle has no VLM: unanswered",
+                    stage="answer")
         ans = reasoner.answer(question, opts, parsed=pq)  # the "not understood" reply with example wordings
         ans.explanation += "; no VLM in the bundle (add a `vlm` role to answer free-form questions)"
         return ans
@@ -813,8 +809,7 @@ def answer_question(smap: SemanticMap, question: str, options: list[str] | None 
         raise InputError("--answerer vlm needs a bundle with a `vlm` role")
     missing = [n for n in pq.objects if not smap.by_name(n)]
     if missing:
-        if trace is not None:
-            trace.decide("answer.answerer", "vlm")
+        trace.decide("answer.answerer", "vlm")
         return Answer(f"not found: {', '.join(missing)}", 0 if pq.qtype == "object_counting" else None,
                       "not_found", f"not in the map: {', '.join(missing)}", missing, pq.qtype, pq)
     from .prompt import render, vlm_prompt
@@ -823,9 +818,8 @@ def answer_question(smap: SemanticMap, question: str, options: list[str] | None 
     hint = "" if pq.qtype is None else f"\nHow a text parser read the question (a hint, may be wrong): {pq.describe()}"
     text = vlm_prompt(question, opts, vp.text + hint, vp.mode)
     images = [vp.image] if vp.image is not None else []
-    if trace is not None:
-        trace.decide("answer.answerer", "vlm")
-        trace.decide("answer.prompt_mode", vp.mode)
+    trace.decide("answer.answerer", "vlm")
+    trace.decide("answer.prompt_mode", vp.mode)
     return answer_with_vlm(vlm, question, opts, text, images, vlm_conf, trace, pq)
 
 

@@ -17,6 +17,7 @@ import numpy as np
 
 from .config import StageConf
 from .errors import InputError
+from .trace import as_trace
 
 
 # ----------------------------------------------------------------------------- SSIM
@@ -136,6 +137,7 @@ def remove_redundant(source_or_frames: Any, conf: DedupConf | Mapping[str, Any] 
                      trace: Any = None) -> DedupResult:
     """Drop redundant frames of a FrameSource (or a sequence of Frames, with .rgb, .t, .index).
     Returns DedupResult with the kept frame indices and a reason for every dropped one."""
+    trace = as_trace(trace)
     conf = DedupConf.merged(conf)
     src = source_or_frames
     n = len(src)
@@ -194,6 +196,5 @@ def remove_redundant(source_or_frames: Any, conf: DedupConf | Mapping[str, Any] 
     counts = {"input": n, "after_downsampling": len(sampled), "downsampled_away": n - len(sampled),
               "candidates": n_cand, "near_duplicates": n_dup, "kept": len(kept)}
     res = DedupResult([idx_of[p] for p in kept], dict(sorted(dropped.items())), counts, scores)
-    if trace is not None:
-        trace.decide("dedup.counts", counts)
+    trace.decide("dedup.counts", counts)
     return res

@@ -23,6 +23,8 @@ import re
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
+from .trace import as_trace
+
 QTYPES = ("object_counting", "object_size_estimation", "room_size_estimation", "object_abs_distance",
           "object_rel_distance", "object_rel_direction_easy", "object_rel_direction_medium",
           "object_rel_direction_hard", "route_planning", "obj_appearance_order")
@@ -500,15 +502,13 @@ def ground(question: str, options: list[str] | None = None, vlm: Any = None, fra
     parser is used (`parse_question`). The template's qtype/params are kept whenever a template matches, so
     the map reasoner can still answer.
     """
+    trace = as_trace(trace)
     pq = parse_question(question, options)
     how = "templates"
     if vlm is not None:
         prompt = GROUNDING_PROMPT.format(question=" ".join(str(question).split()))
         try:
-            if trace is not None:
-                with trace.stage("grounding.vlm"):
-                    reply = str(vlm.generate(list(frames or []), prompt, max_new_tokens=max_new_tokens))
-            else:
+            with trace.stage("grounding.vlm"):
                 reply = str(vlm.generate(list(frames or []), prompt, max_new_tokens=max_new_tokens))
         except Exception as e:  # a VLM failure must not lose the question: fall back, loudly
             reply, err = "", f"{type(e).__name__}: {e}"
@@ -523,7 +523,7 @@ def ground(question: str, options: list[str] | None = None, vlm: Any = None, fra
             targets = list(dict.fromkeys(n for n in tn if n))
             cues = [n for n in dict.fromkeys(n for n in cn if n) if n not in targets]
             if targets or cues:
-                if unknown and trace is not None:
+                if unknown:
                     trace.event("unknown_objects", f"VLM grounding named objects outside the vocabulary: "
                                 f"{', '.join(unknown)} (not searched)", names=unknown, stage="grounding")
                 template_only = [n for n in pq.objects if n not in targets and n not in cues]
@@ -533,22 +533,20 @@ def ground(question: str, options: list[str] | None = None, vlm: Any = None, fra
                 pq.cues = [c for c in (cues if targets else cues[1:]) + template_only if c not in pq.targets]
                 pq.unknown = list(dict.fromkeys(pq.unknown + unknown))
                 how = "vlm"
-                if trace is not None:
-                    trace.decide("grounding.vlm_reply", reply)
-                    if template_only:
-                        trace.event("grounding", f"template objects the VLM did not name, added as cues: "
-                                    f"{', '.join(template_only)}", names=template_only, stage="grounding")
+                trace.decide("grounding.vlm_reply", reply)
+                if template_only:
+                    trace.event("grounding", f"template objects the VLM did not name, added as cues: "
+                                f"{', '.join(template_only)}", names=template_only, stage="grounding")
             else:
                 err = f"none of the named objects is in the vocabulary: {t_phr + c_phr}"
         else:
             err = err or f"no `targets:` in the reply {reply[:120]!r}"
-        if how != "vlm" and trace is not None:
+        if how != "vlm":
             trace.event("fallback", f"VLM grounding unusable ({err}); using the question-template parser",
                         stage="grounding", warn=True)
-    if pq.unknown and trace is not None and how == "templates":
+    if pq.unknown and how == "templates":
         trace.event("unknown_objects", f"question names objects outside the vocabulary: {', '.join(pq.unknown)} "
                     f"(not searched)", names=pq.unknown, stage="grounding")
-    if trace is not None:
-        trace.decide("grounding", {"method": how, "qtype": pq.qtype, "targets": pq.targets, "cues": pq.cues,
-                                   "unknown": pq.unknown})
+    trace.decide("grounding", {"method": how, "qtype": pq.qtype, "targets": pq.targets, "cues": pq.cues,
+                               "unknown": pq.unknown})
     return pq

@@ -58,6 +58,7 @@ import numpy as np
 from .config import StageConf
 from .errors import InputError
 from .perception import Detections
+from .trace import as_trace
 
 DetectFn = Callable[[int, list[str]], Detections]
 ImageFn = Callable[[int], np.ndarray]
@@ -525,12 +526,12 @@ def _record_boxes(seen: dict[int, dict[str, float]], frame: int, det: Detections
 
 def _budget_note(m: int, conf: KeyFrameConf, trace: Any | None) -> list[str]:
     """The budget asked for more frames than there are candidates: say so (all are scored)."""
+    trace = as_trace(trace)
     if conf.budget is None or conf.budget <= m:
         return []
     msg = (f"candidates ran out before the budget: {conf.budget} frames could be scored but only {m} candidates "
            f"exist (all are scored; the search decides nothing beyond the threshold)")
-    if trace is not None:
-        trace.event("budget", "key frames: " + msg, stage="keyframes", budget=conf.budget, candidates=m)
+    trace.event("budget", "key frames: " + msg, stage="keyframes", budget=conf.budget, candidates=m)
     return [msg]
 
 
@@ -555,6 +556,7 @@ def iterative_search(candidates: Sequence[int], targets: Sequence[str], cues: Se
     `image_size` (W, H) lets the `min_keyframes` top-up cover objects first (the largest box per name is kept
     per scored frame; see `_fill`); without it the top-up goes by score only.
     """
+    trace = as_trace(trace)
     conf = conf or KeyFrameConf()
     c = _check_candidates(candidates)
     m = len(c)
@@ -562,9 +564,8 @@ def iterative_search(candidates: Sequence[int], targets: Sequence[str], cues: Se
     if not names:
         res = uniform_keyframes(c, conf)
         res.notes.append("no task objects to score: uniform key frames instead of the iterative search")
-        if trace is not None:
-            trace.event("fallback", "key frames: the question names no object, using uniform key frames",
-                        stage="keyframes")
+        trace.event("fallback", "key frames: the question names no object, using uniform key frames",
+                    stage="keyframes")
         return res
     weights = object_weights(targets, cues, conf)
     if prefetch is None:
@@ -613,6 +614,7 @@ def _kernel_sigma(pos: int, score: float, hist: _HistogramCache | None, conf: Ke
 def _finish(c: np.ndarray, st: _Search, order: list[int], conf: KeyFrameConf, notes: list[str], trace: Any | None,
             seen: dict[int, dict[str, float]], dists: list[np.ndarray]) -> KeyFrameResult:
     """Top K of the passes by rank score, the `min_keyframes` top-up, notes and trace events."""
+    trace = as_trace(trace)
     m = len(c)
     frame_scores = {int(c[q]): s for q, s in zip(st.pos, st.score)}
     passed_frames = [int(c[q]) for q in st.passed]
@@ -623,9 +625,8 @@ def _finish(c: np.ndarray, st: _Search, order: list[int], conf: KeyFrameConf, no
         msg = (f"fewer than K: {len(chosen)} of {conf.keyframes} key frames passed the threshold "
                f"({conf.threshold_mode} >= {conf.threshold}) after scoring {len(order)} of {m} candidates")
         notes.append(msg)
-        if trace is not None:
-            trace.event("degraded", "key frames: " + msg, stage="keyframes", chosen=len(chosen),
-                        requested=conf.keyframes)
+        trace.event("degraded", "key frames: " + msg, stage="keyframes", chosen=len(chosen),
+                    requested=conf.keyframes)
     if len(chosen) < conf.min_keyframes:
         extra, n_cov = _fill(chosen.tolist(), frame_scores, c, conf.min_keyframes, conf, seen or None)
         if extra:
@@ -634,11 +635,9 @@ def _finish(c: np.ndarray, st: _Search, order: list[int], conf: KeyFrameConf, no
                    f"(min_keyframes={conf.min_keyframes}; {n_cov} for objects no chosen frame showed well, "
                    f"the rest by score)")
             notes.append(msg)
-            if trace is not None:
-                trace.event("degraded", "key frames: " + msg, stage="keyframes", filled=len(extra))
-    if trace is not None:
-        trace.decide("keyframes.method", "iterative")
-        trace.decide("keyframes.frames_scored", len(order))
+            trace.event("degraded", "key frames: " + msg, stage="keyframes", filled=len(extra))
+    trace.decide("keyframes.method", "iterative")
+    trace.decide("keyframes.frames_scored", len(order))
     return KeyFrameResult("iterative", chosen, frame_scores, order, len(order), m, conf.keyframes,
                           zscores={int(c[q]): z for q, z in st.passed.items()}, distributions=dists, notes=notes)
 

@@ -151,3 +151,26 @@ def _jsonable(x: Any) -> Any:
 
 
 jsonable = _jsonable
+
+
+class NullTrace(Trace):
+    """The trace of a caller that keeps none: records nothing, but a warning event still reaches the user (a
+    degraded answer is never silent). Lets stage code call trace methods without `if trace is not None`."""
+
+    def stage(self, name: str) -> Any:
+        from contextlib import nullcontext
+
+        return nullcontext(StageRecord(name))
+
+    def event(self, kind: str, message: str, *, warn: bool = False, **data: Any) -> None:
+        if warn:
+            warnings.warn(f"[{kind}] {message}", RuntimeWarning, stacklevel=2)
+
+    def decide(self, key: str, value: Any) -> None:
+        return None
+
+
+def as_trace(trace: Trace | None) -> Trace:
+    """`trace`, or a NullTrace when the caller passed none."""
+    return trace if trace is not None else NullTrace()
+
