@@ -244,6 +244,8 @@ def _lower_precision(g: GraphSpec, variant: str, fp32_path: Path, work: Path) ->
     dst = work / variant / f"{g.name}.onnx"
     dst.parent.mkdir(parents=True, exist_ok=True)
     rel, cos = g.tol.get(variant, (None, None))
+    if variant == "int4":
+        return {"ok": False, "reason": "int4 (MatMulNBits) is built only for GenAI VLM decoders (Qwen2.5-VL)"}
     if variant == "fp16":
         if not g.half:
             return {"ok": False, "reason": "fp16 disabled for this component (numerically unsafe in half)"}
