@@ -24,7 +24,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="map reasoner, VLM on the visual prompt, or auto (reasoner when it recognises the question)")
     p.add_argument("--method", choices=["mosaic", "direct"], default="mosaic",
                    help="mosaic (semantic map) or direct (Direct Input baseline: sampled frames to the VLM)")
-    p.add_argument("--prompt", choices=["grid", "points", "text"], default="grid", help="visual prompt mode")
+    p.add_argument("--prompt", choices=["grid", "points", "text", "json"], default="grid",
+                   help="visual prompt mode (json: compact spatial code, no image)")
     p.add_argument("--keyframes", type=int, default=None, help="key-frame budget K (default 16)")
     p.add_argument("--keyframe-method", choices=["iterative", "uniform", "exhaustive"], default="iterative")
     add_stage_flags(p, matcher=True, detector=True)
