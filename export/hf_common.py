@@ -57,6 +57,11 @@ def load_source(source: str, role: str, hf_class: Any, *, tiny_kwargs: dict | No
                           f"{str(e)[:300]}); model hubs need network access, else pass dir:PATH of a local "
                           f"checkpoint") from e
     model.eval()
+    marker = Path(ident) / "RANDOM_WEIGHTS.json" if source.startswith("dir:") else None
+    if marker is not None and marker.is_file():  # a random-weight checkpoint of a real config (benchmarks)
+        import json
+
+        return model, {"source": source, "random_weights": True, "random": json.loads(marker.read_text())}
     return model, {"source": source, "random_weights": False}
 
 

@@ -1,0 +1,310 @@
+"""The paper's models at their REAL sizes with RANDOM weights: export cost, artifact sizes, peak RSS, parity and
+CPU latency; writes benchmarks/results/paper_models.json (merged per model, so steps can run one at a time).
+
+    python benchmarks/paper_models.py checkpoint --model qwen2.5-vl-3b     # random real-config checkpoint
+    python benchmarks/paper_models.py export --model qwen2.5-vl-3b         # mosaic export ... --source dir:CKPT
+    python benchmarks/paper_models.py measure --model qwen2.5-vl-3b        # latency (2 threads, p50 of >= 5 runs)
+    python benchmarks/paper_models.py all --model depth-anything-v2-small  # the three steps
+
+Random weights of the real configurations are honest for everything except accuracy: export at size (2 GB
+protobuf limit, external data, quantiser memory), artifact sizes, peak memory and latency. Every record carries
+`random_weights: true`. Multi-GB files live under --big (default /work/big/issue16), never in the repository.
+Each step runs in a child process under `/usr/bin/time -v` (peak RSS of the whole process tree). Big steps:
+run them one at a time (`flock /tmp/bigmem.lock ...`): the Qwen2.5-VL-3B int4 builder peaks near 21 GB.
+
+VLM measurements: the vision encoder alone on one 448 x 448 map image (onnxruntime, the package's vision graph);
+then the whole answer through the runtime adapter (one map image, the paper's prompt on a 14-object map, 16 new
+tokens): prefill (vision + embedding + prefill: GenAI runs them as one call) and decode tokens/s.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import re
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+OUT = REPO / "benchmarks" / "results" / "paper_models.json"
+PY = sys.executable
+MOSAIC = str(Path(PY).with_name("mosaic"))
+
+# model -> (role, export precisions, exporter options). Sources: the configs published with each checkpoint
+# (transformers' config defaults are those checkpoints' configs where noted in `real_config`).
+MODELS = {
+    "qwen2.5-vl-3b": ("vlm", "fp32,int4", ["image_size=448", "hf_check=1"]),
+    "smolvlm-256m": ("vlm", "fp32,int8", []),
+    "depth-anything-v2-small": ("depth", "fp32,int8-dynamic", []),
+    "sam-vit-base": ("segmenter", "fp32,int8-dynamic", []),
+    "owlv2-base-patch16": ("detector", "fp32,int8-dynamic", []),
+    "clip-vit-base-patch32": ("embedder", "fp32,int8-dynamic", []),
+    "efficientloftr": ("matcher", "fp32,int8-dynamic", []),
+}
+
+
+def real_config(name: str):
+    """(transformers model class, config) of the real checkpoint's dimensions."""
+    import transformers as T
+
+    if name == "depth-anything-v2-small":  # transformers' defaults = Depth-Anything-V2-Small (ViT-S/14 DPT)
+        return T.DepthAnythingForDepthEstimation, T.DepthAnythingConfig()
+    if name == "sam-vit-base":  # defaults = facebook/sam-vit-base (ViT-B, 1024 px)
+        return T.SamModel, T.SamConfig()
+    if name == "owlv2-base-patch16":  # google/owlv2-base-patch16-ensemble: ViT-B/16 at 960 px
+        return T.Owlv2ForObjectDetection, T.Owlv2Config(vision_config={"patch_size": 16, "image_size": 960})
+    if name == "clip-vit-base-patch32":  # defaults = openai/clip-vit-base-patch32
+        return T.CLIPModel, T.CLIPConfig()
+    if name == "efficientloftr":  # defaults = zju-community/efficientloftr
+        return T.EfficientLoFTRForKeypointMatching, T.EfficientLoFTRConfig()
+    if name == "smolvlm-256m":  # HuggingFaceTB/SmolVLM-256M-Instruct config.json
+        # special ids follow the exporter's synthetic tokenizer (random weights: no real tokenizer here)
+        from mosaicthinker.export.hf_vlm import tiny_special_ids
+
+        ids = tiny_special_ids("smolvlm")
+        return T.SmolVLMForConditionalGeneration, T.SmolVLMConfig(
+            vision_config=dict(hidden_size=768, intermediate_size=3072, num_hidden_layers=12, num_attention_heads=12,
+                               image_size=512, patch_size=16),
+            text_config=dict(model_type="llama", vocab_size=49280, hidden_size=576, intermediate_size=1536,
+                             num_hidden_layers=30, num_attention_heads=9, num_key_value_heads=3, rope_theta=100000.0,
+                             max_position_embeddings=8192, rms_norm_eps=1e-5, pad_token_id=ids["pad"],
+                             bos_token_id=ids["bos"], eos_token_id=ids["eos"], tie_word_embeddings=True),
+            image_token_id=ids["image"], scale_factor=4, tie_word_embeddings=True)
+    raise SystemExit(f"unknown model {name}")
+
+
+# ------------------------------------------------------------------------------------------------ steps (children)
+
+def step_checkpoint(name: str, big: Path) -> dict:
+    import torch
+
+    ck = big / "ckpt" / name
+    t = time.time()
+    n = None
+    if name == "qwen2.5-vl-3b":
+        from mosaicthinker.export.hf_qwen_vl import random_checkpoint
+
+        random_checkpoint("3b", ck, dtype="bfloat16")
+    else:
+        from mosaicthinker.export.tiny import _torch_default_init
+
+        cls, cfg = real_config(name)
+        torch.manual_seed(0)
+        model = cls(cfg).eval()
+        _torch_default_init(model)
+        n = sum(p.numel() for p in model.parameters())
+        model.save_pretrained(str(ck))
+        (ck / "RANDOM_WEIGHTS.json").write_text(json.dumps({"random_weights": True, "config": name, "seed": 0}))
+    return {"checkpoint_s": round(time.time() - t, 1), "checkpoint": str(ck), "parameters": n}
+
+
+def step_export(name: str, big: Path) -> dict:
+    role, prec, opts = MODELS[name]
+    ck = big / "ckpt" / name
+    out = big / "bundles" / name
+    cmd = [MOSAIC, "export", role, "--source", f"dir:{ck}", "--precision", prec, "--out", str(out)]
+    for o in opts + ([f"workdir={big}"] if name == "qwen2.5-vl-3b" else []):
+        cmd += ["--option", o]
+    t = time.time()
+    r = subprocess.run(cmd, capture_output=True, text=True)
+    if r.returncode != 0:
+        raise SystemExit(f"export failed: {r.stderr[-2000:]}")
+    from mosaicthinker.runtime.bundle import load_bundle
+
+    rm = load_bundle(out).role_meta(role)
+    sizes = {}
+    for v, vm in rm["variants"].items():
+        files = [c["file"] for c in vm["components"].values()] + [e["file"] for c in vm["components"].values()
+                                                                 for e in c.get("extra_files", [])]
+        if vm.get("genai"):
+            files = [f["file"] for f in vm["genai"]["files"]]
+        sizes[v] = round(sum((out / f).stat().st_size for f in set(files)) / 2**20, 1)
+    res = {"export_s": round(time.time() - t, 1), "bundle": str(out), "command": " ".join(cmd),
+           "size_mib": sizes, "variants": sorted(rm["variants"]), "skipped": rm.get("skipped_variants", {}),
+           "parity": {v: _brief_parity(vm) for v, vm in rm["variants"].items()}}
+    for v, vm in rm["variants"].items():
+        if vm.get("genai"):
+            res.setdefault("genai_builder", {})[v] = vm["genai"]["builder"]
+    return res
+
+
+def _brief_parity(vm: dict) -> dict:
+    out = {c: (p or {}).get("worst") for c, p in (vm.get("parity") or {}).items() if isinstance(p, dict)}
+    task = vm.get("task_check") or {}
+    out.update({k: v for k, v in task.items() if k.startswith(("kl_", "token_agreement", "logits_rel"))})
+    return out
+
+
+def _p50(fn, n: int) -> tuple[float, list[float]]:
+    ts = []
+    for _ in range(n):
+        t = time.perf_counter()
+        fn()
+        ts.append(time.perf_counter() - t)
+    return float(np.median(ts)), [round(x, 4) for x in ts]
+
+
+def _feeds(sess, pre: dict) -> dict:
+    """Random feeds for a perception graph: symbolic dims -> 1 (batch-like) or the preprocessing size."""
+    size = pre.get("size") or [224, 224]
+    rng = np.random.default_rng(0)
+    feeds = {}
+    for i in sess.get_inputs():
+        shape = []
+        for ax, d in enumerate(i.shape):
+            if isinstance(d, int) and d > 0:
+                shape.append(d)
+            elif ax == 0:
+                shape.append(1)
+            else:
+                shape.append(size[0] if ax == len(i.shape) - 2 else size[1] if ax == len(i.shape) - 1 else 4)
+        dt = {"tensor(float)": np.float32, "tensor(int64)": np.int64, "tensor(int32)": np.int32,
+              "tensor(bool)": np.bool_}.get(i.type, np.float32)
+        feeds[i.name] = (rng.standard_normal(shape).astype(dt) if dt == np.float32 else np.ones(shape, dt))
+    return feeds
+
+
+def step_measure(name: str, big: Path, runs: int, threads: int) -> dict:
+    role = MODELS[name][0]
+    out = big / "bundles" / name
+    if name == "qwen2.5-vl-3b":
+        return measure_genai_vlm(out, runs, threads)
+    import onnxruntime as ort
+
+    from mosaicthinker.runtime.bundle import load_bundle
+
+    b = load_bundle(out)
+    rm = b.role_meta(role)
+    res = {}
+    for v, vm in rm["variants"].items():
+        so = ort.SessionOptions()
+        so.intra_op_num_threads, so.inter_op_num_threads = threads, 1
+        per = {}
+        for c, cm in vm["components"].items():
+            sess = ort.InferenceSession(str(out / cm["file"]), so, providers=["CPUExecutionProvider"])
+            feeds = _feeds(sess, rm.get("preprocessing", {}))
+            try:
+                sess.run(None, feeds)
+            except Exception as e:  # noqa: BLE001  (a graph whose inputs the generic feeds do not fit)
+                per[c] = {"error": f"{type(e).__name__}: {str(e)[:160]}"}
+                continue
+            p50, ts = _p50(lambda: sess.run(None, feeds), runs)
+            per[c] = {"p50_s": round(p50, 4), "runs_s": ts, "input_shapes": {k: list(a.shape) for k, a in feeds.items()}}
+        res[v] = per
+    return {"latency": res, "threads": threads}
+
+
+def _paper_map(n: int = 14):
+    """A fixed 14-object map (the prompt's real length; not dataset data)."""
+    from mosaicthinker.runtime.geometry import OrientedBox, rotation_about
+    from mosaicthinker.runtime.semantic_map import ObjectInstance, SemanticMap
+
+    rng = np.random.default_rng(3)
+    names = ["sofa", "table", "chair", "tv", "lamp", "bed", "sink", "fridge", "door", "window", "plant", "shelf",
+             "stool", "oven"]
+    inst = [ObjectInstance(i, names[i % len(names)], OrientedBox(rng.uniform([-3, -3, 0.2], [3, 3, 1.0]),
+            rng.uniform(0.3, 2.0, 3), rotation_about([0, 0, 1], rng.uniform(0, np.pi)).T), float(i))
+            for i in range(n)]
+    cams = [(float(t), np.eye(4)) for t in range(8)]
+    return SemanticMap(inst, None, cams)
+
+
+def measure_genai_vlm(out: Path, runs: int, threads: int) -> dict:
+    import resource
+
+    import onnxruntime as ort
+
+    from mosaicthinker.runtime.bundle import load_bundle
+    from mosaicthinker.runtime.prompt import render, vlm_prompt
+    from mosaicthinker.runtime.stages import load_role
+    from mosaicthinker.runtime.trace import Trace
+
+    smap = _paper_map()
+    vp = render(smap)
+    prompt = vlm_prompt("Which object is closest to the sofa?", ["A. table", "B. chair", "C. tv", "D. lamp"],
+                        vp.text, "grid")
+    rm = load_bundle(out).role_meta("vlm")
+    res = {"prompt_chars": len(prompt), "map_image": list(vp.image.shape), "threads": threads}
+    for v in sorted(rm["variants"], key=lambda v: v != "int4"):
+        pkg = out / rm["variants"][v]["genai"]["package"]
+        so = ort.SessionOptions()
+        so.intra_op_num_threads, so.inter_op_num_threads = threads, 1
+        vs = ort.InferenceSession(str(pkg / "vision" / "model.onnx"), so, providers=["CPUExecutionProvider"])
+        g = rm["config"]["image_size"] // 14
+        feeds = {"pixel_values": np.random.default_rng(0).standard_normal((g * g, 1176)).astype(np.float32),
+                 "image_grid_thw": np.array([[1, g, g]], np.int64)}
+        vs.run(None, feeds)
+        vis_p50, vis_ts = _p50(lambda: vs.run(None, feeds), runs)
+        del vs
+        trace = Trace()
+        vlm = load_role(out, "vlm", variant=v, threads=threads, trace=trace)
+        rec = []
+        for _ in range(runs):
+            t = time.perf_counter()
+            vlm.generate_ids([vp.image], prompt, max_new_tokens=16)
+            rec.append({**vlm.last, "answer_s": round(time.perf_counter() - t, 3)})
+        res[v] = {"vision_448_p50_s": round(vis_p50, 3), "vision_runs_s": vis_ts,
+                  "prompt_tokens": rec[0]["prompt_tokens"],
+                  "prefill_p50_s": float(np.median([r["prefill_s"] for r in rec])),
+                  "decode_tok_s_p50": float(np.median([r["decode_tokens_per_s"] for r in rec])),
+                  "answer_16_tokens_p50_s": float(np.median([r["answer_s"] for r in rec])), "runs": rec,
+                  "peak_rss_mb_so_far": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)}
+        del vlm
+        if v == "int4":
+            break  # fp32 (13 GB session) only when asked: --variant fp32
+    return res
+
+
+# ------------------------------------------------------------------------------------------------ driver
+
+def run_child(step: str, name: str, args) -> dict:
+    """One step in a child process under /usr/bin/time -v: its result JSON plus wall time and peak RSS."""
+    cmd = ["/usr/bin/time", "-v", PY, __file__, "_child", step, "--model", name, "--big", str(args.big),
+           "--runs", str(args.runs), "--threads", str(args.threads)]
+    t = time.time()
+    r = subprocess.run(cmd, capture_output=True, text=True)
+    peak = re.search(r"Maximum resident set size \(kbytes\): (\d+)", r.stderr)
+    if r.returncode != 0:
+        raise SystemExit(f"{step} {name} failed:\n{r.stderr[-3000:]}")
+    res = json.loads(r.stdout.strip().splitlines()[-1])
+    res.update({f"{step}_wall_s": round(time.time() - t, 1),
+                f"{step}_peak_rss_mb": round(int(peak.group(1)) / 1024) if peak else None})
+    return res
+
+
+def save(name: str, step: str, res: dict) -> None:
+    data = json.loads(OUT.read_text()) if OUT.is_file() else {"schema": "mosaicthinker.bench.paper_models/1"}
+    data.setdefault("models", {}).setdefault(name, {"random_weights": True})[step] = res
+    data["machine"] = {"cpus": os.cpu_count(), "note": "2 CPU cores shared with other jobs, 24 GB RAM, no GPU"}
+    data["command"] = "python benchmarks/paper_models.py all --model NAME (see the module doc)"
+    OUT.parent.mkdir(parents=True, exist_ok=True)
+    OUT.write_text(json.dumps(data, indent=1))
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("step", choices=["checkpoint", "export", "measure", "all", "_child"])
+    ap.add_argument("child_step", nargs="?")
+    ap.add_argument("--model", required=True, choices=sorted(MODELS))
+    ap.add_argument("--big", type=Path, default=Path(os.environ.get("MOSAIC_BIG", "/work/big/issue16")))
+    ap.add_argument("--runs", type=int, default=5)
+    ap.add_argument("--threads", type=int, default=2)
+    args = ap.parse_args(argv)
+    if args.step == "_child":
+        fn = {"checkpoint": step_checkpoint, "export": step_export, "measure": step_measure}[args.child_step]
+        kw = {"runs": args.runs, "threads": args.threads} if args.child_step == "measure" else {}
+        print(json.dumps(fn(args.model, args.big, **kw)))
+        return 0
+    for step in (["checkpoint", "export", "measure"] if args.step == "all" else [args.step]):
+        res = run_child(step, args.model, args)
+        save(args.model, step, res)
+        print(json.dumps({args.model: {step: res}}, indent=1)[:3000])
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
