@@ -38,7 +38,7 @@ MOSAIC = str(Path(PY).with_name("mosaic"))
 # (transformers' config defaults are those checkpoints' configs where noted in `real_config`).
 MODELS = {
     "qwen2.5-vl-3b": ("vlm", "fp32,int4", ["image_size=448", "hf_check=1"]),
-    "smolvlm-256m": ("vlm", "fp32,int8", []),
+    "smolvlm-256m": ("vlm", "fp32,int8-dynamic", []),
     "depth-anything-v2-small": ("depth", "fp32,int8-dynamic", []),
     "sam-vit-base": ("segmenter", "fp32,int8-dynamic", []),
     "owlv2-base-patch16": ("detector", "fp32,int8-dynamic", []),
@@ -173,6 +173,8 @@ def step_measure(name: str, big: Path, runs: int, threads: int) -> dict:
     out = big / "bundles" / name
     if name == "qwen2.5-vl-3b":
         return measure_genai_vlm(out, runs, threads)
+    if role == "vlm":
+        return measure_own_vlm(out, runs, threads)
     import onnxruntime as ort
 
     from mosaicthinker.runtime.bundle import load_bundle
@@ -185,7 +187,9 @@ def step_measure(name: str, big: Path, runs: int, threads: int) -> dict:
         so.intra_op_num_threads, so.inter_op_num_threads = threads, 1
         per = {}
         for c, cm in vm["components"].items():
+            rss0, t = _rss_mb(), time.perf_counter()
             sess = ort.InferenceSession(str(out / cm["file"]), so, providers=["CPUExecutionProvider"])
+            load_s = time.perf_counter() - t
             feeds = _feeds(sess, rm.get("preprocessing", {}))
             try:
                 sess.run(None, feeds)
@@ -193,9 +197,18 @@ def step_measure(name: str, big: Path, runs: int, threads: int) -> dict:
                 per[c] = {"error": f"{type(e).__name__}: {str(e)[:160]}"}
                 continue
             p50, ts = _p50(lambda: sess.run(None, feeds), runs)
-            per[c] = {"p50_s": round(p50, 4), "runs_s": ts, "input_shapes": {k: list(a.shape) for k, a in feeds.items()}}
+            per[c] = {"p50_s": round(p50, 4), "runs_s": ts, "load_s": round(load_s, 3),
+                      "resident_mb": round(_rss_mb() - rss0, 1),
+                      "input_shapes": {k: list(a.shape) for k, a in feeds.items()}}
+            del sess
         res[v] = per
     return {"latency": res, "threads": threads}
+
+
+def _rss_mb() -> float:
+    import psutil
+
+    return psutil.Process().memory_info().rss / 2**20
 
 
 def _paper_map(n: int = 14):
@@ -213,20 +226,53 @@ def _paper_map(n: int = 14):
     return SemanticMap(inst, None, cams)
 
 
+def _prompt():
+    from mosaicthinker.runtime.prompt import render, vlm_prompt
+
+    vp = render(_paper_map())
+    return vp, vlm_prompt("Which object is closest to the sofa?", ["A. table", "B. chair", "C. tv", "D. lamp"],
+                          vp.text, "grid")
+
+
+def measure_own_vlm(out: Path, runs: int, threads: int) -> dict:
+    """The project's own loop (SmolVLM: vision + embed + decoder graphs): whole answer, 16 new tokens."""
+    from mosaicthinker.runtime.bundle import load_bundle
+    from mosaicthinker.runtime.stages import load_role, preprocess_image
+    from mosaicthinker.runtime.trace import Trace
+
+    vp, prompt = _prompt()
+    res = {"threads": threads, "map_image": list(vp.image.shape)}
+    for v in sorted(load_bundle(out).role_meta("vlm")["variants"]):
+        trace = Trace()
+        rss0, t = _rss_mb(), time.perf_counter()
+        vlm = load_role(out, "vlm", variant=v, threads=threads, trace=trace)
+        load_s, load_rss = time.perf_counter() - t, _rss_mb() - rss0
+        ids, _ = vlm.encode([vp.image], prompt)
+        rec = []
+        for _ in range(runs):
+            t = time.perf_counter()
+            ids_new = vlm.core.generate_ids(ids, vlm.encode([vp.image], prompt)[1], 16, [])  # no early stop
+            rec.append(round(time.perf_counter() - t, 3))
+        t = time.perf_counter()
+        feats = vlm.core.image_features(preprocess_image(vp.image, vlm.spec.preprocessing))
+        vis = time.perf_counter() - t
+        res[v] = {"answer_16_tokens_p50_s": float(np.median(rec)), "runs_s": rec, "prompt_tokens": len(ids),
+                  "load_s": round(load_s, 2), "resident_mb_after_load": round(load_rss),
+                  "resident_mb_after_runs": round(_rss_mb() - rss0),
+                  "vision_s": round(vis, 3), "new_tokens": len(ids_new), "image_features": list(feats.shape)}
+    return res
+
+
 def measure_genai_vlm(out: Path, runs: int, threads: int) -> dict:
     import resource
 
     import onnxruntime as ort
 
     from mosaicthinker.runtime.bundle import load_bundle
-    from mosaicthinker.runtime.prompt import render, vlm_prompt
     from mosaicthinker.runtime.stages import load_role
     from mosaicthinker.runtime.trace import Trace
 
-    smap = _paper_map()
-    vp = render(smap)
-    prompt = vlm_prompt("Which object is closest to the sofa?", ["A. table", "B. chair", "C. tv", "D. lamp"],
-                        vp.text, "grid")
+    vp, prompt = _prompt()
     rm = load_bundle(out).role_meta("vlm")
     res = {"prompt_chars": len(prompt), "map_image": list(vp.image.shape), "threads": threads}
     for v in sorted(rm["variants"], key=lambda v: v != "int4"):
@@ -241,13 +287,16 @@ def measure_genai_vlm(out: Path, runs: int, threads: int) -> dict:
         vis_p50, vis_ts = _p50(lambda: vs.run(None, feeds), runs)
         del vs
         trace = Trace()
+        rss0, t = _rss_mb(), time.perf_counter()
         vlm = load_role(out, "vlm", variant=v, threads=threads, trace=trace)
+        load_s, load_rss = time.perf_counter() - t, _rss_mb() - rss0
         rec = []
         for _ in range(runs):
             t = time.perf_counter()
             vlm.generate_ids([vp.image], prompt, max_new_tokens=16)
             rec.append({**vlm.last, "answer_s": round(time.perf_counter() - t, 3)})
-        res[v] = {"vision_448_p50_s": round(vis_p50, 3), "vision_runs_s": vis_ts,
+        res[v] = {"vision_448_p50_s": round(vis_p50, 3), "vision_runs_s": vis_ts, "load_s": round(load_s, 2),
+                  "resident_mb_after_load": round(load_rss), "resident_mb_after_runs": round(_rss_mb() - rss0),
                   "prompt_tokens": rec[0]["prompt_tokens"],
                   "prefill_p50_s": float(np.median([r["prefill_s"] for r in rec])),
                   "decode_tok_s_p50": float(np.median([r["decode_tokens_per_s"] for r in rec])),
