@@ -452,9 +452,9 @@ def genai_generate(pkg: Path, image_path: str | None, prompt: str, n_tokens: int
     params = og.GeneratorParams(model)
     params.set_search_options(do_sample=False, top_k=1, max_length=int(feeds["input_ids"].shape[-1]) + n_tokens)
     gen = og.Generator(model, params)
-    gen.set_inputs(inputs)
-    ids, logits0, t_first = [], None, None
     t2 = time.time()
+    gen.set_inputs(inputs)  # 0.18.0 runs vision + embedding + prefill here
+    ids, logits0, t_first = [], None, None
     while len(ids) < n_tokens and not gen.is_done():
         gen.generate_next_token()
         if logits0 is None:
