@@ -96,6 +96,8 @@ def step_checkpoint(name: str, big: Path) -> dict:
         torch.manual_seed(0)
         model = cls(cfg).eval()
         _torch_default_init(model)
+        if name == "depth-anything-v2-small":  # as export/tiny.py: the ReLU head of a random net is all zero
+            torch.nn.init.constant_(model.head.conv3.bias, 0.1)
         n = sum(p.numel() for p in model.parameters())
         model.save_pretrained(str(ck))
         (ck / "RANDOM_WEIGHTS.json").write_text(json.dumps({"random_weights": True, "config": name, "seed": 0}))
@@ -168,11 +170,11 @@ def _feeds(sess, pre: dict) -> dict:
     return feeds
 
 
-def step_measure(name: str, big: Path, runs: int, threads: int) -> dict:
+def step_measure(name: str, big: Path, runs: int, threads: int, text_chars: int | None = None) -> dict:
     role = MODELS[name][0]
     out = big / "bundles" / name
     if name == "qwen2.5-vl-3b":
-        return measure_genai_vlm(out, runs, threads)
+        return measure_genai_vlm(out, runs, threads, text_chars)
     if role == "vlm":
         return measure_own_vlm(out, runs, threads)
     import onnxruntime as ort
@@ -226,12 +228,16 @@ def _paper_map(n: int = 14):
     return SemanticMap(inst, None, cams)
 
 
-def _prompt():
+def _prompt(text_chars: int | None = None):
+    """The map image and the paper's prompt over the 14-object map. text_chars cuts the object block: the
+    synthetic byte-level tokenizer makes ~1 token per character, ~3-4x what Qwen's real BPE makes, so a cut
+    block gives the real prompt's token count (see the docs)."""
     from mosaicthinker.runtime.prompt import render, vlm_prompt
 
     vp = render(_paper_map())
+    block = vp.text if text_chars is None else vp.text[:text_chars]
     return vp, vlm_prompt("Which object is closest to the sofa?", ["A. table", "B. chair", "C. tv", "D. lamp"],
-                          vp.text, "grid")
+                          block, "grid")
 
 
 def measure_own_vlm(out: Path, runs: int, threads: int) -> dict:
@@ -263,7 +269,7 @@ def measure_own_vlm(out: Path, runs: int, threads: int) -> dict:
     return res
 
 
-def measure_genai_vlm(out: Path, runs: int, threads: int) -> dict:
+def measure_genai_vlm(out: Path, runs: int, threads: int, text_chars: int | None = None) -> dict:
     import resource
 
     import onnxruntime as ort
@@ -272,9 +278,9 @@ def measure_genai_vlm(out: Path, runs: int, threads: int) -> dict:
     from mosaicthinker.runtime.stages import load_role
     from mosaicthinker.runtime.trace import Trace
 
-    vp, prompt = _prompt()
+    vp, prompt = _prompt(text_chars)
     rm = load_bundle(out).role_meta("vlm")
-    res = {"prompt_chars": len(prompt), "map_image": list(vp.image.shape), "threads": threads}
+    res = {"prompt_chars": len(prompt), "text_block_chars": text_chars, "map_image": list(vp.image.shape), "threads": threads}
     for v in sorted(rm["variants"], key=lambda v: v != "int4"):
         pkg = out / rm["variants"][v]["genai"]["package"]
         so = ort.SessionOptions()
@@ -314,6 +320,8 @@ def run_child(step: str, name: str, args) -> dict:
     """One step in a child process under /usr/bin/time -v: its result JSON plus wall time and peak RSS."""
     cmd = ["/usr/bin/time", "-v", PY, __file__, "_child", step, "--model", name, "--big", str(args.big),
            "--runs", str(args.runs), "--threads", str(args.threads)]
+    if args.text_chars:
+        cmd += ["--text-chars", str(args.text_chars)]
     t = time.time()
     r = subprocess.run(cmd, capture_output=True, text=True)
     peak = re.search(r"Maximum resident set size \(kbytes\): (\d+)", r.stderr)
@@ -342,15 +350,18 @@ def main(argv=None) -> int:
     ap.add_argument("--big", type=Path, default=Path(os.environ.get("MOSAIC_BIG", "/work/big/issue16")))
     ap.add_argument("--runs", type=int, default=5)
     ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--text-chars", type=int, help="VLM: cut the object text block to N characters (the real "
+                                                   "tokenizer's prompt length with the synthetic byte tokenizer)")
     args = ap.parse_args(argv)
     if args.step == "_child":
         fn = {"checkpoint": step_checkpoint, "export": step_export, "measure": step_measure}[args.child_step]
-        kw = {"runs": args.runs, "threads": args.threads} if args.child_step == "measure" else {}
+        kw = ({"runs": args.runs, "threads": args.threads, "text_chars": args.text_chars}
+              if args.child_step == "measure" else {})
         print(json.dumps(fn(args.model, args.big, **kw)))
         return 0
     for step in (["checkpoint", "export", "measure"] if args.step == "all" else [args.step]):
         res = run_child(step, args.model, args)
-        save(args.model, step, res)
+        save(args.model, step + (f"_text{args.text_chars}" if args.text_chars else ""), res)
         print(json.dumps({args.model: {step: res}}, indent=1)[:3000])
     return 0
 
