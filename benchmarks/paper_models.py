@@ -112,9 +112,15 @@ def step_export(name: str, big: Path) -> dict:
     for o in opts + ([f"workdir={big}"] if name == "qwen2.5-vl-3b" else []):
         cmd += ["--option", o]
     t = time.time()
-    r = subprocess.run(cmd, capture_output=True, text=True)
-    if r.returncode != 0:
-        raise SystemExit(f"export failed: {r.stderr[-2000:]}")
+    reuse = os.environ.get("PAPER_MODELS_REUSE_LOG")  # an export already run with this command under time -v
+    if reuse:
+        log = Path(reuse).read_text()
+        wall = re.search(r"Elapsed \(wall clock\) time \(h:mm:ss or m:ss\): ([\d:.]+)", log).group(1).split(":")
+        t -= sum(float(x) * 60 ** i for i, x in enumerate(reversed(wall)))
+    else:
+        r = subprocess.run(cmd, capture_output=True, text=True)
+        if r.returncode != 0:
+            raise SystemExit(f"export failed: {r.stderr[-2000:]}")
     from mosaicthinker.runtime.bundle import load_bundle
 
     rm = load_bundle(out).role_meta(role)
@@ -131,6 +137,11 @@ def step_export(name: str, big: Path) -> dict:
     for v, vm in rm["variants"].items():
         if vm.get("genai"):
             res.setdefault("genai_builder", {})[v] = vm["genai"]["builder"]
+            res["graphs_export_s"] = vm["genai"]["graphs_export_s"]
+    if reuse:
+        res["reused_log"] = reuse
+        res["log_peak_rss_mb"] = round(int(re.search(r"Maximum resident set size \(kbytes\): (\d+)", log)
+                                             .group(1)) / 1024)
     return res
 
 
@@ -314,6 +325,96 @@ def measure_genai_vlm(out: Path, runs: int, threads: int, text_chars: int | None
     return res
 
 
+# ------------------------------------------------------------------------------------------------ profile
+
+# profile cost item -> (model, variant, {field: (component, what)}); what: p50 | load | rss
+PAPER_COSTS = {
+    "depth": ("depth-anything-v2-small", "fp32", {"ms_per_call": ("model", "p50")}),
+    "segmenter": ("sam-vit-base", "fp32", {"ms_per_call": ("encoder", "p50"), "ms_per_prompt": ("decoder", "p50")}),
+    "detector": ("owlv2-base-patch16", "fp32", {"ms_per_call": ("image", "p50")}),
+    "embedder": ("clip-vit-base-patch32", "fp32", {"ms_per_call": ("model", "p50")}),
+    "matcher": ("efficientloftr", "fp32", {"ms_per_pair": ("pair", "p50")}),
+}
+
+
+def paper_costs(data: dict, big: Path) -> dict:
+    """[paper_costs.*] entries from the measured results (perception fp32; VLM: Qwen2.5-VL-3B int4)."""
+    from mosaicthinker.runtime.bundle import bundle_hash, load_bundle
+
+    date = time.strftime("%Y-%m-%d")
+    out = {}
+    for item, (model, v, fields) in PAPER_COSTS.items():
+        lat = ((data["models"].get(model) or {}).get("measure") or {}).get("latency", {}).get(v)
+        if not lat:
+            continue
+        comps = [c for c, _ in fields.values()]
+        e = {f: round(lat[c]["p50_s"] * 1000, 1) for f, (c, _) in fields.items()}
+        e.setdefault("ms_per_call", 0.0)
+        if item == "segmenter":
+            e.setdefault("ms_per_prompt", 0.0)
+        if item == "matcher":
+            e.setdefault("ms_per_pair", 0.0)
+        e["load_ms"] = round(sum(lat[c]["load_s"] for c in comps) * 1000, 1)
+        e["resident_mb"] = round(max(0.0, sum(lat[c]["resident_mb"] for c in comps)), 1)
+        out[item] = {**e, "status": "measured", "date": date,
+                     "bundle_hash": bundle_hash(load_bundle(big / "bundles" / model, verify=False)),
+                     "provider": "CPUExecutionProvider",
+                     "note": f"paper model {model} {v} at its real config with RANDOM weights "
+                             f"(benchmarks/paper_models.py; 2 threads, p50 of 5; shared CPUs)"}
+    q = data["models"].get("qwen2.5-vl-3b", {})
+    m = (q.get("measure_text300") or q.get("measure") or {}).get("int4")
+    if m:
+        out["vlm"] = {"ms_per_image": round(m["prefill_p50_s"] * 1000, 1),
+                      "ms_per_token": round(1000 / m["decode_tok_s_p50"], 1), "load_ms": round(m["load_s"] * 1000, 1),
+                      "resident_mb": float(m["resident_mb_after_runs"]), "status": "measured", "date": date,
+                      "bundle_hash": bundle_hash(load_bundle(big / "bundles" / "qwen2.5-vl-3b", verify=False)),
+                      "provider": "CPUExecutionProvider",
+                      "note": f"Qwen2.5-VL-3B int4 ONNX Runtime GenAI package, RANDOM weights; ms_per_image = "
+                              f"vision + prefill of the whole prompt ({m['prompt_tokens']} tokens, one 448 px map "
+                              f"image); 2 threads, p50 of 5"}
+    return out
+
+
+def write_profile(big: Path, profile: Path) -> dict:
+    import tomllib
+
+    import tomli_w
+
+    data = json.loads(OUT.read_text())
+    prof = tomllib.loads(profile.read_text())
+    prof["paper_costs"] = paper_costs(data, big)
+    profile.write_text(tomli_w.dumps(prof))
+    return prof["paper_costs"]
+
+
+def cost_table(data: dict) -> str:
+    """Markdown: per model and precision, export time / peak RSS, size, parity, CPU latency (2 threads)."""
+    rows = ["| model (random weights) | params | export s / peak RSS GB | precision | size MiB | parity | CPU 2 threads |",
+            "|---|---|---|---|---|---|---|"]
+    for name, r in data["models"].items():
+        e, ck = r.get("export") or {}, r.get("checkpoint") or {}
+        meas = r.get("measure_text300") or r.get("measure") or {}
+        for v, size in (e.get("size_mib") or {}).items():
+            par = e.get("parity", {}).get(v, {})
+            ptxt = ", ".join(f"{k} {x['rel']:.1e}" if isinstance(x, dict) else f"{k} {x:.3g}"
+                             for k, x in par.items() if x is not None)
+            lat = (meas.get("latency") or {}).get(v)
+            if lat:
+                ltxt = ", ".join(f"{c} {x['p50_s'] * 1000:.0f} ms" for c, x in lat.items() if "p50_s" in x)
+            elif v in meas and "prefill_p50_s" in meas[v]:
+                m = meas[v]
+                ltxt = (f"vision 448 {m['vision_448_p50_s']:.1f} s; prefill ({m['prompt_tokens']} tok) "
+                        f"{m['prefill_p50_s']:.1f} s; decode {m['decode_tok_s_p50']:.1f} tok/s; answer (16 tok) "
+                        f"{m['answer_16_tokens_p50_s']:.1f} s; RSS {m['peak_rss_mb_so_far'] / 1024:.1f} GB")
+            elif v in meas:
+                ltxt = f"answer (16 tok, {meas[v]['prompt_tokens']} prompt tok) {meas[v]['answer_16_tokens_p50_s']:.1f} s"
+            else:
+                ltxt = "-"
+            rows.append(f"| {name} | {ck.get('parameters') or '-'} | {e.get('export_s', '-')} / "
+                        f"{(e.get('export_peak_rss_mb') or 0) / 1024:.1f} | {v} | {size} | {ptxt or '-'} | {ltxt} |")
+    return "\n".join(rows)
+
+
 # ------------------------------------------------------------------------------------------------ driver
 
 def run_child(step: str, name: str, args) -> dict:
@@ -330,6 +431,8 @@ def run_child(step: str, name: str, args) -> dict:
     res = json.loads(r.stdout.strip().splitlines()[-1])
     res.update({f"{step}_wall_s": round(time.time() - t, 1),
                 f"{step}_peak_rss_mb": round(int(peak.group(1)) / 1024) if peak else None})
+    if "log_peak_rss_mb" in res:  # a reused export: its own run's figures, not this re-reading's
+        res.update({f"{step}_wall_s": res["export_s"], f"{step}_peak_rss_mb": res["log_peak_rss_mb"]})
     return res
 
 
@@ -344,15 +447,23 @@ def save(name: str, step: str, res: dict) -> None:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("step", choices=["checkpoint", "export", "measure", "all", "_child"])
+    ap.add_argument("step", choices=["checkpoint", "export", "measure", "all", "profile", "table", "_child"])
     ap.add_argument("child_step", nargs="?")
-    ap.add_argument("--model", required=True, choices=sorted(MODELS))
+    ap.add_argument("--model", choices=sorted(MODELS))
     ap.add_argument("--big", type=Path, default=Path(os.environ.get("MOSAIC_BIG", "/work/big/issue16")))
     ap.add_argument("--runs", type=int, default=5)
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--text-chars", type=int, help="VLM: cut the object text block to N characters (the real "
                                                    "tokenizer's prompt length with the synthetic byte tokenizer)")
     args = ap.parse_args(argv)
+    if args.step == "profile":  # [paper_costs.*] of profiles/cpu-generic.toml from the measured results
+        print(json.dumps(write_profile(args.big, REPO / "profiles" / "cpu-generic.toml"), indent=1))
+        return 0
+    if args.step == "table":
+        print(cost_table(json.loads(OUT.read_text())))
+        return 0
+    if not args.model:
+        ap.error("--model is required")
     if args.step == "_child":
         fn = {"checkpoint": step_checkpoint, "export": step_export, "measure": step_measure}[args.child_step]
         kw = ({"runs": args.runs, "threads": args.threads, "text_chars": args.text_chars}
