@@ -39,7 +39,7 @@ MOSAIC = str(Path(PY).with_name("mosaic"))
 MODELS = {
     "qwen2.5-vl-3b": ("vlm", "fp32,int4", ["image_size=448", "hf_check=1"]),
     "smolvlm-256m": ("vlm", "fp32,int8-dynamic", []),
-    "depth-anything-v2-small": ("depth", "fp32,int8-dynamic", []),
+    "depth-anything-v2-small": ("depth", "fp32,int8-dynamic", ["size=518"]),  # random weights default to 70
     "sam-vit-base": ("segmenter", "fp32,int8-dynamic", []),
     "owlv2-base-patch16": ("detector", "fp32,int8-dynamic", []),
     "clip-vit-base-patch32": ("embedder", "fp32,int8-dynamic", []),
