@@ -233,8 +233,10 @@ def parity_check(onnx_path: str | os.PathLike, reference: Callable[[Feeds], Sequ
 # Torch export (imported lazily: only exporters need torch)
 
 def export_torch(module: Any, args: tuple, path: str | os.PathLike, input_names: list[str],
-                 output_names: list[str], *, dynamic_shapes: Any = None, opset: int = DEFAULT_OPSET) -> Path:
-    """`torch.onnx.export(dynamo=True)` of a thin wrapper with plain-tensor I/O into ONE self-contained file.
+                 output_names: list[str], *, dynamic_shapes: Any = None, opset: int = DEFAULT_OPSET,
+                 external_data: bool = False) -> Path:
+    """`torch.onnx.export(dynamo=True)` of a thin wrapper with plain-tensor I/O into ONE self-contained file
+    (external_data=True: weights in `<file>.data` beside it, needed past protobuf's 2 GB limit).
 
     dynamic_shapes: as torch.export expects (e.g. {"image": {2: torch.export.Dim("h"), ...}}), or None for
     fixed shapes. Raises ExportError with the exporter's message on failure.
@@ -249,8 +251,8 @@ def export_torch(module: Any, args: tuple, path: str | os.PathLike, input_names:
         with torch.no_grad():
             prog = torch.onnx.export(module, args, dynamo=True, opset_version=opset, input_names=input_names,
                                      output_names=output_names, dynamic_shapes=dynamic_shapes,
-                                     external_data=False, verbose=False)
-            prog.save(str(path), external_data=False)
+                                     external_data=external_data, verbose=False)
+            prog.save(str(path), external_data=external_data)
     except Exception as e:  # noqa: BLE001  (torch raises many types)
         raise ExportError(f"torch.onnx.export failed for {path.name}: {type(e).__name__}: {str(e)[:800]}") from e
     return path
@@ -412,9 +414,11 @@ def parse_precisions(text: str) -> list[str]:
     out: list[str] = []
     for p in (t.strip() for t in text.split(",") if t.strip()):
         names = {"int8": ["int8-dynamic", "int8-qdq"], "int8-dynamic": ["int8-dynamic"],
-                 "int8-qdq": ["int8-qdq"], "qdq": ["int8-qdq"], "fp32": ["fp32"], "fp16": ["fp16"]}.get(p)
+                 "int8-qdq": ["int8-qdq"], "qdq": ["int8-qdq"], "fp32": ["fp32"], "fp16": ["fp16"],
+                 "int4": ["int4"]}.get(p)
         if names is None:
-            raise ExportError(f"--precision: unknown precision {p!r} (use fp32, fp16, int8, int8-dynamic, int8-qdq)")
+            raise ExportError(f"--precision: unknown precision {p!r} (use fp32, fp16, int8, int8-dynamic, int8-qdq; "
+                              f"int4 for GenAI VLM decoders)")
         out += [n for n in names if n not in out]
     if "fp32" not in out:
         out.insert(0, "fp32")  # the reference every other precision is checked against

@@ -58,6 +58,11 @@ def load_source(source: str, role: str, hf_class: Any, *, tiny_kwargs: dict | No
                           f"{str(e)[:300]}); model hubs need network access, else pass dir:PATH of a local "
                           f"checkpoint") from e
     model.eval()
+    marker = Path(ident) / "RANDOM_WEIGHTS.json" if source.startswith("dir:") else None
+    if marker is not None and marker.is_file():  # a random-weight checkpoint of a real config (benchmarks)
+        import json
+
+        return model, {"source": source, "random_weights": True, "random": json.loads(marker.read_text())}
     return model, {"source": source, "random_weights": False}
 
 
@@ -243,6 +248,8 @@ def _lower_precision(g: GraphSpec, variant: str, fp32_path: Path, work: Path) ->
     dst = work / variant / f"{g.name}.onnx"
     dst.parent.mkdir(parents=True, exist_ok=True)
     rel, cos = g.tol.get(variant, (None, None))
+    if variant == "int4":
+        return {"ok": False, "reason": "int4 (MatMulNBits) is built only for GenAI VLM decoders (Qwen2.5-VL)"}
     if variant == "fp16":
         if not g.half:
             return {"ok": False, "reason": "fp16 disabled for this component (numerically unsafe in half)"}

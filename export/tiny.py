@@ -210,6 +210,17 @@ def internvl(vocab: int):
     return InternVLForConditionalGeneration(cfg)
 
 
+@_seeded
+def qwen2_5_vl():
+    """Qwen2.5-VL (window-attention ViT + patch merger + Qwen2 decoder with M-RoPE), the real vocabulary size
+    and special-token ids; packaged for ONNX Runtime GenAI by export/hf_qwen_vl.py."""
+    from transformers import Qwen2_5_VLForConditionalGeneration
+
+    from .hf_qwen_vl import qwen_config
+
+    return Qwen2_5_VLForConditionalGeneration(qwen_config("tiny"))
+
+
 # arch -> (role, builder name in this module, kwargs)
 TINY_ARCHS: dict[str, tuple[str, str, dict]] = {
     "depth-anything-v2": ("depth", "depth_anything_v2", {}),
@@ -223,6 +234,7 @@ TINY_ARCHS: dict[str, tuple[str, str, dict]] = {
     "efficientloftr": ("matcher", "efficientloftr", {}),
     "smolvlm": ("vlm", "smolvlm", {}),
     "internvl": ("vlm", "internvl", {}),
+    "qwen2_5_vl": ("vlm", "qwen2_5_vl", {}),
 }
 ROLE_DEFAULT_ARCH = {"depth": "depth-anything-v2", "segmenter": "sam", "detector": "owlv2", "embedder": "clip",
                      "matcher": "superpoint-lightglue", "vlm": "smolvlm"}

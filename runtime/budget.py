@@ -38,13 +38,13 @@ import math
 import os
 import sys
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any, Callable, ClassVar, Mapping, Sequence
 
 from .answer import VLMConfig
 from .config import StageConf
-from .errors import BudgetError, InputError, ProfileError
+from .errors import BudgetError, InputError, MosaicError, ProfileError
 from .bundle import bundle_hash
 from .trace import Trace, peak_rss_mb, reset_peak_rss, rss_mb
 
@@ -108,7 +108,10 @@ _SECTIONS: dict[str, dict[str, type | tuple[type, ...]]] = {
 _REQUIRED = {"device": ("name",), "budget": ("latency_budget_ms", "memory_budget_mb"), "runtime": ("providers",)}
 _ROLE_KEYS: dict[str, type | tuple[type, ...]] = {"precision": str, "int8_kind": str, "variant": str,
                                                   "providers": list, "input_size_px": list, "notes": str}
-_TOP_KEYS = ("schema", "device", "budget", "runtime", "roles", "costs")
+_TOP_KEYS = ("schema", "device", "budget", "runtime", "roles", "costs", "paper_costs")
+# model sets `mosaic plan --models` can plan with: the shared mobile models ([costs.*]) or the paper's models at
+# their real sizes ([paper_costs.*]: measured by benchmarks/paper_models.py with random weights)
+MODEL_SETS = ("shared", "paper")
 # unit spellings that are NOT the project's (keys carry ms / mb): used to say "wrong unit" instead of "unknown key"
 _TIME_UNITS = ("s", "sec", "secs", "second", "seconds", "us", "ns", "min", "minutes", "millis", "msec")
 _MEM_UNITS = ("b", "bytes", "kb", "kib", "gb", "gib", "mib", "megabytes", "kilobytes", "gigabytes")
@@ -208,7 +211,20 @@ class Profile:
     runtime_notes: str | None = None
     roles: dict[str, RoleSettings] = field(default_factory=dict)
     costs: dict[str, CostEntry] = field(default_factory=dict)
+    paper_costs: dict[str, CostEntry] = field(default_factory=dict)
     raw: dict[str, Any] = field(default_factory=dict)
+
+    def with_models(self, models: str) -> "Profile":
+        """This profile with the model costs of `models` ("shared": [costs.*] as written; "paper": each model
+        item [paper_costs.<item>] replaces [costs.<item>]; items it lacks keep the shared figure, named)."""
+        if models not in MODEL_SETS:
+            raise ProfileError(f"--models {models!r}: choose one of {MODEL_SETS}")
+        if models == "shared":
+            return self
+        if not self.paper_costs:
+            raise ProfileError(f"{self.path or self.name}: no [paper_costs.*] tables; measure them with "
+                               f"benchmarks/paper_models.py or plan with --models shared")
+        return replace(self, costs={**self.costs, **self.paper_costs})
 
     def providers_for(self, role: str) -> list[str]:
         """Ordered provider chain for a role (role override, else the device chain); always ends on CPU."""
@@ -354,6 +370,45 @@ def _check_providers(chain: Any, where: str) -> list[str]:
     return list(chain)
 
 
+def _parse_costs(raw_costs: Mapping[str, Any], w: str, table: str) -> dict[str, CostEntry]:
+    """The `[<table>.<item>]` cost tables of a profile (same fields and checks for costs and paper_costs)."""
+    costs: dict[str, CostEntry] = {}
+    for name, ct in raw_costs.items():
+        cw = f"{w}: {table}.{name}"
+        if name not in COST_ITEMS:
+            raise ProfileError(f"{cw}: unknown cost item {name!r}; items are {', '.join(COST_ITEMS)}")
+        if not isinstance(ct, Mapping):
+            raise ProfileError(f"{cw}: expected a table")
+        nums, _ = COST_ITEMS[name]
+        _check_keys(ct, nums + PROVENANCE_KEYS, cw)
+        vals: dict[str, Any] = {}
+        for k in nums:
+            if k not in ct:
+                raise ProfileError(f"{cw}: missing field {k!r} ({COST_ITEMS[name][1]})")
+            vals[k] = _check_number(ct[k], f"{cw}.{k}")
+        status = ct.get("status")
+        if status not in ("measured", "estimated"):
+            raise ProfileError(f"{cw}.status: must be 'measured' (by `mosaic profile`) or 'estimated' "
+                               f"(with a source); got {status!r}")
+        for k in ("date", "bundle_hash", "source", "provider", "note"):
+            if k in ct and not isinstance(ct[k], str):
+                raise ProfileError(f"{cw}.{k}: expected a string, got {ct[k]!r}")
+        if status == "measured":
+            for k in ("date", "bundle_hash"):
+                if not ct.get(k):
+                    raise ProfileError(f"{cw}: status 'measured' needs {k!r} (written by mosaic profile "
+                                       f"--update-profile)")
+            try:
+                _dt.date.fromisoformat(ct["date"][:10])
+            except ValueError:
+                raise ProfileError(f"{cw}.date: {ct['date']!r} is not an ISO date (YYYY-MM-DD)") from None
+        elif not ct.get("source"):
+            raise ProfileError(f"{cw}: status 'estimated' needs 'source' (where the figure comes from)")
+        costs[name] = CostEntry(name, status, **vals, **{k: ct.get(k) for k in
+                                                         ("date", "bundle_hash", "source", "provider", "note")})
+    return costs
+
+
 def parse_profile(data: Mapping[str, Any], path: str | os.PathLike | None = None) -> Profile:
     """Validate a profile dict (as read from TOML) and build a Profile. Raises ProfileError naming the
     file and field: unknown key, wrong unit, negative or non-numeric value, missing field, bad provider."""
@@ -425,43 +480,14 @@ def parse_profile(data: Mapping[str, Any], path: str | os.PathLike | None = None
                 raise ProfileError(f"{rw}.{k}: expected a string")
         roles[role] = RoleSettings(role, prec, kind, rt_.get("variant"), provs, size, rt_.get("notes"))
 
-    costs: dict[str, CostEntry] = {}
     raw_costs = data.get("costs")
     if not isinstance(raw_costs, Mapping):
         raise ProfileError(f"{w}: missing table [costs] (per-stage costs: [costs.detector] ms_per_call = ...)")
-    for name, ct in raw_costs.items():
-        cw = f"{w}: costs.{name}"
-        if name not in COST_ITEMS:
-            raise ProfileError(f"{cw}: unknown cost item {name!r}; items are {', '.join(COST_ITEMS)}")
-        if not isinstance(ct, Mapping):
-            raise ProfileError(f"{cw}: expected a table")
-        nums, _ = COST_ITEMS[name]
-        _check_keys(ct, nums + PROVENANCE_KEYS, cw)
-        vals: dict[str, Any] = {}
-        for k in nums:
-            if k not in ct:
-                raise ProfileError(f"{cw}: missing field {k!r} ({COST_ITEMS[name][1]})")
-            vals[k] = _check_number(ct[k], f"{cw}.{k}")
-        status = ct.get("status")
-        if status not in ("measured", "estimated"):
-            raise ProfileError(f"{cw}.status: must be 'measured' (by `mosaic profile`) or 'estimated' "
-                               f"(with a source); got {status!r}")
-        for k in ("date", "bundle_hash", "source", "provider", "note"):
-            if k in ct and not isinstance(ct[k], str):
-                raise ProfileError(f"{cw}.{k}: expected a string, got {ct[k]!r}")
-        if status == "measured":
-            for k in ("date", "bundle_hash"):
-                if not ct.get(k):
-                    raise ProfileError(f"{cw}: status 'measured' needs {k!r} (written by mosaic profile "
-                                       f"--update-profile)")
-            try:
-                _dt.date.fromisoformat(ct["date"][:10])
-            except ValueError:
-                raise ProfileError(f"{cw}.date: {ct['date']!r} is not an ISO date (YYYY-MM-DD)") from None
-        elif not ct.get("source"):
-            raise ProfileError(f"{cw}: status 'estimated' needs 'source' (where the figure comes from)")
-        costs[name] = CostEntry(name, status, **vals, **{k: ct.get(k) for k in
-                                                         ("date", "bundle_hash", "source", "provider", "note")})
+    costs = _parse_costs(raw_costs, w, "costs")
+    raw_paper = data.get("paper_costs", {})
+    if not isinstance(raw_paper, Mapping):
+        raise ProfileError(f"{w}: paper_costs: expected a table of [paper_costs.<item>] tables")
+    paper_costs = _parse_costs(raw_paper, w, "paper_costs")
     for name in REQUIRED_COSTS:
         if name not in costs:
             raise ProfileError(f"{w}: missing cost table [costs.{name}] ({COST_ITEMS[name][1]})")
@@ -470,7 +496,7 @@ def parse_profile(data: Mapping[str, Any], path: str | os.PathLike | None = None
     return Profile(name=dev["name"], path=path, latency_budget_ms=lat, memory_budget_mb=mem, providers=chain,
                    intra_op_threads=rt.get("intra_op_threads"), inter_op_threads=rt.get("inter_op_threads"),
                    core_affinity=list(aff) if aff else None, device=dev, runtime_notes=rt.get("notes"),
-                   roles=roles, costs=costs, raw=json.loads(json.dumps(data)))
+                   roles=roles, costs=costs, paper_costs=paper_costs, raw=json.loads(json.dumps(data)))
 
 
 def resolve_profile_path(name_or_path: str | os.PathLike) -> Path:
@@ -703,7 +729,8 @@ def _bundle_roles(bundle: Any) -> tuple[Any, list[str]]:
 
 
 def plan(profile: Profile | str | os.PathLike, duration_s: float, fps: float, bundle: Any = None,
-         conf: PlanConf | Mapping[str, Any] | None = None, *, candidates: int | None = None) -> Plan:
+         conf: PlanConf | Mapping[str, Any] | None = None, *, candidates: int | None = None,
+         models: str = "shared") -> Plan:
     """Plan one question over a clip of `duration_s` seconds at `fps` under the profile's budgets.
 
     Returns the largest key-frame count K (keyframes_min..keyframes_max, at most the candidates) whose planned
@@ -711,8 +738,9 @@ def plan(profile: Profile | str | os.PathLike, duration_s: float, fps: float, bu
     naming the failing budget and the shortfall when even keyframes_min does not fit.
     bundle: a bundle folder/Bundle (optional): roles missing from it are not planned (no VLM -> map reasoner),
     input sizes come from its preprocessing. candidates: frames kept by dedup if known (else estimated).
+    models: "shared" (the shared mobile models' costs) or "paper" (the paper's models at real size).
     """
-    prof = profile if isinstance(profile, Profile) else load_profile(profile)
+    prof = (profile if isinstance(profile, Profile) else load_profile(profile)).with_models(models)
     c = conf if isinstance(conf, PlanConf) else PlanConf.merged(conf)
     if not (duration_s > 0 and math.isfinite(duration_s)) or duration_s > MAX_CLIP_S:
         raise InputError(f"plan: duration must be > 0 and at most {MAX_CLIP_S:g} s (24 h) (got {duration_s:g}); "
@@ -1276,6 +1304,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_answerer(parser, "the answerer `mosaic ask` will use: vlm or auto (default) plan the VLM's costs when the "
                          "profile and bundle have one (auto: the VLM answers what the map reasoner does not "
                          "recognise); map: the map reasoner only, no VLM costs")
+    parser.add_argument("--models", choices=MODEL_SETS, default="shared",
+                        help="cost set: shared (the shared mobile models) or paper (the paper's models at real "
+                             "size, [paper_costs.*]); --profile all plans every profile in profiles/")
 
 
 def _clip_from_args(args: argparse.Namespace) -> tuple[float, float]:
@@ -1297,12 +1328,30 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     duration, fps = _clip_from_args(args)
     conf = PlanConf.merged(keyframes_max=args.keyframes_max, use_vlm=args.answerer != "map",
                            video_pass="online" if args.online else "question")
-    p = plan(args.profile, duration, fps, bundle=args.bundle, conf=conf, candidates=args.candidates)
-    return p.to_dict()
+    if args.profile == "all":  # K for every profile of profiles/ (those that cannot plan say why)
+        rows = {}
+        for path in list_profiles():
+            try:
+                p = plan(path, duration, fps, bundle=args.bundle, conf=conf, candidates=args.candidates,
+                         models=args.models)
+                rows[path.stem] = {"keyframes": p.keyframes, "limited_by": p.limited_by, "planned_ms": p.total_ms}
+            except MosaicError as e:
+                rows[path.stem] = {"keyframes": None, "error": str(e)}
+        return {"schema": "mosaicthinker.plan-all/1", "models": args.models, "profiles": rows}
+    p = plan(args.profile, duration, fps, bundle=args.bundle, conf=conf, candidates=args.candidates,
+             models=args.models)
+    d = p.to_dict()
+    d["models"] = args.models
+    return d
 
 
 def render(result: dict[str, Any]) -> str:
     r = result
+    if r.get("schema") == "mosaicthinker.plan-all/1":
+        return "\n".join([f"key frames K per profile ({r['models']} models):"] + [
+            f"  {n:<26} " + (f"K = {x['keyframes']:>3}  (limited by {x['limited_by']}, {x['planned_ms']:,.0f} ms)"
+                             if x.get("keyframes") is not None else f"cannot plan: {x['error'][:150]}")
+            for n, x in r["profiles"].items()])
     v = r["video"]
     lines = [f"plan for {r['profile']} ({r['device']})",
              f"clip {v['duration_s']:g} s at {v['fps']:g} fps = {v['frames']} frames, {v['candidates']} candidates"

@@ -4,7 +4,8 @@ Three modes (the paper's main variant and its two ablations):
 - ``grid``   top-down grid image, one distinct colour per object box with its label, camera positions and
              headings, a metric scale bar and axes, plus the text block (default);
 - ``points`` a dense top-down render of the fused 3D points (coloured per instance) instead of boxes, plus text;
-- ``text``   the text block only (no image).
+- ``text``   the text block only (no image);
+- ``json``   a compact JSON "spatial code" of the objects only (no image; the training-free JSON-to-VLM method).
 
 The image is drawn in the map's z-up world seen from above: +x to the right, +y up the image.
 """
@@ -21,7 +22,7 @@ from .config import StageConf
 from .errors import InputError
 from .semantic_map import SemanticMap
 
-MODES = ("grid", "points", "text")
+MODES = ("grid", "points", "text", "json")
 
 
 @dataclass
@@ -118,6 +119,28 @@ def text_block(smap: SemanticMap) -> str:
     return "\n".join(lines)
 
 
+def json_block(smap: SemanticMap) -> str:
+    """Compact JSON "spatial code": {"units": "m", "axes": "x right, y forward, z up", "objects": [{"id", "label",
+    "center": [x, y, z], "size": [l, w, h], "yaw_deg"}], "camera": {"first", "last"}?, "floor_area_m2"?} (2 decimals)."""
+    import json
+
+    objs = []
+    for o in sorted(smap.instances, key=lambda o: (o.name, o.id)):
+        ax = np.asarray(o.box.axes)
+        objs.append({"id": int(o.id), "label": o.name,
+                     "center": [round(float(v), 2) for v in np.asarray(o.box.centroid)],
+                     "size": [round(float(v), 2) for v in np.asarray(o.box.axes_lengths)],
+                     "yaw_deg": round(float(np.degrees(np.arctan2(ax[0][1], ax[0][0]))))})
+    code: dict[str, Any] = {"units": "m", "axes": "x right, y forward, z up", "objects": objs}
+    if smap.cameras:
+        (t0, T0), (t1, T1) = smap.cameras[0], smap.cameras[-1]
+        code["camera"] = {"first": [round(float(T0[0, 3]), 2), round(float(T0[1, 3]), 2), round(float(t0), 1)],
+                          "last": [round(float(T1[0, 3]), 2), round(float(T1[1, 3]), 2), round(float(t1), 1)]}
+    if smap.room is not None:
+        code["floor_area_m2"] = round(float(smap.room.area()), 1)
+    return json.dumps(code, separators=(",", ":"))
+
+
 def _nice_length(max_m: float) -> float:
     """Largest 1/2/5 x 10^k length not above max_m."""
     k = np.floor(np.log10(max_m))
@@ -155,6 +178,8 @@ def render(smap: SemanticMap, conf: PromptConfig | dict[str, Any] | None = None,
     colours = dict(zip(ids, distinct_colours(len(ids))))
     if conf.mode == "text":
         return VisualPrompt(None, text, colours, mode="text")
+    if conf.mode == "json":
+        return VisualPrompt(None, json_block(smap), colours, mode="json")
 
     lo, hi = _extent(smap, points)
     span = hi - lo
@@ -309,6 +334,8 @@ def vlm_prompt(question: str, options: list[str] | None, block: str, mode: str =
             "points": "The image is a top-down view of the 3D points of the objects seen in the video, one colour "
                       "per object; black dots with arrows are the camera positions and headings.",
             "text": "The room was reconstructed from the video into the object list below.",
+            "json": "The room was reconstructed from the video into the JSON spatial code below: each object has "
+                    "an id, a label, its centre and size in metres and its yaw (x right, y forward, z up).",
             "video": "The images are frames sampled uniformly from a video of a room, in time order."}[mode]
     parts = [head] + ([block] if block else []) + [f"Question: {question}"]
     if options:

@@ -450,3 +450,28 @@ def test_controller_for_a_frame_source(redkitchen):
     ctl = B.controller_for("cpu-generic", src, trace, conf={"use_vlm": False})
     assert ctl.plan.total_frames == len(src) and 2 <= ctl.keyframes <= 32
     assert trace.decisions["budget.plan"]["keyframes"] == ctl.keyframes
+
+
+def test_plan_with_paper_model_costs(tmp_path):
+    """[paper_costs.*] replace the model costs under --models paper; a profile without them says so."""
+    import tomllib
+
+    from mosaicthinker.runtime.budget import MODEL_SETS, load_profile, plan, resolve_profile_path
+    from mosaicthinker.runtime.errors import ProfileError
+
+    src = resolve_profile_path("cpu-generic")
+    data = tomllib.loads(src.read_text())
+    data.pop("paper_costs", None)
+    base = tmp_path / "p.toml"
+    import tomli_w
+
+    base.write_text(tomli_w.dumps(data))
+    with pytest.raises(ProfileError, match="paper_costs"):
+        plan(base, 60, 30, models="paper")
+    vlm = dict(data["costs"]["vlm"])
+    data["paper_costs"] = {"vlm": {**vlm, "ms_per_token": vlm["ms_per_token"] * 3, "status": "estimated",
+                                   "source": "test"}}
+    base.write_text(tomli_w.dumps(data))
+    shared, paper = plan(base, 60, 30, models="shared"), plan(base, 60, 30, models="paper")
+    assert paper.total_ms > shared.total_ms and MODEL_SETS == ("shared", "paper")
+    assert load_profile(base).with_models("paper").cost("vlm").ms_per_token == vlm["ms_per_token"] * 3

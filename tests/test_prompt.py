@@ -238,3 +238,18 @@ def test_prompt_reasoner_and_vlm_configs_merge_like_every_stage_config():
     assert VLMConfig.merged({"max_new_tokens": 8}).max_new_tokens == 8
     with pytest.raises(InputError, match="max_new_tokens"):
         VLMConfig.merged(max_new_tokens=0)
+def test_json_spatial_code_mode():
+    import json
+
+    smap = _map()
+    vp = render(smap, {"mode": "json"})
+    assert vp.image is None and vp.mode == "json"
+    code = json.loads(vp.text)
+    by_label = {o["label"]: o for o in code["objects"]}
+    assert set(by_label) == {"sofa", "table", "chair"} and code["units"] == "m"
+    assert by_label["table"]["center"] == [2.5, 0.5, 0.35] and by_label["table"]["size"] == [1.2, 0.7, 0.7]
+    assert by_label["table"]["yaw_deg"] == 30 and by_label["sofa"]["id"] == 0
+    assert code["camera"]["last"][:2] == [1.0, -1.0]
+    assert " " not in vp.text.replace("x right, y forward, z up", "")  # compact separators
+    p = vlm_prompt("How many chairs?", None, vp.text, "json")
+    assert "JSON spatial code" in p and p.index(vp.text) < p.index("Question:")

@@ -31,7 +31,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_answerer(p)
     p.add_argument("--method", choices=["mosaic", "direct"], default="mosaic",
                    help="mosaic (semantic map) or direct (Direct Input baseline: sampled frames to the VLM)")
-    p.add_argument("--prompt", choices=["grid", "points", "text"], default="grid", help="visual prompt mode")
+    p.add_argument("--prompt", choices=["grid", "points", "text", "json"], default="grid",
+                   help="visual prompt mode (json: compact spatial code, no image)")
     add_keyframes(p)
     p.add_argument("--keyframe-method", choices=["iterative", "uniform", "exhaustive"], default="iterative")
     add_stage_flags(p, matcher=True, detector=True)

@@ -53,6 +53,7 @@ ARCHS: dict[str, str] = {
     "efficientloftr": "matcher:PairMatcher",  # pair graph
     "smolvlm": "vlm:VLM",                     # vision + embed + decoder-with-KV-cache
     "internvl": "vlm:VLM",
+    "qwen2_5_vl": "vlm_genai:GenAIVLM",       # ONNX Runtime GenAI package (decoder, embedding, vision)
 }
 
 
@@ -122,6 +123,10 @@ def load_role(bundle_or_dir: Bundle | str | os.PathLike, role: str, variant: str
     if spec.random_weights:
         trace.note_random_weights(f"{role}:{spec.arch} ({b.root})")
     sessions = {}
+    if spec.variant_meta.get("genai"):  # an ONNX Runtime GenAI package: GenAI creates its own sessions
+        trace.decide(f"model.{role}", {"arch": spec.arch, "variant": spec.variant, "bundle": str(b.root),
+                                       "random_weights": spec.random_weights, "runtime": "onnxruntime-genai"})
+        return cls(spec, sessions, trace, threads=threads)
     for cname, comp in spec.components.items():
         if comp.format not in ("onnx", "ort"):
             raise BundleError(f"{b.manifest_path}: roles.{role}.variants.{spec.variant}.components.{cname}.format "

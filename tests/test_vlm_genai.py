@@ -1,0 +1,122 @@
+"""Qwen2.5-VL packaged for ONNX Runtime GenAI (pinned 0.18.0): a tiny random Qwen2.5-VL (real vocabulary size and
+special-token ids) goes through `mosaic export vlm` (GenAI model builder decoder + the project's vision and
+embedding graphs); the standard GenAI API must load the package as it is and generate from an image + prompt,
+fp32 token for token equal to transformers' greedy generate on the same processor inputs; the manifest lists
+every package file with its sha256; the runtime's VLM adapter drives the package with the same answer parsing."""
+from __future__ import annotations
+
+
+import numpy as np
+import pytest
+
+pytest.importorskip("torch")
+pytest.importorskip("transformers")
+og = pytest.importorskip("onnxruntime_genai")
+
+pytestmark = [pytest.mark.export, pytest.mark.slow]
+IMAGE = 224  # grid 16 x 16 patches -> 2 x 2 attention windows (window 112 px), 64 image tokens
+
+
+@pytest.fixture(scope="module")
+def qwen_bundle(tmp_path_factory):
+    import argparse
+
+    from mosaicthinker.export import cli
+
+    out = tmp_path_factory.mktemp("qwen") / "b"
+    args = argparse.Namespace(role="vlm", source="tiny:qwen2_5_vl", precision="fp32,int4", target="cpu", calib=None,
+                              meta=None, option=[f"image_size={IMAGE}", "check_tokens=6"], out=str(out))
+    return out, cli.run(args)
+
+
+def test_cli_result_and_manifest(qwen_bundle):
+    from mosaicthinker.runtime.bundle import load_bundle, sha256_file
+
+    out, res = qwen_bundle
+    assert res["bundle_roles"]["vlm"] == ["fp32", "int4"]
+    rm = load_bundle(out).role_meta("vlm")
+    assert rm["arch"] == "qwen2_5_vl" and rm["random_weights"] is True and rm["default_variant"] == "int4"
+    for v in ("fp32", "int4"):
+        vm = rm["variants"][v]
+        pkg = out / vm["genai"]["package"]
+        listed = {f["file"]: f["sha256"] for f in vm["genai"]["files"]}
+        on_disk = {p.relative_to(out).as_posix() for p in pkg.rglob("*") if p.is_file()}
+        assert set(listed) == on_disk  # every file, external data included
+        assert all(sha256_file(out / f) == h for f, h in listed.items())
+        assert any(f.endswith("decoder/model.onnx.data") for f in listed)
+        assert vm["components"]["decoder"]["extra_files"][0]["file"].endswith("model.onnx.data")
+    chk = rm["variants"]["fp32"]["task_check"]
+    assert chk["ok"] and chk["token_agreement_vs_transformers"] == 1.0 and chk["logits_rel_err_vs_transformers"] < 1e-3
+    assert chk["image_grid_thw"] == [1, IMAGE // 14, IMAGE // 14]
+    assert chk["prompt_tokens"] > (IMAGE // 28) ** 2  # the image expanded to its merged-patch tokens
+    assert 0 <= rm["variants"]["int4"]["task_check"]["kl_vs_fp32"] < 1.0
+
+
+def test_tampered_package_file_is_refused(qwen_bundle, tmp_path):
+    import shutil
+
+    from mosaicthinker.runtime.bundle import load_bundle
+    from mosaicthinker.runtime.errors import BundleError
+
+    out, _ = qwen_bundle
+    copy = tmp_path / "b"
+    shutil.copytree(out, copy)
+    p = copy / "vlm" / "int4" / "processor_config.json"
+    p.write_text(p.read_text().replace('"width": 224', '"width": 448'))
+    with pytest.raises(BundleError, match="sha256"):
+        load_bundle(copy)
+
+
+def test_standard_genai_api_generates_from_image_and_prompt(qwen_bundle, tmp_path):
+    import cv2
+
+    out, _ = qwen_bundle
+    pkg = out / "vlm" / "int4"
+    img = np.zeros((180, 260, 3), np.uint8)
+    cv2.rectangle(img, (20, 30), (120, 150), (0, 0, 255), -1)
+    cv2.imwrite(str(tmp_path / "m.png"), img)
+    model = og.Model(str(pkg))
+    proc = model.create_multimodal_processor()
+    text = "<|im_start|>user\n<|vision_start|><|image_pad|><|vision_end|>Where is the box?<|im_end|>\n<|im_start|>assistant\n"
+    inputs = proc(text, images=og.Images.open(str(tmp_path / "m.png")))
+    ids = inputs["input_ids"].as_numpy().reshape(-1)
+    assert int((ids == 151655).sum()) == (IMAGE // 28) ** 2
+    assert inputs["pixel_values"].as_numpy().shape == ((IMAGE // 14) ** 2, 3 * 2 * 14 * 14)
+    params = og.GeneratorParams(model)
+    params.set_search_options(do_sample=False, max_length=ids.size + 5)
+    gen = og.Generator(model, params)
+    gen.set_inputs(inputs)
+    new = []
+    while len(new) < 5 and not gen.is_done():
+        gen.generate_next_token()
+        new.append(int(gen.get_next_tokens()[0]))
+    assert len(new) == 5 and all(0 <= t < 151936 for t in new)
+
+
+def test_runtime_adapter_drives_the_package(qwen_bundle, tmp_path):
+    from mosaicthinker.export.hf_qwen_vl import genai_generate
+    from mosaicthinker.runtime.answer import answer_with_vlm
+    from mosaicthinker.runtime.stages import load_role
+    from mosaicthinker.runtime.stages.vlm_genai import GenAIVLM
+    from mosaicthinker.runtime.trace import Trace
+
+    out, _ = qwen_bundle
+    trace = Trace()
+    vlm = load_role(out, "vlm", variant="fp32", threads=2, trace=trace)
+    assert isinstance(vlm, GenAIVLM) and vlm.sessions == {}
+    rgb = np.full((200, 300, 3), 255, np.uint8)
+    rgb[40:120, 50:170] = (200, 30, 30)
+    ids = vlm.generate_ids([rgb], "How many chairs are there?", max_new_tokens=6)
+    import cv2
+
+    cv2.imwrite(str(tmp_path / "x.png"), rgb[..., ::-1])
+    ref = genai_generate(out / "vlm" / "fp32", str(tmp_path / "x.png"), "How many chairs are there?", 6)["ids"]
+    assert ids == ref  # the adapter feeds GenAI exactly what the export check fed it
+    assert {"vlm.prefill", "vlm.decode"} <= set(trace.stages) and trace.decisions["vlm.genai"]["new_tokens"] == 6
+    assert trace.random_weights_used  # random weights flagged
+    ans = answer_with_vlm(vlm, "How many chairs?", None, "How many chairs?", [rgb], trace=trace)
+    assert ans.status in ("ok", "unsupported")  # a random model's reply is parsed or reported, never invented
+    if ans.status != "ok":
+        assert any(e.get("kind") == "degraded" for e in trace.events)
+    text_only = vlm.generate([], "Hello", max_new_tokens=3)
+    assert isinstance(text_only, str)
