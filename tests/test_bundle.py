@@ -211,7 +211,7 @@ def test_failing_parity_fails_the_export(tmp_path: Path):
         parity_check(g, lambda f: [f["x"] * 2.1], mk)
     assert parse_precisions("fp16,int8") == ["fp32", "fp16", "int8-dynamic", "int8-qdq"]
     with pytest.raises(ExportError, match="unknown precision"):
-        parse_precisions("int4")
+        parse_precisions("int3")
 
 
 def test_export_output_is_a_table_of_shipped_and_refused_with_library_noise_hidden(tmp_path: Path, capsys):

@@ -220,7 +220,10 @@ def test_a_slow_stage_reduces_the_plan_of_the_stages_after_it(scene):
     kinds = [e["kind"] for e in trace.events]
     assert "replan" in kinds and any(e["message"].startswith("reduced plan:") for e in trace.events)
     reduced = [e for e in trace.events if e["kind"] == "reduced_plan"]
-    assert any("key frames, because" in e["message"] for e in reduced)
+    # the search's overrun trims its key frames (unless a slow dedup on a loaded machine re-planned even before
+    # the search, which then chose fewer)
+    replans = [e["message"] for e in trace.events if e["kind"] == "replan"]
+    assert any("key frames, because" in e["message"] for e in reduced) or "stage frames" in replans[0]
     assert any("refinement skipped" in e["message"] for e in reduced)  # the budget was spent before fusion
     assert set(ctl.done) >= {"frames", "keyframes", "perception", "alignment"}  # every plan stage measured
 
@@ -238,3 +241,17 @@ def test_without_overrun_the_plan_is_kept(scene):
     mb = build_map(src, names, [], oracle_perception(scene), None, trace, keyframes=6, budget=ctl)
     assert not mb.reduced_plan and len(mb.keyframes) == 6
     assert not [e for e in trace.events if e["kind"] in ("replan", "reduced_plan")]
+
+
+def test_reduced_key_frames_stay_spread_over_the_clip():
+    from mosaicthinker.runtime.pipeline import _reduce_keyframes
+    from mosaicthinker.runtime.trace import Trace
+
+    class Ctl:
+        reasons = ["reduced plan: stage keyframes took 900 ms of its 40 ms share"]
+
+    trace = Trace()
+    kept = _reduce_keyframes(list(range(0, 200, 10)), 4, Ctl(), trace)
+    assert kept == [0, 60, 130, 190]
+    msg = trace.events[-1]["message"]
+    assert msg == "reduced plan: 20 -> 4 key frames, because stage keyframes took 900 ms of its 40 ms share"
