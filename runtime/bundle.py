@@ -8,7 +8,7 @@ Manifest shape (schema ``mosaicthinker.bundle/1``)::
       "roles": {
         "<role>": {                                   # depth | segmenter | matcher | detector | embedder | vlm
           "arch": "pydnet",                           # dispatch key of runtime.stages.ARCHS
-          "preprocessing": {"size": [H, W], "layout": "NHWC"|"NCHW", "channel_order": "RGB"|"BGR",
+          "preprocessing": {"size": [H, W], "layout": "NHWC"|"NCHW"|"patches", "channel_order": "RGB"|"BGR",
                             "dtype": "float32"|"uint8"|"float16", "scale": 1/255, "mean": [3], "std": [3],
                             "resize": "bilinear", "keep_aspect": false},
           "semantics": {...},                         # depth: {"depth": "metric_m"|"relative"|"relative_inverse"}
@@ -291,9 +291,12 @@ class Bundle:
                                       f"re-export the role so the manifest lists it with its sha256")
 
     def _check_external_data(self) -> None:
-        """Every external-data file an ONNX component references must be in its `extra_files` (read from the
+        """Every external-data file an ONNX component references must be listed with a sha256: in its
+        `extra_files`, or as a file of the same package (a GenAI package lists each of its files; read from the
         protobuf here, so the runtime needs no `onnx`)."""
-        for where, ref in iter_file_refs(self.manifest):
+        refs = list(iter_file_refs(self.manifest))
+        hashed = {os.path.normpath(str(r.get("file", ""))) for _, r in refs if r.get("sha256")}
+        for where, ref in refs:
             if ref.get("format", "onnx") != "onnx" or not str(ref.get("file", "")).endswith(".onnx"):
                 continue
             path = safe_path(self.root, ref["file"], where + ".file")
@@ -302,7 +305,8 @@ class Bundle:
                      if isinstance(e, dict)}  # bundle-relative, like `file`
             for loc in external_data_locations(path):
                 rel = os.path.normpath(str(base / loc))
-                if rel not in extra or ".." in PurePosixPath(loc).parts or PurePosixPath(loc).is_absolute():
+                if (rel not in extra and rel not in hashed) or ".." in PurePosixPath(loc).parts \
+                        or PurePosixPath(loc).is_absolute():
                     raise BundleError(f"{path}: the graph loads external data {loc!r} that {where}.extra_files "
                                       f"does not list with a sha256; re-export the role")
 
@@ -418,7 +422,8 @@ def _check_role_types(m: dict[str, Any], w: str) -> None:
         if v is not None and not (isinstance(v, list) and len(v) in (1, 3) and all(_is_num(x) for x in v)
                                   and (k == "mean" or all(x != 0 for x in v))):
             raise _bad(f"{w}.preprocessing.{k}", "a list of 3 numbers" + (" (non-zero)" if k == "std" else ""), v)
-    for k, allowed in (("layout", ("NHWC", "NCHW")), ("channel_order", ("RGB", "BGR"))):
+    # layout "patches": a GenAI VLM package whose own processor cuts the image into patches (vlm_genai.py)
+    for k, allowed in (("layout", ("NHWC", "NCHW", "PATCHES")), ("channel_order", ("RGB", "BGR"))):
         if k in pp and not (isinstance(pp[k], str) and pp[k].upper() in allowed):
             raise _bad(f"{w}.preprocessing.{k}", " or ".join(allowed), pp[k])
 

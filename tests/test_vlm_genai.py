@@ -19,13 +19,13 @@ IMAGE = 224  # grid 16 x 16 patches -> 2 x 2 attention windows (window 112 px), 
 
 @pytest.fixture(scope="module")
 def qwen_bundle(tmp_path_factory):
-    import argparse
-
     from mosaicthinker.export import cli
+    from mosaicthinker.runtime.cli import build_parser
 
     out = tmp_path_factory.mktemp("qwen") / "b"
-    args = argparse.Namespace(role="vlm", source="tiny:qwen2_5_vl", precision="fp32,int4", target="cpu", calib=None,
-                              meta=None, option=[f"image_size={IMAGE}", "check_tokens=6"], out=str(out))
+    args = build_parser(("export",), cli).parse_args(  # the command's own parser: every flag has its default
+        ["vlm", "--source", "tiny:qwen2_5_vl", "--precision", "fp32,int4", "--set", f"image_size={IMAGE}",
+         "--set", "check_tokens=6", "--out", str(out)])
     return out, cli.run(args)
 
 
