@@ -101,13 +101,19 @@ def map_quality(smap: Any, poses_world: dict[int, np.ndarray], source: Any, meta
             "track_outliers": int((~keep).sum()), "matches": per_inst}
 
 
+NO_MARGINS = {"angle_deg": 0.0, "turn_deg": 0.0, "rel_dist_m": 0.0, "min_sep_m": 0.0}
+
+
 def generate_scenes(n: int, seed: int, data: Path, size: tuple[int, int], fps: float, duration: float,
-                    room: str = "medium") -> list[Path]:
-    """Generate (or reuse) N synthetic scenes under `data`; returns their folders."""
-    from ..synth.generate import write_scene
+                    room: str = "medium", all_candidates: bool = False) -> tuple[list[Path], dict[str, Any]]:
+    """Generate (or reuse) N synthetic scenes under `data`; returns their folders and the answer key's report.
+    A reused scene's questions are rewritten by the current generator (answers from `box_truth`).
+    all_candidates: every candidate question, margin rules off (the appearance gap stays), no per-type limit."""
+    from ..synth.generate import load_scene, write_questions, write_scene
+    from ..synth.questions import LIMITS
     from ..synth.scene import SceneConfig
 
-    out = []
+    out, removed = [], {}
     for k in range(n):
         s = seed + k
         lvl = LEVELS[k % 3]
@@ -118,9 +124,16 @@ def generate_scenes(n: int, seed: int, data: Path, size: tuple[int, int], fps: f
 
                 shutil.rmtree(d)
             write_scene(SceneConfig(seed=s, objects=lvl, room=room, duration=duration, fps=fps, width=size[0],
-                                    height=size[1]), d, video=False)
+                                    height=size[1]), d, video=False, questions=False)
+        _, rep = (write_questions(load_scene(d), d, NO_MARGINS, {t: 10 ** 6 for t in LIMITS}) if all_candidates
+                  else write_questions(load_scene(d), d))
+        for t, r in rep["removed"].items():  # candidate questions, kept, asked and each margin rule's removals
+            for k, v in r.items():
+                removed.setdefault(t, {}).setdefault(k, 0)
+                removed[t][k] += v
         out.append(d)
-    return out
+    return out, {"source": "evaluation.box_truth (true oriented boxes and first-seen times; not the reasoner)",
+                 "margins": rep["margins"] if out else None, "removed": removed}
 
 
 def _score(q: dict[str, Any], ans: Any) -> float:
@@ -267,6 +280,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--map-per", choices=["scene", "question"], default="scene")
     p.add_argument("--miss-rate", type=float, default=0.1, help="oracle detector miss rate")
     p.add_argument("--matcher", choices=["orb", "sift"], default="sift")
+    p.add_argument("--all-candidates", action="store_true",
+                   help="ask every candidate question: box_truth margin rules off, no per-type limit (rewrites "
+                        "the scenes' questions.jsonl)")
 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
@@ -287,7 +303,8 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                                              Path(tempfile.mkdtemp(prefix="mosaic_e2e_")))
     data.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    dirs = generate_scenes(args.scenes, args.seed, data, (w, h), args.fps, args.duration)
+    dirs, key = generate_scenes(args.scenes, args.seed, data, (w, h), args.fps, args.duration,
+                                all_candidates=args.all_candidates)
     t_gen = time.perf_counter() - t0
     records, maps = [], []
     conf = {"matcher": args.matcher}
@@ -299,8 +316,8 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     res = {"schema": "mosaicthinker.eval.e2e/1", "scenes": [d.name for d in dirs], "modes": modes,
            "settings": {"size": [w, h], "fps": args.fps, "duration": args.duration, "keyframes": args.keyframes,
                         "map_per": args.map_per, "miss_rate": args.miss_rate, "matcher": args.matcher,
-                        "seed": args.seed, "depth": "sensor"},
-           "summary": summ, "targets": _targets(summ), "seconds": {"generate": round(t_gen, 1),
+                        "seed": args.seed, "depth": "sensor", "all_candidates": args.all_candidates},
+           "answer_key": key, "summary": summ, "targets": _targets(summ), "seconds": {"generate": round(t_gen, 1),
                                                                  "total": round(time.perf_counter() - t0, 1)},
            "maps": maps, "records": records}
     if args.out:
@@ -353,6 +370,11 @@ def render(r: dict[str, Any]) -> str:
             lines.append(f"map quality [{m}]: instance recall {q['instance_recall']}, centre error median "
                          f"{q['centre_err_median_m']} m, unmatched built instances {q['unmatched_built']}, "
                          f"{q['seconds_per_map']} s per map, failed builds {q['failed_builds']}")
+    rem = r.get("answer_key", {}).get("removed", {})
+    if rem:
+        cut = sum(v for x in rem.values() for k, v in x.items() if k not in ("candidates", "kept", "asked"))
+        lines.append(f"ground truth from the boxes (box_truth); margin rules removed {cut} of "
+                     f"{sum(x['candidates'] for x in rem.values())} candidate questions")
     for k, v in r.get("targets", {}).items():
         lines.append(f"target {k}: {v}")
     return "\n".join(lines)

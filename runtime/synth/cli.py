@@ -78,6 +78,15 @@ def render(result: dict[str, Any]) -> str:
         counts = ", ".join(f"{k} {v}" for k, v in s["object_counts"].items())
         lines.append(f"{s['out']}: {s['frames']} frames, room {s['room_size']:.1f} m^2, {s['objects']} objects "
                      f"({counts}), {s['questions']} questions, {s['seconds']:.1f} s")
+        removed = (s.get("questions_skipped") or {}).get("removed", {})
+        rules: dict[str, int] = {}
+        for r in removed.values():  # candidate questions removed by each margin rule, over all types
+            for k, v in r.items():
+                if k not in ("candidates", "kept", "asked"):
+                    rules[k] = rules.get(k, 0) + v
+        if removed:
+            lines.append(f"  candidate questions {sum(r['candidates'] for r in removed.values())}, removed by "
+                         f"margin rules: {', '.join(f'{k} {v}' for k, v in sorted(rules.items())) or 'none'}")
         if s["dropped"]:
             lines.append(f"  not placed (no free space): {', '.join(d['name'] for d in s['dropped'])}")
     return "\n".join(lines)

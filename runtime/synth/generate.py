@@ -166,19 +166,24 @@ def write_scene(conf: SceneConfig, out_dir: str | os.PathLike, workers: int = 1,
     meta = scene_json(scene, name or out.name, K, times, rows)
     (out / "scene.json").write_text(json.dumps(meta, indent=1))
     n_q = 0
-    q_skipped: dict[str, str] = {}
+    q_skipped: dict[str, Any] = {}
     if questions:
-        from .questions import generate_questions
-
-        qs, q_skipped = generate_questions(meta, seed=conf.seed)
-        with open(out / "questions.jsonl", "w") as f:
-            for q in qs:
-                f.write(json.dumps(q) + "\n")
-        n_q = len(qs)
+        n_q, q_skipped = write_questions(meta, out)
     return {"scene": meta["scene_name"], "out": str(out), "frames": n_frames, "objects": len(scene.objects),
             "object_counts": meta["object_counts"], "room_size": meta["room_size"], "questions": n_q,
             "questions_skipped": q_skipped, "dropped": scene.dropped,
             "seconds": round(time.perf_counter() - t0, 2), **timing}
+
+
+def write_questions(meta: dict[str, Any], out: Path, margins: dict[str, float] | None = None,
+                    per_type: dict[str, int] | None = None) -> tuple[int, dict[str, Any]]:
+    """(Re)write `questions.jsonl` of a scene from its ground truth (deterministic in the scene's seed)
+    -> (number of questions, the generator's report: margin removals per type)."""
+    from .questions import generate_questions
+
+    qs, report = generate_questions(meta, seed=int(meta["seed"]), margins=margins, per_type=per_type)
+    (Path(out) / "questions.jsonl").write_text("".join(json.dumps(q) + "\n" for q in qs))
+    return len(qs), report
 
 
 def scene_json(scene: Scene, name: str, K: np.ndarray, times: np.ndarray, rows: list[dict[str, Any]]
