@@ -370,6 +370,27 @@ def _depth_for(frame: Frame, conf: PipelineConfig, perception: Perception, trace
         return perception.depth(frame)
 
 
+def _box_prompted(masks: np.ndarray, depth: np.ndarray, d: Detections, trace: Trace,
+                  min_share: float = 0.02) -> np.ndarray:
+    """Masks [N, H, W]: a detection the segmenter left (nearly) empty — a category it cannot segment (DeepLab has
+    no cup) or a miss — gets a box-prompted mask (the depth-consistent pixels inside its box) instead of being
+    dropped; recorded as degraded (once per name)."""
+    from .semantic_map import box_depth_mask
+
+    masks = np.array(masks, dtype=bool)
+    for j, (b, nm) in enumerate(zip(d.boxes, d.names)):
+        area = max(1.0, float((b[2] - b[0]) * (b[3] - b[1])))
+        if masks[j].sum() >= min_share * area:
+            continue
+        masks[j] = box_depth_mask(depth, b)
+        noted = trace.decisions.setdefault("segment.box_prompted", {})
+        if nm not in noted:
+            trace.event("degraded", f"segmenter gave no mask for {nm!r}: box-prompted mask (depth-consistent "
+                        f"pixels inside the box) used instead", stage="segment", name=nm)
+        noted[nm] = noted.get(nm, 0) + 1
+    return masks
+
+
 def _gravity(frames: list[Frame], poses_root: dict[int, np.ndarray], source: FrameSource, root: int,
              conf: PipelineConfig, trace: Trace) -> np.ndarray:
     """World-from-root transform [4, 4] (z up, origin on the floor below the root camera)."""
@@ -397,6 +418,17 @@ def _gravity(frames: list[Frame], poses_root: dict[int, np.ndarray], source: Fra
         offset = float(down @ (fit[0] * fit[1]))  # floor distance below the root camera along `down`
         if offset <= 0.3:
             offset = None
+    if offset is not None and len(P):
+        # nothing lies below the floor: when a share of the seen points does, the plane found is a table or
+        # counter top (the key frames did not see the floor); the floor is then at least as low as those points
+        q = P @ down
+        if np.mean(q > offset + 0.05) > 0.005:
+            low = float(np.percentile(q, 99.8))
+            trace.event("degraded", f"floor fit found a plane {low - offset:.2f} m above points the key frames saw "
+                        f"(a table or counter top; the floor itself was not seen): floor put at the lowest seen "
+                        f"points instead (objects cannot be below it; the floor height is a lower bound)",
+                        stage="gravity", plane_m=offset, floor_m=low)
+            offset = low
     if down is None:
         down, how = np.array([0.0, 1.0, 0.0]), "camera_axes"
         trace.event("degraded", "no gravity from the source and no floor found: assuming the root camera is level",
@@ -447,12 +479,13 @@ def build_map(source: FrameSource, targets: Sequence[str], cues: Sequence[str] =
                         stage="perception")
             break
         f = source[i]
+        f = dataclasses.replace(f, depth=_depth_for(f, conf, perception, trace))
         d = det(i, names)
         if d.masks is None and perception.segment is not None and len(d):
             with trace.stage("segment"):
-                d = dataclasses.replace(d, masks=perception.segment(f, d))
+                d = dataclasses.replace(d, masks=_box_prompted(perception.segment(f, d), f.depth, d, trace))
         dets[i] = d
-        frames.append(dataclasses.replace(f, depth=_depth_for(f, conf, perception, trace)))
+        frames.append(f)
     if len(frames) < 2:
         raise MosaicError(f"only {len(frames)} key frame(s) available: need at least 2 to build a map")
 
@@ -486,19 +519,30 @@ def build_map(source: FrameSource, targets: Sequence[str], cues: Sequence[str] =
         with trace.stage("alignment.verify"):
             al = verify_tree(al, {f.index: f for f in frames}, conf, trace)
     used: list[Frame] = []
+    keys = {f.index for f in frames}
+    al.unaligned = [i for i in al.unaligned if i in keys]
     for _ in range(conf.bridge_rounds):
         if not al.unaligned or conf.bridge_frames <= 0:
             break
         blocked = _BlockPairs(matcher, getattr(al, "rejected_edges", []))  # never re-use a rejected edge
         # bridge frames come from the whole video (consecutive frames match best), not only dedup's candidates
-        al, bridges = _bridge(al, frames, boxes, list(range(len(source))), source, blocked, perception, conf,
-                              trace, used)
+        al_b, bridges = _bridge(al, frames, boxes, list(range(len(source))), source, blocked, perception, conf,
+                                trace, used)
         if not bridges:
             break
-        used = bridges
         if check:
             with trace.stage("alignment.verify"):
-                al = verify_tree(al, {f.index: f for f in frames + bridges}, conf, trace)
+                al_b = verify_tree(al_b, {f.index: f for f in frames + bridges}, conf, trace)
+        al_b.unaligned = [i for i in al_b.unaligned if i in keys]  # bridges are not counted: only key frames
+        if len(al_b.unaligned) >= len(al.unaligned):
+            # another round only pays where it buys aligned key frames: keep the better tree and stop
+            trace.event("alignment", f"bridge round left {len(al_b.unaligned)} key frame(s) unaligned (before: "
+                        f"{len(al.unaligned)}): kept the tree without it, no further rounds", stage="alignment")
+            break
+        al, used = al_b, bridges
+    if al.unaligned:
+        trace.event("degraded", f"{len(al.unaligned)} of {len(frames)} key frames unaligned after alignment "
+                    f"(left out of the map): {sorted(al.unaligned)}", stage="alignment", unaligned=sorted(al.unaligned))
     root = al.root
     with trace.stage("gravity"):
         W = _gravity(frames, al.poses, source, root, conf, trace)

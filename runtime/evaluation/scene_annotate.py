@@ -31,7 +31,9 @@ from typing import Any
 import numpy as np
 
 from ..errors import InputError
-from ..geometry import OrientedBox, backproject, fit_gravity_box, invert, project, transform
+from ..geometry import OrientedBox, backproject, fit_gravity_box, project, transform
+from ..semantic_map import components as _components
+from ..semantic_map import largest_components
 
 ANNOT_SCHEMA = "mosaicthinker.scene_annotation/1"
 
@@ -197,26 +199,6 @@ def grow(room: FusedRoom, seed: np.ndarray, taken: np.ndarray, floor_tol_m: floa
     return np.concatenate([seed, cand[inside]])
 
 
-def _components(points: np.ndarray, link_m: float) -> np.ndarray:
-    """Connected-component label per point (points closer than `link_m` are linked)."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-    from scipy.spatial import cKDTree
-
-    pairs = cKDTree(points).query_pairs(link_m, output_type="ndarray")
-    g = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(points),) * 2)
-    return connected_components(g, directed=False)[1]
-
-
-def largest_components(points: np.ndarray, link_m: float = 0.05, min_share: float = 0.2) -> np.ndarray:
-    """Connected components (points closer than `link_m`); keep the largest and those >= `min_share` of it."""
-    if len(points) < 3:
-        return points
-    lab = _components(points, link_m)
-    cnt = np.bincount(lab)
-    return points[cnt[lab] >= min_share * cnt.max()]
-
-
 def robust_box(points: np.ndarray, q: float = 1.0, floor_tol_m: float = 0.03, on_floor: bool = False) -> OrientedBox:
     """Gravity-aligned box of the points between the q-th and (100-q)-th height percentiles; a box whose bottom
     is within 3 * `floor_tol_m` of the floor, or marked `on_floor` (furniture whose legs no view separates from
@@ -263,13 +245,15 @@ def annotate(data: str | Path, marks_doc: dict[str, Any], floor_tol_m: float = 0
     return doc, room, clouds
 
 
-def render_topdown(room: FusedRoom, boxes: dict[str, list[dict]], path: str | Path, title: str,
+def render_topdown(points: np.ndarray, boxes: dict[str, list[dict]], path: str | Path, title: str,
                    extra: dict[str, list[dict]] | None = None, px_per_m: int = 150) -> None:
-    """Top-down PNG: fused cloud coloured by height (blue low .. red high), annotation boxes (white, labelled)
-    and optional `extra` boxes (yellow, e.g. a built map in the annotation frame)."""
+    """Top-down PNG: a cloud `[N, 3]` (z up) coloured by height (blue low .. red high), annotation boxes (white,
+    labelled) and optional `extra` boxes (yellow, e.g. a built map registered into the annotation frame)."""
     import cv2
 
-    p = room.points[room.points[:, 2] < 2.2]  # the ceiling would hide everything
+    corners = [OrientedBox.from_meta(m).corners() for d in (boxes, extra or {}) for lst in d.values() for m in lst]
+    p = np.concatenate([np.asarray(points, float).reshape(-1, 3)] + corners)
+    p = p[p[:, 2] < 2.2]  # the ceiling would hide everything
     lo, hi = p[:, :2].min(0) - 0.3, p[:, :2].max(0) + 0.3
     W, H = (np.ceil((hi - lo) * px_per_m)).astype(int) + 1
     img = np.zeros((H + 40, W, 3), np.uint8)
@@ -282,9 +266,7 @@ def render_topdown(room: FusedRoom, boxes: dict[str, list[dict]], path: str | Pa
     def draw(sets: dict[str, list[dict]], colour: tuple[int, int, int]) -> None:
         for cat, lst in sets.items():
             for k, m in enumerate(lst):
-                c = OrientedBox.from_meta(m).corners()[:, :2] if "centroid" in m else None
-                if c is None:
-                    continue
+                c = OrientedBox.from_meta(m).corners()[:, :2]
                 hull = cv2.convexHull(np.stack([(c[:, 0] - lo[0]) * px_per_m,
                                                 H - 1 - (c[:, 1] - lo[1]) * px_per_m + 40], 1).astype(np.int32))
                 cv2.polylines(img, [hull], True, colour, 2)
@@ -315,7 +297,7 @@ def main(argv: list[str] | None = None) -> int:
         for i, m in enumerate(lst):
             print(f"  {cat}{i}: centre {np.round(m['centroid'], 2).tolist()} size {np.round(m['axesLengths'], 2).tolist()}")
     if a.render:
-        render_topdown(room, scene["object_bbox"], Path(a.render) / "annotation_topdown.png",
+        render_topdown(room.points, scene["object_bbox"], Path(a.render) / "annotation_topdown.png",
                        f"{doc['scene']}: fused sensor depth (height colour) + annotation")
         print(f"wrote {Path(a.render) / 'annotation_topdown.png'}")
     return 0
