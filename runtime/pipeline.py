@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
-from typing import Any, Callable, ClassVar, Sequence
+from typing import Any, Callable, ClassVar, Mapping, Sequence
 
 import numpy as np
 
@@ -46,6 +46,9 @@ class PipelineConfig(StageConf):
     min_keyframes: int = 3               # fallback: fewer key frames even after the top-up -> evenly spaced ones
     min_scored_per_keyframe: int = 3     # search budget >= this x K (capped at the candidates), recorded
     cover_min_area: float = 0.02         # top-up coverage: an object counts as seen from this box area share on
+    coverage_min_names: int = 4          # a map of this many object names or more (e.g. "everything") ...
+    coverage_share: float = 0.5          # ... reserves this share of K for temporal coverage (`spread_keyframes`):
+                                         # the search alone clusters on the frames with the most detections
     topup: bool = True                   # fewer than K passing: the search's `min_keyframes = K` top-up (recorded)
     whole_image_fallback: bool = True    # key frames unaligned with matches inside boxes: retry on whole images
     bridge_frames: int = 48              # at most this many extra frames to connect unaligned key frames (0 = off)
@@ -163,11 +166,14 @@ def select(source: FrameSource, targets: Sequence[str], cues: Sequence[str], per
     cands = _candidates(source, conf, trace)
     det = detector or _CachedDetector(source, perception.detect, trace)
     K = int(keyframes or conf.keyframes)
-    kc = {**conf.keyframe, "keyframes": K}
+    reserve = coverage_reserve(K, len(set(targets) | set(cues)), conf)
+    kc = {**conf.keyframe, "keyframes": K - reserve}  # the search picks the rest; `spread_keyframes` the reserve
     if "budget" not in kc and conf.min_scored_per_keyframe > 0:
-        # the paper's 25% of the candidates, but at least a few frames per key frame (short videos)
+        # the paper's 25% of the candidates, but at least a few frames per key frame (short videos; the full K:
+        # the reserve's frames are chosen by the same scores)
         frac = float(kc.get("budget_fraction", KeyFrameConf.budget_fraction))
         kc["budget"] = int(min(len(cands), max(np.ceil(frac * len(cands)), conf.min_scored_per_keyframe * K)))
+    K = K - reserve
     if conf.topup and conf.keyframe_method == "iterative":
         # fewer than K passing: the search tops up from the frames it scored (coverage first, then by score),
         # at least len/(4K) frames apart; recorded by the search
@@ -188,8 +194,54 @@ def select(source: FrameSource, targets: Sequence[str], cues: Sequence[str], per
         chosen = sorted(chosen + extra[:need])
         trace.event("degraded", f"only {len(res.chosen)} frames passed the key-frame threshold; topped up with "
                     f"{min(need, len(extra))} evenly spaced frames", stage="keyframes")
-    trace.decide("keyframes", {**res.to_dict(), "chosen": chosen, "scores": None, "order": None})
+    if reserve:
+        spread = spread_keyframes(chosen, cands, res.scores, reserve)
+        trace.event("keyframes", f"{len(set(targets) | set(cues))} object names: {reserve} of {K + reserve} key "
+                    f"frames reserved for temporal coverage (largest gaps between the search's frames): {spread}",
+                    stage="keyframes", coverage=spread)
+        chosen = sorted(chosen + spread)
+    trace.decide("keyframes", {**res.to_dict(), "chosen": chosen, "scores": None, "order": None,
+                               "coverage_reserve": reserve})
     return sorted(chosen), det, res, cands
+
+
+def coverage_reserve(K: int, n_names: int, conf: PipelineConfig) -> int:
+    """Key frames kept back from the search for temporal coverage: a map of many categories (an "everything"
+    question, `mosaic map`) needs every part of the video, not only the frames dense in detections."""
+    if conf.coverage_share <= 0 or n_names < max(conf.coverage_min_names, 1) or K < 4:
+        return 0
+    return int(min(K - 2, round(conf.coverage_share * K)))
+
+
+def spread_keyframes(chosen: Sequence[int], cands: Sequence[int], scores: Mapping[int, float], n: int) -> list[int]:
+    """n more frames, each in the largest remaining gap (in frame order, the clip's ends included) between the
+    frames chosen so far: among the candidates in the middle half of that gap, the one the search scored highest
+    (unscored count 0), ties to the gap's middle. Pure; returns the new frames in time order."""
+    pool = sorted(int(c) for c in cands)
+    if not pool:
+        return []
+    lo, hi = pool[0], pool[-1]
+    have = sorted(set(int(c) for c in chosen))
+    out: list[int] = []
+    for _ in range(n):
+        marks = sorted(have + out)
+        if not marks:
+            gaps = [(hi - lo, lo, hi)]
+        else:  # an uncovered end is as open as an inner gap twice its length (a virtual mark beyond the end)
+            gaps = [(2 * (marks[0] - lo), 2 * lo - marks[0], marks[0]), (2 * (hi - marks[-1]), marks[-1], 2 * hi - marks[-1])]
+            gaps += [(b - a, a, b) for a, b in zip(marks, marks[1:])]
+        free = [c for c in pool if c not in marks]
+        best = None
+        for _, a, b in sorted(gaps, reverse=True):
+            mid, q = (a + b) / 2.0, (b - a) / 4.0
+            inside = [c for c in free if abs(c - mid) <= q]
+            if inside:
+                best = max(inside, key=lambda c: (float(scores.get(c, 0.0)), -abs(c - mid)))
+                break
+        if best is None:
+            break
+        out.append(best)
+    return sorted(out)
 
 
 def depth_consistency(fa: Frame, fb: Frame, T_ab: np.ndarray, stride: int = 8) -> tuple[float, float, float]:
@@ -279,6 +331,46 @@ def verify_tree(al: Any, frames: dict[int, Frame], conf: PipelineConfig, trace: 
     return al
 
 
+def attach_frames(al: Any, frames: dict[int, Frame], todo: Sequence[int], matcher: Any, conf: PipelineConfig,
+                  tries: int = 4) -> list[int]:
+    """Attach frames without a pose to the tree one edge at a time, metric depth only: each frame in `todo` is
+    matched (whole image, cached features) to its `tries` nearest aligned frames in time, the first edge that
+    passes RANSAC and the depth check (`max_free_space_violation` both ways) gives its pose; repeated while
+    frames get attached (a new one can host the next). Costs <= tries pairs per frame, against a full
+    re-alignment's all-pairs search. Mutates al (poses, edges, unaligned, edge_stats); returns the attached."""
+    from .alignment import AlignConf, align_pair
+    from .geometry import invert
+
+    aconf = AlignConf.merged(conf.alignment or None)
+    rng = np.random.default_rng(aconf.seed)
+    tried = set(frozenset(e) for e in al.edge_stats) | set(frozenset(e) for e in getattr(al, "rejected_edges", []))
+    attached: list[int] = []
+    changed = True
+    while changed:
+        changed = False
+        for u in [int(i) for i in todo if int(i) not in al.poses and int(i) in frames]:
+            fu = frames[u]
+            near = sorted((a for a in al.poses if a in frames and frozenset((a, u)) not in tried),
+                          key=lambda a: (abs(float(frames[a].t) - float(fu.t)), a))[:tries]
+            for a in near:
+                tried.add(frozenset((a, u)))
+                fa = frames[a]
+                mt = matcher.match_keys(a, fa.rgb, u, fu.rgb, None, None)
+                r = align_pair(mt, fa.depth, fa.K, fu.depth, fu.K, aconf, False, rng, getattr(fa, "dist", None),
+                               getattr(fu, "dist", None))
+                al.edge_stats[(a, u)] = r
+                if not r.ok or max(depth_consistency(fa, fu, r.T_ab)[2],
+                                   depth_consistency(fu, fa, invert(r.T_ab))[2]) > conf.max_free_space_violation:
+                    continue
+                al.poses[u] = al.poses[a] @ r.T_ab
+                al.edges.append((a, u))
+                attached.append(u)
+                changed = True
+                break
+    al.unaligned = [i for i in al.unaligned if i not in al.poses]
+    return attached
+
+
 class _BlockPairs:
     """Matcher wrapper that returns no matches for the given frame pairs (edges the depth check rejected), so a
     new alignment round cannot choose them again; everything else goes to the wrapped matcher."""
@@ -354,6 +446,135 @@ def _bridge(al: Any, frames: list[Frame], boxes: dict[int, Any], cands: list[int
     if len(al2.poses) and sum(i in have for i in al2.poses) >= sum(i in have for i in al.poses):
         return al2, bf
     return al, []
+
+
+def _align_rest(al: Any, frames: list[Frame], boxes: dict[int, Any], emb: Any, matcher: Any, source: FrameSource,
+                perception: Perception, conf: PipelineConfig, trace: Trace) -> tuple[Any, list[Frame]]:
+    """Relative depth (no depth check): the box-matched tree's unaligned frames get a whole-image re-alignment,
+    then bridge rounds (`_bridge`) while they buy aligned key frames. Returns (alignment, bridge frames used)."""
+    from .alignment import align_frames
+
+    if al.unaligned and conf.whole_image_fallback:
+        # too few matches inside the task objects' boxes (small or few objects): match whole images instead
+        with trace.stage("alignment"):
+            al2 = align_frames(frames, matcher, "mst", conf.alignment or None, emb, None,
+                               with_scale=perception.depth_relative, trace=None)
+        trace.event("fallback", f"alignment inside object boxes left {len(al.unaligned)} of {len(frames)} key frames "
+                    f"unaligned; whole-image matching left {len(al2.unaligned)}", stage="alignment",
+                    boxes_unaligned=list(al.unaligned), whole_unaligned=list(al2.unaligned))
+        if len(al2.unaligned) < len(al.unaligned):
+            al, boxes = al2, {i: None for i in boxes}
+    used: list[Frame] = []
+    keys = {f.index for f in frames}
+    al.unaligned = [i for i in al.unaligned if i in keys]
+    for _ in range(conf.bridge_rounds):
+        if not al.unaligned or conf.bridge_frames <= 0:
+            break
+        blocked = _BlockPairs(matcher, getattr(al, "rejected_edges", []))  # never re-use a rejected edge
+        # bridge frames come from the whole video (consecutive frames match best), not only dedup's candidates
+        al_b, bridges = _bridge(al, frames, boxes, list(range(len(source))), source, blocked, perception, conf,
+                                trace, used)
+        if not bridges:
+            break
+        al_b.unaligned = [i for i in al_b.unaligned if i in keys]  # bridges are not counted: only key frames
+        if len(al_b.unaligned) >= len(al.unaligned):
+            # another round only pays where it buys aligned key frames: keep the better tree and stop
+            trace.event("alignment", f"bridge round left {len(al_b.unaligned)} key frame(s) unaligned (before: "
+                        f"{len(al.unaligned)}): kept the tree without it, no further rounds", stage="alignment")
+            break
+        al, used = al_b, bridges
+    return al, used
+
+
+def _align_rest_metric(al: Any, frames: list[Frame], matcher: Any, source: FrameSource, perception: Perception,
+                       conf: PipelineConfig, trace: Trace) -> list[Frame]:
+    """Metric depth after the box-matched tree: depth-check its edges, attach what it left out by whole-image
+    edges, then bridge what is still out. Returns the bridge frames used."""
+    with trace.stage("alignment.verify"):
+        al = verify_tree(al, {f.index: f for f in frames}, conf, trace)
+    keys = {f.index for f in frames}
+    al.unaligned = [i for i in al.unaligned if i in keys]
+    if al.unaligned and conf.whole_image_fallback:
+        before = list(al.unaligned)
+        with trace.stage("alignment"):
+            got = attach_frames(al, {f.index: f for f in frames}, before, matcher, conf)
+        trace.event("fallback", f"box-matched tree left {len(before)} of {len(frames)} key frames unaligned; "
+                    f"whole-image edges attached {len(got)}, {len(al.unaligned)} left", stage="alignment",
+                    boxes_unaligned=before, attached=got)
+    if not al.unaligned or conf.bridge_frames <= 0 or conf.bridge_rounds <= 0:
+        return []
+    with trace.stage("alignment"):
+        return bridge_attach(al, frames, source, matcher, perception, conf, trace)
+
+
+def bridge_attach(al: Any, frames: list[Frame], source: FrameSource, matcher: Any, perception: Perception,
+                  conf: PipelineConfig, trace: Trace) -> list[Frame]:
+    """Metric depth: connect each unaligned key frame through a chain of video frames (at least `bridge_gap_s`
+    apart, `bridge_frames` in all) walked from its nearest aligned key frame in time towards it (`_bridge_chain`),
+    one `attach_frames` edge per step, loading a frame only when the chain reaches it and stopping as soon as the
+    key frame itself attaches: no re-alignment of the whole set, so a round that cannot buy an aligned frame costs
+    only its failed steps. Gaps over `bridge_max_gap_s` are not bridged (long chains drift). Returns the bridge
+    frames used (poses only, never detected); recorded."""
+    pool = {f.index: f for f in frames}
+    keys = set(pool)
+    used: list[Frame] = []
+    budget = conf.bridge_frames
+    for u in sorted(al.unaligned, key=lambda u: min((abs(u - a) for a in al.poses if a in keys), default=0)):
+        if budget <= 0 or u in al.poses:
+            continue
+        anchors = [a for a in al.poses if a in keys]
+        if not anchors:
+            break
+        a = min(anchors, key=lambda j: abs(j - u))
+        ta, tu = float(source.timestamps[a]), float(source.timestamps[u])
+        if abs(tu - ta) > conf.bridge_max_gap_s:
+            continue
+        budget, chain = _bridge_chain(al, pool, a, u, source, matcher, perception, conf, trace, budget)
+        used += chain
+    al.unaligned = [i for i in al.unaligned if i not in al.poses]
+    trace.event("degraded" if al.unaligned else "alignment",
+                f"bridging: {conf.bridge_frames - budget} video frame(s) tried, {len(used)} attached; "
+                f"{len(al.unaligned)} key frame(s) left unaligned", stage="alignment",
+                bridges=[f.index for f in used], unaligned=list(al.unaligned))
+    return used
+
+
+def _bridge_chain(al: Any, pool: dict[int, Frame], a: int, u: int, source: FrameSource, matcher: Any,
+                  perception: Perception, conf: PipelineConfig, trace: Trace, budget: int) -> tuple[int, list[Frame]]:
+    """Walk from aligned frame a towards unaligned key frame u: each step first tries u itself, then jumps
+    to the frame halfway between the chain's end and u, halving the jump on a failed attach down to
+    `bridge_gap_s`, then walking on at that spacing (slow camera motion costs few bridge frames, fast motion the
+    dense chain). Returns (budget left, the bridge frames attached)."""
+    ts = source.timestamps
+    end, used = a, []
+    while budget > 0 and u not in al.poses:
+        if attach_frames(al, pool, [u], matcher, conf, tries=1):
+            break
+        gap = abs(float(ts[u]) - float(ts[end]))
+        if gap < 2 * conf.bridge_gap_s:
+            break  # no room for a bridge frame
+        step, jump, shift = (1 if u > end else -1), gap / 2.0, 0.0
+        while budget > 0 and jump >= conf.bridge_gap_s:
+            c = min(range(end + step, u, step), key=lambda i: abs(abs(float(ts[i]) - float(ts[end])) - jump))
+            if jump / 2.0 >= conf.bridge_gap_s:
+                jump /= 2.0
+            else:  # the shortest jump failed too: walk on at that spacing (a blurred frame is skipped)
+                shift += conf.bridge_gap_s
+                jump = conf.bridge_gap_s + shift
+                if jump >= gap:
+                    break
+            if c in pool:
+                continue
+            f = source[c]
+            pool[c] = dataclasses.replace(f, depth=_depth_for(f, conf, perception, trace))
+            budget -= 1
+            if attach_frames(al, pool, [c], matcher, conf, tries=1):
+                end = c
+                used.append(pool[c])
+                break
+        else:
+            break  # no bridge frame attached at any jump: give up on u
+    return budget, used
 
 
 def _depth_for(frame: Frame, conf: PipelineConfig, perception: Perception, trace: Trace) -> np.ndarray:
@@ -504,42 +725,13 @@ def build_map(source: FrameSource, targets: Sequence[str], cues: Sequence[str] =
     with trace.stage("alignment"):
         al = align_frames(frames, matcher, "mst", conf.alignment or None, emb, boxes,
                           with_scale=perception.depth_relative, trace=trace)
-    if al.unaligned and conf.whole_image_fallback:
-        # too few matches inside the task objects' boxes (small or few objects): match whole images instead
-        with trace.stage("alignment"):
-            al2 = align_frames(frames, matcher, "mst", conf.alignment or None, emb, None,
-                               with_scale=perception.depth_relative, trace=None)
-        trace.event("fallback", f"alignment inside object boxes left {len(al.unaligned)} of {len(frames)} key frames "
-                    f"unaligned; whole-image matching left {len(al2.unaligned)}", stage="alignment",
-                    boxes_unaligned=list(al.unaligned), whole_unaligned=list(al2.unaligned))
-        if len(al2.unaligned) < len(al.unaligned):
-            al, boxes = al2, {i: None for i in boxes}
     check = conf.verify_depth and not perception.depth_relative
-    if check:
-        with trace.stage("alignment.verify"):
-            al = verify_tree(al, {f.index: f for f in frames}, conf, trace)
-    used: list[Frame] = []
     keys = {f.index for f in frames}
+    if check:  # metric depth: one edge at a time onto the verified tree (cheap; see attach_frames)
+        used = _align_rest_metric(al, frames, matcher, source, perception, conf, trace)
+    else:
+        al, used = _align_rest(al, frames, boxes, emb, matcher, source, perception, conf, trace)
     al.unaligned = [i for i in al.unaligned if i in keys]
-    for _ in range(conf.bridge_rounds):
-        if not al.unaligned or conf.bridge_frames <= 0:
-            break
-        blocked = _BlockPairs(matcher, getattr(al, "rejected_edges", []))  # never re-use a rejected edge
-        # bridge frames come from the whole video (consecutive frames match best), not only dedup's candidates
-        al_b, bridges = _bridge(al, frames, boxes, list(range(len(source))), source, blocked, perception, conf,
-                                trace, used)
-        if not bridges:
-            break
-        if check:
-            with trace.stage("alignment.verify"):
-                al_b = verify_tree(al_b, {f.index: f for f in frames + bridges}, conf, trace)
-        al_b.unaligned = [i for i in al_b.unaligned if i in keys]  # bridges are not counted: only key frames
-        if len(al_b.unaligned) >= len(al.unaligned):
-            # another round only pays where it buys aligned key frames: keep the better tree and stop
-            trace.event("alignment", f"bridge round left {len(al_b.unaligned)} key frame(s) unaligned (before: "
-                        f"{len(al.unaligned)}): kept the tree without it, no further rounds", stage="alignment")
-            break
-        al, used = al_b, bridges
     if al.unaligned:
         trace.event("degraded", f"{len(al.unaligned)} of {len(frames)} key frames unaligned after alignment "
                     f"(left out of the map): {sorted(al.unaligned)}", stage="alignment", unaligned=sorted(al.unaligned))
