@@ -55,6 +55,12 @@ class PipelineConfig(StageConf):
     bridge_gap_s: float = 0.25           # bridge frames are placed at most this far apart in time
     bridge_rounds: int = 2               # bridge, check, bridge again around edges the check rejected
     bridge_max_gap_s: float = 10.0       # ... and only across gaps up to this long (long chains drift)
+    # floor-standing furniture seen from above (a table top, a chair back) reaches down to the floor when the key
+    # frames saw its support: points under the footprint in >= `floor_band_share` of the 10 cm height bands
+    # between the floor and the box, the lowest band included (`extend_to_floor`); () = off
+    floor_standing: tuple[str, ...] = ("table", "chair", "sofa", "couch", "bed", "bench", "desk", "stool",
+                                       "refrigerator", "toilet", "cabinet", "shelf", "bookshelf")
+    floor_band_share: float = 0.6
     verify_depth: bool = True            # reject tree edges whose depth maps contradict each other (metric depth)
     max_free_space_violation: float = 0.02  # share of a frame's points seen in front of the other's surfaces
     camera_height_m: float = 1.5         # prior when no floor is found
@@ -769,6 +775,9 @@ def build_map(source: FrameSource, targets: Sequence[str], cues: Sequence[str] =
     cams = [(float(f.t), poses[f.index]) for f in frames if f.index in poses]
     if conf.first_seen_from_search:
         _first_seen_from_search(instances, det, names, source, trace)
+    if conf.floor_standing and not perception.depth_relative:
+        with trace.stage("extent"):
+            extend_to_floor(instances, frames, poses, conf, trace)
     with trace.stage("room"):
         room = _room(instances, cams, frames, poses)
     smap = SemanticMap(instances, room, cams,
@@ -777,6 +786,54 @@ def build_map(source: FrameSource, targets: Sequence[str], cues: Sequence[str] =
     return MapBuild(smap, chosen, clouds, poses, W, list(al.unaligned), recovered,
                     bool(budget is not None and getattr(budget, "reduced", False)),
                     {"alignment": al.to_dict(), "dedup_kept": None})
+
+
+def extend_to_floor(instances: list[ObjectInstance], frames: Sequence[Frame], poses: dict[int, np.ndarray],
+                    conf: PipelineConfig, trace: Trace, band_m: float = 0.10, stride: int = 8) -> list[int]:
+    """A floor-standing object (`conf.floor_standing`) whose fused box stops above the floor (z = 0) — the top
+    of a table seen from above, a chair's back over the table edge — gets its box extended down to the floor
+    when the key frames' depth shows its support: points inside its footprint in at least `floor_band_share`
+    of the `band_m` height bands between the floor and the box bottom, the lowest band included. Open space
+    seen under it (no points) leaves the box as fused. Mutates the boxes; recorded (extended and kept, with
+    the band share). Returns the ids extended."""
+    from .geometry import OrientedBox, backproject, transform
+
+    todo = [o for o in instances if o.name in conf.floor_standing]
+    if not todo:
+        return []
+    pts = [transform(poses[f.index], backproject(f.depth, f.K, stride=stride)[0]) for f in frames
+           if f.index in poses and f.depth is not None]
+    P = np.concatenate(pts) if pts else np.zeros((0, 3))
+    P = P[P[:, 2] > 0.5 * band_m / 2]  # the floor's own points do not count as support
+    done, kept = [], {}
+    for o in todo:
+        ax = np.asarray(o.box.axes, np.float64)
+        up = int(np.argmax(np.abs(ax[:, 2])))
+        if abs(ax[up, 2]) < 0.99:
+            continue  # not a gravity-aligned box
+        L = np.asarray(o.box.axes_lengths, np.float64)
+        c = np.asarray(o.box.centroid, np.float64)
+        bottom = c[2] - L[up] / 2
+        if bottom < band_m:
+            continue
+        local = (P - c) @ ax.T
+        side = [k for k in range(3) if k != up]
+        col = P[np.all(np.abs(local[:, side]) <= L[side] / 2, axis=1) & (P[:, 2] < bottom)]
+        edges = np.arange(0.0, bottom + 1e-9, band_m)
+        hist = np.histogram(col[:, 2], bins=np.append(edges, bottom) if edges[-1] < bottom - 1e-6 else edges)[0]
+        share = float(np.mean(hist >= 3)) if len(hist) else 0.0
+        if share >= conf.floor_band_share and hist[0] >= 3:
+            top = c[2] + L[up] / 2
+            L2, c2 = L.copy(), c.copy()
+            L2[up], c2[2] = top, top / 2
+            o.box = OrientedBox(c2, L2, ax)
+            done.append(o.id)
+        else:
+            kept[o.id] = round(share, 2)
+    trace.event("extent", f"{len(done)} floor-standing object(s) extended to the floor (support seen under "
+                f"them): {done}; {len(kept)} kept as fused (support share per id): {kept}", stage="extent",
+                extended=done, kept=kept)
+    return done
 
 
 def _room(instances: list[ObjectInstance], cams: list[tuple[float, np.ndarray]], frames: Sequence[Frame] = (),
