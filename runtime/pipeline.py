@@ -788,6 +788,24 @@ def build_map(source: FrameSource, targets: Sequence[str], cues: Sequence[str] =
                     {"alignment": al.to_dict(), "dedup_kept": None})
 
 
+def floor_support(box: Any, P: np.ndarray, band_m: float = 0.10, min_points: int = 3) -> tuple[float, bool]:
+    """Support under a gravity-aligned box: of the `band_m` height bands between the floor (z = 0) and the box
+    bottom, the share holding >= min_points of P [N, 3] inside the box's footprint, and whether the lowest band
+    does. Pure."""
+    ax = np.asarray(box.axes, np.float64)
+    up = int(np.argmax(np.abs(ax[:, 2])))
+    L, c = np.asarray(box.axes_lengths, np.float64), np.asarray(box.centroid, np.float64)
+    bottom = c[2] - L[up] / 2
+    if bottom <= 0 or len(P) == 0:
+        return 0.0, False
+    side = [k for k in range(3) if k != up]
+    local = (np.asarray(P, np.float64) - c) @ ax.T
+    z = P[np.all(np.abs(local[:, side]) <= L[side] / 2, axis=1), 2]
+    n = max(1, int(np.ceil(bottom / band_m - 1e-9)))
+    hist = np.histogram(z[(z >= 0) & (z < bottom)], bins=np.linspace(0.0, bottom, n + 1))[0]
+    return float(np.mean(hist >= min_points)), bool(hist[0] >= min_points)
+
+
 def extend_to_floor(instances: list[ObjectInstance], frames: Sequence[Frame], poses: dict[int, np.ndarray],
                     conf: PipelineConfig, trace: Trace, band_m: float = 0.10, stride: int = 8) -> list[int]:
     """A floor-standing object (`conf.floor_standing`) whose fused box stops above the floor (z = 0) — the top
@@ -813,16 +831,10 @@ def extend_to_floor(instances: list[ObjectInstance], frames: Sequence[Frame], po
             continue  # not a gravity-aligned box
         L = np.asarray(o.box.axes_lengths, np.float64)
         c = np.asarray(o.box.centroid, np.float64)
-        bottom = c[2] - L[up] / 2
-        if bottom < band_m:
+        if c[2] - L[up] / 2 < band_m:
             continue
-        local = (P - c) @ ax.T
-        side = [k for k in range(3) if k != up]
-        col = P[np.all(np.abs(local[:, side]) <= L[side] / 2, axis=1) & (P[:, 2] < bottom)]
-        edges = np.arange(0.0, bottom + 1e-9, band_m)
-        hist = np.histogram(col[:, 2], bins=np.append(edges, bottom) if edges[-1] < bottom - 1e-6 else edges)[0]
-        share = float(np.mean(hist >= 3)) if len(hist) else 0.0
-        if share >= conf.floor_band_share and hist[0] >= 3:
+        share, lowest = floor_support(o.box, P, band_m)
+        if share >= conf.floor_band_share and lowest:
             top = c[2] + L[up] / 2
             L2, c2 = L.copy(), c.copy()
             L2[up], c2[2] = top, top / 2
