@@ -559,27 +559,24 @@ def _bridge_chain(al: Any, pool: dict[int, Frame], a: int, u: int, source: Frame
         gap = abs(float(ts[u]) - float(ts[end]))
         if gap < 2 * conf.bridge_gap_s:
             break  # no room for a bridge frame
-        step, jump, shift = (1 if u > end else -1), gap / 2.0, 0.0
-        while budget > 0 and jump >= conf.bridge_gap_s:
+        step, moved = (1 if u > end else -1), False
+        # halve down to the shortest jump, then walk on at that spacing (a blurred frame is skipped)
+        halving = [gap / 2 ** k for k in range(1, 32) if gap / 2 ** k >= conf.bridge_gap_s]
+        walking = [conf.bridge_gap_s * k for k in range(2, int(gap / conf.bridge_gap_s))]
+        for jump in halving + walking:
+            if budget <= 0 or moved:
+                break
             c = min(range(end + step, u, step), key=lambda i: abs(abs(float(ts[i]) - float(ts[end])) - jump))
-            if jump / 2.0 >= conf.bridge_gap_s:
-                jump /= 2.0
-            else:  # the shortest jump failed too: walk on at that spacing (a blurred frame is skipped)
-                shift += conf.bridge_gap_s
-                jump = conf.bridge_gap_s + shift
-                if jump >= gap:
-                    break
             if c in pool:
                 continue
             f = source[c]
             pool[c] = dataclasses.replace(f, depth=_depth_for(f, conf, perception, trace))
             budget -= 1
             if attach_frames(al, pool, [c], matcher, conf, tries=1):
-                end = c
+                end, moved = c, True
                 used.append(pool[c])
-                break
-        else:
-            break  # no bridge frame attached at any jump: give up on u
+        if not moved:
+            break  # no bridge frame attached at any jump: give up on u (reported by the caller)
     return budget, used
 
 
