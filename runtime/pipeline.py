@@ -531,12 +531,13 @@ def bridge_attach(al: Any, frames: list[Frame], source: FrameSource, matcher: An
         anchors = [a for a in al.poses if a in keys]
         if not anchors:
             break
-        a = min(anchors, key=lambda j: abs(j - u))
-        ta, tu = float(source.timestamps[a]), float(source.timestamps[u])
-        if abs(tu - ta) > conf.bridge_max_gap_s:
-            continue
-        budget, chain = _bridge_chain(al, pool, a, u, source, matcher, perception, conf, trace, budget)
-        used += chain
+        # the nearest aligned key frame on each side in time, the nearer first (a chain can fail on one side)
+        sides = [max((j for j in anchors if j < u), default=None), min((j for j in anchors if j > u), default=None)]
+        for a in sorted((j for j in sides if j is not None), key=lambda j: abs(j - u)):
+            if u in al.poses or abs(float(source.timestamps[u]) - float(source.timestamps[a])) > conf.bridge_max_gap_s:
+                continue
+            budget, chain = _bridge_chain(al, pool, a, u, source, matcher, perception, conf, trace, budget)
+            used += chain
     al.unaligned = [i for i in al.unaligned if i not in al.poses]
     trace.event("degraded" if al.unaligned else "alignment",
                 f"bridging: {conf.bridge_frames - budget} video frame(s) tried, {len(used)} attached; "
