@@ -28,6 +28,7 @@ COMMANDS: dict[tuple[str, ...], tuple[str, str, str | None]] = {
     ("eval", "pose"): ("mosaicthinker.runtime.evaluation.pose", "camera-pose accuracy (ATE/RPE) on an RGB-D folder", None),
     ("eval", "vsibench"): ("mosaicthinker.runtime.evaluation.vsibench", "score the map reasoner on VSI-Bench questions", None),
     ("eval", "keyframes"): ("mosaicthinker.runtime.evaluation.keyframes", "key-frame selection P/R/F1 on synthetic scenes", None),
+    ("eval", "scene"): ("mosaicthinker.runtime.evaluation.scene", "real pipeline on an annotated real RGB-D room, scored", None),
     ("eval", "e2e"): ("mosaicthinker.runtime.evaluation.e2e", "end-to-end answer accuracy on synthetic scenes", None),
     ("bundle", "verify"): ("mosaicthinker.runtime.bundle", "check a bundle's schema and sha256 hashes", None),
     ("bundle", "show"): ("mosaicthinker.runtime.bundle", "print a readable summary of a bundle", None),

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
-from typing import Any, Callable, ClassVar, Sequence
+from typing import Any, Callable, ClassVar, Mapping, Sequence
 
 import numpy as np
 
@@ -47,12 +47,21 @@ class PipelineConfig(StageConf):
     min_keyframes: int = 3               # fallback: fewer key frames even after the top-up -> evenly spaced ones
     min_scored_per_keyframe: int = 3     # search budget >= this x K (capped at the candidates), recorded
     cover_min_area: float = 0.02         # top-up coverage: an object counts as seen from this box area share on
+    coverage_min_names: int = 4          # a map of this many object names or more (e.g. "everything") ...
+    coverage_share: float = 0.5          # ... reserves this share of K for temporal coverage (`spread_keyframes`):
+                                         # the search alone clusters on the frames with the most detections
     topup: bool = True                   # fewer than K passing: the search's `min_keyframes = K` top-up (recorded)
     whole_image_fallback: bool = True    # key frames unaligned with matches inside boxes: retry on whole images
     bridge_frames: int = 48              # at most this many extra frames to connect unaligned key frames (0 = off)
     bridge_gap_s: float = 0.25           # bridge frames are placed at most this far apart in time
     bridge_rounds: int = 2               # bridge, check, bridge again around edges the check rejected
     bridge_max_gap_s: float = 10.0       # ... and only across gaps up to this long (long chains drift)
+    # floor-standing furniture seen from above (a table top, a chair back) reaches down to the floor when the key
+    # frames saw its support: points under the footprint in >= `floor_band_share` of the 10 cm height bands
+    # between the floor and the box, the lowest band included (`extend_to_floor`); () = off
+    floor_standing: tuple[str, ...] = ("table", "chair", "sofa", "couch", "bed", "bench", "desk", "stool",
+                                       "refrigerator", "toilet", "cabinet", "shelf", "bookshelf")
+    floor_band_share: float = 0.6
     verify_depth: bool = True            # reject tree edges whose depth maps contradict each other (metric depth)
     max_free_space_violation: float = 0.02  # share of a frame's points seen in front of the other's surfaces
     camera_height_m: float = 1.5         # prior when no floor is found
@@ -176,16 +185,20 @@ def select(source: FrameSource, targets: Sequence[str], cues: Sequence[str], per
     cands = _candidates(source, conf, trace, budget)
     det = detector or _CachedDetector(source, perception.detect, trace)
     K = int(keyframes or conf.keyframes)
-    kc = {**conf.keyframe, "keyframes": K}
-    if budget is not None:
+    if budget is not None:  # the plan as it stands after dedup (its candidate count, or a re-plan)
         budget.update_candidates(len(cands))
         K = min(K, int(budget.keyframes))
-        kc = {**kc, "keyframes": K, "budget": int(budget.scored_frames)}
+    reserve = coverage_reserve(K, len(set(targets) | set(cues)), conf)
+    kc = {**conf.keyframe, "keyframes": K - reserve}  # the search picks the rest; `spread_keyframes` the reserve
+    if budget is not None:
+        kc["budget"] = int(budget.scored_frames)
     if "budget" not in kc and conf.min_scored_per_keyframe > 0:
-        # the paper's 25% of the candidates, but at least a few frames per key frame (short videos)
+        # the paper's 25% of the candidates, but at least a few frames per key frame (short videos; the full K:
+        # the reserve's frames are chosen by the same scores)
         frac = float(kc.get("budget_fraction", KeyFrameConf.budget_fraction))
         # not capped at the candidates: the search says when they run out before the budget
         kc["budget"] = int(max(np.ceil(frac * len(cands)), conf.min_scored_per_keyframe * K))
+    K = K - reserve
     if conf.topup and conf.keyframe_method == "iterative":
         # fewer than K passing: the search tops up from the frames it scored (coverage first, then by score),
         # at least len/(4K) frames apart; recorded by the search
@@ -209,10 +222,56 @@ def select(source: FrameSource, targets: Sequence[str], cues: Sequence[str], per
         chosen = sorted(chosen + extra[:need])
         trace.event("degraded", f"only {len(res.chosen)} frames passed the key-frame threshold; topped up with "
                     f"{min(need, len(extra))} evenly spaced frames", stage="keyframes")
+    if reserve:
+        spread = spread_keyframes(chosen, cands, res.scores, reserve)
+        trace.event("keyframes", f"{len(set(targets) | set(cues))} object names: {reserve} of {K + reserve} key "
+                    f"frames reserved for temporal coverage (largest gaps between the search's frames): {spread}",
+                    stage="keyframes", coverage=spread)
+        chosen = sorted(chosen + spread)
     if budget is not None and len(chosen) > budget.keyframes:  # the search overran and the plan was reduced
         chosen = _reduce_keyframes(sorted(chosen), int(budget.keyframes), budget, trace)
-    trace.decide("keyframes", {**res.to_dict(), "chosen": chosen, "scores": None, "order": None})
+    trace.decide("keyframes", {**res.to_dict(), "chosen": chosen, "scores": None, "order": None,
+                               "coverage_reserve": reserve})
     return sorted(chosen), det, res, cands
+
+
+def coverage_reserve(K: int, n_names: int, conf: PipelineConfig) -> int:
+    """Key frames kept back from the search for temporal coverage: a map of many categories (an "everything"
+    question, `mosaic map`) needs every part of the video, not only the frames dense in detections."""
+    if conf.coverage_share <= 0 or n_names < max(conf.coverage_min_names, 1) or K < 4:
+        return 0
+    return int(min(K - 2, round(conf.coverage_share * K)))
+
+
+def spread_keyframes(chosen: Sequence[int], cands: Sequence[int], scores: Mapping[int, float], n: int) -> list[int]:
+    """n more frames, each in the largest remaining gap (in frame order, the clip's ends included) between the
+    frames chosen so far: among the candidates in the middle half of that gap, the one the search scored highest
+    (unscored count 0), ties to the gap's middle. Pure; returns the new frames in time order."""
+    pool = sorted(int(c) for c in cands)
+    if not pool:
+        return []
+    lo, hi = pool[0], pool[-1]
+    have = sorted(set(int(c) for c in chosen))
+    out: list[int] = []
+    for _ in range(n):
+        marks = sorted(have + out)
+        if not marks:
+            gaps = [(hi - lo, lo, hi)]
+        else:  # an uncovered end is as open as an inner gap twice its length (a virtual mark beyond the end)
+            gaps = [(2 * (marks[0] - lo), 2 * lo - marks[0], marks[0]), (2 * (hi - marks[-1]), marks[-1], 2 * hi - marks[-1])]
+            gaps += [(b - a, a, b) for a, b in zip(marks, marks[1:])]
+        free = [c for c in pool if c not in marks]
+        best = None
+        for _, a, b in sorted(gaps, reverse=True):
+            mid, q = (a + b) / 2.0, (b - a) / 4.0
+            inside = [c for c in free if abs(c - mid) <= q]
+            if inside:
+                best = max(inside, key=lambda c: (float(scores.get(c, 0.0)), -abs(c - mid)))
+                break
+        if best is None:
+            break
+        out.append(best)
+    return sorted(out)
 
 
 def _reduce_keyframes(chosen: list[int], k: int, budget: Any, trace: Trace) -> list[int]:
@@ -312,6 +371,46 @@ def verify_tree(al: Any, frames: dict[int, Frame], conf: PipelineConfig, trace: 
     return al
 
 
+def attach_frames(al: Any, frames: dict[int, Frame], todo: Sequence[int], matcher: Any, conf: PipelineConfig,
+                  tries: int = 4) -> list[int]:
+    """Attach frames without a pose to the tree one edge at a time, metric depth only: each frame in `todo` is
+    matched (whole image, cached features) to its `tries` nearest aligned frames in time, the first edge that
+    passes RANSAC and the depth check (`max_free_space_violation` both ways) gives its pose; repeated while
+    frames get attached (a new one can host the next). Costs <= tries pairs per frame, against a full
+    re-alignment's all-pairs search. Mutates al (poses, edges, unaligned, edge_stats); returns the attached."""
+    from .alignment import AlignConf, align_pair
+    from .geometry import invert
+
+    aconf = AlignConf.merged(conf.alignment or None)
+    rng = np.random.default_rng(aconf.seed)
+    tried = set(frozenset(e) for e in al.edge_stats) | set(frozenset(e) for e in getattr(al, "rejected_edges", []))
+    attached: list[int] = []
+    changed = True
+    while changed:
+        changed = False
+        for u in [int(i) for i in todo if int(i) not in al.poses and int(i) in frames]:
+            fu = frames[u]
+            near = sorted((a for a in al.poses if a in frames and frozenset((a, u)) not in tried),
+                          key=lambda a: (abs(float(frames[a].t) - float(fu.t)), a))[:tries]
+            for a in near:
+                tried.add(frozenset((a, u)))
+                fa = frames[a]
+                mt = matcher.match_keys(a, fa.rgb, u, fu.rgb, None, None)
+                r = align_pair(mt, fa.depth, fa.K, fu.depth, fu.K, aconf, False, rng, getattr(fa, "dist", None),
+                               getattr(fu, "dist", None))
+                al.edge_stats[(a, u)] = r
+                if not r.ok or max(depth_consistency(fa, fu, r.T_ab)[2],
+                                   depth_consistency(fu, fa, invert(r.T_ab))[2]) > conf.max_free_space_violation:
+                    continue
+                al.poses[u] = al.poses[a] @ r.T_ab
+                al.edges.append((a, u))
+                attached.append(u)
+                changed = True
+                break
+    al.unaligned = [i for i in al.unaligned if i not in al.poses]
+    return attached
+
+
 class _BlockPairs:
     """Matcher wrapper that returns no matches for the given frame pairs (edges the depth check rejected), so a
     new alignment round cannot choose them again; everything else goes to the wrapped matcher."""
@@ -389,6 +488,144 @@ def _bridge(al: Any, frames: list[Frame], boxes: dict[int, Any], cands: list[int
     return al, []
 
 
+def _over_budget(budget: Any, trace: Trace, unaligned: Sequence[int]) -> bool:
+    """Past the latency budget: bridge rounds are skipped (said as a reduced plan)."""
+    if budget is None or budget.remaining_ms() >= 0:
+        return False
+    trace.event("reduced_plan", f"reduced plan: bridge rounds skipped ({len(unaligned)} key frame(s) stay "
+                f"unaligned), because the run is {-budget.remaining_ms():.0f} ms over its budget", stage="alignment")
+    return True
+
+
+def _align_rest(al: Any, frames: list[Frame], boxes: dict[int, Any], emb: Any, matcher: Any, source: FrameSource,
+                perception: Perception, conf: PipelineConfig, trace: Trace,
+                budget: Any = None) -> tuple[Any, list[Frame]]:
+    """Relative depth (no depth check): the box-matched tree's unaligned frames get a whole-image re-alignment,
+    then bridge rounds (`_bridge`) while they buy aligned key frames. Returns (alignment, bridge frames used)."""
+    from .alignment import align_frames
+
+    if al.unaligned and conf.whole_image_fallback:
+        # too few matches inside the task objects' boxes (small or few objects): match whole images instead
+        with trace.stage("alignment"):
+            al2 = align_frames(frames, matcher, "mst", conf.alignment or None, emb, None,
+                               with_scale=perception.depth_relative, trace=None)
+        trace.event("fallback", f"alignment inside object boxes left {len(al.unaligned)} of {len(frames)} key frames "
+                    f"unaligned; whole-image matching left {len(al2.unaligned)}", stage="alignment",
+                    boxes_unaligned=list(al.unaligned), whole_unaligned=list(al2.unaligned))
+        if len(al2.unaligned) < len(al.unaligned):
+            al, boxes = al2, {i: None for i in boxes}
+    used: list[Frame] = []
+    keys = {f.index for f in frames}
+    al.unaligned = [i for i in al.unaligned if i in keys]
+    for _ in range(conf.bridge_rounds):
+        if not al.unaligned or conf.bridge_frames <= 0 or _over_budget(budget, trace, al.unaligned):
+            break
+        blocked = _BlockPairs(matcher, getattr(al, "rejected_edges", []))  # never re-use a rejected edge
+        # bridge frames come from the whole video (consecutive frames match best), not only dedup's candidates
+        al_b, bridges = _bridge(al, frames, boxes, list(range(len(source))), source, blocked, perception, conf,
+                                trace, used)
+        if not bridges:
+            break
+        al_b.unaligned = [i for i in al_b.unaligned if i in keys]  # bridges are not counted: only key frames
+        if len(al_b.unaligned) >= len(al.unaligned):
+            # another round only pays where it buys aligned key frames: keep the better tree and stop
+            trace.event("alignment", f"bridge round left {len(al_b.unaligned)} key frame(s) unaligned (before: "
+                        f"{len(al.unaligned)}): kept the tree without it, no further rounds", stage="alignment")
+            break
+        al, used = al_b, bridges
+    return al, used
+
+
+def _align_rest_metric(al: Any, frames: list[Frame], matcher: Any, source: FrameSource, perception: Perception,
+                       conf: PipelineConfig, trace: Trace, budget: Any = None) -> list[Frame]:
+    """Metric depth after the box-matched tree: depth-check its edges, attach what it left out by whole-image
+    edges, then bridge what is still out. Returns the bridge frames used."""
+    with trace.stage("alignment.verify"):
+        al = verify_tree(al, {f.index: f for f in frames}, conf, trace)
+    keys = {f.index for f in frames}
+    al.unaligned = [i for i in al.unaligned if i in keys]
+    if al.unaligned and conf.whole_image_fallback:
+        before = list(al.unaligned)
+        with trace.stage("alignment"):
+            got = attach_frames(al, {f.index: f for f in frames}, before, matcher, conf)
+        trace.event("fallback", f"box-matched tree left {len(before)} of {len(frames)} key frames unaligned; "
+                    f"whole-image edges attached {len(got)}, {len(al.unaligned)} left", stage="alignment",
+                    boxes_unaligned=before, attached=got)
+    if not al.unaligned or conf.bridge_frames <= 0 or conf.bridge_rounds <= 0 \
+            or _over_budget(budget, trace, al.unaligned):
+        return []
+    with trace.stage("alignment"):
+        return bridge_attach(al, frames, source, matcher, perception, conf, trace)
+
+
+def bridge_attach(al: Any, frames: list[Frame], source: FrameSource, matcher: Any, perception: Perception,
+                  conf: PipelineConfig, trace: Trace) -> list[Frame]:
+    """Metric depth: connect each unaligned key frame through a chain of video frames (at least `bridge_gap_s`
+    apart, `bridge_frames` in all) walked from its nearest aligned key frame in time towards it (`_bridge_chain`),
+    one `attach_frames` edge per step, loading a frame only when the chain reaches it and stopping as soon as the
+    key frame itself attaches: no re-alignment of the whole set, so a round that cannot buy an aligned frame costs
+    only its failed steps. Gaps over `bridge_max_gap_s` are not bridged (long chains drift). Returns the bridge
+    frames used (poses only, never detected); recorded."""
+    pool = {f.index: f for f in frames}
+    keys = set(pool)
+    used: list[Frame] = []
+    budget = conf.bridge_frames
+    for u in sorted(al.unaligned, key=lambda u: min((abs(u - a) for a in al.poses if a in keys), default=0)):
+        if budget <= 0 or u in al.poses:
+            continue
+        anchors = [a for a in al.poses if a in keys]
+        if not anchors:
+            break
+        # the nearest aligned key frame on each side in time, the nearer first (a chain can fail on one side)
+        sides = [max((j for j in anchors if j < u), default=None), min((j for j in anchors if j > u), default=None)]
+        for a in sorted((j for j in sides if j is not None), key=lambda j: abs(j - u)):
+            if u in al.poses or abs(float(source.timestamps[u]) - float(source.timestamps[a])) > conf.bridge_max_gap_s:
+                continue
+            budget, chain = _bridge_chain(al, pool, a, u, source, matcher, perception, conf, trace, budget)
+            used += chain
+    al.unaligned = [i for i in al.unaligned if i not in al.poses]
+    trace.event("degraded" if al.unaligned else "alignment",
+                f"bridging: {conf.bridge_frames - budget} video frame(s) tried, {len(used)} attached; "
+                f"{len(al.unaligned)} key frame(s) left unaligned", stage="alignment",
+                bridges=[f.index for f in used], unaligned=list(al.unaligned))
+    return used
+
+
+def _bridge_chain(al: Any, pool: dict[int, Frame], a: int, u: int, source: FrameSource, matcher: Any,
+                  perception: Perception, conf: PipelineConfig, trace: Trace, budget: int) -> tuple[int, list[Frame]]:
+    """Walk from aligned frame a towards unaligned key frame u: each step first tries u itself, then jumps
+    to the frame halfway between the chain's end and u, halving the jump on a failed attach down to
+    `bridge_gap_s`, then walking on at that spacing (slow camera motion costs few bridge frames, fast motion the
+    dense chain). Returns (budget left, the bridge frames attached)."""
+    ts = source.timestamps
+    end, used = a, []
+    while budget > 0 and u not in al.poses:
+        if attach_frames(al, pool, [u], matcher, conf, tries=1):
+            break
+        gap = abs(float(ts[u]) - float(ts[end]))
+        if gap < 2 * conf.bridge_gap_s:
+            break  # no room for a bridge frame
+        step, moved = (1 if u > end else -1), False
+        # halve down to the shortest jump, then walk on at that spacing (a blurred frame is skipped)
+        halving = [gap / 2 ** k for k in range(1, 32) if gap / 2 ** k >= conf.bridge_gap_s]
+        walking = [conf.bridge_gap_s * k for k in range(2, int(gap / conf.bridge_gap_s))]
+        for jump in halving + walking:
+            if budget <= 0 or moved:
+                break
+            c = min(range(end + step, u, step), key=lambda i: abs(abs(float(ts[i]) - float(ts[end])) - jump))
+            if c in pool:
+                continue
+            f = source[c]
+            pool[c] = dataclasses.replace(f, depth=_depth_for(f, conf, perception, trace))
+            budget -= 1
+            if attach_frames(al, pool, [c], matcher, conf, tries=1):
+                end, moved = c, True
+                used.append(pool[c])
+        if not moved:
+            break  # no bridge frame attached at any jump: give up on u (reported by the caller)
+    return budget, used
+
+
 def _depth_for(frame: Frame, conf: PipelineConfig, perception: Perception, trace: Trace) -> np.ndarray:
     use = conf.depth
     if use == "auto":
@@ -401,6 +638,27 @@ def _depth_for(frame: Frame, conf: PipelineConfig, perception: Perception, trace
         raise InputError("depth=model needs a depth model (bundle role `depth`) or choose depth=sensor")
     with trace.stage("depth"):
         return perception.depth(frame)
+
+
+def _box_prompted(masks: np.ndarray, depth: np.ndarray, d: Detections, trace: Trace,
+                  min_share: float = 0.02) -> np.ndarray:
+    """Masks [N, H, W]: a detection the segmenter left (nearly) empty — a category it cannot segment (DeepLab has
+    no cup) or a miss — gets a box-prompted mask (the depth-consistent pixels inside its box) instead of being
+    dropped; recorded as degraded (once per name)."""
+    from .semantic_map import box_depth_mask
+
+    masks = np.array(masks, dtype=bool)
+    for j, (b, nm) in enumerate(zip(d.boxes, d.names)):
+        area = max(1.0, float((b[2] - b[0]) * (b[3] - b[1])))
+        if masks[j].sum() >= min_share * area:
+            continue
+        masks[j] = box_depth_mask(depth, b)
+        noted = trace.decisions.setdefault("segment.box_prompted", {})
+        if nm not in noted:
+            trace.event("degraded", f"segmenter gave no mask for {nm!r}: box-prompted mask (depth-consistent "
+                        f"pixels inside the box) used instead", stage="segment", name=nm)
+        noted[nm] = noted.get(nm, 0) + 1
+    return masks
 
 
 def _gravity(frames: list[Frame], poses_root: dict[int, np.ndarray], source: FrameSource, root: int,
@@ -430,6 +688,17 @@ def _gravity(frames: list[Frame], poses_root: dict[int, np.ndarray], source: Fra
         offset = float(down @ (fit[0] * fit[1]))  # floor distance below the root camera along `down`
         if offset <= 0.3:
             offset = None
+    if offset is not None and len(P):
+        # nothing lies below the floor: when a share of the seen points does, the plane found is a table or
+        # counter top (the key frames did not see the floor); the floor is then at least as low as those points
+        q = P @ down
+        if np.mean(q > offset + 0.05) > 0.005:
+            low = float(np.percentile(q, 99.8))
+            trace.event("degraded", f"floor fit found a plane {low - offset:.2f} m above points the key frames saw "
+                        f"(a table or counter top; the floor itself was not seen): floor put at the lowest seen "
+                        f"points instead (objects cannot be below it; the floor height is a lower bound)",
+                        stage="gravity", plane_m=offset, floor_m=low)
+            offset = low
     if down is None:
         down, how = np.array([0.0, 1.0, 0.0]), "camera_axes"
         trace.event("degraded", "no gravity from the source and no floor found: assuming the root camera is level",
@@ -480,12 +749,13 @@ def build_map(source: FrameSource, targets: Sequence[str], cues: Sequence[str] =
                             stage="perception")
                 break
             f = source[i]
+            f = dataclasses.replace(f, depth=_depth_for(f, conf, perception, trace))
             d = det(i, names)
             if d.masks is None and perception.segment is not None and len(d):
                 with trace.stage("segment"):
-                    d = dataclasses.replace(d, masks=perception.segment(f, d))
+                    d = dataclasses.replace(d, masks=_box_prompted(perception.segment(f, d), f.depth, d, trace))
             dets[i] = d
-            frames.append(dataclasses.replace(f, depth=_depth_for(f, conf, perception, trace)))
+            frames.append(f)
             bar.update()
     bar.done()
     if len(frames) < 2:
@@ -509,42 +779,16 @@ def build_map(source: FrameSource, targets: Sequence[str], cues: Sequence[str] =
     with trace.stage("alignment"):
         al = align_frames(frames, matcher, "mst", conf.alignment or None, emb, boxes,
                           with_scale=perception.depth_relative, trace=trace)
-    bar.update()
-    if al.unaligned and conf.whole_image_fallback:
-        # too few matches inside the task objects' boxes (small or few objects): match whole images instead
-        with trace.stage("alignment"):
-            al2 = align_frames(frames, matcher, "mst", conf.alignment or None, emb, None,
-                               with_scale=perception.depth_relative, trace=None)
-        bar.update()
-        trace.event("fallback", f"alignment inside object boxes left {len(al.unaligned)} of {len(frames)} key frames "
-                    f"unaligned; whole-image matching left {len(al2.unaligned)}", stage="alignment",
-                    boxes_unaligned=list(al.unaligned), whole_unaligned=list(al2.unaligned))
-        if len(al2.unaligned) < len(al.unaligned):
-            al, boxes = al2, {i: None for i in boxes}
     check = conf.verify_depth and not perception.depth_relative
-    if check:
-        with trace.stage("alignment.verify"):
-            al = verify_tree(al, {f.index: f for f in frames}, conf, trace)
-    used: list[Frame] = []
-    for _ in range(conf.bridge_rounds):
-        if not al.unaligned or conf.bridge_frames <= 0:
-            break
-        if budget is not None and budget.remaining_ms() < 0:
-            trace.event("reduced_plan", f"reduced plan: bridge rounds skipped ({len(al.unaligned)} key frame(s) stay "
-                        f"unaligned), because the run is {-budget.remaining_ms():.0f} ms over its budget",
-                        stage="alignment")
-            break
-        blocked = _BlockPairs(matcher, getattr(al, "rejected_edges", []))  # never re-use a rejected edge
-        # bridge frames come from the whole video (consecutive frames match best), not only dedup's candidates
-        al, bridges = _bridge(al, frames, boxes, list(range(len(source))), source, blocked, perception, conf,
-                              trace, used)
-        bar.update()
-        if not bridges:
-            break
-        used = bridges
-        if check:
-            with trace.stage("alignment.verify"):
-                al = verify_tree(al, {f.index: f for f in frames + bridges}, conf, trace)
+    keys = {f.index for f in frames}
+    if check:  # metric depth: one edge at a time onto the verified tree (cheap; see attach_frames)
+        used = _align_rest_metric(al, frames, matcher, source, perception, conf, trace, budget)
+    else:
+        al, used = _align_rest(al, frames, boxes, emb, matcher, source, perception, conf, trace, budget)
+    al.unaligned = [i for i in al.unaligned if i in keys]
+    if al.unaligned:
+        trace.event("degraded", f"{len(al.unaligned)} of {len(frames)} key frames unaligned after alignment "
+                    f"(left out of the map): {sorted(al.unaligned)}", stage="alignment", unaligned=sorted(al.unaligned))
     bar.done(aligned=f"{sum(f.index in al.poses for f in frames)}/{len(frames)} key frames")
     root = al.root
     with trace.stage("gravity"):
@@ -587,6 +831,9 @@ def build_map(source: FrameSource, targets: Sequence[str], cues: Sequence[str] =
     cams = [(float(f.t), poses[f.index]) for f in frames if f.index in poses]
     if conf.first_seen_from_search:
         _first_seen_from_search(instances, det, names, source, trace)
+    if conf.floor_standing and not perception.depth_relative:
+        with trace.stage("extent"):
+            extend_to_floor(instances, frames, poses, conf, trace)
     with trace.stage("room"):
         room = _room(instances, cams, frames, poses)
     smap = SemanticMap(instances, room, cams,
@@ -595,6 +842,66 @@ def build_map(source: FrameSource, targets: Sequence[str], cues: Sequence[str] =
     return MapBuild(smap, chosen, clouds, poses, W, list(al.unaligned), recovered,
                     bool(budget is not None and getattr(budget, "reduced", False)),
                     {"alignment": al.to_dict(), "dedup_kept": None})
+
+
+def floor_support(box: Any, P: np.ndarray, band_m: float = 0.10, min_points: int = 3) -> tuple[float, bool]:
+    """Support under a gravity-aligned box: of the `band_m` height bands between the floor (z = 0) and the box
+    bottom, the share holding >= min_points of P [N, 3] inside the box's footprint, and whether the lowest band
+    does. Pure."""
+    ax = np.asarray(box.axes, np.float64)
+    up = int(np.argmax(np.abs(ax[:, 2])))
+    L, c = np.asarray(box.axes_lengths, np.float64), np.asarray(box.centroid, np.float64)
+    bottom = c[2] - L[up] / 2
+    if bottom <= 0 or len(P) == 0:
+        return 0.0, False
+    side = [k for k in range(3) if k != up]
+    local = (np.asarray(P, np.float64) - c) @ ax.T
+    z = P[np.all(np.abs(local[:, side]) <= L[side] / 2, axis=1), 2]
+    n = max(1, int(np.ceil(bottom / band_m - 1e-9)))
+    hist = np.histogram(z[(z >= 0) & (z < bottom)], bins=np.linspace(0.0, bottom, n + 1))[0]
+    return float(np.mean(hist >= min_points)), bool(hist[0] >= min_points)
+
+
+def extend_to_floor(instances: list[ObjectInstance], frames: Sequence[Frame], poses: dict[int, np.ndarray],
+                    conf: PipelineConfig, trace: Trace, band_m: float = 0.10, stride: int = 8) -> list[int]:
+    """A floor-standing object (`conf.floor_standing`) whose fused box stops above the floor (z = 0) — the top
+    of a table seen from above, a chair's back over the table edge — gets its box extended down to the floor
+    when the key frames' depth shows its support: points inside its footprint in at least `floor_band_share`
+    of the `band_m` height bands between the floor and the box bottom, the lowest band included. Open space
+    seen under it (no points) leaves the box as fused. Mutates the boxes; recorded (extended and kept, with
+    the band share). Returns the ids extended."""
+    from .geometry import OrientedBox, backproject, transform
+
+    todo = [o for o in instances if o.name in conf.floor_standing]
+    if not todo:
+        return []
+    pts = [transform(poses[f.index], backproject(f.depth, f.K, stride=stride)[0]) for f in frames
+           if f.index in poses and f.depth is not None]
+    P = np.concatenate(pts) if pts else np.zeros((0, 3))
+    P = P[P[:, 2] > 0.5 * band_m / 2]  # the floor's own points do not count as support
+    done, kept = [], {}
+    for o in todo:
+        ax = np.asarray(o.box.axes, np.float64)
+        up = int(np.argmax(np.abs(ax[:, 2])))
+        if abs(ax[up, 2]) < 0.99:
+            continue  # not a gravity-aligned box
+        L = np.asarray(o.box.axes_lengths, np.float64)
+        c = np.asarray(o.box.centroid, np.float64)
+        if c[2] - L[up] / 2 < band_m:
+            continue
+        share, lowest = floor_support(o.box, P, band_m)
+        if share >= conf.floor_band_share and lowest:
+            top = c[2] + L[up] / 2
+            L2, c2 = L.copy(), c.copy()
+            L2[up], c2[2] = top, top / 2
+            o.box = OrientedBox(c2, L2, ax)
+            done.append(o.id)
+        else:
+            kept[o.id] = round(share, 2)
+    trace.event("extent", f"{len(done)} floor-standing object(s) extended to the floor (support seen under "
+                f"them): {done}; {len(kept)} kept as fused (support share per id): {kept}", stage="extent",
+                extended=done, kept=kept)
+    return done
 
 
 def _room(instances: list[ObjectInstance], cams: list[tuple[float, np.ndarray]], frames: Sequence[Frame] = (),

@@ -361,6 +361,8 @@ class FusionConfig(StageConf):
     outlier_mad: float = 6.0      # radial outlier removal: keep points within median + k * MAD of the centre
     outlier_radius_m: float = 0.1  # density outlier removal: >= outlier_neighbors other points within this
     outlier_neighbors: int = 2
+    component_link_m: float = 0.05  # per observation: keep its largest connected part (0 = off) ...
+    component_share: float = 0.5    # ... and parts with at least this share of its points
     merge_footprint: bool = True  # after fusion, merge same-name instances whose floor footprints overlap
     min_instance_points: int = 40
     seed: int = 0
@@ -419,21 +421,61 @@ def lift_observations(rgb_shape: tuple[int, int], depth: np.ndarray, K: np.ndarr
                 eroded = cv2.erode(m, kernel)
                 m = eroded if eroded.sum() >= conf.min_points else m
         else:
-            m = np.zeros((H, W), np.uint8)
-            x0, y0, x1, y1 = np.round(box).astype(int)
-            m[max(0, y0):min(H, y1), max(0, x0):min(W, x1)] = 1
+            m = box_depth_mask(d, box).astype(np.uint8)
         pts, _ = backproject(d, K, m.astype(bool), conf.stride)
-        if masks is None and len(pts):  # box only: keep the dominant depth band (the object, not the wall)
-            z = pts[:, 2]
-            med = np.median(z)
-            pts = pts[np.abs(z - med) < max(0.15, 0.15 * med)]
         if len(pts) < conf.min_points:
             continue
         if len(pts) > conf.max_points:
             pts = pts[rng.choice(len(pts), conf.max_points, replace=False)]
+        if conf.component_link_m > 0:  # a mask that bled across a depth edge (onto the table, the next chair)
+            pts = largest_components(pts, conf.component_link_m, conf.component_share)
+            if len(pts) < conf.min_points:
+                continue
         out.append(Observation(name, float(scores[j]), frame, t, transform(T_wc, pts), np.asarray(box, np.float32),
                                None if instance_ids is None else int(instance_ids[j])))
     return out
+
+
+def box_depth_mask(depth: np.ndarray, box: np.ndarray, band_m: float = 0.15, band_rel: float = 0.15) -> np.ndarray:
+    """Box-prompted mask [H, W] bool: the valid depth pixels inside `box [4]` within the dominant depth band
+    around the median depth of the box's central half (|d - median| < max(band_m, band_rel * median)): the
+    object the box was drawn around, not the wall behind it.
+    Used when there is no segmenter, or the segmenter cannot segment the box's category."""
+    H, W = depth.shape
+    x0, y0, x1, y1 = np.round(np.asarray(box, float)).astype(int)
+    x0, y0, x1, y1 = max(0, x0), max(0, y0), min(W, x1), min(H, y1)
+    m = np.zeros((H, W), bool)
+    if x1 <= x0 or y1 <= y0:
+        return m
+    patch = depth[y0:y1, x0:x1]
+    h, w = patch.shape
+    centre = patch[h // 4:h - h // 4, w // 4:w - w // 4]  # a box is drawn around its object: its centre is it
+    valid = centre[centre > 0] if (centre > 0).any() else patch[patch > 0]
+    if not len(valid):
+        return m
+    med = float(np.median(valid))
+    m[y0:y1, x0:x1] = (patch > 0) & (np.abs(patch - med) < max(band_m, band_rel * med))
+    return m
+
+
+def components(points: np.ndarray, link_m: float) -> np.ndarray:
+    """Connected-component label [N] per point of `points [N, 3]` (points closer than `link_m` are linked)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
+    pairs = cKDTree(points).query_pairs(link_m, output_type="ndarray")
+    g = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(points),) * 2)
+    return connected_components(g, directed=False)[1]
+
+
+def largest_components(points: np.ndarray, link_m: float = 0.05, min_share: float = 0.2) -> np.ndarray:
+    """The largest connected part of `points [N, 3]` and the parts with >= `min_share` of its points."""
+    if len(points) < 3:
+        return points
+    lab = components(points, link_m)
+    cnt = np.bincount(lab)
+    return points[cnt[lab] >= min_share * cnt.max()]
 
 
 def voxel_downsample(points: np.ndarray, voxel: float) -> np.ndarray:
@@ -539,7 +581,7 @@ def fuse_observations(observations: list[Observation], conf: FusionConfig = defa
         c_new = np.median(pts, 0)
         r_new = float(np.percentile(np.linalg.norm(pts - c_new, axis=1), 90))
         for a in accs:
-            if a.name != ob.name:
+            if a.name != ob.name or ob.frame in a.frames:  # two detections in one frame are two objects
                 continue
             # each instance's KD-tree, centre and radius are kept until its points change (not rebuilt per query)
             dist, _ = a.tree().query(pts, distance_upper_bound=conf.merge_radius_m)
@@ -601,8 +643,9 @@ def _merge_overlapping(items: list[tuple["_Acc", np.ndarray]], conf: FusionConfi
         boxes = [fit_gravity_box(p) for _, p in items]
         for i in range(len(items)):
             for j in range(i + 1, len(items)):
-                if items[i][0].name != items[j][0].name or footprint_overlap(boxes[i], boxes[j]) < 0.3:
-                    continue
+                if (items[i][0].name != items[j][0].name or set(items[i][0].frames) & set(items[j][0].frames)
+                        or footprint_overlap(boxes[i], boxes[j]) < 0.3):
+                    continue  # instances seen side by side in one frame are two objects
                 a, pa = items[i]
                 b, pb = items[j]
                 a.points = voxel_downsample(np.concatenate([pa, pb]), conf.voxel_m)
@@ -624,15 +667,17 @@ def _merge_overlapping(items: list[tuple["_Acc", np.ndarray]], conf: FusionConfi
 
 def fit_floor_plane(points: np.ndarray, down_hint: np.ndarray, max_tilt_deg: float = 35.0,
                     threshold: float = 0.03, iterations: int = 300, min_share: float = 0.05,
-                    rng: int = 0, parallel_deg: float = 5.0) -> tuple[np.ndarray, float, int] | None:
+                    rng: int = 0, parallel_deg: float = 5.0, low_share: float = 0.01
+                    ) -> tuple[np.ndarray, float, int] | None:
     """Find the floor: the lowest large plane whose normal is within `max_tilt_deg` of `down_hint`.
 
     points: [N, 3] in the root camera frame (or any frame); down_hint: [3] rough gravity (e.g. the camera's +y).
     Returns (down [3] unit normal pointing down, offset d with down·p = d on the plane, inliers) or None.
     RANSAC over 3-point planes. The largest near-horizontal surface fixes the orientation; among the surfaces
     parallel to it (within `parallel_deg`) with >= `min_share` of the points, the one farthest along `down`
-    wins (table and counter tops are horizontal too, but above the floor). Each hypothesis is refit by least
-    squares on its inliers and must be a surface (not a band cut through vertical faces).
+    wins (table and counter tops are horizontal too, but above the floor); layers along the reference normal
+    with >= `low_share` of the points are candidates too (a floor mostly hidden by furniture). Each hypothesis
+    is refit by least squares on its inliers and must be a surface (not a band cut through vertical faces).
     """
     pts = np.asarray(points, dtype=np.float64)
     if len(pts) < 50:
@@ -676,16 +721,35 @@ def fit_floor_plane(points: np.ndarray, down_hint: np.ndarray, max_tilt_deg: flo
     # the largest horizontal-ish surface fixes the orientation; the floor is the lowest surface parallel to it
     # with enough support (table and counter tops are parallel to the floor but above it)
     cands.sort(key=lambda c: -c[0])
-    ref = None
+    # of the largest candidates, the sharpest: a slightly tilted plane through two levels (a table top near,
+    # a counter top far) collects as many inliers as the level one, but its points do not share one height
+    ref, best = None, -1
     for cnt, n, d in cands[:10]:
         r = refit(n, d)
-        if r[3]:
-            ref = r
-            break
+        if not r[3]:
+            continue
+        h = pts @ r[0]
+        sharp = int(np.sum(np.abs(h - r[1]) < threshold / 3))
+        if sharp > best:
+            ref, best = r, sharp
     if ref is None:
         return None
+    n_sharp = sharpen_normal(pts, ref[0])  # no least-squares refit after it: that is what tilts
+    h_ref = float(_peak_height(pts @ n_sharp)[0])
+    ref = (n_sharp, h_ref, int(np.sum(np.abs(pts @ n_sharp - h_ref) < threshold)), True)
     cos_par = np.cos(np.radians(parallel_deg))
     lowest = ref
+    # the floor is the lowest layer along the reference normal with enough points: a floor seen past the
+    # furniture holds few points (random 3-point samples rarely land on it), but nothing lies below it
+    h = pts @ ref[0]
+    bins = np.arange(ref[1] + threshold, h.max() + 2 * threshold, 2 * threshold)
+    if len(bins) > 1:
+        cnt, edges = np.histogram(h, bins=bins)
+        dense = np.nonzero(cnt >= max(low_share * len(pts), 0.1 * ref[2], 50))[0]
+        for k in dense[::-1]:  # farthest along `down` first; same orientation as the reference
+            hk = h[(h >= edges[k]) & (h < edges[k + 1])]
+            lowest = (ref[0], float(np.median(hk)), int(len(hk)))
+            break
     for cnt, n, d in cands:
         if cnt < max(min_share * len(pts), 0.2 * ref[2]) or n @ ref[0] < cos_par or d <= lowest[1] + threshold:
             continue
@@ -693,6 +757,41 @@ def fit_floor_plane(points: np.ndarray, down_hint: np.ndarray, max_tilt_deg: flo
         if r[3] and r[0] @ ref[0] >= cos_par and r[2] >= min_share * len(pts) and r[1] > lowest[1]:
             lowest = r
     return lowest[0], lowest[1], lowest[2]
+
+
+def _peak_height(h: np.ndarray, bin_m: float = 0.01) -> tuple[float, int]:
+    """(height, count) of the fullest `bin_m` layer of heights h [N]."""
+    lo = float(h.min())
+    k = np.floor((h - lo) / bin_m).astype(np.int64)
+    cnt = np.bincount(k)
+    j = int(np.argmax(cnt))
+    return lo + (j + 0.5) * bin_m, int(cnt[j])
+
+
+def sharpen_normal(points: np.ndarray, n0: np.ndarray, span_deg: float = 8.0, step_deg: float = 0.5,
+                   max_points: int = 20000) -> np.ndarray | None:
+    """The normal [3] within `span_deg` of n0 whose height histogram has the fullest 1 cm layer: a level
+    surface puts all its points at one height, a plane tilted to pass through two levels (table near, counter
+    far) does not. Coarse-to-fine grid over two tilt angles."""
+    pts = points[:: max(1, len(points) // max_points)]
+    n0 = np.asarray(n0, float) / np.linalg.norm(n0)
+    a = np.cross(n0, [1.0, 0, 0] if abs(n0[0]) < 0.9 else [0, 1.0, 0])
+    a /= np.linalg.norm(a)
+    b = np.cross(n0, a)
+    best, best_n = _peak_height(pts @ n0)[1], n0
+    centre, span = (0.0, 0.0), span_deg
+    while span >= step_deg:
+        g = np.radians(np.linspace(-span, span, 9))
+        for u in g + np.radians(centre[0]):
+            for v in g + np.radians(centre[1]):
+                n = n0 + np.tan(u) * a + np.tan(v) * b
+                n /= np.linalg.norm(n)
+                c = _peak_height(pts @ n)[1]
+                if c > best:
+                    best, best_n, cu, cv = c, n, np.degrees(u), np.degrees(v)
+                    centre = (cu, cv)
+        span /= 4
+    return best_n
 
 
 def gravity_world_transform(down_root: np.ndarray, floor_offset: float | None = None,

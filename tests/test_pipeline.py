@@ -255,3 +255,42 @@ def test_reduced_key_frames_stay_spread_over_the_clip():
     assert kept == [0, 60, 130, 190]
     msg = trace.events[-1]["message"]
     assert msg == "reduced plan: 20 -> 4 key frames, because stage keyframes took 900 ms of its 40 ms share"
+def test_spread_keyframes_fills_the_largest_gaps_and_prefers_scored_frames():
+    from mosaicthinker.runtime.pipeline import spread_keyframes
+
+    cands = list(range(0, 100, 2))
+    chosen = [40, 42, 44, 46, 48]  # a search clustered on the detection-dense middle
+    new = spread_keyframes(chosen, cands, {}, 4)
+    assert len(new) == 4 and not set(new) & set(chosen) and set(new) <= set(cands)
+    marks = sorted(chosen + new)
+    assert marks[0] <= 12 and marks[-1] >= 86  # both ends of the clip are covered
+    assert max(b - a for a, b in zip(marks, marks[1:])) <= 30
+    # inside a gap's middle half the best-scored candidate wins over the exact middle
+    assert spread_keyframes([0, 48, 98], cands, {20: 0.1, 30: 0.9, 40: 0.5}, 2) == [30, 72]
+    assert spread_keyframes(chosen, cands, {}, 0) == []
+
+
+def test_coverage_reserve_only_for_many_names():
+    from mosaicthinker.runtime.pipeline import PipelineConfig, coverage_reserve
+
+    conf = PipelineConfig()
+    assert coverage_reserve(16, 2, conf) == 0  # a question about a pair of objects: the search takes all of K
+    assert coverage_reserve(16, 20, conf) == 8
+    assert coverage_reserve(16, 20, PipelineConfig.merged({"coverage_share": 0.0})) == 0
+
+
+def test_floor_support_sees_legs_not_open_space():
+    from mosaicthinker.runtime.geometry import OrientedBox
+    from mosaicthinker.runtime.pipeline import floor_support
+
+    top = OrientedBox(np.array([0.0, 0.0, 0.75]), np.array([1.2, 0.8, 0.06]), np.eye(3))
+    z = np.linspace(0.03, 0.71, 60)
+    legs = np.concatenate([np.stack([np.full_like(z, x), np.full_like(z, y), z], 1)
+                           for x in (-0.55, 0.55) for y in (-0.35, 0.35)])
+    share, lowest = floor_support(top, legs)
+    assert share >= 0.9 and lowest
+    beside = legs + np.array([2.0, 0.0, 0.0])  # the same legs outside the footprint: no support
+    assert floor_support(top, beside) == (0.0, False)
+    hanging = legs[legs[:, 2] > 0.4]  # a wall cabinet: something under it, but not down to the floor
+    share, lowest = floor_support(top, hanging)
+    assert share < 0.6 and not lowest

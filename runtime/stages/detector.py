@@ -133,8 +133,15 @@ class ClosedSetDetector(RoleModel):
                              names=missing, stage="detector")
         px, cls, sc = self.raw(rgb)
         out_b, out_s, out_n = [], [], []
-        for name, ids in mapping.items():
-            sel = np.isin(cls, ids)
+        taken = np.zeros(len(cls), bool)
+        # one detection is one object whatever alias names it (COCO "chair" is both chair and stool): names that
+        # are the label itself claim their detections first, an alias only gets the ones left
+        order = sorted(mapping, key=lambda n: not any(normalize_name(self.labels[i]) == normalize_name(n)
+                                                      for i in mapping[n]))
+        for name in order:
+            ids = mapping[name]
+            sel = np.isin(cls, ids) & ~taken
+            taken |= sel
             out_b.append(px[sel])
             out_s.append(sc[sel])
             out_n += [name] * int(sel.sum())

