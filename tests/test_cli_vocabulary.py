@@ -20,7 +20,9 @@ SUBSET_CHOICES = {"--depth": "eval pose aligns RGB-D frames: no `auto`", "--prom
 # choice flags whose default in one command differs from the others', and why
 OWN_DEFAULTS = {("--complexity", "demo"): "a room with few objects keeps the demo short",
                 ("--detector", "eval keyframes"): "the key-frame study scores synthetic scenes with the oracle",
-                ("--depth", "eval pose"): "the pose benchmark reads RGB-D folders (no auto)"}
+                ("--depth", "eval pose"): "the pose benchmark reads RGB-D folders (no auto)",
+                ("--depth", "eval scene"): "the real-room benchmark reads RGB-D folders (no auto)",
+                ("--gravity", "eval scene"): "the real-room targets are measured with the floor fit alone"}
 # --keyframes defaults that are not the pipeline's K, and why (the help must say the number and the why)
 OWN_KEYFRAMES = {"demo": 12, "eval pose": 32, "eval keyframes": 8}
 

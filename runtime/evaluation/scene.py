@@ -366,12 +366,17 @@ def _write_out(out: Path, res: dict[str, Any], build: Any, S: np.ndarray, vmeta:
     trace.save(out / "trace.json")
 
 
+COMMON_FLAGS = ("bundle", "out")  # the common flags this command reads
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     from ..cli import add_stage_flags
+    from ..commands.flags import add_keyframes
 
-    p.add_argument("--data", required=True, help="RGB-D frame folder with ground-truth poses (7-Scenes layout)")
+    p.add_argument("--data", required=True, metavar="DIR",
+                   help="RGB-D frame folder with ground-truth poses (7-Scenes layout)")
     p.add_argument("--annotations", required=True, help="scene annotation JSON (scene_annotate)")
-    p.add_argument("--keyframes", type=int, default=16, help="key-frame budget K (default 16)")
+    add_keyframes(p)
     p.add_argument("--ask", type=int, default=0, metavar="N", help="also ask N of the questions on the video")
     p.add_argument("--keyframe-method", choices=["iterative", "uniform", "exhaustive"], default="iterative")
     p.add_argument("--gravity", choices=["floor", "auto", "source"], default="floor",
@@ -382,7 +387,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> dict[str, Any]:
     if not args.bundle:
         raise InputError("mosaic eval scene needs --bundle (the real models: `mosaic export shared-models`)")
-    return evaluate_scene(args.data, args.annotations, args.bundle, args.depth, args.matcher, args.keyframes,
+    from ..commands.flags import pipeline_keyframes
+
+    k = args.keyframes if args.keyframes is not None else pipeline_keyframes()
+    return evaluate_scene(args.data, args.annotations, args.bundle, args.depth, args.matcher, k,
                           args.ask, args.gravity, args.keyframe_method, out=args.out)
 
 
