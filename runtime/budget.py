@@ -252,9 +252,11 @@ class Profile:
             return None
         got = nearest_variant(self.roles[role].bundle_variant, b.role_meta(role).get("variants", {}))
         want = self.roles[role].bundle_variant
-        if got is not None and got != want and trace is not None:
+        if got != want and trace is not None:
+            used = got or b.role_meta(role).get("default_variant")
             trace.event("degraded", f"profile {self.name} asks for {role} {want!r}, which the bundle does not have: "
-                        f"running its nearest variant {got!r}", stage=role, requested=want, used=got)
+                        f"running its {'nearest' if got else 'default'} variant {used!r}", stage=role,
+                        requested=want, used=used)
         return got
 
     def cost(self, name: str) -> CostEntry | None:
@@ -927,9 +929,10 @@ def plan(profile: Profile | str | os.PathLike, duration_s: float, fps: float, bu
                         "variant": rs.bundle_variant}
         if b is not None and b.has_role(r):  # what will run: the nearest variant the bundle has
             have = nearest_variant(rs.bundle_variant, b.role_meta(r).get("variants", {}))
-            providers[r]["variant"] = have or b.role_meta(r).get("default_variant")
-            if have != rs.bundle_variant:
-                notes.append(f"{r}: the bundle has no {rs.bundle_variant!r} variant; the nearest, {have!r}, runs")
+            ran = providers[r]["variant"] = have or b.role_meta(r).get("default_variant")
+            if ran != rs.bundle_variant:
+                notes.append(f"{r}: the bundle has no {rs.bundle_variant!r} variant; "
+                             f"{'the nearest' if have else 'its default'}, {ran!r}, runs")
         size = list(rs.input_size_px) if rs.input_size_px else None
         if b is not None and b.has_role(r):
             pre = b.role_meta(r).get("preprocessing", {})

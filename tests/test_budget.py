@@ -475,3 +475,13 @@ def test_plan_with_paper_model_costs(tmp_path):
     shared, paper = plan(base, 60, 30, models="shared"), plan(base, 60, 30, models="paper")
     assert paper.total_ms > shared.total_ms and MODEL_SETS == ("shared", "paper")
     assert load_profile(base).with_models("paper").cost("vlm").ms_per_token == vlm["ms_per_token"] * 3
+
+
+@pytest.mark.export
+def test_a_variant_name_the_bundle_lacks_entirely_runs_its_default_loudly(shared_bundle):
+    prof = B.load_profile("cpu-generic")
+    prof.roles["depth"].variant = "custom-build"  # no precision to match: the bundle's default runs
+    trace = Trace()
+    assert prof.variant_in("depth", shared_bundle, trace) is None
+    ev = [e for e in trace.events if e["kind"] == "degraded" and e.get("requested") == "custom-build"]
+    assert ev and ev[0]["used"] == "fp32" and "default variant 'fp32'" in ev[0]["message"]
