@@ -89,6 +89,14 @@ class _Deprecated(argparse.Action):
         setattr(namespace, self.dest, values)
 
 
+def add_gravity(p: argparse.ArgumentParser, default: str) -> None:
+    """--gravity: where the map's "down" comes from (PipelineConfig.gravity), the default named by the command."""
+    p.add_argument("--gravity", choices=["auto", "source", "floor"], default=default,
+                   help="'down' for the map: auto/source = the source's gravity (for synthetic scenes and 7-Scenes "
+                        "the root frame's ground-truth rotation, an IMU stand-in); floor = the floor-plane fit "
+                        f"alone (default {default})")
+
+
 def deprecated_alias(p: argparse.ArgumentParser, old: str, new: str, dest: str, **kw: Any) -> None:
     """`old` keeps working as `new` (same dest), hidden from --help, with a warning on stderr."""
     p.add_argument(old, dest=dest, action=_Deprecated, new=new, help=argparse.SUPPRESS, **kw)

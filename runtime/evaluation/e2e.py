@@ -286,7 +286,7 @@ COMMON_FLAGS = ("bundle", "out")
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     from ..cli import add_stage_flags
-    from ..commands.flags import add_clip, add_keyframes, add_size
+    from ..commands.flags import add_clip, add_gravity, add_keyframes, add_size
 
     p.add_argument("--scenes", type=int, default=3, help="number of synthetic scenes")
     p.add_argument("--seed", type=int, default=0, help="first scene seed")
@@ -299,9 +299,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--map-per", choices=["scene", "question"], default="scene")
     p.add_argument("--miss-rate", type=float, default=0.1, help="oracle detector miss rate")
     add_stage_flags(p, matcher=True)  # model: the bundle's matcher role, in the oracle and models modes
-    p.add_argument("--gravity", choices=["auto", "source", "floor"], default="auto",
-                   help="'down' for the map: auto/source = the root frame's ground-truth rotation (an IMU "
-                        "stand-in the synthetic scenes provide); floor = the floor-plane fit alone")
+    add_gravity(p, "auto")
     p.add_argument("--all-candidates", action="store_true",
                    help="ask every candidate question: box_truth margin rules off, no per-type limit (rewrites "
                         "the scenes' questions.jsonl)")

@@ -371,7 +371,7 @@ COMMON_FLAGS = ("bundle", "out")  # the common flags this command reads
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     from ..cli import add_stage_flags
-    from ..commands.flags import add_keyframes
+    from ..commands.flags import add_gravity, add_keyframes
 
     p.add_argument("--data", required=True, metavar="DIR",
                    help="RGB-D frame folder with ground-truth poses (7-Scenes layout)")
@@ -379,8 +379,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_keyframes(p)
     p.add_argument("--ask", type=int, default=0, metavar="N", help="also ask N of the questions on the video")
     p.add_argument("--keyframe-method", choices=["iterative", "uniform", "exhaustive"], default="iterative")
-    p.add_argument("--gravity", choices=["floor", "auto", "source"], default="floor",
-                   help="gravity for the map (default floor: the floor fit alone, no ground-truth gravity)")
+    add_gravity(p, "floor")  # the real-room targets are measured without ground-truth gravity
     add_stage_flags(p, depth=True, matcher=True)
 
 
