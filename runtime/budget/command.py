@@ -1,6 +1,6 @@
 """The `mosaic plan` command: the planner's answer for a clip (or every profile) under a device profile.
 
-Found by runtime/cli.py through `mosaicthinker.runtime.budget` (which re-exports add_arguments, run, render).
+runtime/cli.py runs it as `mosaicthinker.runtime.budget.command`; the package re-exports add_arguments, run, render.
 """
 from __future__ import annotations
 

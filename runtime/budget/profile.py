@@ -451,7 +451,8 @@ def _parse_role(role: str, rt_: Any, chain: list[str], w: str) -> RoleSettings:
                            f"accelerators or give the role a CPU provider chain")
     size = rt_.get("input_size_px")
     if size is not None:
-        if (not isinstance(size, list) or len(size) != 2 or not all(isinstance(s, int) and not isinstance(s, bool) and s > 0 for s in size)):
+        if (not isinstance(size, list) or len(size) != 2
+                or not all(isinstance(s, int) and not isinstance(s, bool) and s > 0 for s in size)):
             raise ProfileError(f"{rw}.input_size_px: expected [width, height] positive integers, got {size!r}")
         size = (int(size[0]), int(size[1]))
     for k in ("variant", "notes"):
