@@ -32,7 +32,7 @@ COMMANDS: dict[tuple[str, ...], tuple[str, str, str | None]] = {
     ("eval", "e2e"): ("mosaicthinker.runtime.evaluation.e2e", "end-to-end answer accuracy on synthetic scenes", None),
     ("bundle", "verify"): ("mosaicthinker.runtime.bundle", "check a bundle's schema and sha256 hashes", None),
     ("bundle", "show"): ("mosaicthinker.runtime.bundle", "print a readable summary of a bundle", None),
-    ("plan",): ("mosaicthinker.runtime.budget", "plan key frames and providers under a device profile", None),
+    ("plan",): ("mosaicthinker.runtime.budget.command", "plan key frames and providers under a device profile", None),
     ("profile",): ("mosaicthinker.runtime.profiling", "profile a bundle's models and the pipeline on this device", None),
     ("export",): ("mosaicthinker.export.cli", "export models to ONNX/ORT/TensorRT artifacts in a bundle", "export"),
 }

@@ -11,18 +11,25 @@
 The returned `Session` also treats its first real `run` as a probe: if it fails, the next provider is tried
 with the same inputs. Every fallback and its reason go into the Trace (event kind "fallback") and
 `trace.providers[stage]` holds {requested, available, used, attempts, create_s, first_run_s, rss_peak_mb}.
+
+Memory guard: every session is registered with the memory guard of its run (the `budget.BudgetController`
+watching the same Trace; `watch(guard)` adopts the sessions opened before it), with a size estimate (the RSS the
+creation added, at least the model files' size). Each `run` marks the session used; under memory pressure the
+guard `release()`s idle sessions (the onnxruntime session is dropped) and the next use re-opens it on the
+provider it ran on, recorded in the trace.
 """
 from __future__ import annotations
 
 import os
 import time
+import weakref
 from dataclasses import dataclass, field
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
 from .errors import ProviderError
-from .trace import Trace, rss_mb
+from .trace import Trace, as_trace, rss_mb
 
 SHORT_NAMES = {
     "cpu": "CPUExecutionProvider",
@@ -119,24 +126,29 @@ def dummy_feeds(sess: Any, dynamic_dim: int = 1) -> dict[str, np.ndarray]:
     return feeds
 
 
-@dataclass
+@dataclass(eq=False)  # identity semantics: sessions are kept in weak sets
 class Session:
     """An onnxruntime session that knows which provider it really runs on and can fall back on first run.
 
     run(feeds: {input name: array}, outputs=None) -> list of arrays (onnxruntime order).
+    release() drops the onnxruntime session (the memory guard's call); the next use re-opens it.
     """
 
     path: str
     stage: str
     candidates: list[tuple[str, dict[str, Any]]]
     config: SessionConfig
-    trace: Trace | None
+    trace: Trace
     sess: Any = None
     provider: str | None = None
     index: int = -1
     first_run_done: bool = False
     attempts: list[dict[str, Any]] = field(default_factory=list)
     requested: list[tuple[str, dict[str, Any]]] = field(default_factory=list)
+    mb: float = 0.0                      # size estimate the memory guard accounts
+    released: bool = False
+    guard: Callable[[], Any] | None = None  # weak reference to the run's memory guard
+    guard_key: str | None = None
 
     # -- creation ---------------------------------------------------------------------------------------------
     def _open_from(self, start: int, warmup_feeds: dict[str, np.ndarray] | None) -> None:
@@ -185,12 +197,9 @@ class Session:
 
     def _fallback(self, name: str, reason: str, seconds: float) -> None:
         self.attempts.append({"provider": name, "ok": False, "reason": reason, "seconds": round(seconds, 4)})
-        if self.trace is not None:
-            self.trace.event("fallback", f"{self.stage}: {reason}", stage=self.stage, requested=name)
+        self.trace.event("fallback", f"{self.stage}: {reason}", stage=self.stage, requested=name)
 
     def _record(self, create_s: float, first_run_s: float | None) -> None:
-        if self.trace is None:
-            return
         rec = self.trace.providers.setdefault(self.stage, {})
         rec.update({"model": os.path.basename(self.path),
                     "requested": [c[0] for c in (self.requested or self.candidates)],
@@ -199,22 +208,67 @@ class Session:
                     "first_run_s": None if first_run_s is None else round(first_run_s, 4),
                     "threads": self.config.intra_op_threads, "rss_peak_mb": round(rss_mb(), 1)})
 
+    # -- memory guard ---------------------------------------------------------------------------------------------
+    def attach(self, guard: Any) -> None:
+        """Register with `guard` (a budget.BudgetController): it accounts `mb` and may release this session."""
+        if self.guard is not None and self.guard() is guard:
+            return
+        ref = weakref.ref(self)
+        self.guard = weakref.ref(guard)
+        self.guard_key = guard.register_session(self.stage, self.mb, lambda: (s := ref()) is not None and s.release())
+
+    def release(self) -> None:
+        """Drop the onnxruntime session; the next use re-opens it on the provider it ran on."""
+        if self.sess is not None:
+            self.sess = None
+            self.released = True
+
+    def _live(self) -> Any:
+        """The onnxruntime session, re-opened first if the memory guard released it (timed, in the trace)."""
+        if self.sess is None and self.released:
+            t0 = time.perf_counter()
+            self._reopen()
+            guard = self.guard() if self.guard is not None else None
+            if guard is not None:
+                guard.session_reopened(self.guard_key, time.perf_counter() - t0)
+        return self.sess
+
+    def _reopen(self) -> None:
+        import onnxruntime as ort
+
+        name, opts = self.candidates[self.index]
+        chain = [(name, opts)] + ([(CPU, {})] if name != CPU else [])
+        try:
+            self.sess = ort.InferenceSession(self.path, _session_options(self.config),
+                                             providers=[c[0] for c in chain], provider_options=[c[1] for c in chain])
+        except Exception as e:  # noqa: BLE001  it ran here before: the next provider, as on first creation
+            self._fallback(name, f"re-opening failed on {name}: {type(e).__name__}: {str(e)[:300]}", 0.0)
+            self._open_from(self.index + 1, None)
+        self.released = False
+
+    def _used(self) -> None:
+        guard = self.guard() if self.guard is not None else None
+        if guard is not None:
+            guard.touch_session(self.guard_key)
+
     # -- running ------------------------------------------------------------------------------------------------
     def get_inputs(self) -> list[Any]:
-        return self.sess.get_inputs()
+        return self._live().get_inputs()
 
     def get_outputs(self) -> list[Any]:
-        return self.sess.get_outputs()
+        return self._live().get_outputs()
 
     @property
     def input_names(self) -> list[str]:
-        return [i.name for i in self.sess.get_inputs()]
+        return [i.name for i in self._live().get_inputs()]
 
     @property
     def output_names(self) -> list[str]:
-        return [o.name for o in self.sess.get_outputs()]
+        return [o.name for o in self._live().get_outputs()]
 
     def run(self, feeds: dict[str, np.ndarray], outputs: Sequence[str] | None = None) -> list[np.ndarray]:
+        self._live()
+        self._used()  # may release other, idle sessions under memory pressure (never this one)
         if self.first_run_done:
             return self.sess.run(list(outputs) if outputs else None, feeds)
         t0 = time.perf_counter()
@@ -232,23 +286,58 @@ class Session:
                 self._open_from(self.index + 1, None)
                 t0 = time.perf_counter()
         self.first_run_done = True
-        if self.trace is not None and self.stage in self.trace.providers:
+        if self.stage in self.trace.providers:
             rec = self.trace.providers[self.stage]
             rec["first_run_s"] = round(time.perf_counter() - t0, 4)
             rec["rss_peak_mb"] = max(rec.get("rss_peak_mb", 0.0), round(rss_mb(), 1))
         return out
 
 
+# Every open session, and the memory guards watching runs: a guard governs the sessions opened under its trace.
+# Weak both ways, so a finished run keeps nothing alive.
+_OPEN: "weakref.WeakSet[Session]" = weakref.WeakSet()
+_GUARDS: "weakref.WeakSet[Any]" = weakref.WeakSet()
+
+
+def watch(guard: Any) -> None:
+    """Let `guard` (budget.BudgetController) govern every session opened under `guard.trace`: those open now
+    (e.g. the VLM, loaded before the run was planned) and those opened later."""
+    _GUARDS.add(guard)
+    for s in list(_OPEN):
+        if s.trace is guard.trace:
+            s.attach(guard)
+
+
+def _adopt(s: Session) -> None:
+    _OPEN.add(s)
+    for g in list(_GUARDS):
+        if g.trace is s.trace:
+            s.attach(g)
+
+
+def files_mb(path: str | os.PathLike, extra: Sequence[str | os.PathLike] = ()) -> float:
+    """MB of a model's files (the graph and its external data): the floor of a session's size estimate."""
+    total = 0
+    for p in (path, *extra):
+        try:
+            total += os.path.getsize(p)
+        except OSError:
+            pass
+    return total / 2**20
+
+
 def create_session(path: str | os.PathLike, stage: str, preference: Sequence[Any] | str | None = None, *,
                    threads: int | None = None, trace: Trace | None = None, warmup: bool | dict = False,
-                   config: SessionConfig | None = None) -> Session:
+                   config: SessionConfig | None = None, model_mb: float | None = None) -> Session:
     """Create a session for `path` on the first usable provider of `preference` (see module docstring).
 
     stage: the name recorded in the trace (e.g. "depth", "matcher.pair"); preference: ordered provider names
     (short or full) or (name, options) tuples, default ["cpu"]; threads: intra-op thread count (None =
-    onnxruntime default); warmup: True runs zero inputs once (dynamic dims = 1), a dict runs those feeds.
+    onnxruntime default); warmup: True runs zero inputs once (dynamic dims = 1), a dict runs those feeds;
+    model_mb: the model files' size (default: the graph file's), the floor of the memory guard's estimate.
     Raises ProviderError when nothing works.
     """
+    trace = as_trace(trace)
     cfg = config or SessionConfig()
     if threads is not None:
         cfg = SessionConfig(**{**cfg.__dict__, "intra_op_threads": threads})
@@ -258,11 +347,11 @@ def create_session(path: str | os.PathLike, stage: str, preference: Sequence[Any
     for name, opts in requested:
         if name in avail:
             cands.append((name, opts))
-        elif trace is not None:
+        else:
             trace.event("fallback", f"{stage}: {name} is not available in this onnxruntime build "
                         f"(available: {avail})", stage=stage, requested=name)
     if cfg.allow_cpu_fallback and CPU not in [c[0] for c in cands] and CPU in avail:
-        if trace is not None and cands != requested:
+        if cands != requested:
             trace.event("fallback", f"{stage}: falling back to CPUExecutionProvider", stage=stage, requested=CPU)
         cands.append((CPU, {}))
     if not cands:
@@ -278,5 +367,9 @@ def create_session(path: str | os.PathLike, stage: str, preference: Sequence[Any
         del probe
     else:
         feeds = warmup if isinstance(warmup, dict) else None
+    rss0 = rss_mb()
     s._open_from(0, feeds)
+    # what the session holds: the RSS its creation added (weights, arena, first run), at least its files
+    s.mb = max(rss_mb() - rss0, model_mb if model_mb is not None else files_mb(path))
+    _adopt(s)
     return s

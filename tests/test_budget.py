@@ -1,5 +1,5 @@
 """Budget-configuration tests: profile validation, planner arithmetic and monotonicity, provider fallback under a
-device profile, re-planning on overrun and the memory guard (runtime/budget.py)."""
+device profile, re-planning on overrun and the memory guard (runtime/budget/)."""
 from __future__ import annotations
 
 import copy

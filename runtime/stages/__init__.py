@@ -114,7 +114,7 @@ def load_role(bundle_or_dir: Bundle | str | os.PathLike, role: str, variant: str
     variant: e.g. "fp32", "int8-dynamic" (default: the role's default_variant). The component files are
     sha256-checked before any session is created.
     """
-    from ..providers import create_session
+    from ..providers import create_session, files_mb
 
     trace = trace if trace is not None else Trace()
     b = load_bundle(bundle_or_dir, verify=False)
@@ -132,7 +132,10 @@ def load_role(bundle_or_dir: Bundle | str | os.PathLike, role: str, variant: str
             raise BundleError(f"{b.manifest_path}: roles.{role}.variants.{spec.variant}.components.{cname}.format "
                               f"is {comp.format!r}; the runtime loads onnx or ort")
         stage = role if len(spec.components) == 1 else f"{role}.{cname}"
-        sessions[cname] = create_session(comp.path, stage, providers, threads=threads, trace=trace)
+        # the graph and its external data: the floor of the memory guard's size estimate for the session
+        extra = [b.root / e["file"] for e in comp.meta.get("extra_files", []) if isinstance(e.get("file"), str)]
+        sessions[cname] = create_session(comp.path, stage, providers, threads=threads, trace=trace,
+                                         model_mb=files_mb(comp.path, extra))
         check_image_input(spec, cname, sessions[cname])
     trace.decide(f"model.{role}", {"arch": spec.arch, "variant": spec.variant, "bundle": str(b.root),
                                    "random_weights": spec.random_weights})
