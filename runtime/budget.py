@@ -218,12 +218,12 @@ class Profile:
         """This profile with the model costs of `models` ("shared": [costs.*] as written; "paper": each model
         item [paper_costs.<item>] replaces [costs.<item>]; items it lacks keep the shared figure, named)."""
         if models not in MODEL_SETS:
-            raise ProfileError(f"--models {models!r}: choose one of {MODEL_SETS}")
+            raise ProfileError(f"`models={models}`: choose one of {MODEL_SETS}", fields=("models",))
         if models == "shared":
             return self
         if not self.paper_costs:
             raise ProfileError(f"{self.path or self.name}: no [paper_costs.*] tables; measure them with "
-                               f"benchmarks/paper_models.py or plan with --models shared")
+                               f"benchmarks/paper_models.py or plan with `models=shared`", fields=("models",))
         return replace(self, costs={**self.costs, **self.paper_costs})
 
     def providers_for(self, role: str) -> list[str]:
@@ -750,7 +750,8 @@ def plan(profile: Profile | str | os.PathLike, duration_s: float, fps: float, bu
     if not (fps > 0 and math.isfinite(fps)) or fps > MAX_FPS:
         raise InputError(f"plan: fps must be > 0 and at most {MAX_FPS:g} (got {fps:g})")
     if candidates is not None and candidates < 2:
-        raise InputError(f"plan: --candidates must be >= 2 (frames kept by dedup; got {candidates})")
+        raise InputError(f"plan: `candidates` must be >= 2 (frames kept by dedup; got {candidates})",
+                         fields=("candidates",))
     if duration_s * fps + 1 < MIN_MAP_FRAMES:  # frames at t = 0, 1/fps, ...: a 0.001 s clip is one frame
         raise InputError(f"plan: a {duration_s:g} s clip at {fps:g} fps has {int(duration_s * fps) + 1} frame(s); "
                          f"a map needs at least {MIN_MAP_FRAMES} views of the scene")
@@ -1275,7 +1276,8 @@ def clip_of(source: Any, fps: float | None = None) -> tuple[float, float]:
     elif fps:
         f = float(fps)
     else:
-        raise InputError(f"{getattr(source, 'name', 'source')}: cannot tell its frame rate; give --fps")
+        raise InputError(f"{getattr(source, 'name', 'source')}: cannot tell its frame rate; give `fps`",
+                         fields=("fps",))
     return n / f, f
 
 

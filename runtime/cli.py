@@ -214,7 +214,12 @@ def report_exception(e: BaseException, debug: bool = False) -> int:
         return 0
     code = exit_code_for(e)
     try:
-        print(message_for(e), file=sys.stderr)
+        msg = message_for(e)
+        if getattr(e, "fields", None):  # API-neutral field names -> this command line's flags
+            from .commands.flags import cli_message
+
+            msg = cli_message(msg, e.fields)
+        print(msg, file=sys.stderr)
         if debug:
             import traceback
 

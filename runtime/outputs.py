@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 
 from .errors import OutputError
+from .trace import as_trace
 
 LOCK = ".mosaic.lock"
 RUN_FILE = "run.json"
@@ -174,8 +175,10 @@ class RunOutputs:
         return self._stage(name, data)
 
     def add_text(self, name: str, text: str) -> Path:
-        """Stage a text file; its last line names the run."""
-        return self._stage(name, (text.rstrip("\n") + f"\n# run_id: {self.run_id}\n").encode())
+        """Stage a text file; its last line names the run (an HTML comment in Markdown, where `#` is a heading)."""
+        tag = (f"<!-- run_id: {self.run_id} -->" if Path(name).suffix.lower() in (".md", ".html")
+               else f"# run_id: {self.run_id}")
+        return self._stage(name, (text.rstrip("\n") + f"\n{tag}\n").encode())
 
     def commit(self) -> list[str]:
         """Rename every staged file into place, then mark the run complete in run.json. Returns the paths."""
@@ -292,7 +295,7 @@ def write_group(folder: str | os.PathLike, items: list[tuple[str, str, Any]], re
     the write failed: the CLI still prints the result). Check the folder with `check_out_dir` before the
     long work starts."""
     with RunOutputs(folder) as outs:
-        note_outputs(outs, trace) if trace is not None else None
+        note_outputs(outs, as_trace(trace))
         files, err, code = save_run(outs, items)
         result.update({"run_id": outs.run_id, "files": files, **({"write_error": err, "exit_code": code}
                                                                   if err else {})})

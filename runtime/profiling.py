@@ -486,7 +486,8 @@ def run_profile(bundle: Any, profile: Profile | str | None = None, *, video: str
     base_rss = rss_mb()
     prof = load_profile(profile) if isinstance(profile, (str, os.PathLike)) else profile
     if update_profile and prof is None:
-        raise InputError("--update-profile needs --profile FILE (the file the measured costs are written to)")
+        raise InputError("`update_profile` needs `profile` (the file the measured costs are written to)",
+                         fields=("update_profile", "profile"))
     b = load_bundle(bundle, verify=True)
     bhash = bundle_hash(b)
     trace = trace if trace is not None else Trace()

@@ -121,7 +121,7 @@ def test_profile_marks_random_weights_and_reports_fallback(shared_bundle, tmp_pa
 def test_update_profile_needs_a_profile(shared_bundle):
     from mosaicthinker.runtime.errors import InputError
 
-    with pytest.raises(InputError, match="--update-profile needs --profile"):
+    with pytest.raises(InputError, match="`update_profile` needs `profile`"):  # API words; the CLI says flags
         P.run_profile(shared_bundle, None, update_profile=True, progress=False)
 
 

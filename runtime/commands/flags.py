@@ -10,6 +10,39 @@ import argparse
 import sys
 from typing import Any, Sequence
 
+# API parameter / config field -> the flag that sets it: the CLI rewrites a MosaicError's backticked `field`
+# (or `field=value`) as `--flag` (`--flag value`); the library's messages name the parameters (errors.py).
+FLAG_FOR_FIELD = {
+    "answerer": "--answerer", "method": "--method", "depth": "--depth", "matcher": "--matcher",
+    "detector": "--detector", "bundle": "--bundle", "profile": "--profile", "out": "--out",
+    "candidates": "--candidates", "fps": "--fps", "duration": "--duration", "models": "--models",
+    "keyframes": "--keyframes", "sampling": "--sampling", "update_profile": "--update-profile",
+    "SceneConfig.objects": "--complexity", "SceneConfig.room": "--room", "SceneConfig.duration": "--duration",
+    "SceneConfig.fps": "--fps", "SceneConfig.size": "--size",
+    "video=False": "--no-video",  # a field=value with a flag of its own
+}
+_FIELD_RE = None
+
+
+def cli_message(message: str, fields: Sequence[str]) -> str:
+    """A library message in the CLI's words: each backticked `field` / `field=value` of `fields` that has a
+    flag becomes `--flag` / `--flag value`; everything else is left as written."""
+    import re
+
+    global _FIELD_RE
+    _FIELD_RE = _FIELD_RE or re.compile(r"`([A-Za-z_][\w.]*)(?:=([^`]*))?`")
+
+    def sub(m: "re.Match[str]") -> str:
+        if m.group(1) not in fields:
+            return m.group(0)
+        if m.group(2) and f"{m.group(1)}={m.group(2)}" in FLAG_FOR_FIELD:
+            return FLAG_FOR_FIELD[f"{m.group(1)}={m.group(2)}"]
+        flag = FLAG_FOR_FIELD.get(m.group(1))
+        return m.group(0) if flag is None else flag + (f" {m.group(2)}" if m.group(2) else "")
+
+    return _FIELD_RE.sub(sub, message)
+
+
 COMPLEXITY = ("low", "med", "high")   # object-number levels of a generated scene (VSI-Bench terciles)
 ANSWERERS = ("map", "vlm", "auto")    # map reasoner, VLM on the visual prompt, auto (reasoner when it knows)
 

@@ -171,7 +171,7 @@ def _oracle_matcher(conf: dict[str, Any], bundle: Any, trace: Any) -> Any:
 
     b = load_bundle(bundle)
     if not b.has_role("matcher"):
-        raise InputError(f"{bundle}: --matcher model needs a bundle with a `matcher` role")
+        raise InputError(f"{bundle}: `matcher=model` needs a bundle with a matcher role", fields=("matcher",))
     return load_role(b, "matcher", trace=trace)
 
 
