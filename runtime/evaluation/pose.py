@@ -176,15 +176,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
+    from ..outputs import run_group
+
+    with run_group(args.out) as outs:  # --out checked and locked before the evaluation runs
+        return _run(args, outs)
+
+
+def _run(args: argparse.Namespace, outs: Any) -> dict[str, Any]:
     from ..frames import open_source
     from ..trace import Trace
 
     trace = Trace()
     t0 = time.perf_counter()
-    if args.out:
-        from ..outputs import check_out_dir
-
-        check_out_dir(Path(args.out))  # before the evaluation runs, not after
     src = open_source(args.data)
     if not src.has_pose:
         raise InputError(f"{args.data}: needs ground-truth poses for every frame (7-Scenes .pose.txt or TUM "
@@ -201,11 +204,11 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     out.update({"schema": SCHEMA, "data": str(args.data), "keyframes": args.keyframes, "sampling": args.sampling,
                 "seed": args.seed, "strategy": args.strategy, "depth": args.depth, "matcher": args.matcher,
                 "events": trace.events})
-    if args.out:
-        from ..outputs import write_group
+    if outs is not None:
+        from ..outputs import finish_group
 
-        write_group(args.out, [("eval_pose_json", "eval_pose.json", dict(out)),
-                               ("trace_json", "trace.json", trace.to_dict())], out, trace)
+        finish_group(outs, [("eval_pose_json", "eval_pose.json", dict(out)),
+                            ("trace_json", "trace.json", trace.to_dict())], out, trace)
     return out
 
 
