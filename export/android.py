@@ -60,7 +60,7 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from mosaicthinker.runtime import bundle as B
+from mosaicthinker.runtime.host import bundle_write as B
 from mosaicthinker.runtime.errors import ExportError
 
 from . import common as C

@@ -28,7 +28,7 @@ from typing import Any, Callable, Iterable, Sequence
 
 import numpy as np
 
-from mosaicthinker.runtime import bundle as B
+from mosaicthinker.runtime.host import bundle_write as B
 from mosaicthinker.runtime.errors import ExportError
 
 Feeds = dict[str, np.ndarray]

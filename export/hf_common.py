@@ -222,7 +222,7 @@ def _strip_value_info(src: Path, dst: Path) -> Path:
 
 
 def _drop_role(out: str | Path, role: str) -> None:
-    from mosaicthinker.runtime import bundle as B
+    from mosaicthinker.runtime.host import bundle_write as B
 
     if (Path(out) / B.MANIFEST).is_file():
         manifest = B.read_manifest(out)

@@ -580,7 +580,7 @@ def export_qwen_vl(source: str, out: str | Path, precisions: Sequence[str], *, i
     (default on for tiny, off at real size where fp32 transformers alone needs ~15 GB)."""
     import tempfile
 
-    from mosaicthinker.runtime import bundle as B
+    from mosaicthinker.runtime.host import bundle_write as B
 
     from .hf_common import _drop_role
 
@@ -627,7 +627,7 @@ def export_qwen_vl(source: str, out: str | Path, precisions: Sequence[str], *, i
 
 def _add_variant(out: Path, v: str, pkg: Path, prov: dict, graphs: dict, build: dict, check: dict,
                  image_size: int, vc: Any) -> None:
-    from mosaicthinker.runtime import bundle as B
+    from mosaicthinker.runtime.host import bundle_write as B
 
     comps, files = package_components(out, pkg)
     cfg = {"family": ARCH, "runtime": "onnxruntime-genai", "genai_version": GENAI_VERSION, "image_size": image_size,

@@ -32,7 +32,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Sequence
 
-from mosaicthinker.runtime import bundle as B
+from mosaicthinker.runtime.host import bundle_write as B
 from mosaicthinker.runtime.errors import ExportError
 
 from . import common as C

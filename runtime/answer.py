@@ -787,7 +787,7 @@ def answer_question(smap: SemanticMap, question: str, options: list[str] | None 
     from .errors import InputError
 
     if answerer not in ANSWERERS:
-        raise InputError(f"--answerer must be one of {ANSWERERS}, got {answerer!r}")
+        raise InputError(f"`answerer` must be one of {ANSWERERS}, got {answerer!r}", fields=("answerer",))
     pq = parsed if parsed is not None else parse_question(question, options)
     opts = options if options is not None else pq.options
     reasoner = MapReasoner(smap)
@@ -806,7 +806,7 @@ def answer_question(smap: SemanticMap, question: str, options: list[str] | None 
         ans.explanation += "; no VLM in the bundle (add a `vlm` role to answer free-form questions)"
         return ans
     if vlm is None:
-        raise InputError("--answerer vlm needs a bundle with a `vlm` role")
+        raise InputError("`answerer=vlm` needs a bundle with a `vlm` role", fields=("answerer",))
     missing = [n for n in pq.objects if not smap.by_name(n)]
     if missing:
         trace.decide("answer.answerer", "vlm")

@@ -129,9 +129,17 @@ def _missing_extra(e: ModuleNotFoundError, words: tuple[str, ...], extra: str | 
     return False
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with the outcome table's bad-input form: one `error:` line naming the flag, exit 2 (not the
+    usage block first; `--help` still prints it)."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        self.exit(2, f"error: {self.prog}: {message} (see `{self.prog} --help`)\n")
+
+
 def build_parser(words: tuple[str, ...], module: Any) -> argparse.ArgumentParser:
     """The parser of one command (its module imported): the common flags it reads, then its own."""
-    parser = argparse.ArgumentParser(prog="mosaic " + " ".join(words), description=COMMANDS[words][1])
+    parser = _Parser(prog="mosaic " + " ".join(words), description=COMMANDS[words][1])
     add_common_flags(parser, getattr(module, "COMMON_FLAGS", tuple(COMMON)))
     module.add_arguments(parser) if len(words) == 1 or not hasattr(module, "add_arguments_for") \
         else module.add_arguments_for(words[1], parser)
@@ -214,7 +222,12 @@ def report_exception(e: BaseException, debug: bool = False) -> int:
         return 0
     code = exit_code_for(e)
     try:
-        print(message_for(e), file=sys.stderr)
+        msg = message_for(e)
+        if getattr(e, "fields", None):  # API-neutral field names -> this command line's flags
+            from .commands.flags import cli_message
+
+            msg = cli_message(msg, e.fields)
+        print(msg, file=sys.stderr)
         if debug:
             import traceback
 

@@ -3,7 +3,15 @@ from __future__ import annotations
 
 
 class MosaicError(Exception):
-    """Base of every error the project raises on purpose."""
+    """Base of every error the project raises on purpose.
+
+    Messages are API-neutral: a parameter or config field is named in backticks (`answerer`, or `depth=model`
+    for a value), and `fields` lists those names; the command line rewrites them as its flags (`--answerer`,
+    `--depth model`) from one table, `commands/flags.FLAG_FOR_FIELD`."""
+
+    def __init__(self, *args: object, fields: tuple[str, ...] = ()):
+        super().__init__(*args)
+        self.fields = tuple(fields)
 
 
 class InputError(MosaicError):

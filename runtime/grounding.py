@@ -19,6 +19,7 @@ attachments after a preposition ("stool by the piano" -> stool) are dropped.
 """
 from __future__ import annotations
 
+import functools
 import re
 from dataclasses import asdict, dataclass, field
 from typing import Any
@@ -169,6 +170,7 @@ def _match(words: list[str]) -> str | None:
     return None
 
 
+@functools.lru_cache(maxsize=4096)  # pure; a 10 k-object map has a few names, each keyed once
 def name_key(s: str) -> str:
     """A name's comparison key: lower case, articles dropped, the last word singular ("The Office Chairs" ->
     "office chair"). Map categories and question phrases are compared by this key before synonyms."""

@@ -22,12 +22,14 @@ import secrets
 import shutil
 import socket
 import time
+from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator
 
 import numpy as np
 
 from .errors import OutputError
+from .trace import as_trace
 
 LOCK = ".mosaic.lock"
 RUN_FILE = "run.json"
@@ -86,6 +88,7 @@ class RunOutputs:
         self.run_id = run_id or new_run_id()
         self.what = what
         self.staged: list[tuple[Path, Path]] = []  # (temp, final)
+        self.staged_dirs: list[tuple[Path, Path]] = []  # (temp folder, final folder): whole trees of files
         self.notes: list[str] = []
         self._locked = False
         check_out_dir(self.folder, what)
@@ -139,7 +142,7 @@ class RunOutputs:
     def _clean_stale_temps(self) -> None:
         for p in self.folder.glob(TMP_PREFIX + "*"):
             try:
-                p.unlink()
+                shutil.rmtree(p) if p.is_dir() and not p.is_symlink() else p.unlink()
             except OSError:
                 pass
 
@@ -173,9 +176,19 @@ class RunOutputs:
         data = encode_png(rgb, {"mosaicthinker_run_id": self.run_id})
         return self._stage(name, data)
 
+    def stage_dir(self, name: str = "") -> Path:
+        """A hidden temp folder for files a generator writes itself (a synthetic scene's frames): `commit()`
+        moves every file in it to `folder/name` (the folder itself for ""), before run.json says complete."""
+        tmp = self.folder / f"{TMP_PREFIX}{self.run_id}.dir{len(self.staged_dirs)}"
+        tmp.mkdir()
+        self.staged_dirs.append((tmp, self.folder / name if name else self.folder))
+        return tmp
+
     def add_text(self, name: str, text: str) -> Path:
-        """Stage a text file; its last line names the run."""
-        return self._stage(name, (text.rstrip("\n") + f"\n# run_id: {self.run_id}\n").encode())
+        """Stage a text file; its last line names the run (an HTML comment in Markdown, where `#` is a heading)."""
+        tag = (f"<!-- run_id: {self.run_id} -->" if Path(name).suffix.lower() in (".md", ".html")
+               else f"# run_id: {self.run_id}")
+        return self._stage(name, (text.rstrip("\n") + f"\n{tag}\n").encode())
 
     def commit(self) -> list[str]:
         """Rename every staged file into place, then mark the run complete in run.json. Returns the paths."""
@@ -184,13 +197,16 @@ class RunOutputs:
             os.replace(tmp, final)
             done.append(str(final))
         self.staged = []
+        for tmp, final in self.staged_dirs:
+            done += _move_tree(tmp, final)
+        self.staged_dirs = []
         self._write_run_file("complete", done)
         _fsync_dir(self.folder)
         return done
 
     def _write_run_file(self, status: str, files: list[str]) -> None:
         rec = {"schema": "mosaicthinker.run/1", "run_id": self.run_id, "status": status, "pid": os.getpid(),
-               "files": [Path(f).name for f in files], "time": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
+               "files": [os.path.relpath(f, self.folder) for f in files], "time": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
         tmp = self.folder / f"{TMP_PREFIX}{self.run_id}.{RUN_FILE}"
         with open(tmp, "w") as f:
             json.dump(rec, f)
@@ -205,6 +221,9 @@ class RunOutputs:
             except OSError:
                 pass
         self.staged = []
+        for tmp, _ in self.staged_dirs:
+            shutil.rmtree(tmp, ignore_errors=True)
+        self.staged_dirs = []
         if self._locked:
             try:
                 (self.folder / LOCK).unlink()
@@ -217,6 +236,19 @@ class RunOutputs:
 
     def __exit__(self, *exc: Any) -> None:
         self.close()
+
+
+def _move_tree(tmp: Path, final: Path) -> list[str]:
+    """Rename every file under `tmp` to the same place under `final` (one rename each), then drop `tmp`."""
+    done = []
+    for dirpath, _, names in os.walk(tmp):
+        dest = final / Path(dirpath).relative_to(tmp)
+        dest.mkdir(parents=True, exist_ok=True)
+        for n in names:
+            os.replace(Path(dirpath) / n, dest / n)
+            done.append(str(dest / n))
+    shutil.rmtree(tmp, ignore_errors=True)
+    return done
 
 
 def _fsync_dir(folder: Path) -> None:
@@ -285,17 +317,52 @@ def note_outputs(outs: RunOutputs | None, trace: Any) -> None:
         trace.event("output", n)
 
 
+def finish_group(outs: RunOutputs, items: list[tuple[str, str, Any]], result: dict[str, Any],
+                 trace: Any = None) -> dict[str, Any]:
+    """Write `items` as one group into a run's locked folder (see `save_run`) and record the outcome in
+    `result` (`files`, `run_id`, and `write_error` + `exit_code` when the write failed: the CLI still prints
+    the result)."""
+    note_outputs(outs, as_trace(trace))
+    files, err, code = save_run(outs, items)
+    result.update({"run_id": outs.run_id, "files": files, **({"write_error": err, "exit_code": code}
+                                                              if err else {})})
+    for n in outs.notes:
+        result.setdefault("warnings", []).append(n)
+    return result
+
+
 def write_group(folder: str | os.PathLike, items: list[tuple[str, str, Any]], result: dict[str, Any],
                 trace: Any = None) -> dict[str, Any]:
-    """For commands that only write at the end (eval ...): lock `folder`, write `items` as one group (see
-    `save_run`) and record the outcome in `result` (`files`, `run_id`, and `write_error` + `exit_code` when
-    the write failed: the CLI still prints the result). Check the folder with `check_out_dir` before the
-    long work starts."""
+    """Lock `folder` and write `items` as one group (`finish_group`). For a long run, hold the folder from
+    the start instead (`run_group`), so it is checked and locked before the work."""
     with RunOutputs(folder) as outs:
-        note_outputs(outs, trace) if trace is not None else None
-        files, err, code = save_run(outs, items)
-        result.update({"run_id": outs.run_id, "files": files, **({"write_error": err, "exit_code": code}
-                                                                  if err else {})})
-        for n in outs.notes:
-            result.setdefault("warnings", []).append(n)
-    return result
+        return finish_group(outs, items, result, trace)
+
+
+@contextmanager
+def run_group(folder: str | os.PathLike | None, what: str = "--out") -> Iterator[RunOutputs | None]:
+    """The run's RunOutputs for its whole duration (checked and locked before any work; lock and temp files
+    released on every exit), or None when the command writes no folder."""
+    if folder is None:
+        yield None
+        return
+    with RunOutputs(folder, what=what) as outs:
+        yield outs
+
+
+def write_file_atomic(path: str | os.PathLike, data: bytes | str) -> Path:
+    """One file written as temp + fsync + rename beside it (a kill leaves the old file or the new one, never
+    a truncated one). For single result files a user names (`--result FILE`); folders use RunOutputs."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.parent / f"{TMP_PREFIX}{os.getpid()}.{path.name}"
+    try:
+        with open(tmp, "wb") as f:
+            f.write(data.encode() if isinstance(data, str) else data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    return path

@@ -1111,12 +1111,12 @@ def perception_from_bundle(bundle: Any, conf: PipelineConfig | dict | None = Non
         return m
 
     if detector != "model":
-        raise InputError(f"perception_from_bundle: detector {detector!r}; the oracle detector is evaluation-only "
-                         f"(`mosaic ask --detector oracle` on a synthetic scene)")
+        raise InputError(f"perception_from_bundle: `detector={detector}`; the oracle detector is evaluation-only "
+                         f"(`mosaic ask --detector oracle` on a synthetic scene)", fields=("detector",))
     if not has("detector"):
-        raise InputError(f"{'no --bundle given' if b is None else str(b.manifest_path) + ': no `detector` role'}: "
+        raise InputError(f"{'no `bundle` given' if b is None else str(b.manifest_path) + ': no `detector` role'}: "
                          f"the map needs a detector (export one with `mosaic export detector`), or use "
-                         f"--detector oracle on a synthetic scene")
+                         f"`detector=oracle` on a synthetic scene", fields=("bundle", "detector"))
     det = load("detector")
     p = Perception(detect=lambda frame, names: det.detect(frame.rgb, names))
     if has("segmenter"):
@@ -1137,7 +1137,7 @@ def perception_from_bundle(bundle: Any, conf: PipelineConfig | dict | None = Non
         desc["segmenter"] = "none (box + depth band)"
     if conf.depth == "model":
         if not has("depth"):
-            raise InputError("--depth model needs a bundle with a `depth` role (or use --depth sensor)")
+            raise InputError("`depth=model` needs a bundle with a depth role (or use `depth=sensor`)", fields=("depth",))
         dm = load("depth")
         p.depth = lambda frame: dm.predict_metric(frame.rgb)[0]
         p.depth_relative = getattr(dm, "semantics", "metric_m") != "metric_m"
@@ -1147,7 +1147,8 @@ def perception_from_bundle(bundle: Any, conf: PipelineConfig | dict | None = Non
         p.depth_relative = getattr(dm, "semantics", "metric_m") != "metric_m"
     if conf.matcher == "model":
         if not has("matcher"):
-            raise InputError("--matcher model needs a bundle with a `matcher` role (or use --matcher sift|orb)")
+            raise InputError("`matcher=model` needs a bundle with a matcher role (or use `matcher=sift|orb`)",
+                             fields=("matcher",))
         p.matcher = load("matcher")
     else:
         p.matcher = conf.matcher
@@ -1249,15 +1250,16 @@ def ask(source: Any, question: str, options: list[str] | None = None, *, percept
     trace = trace if trace is not None else Trace()
     conf = conf if isinstance(conf, PipelineConfig) else PipelineConfig.merged(conf)
     if method not in ("mosaic", "direct"):
-        raise InputError(f"--method must be mosaic or direct, got {method!r}")
+        raise InputError(f"`method` must be mosaic or direct, got {method!r}", fields=("method",))
     if vlm is None and bundle is not None:
         vlm = load_vlm(bundle, trace, profile)
     src = _open(source)
     if method == "direct":
         if isinstance(src, SemanticMap):
-            raise InputError("--method direct needs a video or frame folder, not a saved map")
+            raise InputError("`method=direct` needs a video or frame folder, not a saved map", fields=("method",))
         if vlm is None:
-            raise InputError("--method direct (the Direct Input baseline) needs a bundle with a `vlm` role")
+            raise InputError("`method=direct` (the Direct Input baseline) needs a bundle with a `vlm` role",
+                             fields=("method",))
         n = min(direct_frames, len(src))
         idx = np.unique(np.floor((np.arange(n) + 0.5) * len(src) / n).astype(int))
         with trace.stage("decode"):

@@ -15,7 +15,7 @@ thread default):
 
 Outputs in --out: `report.json` (schema mosaicthinker.profile_report/1), `report.md`, `latency.png` (per call),
 `memory.png`, and `pipeline.png` (seconds per stage of the question) when one ran (Pillow charts, no
-matplotlib). `--update-profile` writes the measured costs back into the profile TOML (status "measured", today's
+matplotlib; written by the host-side `runtime/host/report.py` as one atomic group, like `ask` and `map`). `--update-profile` writes the measured costs back into the profile TOML (status "measured", today's
 date and the bundle hash). Random-weight models are marked everywhere:
 their timings are real, their outputs are not.
 """
@@ -24,7 +24,6 @@ from __future__ import annotations
 import argparse
 import datetime as _dt
 import gc
-import json
 import os
 import platform
 import time
@@ -36,6 +35,7 @@ import numpy as np
 from .budget import Profile, load_profile, update_profile_costs
 from .bundle import bundle_hash
 from .errors import InputError, MosaicError
+from .outputs import check_out_dir
 from .trace import Trace, peak_rss_mb, reset_peak_rss, rss_mb
 
 REPORT_SCHEMA = "mosaicthinker.profile_report/1"
@@ -481,10 +481,13 @@ def run_profile(bundle: Any, profile: Profile | str | None = None, *, video: str
 
     import cv2  # noqa: F401 - counted in the runtime's baseline
 
+    if out is not None:  # a file-shaped, read-only or full --out fails now, not after minutes of profiling
+        check_out_dir(Path(out))
     base_rss = rss_mb()
     prof = load_profile(profile) if isinstance(profile, (str, os.PathLike)) else profile
     if update_profile and prof is None:
-        raise InputError("--update-profile needs --profile FILE (the file the measured costs are written to)")
+        raise InputError("`update_profile` needs `profile` (the file the measured costs are written to)",
+                         fields=("update_profile", "profile"))
     b = load_bundle(bundle, verify=True)
     bhash = bundle_hash(b)
     trace = trace if trace is not None else Trace()
@@ -576,15 +579,17 @@ def run_profile(bundle: Any, profile: Profile | str | None = None, *, video: str
         update_profile_costs(prof.path, costs, bundle_hash_=bhash, date=report["date"], providers=provs,
                              notes=notes)
         report["updated_profile"] = str(prof.path)
-    if out is not None:
-        write_report(report, out)
+    if out is not None:  # as one group: folder locked, temp files renamed, run id in every file
+        from .host.report import save_report
+
+        save_report(report, out, trace)
     return report
 
 
 # ------------------------------------------------------------------------------------------------ output
 
 
-def _rows(report: dict[str, Any]) -> list[dict[str, Any]]:
+def report_rows(report: dict[str, Any]) -> list[dict[str, Any]]:
     """One row per role/variant/component and per adapter, for the table and charts."""
     rows = []
     for role, r in report["roles"].items():
@@ -625,7 +630,7 @@ def render(report: dict[str, Any]) -> str:
                   f"are meaningless.", ""]
     lines += ["| model | variant | provider | load ms | p50 ms | p90 ms | RSS +MB | peak +MB |",
               "|---|---|---|---:|---:|---:|---:|---:|"]
-    for r in _rows(report):
+    for r in report_rows(report):
         tag = " (RANDOM WEIGHTS)" if r["random"] else ""
         if "error" in r:
             lines.append(f"| {r['name']}{tag} | {r['variant']} | error: {r['error'][:80]} | | | | | |")
@@ -658,86 +663,6 @@ def render(report: dict[str, Any]) -> str:
         lines += ["", f"Written back to {report['updated_profile']} (status measured, {report['date']}, "
                       f"bundle {report['bundle_hash']})."]
     return "\n".join(lines) + "\n"
-
-
-def _font(size: int):
-    from PIL import ImageFont
-
-    for name in ("DejaVuSans.ttf", "/usr/share/fonts/truetype/dejavu/DejaVuSans.ttf"):
-        try:
-            return ImageFont.truetype(name, size)
-        except OSError:
-            continue
-    return ImageFont.load_default()
-
-
-def bar_chart(path: str | os.PathLike, title: str, labels: list[str], values: list[float],
-              whiskers: list[float] | None = None, unit: str = "ms", marks: list[bool] | None = None,
-              legend: str = "bars: p50, whisker: p90") -> Path:
-    """Horizontal bar chart PNG (Pillow): one bar per label, optional p90 whisker, '*' marks random weights."""
-    from PIL import Image, ImageDraw
-
-    n = max(len(labels), 1)
-    W, row, left, top = 900, 26, 260, 50
-    H = top + n * row + 40
-    img = Image.new("RGB", (W, H), "white")
-    d = ImageDraw.Draw(img)
-    f, fs = _font(14), _font(12)
-    d.text((10, 12), title, fill="black", font=_font(16))
-    vmax = max([v for v in values + (whiskers or []) if v == v] + [1e-9])
-    scale = (W - left - 90) / vmax
-    for i, (lab, v) in enumerate(zip(labels, values)):
-        y = top + i * row
-        mark = marks[i] if marks else False
-        d.text((10, y + 4), (lab + (" *" if mark else ""))[:34], fill="black", font=fs)
-        if v != v:  # nan: error
-            d.text((left, y + 4), "error", fill=(180, 0, 0), font=fs)
-            continue
-        colour = (200, 90, 60) if mark else (60, 110, 190)
-        d.rectangle([left, y + 4, left + max(1, int(v * scale)), y + row - 6], fill=colour)
-        if whiskers and whiskers[i] == whiskers[i]:
-            x = left + int(whiskers[i] * scale)
-            d.line([left + int(v * scale), y + row // 2, x, y + row // 2], fill="black", width=1)
-            d.line([x, y + 7, x, y + row - 9], fill="black", width=1)
-        d.text((left + max(1, int(max(v, whiskers[i] if whiskers else v) * scale)) + 6, y + 4),
-               f"{v:.1f} {unit}", fill="black", font=fs)
-    foot = legend if (whiskers or legend != "bars: p50, whisker: p90") else ""
-    if marks and any(marks):
-        foot += ("; " if foot else "") + "* random weights (timings real, outputs not)"
-    d.text((10, H - 24), foot, fill=(90, 90, 90), font=f)
-    img.save(path)
-    return Path(path)
-
-
-def write_report(report: dict[str, Any], out: str | os.PathLike) -> dict[str, str]:
-    """report.json, report.md, latency.png, memory.png (and pipeline.png after a full question) into `out`."""
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    from .trace import jsonable
-
-    (out / "report.json").write_text(json.dumps(jsonable(report), indent=2))
-    (out / "report.md").write_text(render(report))
-    rows = [r for r in _rows(report)]
-    nan = float("nan")
-    lat_rows = rows + [{"name": f"cpu: {k}", "p50": v["latency_ms"]["p50"], "p90": v["latency_ms"]["p90"],
-                        "random": False} for k, v in report.get("cpu_side", {}).items() if "latency_ms" in v]
-    for k, v in report.get("cpu_side", {}).items():
-        if "ms_per_frame" in v:
-            lat_rows.append({"name": f"cpu: {k} / frame", "p50": v["ms_per_frame"], "p90": nan, "random": False})
-    files = ["report.json", "report.md", "latency.png", "memory.png"]
-    stages = (report.get("pipeline") or {}).get("stages", {})
-    if stages:  # totals of one question, on their own scale (seconds, not ms per call)
-        bar_chart(out / "pipeline.png", f"one question, time per stage: {report['pipeline'].get('question')}",
-                  list(stages), [st["seconds"] for st in stages.values()], None, "s",
-                  legend="nested stages overlap (e.g. detect contains detector)")
-        files.append("pipeline.png")
-    bar_chart(out / "latency.png", f"latency per model / stage (bundle {report['bundle_hash']})",
-              [r["name"] for r in lat_rows], [r.get("p50", nan) for r in lat_rows],
-              [r.get("p90", nan) for r in lat_rows], "ms", [r["random"] for r in lat_rows])
-    bar_chart(out / "memory.png", f"resident memory per model (bundle {report['bundle_hash']})",
-              [r["name"] for r in rows], [r.get("mem", nan) for r in rows], [r.get("peak", nan) for r in rows],
-              "MB", [r["random"] for r in rows], legend="bars: RSS increase after load + runs, whisker: peak increase")
-    return {k: str(out / k) for k in files}
 
 
 # ------------------------------------------------------------------------------------------ `mosaic profile`
@@ -778,3 +703,12 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                        progress=not (args.no_progress or args.json) and stderr_is_terminal(),
                        isolate=not args.in_process, question=None if args.no_question else args.question,
                        keyframes=args.keyframes)
+
+
+def __getattr__(name: str) -> Any:
+    """`write_report` moved to the host side (runtime/host/report.py); still importable from here."""
+    if name == "write_report":
+        from .host.report import write_report
+
+        return write_report
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -50,6 +50,8 @@ def _finite_array(v: Any, shape: tuple[int, ...], where: str, field_: str) -> np
         a = np.asarray(v, dtype=np.float64)
     except (TypeError, ValueError):
         raise _map_error(where, field_, f"must be numbers of shape {list(shape)}") from None
+    if a.size == 0 and shape and shape[0] == 0:  # an empty map's stacked fields: [] is shape (0,), not (0, 3)
+        a = a.reshape(shape)
     if a.shape != shape:
         raise _map_error(where, field_, f"has shape {list(a.shape)}, expected {list(shape)}")
     if not np.isfinite(a).all():

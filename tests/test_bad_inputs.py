@@ -186,6 +186,10 @@ def _case_maps():
         ("map_not_json", lambda t: ["ask", _write(t / "map.json", b"{\"schema\": "), Q_COUNT], 2, "cannot read"),
         ("map_ok_distance", lambda t: ["ask", small_map(t / "map.json"), Q_DIST], 0,
          "closest points of chair #0 and table #1: 3.953 m"),
+        ("map_json_deep", lambda t: ["ask", _write(t / "map.json", b"[" * 100000 + b"]" * 100000), Q_COUNT], 2,
+         "map.json"),
+        ("map_empty_instances", lambda t: ["ask", edit_map(t, lambda d: d.update(instances=[])), Q_COUNT], 0,
+         "not found"),
     ]
 
 
@@ -269,6 +273,12 @@ def _case_profiles():
         ("toml_deep", lambda t: pl + [_write(t / "p.toml", b"a = " + b"[" * 100000 + b"]" * 100000 + b"\n"), *clip],
          2, "p.toml"),
         ("profile_ok", lambda t: pl + ["cpu-generic", *clip], 0, "key frames K"),
+        ("fps_inf", lambda t: pl + ["cpu-generic", "--duration", "10", "--fps", "inf"], 2, "--fps must be > 0"),
+        ("synth_duration_huge", lambda t: ["synth", "--out", t / "s", "--duration", "1e308"], 2, "at most 86400"),
+        ("e2e_duration_huge", lambda t: ["eval", "e2e", "--out", t / "e", "--duration", "1e308"], 2,
+         "at most 86400"),
+        ("threads_over_cores_ok", lambda t: pl + [profile_with(t, "intra_op_threads = 2", "intra_op_threads = 200"),
+                                                  *clip], 0, "key frames K"),
     ]
 
 
@@ -422,6 +432,71 @@ def test_core_affinity_is_applied_or_refused_loudly():
     assert any("core_affinity [10000] not applied" in m for m in msgs)
     assert p.intra_op_threads == len(before) and any("usable cores" in m for m in msgs)
     assert os.sched_getaffinity(0) == before
+
+
+def test_core_affinity_that_exists_is_applied():
+    from mosaicthinker.runtime.budget import load_profile
+    from mosaicthinker.runtime.trace import Trace
+
+    before = os.sched_getaffinity(0)
+    p = load_profile("cpu-generic")
+    p.core_affinity = [min(before)]
+    tr = Trace()
+    try:
+        p.apply_to_machine(tr)
+        assert os.sched_getaffinity(0) == {min(before)}  # really pinned, not only accepted
+        assert tr.decisions["budget.core_affinity"] == [min(before)]
+        assert not [e for e in tr.events if "core_affinity" in e["message"]]
+    finally:
+        os.sched_setaffinity(0, before)
+
+
+def test_profile_out_is_written_as_one_group_and_checked_first(tmp_path, capsys):
+    from mosaicthinker.runtime.host.report import save_report
+
+    f = tmp_path / "file"
+    f.write_text("x")
+    code, _, err = run_cli(capsys, ["profile", "--bundle", str(tmp_path / "nobundle"), "--out", str(f)])
+    assert code == 2 and "is a file, not a folder" in err  # refused before the bundle is even read
+    rep = {"schema": "x", "bundle": "b", "bundle_hash": "h", "date": "d", "profile": None, "threads": None,
+           "runs": 1, "warmup": 1, "frames_from": "f", "peak_rss_mb": 1.0, "process": {"rss_baseline_mb": 1.0},
+           "machine": {"processor": "p", "cpu_count": 1, "platform": "l"}, "roles": {}, "cpu_side": {}}
+    out = tmp_path / "rep"
+    res = save_report(rep, out)
+    run = json.loads((out / "run.json").read_text())
+    assert run["status"] == "complete" and run["run_id"] == res["run_id"] and "write_error" not in res
+    assert sorted(run["files"]) == ["latency.png", "memory.png", "report.json", "report.md"]
+    assert json.loads((out / "report.json").read_text())["run_id"] == res["run_id"]
+    assert (out / "report.md").read_text().rstrip().endswith(f"<!-- run_id: {res['run_id']} -->")
+    assert not list(out.glob(".mosaic*"))
+
+
+def test_synth_out_is_one_group(tmp_path, capsys):
+    out = tmp_path / "s"
+    code, stdout, err = run_cli(capsys, ["synth", "--out", str(out), "--duration", "1", "--fps", "4", "--size",
+                                         "64x48", "--scenes", "2", "--no-video", "--json"])
+    assert code == 0, err
+    rid = json.loads(stdout)["run_id"]
+    run = json.loads((out / "run.json").read_text())
+    assert run["status"] == "complete" and run["run_id"] == rid
+    assert "scene_001/scene.json" in run["files"] and (out / "scene_000" / "frame-000000.color.jpg").is_file()
+    assert not list(out.glob(".mosaic*"))
+    code, _, err = run_cli(capsys, ["synth", "--out", str(out), "--duration", "1", "--fps", "4", "--scenes", "2"])
+    assert code == 2 and "already holds frames" in err
+
+
+def test_synth_failure_leaves_no_half_scene(tmp_path, capsys, monkeypatch):
+    from mosaicthinker.runtime.synth import generate
+
+    def boom(*a, **k):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(generate, "write_questions", boom)  # after every frame was written
+    out = tmp_path / "s"
+    code, _, err = run_cli(capsys, ["synth", "--out", str(out), "--duration", "1", "--fps", "4", "--size", "64x48",
+                                    "--no-video"])
+    assert code == 2 and "No space left" in err
+    assert not list(out.glob("frame-*")) and not list(out.glob(".mosaic*"))
 
 
 def test_preprocessing_mismatch_names_the_manifest_field(tmp_path):

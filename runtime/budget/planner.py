@@ -184,7 +184,8 @@ def _check_clip(duration_s: float, fps: float, candidates: int | None) -> None:
     if not (fps > 0 and math.isfinite(fps)) or fps > MAX_FPS:
         raise InputError(f"plan: fps must be > 0 and at most {MAX_FPS:g} (got {fps:g})")
     if candidates is not None and candidates < 2:
-        raise InputError(f"plan: --candidates must be >= 2 (frames kept by dedup; got {candidates})")
+        raise InputError(f"plan: `candidates` must be >= 2 (frames kept by dedup; got {candidates})",
+                         fields=("candidates",))
     if duration_s * fps + 1 < MIN_MAP_FRAMES:  # frames at t = 0, 1/fps, ...: a 0.001 s clip is one frame
         raise InputError(f"plan: a {duration_s:g} s clip at {fps:g} fps has {int(duration_s * fps) + 1} frame(s); "
                          f"a map needs at least {MIN_MAP_FRAMES} views of the scene")
@@ -524,5 +525,6 @@ def clip_of(source: Any, fps: float | None = None) -> tuple[float, float]:
     elif fps:
         f = float(fps)
     else:
-        raise InputError(f"{getattr(source, 'name', 'source')}: cannot tell its frame rate; give --fps")
+        raise InputError(f"{getattr(source, 'name', 'source')}: cannot tell its frame rate; give `fps`",
+                         fields=("fps",))
     return n / f, f

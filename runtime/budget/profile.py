@@ -199,12 +199,12 @@ class Profile:
         """This profile with the model costs of `models` ("shared": [costs.*] as written; "paper": each model
         item [paper_costs.<item>] replaces [costs.<item>]; items it lacks keep the shared figure, named)."""
         if models not in MODEL_SETS:
-            raise ProfileError(f"--models {models!r}: choose one of {MODEL_SETS}")
+            raise ProfileError(f"`models={models}`: choose one of {MODEL_SETS}", fields=("models",))
         if models == "shared":
             return self
         if not self.paper_costs:
             raise ProfileError(f"{self.path or self.name}: no [paper_costs.*] tables; measure them with "
-                               f"benchmarks/paper_models.py or plan with --models shared")
+                               f"benchmarks/paper_models.py or plan with `models=shared`", fields=("models",))
         return replace(self, costs={**self.costs, **self.paper_costs})
 
     def providers_for(self, role: str) -> list[str]:

@@ -10,6 +10,41 @@ import argparse
 import sys
 from typing import Any, Sequence
 
+# API parameter / config field -> the flag that sets it: the CLI rewrites a MosaicError's backticked `field`
+# (or `field=value`) as `--flag` (`--flag value`); the library's messages name the parameters (errors.py).
+FLAG_FOR_FIELD = {
+    "answerer": "--answerer", "method": "--method", "depth": "--depth", "matcher": "--matcher",
+    "detector": "--detector", "bundle": "--bundle", "profile": "--profile", "out": "--out",
+    "candidates": "--candidates", "fps": "--fps", "duration": "--duration", "models": "--models",
+    "keyframes": "--keyframes", "sampling": "--sampling", "update_profile": "--update-profile",
+    "SceneConfig.objects": "--complexity", "SceneConfig.room": "--room", "SceneConfig.duration": "--duration",
+    "SceneConfig.fps": "--fps", "SceneConfig.size": "--size",
+    "video=False": "--no-video",  # a field=value with a flag of its own
+}
+_FIELD_RE = None
+
+
+def cli_message(message: str, fields: Sequence[str]) -> str:
+    """A library message in the CLI's words: each backticked `field` / `field=value` of `fields` that has a
+    flag becomes `--flag` / `--flag value`; everything else is left as written."""
+    import re
+
+    global _FIELD_RE
+    _FIELD_RE = _FIELD_RE or re.compile(r"`([A-Za-z_][\w.]*)(?:=([^`]*))?`")
+
+    def sub(m: "re.Match[str]") -> str:
+        if m.group(1) not in fields:
+            return m.group(0)
+        if m.group(2) and f"{m.group(1)}={m.group(2)}" in FLAG_FOR_FIELD:
+            return FLAG_FOR_FIELD[f"{m.group(1)}={m.group(2)}"]
+        flag = FLAG_FOR_FIELD.get(m.group(1))
+        return m.group(0) if flag is None else flag + (f" {m.group(2)}" if m.group(2) else "")
+
+    return _FIELD_RE.sub(sub, message)
+
+
+MAX_CLIP_S = 86400.0  # 24 h, as the planner (budget.MAX_CLIP_S): longer is not one question's video
+MAX_FPS = 1000.0
 COMPLEXITY = ("low", "med", "high")   # object-number levels of a generated scene (VSI-Bench terciles)
 ANSWERERS = ("map", "vlm", "auto")    # map reasoner, VLM on the visual prompt, auto (reasoner when it knows)
 
@@ -37,10 +72,24 @@ def parse_duration(text: str) -> float:
     if text in DURATION_LEVELS:
         return float(DURATION_LEVELS[text])
     try:
-        return float(text)
+        v = float(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"--duration: seconds or one of {list(DURATION_LEVELS)}, got {text!r}") \
             from None
+    if not (0 < v <= MAX_CLIP_S):  # also NaN and inf: 1e308 s would overflow every frame count downstream
+        raise argparse.ArgumentTypeError(f"--duration must be > 0 and at most {MAX_CLIP_S:g} s (24 h), got {text!r}")
+    return v
+
+
+def parse_fps(text: str) -> float:
+    """'15' -> 15.0 frames per second, > 0 and at most MAX_FPS (argparse type)."""
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--fps: a number of frames per second, got {text!r}") from None
+    if not (0 < v <= MAX_FPS):
+        raise argparse.ArgumentTypeError(f"--fps must be > 0 and at most {MAX_FPS:g}, got {text!r}")
+    return v
 
 
 def add_clip(p: argparse.ArgumentParser, duration: float | None, fps: float | None, what: str = "video") -> None:
@@ -48,7 +97,7 @@ def add_clip(p: argparse.ArgumentParser, duration: float | None, fps: float | No
     p.add_argument("--duration", type=parse_duration, default=duration, metavar="S",
                    help=f"{what} length in seconds, or short|medium|long (30|60|120 s)"
                         + (f" (default {duration:g})" if duration is not None else ""))
-    p.add_argument("--fps", type=float, default=fps, metavar="F",
+    p.add_argument("--fps", type=parse_fps, default=fps, metavar="F",
                    help="frames per second" + (f" (default {fps:g})" if fps is not None else ""))
 
 

@@ -25,6 +25,8 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
+import shutil
 import time
 from pathlib import Path
 from typing import Any
@@ -120,11 +122,12 @@ def generate_scenes(n: int, seed: int, data: Path, size: tuple[int, int], fps: f
         d = data / f"scene_s{s}_{lvl}_{size[0]}x{size[1]}_{fps:g}fps_{duration:g}s"
         if not (d / "scene.json").is_file():
             if d.exists():
-                import shutil
-
                 shutil.rmtree(d)
+            tmp = d.with_name(".mosaic-tmp." + d.name)  # renamed when complete: a kill leaves no half scene
+            shutil.rmtree(tmp, ignore_errors=True)
             write_scene(SceneConfig(seed=s, objects=lvl, room=room, duration=duration, fps=fps, width=size[0],
-                                    height=size[1]), d, video=False, questions=False)
+                                    height=size[1]), tmp, video=False, questions=False, name=d.name)
+            os.replace(tmp, d)
         _, rep = (write_questions(load_scene(d), d, NO_MARGINS, {t: 10 ** 6 for t in LIMITS}) if all_candidates
                   else write_questions(load_scene(d), d))
         for t, r in rep["removed"].items():  # candidate questions, kept, asked and each margin rule's removals
@@ -171,7 +174,7 @@ def _oracle_matcher(conf: dict[str, Any], bundle: Any, trace: Any) -> Any:
 
     b = load_bundle(bundle)
     if not b.has_role("matcher"):
-        raise InputError(f"{bundle}: --matcher model needs a bundle with a `matcher` role")
+        raise InputError(f"{bundle}: `matcher=model` needs a bundle with a matcher role", fields=("matcher",))
     return load_role(b, "matcher", trace=trace)
 
 
@@ -306,8 +309,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
-    import tempfile
-
     modes = [m.strip() for m in args.modes.split(",") if m.strip()]
     bad = set(modes) - {"gt", "oracle", "models"}
     if bad:
@@ -317,11 +318,16 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                          "export/onnx_import.py)")
     if args.matcher == "model" and not args.bundle:
         raise InputError("--matcher model needs --bundle (a bundle with a `matcher` role)")
-    w, h = args.size
-    if args.out:
-        from ..outputs import check_out_dir
+    from ..outputs import run_group
 
-        check_out_dir(Path(args.out))  # before generating and evaluating, not after
+    with run_group(args.out) as outs:  # --out checked and locked before generating and evaluating
+        return _run(args, modes, outs)
+
+
+def _run(args: argparse.Namespace, modes: list[str], outs: Any) -> dict[str, Any]:
+    import tempfile
+
+    w, h = args.size
     data = Path(args.data) if args.data else (Path(args.out) / "scenes" if args.out else
                                              Path(tempfile.mkdtemp(prefix="mosaic_e2e_")))
     data.mkdir(parents=True, exist_ok=True)
@@ -350,10 +356,10 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
            "answer_key": key, "summary": summ, "targets": _targets(summ), "seconds": {"generate": round(t_gen, 1),
                                                                  "total": round(time.perf_counter() - t0, 1)},
            "maps": maps, "records": records}
-    if args.out:
-        from ..outputs import write_group
+    if outs is not None:
+        from ..outputs import finish_group
 
-        write_group(args.out, [("e2e_json", "e2e.json", dict(res))], res)
+        finish_group(outs, [("e2e_json", "e2e.json", dict(res))], res)
     return res
 
 

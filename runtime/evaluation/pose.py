@@ -68,14 +68,14 @@ def pick_frames(n: int, k: int, sampling: str, seed: int = 0) -> list[int]:
     """K frame indices out of n, in time order: 'uniform' = evenly spaced (first and last included),
     'random' = a random subset (uneven gaps), seeded."""
     if k < 2:
-        raise InputError(f"--keyframes must be at least 2, got {k}")
+        raise InputError(f"`keyframes` must be at least 2, got {k}", fields=("keyframes",))
     if k > n:
-        raise InputError(f"--keyframes {k} is more than the {n} frames in the sequence")
+        raise InputError(f"`keyframes={k}` is more than the {n} frames in the sequence", fields=("keyframes",))
     if sampling == "uniform":
         return sorted(set(int(round(x)) for x in np.linspace(0, n - 1, k)))
     if sampling == "random":
         return sorted(int(i) for i in np.random.default_rng(seed).choice(n, k, replace=False))
-    raise InputError(f"--sampling must be 'uniform' or 'random', got {sampling!r}")
+    raise InputError(f"`sampling` must be 'uniform' or 'random', got {sampling!r}", fields=("sampling",))
 
 
 def depth_to_metric_like(pred: np.ndarray, semantics: str) -> tuple[np.ndarray, bool]:
@@ -97,7 +97,8 @@ def depth_to_metric_like(pred: np.ndarray, semantics: str) -> tuple[np.ndarray, 
 
 def _load_role(bundle: str | None, role: str, trace: Any) -> Any:
     if not bundle:
-        raise InputError(f"--{role} model needs --bundle DIR (the bundle holding the {role} model)")
+        raise InputError(f"`{role}=model` needs `bundle` (the bundle holding the {role} model)",
+                         fields=(role, "bundle"))
     try:
         from ..stages import load_role  # lazy: the stage adapters are another part of the runtime
     except ImportError as e:
@@ -128,7 +129,7 @@ def evaluate_pose(source: Any, indices: Sequence[int], matcher: Any = "sift", st
             with_scale = with_scale or not metric
             f = replace(f, depth=d)
         elif f.depth is None:
-            raise InputError(f"{source.name}: frame {i} has no sensor depth; use --depth model")
+            raise InputError(f"{source.name}: frame {i} has no sensor depth; use `depth=model`", fields=("depth",))
         frames.append(f)
     t0 = time.perf_counter()
     res = align_frames(frames, matcher=matcher, strategy=strategy, conf=conf, with_scale=with_scale, trace=trace)
@@ -175,15 +176,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
+    from ..outputs import run_group
+
+    with run_group(args.out) as outs:  # --out checked and locked before the evaluation runs
+        return _run(args, outs)
+
+
+def _run(args: argparse.Namespace, outs: Any) -> dict[str, Any]:
     from ..frames import open_source
     from ..trace import Trace
 
     trace = Trace()
     t0 = time.perf_counter()
-    if args.out:
-        from ..outputs import check_out_dir
-
-        check_out_dir(Path(args.out))  # before the evaluation runs, not after
     src = open_source(args.data)
     if not src.has_pose:
         raise InputError(f"{args.data}: needs ground-truth poses for every frame (7-Scenes .pose.txt or TUM "
@@ -200,11 +204,11 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     out.update({"schema": SCHEMA, "data": str(args.data), "keyframes": args.keyframes, "sampling": args.sampling,
                 "seed": args.seed, "strategy": args.strategy, "depth": args.depth, "matcher": args.matcher,
                 "events": trace.events})
-    if args.out:
-        from ..outputs import write_group
+    if outs is not None:
+        from ..outputs import finish_group
 
-        write_group(args.out, [("eval_pose_json", "eval_pose.json", dict(out)),
-                               ("trace_json", "trace.json", trace.to_dict())], out, trace)
+        finish_group(outs, [("eval_pose_json", "eval_pose.json", dict(out)),
+                            ("trace_json", "trace.json", trace.to_dict())], out, trace)
     return out
 
 

@@ -224,10 +224,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
-    if args.out:
-        from ..outputs import check_out_dir
+    from ..outputs import run_group
 
-        check_out_dir(Path(args.out))  # before scoring, not after
+    with run_group(args.out) as outs:  # --out checked and locked before scoring
+        return _run(args, outs)
+
+
+def _run(args: argparse.Namespace, outs: Any) -> dict[str, Any]:
+    from ..outputs import write_file_atomic
+
     questions = load_questions(args.questions)
     meta = load_meta(args.meta)
     summary, records = evaluate(questions, meta, args.types, args.limit)
@@ -238,26 +243,24 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         for d in dis:
             n_type[d["question_type"]] += 1
         share = {k: round(v / summary["per_type"][k]["n"], 4) for k, v in n_type.items()}
-        Path(args.disagreements).parent.mkdir(parents=True, exist_ok=True)
-        with open(args.disagreements, "w") as f:
-            json.dump({"schema": "mosaicthinker.vsibench_disagreements/1",
-                       "definition": "wrong multiple-choice answers and numeric answers with MRA < 0.5 (relative "
-                                     "error >= 25%), computed from the benchmark's own boxes",
-                       "excluded_types": DISAGREEMENT_EXCLUDED,
-                       "abs_distance_excess_m": _excess_stats(records), "n": len(dis), "per_type": dict(n_type),
-                       "share_per_type": share, "cases": dis}, f, indent=1)
+        write_file_atomic(args.disagreements, json.dumps(
+            {"schema": "mosaicthinker.vsibench_disagreements/1",
+             "definition": "wrong multiple-choice answers and numeric answers with MRA < 0.5 (relative "
+                           "error >= 25%), computed from the benchmark's own boxes",
+             "excluded_types": DISAGREEMENT_EXCLUDED,
+             "abs_distance_excess_m": _excess_stats(records), "n": len(dis), "per_type": dict(n_type),
+             "share_per_type": share, "cases": dis}, indent=1))
         result["disagreements"] = {"file": str(args.disagreements), "n": len(dis), "share_per_type": share}
     if getattr(args, "paired", None):
         result["paired"] = paired_scores(records, questions, load_questions(args.paired), meta)
     if args.records:
         result["records"] = records
     if getattr(args, "result", None):
-        Path(args.result).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.result).write_text(json.dumps(result, indent=1, default=str))
-    if args.out:
-        from ..outputs import write_group
+        write_file_atomic(args.result, json.dumps(result, indent=1, default=str))
+    if outs is not None:
+        from ..outputs import finish_group
 
-        write_group(args.out, [("vsibench_json", "vsibench.json", dict(result))], result)
+        finish_group(outs, [("vsibench_json", "vsibench.json", dict(result))], result)
     return result
 
 

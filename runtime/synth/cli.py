@@ -38,27 +38,46 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
-    from .generate import write_scene
+    """Every scene is generated into a hidden staging folder of --out (checked and locked first) and moved
+    into place only when all of them are complete; run.json names the run and says when it finished. A kill
+    leaves the previous contents and no half-written scene."""
+    from ..outputs import run_group
 
     if not args.out:
         raise InputError("mosaic synth: --out DIR is required (the folder to write the scene(s) into)")
     if args.scenes < 1:
         raise InputError(f"--scenes must be >= 1, got {args.scenes}")
     out = Path(args.out)
-    results = []
-    for k in range(args.scenes):
-        conf = SceneConfig(seed=args.seed + k, objects=args.complexity, room=args.room, duration=args.duration,
-                           fps=args.fps, width=args.size[0], height=args.size[1], hfov_deg=args.hfov,
-                           extras=not args.no_extras, stats_path=args.stats)
-        d = out if args.scenes == 1 else out / f"scene_{k:03d}"
-        results.append(write_scene(conf, d, workers=args.workers, video=not args.no_video,
-                                   questions=not args.no_questions, name=None if args.scenes == 1 else
-                                   f"synth_{args.seed + k}_{args.complexity}_{args.room}"))
-    return {"schema": "mosaicthinker.synth/1", "out": str(out), "scenes": results}
+    finals = [out if args.scenes == 1 else out / f"scene_{k:03d}" for k in range(args.scenes)]
+    for d in finals:  # checked before rendering: a scene is never mixed with an older one's frames
+        if any(d.glob("frame-*.color.jpg")):
+            raise InputError(f"{d}: already holds frames; give an empty or new --out folder")
+    with run_group(out) as outs:
+        results = [_write_one(args, k, d, outs.stage_dir("" if d == out else d.name)) for k, d in enumerate(finals)]
+        outs.commit()
+    return {"schema": "mosaicthinker.synth/1", "out": str(out), "run_id": outs.run_id, "scenes": results,
+            "warnings": list(outs.notes)}
+
+
+def _write_one(args: argparse.Namespace, k: int, final: Path, stage: Path) -> dict[str, Any]:
+    from ..errors import OutputError
+    from .generate import write_scene
+
+    conf = SceneConfig(seed=args.seed + k, objects=args.complexity, room=args.room, duration=args.duration,
+                       fps=args.fps, width=args.size[0], height=args.size[1], hfov_deg=args.hfov,
+                       extras=not args.no_extras, stats_path=args.stats)
+    name = final.resolve().name if args.scenes == 1 else f"synth_{args.seed + k}_{args.complexity}_{args.room}"
+    r = write_scene(conf, stage, workers=args.workers, video=not args.no_video, questions=not args.no_questions,
+                    name=name)
+    video = stage / "video.mp4"
+    if not args.no_video and (not video.is_file() or video.stat().st_size == 0):  # VideoWriter.write says nothing
+        raise OutputError(f"{final / 'video.mp4'}: the video was not written (OpenCV wrote no bytes); check the "
+                          f"disk, or rerun with --no-video")
+    return {**r, "out": str(final)}
 
 
 def render(result: dict[str, Any]) -> str:
-    lines = []
+    lines = [f"note: {w}" for w in result.get("warnings", [])]
     for s in result["scenes"]:
         counts = ", ".join(f"{k} {v}" for k, v in s["object_counts"].items())
         lines.append(f"{s['out']}: {s['frames']} frames, room {s['room_size']:.1f} m^2, {s['objects']} objects "

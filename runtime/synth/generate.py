@@ -125,7 +125,7 @@ def render_frames(scene: Scene, out: Path, K: np.ndarray, poses: np.ndarray, wor
                                  (conf.width, conf.height))
         if not writer.isOpened():
             raise InputError(f"{out / 'video.mp4'}: OpenCV cannot write an mp4v video here (no FFmpeg backend?); "
-                             f"rerun with --no-video")
+                             f"rerun with `video=False`", fields=("video",))
     rows: list[dict[str, Any]] = [None] * len(poses)  # type: ignore[list-item]
     n = len(poses)
 
@@ -164,7 +164,7 @@ def write_scene(conf: SceneConfig, out_dir: str | os.PathLike, workers: int = 1,
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     if any(out.glob("frame-*.color.jpg")):
-        raise InputError(f"{out}: already holds frames; give an empty or new --out folder")
+        raise InputError(f"{out}: already holds frames; give an empty or new `out` folder", fields=("out",))
     scene = generate_scene(conf)
     n_frames = max(1, int(round(conf.duration * conf.fps)))
     times, poses = camera_track(scene, n_frames, conf.fps)

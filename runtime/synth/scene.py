@@ -55,13 +55,17 @@ class SceneConfig:
     def validate(self) -> None:
         stats_levels = ("low", "med", "high")
         if self.objects not in stats_levels:
-            raise InputError(f"--objects must be one of {stats_levels}, got {self.objects!r}")
+            raise InputError(f"`SceneConfig.objects` must be one of {stats_levels}, got {self.objects!r}",
+                             fields=("SceneConfig.objects",))
         if self.room not in ("small", "medium", "large"):
-            raise InputError(f"--room must be small, medium or large, got {self.room!r}")
+            raise InputError(f"`SceneConfig.room` must be small, medium or large, got {self.room!r}",
+                             fields=("SceneConfig.room",))
         if not (self.duration > 0 and self.fps > 0):
-            raise InputError(f"--duration and --fps must be positive (got {self.duration}, {self.fps})")
+            raise InputError(f"`SceneConfig.duration` and `SceneConfig.fps` must be positive (got {self.duration}, "
+                             f"{self.fps})", fields=("SceneConfig.duration", "SceneConfig.fps"))
         if self.width < 32 or self.height < 24:
-            raise InputError(f"--size must be at least 32x24, got {self.width}x{self.height}")
+            raise InputError(f"`SceneConfig.size` must be at least 32x24, got {self.width}x{self.height}",
+                             fields=("SceneConfig.size",))
         if self.room_dims is not None and min(self.room_dims) < 1.5:
             raise InputError(f"room_dims must be at least 1.5 m each way, got {self.room_dims}")
 
