@@ -20,6 +20,7 @@ import numpy as np
 
 from .config import StageConf
 from .errors import InputError
+from .geometry import box_footprint
 from .semantic_map import SemanticMap
 
 MODES = ("grid", "points", "text", "json")
@@ -315,15 +316,7 @@ def _draw_labels(img: np.ndarray, vp: VisualPrompt, smap: SemanticMap, colours: 
         cv2.putText(img, t, (x0, y0 + th), font, conf.font_scale, dark, 1, cv2.LINE_AA)
 
 
-def _footprint(box) -> np.ndarray:
-    """Floor footprint `[4, 2]` of an oriented box (corners of the bottom face, in order)."""
-    c = np.asarray(box.centroid)[:2]
-    ax = np.asarray(box.axes)
-    L = np.asarray(box.axes_lengths) / 2
-    # the two axes closest to horizontal span the footprint
-    horiz = np.argsort(np.abs(ax[:, 2]))[:2]
-    a, b = ax[horiz[0], :2] * L[horiz[0]], ax[horiz[1], :2] * L[horiz[1]]
-    return np.stack([c - a - b, c + a - b, c + a + b, c - a + b])
+_footprint = box_footprint  # the helper moved to geometry (semantic_map uses it: no import circle)
 
 
 def vlm_prompt(question: str, options: list[str] | None, block: str, mode: str = "grid") -> str:
