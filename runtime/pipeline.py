@@ -80,6 +80,9 @@ class PipelineConfig(StageConf):
     coverage_share: float = 0.5          # ... reserves this share of K for temporal coverage (`spread_keyframes`):
                                          # the search alone clusters on the frames with the most detections
     topup: bool = True                   # fewer than K passing: the search's `min_keyframes = K` top-up (recorded)
+    topup_spacing: int = 4               # ... its frames at least len(video) / (this x K) frames apart
+    box_prompt_min_share: float = 0.02   # a mask under this share of its box is replaced by a box-prompted one
+    grounding_frames: int = 4            # frames (evenly spaced) shown to a VLM that grounds the question
     whole_image_fallback: bool = True    # key frames unaligned with matches inside boxes: retry on whole images
     attach_tries: int = 4                # ... metric depth: each tries its this many nearest aligned frames in time
     bridge_frames: int = 48              # at most this many extra frames to connect unaligned key frames (0 = off)
@@ -128,8 +131,8 @@ class PipelineConfig(StageConf):
             raise InputError("pipeline config: min_keyframes, min_scored_per_keyframe and bridge_frames must be >= 0")
         if not 0 <= self.cover_min_area <= 1 or not 0 <= self.max_free_space_violation <= 1:
             raise InputError("pipeline config: cover_min_area and max_free_space_violation must be in [0, 1]")
-        if self.attach_tries < 1:
-            raise InputError(f"pipeline config: attach_tries must be >= 1 (got {self.attach_tries})")
+        if self.attach_tries < 1 or self.topup_spacing < 1 or self.grounding_frames < 1:
+            raise InputError("pipeline config: attach_tries, topup_spacing and grounding_frames must be >= 1")
 
 
 def _merge_sub(cls: type, base: Any, upd: Mapping[str, Any]) -> Any:
@@ -252,9 +255,9 @@ def select(source: FrameSource, targets: Sequence[str], cues: Sequence[str], per
     K = K - reserve
     if conf.topup and conf.keyframe_method == "iterative":
         # fewer than K passing: the search tops up from the frames it scored (coverage first, then by score),
-        # at least len/(4K) frames apart; recorded by the search
+        # at least len/(topup_spacing x K) frames apart; recorded by the search
         kc.setdefault("min_keyframes", K)
-        kc.setdefault("topup_gap", max(1, len(source) // (4 * K)))
+        kc.setdefault("topup_gap", max(1, len(source) // (conf.topup_spacing * K)))
         kc.setdefault("topup_relax", False)
         kc.setdefault("cover_min_area", conf.cover_min_area)
     kconf = KeyFrameConf.merged(kc)
@@ -350,7 +353,7 @@ def _depth_for(frame: Frame, conf: PipelineConfig, perception: Perception, trace
 
 
 def _box_prompted(masks: np.ndarray, depth: np.ndarray, d: Detections, trace: Trace,
-                  min_share: float = 0.02) -> np.ndarray:
+                  min_share: float) -> np.ndarray:
     """Masks [N, H, W]: a detection the segmenter left (nearly) empty — a category it cannot segment (DeepLab has
     no cup) or a miss — gets a box-prompted mask (the depth-consistent pixels inside its box) instead of being
     dropped; recorded as degraded (once per name)."""
@@ -394,7 +397,8 @@ def _perceive(source: FrameSource, chosen: list[int], det: _CachedDetector, name
             d = det(i, names)
             if d.masks is None and perception.segment is not None and len(d):
                 with trace.stage("segment"):
-                    d = dataclasses.replace(d, masks=_box_prompted(perception.segment(f, d), f.depth, d, trace))
+                    d = dataclasses.replace(d, masks=_box_prompted(perception.segment(f, d), f.depth, d, trace,
+                                                                conf.box_prompt_min_share))
             dets[i] = d
             frames.append(f)
             bar.update()
@@ -780,7 +784,7 @@ def ask(source: Any, question: str, options: list[str] | None = None, *, percept
         return _ask_direct(src, question, options, vlm, trace, direct_frames)
     frames_for_grounding = None
     if vlm is not None and not isinstance(src, SemanticMap):
-        n = min(4, len(src))
+        n = min(conf.grounding_frames, len(src))
         frames_for_grounding = [src[int(i)].rgb for i in np.linspace(0, len(src) - 1, n).round().astype(int)]
     with trace.stage("grounding"):
         pq = ground(question, options, vlm, frames_for_grounding, trace)
