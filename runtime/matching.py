@@ -267,6 +267,8 @@ class _Keyed:
         return self.m.match(rgb0, rgb1, boxes0, boxes1)
 
     def __getattr__(self, name: str) -> Any:
+        if name == "m":  # not set yet (copy, pickle): no recursion
+            raise AttributeError(name)
         return getattr(self.m, name)
 
 
