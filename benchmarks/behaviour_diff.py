@@ -14,7 +14,9 @@ ids), so two checkouts can be compared field by field:
   row; scenes are generated once in --work/e2e and reused, the generator is seeded);
 - `benchmarks/pose_table.py --seeds 1-2 --uniform-k 16 --random-k 16` on 7-Scenes (alignment only);
 - the 60 s pipeline benchmark (`benchmarks/pipeline.py`'s scene, frame folder, K = 16, real models of
-  --bundle, cpu-generic profile): the built map, the key frames, the counts and the trace's decisions/events.
+  --bundle, cpu-generic profile): the built map, the key frames, the counts and the trace's decisions/events;
+- `kitchen`: the same record for a map of 7-Scenes redkitchen (sensor depth, SIFT, K = 16, the bundle's SSD):
+  the metric-depth path (depth check, whole-image attach, bridge chains), which the synthetic clips rarely need.
 
 `--compare A B` prints every differing path and exits 1 when there is any difference (0 when identical).
 Floats are rounded to `--digits` decimals (default 6) before writing: far below any figure the project reports.
@@ -35,7 +37,7 @@ from typing import Any
 REPO = Path(__file__).resolve().parents[1]
 SHARED = Path(os.environ.get("MOSAIC_SHARED", REPO.parent / "shared"))
 SCHEMA = "mosaicthinker.bench.behaviour/1"
-PARTS = ("vsibench", "e2e", "pose", "pipeline60")
+PARTS = ("vsibench", "e2e", "pose", "pipeline60", "kitchen")
 # keys whose values change from run to run or machine to machine, not with behaviour
 VOLATILE = re.compile(r"^(seconds.*|.*_seconds|.*_s|t|time|times|date|finished|started|machine|load_average.*|"
                       r".*rss.*|command|run_id|data|out|work|bundle_hash|video|path)$")
@@ -106,15 +108,19 @@ def run_pipeline60(work: Path, bundle: Path) -> dict[str, Any]:
     meta = json.loads((scene / "scene.json").read_text())
     names = sorted(set(meta.get("object_counts", {})) & set(bench.DETECTABLE)) or ["chair"]
     print(f"[behaviour] pipeline 60 s, K = 16, objects {names}", file=sys.stderr, flush=True)
-    from mosaicthinker.runtime.budget import load_profile
     from mosaicthinker.runtime.frames import open_source
+
+    return _build_record(open_source(folder), names, {"depth": "model", "matcher": "model"}, bundle, "cpu-generic")
+
+
+def _build_record(source: Any, names: list[str], conf: dict[str, Any], bundle: Path, profile: str | None
+                  ) -> dict[str, Any]:
+    from mosaicthinker.runtime.budget import load_profile
     from mosaicthinker.runtime.pipeline import build_map, perception_from_bundle
     from mosaicthinker.runtime.trace import Trace
 
     trace = Trace()
-    conf = {"depth": "model", "matcher": "model"}
-    perception = perception_from_bundle(str(bundle), conf, trace, load_profile("cpu-generic"))
-    source = open_source(folder)
+    perception = perception_from_bundle(str(bundle), conf, trace, load_profile(profile) if profile else None)
     mb = build_map(source, names, [], perception, conf, trace, keyframes=16)
     td = trace.to_dict()
     return {"targets": names, "frames": len(source), "keyframes": mb.keyframes, "aligned": sorted(mb.poses_world),
@@ -123,6 +129,16 @@ def run_pipeline60(work: Path, bundle: Path) -> dict[str, Any]:
             "world_from_root": mb.world_from_root.tolist(), "alignment": mb.info.get("alignment"),
             "decisions": td["decisions"], "events": td["events"],
             "stage_calls": {k: v["calls"] for k, v in td["stages"].items()}}
+
+
+def run_kitchen(bundle: Path) -> dict[str, Any]:
+    """A map of the real 7-Scenes kitchen with sensor depth: the metric alignment path."""
+    from mosaicthinker.runtime.frames import open_source
+
+    names = ["chair", "table", "refrigerator", "sink", "oven", "microwave", "cup", "bottle"]
+    print(f"[behaviour] 7-Scenes kitchen, sensor depth, SIFT, K = 16, objects {names}", file=sys.stderr, flush=True)
+    src = open_source(SHARED / "data" / "7scenes-redkitchen")
+    return _build_record(src, names, {"depth": "sensor", "matcher": "sift"}, bundle, "cpu-generic")
 
 
 def collect(args: argparse.Namespace) -> dict[str, Any]:
@@ -139,6 +155,8 @@ def collect(args: argparse.Namespace) -> dict[str, Any]:
         out["pose"] = run_pose(work)
     if "pipeline60" in parts:
         out["pipeline60"] = run_pipeline60(work, Path(args.bundle))
+    if "kitchen" in parts:
+        out["kitchen"] = run_kitchen(Path(args.bundle))
     repl = [(str(REPO), "<REPO>"), (str(work.resolve()), "<WORK>"), (str(work), "<WORK>"),
             (str(SHARED.resolve()), "<SHARED>"), (str(SHARED), "<SHARED>")]
     return canon(out, args.digits, repl)
