@@ -35,7 +35,7 @@ from __future__ import annotations
 import time
 from collections import deque
 from dataclasses import dataclass, field, replace
-from typing import Any, ClassVar, Mapping, Sequence
+from typing import Any, Callable, ClassVar, Mapping, Protocol, Sequence
 
 import numpy as np
 
@@ -43,7 +43,8 @@ from .config import StageConf
 from .errors import AlignmentError, InputError
 from .geometry import (backproject_pixels, icp_point_to_plane, ransac_transform, rotation_angle_deg, sample_depth,
                        transform, transform_scale, umeyama)
-from .matching import FeatureMatcher, Matches
+from .matching import KeyedMatcher, Matches, make_matcher
+from .trace import as_trace
 
 
 @dataclass
@@ -525,6 +526,8 @@ class AlignmentResult:
     with_scale: bool = False
     seconds: dict[str, float] = field(default_factory=dict)
     edge: str = "rgbd"    # pairwise edge type used: "rgbd" (3D-3D RANSAC) or "essential" (see AlignConf.edge)
+    # tree edges the depth check rejected (`verify_tree`): later rounds never use them again
+    rejected_edges: list[tuple[int, int]] = field(default_factory=list)
 
     @property
     def aligned(self) -> list[int]:
@@ -539,15 +542,6 @@ class AlignmentResult:
                 "seconds": {k: round(v, 4) for k, v in self.seconds.items()}}
 
 
-def _make_matcher(matcher: Any) -> Any:
-    if isinstance(matcher, str):
-        return FeatureMatcher(matcher)
-    if not hasattr(matcher, "match"):
-        raise InputError(f"matcher must be 'orb', 'sift' or an object with .match(rgb0, rgb1, boxes0, boxes1), "
-                         f"got {type(matcher).__name__}")
-    return matcher
-
-
 def _as_list(x: Any, frames: Sequence[Any], what: str) -> list[Any]:
     if x is None:
         return [None] * len(frames)
@@ -559,22 +553,10 @@ def _as_list(x: Any, frames: Sequence[Any], what: str) -> list[Any]:
     return x
 
 
-def align_frames(frames: Sequence[Any], matcher: Any = "sift", strategy: str = "mst",
-                 conf: AlignConf | Mapping[str, Any] | None = None, embeddings: np.ndarray | None = None,
-                 boxes: Sequence[np.ndarray | None] | Mapping[int, np.ndarray] | None = None,
-                 with_scale: bool = False, trace: Any = None) -> AlignmentResult:
-    """Align frames (objects with .rgb [H, W, 3], .depth [H, W] metres (or relative depth with with_scale),
-    .K [3, 3], .index) into the root camera's frame.
-
-    matcher: 'sift' | 'orb' | an object with .match(rgb0, rgb1, boxes0, boxes1) -> Matches (features are cached
-    per frame when it also has .match_keys); strategy: 'mst' | 'sequential'; embeddings: [K, D] for the
-    similarity matrix (else colour histograms); boxes: per-frame [N, 4] boxes to restrict matching (list in frame
-    order or {frame index: boxes}); with_scale: estimate Sim(3) per edge (relative, non-metric depth).
-    """
-    conf = AlignConf.merged(conf)
+def _check_frames(frames: list[Any], strategy: str, conf: AlignConf) -> None:
+    """Input errors of `align_frames`, named."""
     if strategy not in ("mst", "sequential"):
         raise InputError(f"strategy must be 'mst' or 'sequential', got {strategy!r}")
-    frames = list(frames)
     if len(frames) < 2:
         raise AlignmentError(f"need at least 2 frames to align, got {len(frames)}")
     for f in frames:
@@ -588,106 +570,150 @@ def align_frames(frames: Sequence[Any], matcher: Any = "sift", strategy: str = "
     if conf.scale_mode not in ("chain", "graph", "shared"):
         raise InputError(f"alignment config: scale_mode must be 'chain', 'graph' or 'shared', got "
                          f"{conf.scale_mode!r}")
-    edge = conf.edge if conf.edge != "auto" else ("essential" if with_scale else "rgbd")
-    m = _make_matcher(matcher)
-    if edge == "essential" and conf.essential_px is None:
-        conf = replace(conf, essential_px=float(getattr(m, "keypoint_px", 1.0)))
-    box_list = _as_list(boxes, frames, "boxes")
-    stats: dict[tuple[int, int], PairResult] = {}
-    Tpair: dict[tuple[int, int], np.ndarray] = {}
-    secs = {"match": 0.0, "ransac": 0.0}
-    extract0 = getattr(m, "extract_seconds", 0.0)
-    rng = np.random.default_rng(conf.seed)
 
-    def verify(a: int, b: int) -> bool:
-        fa, fb = frames[a], frames[b]
+
+class _PairVerifier:
+    """Pairwise alignment of frames by position (a, b), each pair aligned once: the PairResult per frame-index
+    pair (`stats`), the transforms of the verified pairs by position (`Tpair`), match and RANSAC seconds."""
+
+    def __init__(self, frames: list[Any], m: KeyedMatcher, edge: str, conf: AlignConf, with_scale: bool,
+                 boxes: list[Any]):
+        self.frames, self.m, self.edge, self.conf, self.with_scale, self.boxes = frames, m, edge, conf, with_scale, boxes
+        self.stats: dict[tuple[int, int], PairResult] = {}
+        self.Tpair: dict[tuple[int, int], np.ndarray] = {}
+        self.secs = {"match": 0.0, "ransac": 0.0}
+        self.rng = np.random.default_rng(conf.seed)
+        self.ok_cache: dict[tuple[int, int], bool] = {}
+        self.n_inl: dict[tuple[int, int], int] = {}
+
+    def verify(self, a: int, b: int) -> bool:
+        fa, fb = self.frames[a], self.frames[b]
         t0 = time.perf_counter()
-        if hasattr(m, "match_keys"):
-            mt = m.match_keys(fa.index, fa.rgb, fb.index, fb.rgb, box_list[a], box_list[b])
-        else:
-            mt = m.match(fa.rgb, fb.rgb, box_list[a], box_list[b])
-        secs["match"] += time.perf_counter() - t0
-        if edge == "essential":
-            r = align_pair_essential(mt, fa.depth, fa.K, fb.depth, fb.K, conf, getattr(fa, "dist", None),
+        mt = self.m.match_keys(fa.index, fa.rgb, fb.index, fb.rgb, self.boxes[a], self.boxes[b])
+        self.secs["match"] += time.perf_counter() - t0
+        if self.edge == "essential":
+            r = align_pair_essential(mt, fa.depth, fa.K, fb.depth, fb.K, self.conf, getattr(fa, "dist", None),
                                      getattr(fb, "dist", None))
         else:
-            r = align_pair(mt, fa.depth, fa.K, fb.depth, fb.K, conf, with_scale, rng, getattr(fa, "dist", None),
-                           getattr(fb, "dist", None))
-        secs["ransac"] += r.seconds
-        stats[(fa.index, fb.index)] = r
+            r = align_pair(mt, fa.depth, fa.K, fb.depth, fb.K, self.conf, self.with_scale, self.rng,
+                           getattr(fa, "dist", None), getattr(fb, "dist", None))
+        self.secs["ransac"] += r.seconds
+        self.stats[(fa.index, fb.index)] = r
         if r.ok:
-            Tpair[(a, b)] = r.T_ab
+            self.Tpair[(a, b)] = r.T_ab
         return r.ok
 
-    ok_cache: dict[tuple[int, int], bool] = {}
-    n_inl: dict[tuple[int, int], int] = {}
-
-    def verify_cached(a: int, b: int) -> bool:
+    def verify_cached(self, a: int, b: int) -> bool:
         a, b = min(a, b), max(a, b)
-        if (a, b) not in ok_cache:
-            ok_cache[(a, b)] = verify(a, b)
-            n_inl[(a, b)] = stats[(frames[a].index, frames[b].index)].n_inliers if ok_cache[(a, b)] else 0
-        return ok_cache[(a, b)]
+        if (a, b) not in self.ok_cache:
+            self.ok_cache[(a, b)] = self.verify(a, b)
+            self.n_inl[(a, b)] = (self.stats[(self.frames[a].index, self.frames[b].index)].n_inliers
+                                  if self.ok_cache[(a, b)] else 0)
+        return self.ok_cache[(a, b)]
 
-    def stats_inliers(a: int, b: int) -> int:
-        verify_cached(a, b)
-        return n_inl[(min(a, b), max(a, b))]
+    def inliers(self, a: int, b: int) -> int:
+        self.verify_cached(a, b)
+        return self.n_inl[(min(a, b), max(a, b))]
 
+
+def _time_order(frames: list[Any]) -> list[int]:
+    return sorted(range(len(frames)), key=lambda k: (frames[k].t, int(frames[k].index)))
+
+
+def _align_mst(frames: list[Any], pv: _PairVerifier, embeddings: np.ndarray | None
+               ) -> tuple[int, dict[int, np.ndarray], list[tuple[int, int]], np.ndarray, str]:
+    """Similarity matrix, root, geometric refinement, Kruskal, composition (module docstring, steps 1-5).
+    Returns (root position, poses by frame index, tree edges by frame index, S, similarity kind)."""
+    conf, idx = pv.conf, [int(f.index) for f in frames]
+    t0 = time.perf_counter()
+    S, kind = similarity_matrix([f.rgb for f in frames] if embeddings is None else None, embeddings, conf.hist_bins)
+    pv.secs["similarity"] = time.perf_counter() - t0
+    root = choose_root(S)
+    t0 = time.perf_counter()
+    W = S
+    if conf.verify_top > 0:
+        order = _time_order(frames)
+        n_nb = conf.verify_neighbours if conf.verify_neighbours is not None else int(pv.edge == "essential")
+        nb = [(order[p], order[p + d]) for d in range(1, n_nb + 1) for p in range(len(order) - d)]
+        W = refine_with_inliers(S, pv.verify_cached, pv.inliers, conf.verify_top, nb)
+    tree, _failed = maximum_spanning_tree(W, pv.verify_cached, conf.max_attempts)
+    pv.secs["tree"] = time.perf_counter() - t0
+    if pv.edge == "essential" and conf.scale_mode == "graph":
+        _rescale_essential(pv.Tpair, tree, pv.stats, idx, root)
+    local, _parent = compose_tree(root, tree, pv.Tpair)
+    return root, {idx[k]: T for k, T in local.items()}, [(idx[i], idx[j]) for i, j in tree], S, kind
+
+
+def _align_sequential(frames: list[Any], pv: _PairVerifier
+                      ) -> tuple[int, dict[int, np.ndarray], list[tuple[int, int]], list[int]]:
+    """The naive baseline: t -> t+1 links; a failed link keeps the previous pose (listed as guessed)."""
+    idx = [int(f.index) for f in frames]
+    order = _time_order(frames)
+    root = order[0]
+    poses = {idx[root]: np.eye(4)}
+    edges, guessed = [], []
+    prev = root
+    for k in order[1:]:
+        if pv.verify(prev, k):
+            poses[idx[k]] = poses[idx[prev]] @ pv.Tpair[(prev, k)]
+            edges.append((idx[prev], idx[k]))
+        else:  # naive baseline: keep the previous pose
+            poses[idx[k]] = poses[idx[prev]].copy()
+            guessed.append(idx[k])
+        prev = k
+    return root, poses, edges, guessed
+
+
+def _record_alignment(trace: Any, res: AlignmentResult, n: int) -> None:
+    t = as_trace(trace)
+    t.decide("alignment.strategy", res.strategy)
+    t.decide("alignment.edge", res.edge)
+    t.decide("alignment.similarity", res.similarity_kind or "time_order")
+    t.decide("alignment.root", res.root)
+    if res.unaligned:
+        t.event("degraded", f"{len(res.unaligned)} of {n} frames could not be aligned "
+                f"(no verified edge to the root's tree)", frames=res.unaligned)
+    if res.guessed:
+        t.event("degraded", f"sequential chaining: {len(res.guessed)} failed links kept the previous pose",
+                frames=res.guessed)
+
+
+def align_frames(frames: Sequence[Any], matcher: Any = "sift", strategy: str = "mst",
+                 conf: AlignConf | Mapping[str, Any] | None = None, embeddings: np.ndarray | None = None,
+                 boxes: Sequence[np.ndarray | None] | Mapping[int, np.ndarray] | None = None,
+                 with_scale: bool = False, trace: Any = None) -> AlignmentResult:
+    """Align frames (objects with .rgb [H, W, 3], .depth [H, W] metres (or relative depth with with_scale),
+    .K [3, 3], .index) into the root camera's frame.
+
+    matcher: 'sift' | 'orb' | a `matching.Matcher` (features are cached per frame when it is a `KeyedMatcher`);
+    strategy: 'mst' | 'sequential'; embeddings: [K, D] for the similarity matrix (else colour histograms);
+    boxes: per-frame [N, 4] boxes to restrict matching (list in frame order or {frame index: boxes});
+    with_scale: estimate Sim(3) per edge (relative, non-metric depth).
+    """
+    conf = AlignConf.merged(conf)
+    frames = list(frames)
+    _check_frames(frames, strategy, conf)
+    idx = [int(f.index) for f in frames]
+    edge = conf.edge if conf.edge != "auto" else ("essential" if with_scale else "rgbd")
+    m = make_matcher(matcher)
+    if edge == "essential" and conf.essential_px is None:
+        conf = replace(conf, essential_px=float(getattr(m, "keypoint_px", 1.0)))
+    pv = _PairVerifier(frames, m, edge, conf, with_scale, _as_list(boxes, frames, "boxes"))
+    extract0 = getattr(m, "extract_seconds", 0.0)
     t_all = time.perf_counter()
-    S, kind = None, ""
-    guessed: list[int] = []
+    S, kind, guessed = None, "", []
     if strategy == "mst":
-        t0 = time.perf_counter()
-        S, kind = similarity_matrix([f.rgb for f in frames] if embeddings is None else None, embeddings,
-                                    conf.hist_bins)
-        secs["similarity"] = time.perf_counter() - t0
-        root = choose_root(S)
-        t0 = time.perf_counter()
-        W = S
-        if conf.verify_top > 0:
-            order = sorted(range(len(frames)), key=lambda k: (frames[k].t, idx[k]))
-            n_nb = conf.verify_neighbours if conf.verify_neighbours is not None else int(edge == "essential")
-            nb = [(order[p], order[p + d]) for d in range(1, n_nb + 1)
-                  for p in range(len(order) - d)]
-            W = refine_with_inliers(S, verify_cached, stats_inliers, conf.verify_top, nb)
-        tree, _failed = maximum_spanning_tree(W, verify_cached, conf.max_attempts)
-        secs["tree"] = time.perf_counter() - t0
-        if edge == "essential" and conf.scale_mode == "graph":
-            _rescale_essential(Tpair, tree, stats, idx, root)
-        local, _parent = compose_tree(root, tree, Tpair)
-        poses = {idx[k]: T for k, T in local.items()}
-        edges = [(idx[i], idx[j]) for i, j in tree]
+        root, poses, edges, S, kind = _align_mst(frames, pv, embeddings)
     else:
-        order = sorted(range(len(frames)), key=lambda k: (frames[k].t, idx[k]))
-        root = order[0]
-        poses = {idx[root]: np.eye(4)}
-        edges = []
-        prev = root
-        for k in order[1:]:
-            if verify(prev, k):
-                poses[idx[k]] = poses[idx[prev]] @ Tpair[(prev, k)]
-                edges.append((idx[prev], idx[k]))
-            else:  # naive baseline: keep the previous pose
-                poses[idx[k]] = poses[idx[prev]].copy()
-                guessed.append(idx[k])
-            prev = k
+        root, poses, edges, guessed = _align_sequential(frames, pv)
+    secs = pv.secs
     secs["total"] = time.perf_counter() - t_all
     secs["extract"] = getattr(m, "extract_seconds", 0.0) - extract0
     secs["match"] -= secs["extract"]  # match time excluding feature extraction
     unaligned = [i for i in idx if i not in poses]
-    res = AlignmentResult(poses, idx[root], edges, unaligned, strategy, guessed, stats, S, kind, with_scale, secs,
+    res = AlignmentResult(poses, idx[root], edges, unaligned, strategy, guessed, pv.stats, S, kind, with_scale, secs,
                           edge)
-    if trace is not None:
-        trace.decide("alignment.strategy", strategy)
-        trace.decide("alignment.edge", edge)
-        trace.decide("alignment.similarity", kind or "time_order")
-        trace.decide("alignment.root", idx[root])
-        if unaligned:
-            trace.event("degraded", f"{len(unaligned)} of {len(idx)} frames could not be aligned "
-                        f"(no verified edge to the root's tree)", frames=unaligned)
-        if guessed:
-            trace.event("degraded", f"sequential chaining: {len(guessed)} failed links kept the previous pose",
-                        frames=guessed)
+    _record_alignment(trace, res, len(idx))
     return res
 
 
@@ -718,3 +744,404 @@ def pose_change(T_a: np.ndarray, T_b: np.ndarray) -> tuple[float, float]:
     Ra = T_a[:3, :3] / transform_scale(T_a)
     Rb = T_b[:3, :3] / transform_scale(T_b)
     return float(d), rotation_angle_deg(Ra.T @ Rb)
+
+
+# ----------------------------------------------------------------------------- the pipeline's alignment policy
+# box matches -> whole image -> bridge rounds -> depth verification (paper: multi-frame alignment, plus what real
+# clips needed: key frames far apart in time share no view). `align_keyframes` is the entry point.
+
+
+class AlignPolicy(Protocol):
+    """The pipeline settings the policy reads (`pipeline.PipelineConfig` has them; see its comments)."""
+
+    alignment: AlignConf
+    whole_image_fallback: bool
+    bridge_frames: int
+    bridge_gap_s: float
+    bridge_rounds: int
+    bridge_max_gap_s: float
+    verify_depth: bool
+    max_free_space_violation: float
+    attach_tries: int
+
+
+WithDepth = Callable[[Any], Any]   # a source frame -> the same frame with the depth the run uses (sensor or model)
+
+
+def depth_consistency(fa: Any, fb: Any, T_ab: np.ndarray, stride: int = 8) -> tuple[float, float, float]:
+    """How well frame b's depth agrees with frame a's under T_ab (b camera -> a camera).
+
+    Returns (overlap: share of b's points that land on valid depth in a, consistent: share of those within
+    5 cm + 3% of a's depth, violation: share of those lying clearly in FRONT of a's observed surface, i.e. in
+    space a sees as empty). A wrong transform puts points in free space; a right one only at occlusion edges."""
+    from .geometry import backproject
+
+    p, _ = backproject(fb.depth, fb.K, stride=stride)
+    if len(p) == 0:
+        return 0.0, 0.0, 0.0
+    q = transform(T_ab, p)
+    z = q[:, 2]
+    zs = np.maximum(z, 1e-6)
+    uv = np.stack([fa.K[0, 0] * q[:, 0] / zs + fa.K[0, 2], fa.K[1, 1] * q[:, 1] / zs + fa.K[1, 2]], 1)
+    zo = sample_depth(fa.depth, uv)
+    ins = (z > 0.1) & (zo > 0)
+    n = max(int(ins.sum()), 1)
+    cons = ins & (np.abs(z - zo) < 0.05 + 0.03 * zo)
+    viol = ins & (z < zo - (0.10 + 0.05 * zo))
+    return float(ins.mean()), float(cons.sum() / n), float(viol.sum() / n)
+
+
+def _edge_ok(fa: Any, fb: Any, T_ab: np.ndarray, max_violation: float) -> bool:
+    """The depth check of one edge, both ways: neither frame puts more than `max_violation` of its points into
+    space the other sees as empty."""
+    from .geometry import invert
+
+    return max(depth_consistency(fa, fb, T_ab)[2], depth_consistency(fb, fa, invert(T_ab))[2]) <= max_violation
+
+
+def _reattach(al: AlignmentResult, poses: dict[int, np.ndarray], dropped: list[int], ok: Callable[..., bool]
+              ) -> list[int]:
+    """Re-attach dropped frames through other pairs alignment verified that pass `ok`; mutates poses."""
+    from .geometry import invert
+
+    reattached = []
+    changed = True
+    while changed:
+        changed = False
+        for (a, b), r in al.edge_stats.items():
+            if not r.ok:
+                continue
+            for x, y, T in ((a, b, r.T_ab), (b, a, invert(r.T_ab))):  # T: pose of y in x's camera
+                if x in poses and y not in poses and y in dropped and ok(x, y, T):
+                    poses[y] = poses[x] @ T
+                    reattached.append(y)
+                    changed = True
+    return reattached
+
+
+def verify_tree(al: AlignmentResult, frames: dict[int, Any], conf: AlignPolicy, trace: Any = None
+                ) -> AlignmentResult:
+    """Check every tree edge with `depth_consistency` in both directions; a frame whose edge to its parent puts
+    more than `max_free_space_violation` of the points into observed free space is detached with its subtree
+    and re-attached through another verified pair (from the pairs alignment already tried) that passes the same
+    check, if any; the rest become unaligned. Recorded in the trace; the rejected edges are kept in
+    `al.rejected_edges` so that a later round does not use them again."""
+    from .geometry import invert
+
+    def ok(a: int, b: int, T_ab: np.ndarray) -> bool:
+        if a not in frames or b not in frames:
+            return True  # frames without kept depth are not checked
+        return _edge_ok(frames[a], frames[b], T_ab, conf.max_free_space_violation)
+
+    adj: dict[int, list[int]] = {}
+    for a, b in al.edges:
+        adj.setdefault(a, []).append(b)
+        adj.setdefault(b, []).append(a)
+    poses = dict(al.poses)
+    parent = {al.root: None}
+    order = deque([al.root])
+    bad: list[tuple[int, int]] = list(al.rejected_edges)
+    while order:  # breadth-first from the root: a failing edge drops its whole subtree
+        p = order.popleft()
+        for c in adj.get(p, []):
+            if c in parent or c not in poses:
+                continue
+            if ok(p, c, invert(poses[p]) @ poses[c]):
+                parent[c] = p
+                order.append(c)
+            else:
+                bad.append((p, c))
+    kept = set(parent)
+    dropped = [i for i in poses if i not in kept]
+    al.rejected_edges = bad
+    if not dropped:
+        return al
+    for i in dropped:
+        poses.pop(i)
+    reattached = _reattach(al, poses, dropped, ok)
+    lost = [i for i in dropped if i not in poses]
+    as_trace(trace).event("degraded" if lost else "alignment",
+                          f"depth check rejected tree edge(s) {bad}: {len(dropped)} frame(s) detached, "
+                          f"{len(reattached)} re-attached through other verified pairs, {len(lost)} left unaligned",
+                          stage="alignment", rejected=[list(e) for e in bad], unaligned=lost)
+    al.poses = poses
+    al.unaligned = sorted(set(al.unaligned) | set(lost))
+    return al
+
+
+def attach_frames(al: AlignmentResult, frames: dict[int, Any], todo: Sequence[int], matcher: KeyedMatcher,
+                  conf: AlignPolicy, tries: int | None = None) -> list[int]:
+    """Attach frames without a pose to the tree one edge at a time, metric depth only: each frame in `todo` is
+    matched (whole image, cached features) to its `tries` (default `conf.attach_tries`) nearest aligned frames
+    in time, the first edge that passes RANSAC and the depth check (`max_free_space_violation` both ways) gives
+    its pose; repeated while frames get attached (a new one can host the next). Costs <= tries pairs per frame,
+    against a full re-alignment's all-pairs search. Mutates al (poses, edges, unaligned, edge_stats); returns
+    the attached."""
+    tries = conf.attach_tries if tries is None else tries
+    aconf = AlignConf.merged(conf.alignment)
+    rng = np.random.default_rng(aconf.seed)
+    tried = set(frozenset(e) for e in al.edge_stats) | set(frozenset(e) for e in al.rejected_edges)
+    attached: list[int] = []
+    changed = True
+    while changed:
+        changed = False
+        for u in [int(i) for i in todo if int(i) not in al.poses and int(i) in frames]:
+            fu = frames[u]
+            near = sorted((a for a in al.poses if a in frames and frozenset((a, u)) not in tried),
+                          key=lambda a: (abs(float(frames[a].t) - float(fu.t)), a))[:tries]
+            for a in near:
+                tried.add(frozenset((a, u)))
+                fa = frames[a]
+                mt = matcher.match_keys(a, fa.rgb, u, fu.rgb, None, None)
+                r = align_pair(mt, fa.depth, fa.K, fu.depth, fu.K, aconf, False, rng, getattr(fa, "dist", None),
+                               getattr(fu, "dist", None))
+                al.edge_stats[(a, u)] = r
+                if not r.ok or not _edge_ok(fa, fu, r.T_ab, conf.max_free_space_violation):
+                    continue
+                al.poses[u] = al.poses[a] @ r.T_ab
+                al.edges.append((a, u))
+                attached.append(u)
+                changed = True
+                break
+    al.unaligned = [i for i in al.unaligned if i not in al.poses]
+    return attached
+
+
+class BlockPairs:
+    """Matcher wrapper that returns no matches for the given frame pairs (edges the depth check rejected), so a
+    new alignment round cannot choose them again; everything else goes to the wrapped matcher."""
+
+    def __init__(self, matcher: KeyedMatcher, pairs: Sequence[tuple[int, int]]):
+        self.m = matcher
+        self.pairs = {frozenset(p) for p in pairs}
+
+    def match_keys(self, k0: Any, rgb0: np.ndarray, k1: Any, rgb1: np.ndarray, boxes0: Any = None,
+                   boxes1: Any = None) -> Matches:
+        if frozenset((k0, k1)) in self.pairs:
+            return Matches.empty()
+        return self.m.match_keys(k0, rgb0, k1, rgb1, boxes0, boxes1)
+
+    def match(self, rgb0: np.ndarray, rgb1: np.ndarray, boxes0: Any = None, boxes1: Any = None) -> Matches:
+        return self.m.match(rgb0, rgb1, boxes0, boxes1)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.m, name)
+
+
+def _bridge_frames(al: AlignmentResult, have: set[int], prev: Mapping[int, Any], cands: list[int], source: Any,
+                   conf: AlignPolicy) -> list[int]:
+    """Candidate frames (at most `bridge_gap_s` apart, `bridge_frames` in all) between each unaligned key frame
+    and its nearest aligned key frame in time, across gaps up to `bridge_max_gap_s`; earlier rounds' kept."""
+    times = {i: float(source.timestamps[i]) for i in cands}
+    extra: list[int] = []
+    for u in sorted(al.unaligned, key=lambda u: min(abs(u - a) for a in al.poses)):
+        a = min(al.poses, key=lambda j: abs(j - u))
+        lo, hi = sorted((u, a))
+        if abs(float(source.timestamps[hi]) - float(source.timestamps[lo])) > conf.bridge_max_gap_s:
+            continue  # a long chain of bridges drifts: better unaligned (reported) than misplaced
+        between = [c for c in cands if lo < c < hi and c not in have and c not in extra and c not in prev]
+        last = float(source.timestamps[lo])
+        for c in between:
+            if times[c] - last >= conf.bridge_gap_s:
+                extra.append(c)
+                last = times[c]
+        if len(extra) >= conf.bridge_frames:
+            break
+    return sorted(set(extra[:conf.bridge_frames]) | set(prev))
+
+
+def bridge_realign(al: AlignmentResult, frames: list[Any], boxes: dict[int, Any], cands: list[int], source: Any,
+                   matcher: KeyedMatcher, with_depth: WithDepth, with_scale: bool, conf: AlignPolicy, trace: Any,
+                   previous: Sequence[Any] = ()) -> tuple[AlignmentResult, list[Any]]:
+    """Relative depth: key frames far apart in time often share no view, so the tree falls apart into
+    components. Connect each unaligned key frame to its nearest aligned key frame in time through intermediate
+    candidate frames (`_bridge_frames`; used for poses only, never detected) and align again. Key frames still
+    unaligned afterwards stay unaligned (recorded). Returns (alignment, the bridge frames used)."""
+    trace = as_trace(trace)
+    have = {f.index for f in frames}
+    prev = {f.index: f for f in previous}  # bridges of an earlier round are kept (their depth is loaded)
+    extra = _bridge_frames(al, have, prev, cands, source, conf)
+    if not set(extra) - set(prev):
+        return al, []
+    bf = [prev[i] if i in prev else with_depth(source[i]) for i in extra]
+    with trace.stage("alignment"):
+        al2 = align_frames(frames + bf, matcher, "mst", conf.alignment, None,
+                           {**boxes, **{i: None for i in extra}}, with_scale=with_scale, trace=None)
+    before = len(al.unaligned)
+    al2.unaligned = [i for i in al2.unaligned if i in have]
+    al2.rejected_edges = list(al.rejected_edges)
+    trace.event("degraded" if al2.unaligned else "alignment",
+                f"{before} key frame(s) had no verified edge to the tree; {len(extra)} bridge frames between them "
+                f"and their neighbours in time left {len(al2.unaligned)} unaligned", stage="alignment",
+                bridges=extra, unaligned=al2.unaligned)
+    if len(al2.poses) and sum(i in have for i in al2.poses) >= sum(i in have for i in al.poses):
+        return al2, bf
+    return al, []
+
+
+def _whole_image_realign(al: AlignmentResult, frames: list[Any], boxes: dict[int, Any], emb: Any,
+                         matcher: KeyedMatcher, with_scale: bool, conf: AlignPolicy, trace: Any
+                         ) -> tuple[AlignmentResult, dict[int, Any]]:
+    """Too few matches inside the task objects' boxes (small or few objects): match whole images instead;
+    the better tree is kept. Returns (alignment, the boxes it used)."""
+    with trace.stage("alignment"):
+        al2 = align_frames(frames, matcher, "mst", conf.alignment, emb, None, with_scale=with_scale, trace=None)
+    trace.event("fallback", f"alignment inside object boxes left {len(al.unaligned)} of {len(frames)} key frames "
+                f"unaligned; whole-image matching left {len(al2.unaligned)}", stage="alignment",
+                boxes_unaligned=list(al.unaligned), whole_unaligned=list(al2.unaligned))
+    if len(al2.unaligned) < len(al.unaligned):
+        return al2, {i: None for i in boxes}
+    return al, boxes
+
+
+def align_rest_relative(al: AlignmentResult, frames: list[Any], boxes: dict[int, Any], emb: Any,
+                        matcher: KeyedMatcher, source: Any, with_depth: WithDepth, with_scale: bool,
+                        conf: AlignPolicy, trace: Any, over_budget: Callable[[list[int]], bool]
+                        ) -> tuple[AlignmentResult, list[Any]]:
+    """Relative depth (no depth check): the box-matched tree's unaligned frames get a whole-image re-alignment,
+    then bridge rounds (`bridge_realign`) while they buy aligned key frames. Returns (alignment, bridge frames
+    used)."""
+    trace = as_trace(trace)
+    if al.unaligned and conf.whole_image_fallback:
+        al, boxes = _whole_image_realign(al, frames, boxes, emb, matcher, with_scale, conf, trace)
+    used: list[Any] = []
+    keys = {f.index for f in frames}
+    al.unaligned = [i for i in al.unaligned if i in keys]
+    for _ in range(conf.bridge_rounds):
+        if not al.unaligned or conf.bridge_frames <= 0 or over_budget(al.unaligned):
+            break
+        blocked = BlockPairs(matcher, al.rejected_edges)  # never re-use a rejected edge
+        # bridge frames come from the whole video (consecutive frames match best), not only dedup's candidates
+        al_b, bridges = bridge_realign(al, frames, boxes, list(range(len(source))), source, blocked, with_depth,
+                                       with_scale, conf, trace, used)
+        if not bridges:
+            break
+        al_b.unaligned = [i for i in al_b.unaligned if i in keys]  # bridges are not counted: only key frames
+        if len(al_b.unaligned) >= len(al.unaligned):
+            # another round only pays where it buys aligned key frames: keep the better tree and stop
+            trace.event("alignment", f"bridge round left {len(al_b.unaligned)} key frame(s) unaligned (before: "
+                        f"{len(al.unaligned)}): kept the tree without it, no further rounds", stage="alignment")
+            break
+        al, used = al_b, bridges
+    return al, used
+
+
+def align_rest_metric(al: AlignmentResult, frames: list[Any], matcher: KeyedMatcher, source: Any,
+                      with_depth: WithDepth, conf: AlignPolicy, trace: Any,
+                      over_budget: Callable[[list[int]], bool]) -> list[Any]:
+    """Metric depth after the box-matched tree: depth-check its edges, attach what it left out by whole-image
+    edges, then bridge what is still out. Returns the bridge frames used."""
+    trace = as_trace(trace)
+    with trace.stage("alignment.verify"):
+        al = verify_tree(al, {f.index: f for f in frames}, conf, trace)
+    keys = {f.index for f in frames}
+    al.unaligned = [i for i in al.unaligned if i in keys]
+    if al.unaligned and conf.whole_image_fallback:
+        before = list(al.unaligned)
+        with trace.stage("alignment"):
+            got = attach_frames(al, {f.index: f for f in frames}, before, matcher, conf)
+        trace.event("fallback", f"box-matched tree left {len(before)} of {len(frames)} key frames unaligned; "
+                    f"whole-image edges attached {len(got)}, {len(al.unaligned)} left", stage="alignment",
+                    boxes_unaligned=before, attached=got)
+    if not al.unaligned or conf.bridge_frames <= 0 or conf.bridge_rounds <= 0 or over_budget(al.unaligned):
+        return []
+    with trace.stage("alignment"):
+        return bridge_attach(al, frames, source, matcher, with_depth, conf, trace)
+
+
+def bridge_attach(al: AlignmentResult, frames: list[Any], source: Any, matcher: KeyedMatcher, with_depth: WithDepth,
+                  conf: AlignPolicy, trace: Any = None) -> list[Any]:
+    """Metric depth: connect each unaligned key frame through a chain of video frames (at least `bridge_gap_s`
+    apart, `bridge_frames` in all) walked from its nearest aligned key frame in time towards it (`bridge_chain`),
+    one `attach_frames` edge per step, loading a frame only when the chain reaches it and stopping as soon as the
+    key frame itself attaches: no re-alignment of the whole set, so a round that cannot buy an aligned frame costs
+    only its failed steps. Gaps over `bridge_max_gap_s` are not bridged (long chains drift). Returns the bridge
+    frames used (poses only, never detected); recorded."""
+    pool = {f.index: f for f in frames}
+    keys = set(pool)
+    used: list[Any] = []
+    budget = conf.bridge_frames
+    for u in sorted(al.unaligned, key=lambda u: min((abs(u - a) for a in al.poses if a in keys), default=0)):
+        if budget <= 0 or u in al.poses:
+            continue
+        anchors = [a for a in al.poses if a in keys]
+        if not anchors:
+            break
+        # the nearest aligned key frame on each side in time, the nearer first (a chain can fail on one side)
+        sides = [max((j for j in anchors if j < u), default=None), min((j for j in anchors if j > u), default=None)]
+        for a in sorted((j for j in sides if j is not None), key=lambda j: abs(j - u)):
+            if u in al.poses or abs(float(source.timestamps[u]) - float(source.timestamps[a])) > conf.bridge_max_gap_s:
+                continue
+            budget, chain = bridge_chain(al, pool, a, u, source, matcher, with_depth, conf, budget)
+            used += chain
+    al.unaligned = [i for i in al.unaligned if i not in al.poses]
+    as_trace(trace).event("degraded" if al.unaligned else "alignment",
+                          f"bridging: {conf.bridge_frames - budget} video frame(s) tried, {len(used)} attached; "
+                          f"{len(al.unaligned)} key frame(s) left unaligned", stage="alignment",
+                          bridges=[f.index for f in used], unaligned=list(al.unaligned))
+    return used
+
+
+def chain_jumps(gap: float, min_gap: float) -> list[float]:
+    """The jump schedule of one `bridge_chain` step over a `gap` (s) to the key frame: halve the gap down to
+    `min_gap` (`bridge_gap_s`), then walk at 2, 3, ... x `min_gap` (slow camera motion costs few bridge frames,
+    fast motion the dense chain). Pure; a fixed schedule, so a step always ends."""
+    halving = [gap / 2 ** k for k in range(1, 32) if gap / 2 ** k >= min_gap]
+    walking = [min_gap * k for k in range(2, int(gap / min_gap))]
+    return halving + walking
+
+
+def bridge_chain(al: AlignmentResult, pool: dict[int, Any], a: int, u: int, source: Any, matcher: KeyedMatcher,
+                 with_depth: WithDepth, conf: AlignPolicy, budget: int) -> tuple[int, list[Any]]:
+    """Walk from aligned frame a towards unaligned key frame u: each step first tries u itself, then jumps
+    (`chain_jumps`) to the frame halfway between the chain's end and u, halving the jump on a failed attach
+    down to `bridge_gap_s`, then walking on at that spacing. Returns (budget left, the bridge frames
+    attached)."""
+    ts = source.timestamps
+    end, used = a, []
+    while budget > 0 and u not in al.poses:
+        if attach_frames(al, pool, [u], matcher, conf, tries=1):
+            break
+        gap = abs(float(ts[u]) - float(ts[end]))
+        if gap < 2 * conf.bridge_gap_s:
+            break  # no room for a bridge frame
+        step, moved = (1 if u > end else -1), False
+        for jump in chain_jumps(gap, conf.bridge_gap_s):  # a blurred frame is skipped
+            if budget <= 0 or moved:
+                break
+            c = min(range(end + step, u, step), key=lambda i: abs(abs(float(ts[i]) - float(ts[end])) - jump))
+            if c in pool:
+                continue
+            pool[c] = with_depth(source[c])
+            budget -= 1
+            if attach_frames(al, pool, [c], matcher, conf, tries=1):
+                end, moved = c, True
+                used.append(pool[c])
+        if not moved:
+            break  # no bridge frame attached at any jump: give up on u (reported by the caller)
+    return budget, used
+
+
+def align_keyframes(frames: list[Any], matcher: KeyedMatcher, boxes: dict[int, Any], emb: np.ndarray | None,
+                    source: Any, with_depth: WithDepth, with_scale: bool, conf: AlignPolicy, trace: Any,
+                    over_budget: Callable[[list[int]], bool] = lambda unaligned: False
+                    ) -> tuple[AlignmentResult, list[Any]]:
+    """The key frames' alignment: matches restricted to object boxes (the paper's trick), MST over frame
+    similarity; then, with metric depth and `verify_depth`, every tree edge depth-checked and the frames left
+    out attached one edge at a time (`align_rest_metric`), else a whole-image re-alignment and bridge rounds
+    (`align_rest_relative`). `over_budget(unaligned)` says (and records) when bridge rounds are skipped.
+    Returns (alignment over the key frames only, the bridge frames used)."""
+    trace = as_trace(trace)
+    with trace.stage("alignment"):
+        al = align_frames(frames, matcher, "mst", conf.alignment, emb, boxes, with_scale=with_scale, trace=trace)
+    keys = {f.index for f in frames}
+    if conf.verify_depth and not with_scale:  # metric depth: one edge at a time onto the verified tree (cheap)
+        used = align_rest_metric(al, frames, matcher, source, with_depth, conf, trace, over_budget)
+    else:
+        al, used = align_rest_relative(al, frames, boxes, emb, matcher, source, with_depth, with_scale, conf, trace,
+                                       over_budget)
+    al.unaligned = [i for i in al.unaligned if i in keys]
+    if al.unaligned:
+        trace.event("degraded", f"{len(al.unaligned)} of {len(frames)} key frames unaligned after alignment "
+                    f"(left out of the map): {sorted(al.unaligned)}", stage="alignment", unaligned=sorted(al.unaligned))
+    return al, used

@@ -534,3 +534,14 @@ def icp_point_to_plane(depth_a: np.ndarray, K_a: np.ndarray, depth_b: np.ndarray
         if np.linalg.norm(xi) < 1e-6:
             break
     return T, rms, n_used, n_used / len(pb)
+
+
+def box_footprint(box: Any) -> np.ndarray:
+    """Floor footprint `[4, 2]` of an oriented box (corners of the bottom face, in order): the two axes closest to
+    horizontal span it. Pure; shared by the visual prompt and fusion's footprint merge."""
+    c = np.asarray(box.centroid)[:2]
+    ax = np.asarray(box.axes)
+    L = np.asarray(box.axes_lengths) / 2
+    horiz = np.argsort(np.abs(ax[:, 2]))[:2]
+    a, b = ax[horiz[0], :2] * L[horiz[0]], ax[horiz[1], :2] * L[horiz[1]]
+    return np.stack([c - a - b, c + a - b, c + a + b, c - a + b])

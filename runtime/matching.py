@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from collections import OrderedDict
 from dataclasses import dataclass, replace
-from typing import Any, ClassVar, Hashable, Mapping
+from typing import Any, ClassVar, Hashable, Mapping, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -232,3 +232,54 @@ def match_features(rgb0: np.ndarray, rgb1: np.ndarray, boxes0: np.ndarray | None
     """Match two images. rgb0, rgb1: [H, W, 3] uint8; boxes: [N, 4] x0, y0, x1, y1 (keypoints outside every box
     are ignored) or None (whole image). Returns Matches (uv0 in image 0, uv1 in image 1)."""
     return FeatureMatcher(method, conf, cache_size=0).match(rgb0, rgb1, boxes0, boxes1)
+
+
+@runtime_checkable
+class Matcher(Protocol):
+    """What alignment needs of a matcher (OpenCV `FeatureMatcher`, learned matchers in `runtime/stages/matcher.py`):
+    matches between two images, optionally only for keypoints inside the given boxes."""
+
+    def match(self, rgb0: np.ndarray, rgb1: np.ndarray, boxes0: np.ndarray | None = None,
+              boxes1: np.ndarray | None = None) -> Matches: ...
+
+
+@runtime_checkable
+class KeyedMatcher(Matcher, Protocol):
+    """A matcher that caches features per frame key (frame index): `match_keys` reuses them across pairs."""
+
+    def match_keys(self, k0: Hashable, rgb0: np.ndarray, k1: Hashable, rgb1: np.ndarray,
+                   boxes0: np.ndarray | None = None, boxes1: np.ndarray | None = None) -> Matches: ...
+
+
+class _Keyed:
+    """A plain `Matcher` seen as a `KeyedMatcher`: the keys are ignored (no cache); other attributes (the
+    matcher's `keypoint_px`, `extract_seconds`, ...) are the wrapped matcher's."""
+
+    def __init__(self, matcher: Matcher):
+        self.m = matcher
+
+    def match(self, rgb0: np.ndarray, rgb1: np.ndarray, boxes0: np.ndarray | None = None,
+              boxes1: np.ndarray | None = None) -> Matches:
+        return self.m.match(rgb0, rgb1, boxes0, boxes1)
+
+    def match_keys(self, k0: Hashable, rgb0: np.ndarray, k1: Hashable, rgb1: np.ndarray,
+                   boxes0: np.ndarray | None = None, boxes1: np.ndarray | None = None) -> Matches:
+        return self.m.match(rgb0, rgb1, boxes0, boxes1)
+
+    def __getattr__(self, name: str) -> Any:
+        if name == "m":  # not set yet (copy, pickle): no recursion
+            raise AttributeError(name)
+        return getattr(self.m, name)
+
+
+def make_matcher(matcher: "str | Matcher", conf: MatchConf | Mapping[str, Any] | None = None) -> KeyedMatcher:
+    """'orb' | 'sift' (an OpenCV `FeatureMatcher` with `conf`) or a `Matcher` object, as a `KeyedMatcher`
+    (a matcher without a feature cache gets one that ignores the keys). Anything else is an `InputError`."""
+    if isinstance(matcher, str):
+        return FeatureMatcher(matcher, conf)
+    if isinstance(matcher, KeyedMatcher):
+        return matcher
+    if isinstance(matcher, Matcher):
+        return _Keyed(matcher)
+    raise InputError(f"matcher must be 'orb', 'sift' or an object with .match(rgb0, rgb1, boxes0, boxes1), "
+                     f"got {type(matcher).__name__}")

@@ -20,6 +20,7 @@ import numpy as np
 
 from .config import StageConf
 from .errors import InputError
+from .geometry import box_footprint
 from .semantic_map import SemanticMap
 
 MODES = ("grid", "points", "text", "json")
@@ -165,6 +166,98 @@ def _extent(smap: SemanticMap, points: np.ndarray | None) -> tuple[np.ndarray, n
     return lo - pad, hi + pad
 
 
+def _canvas(smap: SemanticMap, points: np.ndarray | None, conf: PromptConfig, text: str,
+            colours: dict[int, tuple[int, int, int]]) -> tuple[VisualPrompt, np.ndarray, np.ndarray, np.ndarray]:
+    """The image's scale and origin from the map's extent, a white image. Returns (prompt, image, lo, hi)."""
+    lo, hi = _extent(smap, points)
+    span = hi - lo
+    inner = conf.size_px - 2 * conf.margin_px
+    ppm = inner / float(max(span))
+    W = int(round(span[0] * ppm)) + 2 * conf.margin_px
+    H = int(round(span[1] * ppm)) + 2 * conf.margin_px
+    origin = (conf.margin_px - lo[0] * ppm, conf.margin_px + hi[1] * ppm)
+    vp = VisualPrompt(None, text, colours, ppm, origin, mode=conf.mode)
+    return vp, np.full((H, W, 3), 255, np.uint8), lo, hi
+
+
+def _draw_grid_room(img: np.ndarray, vp: VisualPrompt, smap: SemanticMap, lo: np.ndarray, hi: np.ndarray,
+                    g: float) -> None:
+    """Grid lines every g metres and the room outline."""
+    H, W = img.shape[:2]
+    for x in np.arange(np.ceil(lo[0] / g) * g, hi[0], g):
+        u = int(round(vp.world_to_px([[x, 0]])[0, 0]))
+        cv2.line(img, (u, 0), (u, H - 1), (225, 225, 225), 1)
+    for y in np.arange(np.ceil(lo[1] / g) * g, hi[1], g):
+        v = int(round(vp.world_to_px([[0, y]])[0, 1]))
+        cv2.line(img, (0, v), (W - 1, v), (225, 225, 225), 1)
+    if smap.room is not None:
+        poly = vp.world_to_px(smap.room.polygon).round().astype(np.int32)
+        cv2.polylines(img, [poly], True, (150, 150, 150), 2, cv2.LINE_AA)
+
+
+def _draw_points(img: np.ndarray, vp: VisualPrompt, points: np.ndarray, point_ids: np.ndarray | None,
+                 colours: dict[int, tuple[int, int, int]]) -> None:
+    H, W = img.shape[:2]
+    uv = vp.world_to_px(np.asarray(points)[:, :2]).round().astype(int)
+    ok = (uv[:, 0] >= 0) & (uv[:, 0] < W) & (uv[:, 1] >= 0) & (uv[:, 1] < H)
+    col = np.array([colours.get(int(i), (80, 80, 80)) for i in (point_ids if point_ids is not None
+                                                                 else np.full(len(uv), -1))], np.uint8)
+    img[uv[ok, 1], uv[ok, 0]] = col[ok]
+
+
+def _draw_objects(img: np.ndarray, vp: VisualPrompt, smap: SemanticMap, colours: dict[int, tuple[int, int, int]],
+                  fill: bool) -> None:
+    """Each object's footprint outline, filled translucent in the grid mode."""
+    H, W = img.shape[:2]
+    for o in smap.instances:
+        col = colours[o.id]
+        poly = vp.world_to_px(box_footprint(o.box)).round().astype(np.int32)
+        if fill:  # blend inside the footprint's bounding box only (a full-image blend per
+            x0, y0 = np.maximum(poly.min(0), 0)          # object made a 10 k-object map take minutes)
+            x1, y1 = np.minimum(poly.max(0) + 1, (W, H))
+            if x1 > x0 and y1 > y0:
+                roi = img[y0:y1, x0:x1]
+                overlay = roi.copy()
+                cv2.fillPoly(overlay, [poly - np.array([x0, y0], np.int32)], col)
+                roi[:] = cv2.addWeighted(overlay, 0.45, roi, 0.55, 0)
+        cv2.polylines(img, [poly], True, col, 2, cv2.LINE_AA)
+
+
+def _draw_cameras(img: np.ndarray, vp: VisualPrompt, smap: SemanticMap, stride: int) -> None:
+    """Cameras: dot + heading (camera z axis projected on the floor)."""
+    for i, (_, T) in enumerate(smap.cameras):
+        if i % max(1, stride):
+            continue
+        T = np.asarray(T)
+        p = vp.world_to_px(T[None, :2, 3])[0]
+        f = T[:2, 2]
+        n = np.linalg.norm(f)
+        q = p + (np.array([f[0], -f[1]]) / n * 0.3 * vp.px_per_m if n > 1e-6 else 0)
+        cv2.circle(img, (int(p[0]), int(p[1])), 3, (0, 0, 0), -1, cv2.LINE_AA)
+        cv2.arrowedLine(img, (int(p[0]), int(p[1])), (int(q[0]), int(q[1])), (0, 0, 0), 1, cv2.LINE_AA,
+                        tipLength=0.3)
+
+
+def _draw_scale_axes(img: np.ndarray, vp: VisualPrompt, span_x: float, conf: PromptConfig) -> None:
+    """Scale bar (bottom left) and axes (bottom right); the bar is recorded in the prompt."""
+    font = cv2.FONT_HERSHEY_SIMPLEX
+    H, W = img.shape[:2]
+    bar_m = _nice_length(0.3 * span_x)
+    bar_px = int(round(bar_m * vp.px_per_m))
+    y0 = H - conf.margin_px // 2
+    x0 = conf.margin_px // 2
+    cv2.line(img, (x0, y0), (x0 + bar_px, y0), (0, 0, 0), 3)
+    for xx in (x0, x0 + bar_px):
+        cv2.line(img, (xx, y0 - 5), (xx, y0 + 5), (0, 0, 0), 2)
+    cv2.putText(img, f"{bar_m:g} m", (x0, y0 - 8), font, conf.font_scale, (0, 0, 0), 1, cv2.LINE_AA)
+    ax = (W - conf.margin_px // 2 - 40, H - conf.margin_px // 2)
+    cv2.arrowedLine(img, ax, (ax[0] + 35, ax[1]), (200, 0, 0), 2, tipLength=0.25)
+    cv2.arrowedLine(img, ax, (ax[0], ax[1] - 35), (0, 150, 0), 2, tipLength=0.25)
+    cv2.putText(img, "x", (ax[0] + 37, ax[1] + 4), font, conf.font_scale, (200, 0, 0), 1, cv2.LINE_AA)
+    cv2.putText(img, "y", (ax[0] - 4, ax[1] - 38), font, conf.font_scale, (0, 150, 0), 1, cv2.LINE_AA)
+    vp.scale_bar_m, vp.scale_bar_px = bar_m, bar_px
+
+
 def render(smap: SemanticMap, conf: PromptConfig | dict[str, Any] | None = None,
            points: np.ndarray | None = None, point_ids: np.ndarray | None = None) -> VisualPrompt:
     """Render the visual prompt of `smap`.
@@ -180,84 +273,21 @@ def render(smap: SemanticMap, conf: PromptConfig | dict[str, Any] | None = None,
         return VisualPrompt(None, text, colours, mode="text")
     if conf.mode == "json":
         return VisualPrompt(None, json_block(smap), colours, mode="json")
-
-    lo, hi = _extent(smap, points)
-    span = hi - lo
-    inner = conf.size_px - 2 * conf.margin_px
-    ppm = inner / float(max(span))
-    W = int(round(span[0] * ppm)) + 2 * conf.margin_px
-    H = int(round(span[1] * ppm)) + 2 * conf.margin_px
-    origin = (conf.margin_px - lo[0] * ppm, conf.margin_px + hi[1] * ppm)
-    vp = VisualPrompt(None, text, colours, ppm, origin, mode=conf.mode)
-    img = np.full((H, W, 3), 255, np.uint8)
-
-    # grid every grid_m metres, labelled
-    g = conf.grid_m
-    for x in np.arange(np.ceil(lo[0] / g) * g, hi[0], g):
-        u = int(round(vp.world_to_px([[x, 0]])[0, 0]))
-        cv2.line(img, (u, 0), (u, H - 1), (225, 225, 225), 1)
-    for y in np.arange(np.ceil(lo[1] / g) * g, hi[1], g):
-        v = int(round(vp.world_to_px([[0, y]])[0, 1]))
-        cv2.line(img, (0, v), (W - 1, v), (225, 225, 225), 1)
-
-    if smap.room is not None:
-        poly = vp.world_to_px(smap.room.polygon).round().astype(np.int32)
-        cv2.polylines(img, [poly], True, (150, 150, 150), 2, cv2.LINE_AA)
-
+    vp, img, lo, hi = _canvas(smap, points, conf, text, colours)
+    _draw_grid_room(img, vp, smap, lo, hi, conf.grid_m)
     if conf.mode == "points" and points is not None and len(points):
-        uv = vp.world_to_px(np.asarray(points)[:, :2]).round().astype(int)
-        ok = (uv[:, 0] >= 0) & (uv[:, 0] < W) & (uv[:, 1] >= 0) & (uv[:, 1] < H)
-        col = np.array([colours.get(int(i), (80, 80, 80)) for i in (point_ids if point_ids is not None
-                                                                     else np.full(len(uv), -1))], np.uint8)
-        img[uv[ok, 1], uv[ok, 0]] = col[ok]
-
+        _draw_points(img, vp, points, point_ids, colours)
+    _draw_objects(img, vp, smap, colours, conf.mode == "grid")
+    _draw_cameras(img, vp, smap, conf.camera_stride)
     font = cv2.FONT_HERSHEY_SIMPLEX
-    for o in smap.instances:
-        col = colours[o.id]
-        poly = vp.world_to_px(_footprint(o.box)).round().astype(np.int32)
-        if conf.mode == "grid":  # blend inside the footprint's bounding box only (a full-image blend per
-            x0, y0 = np.maximum(poly.min(0), 0)          # object made a 10 k-object map take minutes)
-            x1, y1 = np.minimum(poly.max(0) + 1, (W, H))
-            if x1 > x0 and y1 > y0:
-                roi = img[y0:y1, x0:x1]
-                overlay = roi.copy()
-                cv2.fillPoly(overlay, [poly - np.array([x0, y0], np.int32)], col)
-                roi[:] = cv2.addWeighted(overlay, 0.45, roi, 0.55, 0)
-        cv2.polylines(img, [poly], True, col, 2, cv2.LINE_AA)
-    # cameras: dot + heading (camera z axis projected on the floor)
-    for i, (_, T) in enumerate(smap.cameras):
-        if i % max(1, conf.camera_stride):
-            continue
-        T = np.asarray(T)
-        p = vp.world_to_px(T[None, :2, 3])[0]
-        f = T[:2, 2]
-        n = np.linalg.norm(f)
-        q = p + (np.array([f[0], -f[1]]) / n * 0.3 * ppm if n > 1e-6 else 0)
-        cv2.circle(img, (int(p[0]), int(p[1])), 3, (0, 0, 0), -1, cv2.LINE_AA)
-        cv2.arrowedLine(img, (int(p[0]), int(p[1])), (int(q[0]), int(q[1])), (0, 0, 0), 1, cv2.LINE_AA,
-                        tipLength=0.3)
-
-    title = f"Semantic map, top view: {len(smap.instances)} object(s), {len(smap.cameras)} camera(s), grid {g:g} m"
+    title = (f"Semantic map, top view: {len(smap.instances)} object(s), {len(smap.cameras)} camera(s), "
+             f"grid {conf.grid_m:g} m")
     (tw, th), _ = cv2.getTextSize(title, font, conf.font_scale * 1.1, 1)
     t_org = (conf.margin_px // 2, max(th + 2, conf.margin_px // 2))
     cv2.putText(img, title, t_org, font, conf.font_scale * 1.1, (0, 0, 0), 1, cv2.LINE_AA)
     _draw_labels(img, vp, smap, colours, conf, [np.array([t_org[0], 0, t_org[0] + tw, t_org[1] + 4])])
-
-    # scale bar (bottom left) and axes (bottom right)
-    bar_m = _nice_length(0.3 * span[0])
-    bar_px = int(round(bar_m * ppm))
-    y0 = H - conf.margin_px // 2
-    x0 = conf.margin_px // 2
-    cv2.line(img, (x0, y0), (x0 + bar_px, y0), (0, 0, 0), 3)
-    for xx in (x0, x0 + bar_px):
-        cv2.line(img, (xx, y0 - 5), (xx, y0 + 5), (0, 0, 0), 2)
-    cv2.putText(img, f"{bar_m:g} m", (x0, y0 - 8), font, conf.font_scale, (0, 0, 0), 1, cv2.LINE_AA)
-    ax = (W - conf.margin_px // 2 - 40, H - conf.margin_px // 2)
-    cv2.arrowedLine(img, ax, (ax[0] + 35, ax[1]), (200, 0, 0), 2, tipLength=0.25)
-    cv2.arrowedLine(img, ax, (ax[0], ax[1] - 35), (0, 150, 0), 2, tipLength=0.25)
-    cv2.putText(img, "x", (ax[0] + 37, ax[1] + 4), font, conf.font_scale, (200, 0, 0), 1, cv2.LINE_AA)
-    cv2.putText(img, "y", (ax[0] - 4, ax[1] - 38), font, conf.font_scale, (0, 150, 0), 1, cv2.LINE_AA)
-    vp.image, vp.scale_bar_m, vp.scale_bar_px = img, bar_m, bar_px
+    _draw_scale_axes(img, vp, float((hi - lo)[0]), conf)
+    vp.image = img
     return vp
 
 
@@ -315,15 +345,7 @@ def _draw_labels(img: np.ndarray, vp: VisualPrompt, smap: SemanticMap, colours: 
         cv2.putText(img, t, (x0, y0 + th), font, conf.font_scale, dark, 1, cv2.LINE_AA)
 
 
-def _footprint(box) -> np.ndarray:
-    """Floor footprint `[4, 2]` of an oriented box (corners of the bottom face, in order)."""
-    c = np.asarray(box.centroid)[:2]
-    ax = np.asarray(box.axes)
-    L = np.asarray(box.axes_lengths) / 2
-    # the two axes closest to horizontal span the footprint
-    horiz = np.argsort(np.abs(ax[:, 2]))[:2]
-    a, b = ax[horiz[0], :2] * L[horiz[0]], ax[horiz[1], :2] * L[horiz[1]]
-    return np.stack([c - a - b, c + a - b, c + a + b, c - a + b])
+_footprint = box_footprint  # the helper moved to geometry (semantic_map uses it: no import circle)
 
 
 def vlm_prompt(question: str, options: list[str] | None, block: str, mode: str = "grid") -> str:

@@ -19,7 +19,7 @@ from __future__ import annotations
 import json
 import os
 from dataclasses import dataclass, field
-from typing import Any, ClassVar, Iterable
+from typing import Any, ClassVar, Iterable, Sequence
 
 import numpy as np
 
@@ -623,7 +623,7 @@ def footprint_overlap(a: OrientedBox, b: OrientedBox) -> float:
     """Intersection area of two gravity-aligned boxes' floor footprints over the smaller footprint, in [0, 1]."""
     import cv2
 
-    from .prompt import _footprint
+    from .geometry import box_footprint as _footprint
 
     fa, fb = _footprint(a).astype(np.float32), _footprint(b).astype(np.float32)
     area, _ = cv2.intersectConvexConvex(fa, fb)
@@ -845,3 +845,300 @@ def expected_visible(inst: ObjectInstance, K: np.ndarray, T_wc: np.ndarray, size
         if len(valid) and np.mean(valid < zc - occlusion_tol_m - 0.5 * max(inst.box.axes_lengths)) > 0.7:
             return None  # something is in front of it
     return np.array([x0, y0, x1, y1], np.float32)
+
+
+# ----------------------------------------------------------------------------- the built map: gravity, extent, times
+# (moved from pipeline.py: the map's own geometry; the pipeline passes its settings, this module owns the maths)
+
+
+def _world_points(frames: Iterable[Any], poses: dict[int, np.ndarray], stride: int,
+                  keep: Any = None) -> list[np.ndarray]:
+    """Depth points of the posed frames in the poses' frame; `keep(p) -> mask` selects camera-frame points."""
+    from .geometry import backproject, transform
+
+    out = []
+    for f in frames:
+        if f.index in poses and f.depth is not None:
+            p, _ = backproject(f.depth, f.K, stride=stride)
+            out.append(transform(poses[f.index], p if keep is None else p[keep(p)]))
+    return out
+
+
+def _floor_below_seen(P: np.ndarray, down: np.ndarray, offset: float, trace: Any) -> float:
+    """Nothing lies below the floor: when a share of the seen points does, the plane found is a table or counter
+    top (the key frames did not see the floor); the floor is then at least as low as those points."""
+    q = P @ down
+    if np.mean(q > offset + 0.05) > 0.005:
+        low = float(np.percentile(q, 99.8))
+        trace.event("degraded", f"floor fit found a plane {low - offset:.2f} m above points the key frames saw "
+                    f"(a table or counter top; the floor itself was not seen): floor put at the lowest seen "
+                    f"points instead (objects cannot be below it; the floor height is a lower bound)",
+                    stage="gravity", plane_m=offset, floor_m=low)
+        return low
+    return offset
+
+
+def gravity_from_frames(frames: Sequence[Any], poses_root: dict[int, np.ndarray], source_down: np.ndarray | None,
+                        camera_height_m: float, floor_fit_max_depth_m: float, trace: Any) -> np.ndarray:
+    """World-from-root transform [4, 4] (z up, origin on the floor below the root camera). `source_down`: the
+    source's gravity in the root camera (None: the floor fit on the key frames' depth points nearer than
+    `floor_fit_max_depth_m` gives it); the floor height from the same fit, else `camera_height_m` (recorded)."""
+    from .trace import as_trace
+
+    trace = as_trace(trace)
+    down, offset, how = None, None, ""
+    if source_down is not None:
+        down, how = np.asarray(source_down, float) / np.linalg.norm(source_down), "source"
+    pts = _world_points(frames, poses_root, 8, lambda p: p[:, 2] < floor_fit_max_depth_m)
+    P = np.concatenate(pts) if pts else np.zeros((0, 3))
+    hint = down if down is not None else np.array([0.0, 1.0, 0.0])
+    fit = fit_floor_plane(P, hint, max_tilt_deg=15.0 if down is not None else 35.0)
+    if down is None and fit is not None:
+        down, how = fit[0], "floor_fit"
+    if fit is not None:
+        offset = float(down @ (fit[0] * fit[1]))  # floor distance below the root camera along `down`
+        if offset <= 0.3:
+            offset = None
+    if offset is not None and len(P):
+        offset = _floor_below_seen(P, down, offset, trace)
+    if down is None:
+        down, how = np.array([0.0, 1.0, 0.0]), "camera_axes"
+        trace.event("degraded", "no gravity from the source and no floor found: assuming the root camera is level",
+                    stage="gravity")
+    if offset is None:
+        trace.event("degraded", f"floor height unknown: assuming the root camera is {camera_height_m} m above "
+                    f"the floor", stage="gravity")
+    trace.decide("gravity", {"method": how, "down_root": down.tolist(), "floor_below_root_m": offset})
+    return gravity_world_transform(down, offset, camera_height_m)
+
+
+def floor_support(box: Any, P: np.ndarray, band_m: float = 0.10, min_points: int = 3) -> tuple[float, bool]:
+    """Support under a gravity-aligned box: of the `band_m` height bands between the floor (z = 0) and the box
+    bottom, the share holding >= min_points of P [N, 3] inside the box's footprint, and whether the lowest band
+    does. Pure."""
+    ax = np.asarray(box.axes, np.float64)
+    up = int(np.argmax(np.abs(ax[:, 2])))
+    L, c = np.asarray(box.axes_lengths, np.float64), np.asarray(box.centroid, np.float64)
+    bottom = c[2] - L[up] / 2
+    if bottom <= 0 or len(P) == 0:
+        return 0.0, False
+    side = [k for k in range(3) if k != up]
+    local = (np.asarray(P, np.float64) - c) @ ax.T
+    z = P[np.all(np.abs(local[:, side]) <= L[side] / 2, axis=1), 2]
+    n = max(1, int(np.ceil(bottom / band_m - 1e-9)))
+    hist = np.histogram(z[(z >= 0) & (z < bottom)], bins=np.linspace(0.0, bottom, n + 1))[0]
+    return float(np.mean(hist >= min_points)), bool(hist[0] >= min_points)
+
+
+def extend_to_floor(instances: list[ObjectInstance], frames: Sequence[Any], poses: dict[int, np.ndarray],
+                    floor_standing: Sequence[str], band_share: float, trace: Any = None, band_m: float = 0.10,
+                    stride: int = 8) -> list[int]:
+    """A floor-standing object (a name in `floor_standing`) whose fused box stops above the floor (z = 0) — the
+    top of a table seen from above, a chair's back over the table edge — gets its box extended down to the
+    floor when the key frames' depth shows its support: points inside its footprint in at least `band_share`
+    of the `band_m` height bands between the floor and the box bottom, the lowest band included. Open space
+    seen under it (no points) leaves the box as fused. Mutates the boxes; recorded (extended and kept, with
+    the band share). Returns the ids extended."""
+    from .trace import as_trace
+
+    todo = [o for o in instances if o.name in floor_standing]
+    if not todo:
+        return []
+    pts = _world_points(frames, poses, stride)
+    P = np.concatenate(pts) if pts else np.zeros((0, 3))
+    P = P[P[:, 2] > 0.5 * band_m / 2]  # the floor's own points do not count as support
+    done, kept = [], {}
+    for o in todo:
+        ax = np.asarray(o.box.axes, np.float64)
+        up = int(np.argmax(np.abs(ax[:, 2])))
+        if abs(ax[up, 2]) < 0.99:
+            continue  # not a gravity-aligned box
+        L = np.asarray(o.box.axes_lengths, np.float64)
+        c = np.asarray(o.box.centroid, np.float64)
+        if c[2] - L[up] / 2 < band_m:
+            continue
+        share, lowest = floor_support(o.box, P, band_m)
+        if share >= band_share and lowest:
+            top = c[2] + L[up] / 2
+            L2, c2 = L.copy(), c.copy()
+            L2[up], c2[2] = top, top / 2
+            o.box = OrientedBox(c2, L2, ax)
+            done.append(o.id)
+        else:
+            kept[o.id] = round(share, 2)
+    as_trace(trace).event("extent", f"{len(done)} floor-standing object(s) extended to the floor (support seen "
+                          f"under them): {done}; {len(kept)} kept as fused (support share per id): {kept}",
+                          stage="extent", extended=done, kept=kept)
+    return done
+
+
+def room_extent(instances: list[ObjectInstance], cams: list[tuple[float, np.ndarray]], frames: Sequence[Any] = (),
+                poses: dict[int, np.ndarray] | None = None, trim: float = 0.5, max_depth_m: float = 8.0
+                ) -> Room | None:
+    """Room extent of a built map: the floor-projected hull of everything the aligned key frames' depth saw
+    (walls, floor, furniture; depth in (0.1, `max_depth_m`) m, fusion's own limit), plus the object footprints
+    and the camera track. Points beyond the `trim` percentile along any of 36 directions are dropped first
+    (stray depth through doorways and windows). A convex hull: an L-shaped room is over-estimated, a room whose
+    walls were never seen under-estimated."""
+    pts = [o.box.corners()[:, :2] for o in instances] + [T[None, :2, 3] for _, T in cams]
+    seen = [p[:, :2] for p in _world_points(frames, poses or {}, 12,
+                                            lambda p: (p[:, 2] > 0.1) & (p[:, 2] < max_depth_m))]
+    source = "objects_and_camera_hull"
+    if seen:
+        S = np.concatenate(seen)
+        if len(S) > 100:
+            ang = np.linspace(0, np.pi, 36, endpoint=False)
+            D = np.stack([np.cos(ang), np.sin(ang)], 1)
+            proj = S @ D.T
+            lo, hi = np.percentile(proj, trim, 0), np.percentile(proj, 100 - trim, 0)
+            S = S[np.all((proj >= lo) & (proj <= hi), 1)]
+            pts.append(S)
+            source = "observed_depth_hull"
+    if not pts:
+        return None
+    P = np.concatenate(pts)
+    top = max([float(o.box.aabb()[1][2]) for o in instances] + [2.4])
+    return Room(convex_hull_2d(hull_candidates(P)), 0.0, top, source)
+
+
+def hull_candidates(P: np.ndarray, directions: int = 16) -> np.ndarray:
+    """Points [N, 2] that may be convex-hull vertices (Akl-Toussaint): the extreme points in `directions`
+    directions span a convex polygon; points clearly inside it (by more than 1e-9 of the extent) are dropped.
+    The hull is unchanged, the Python monotone chain just sees far fewer points."""
+    if len(P) < 64:
+        return P
+    ang = np.linspace(0, 2 * np.pi, directions, endpoint=False)
+    D = np.stack([np.cos(ang), np.sin(ang)], 1)
+    idx = np.unique(np.argmax(P @ D.T, 0))              # extreme points, ordered by direction below
+    V = P[idx]
+    c = V.mean(0)
+    V = V[np.argsort(np.arctan2(V[:, 1] - c[1], V[:, 0] - c[0]))]
+    if len(V) < 3:
+        return P
+    eps = 1e-9 * float(np.ptp(P, 0).max() + 1.0)
+    inside = np.ones(len(P), bool)
+    for a, b in zip(V, np.roll(V, -1, 0)):              # counter-clockwise: inside = left of every edge
+        e = b - a
+        nrm = float(np.hypot(*e))
+        if nrm == 0:
+            continue
+        inside &= (e[0] * (P[:, 1] - a[1]) - e[1] * (P[:, 0] - a[0])) / nrm > eps
+    return P[~inside]
+
+
+def first_seen_from_detections(instances: list[ObjectInstance], detections: Iterable[tuple[float, Iterable[str]]],
+                               trace: Any = None) -> int:
+    """The key-frame search ran the detector on many more frames than the key frames: a category detected
+    (`detections`: (time s, names detected) per scored frame) earlier than any of its instances' key frames was
+    first seen then. The earliest instance of the category takes that time (appearance-order questions are
+    about categories). Mutates first_seen; returns how many changed (recorded when any)."""
+    from .trace import as_trace
+
+    first: dict[str, float] = {}
+    for t, seen in detections:
+        for n in set(seen):
+            first[n] = min(first.get(n, np.inf), float(t))
+    changed = 0
+    for n, t in first.items():
+        inst = [o for o in instances if o.name == n and o.first_seen is not None]
+        if inst:
+            o = min(inst, key=lambda o: o.first_seen)
+            if t < o.first_seen:
+                o.first_seen, changed = t, changed + 1
+    if changed:
+        as_trace(trace).decide("first_seen_from_search", changed)
+    return changed
+
+
+# ----------------------------------------------------------------------------- occlusion refinement (the stage)
+
+
+def _prompt_points(inst: ObjectInstance, f: Any, box: np.ndarray, obs: list[Observation], by_index: dict[int, Any],
+                   n_pts: dict[tuple[str, int], int], matcher: Any, conf_views: int) -> np.ndarray | None:
+    """Point prompts for `inst` in frame f: cross-frame matches between its best views (most points) and f,
+    inside both boxes; None with fewer than 3."""
+    pts = []
+    views = sorted(inst.frames, key=lambda g: -n_pts.get((inst.name, g), 0))[:conf_views]
+    for g_idx in views:  # matches between a view that has it and this frame, inside both boxes
+        g = by_index.get(g_idx)
+        if g is None:
+            continue
+        gb = [o.box2d for o in obs if o.frame == g_idx and o.name == inst.name]
+        if not gb:
+            continue
+        m = matcher.match_keys(g.index, g.rgb, f.index, f.rgb, np.stack(gb), box[None])  # cached features
+        if len(m.uv1):
+            pts.append(m.uv1)
+    if not pts:
+        return None
+    P = np.concatenate(pts)
+    P = P[(P[:, 0] >= box[0]) & (P[:, 0] <= box[2]) & (P[:, 1] >= box[1]) & (P[:, 1] <= box[3])]
+    return P if len(P) >= 3 else None
+
+
+def _recover_mask(inst: ObjectInstance, f: Any, box: np.ndarray, perception: Any, prompts: Any
+                  ) -> np.ndarray | None:
+    """The re-prompted mask: a promptable segmenter on the point prompts (`prompts()`), else a semantic
+    segmenter's class mask inside the projected box."""
+    mask = None
+    if perception.segment_points is not None:
+        P = prompts()
+        if P is not None:
+            mask = perception.segment_points(f, P[:16], inst.name)
+    if mask is None and perception.segment_class is not None:
+        cls = perception.segment_class(f, inst.name)
+        if cls is not None:
+            x0, y0, x1, y1 = np.round(box).astype(int)
+            mask = np.zeros(cls.shape, bool)
+            mask[y0:y1 + 1, x0:x1 + 1] = cls[y0:y1 + 1, x0:x1 + 1]
+    return mask
+
+
+def refine(instances: list[ObjectInstance], obs: list[Observation], frames: list[Any],
+           poses: dict[int, np.ndarray], dets: dict[int, Any], perception: Any,
+           conf: FusionConfig, trace: Any, conf_views: int = 2, matcher: Any = None
+           ) -> tuple[list[ObjectInstance], list[np.ndarray], int]:
+    """Paper, occlusion refinement: project every instance into each key frame; where it should be visible but
+    was not segmented, re-prompt the segmenter — with point prompts from cross-frame matches inside its other
+    views (promptable segmenter), or the class mask inside the projected box (semantic segmenter) — and add what
+    it recovers. `perception`: the pipeline's `Perception` (segment_points, segment_class, matcher). Returns the
+    re-fused instances, their clouds and how many instances gained a view."""
+    from .matching import make_matcher
+    from .trace import as_trace
+
+    matcher = make_matcher(matcher if matcher is not None else perception.matcher)
+    by_index = {f.index: f for f in frames}
+    n_pts: dict[tuple[str, int], int] = {}  # (instance name, frame) -> points of its observation there
+    for o in obs:
+        n_pts[(o.name, o.frame)] = max(n_pts.get((o.name, o.frame), 0), len(o.points))
+    found: dict[tuple[int, int], list[Observation]] = {}  # (instance position, frame position) -> recovered
+    # frame-major: a semantic segmenter caches its class map for the last image, so all instances of one frame
+    # share one segmenter run; the result is put back in instance-major order below (same fusion input)
+    for fi, f in enumerate(frames):
+        if f.index not in poses:
+            continue
+        for ii, inst in enumerate(instances):
+            if f.index in set(inst.frames):
+                continue
+            box = expected_visible(inst, f.K, poses[f.index], (f.rgb.shape[1], f.rgb.shape[0]), f.depth)
+            if box is None:
+                continue
+            mask = _recover_mask(inst, f, box, perception, lambda: _prompt_points(
+                inst, f, box, obs, by_index, n_pts, matcher, conf_views))
+            if mask is None or mask.sum() < conf.min_points:
+                continue
+            lifted = lift_observations(f.rgb.shape[:2], f.depth, f.K, poses[f.index], box[None], [inst.name],
+                                       np.array([inst.score * 0.9]), mask[None], f.index, f.t, conf)
+            for ob in lifted:  # keep only what agrees with the instance (the prompt may have hit an occluder)
+                inside = inst.box.contains(ob.points, margin=0.15)
+                if inside.mean() >= 0.5:
+                    ob.points = ob.points[inside]
+                    found.setdefault((ii, fi), []).append(ob)
+    new_obs = [ob for key in sorted(found) for ob in found[key]]
+    gained = {instances[ii].id for ii, _ in found}
+    if not new_obs:
+        return instances, [np.zeros((0, 3))] * len(instances), 0
+    as_trace(trace).event("refinement", f"occlusion refinement recovered {len(new_obs)} view(s) of {len(gained)} "
+                          f"instance(s)", views=len(new_obs), instances=len(gained))
+    inst2, clouds = fuse_observations(obs + new_obs, conf)
+    return inst2, clouds, len(gained)
