@@ -141,7 +141,10 @@ class ObjectInstance:
     id: unique within the map; name: canonical vocabulary name (`grounding.canonical_name`);
     box: oriented box in the z-up metric world; first_seen: video time (s) of the first frame showing it, or None
     when unknown (e.g. a map built from benchmark boxes); score: detection confidence (1.0 for ground truth);
-    n_points: 3D points fused into it (0 for ground truth); frames: indices of the frames it was seen in.
+    n_points: 3D points fused into it (0 for ground truth); frames: indices of the frames it was seen in;
+    views: the per-view estimates it was fused from, one per fused detection (`view_estimates`: frame, score,
+    n_points, centre [3] and size [3] along the box axes of that view's points alone), [] for ground truth. The
+    reasoner's evidence (the spread of an answer's quantity over the views) reads them.
     """
 
     id: int
@@ -151,6 +154,7 @@ class ObjectInstance:
     score: float = 1.0
     n_points: int = 0
     frames: list[int] = field(default_factory=list)
+    views: list[dict[str, Any]] = field(default_factory=list)
 
     @property
     def center(self) -> np.ndarray:
@@ -158,15 +162,20 @@ class ObjectInstance:
         return np.asarray(self.box.centroid, dtype=np.float64)
 
     def to_dict(self) -> dict[str, Any]:
-        return {"id": int(self.id), "name": self.name, "box": self.box.to_meta(),
-                "first_seen": None if self.first_seen is None else float(self.first_seen),
-                "score": float(self.score), "n_points": int(self.n_points), "frames": [int(f) for f in self.frames]}
+        d = {"id": int(self.id), "name": self.name, "box": self.box.to_meta(),
+             "first_seen": None if self.first_seen is None else float(self.first_seen),
+             "score": float(self.score), "n_points": int(self.n_points), "frames": [int(f) for f in self.frames]}
+        if self.views:
+            d["views"] = [_plain(v) for v in self.views]
+        return d
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> "ObjectInstance":
+        views = [v for v in d.get("views", []) if isinstance(v, dict)]
         return cls(int(d["id"]), str(d["name"]), OrientedBox.from_meta(d["box"]),
                    None if d.get("first_seen") is None else float(d["first_seen"]),
-                   float(d.get("score", 1.0)), int(d.get("n_points", 0)), [int(f) for f in d.get("frames", [])])
+                   float(d.get("score", 1.0)), int(d.get("n_points", 0)), [int(f) for f in d.get("frames", [])],
+                   views)
 
 
 @dataclass
@@ -532,6 +541,7 @@ class _Acc:
     first_seen: float
     frames: list[int]
     hints: list[int]
+    views: list[tuple[int, float, np.ndarray]] = field(default_factory=list)  # (frame, score, points) per detection
 
     _memo: tuple[np.ndarray, dict[str, Any]] | None = field(default=None, repr=False, compare=False)
 
@@ -592,8 +602,9 @@ def fuse_observations(observations: list[Observation], conf: FusionConfig = defa
                 best, best_ov = a, ov + (1.0 if close else 0.0)
         if best is None:
             accs.append(_Acc(ob.name, pts, ob.score, ob.t, [ob.frame],
-                             [] if ob.instance_hint is None else [ob.instance_hint]))
+                             [] if ob.instance_hint is None else [ob.instance_hint], [(ob.frame, ob.score, pts)]))
         else:
+            best.views.append((ob.frame, ob.score, pts))
             best.points = voxel_downsample(np.concatenate([best.points, pts]), conf.voxel_m)
             best.score = max(best.score, ob.score)
             best.first_seen = min(best.first_seen, ob.t)
@@ -610,11 +621,35 @@ def fuse_observations(observations: list[Observation], conf: FusionConfig = defa
         cleaned = _merge_overlapping(cleaned, conf)
     instances, clouds = [], []
     for a, pts in cleaned:
-        inst = ObjectInstance(len(instances), a.name, fit_gravity_box(pts), a.first_seen, a.score, len(pts),
-                              sorted(a.frames))
+        box = fit_gravity_box(pts)
+        inst = ObjectInstance(len(instances), a.name, box, a.first_seen, a.score, len(pts), sorted(a.frames),
+                              view_estimates(box, a.views))
         instances.append(inst)
         clouds.append(pts)
     return instances, clouds
+
+
+def view_estimates(box: OrientedBox, views: list[tuple[int, float, np.ndarray]], margin_m: float = 0.05,
+                   lo: float = 2.0, hi: float = 98.0) -> list[dict[str, Any]]:
+    """Per-view estimates of one fused instance: for each fused detection (frame, score, points [N, 3]), the
+    box its own points give along the fused box's axes (the points inside the fused box grown by `margin_m`,
+    i.e. without what outlier removal dropped; `lo`..`hi` percentiles per axis): centre [3] and size [3]. A view
+    with fewer than 4 such points keeps its frame and score with centre/size None. Sorted by frame. Pure."""
+    ax = np.asarray(box.axes, np.float64)
+    c0 = np.asarray(box.centroid, np.float64)
+    out = []
+    for frame, score, pts in sorted(views, key=lambda v: (v[0], -v[1])):
+        p = np.asarray(pts, np.float64)
+        p = p[box.contains(p, margin_m)] if len(p) else p
+        v: dict[str, Any] = {"frame": int(frame), "score": round(float(score), 3), "n_points": int(len(p)),
+                             "centre": None, "size": None}
+        if len(p) >= 4:
+            local = (p - c0) @ ax.T
+            a, b = np.percentile(local, lo, axis=0), np.percentile(local, hi, axis=0)
+            v["centre"] = np.round(c0 + ((a + b) / 2) @ ax, 4).tolist()
+            v["size"] = np.round(np.maximum(b - a, 0.0), 4).tolist()
+        out.append(v)
+    return out
 
 
 def footprint_overlap(a: OrientedBox, b: OrientedBox) -> float:
@@ -653,6 +688,7 @@ def _merge_overlapping(items: list[tuple["_Acc", np.ndarray]], conf: FusionConfi
                 a.first_seen = min(a.first_seen, b.first_seen)
                 a.frames = sorted(set(a.frames) | set(b.frames))
                 a.hints += b.hints
+                a.views += b.views
                 items[i] = (a, a.points)
                 del items[j]
                 merged = True
