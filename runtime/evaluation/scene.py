@@ -366,7 +366,8 @@ def ask_questions(src: Any, recs: list[dict[str, Any]], n: int, perception: Any,
                          answerer="map", keyframes=keyframes)
         a = r.answer
         out.append({"id": q["id"], "question_type": q["question_type"], "pred": a.text, "status": a.status,
-                    "ground_truth": q["ground_truth"], "evidence": a.explanation, "seconds": time.perf_counter() - t0,
+                    "ground_truth": q["ground_truth"], "evidence": a.explanation, "support": a.evidence,
+                    "seconds": time.perf_counter() - t0,
                     "score": score_answer(q["question_type"], a.text, q["ground_truth"]) if a.ok else 0.0})
     return {"n": len(out), "score": float(np.mean([r["score"] for r in out])) if out else None, "records": out}
 
