@@ -57,3 +57,14 @@ def test_floor_fit_with_a_large_table_and_little_floor_keeps_the_level_normal_an
     assert np.degrees(np.arccos(-n[2])) < 0.5
     assert -d == pytest.approx(0.0, abs=0.03)      # down . p = d: the floor z = -d
     assert np.mean(P @ n > d + 0.05) <= 0.005      # nothing lies below it
+
+
+def test_eval_scene_maps_one_name_per_detector_label_set():
+    from mosaicthinker.runtime.evaluation.scene import one_name_per_label
+    from mosaicthinker.runtime.stages.detector import map_names
+
+    labels = ["person", "chair", "dining table", "tv", "cup"]
+    mapping, _ = map_names(["chair", "stool", "desk", "table", "monitor", "tv", "mug", "cup"], labels)
+    keep = one_name_per_label(mapping, labels, ["table"])
+    assert keep == {"chair", "table", "tv", "cup"}   # annotated name first, else the label's own name
+    assert one_name_per_label(mapping, labels, []) >= {"desk"}  # no preference: alphabetical (desk < table)
