@@ -120,3 +120,16 @@ def test_ask_default_matcher_is_the_bundles(tmp_path):
     (tmp_path / "manifest.json").write_text(json.dumps(man))
     assert ask_cmd.default_matcher(str(tmp_path)) == "sift"
     assert ask_cmd.default_matcher(None) == "sift"
+
+
+def test_mosaic_ask_on_a_saved_map_returns_and_prints_the_evidence(tmp_path, capsys):
+    from mosaicthinker.runtime import cli
+
+    path = tmp_path / "map.json"
+    _map().save(path)
+    assert cli.main(["ask", str(path), "How many chairs are there?", "--json"]) == 0
+    r = json.loads(capsys.readouterr().out)
+    assert r["answer"] == "2" and r["evidence"]["detections"] == 4 and r["evidence"]["n"] == 3
+    assert r["ran"] is None  # a saved map: no perception ran
+    assert cli.main(["ask", str(path), "How many chairs are there?"]) == 0
+    assert "evidence: chair #" in capsys.readouterr().out
