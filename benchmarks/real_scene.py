@@ -53,6 +53,7 @@ def summary(r: dict) -> dict:
     return {"wall_s": round(r["wall_s"], 1), "peak_rss_mb": round(r["peak_rss_mb"]),
             "recall": ins["recall"], "precision": ins["precision"], "median_centre_err_m": ins["median_centre_err_m"],
             "chair_count_error": ins["per_category"].get("chair", {}).get("count_error"),
+            "chairs_built_true_matched": [ins["per_category"].get("chair", {}).get(k) for k in ("built", "true", "tp")],
             "up_axis_err_deg": fl["up_axis_err_deg"], "below_floor": len(fl["below_floor"]),
             "mc": an["multiple_choice"], "numeric_mra": an["numeric_mra"],
             "mc_pooled": an["pooled"]["multiple_choice"], "n_mc": an["pooled"]["n_mc"],
@@ -63,6 +64,21 @@ def summary(r: dict) -> dict:
             "alignment_s": r["stages"].get("alignment", {}).get("seconds")}
 
 
+def same_outputs(a: Path, b: Path) -> dict:
+    """Whether two runs' --out folders hold the same map (instances: names, boxes, frames, views) and the same
+    answers (every question's prediction and evidence)."""
+    def load(d: Path) -> tuple:
+        m = json.loads((d / "map.json").read_text())
+        q = json.loads((d / "scene_eval.json").read_text()).get("questions", [])
+        return m.get("instances"), [(r["id"], r["pred"], r.get("support")) for r in q]
+
+    try:
+        (ma, qa), (mb, qb) = load(a), load(b)
+    except (OSError, ValueError) as e:
+        return {"same_map": None, "same_answers": None, "error": str(e)}
+    return {"same_map": ma == mb, "same_answers": qa == qb, "instances": len(ma or []), "questions": len(qa)}
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--bundle", type=Path, default=REPO / "bundles" / "real")
@@ -70,6 +86,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--configs", default=",".join(CONFIGS))
     ap.add_argument("--ask", type=int, default=0, help="questions also asked on the video per run")
     ap.add_argument("--out", type=Path, default=REPO / "out" / "real_scene")
+    ap.add_argument("--repeat", action="store_true", help="run the first configuration again and record whether "
+                                                           "the map and the answers are the same (seeded)")
     ap.add_argument("--retable", action="store_true", help="rebuild the table of an existing results file from "
                                                             "its stored runs (no new runs)")
     a = ap.parse_args(argv)
@@ -91,6 +109,16 @@ def main(argv: list[str] | None = None) -> int:
             runs[key] = run_one(a.bundle, depth, matcher, k, a.ask, a.out / f"{name}-K{k}")
             print(f"[real_scene] {key}: {json.dumps(summary(runs[key]))}", file=sys.stderr, flush=True)
     table = {k: summary(v) for k, v in runs.items()}
+    repeat = None
+    if a.repeat and runs:
+        first = next(iter(runs))
+        name, k = first.split("/K")
+        depth, matcher = CONFIGS[name]
+        print(f"[real_scene] {first} again (same input: same map and answers?) ...", file=sys.stderr, flush=True)
+        again = run_one(a.bundle, depth, matcher, int(k), a.ask, a.out / f"{name}-K{k}-repeat")
+        repeat = {"run": first, **same_outputs(a.out / f"{name}-K{k}", a.out / f"{name}-K{k}-repeat")}
+        if "error" in again:
+            repeat["error"] = again["error"][-300:]
     ratios = {}
     for name in a.configs.split(","):
         r16, r32 = table.get(f"{name}/K16", {}), table.get(f"{name}/K32", {})
@@ -98,7 +126,7 @@ def main(argv: list[str] | None = None) -> int:
             ratios[name] = round(r32["wall_s"] / r16["wall_s"], 2)
     doc = {"schema": "mosaicthinker.bench.real_scene/1", "data": str(DATA.relative_to(SHARED.parent)),
            "annotations": str(ANNOT.relative_to(REPO)), "machine": f"{os.cpu_count()} cores (shared)",
-           "table": table, "k32_over_k16_wall": ratios, "runs": runs}
+           "table": table, "k32_over_k16_wall": ratios, "repeat": repeat, "runs": runs}
     OUT.parent.mkdir(parents=True, exist_ok=True)
     OUT.write_text(json.dumps(doc, indent=1, default=float))
     print(json.dumps({"table": table, "k32_over_k16_wall": ratios}, indent=1, default=float))

@@ -35,6 +35,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from . import evidence as ev
 from .config import StageConf
 from .errors import InputError
 from .geometry import box_distance
@@ -77,6 +78,7 @@ class Answer:
     parsed: ParsedQuestion | None = None
     unit: str | None = None  # of a numeric value: cm / m / mm / ft / in / m2 / ft2
     hints: list[str] = field(default_factory=list)  # map names close to a name that is not in the map
+    evidence: dict[str, Any] | None = None  # instances, views, fused detections, per-view spread (`evidence.build`)
 
     @property
     def ok(self) -> bool:
@@ -85,7 +87,7 @@ class Answer:
     def to_dict(self) -> dict[str, Any]:
         return {"text": self.text, "value": self.value, "status": self.status, "explanation": self.explanation,
                 "missing": list(self.missing), "qtype": self.qtype, "unit": self.unit, "hints": list(self.hints),
-                "parsed": None if self.parsed is None else self.parsed.to_dict()}
+                "evidence": self.evidence, "parsed": None if self.parsed is None else self.parsed.to_dict()}
 
 
 class _NotFound(Exception):
@@ -211,6 +213,8 @@ class MapReasoner:
         for k in self._idx:
             self._by_canon.setdefault(canonical_name(k) or k, []).append(k)
         self._pq: ParsedQuestion | None = None
+        self._used: list[ObjectInstance] = []  # instances the current answer read (its evidence)
+        self._spread: tuple[str, list[float], str | None] | None = None  # (quantity, per-view values, unit)
 
     # ------------------------------------------------------------------ entry point
     def answer(self, question: str, options: list[str] | None = None,
@@ -222,6 +226,14 @@ class MapReasoner:
         self._pq = pq
         if pq.qtype is None:
             return self._not_understood(pq)
+        ans = self._answer(pq, options)
+        if ans.ok:
+            q = self._spread or (None, [], None)
+            ans.evidence = ev.build(self._used, q[0], q[1], q[2])
+        return ans
+
+    def _answer(self, pq: ParsedQuestion, options: list[str] | None) -> Answer:
+        self._used, self._spread = [], None
         try:
             value, expl = getattr(self, "_" + pq.qtype)(pq)
         except _NotFound as e:
@@ -287,11 +299,15 @@ class MapReasoner:
 
     def _instances(self, name: str) -> list[ObjectInstance]:
         self._missing([name])
-        return self._select(name, self._find(name))
+        out = self._select(name, self._find(name))
+        self._used += out
+        return out
 
     def _require(self, names: list[str]) -> dict[str, list[ObjectInstance]]:
         self._missing(names + [s["near"] for n in names for s in [self._sel(n)] if s.get("near")])
-        return {n: self._select(n, self._find(n)) for n in names}
+        out = {n: self._select(n, self._find(n)) for n in names}
+        self._used += [o for v in out.values() for o in v]
+        return out
 
     def _sel(self, name: str) -> dict[str, Any]:
         return self._pq.selectors.get(name, {}) if self._pq is not None else {}
@@ -413,7 +429,9 @@ class MapReasoner:
                                f"{self._ph(pq.params['object'])} there are")
         if pq.params["object"] == "*" or name_key(pq.params["object"]) in ("thing", "object", "item"):
             return len(self.map.instances), f"{len(self.map.instances)} object(s) in the map"
-        n = len(self._instances(pq.params["object"]))
+        inst = self._instances(pq.params["object"])
+        n = len(inst)
+        self._spread = ("per-view count", ev.count_values(inst), None)
         return n, f"{n} instance(s) of {self._ph(pq.params['object'])} in the map"
 
     def _object_existence(self, pq: ParsedQuestion) -> tuple[Any, str]:
@@ -437,6 +455,8 @@ class MapReasoner:
         unit = pq.params.get("unit", "cm")
         sizes = [_measure(o, dim) / UNIT_M[unit] for o in inst]
         i = int(np.argmax(sizes))
+        self._spread = (f"per-view {'longest side' if dim == 'longest' else dim}",
+                        ev.size_values(inst[i], lambda o: _measure(o, dim), UNIT_M[unit]), unit)
         note = "" if len(inst) == 1 else f" (largest of {len(inst)} instances)"
         what = "longest box dimension" if dim == "longest" else f"box {dim}"
         return sizes[i], f"{what} of {self._ph(pq.params['object'])} #{inst[i].id}: {sizes[i]:.1f} {unit}{note}"
@@ -456,15 +476,19 @@ class MapReasoner:
         d, x, y = self._min_distance(inst[a], inst[b])
         unit = pq.params.get("unit", "m")
         v = d / UNIT_M[unit]
+        self._spread = ("per-view-pair distance", ev.distance_values(x, y, UNIT_M[unit]), unit)
         return v, f"closest points of {self._ph(a)} #{x.id} and {self._ph(b)} #{y.id}: {v:.3f} {unit}"
 
     def _object_rel_distance(self, pq: ParsedQuestion) -> tuple[Any, str]:
         ref, cands = pq.params["reference"], pq.params["candidates"]
         inst = self._require([ref] + cands)
-        dists = {c: self._min_distance(inst[c], inst[ref])[0] for c in cands if c != ref}
+        pairs = {c: self._min_distance(inst[c], inst[ref]) for c in cands if c != ref}
+        dists = {c: p[0] for c, p in pairs.items()}
         if not dists:
             raise _Unsupported("no candidate other than the reference object itself")
         pick = (min if pq.params.get("extreme", "closest") == "closest" else max)(dists, key=dists.get)
+        self._spread = (f"per-view-pair distance of {self._ph(pick)}",
+                        ev.distance_values(pairs[pick][1], pairs[pick][2]), "m")
         return pick, f"closest-point distances to {self._ph(ref)}: " + ", ".join(
             f"{self._ph(c)} {d:.2f} m" for c, d in dists.items())
 
@@ -512,6 +536,7 @@ class MapReasoner:
             raise _Unsupported(f"standing by {self._ph(p['position'])} and facing {self._ph(p['facing'])}: "
                                f"same position")
         th = signed_angle_deg(f, C.center[:2] - A.center[:2])
+        self._spread = ("per-view angle", ev.angle_values(A, B, C, th), "deg")
         return th, (f"at {self._ph(p['position'])} facing {self._ph(p['facing'])}: {self._ph(p['query'])} at "
                     f"{th:+.1f} deg (counter-clockwise){na}{nb}{nc}")
 

@@ -143,7 +143,10 @@ class ObjectInstance:
     id: unique within the map; name: canonical vocabulary name (`grounding.canonical_name`);
     box: oriented box in the z-up metric world; first_seen: video time (s) of the first frame showing it, or None
     when unknown (e.g. a map built from benchmark boxes); score: detection confidence (1.0 for ground truth);
-    n_points: 3D points fused into it (0 for ground truth); frames: indices of the frames it was seen in.
+    n_points: 3D points fused into it (0 for ground truth); frames: indices of the frames it was seen in;
+    views: the per-view estimates it was fused from, one per fused detection (`view_estimates`: frame, score,
+    n_points, centre [3] and size [3] along the box axes of that view's points alone), [] for ground truth. The
+    reasoner's evidence (the spread of an answer's quantity over the views) reads them.
     """
 
     id: int
@@ -153,6 +156,7 @@ class ObjectInstance:
     score: float = 1.0
     n_points: int = 0
     frames: list[int] = field(default_factory=list)
+    views: list[dict[str, Any]] = field(default_factory=list)
 
     @property
     def center(self) -> np.ndarray:
@@ -160,15 +164,20 @@ class ObjectInstance:
         return np.asarray(self.box.centroid, dtype=np.float64)
 
     def to_dict(self) -> dict[str, Any]:
-        return {"id": int(self.id), "name": self.name, "box": self.box.to_meta(),
-                "first_seen": None if self.first_seen is None else float(self.first_seen),
-                "score": float(self.score), "n_points": int(self.n_points), "frames": [int(f) for f in self.frames]}
+        d = {"id": int(self.id), "name": self.name, "box": self.box.to_meta(),
+             "first_seen": None if self.first_seen is None else float(self.first_seen),
+             "score": float(self.score), "n_points": int(self.n_points), "frames": [int(f) for f in self.frames]}
+        if self.views:
+            d["views"] = [_plain(v) for v in self.views]
+        return d
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> "ObjectInstance":
+        views = [v for v in d.get("views", []) if isinstance(v, dict)]
         return cls(int(d["id"]), str(d["name"]), OrientedBox.from_meta(d["box"]),
                    None if d.get("first_seen") is None else float(d["first_seen"]),
-                   float(d.get("score", 1.0)), int(d.get("n_points", 0)), [int(f) for f in d.get("frames", [])])
+                   float(d.get("score", 1.0)), int(d.get("n_points", 0)), [int(f) for f in d.get("frames", [])],
+                   views)
 
 
 @dataclass
@@ -367,6 +376,7 @@ class FusionConfig(StageConf):
     component_share: float = 0.5    # ... and parts with at least this share of its points
     merge_footprint: bool = True  # after fusion, merge same-name instances whose floor footprints overlap
     min_instance_points: int = 40
+    duplicate_iou: float = 0.7    # one frame's boxes of two names this alike are one object named twice (0 = off)
     seed: int = 0
 
     def validate(self) -> None:
@@ -416,7 +426,10 @@ def lift_observations(rgb_shape: tuple[int, int], depth: np.ndarray, K: np.ndarr
     out: list[Observation] = []
     d = np.where(depth < conf.max_depth_m, depth, 0).astype(np.float32)
     kernel = np.ones((2 * conf.erode_px + 1,) * 2, np.uint8) if conf.erode_px > 0 else None
+    keep = duplicate_names(boxes, names, scores, conf.duplicate_iou) if conf.duplicate_iou > 0 else None
     for j, (box, name) in enumerate(zip(boxes, names)):
+        if keep is not None and not keep[j]:
+            continue
         if masks is not None:
             m = masks[j].astype(np.uint8)
             if kernel is not None:
@@ -438,11 +451,16 @@ def lift_observations(rgb_shape: tuple[int, int], depth: np.ndarray, K: np.ndarr
     return out
 
 
-def box_depth_mask(depth: np.ndarray, box: np.ndarray, band_m: float = 0.15, band_rel: float = 0.15) -> np.ndarray:
-    """Box-prompted mask [H, W] bool: the valid depth pixels inside `box [4]` within the dominant depth band
-    around the median depth of the box's central half (|d - median| < max(band_m, band_rel * median)): the
-    object the box was drawn around, not the wall behind it.
-    Used when there is no segmenter, or the segmenter cannot segment the box's category."""
+def box_depth_mask(depth: np.ndarray, box: np.ndarray, band_m: float = 0.15, band_rel: float = 0.15,
+                   ring: float = 0.25, min_share: float = 0.1) -> np.ndarray:
+    """Box-prompted mask [H, W] bool: the valid depth pixels inside `box [4]` of the depth layer the box was
+    drawn around (|d - layer| < max(band_m, band_rel * layer)).
+
+    The layer is the one that stands out of its surroundings (`box_layer`): of the depth modes holding
+    >= `min_share` of the box's pixels, the one whose share inside the box most exceeds its share in a ring
+    around it (`ring` x the box size each side). A wall or counter behind, or a table edge in front, goes on
+    past the box's edges; the object ends there. Used when there is no segmenter, or the segmenter cannot
+    segment the box's category (recorded as degraded by the caller)."""
     H, W = depth.shape
     x0, y0, x1, y1 = np.round(np.asarray(box, float)).astype(int)
     x0, y0, x1, y1 = max(0, x0), max(0, y0), min(W, x1), min(H, y1)
@@ -450,14 +468,61 @@ def box_depth_mask(depth: np.ndarray, box: np.ndarray, band_m: float = 0.15, ban
     if x1 <= x0 or y1 <= y0:
         return m
     patch = depth[y0:y1, x0:x1]
-    h, w = patch.shape
-    centre = patch[h // 4:h - h // 4, w // 4:w - w // 4]  # a box is drawn around its object: its centre is it
-    valid = centre[centre > 0] if (centre > 0).any() else patch[patch > 0]
-    if not len(valid):
+    inside = patch[patch > 0]
+    if not len(inside):
         return m
-    med = float(np.median(valid))
-    m[y0:y1, x0:x1] = (patch > 0) & (np.abs(patch - med) < max(band_m, band_rel * med))
+    gx, gy = int(round(ring * (x1 - x0))), int(round(ring * (y1 - y0)))
+    outer = depth[max(0, y0 - gy):min(H, y1 + gy), max(0, x0 - gx):min(W, x1 + gx)].copy()
+    outer[y0 - max(0, y0 - gy):y1 - max(0, y0 - gy), x0 - max(0, x0 - gx):x1 - max(0, x0 - gx)] = 0
+    layer = box_layer(inside, outer[outer > 0], band_m, band_rel, min_share)
+    m[y0:y1, x0:x1] = (patch > 0) & (np.abs(patch - layer) < max(band_m, band_rel * layer))
     return m
+
+
+def box_layer(inside: np.ndarray, around: np.ndarray, band_m: float = 0.15, band_rel: float = 0.15,
+              min_share: float = 0.1, bins: int = 48) -> float:
+    """Depth (m) of the layer a box was drawn around, from its valid depths `inside [N]` and those of a ring
+    `around [M]` it: each depth mode (a histogram peak in log depth) holding >= `min_share` of `inside` within
+    its band scores its inside share minus its share of `around`; the best wins (ties: the nearer). Without a
+    ring (a box filling the image) the score is the inside share. Pure."""
+    d = np.asarray(inside, np.float64)
+    lo, hi = np.log(max(float(d.min()), 1e-3)), np.log(max(float(d.max()), 1e-3))
+    if hi - lo < 1e-6:
+        return float(d[0])
+    hist, edges = np.histogram(np.log(d), bins=bins, range=(lo, hi))
+    sm = np.convolve(hist, [1, 2, 1], "same")
+    peaks = [k for k in range(bins) if sm[k] > 0 and sm[k] >= sm[max(0, k - 1)] and sm[k] >= sm[min(bins - 1, k + 1)]]
+    best, best_score = float(np.median(d)), -np.inf
+    a = np.asarray(around, np.float64)
+    for k in peaks:
+        c = float(np.exp((edges[k] + edges[k + 1]) / 2))
+        band = max(band_m, band_rel * c)
+        share = float(np.mean(np.abs(d - c) < band))
+        if share < min_share:
+            continue
+        score = share - (float(np.mean(np.abs(a - c) < band)) if len(a) else 0.0)
+        if score > best_score + 1e-9:
+            best, best_score = c, score
+    return best
+
+
+def duplicate_names(boxes: np.ndarray, names: list[str], scores: np.ndarray, iou: float = 0.7) -> np.ndarray:
+    """Keep mask [N] over one frame's detections: a detection whose box overlaps (IoU >= `iou`) a
+    higher-scored detection of another name is the same object named twice (a closed-set detector's per-class
+    NMS gives "laptop" and "tv" for one screen); one detection is one object. Pure."""
+    b = np.asarray(boxes, np.float64).reshape(-1, 4)
+    keep = np.ones(len(b), bool)
+    area = np.maximum(b[:, 2] - b[:, 0], 0) * np.maximum(b[:, 3] - b[:, 1], 0)
+    for i in np.argsort(-np.asarray(scores, np.float64), kind="stable"):
+        if not keep[i]:
+            continue
+        w = np.maximum(0, np.minimum(b[i, 2], b[:, 2]) - np.maximum(b[i, 0], b[:, 0]))
+        h = np.maximum(0, np.minimum(b[i, 3], b[:, 3]) - np.maximum(b[i, 1], b[:, 1]))
+        ov = w * h / np.maximum(area[i] + area - w * h, 1e-9)
+        dup = (ov >= iou) & np.array([n != names[i] for n in names]) & keep
+        dup[i] = False
+        keep &= ~dup
+    return keep
 
 
 def components(points: np.ndarray, link_m: float) -> np.ndarray:
@@ -534,6 +599,7 @@ class _Acc:
     first_seen: float
     frames: list[int]
     hints: list[int]
+    views: list[tuple[int, float, np.ndarray]] = field(default_factory=list)  # (frame, score, points) per detection
 
     _memo: tuple[np.ndarray, dict[str, Any]] | None = field(default=None, repr=False, compare=False)
 
@@ -594,8 +660,9 @@ def fuse_observations(observations: list[Observation], conf: FusionConfig = defa
                 best, best_ov = a, ov + (1.0 if close else 0.0)
         if best is None:
             accs.append(_Acc(ob.name, pts, ob.score, ob.t, [ob.frame],
-                             [] if ob.instance_hint is None else [ob.instance_hint]))
+                             [] if ob.instance_hint is None else [ob.instance_hint], [(ob.frame, ob.score, pts)]))
         else:
+            best.views.append((ob.frame, ob.score, pts))
             best.points = voxel_downsample(np.concatenate([best.points, pts]), conf.voxel_m)
             best.score = max(best.score, ob.score)
             best.first_seen = min(best.first_seen, ob.t)
@@ -612,11 +679,35 @@ def fuse_observations(observations: list[Observation], conf: FusionConfig = defa
         cleaned = _merge_overlapping(cleaned, conf)
     instances, clouds = [], []
     for a, pts in cleaned:
-        inst = ObjectInstance(len(instances), a.name, fit_gravity_box(pts), a.first_seen, a.score, len(pts),
-                              sorted(a.frames))
+        box = fit_gravity_box(pts)
+        inst = ObjectInstance(len(instances), a.name, box, a.first_seen, a.score, len(pts), sorted(a.frames),
+                              view_estimates(box, a.views))
         instances.append(inst)
         clouds.append(pts)
     return instances, clouds
+
+
+def view_estimates(box: OrientedBox, views: list[tuple[int, float, np.ndarray]], margin_m: float = 0.05,
+                   lo: float = 2.0, hi: float = 98.0) -> list[dict[str, Any]]:
+    """Per-view estimates of one fused instance: for each fused detection (frame, score, points [N, 3]), the
+    box its own points give along the fused box's axes (the points inside the fused box grown by `margin_m`,
+    i.e. without what outlier removal dropped; `lo`..`hi` percentiles per axis): centre [3] and size [3]. A view
+    with fewer than 4 such points keeps its frame and score with centre/size None. Sorted by frame. Pure."""
+    ax = np.asarray(box.axes, np.float64)
+    c0 = np.asarray(box.centroid, np.float64)
+    out = []
+    for frame, score, pts in sorted(views, key=lambda v: (v[0], -v[1])):
+        p = np.asarray(pts, np.float64)
+        p = p[box.contains(p, margin_m)] if len(p) else p
+        v: dict[str, Any] = {"frame": int(frame), "score": round(float(score), 3), "n_points": int(len(p)),
+                             "centre": None, "size": None}
+        if len(p) >= 4:
+            local = (p - c0) @ ax.T
+            a, b = np.percentile(local, lo, axis=0), np.percentile(local, hi, axis=0)
+            v["centre"] = np.round(c0 + ((a + b) / 2) @ ax, 4).tolist()
+            v["size"] = np.round(np.maximum(b - a, 0.0), 4).tolist()
+        out.append(v)
+    return out
 
 
 def footprint_overlap(a: OrientedBox, b: OrientedBox) -> float:
@@ -655,6 +746,7 @@ def _merge_overlapping(items: list[tuple["_Acc", np.ndarray]], conf: FusionConfi
                 a.first_seen = min(a.first_seen, b.first_seen)
                 a.frames = sorted(set(a.frames) | set(b.frames))
                 a.hints += b.hints
+                a.views += b.views
                 items[i] = (a, a.points)
                 del items[j]
                 merged = True
@@ -671,22 +763,36 @@ def fit_floor_plane(points: np.ndarray, down_hint: np.ndarray, max_tilt_deg: flo
                     threshold: float = 0.03, iterations: int = 300, min_share: float = 0.05,
                     rng: int = 0, parallel_deg: float = 5.0, low_share: float = 0.01
                     ) -> tuple[np.ndarray, float, int] | None:
-    """Find the floor: the lowest large plane whose normal is within `max_tilt_deg` of `down_hint`.
+    """Find the floor: the lowest large level surface, its normal within `max_tilt_deg` of `down_hint`.
 
     points: [N, 3] in the root camera frame (or any frame); down_hint: [3] rough gravity (e.g. the camera's +y).
     Returns (down [3] unit normal pointing down, offset d with down·p = d on the plane, inliers) or None.
-    RANSAC over 3-point planes. The largest near-horizontal surface fixes the orientation; among the surfaces
-    parallel to it (within `parallel_deg`) with >= `min_share` of the points, the one farthest along `down`
-    wins (table and counter tops are horizontal too, but above the floor); layers along the reference normal
-    with >= `low_share` of the points are candidates too (a floor mostly hidden by furniture). Each hypothesis
-    is refit by least squares on its inliers and must be a surface (not a band cut through vertical faces).
+    1. RANSAC over 3-point planes (`_ransac_planes`); 2. the orientation: of the largest candidates that are
+    real surfaces, the sharpest, then sharpened (`_reference_plane`): every level surface (floor, table and
+    counter tops) shares the normal, the largest fixes it best; 3. the floor: the lowest layer along that
+    normal (`_lowest_layer`): a dense height layer (a floor mostly hidden by furniture still fills one), or a
+    lower RANSAC surface parallel to it (within `parallel_deg`, >= `min_share` of the points) measured along
+    the reference normal — a lower plane's own tilt is not taken (a plane tilted through two levels collects
+    inliers without being level); 4. a floor layer at least half the reference's size refines the normal on its
+    own points (`_floor_normal`).
     """
     pts = np.asarray(points, dtype=np.float64)
     if len(pts) < 50:
         return None
-    g = np.random.default_rng(rng)
     hint = np.asarray(down_hint, float) / np.linalg.norm(down_hint)
     cos_max = np.cos(np.radians(max_tilt_deg))
+    cands = _ransac_planes(pts, hint, cos_max, threshold, iterations, np.random.default_rng(rng))
+    ref = _reference_plane(pts, cands, hint, cos_max, threshold) if cands else None
+    if ref is None:
+        return None
+    low = _lowest_layer(pts, ref, cands, hint, cos_max, threshold, min_share, parallel_deg, low_share)
+    return _floor_normal(pts, ref, low, threshold)
+
+
+def _ransac_planes(pts: np.ndarray, hint: np.ndarray, cos_max: float, threshold: float, iterations: int,
+                   g: np.random.Generator) -> list[tuple[int, np.ndarray, float]]:
+    """(inliers, normal [3] towards `hint`, offset) of random 3-point planes within the tilt limit, largest
+    first."""
     cands: list[tuple[int, np.ndarray, float]] = []
     for _ in range(iterations):
         a, b, c = pts[g.choice(len(pts), 3, replace=False)]
@@ -700,65 +806,116 @@ def fit_floor_plane(points: np.ndarray, down_hint: np.ndarray, max_tilt_deg: flo
         if n @ hint < cos_max:
             continue
         d = float(n @ a)
-        cnt = int(np.sum(np.abs(pts @ n - d) < threshold))
-        cands.append((cnt, n, d))
-    if not cands:
-        return None
-    def refit(n: np.ndarray, d: float) -> tuple[np.ndarray, float, int, bool]:
-        n2, d2 = n, d
-        for _ in range(3):  # least squares on the inliers, inliers of the refit, ... (a few rounds converge)
-            inl = np.abs(pts @ n2 - d2) < threshold
-            q = pts[inl]
-            if len(q) < 3:
-                return n, d, 0, False
-            cq = q.mean(0)
-            _, sv, vt = np.linalg.svd(q - cq, full_matrices=False)
-            n2 = vt[2] if vt[2] @ hint > 0 else -vt[2]
-            d2 = float(n2 @ cq)
-        # a real surface: its inliers' own normal agrees and they spread in two directions (a slanted plane
-        # cutting through vertical cabinet fronts collects a thin band, not a surface)
-        surface = bool(n2 @ n > np.cos(np.radians(8.0)) and sv[1] > 0.25 * sv[0] and n2 @ hint >= cos_max)
-        return n2, d2, int(inl.sum()), surface
-
-    # the largest horizontal-ish surface fixes the orientation; the floor is the lowest surface parallel to it
-    # with enough support (table and counter tops are parallel to the floor but above it)
+        cands.append((int(np.sum(np.abs(pts @ n - d) < threshold)), n, d))
     cands.sort(key=lambda c: -c[0])
-    # of the largest candidates, the sharpest: a slightly tilted plane through two levels (a table top near,
-    # a counter top far) collects as many inliers as the level one, but its points do not share one height
+    return cands
+
+
+def _refit_plane(pts: np.ndarray, n: np.ndarray, d: float, hint: np.ndarray, cos_max: float, threshold: float
+                 ) -> tuple[np.ndarray, float, int, bool]:
+    """Least squares on the inliers, inliers of the refit, ... (a few rounds converge) -> (normal, offset,
+    inliers, is a surface): the inliers' own normal agrees and they spread in two directions (a slanted plane
+    cutting through vertical cabinet fronts collects a thin band, not a surface)."""
+    n2, d2 = n, d
+    for _ in range(3):
+        inl = np.abs(pts @ n2 - d2) < threshold
+        q = pts[inl]
+        if len(q) < 3:
+            return n, d, 0, False
+        cq = q.mean(0)
+        _, sv, vt = np.linalg.svd(q - cq, full_matrices=False)
+        n2 = vt[2] if vt[2] @ hint > 0 else -vt[2]
+        d2 = float(n2 @ cq)
+    surface = bool(n2 @ n > np.cos(np.radians(8.0)) and sv[1] > 0.25 * sv[0] and n2 @ hint >= cos_max)
+    return n2, d2, int(inl.sum()), surface
+
+
+def _reference_plane(pts: np.ndarray, cands: list[tuple[int, np.ndarray, float]], hint: np.ndarray,
+                     cos_max: float, threshold: float) -> tuple[np.ndarray, float, int] | None:
+    """The orientation reference: of the 10 largest candidates that are surfaces, the sharpest (a slightly
+    tilted plane through two levels, a table top near and a counter top far, collects as many inliers as the
+    level one, but its points do not share one height), its normal sharpened (no least-squares refit after it:
+    that is what tilts). (normal, height of its fullest layer, inliers)."""
     ref, best = None, -1
     for cnt, n, d in cands[:10]:
-        r = refit(n, d)
+        r = _refit_plane(pts, n, d, hint, cos_max, threshold)
         if not r[3]:
             continue
-        h = pts @ r[0]
-        sharp = int(np.sum(np.abs(h - r[1]) < threshold / 3))
+        sharp = int(np.sum(np.abs(pts @ r[0] - r[1]) < threshold / 3))
         if sharp > best:
             ref, best = r, sharp
     if ref is None:
         return None
-    n_sharp = sharpen_normal(pts, ref[0])  # no least-squares refit after it: that is what tilts
+    n_sharp = sharpen_normal(pts, ref[0])
     h_ref = float(_peak_height(pts @ n_sharp)[0])
-    ref = (n_sharp, h_ref, int(np.sum(np.abs(pts @ n_sharp - h_ref) < threshold)), True)
-    cos_par = np.cos(np.radians(parallel_deg))
-    lowest = ref
-    # the floor is the lowest layer along the reference normal with enough points: a floor seen past the
-    # furniture holds few points (random 3-point samples rarely land on it), but nothing lies below it
-    h = pts @ ref[0]
+    return n_sharp, h_ref, int(np.sum(np.abs(pts @ n_sharp - h_ref) < threshold))
+
+
+def _lowest_layer(pts: np.ndarray, ref: tuple[np.ndarray, float, int], cands: list[tuple[int, np.ndarray, float]],
+                  hint: np.ndarray, cos_max: float, threshold: float, min_share: float, parallel_deg: float,
+                  low_share: float) -> tuple[float, int]:
+    """(height along the reference normal, points) of the floor: the lowest dense layer along the reference
+    normal (a floor seen past the furniture holds few points, random 3-point samples rarely land on it, but
+    nothing lies below it), or a lower RANSAC surface parallel to the reference, measured along the reference
+    normal and kept only where its points form a layer there (>= `min_share` of all)."""
+    n = ref[0]
+    h = pts @ n
+    lowest = (ref[1], ref[2])
     bins = np.arange(ref[1] + threshold, h.max() + 2 * threshold, 2 * threshold)
     if len(bins) > 1:
         cnt, edges = np.histogram(h, bins=bins)
         dense = np.nonzero(cnt >= max(low_share * len(pts), 0.1 * ref[2], 50))[0]
-        for k in dense[::-1]:  # farthest along `down` first; same orientation as the reference
+        if len(dense):
+            k = dense[-1]  # farthest along `down`
             hk = h[(h >= edges[k]) & (h < edges[k + 1])]
-            lowest = (ref[0], float(np.median(hk)), int(len(hk)))
-            break
-    for cnt, n, d in cands:
-        if cnt < max(min_share * len(pts), 0.2 * ref[2]) or n @ ref[0] < cos_par or d <= lowest[1] + threshold:
+            lowest = (float(np.median(hk)), int(len(hk)))
+    cos_par = np.cos(np.radians(parallel_deg))
+    for cnt, m, d in cands:
+        if cnt < max(min_share * len(pts), 0.2 * ref[2]) or m @ n < cos_par or d <= lowest[0] + threshold:
             continue
-        r = refit(n, d)
-        if r[3] and r[0] @ ref[0] >= cos_par and r[2] >= min_share * len(pts) and r[1] > lowest[1]:
-            lowest = r
-    return lowest[0], lowest[1], lowest[2]
+        r = _refit_plane(pts, m, d, hint, cos_max, threshold)
+        if not (r[3] and r[0] @ n >= cos_par):
+            continue
+        inl = np.abs(pts @ r[0] - r[1]) < threshold
+        hc, _ = _peak_height(h[inl])
+        k = int(np.sum(np.abs(h - hc) < threshold))
+        if k >= min_share * len(pts) and hc > lowest[0] + threshold:
+            lowest = (hc, k)
+    return _nothing_below(h, lowest, threshold)
+
+
+def _nothing_below(h: np.ndarray, lowest: tuple[float, int], threshold: float, max_below: float = 0.005,
+                   layer_share: float = 0.002) -> tuple[float, int]:
+    """Nothing lies below the floor: when more than `max_below` of the heights h [N] lie beyond the layer
+    found (it is a table or counter top; the floor was seen only past the furniture), the floor is the
+    farthest 2 x `threshold` height layer holding >= `layer_share` of the points (a surface, not scattered
+    flying pixels); unchanged when there is none."""
+    if np.mean(h > lowest[0] + 2 * threshold) <= max_below:
+        return lowest
+    bins = np.arange(lowest[0] + threshold, h.max() + 2 * threshold, 2 * threshold)
+    if len(bins) < 2:
+        return lowest
+    cnt, edges = np.histogram(h, bins=bins)
+    full = np.nonzero(cnt >= max(layer_share * len(h), 30))[0]
+    if not len(full):
+        return lowest
+    k = full[-1]
+    hk = h[(h >= edges[k]) & (h < edges[k + 1])]
+    return float(np.median(hk)), int(len(hk))
+
+
+def _floor_normal(pts: np.ndarray, ref: tuple[np.ndarray, float, int], low: tuple[float, int], threshold: float
+                  ) -> tuple[np.ndarray, float, int]:
+    """(down, offset, inliers): the reference normal at the floor's height; a floor layer at least half the
+    reference's size sharpens the normal on its own points (the floor itself is then the best level surface)."""
+    n, (h, cnt) = ref[0], low
+    if low[0] > ref[1] + threshold and cnt >= 0.5 * ref[2]:
+        layer = pts[np.abs(pts @ n - h) < 3 * threshold]
+        if len(layer) >= 50:
+            n = sharpen_normal(layer, n, span_deg=3.0)
+            h = float(_peak_height(layer @ n)[0])
+            cnt = int(np.sum(np.abs(pts @ n - h) < threshold))
+    return n, h, cnt
 
 
 def _peak_height(h: np.ndarray, bin_m: float = 0.01) -> tuple[float, int]:

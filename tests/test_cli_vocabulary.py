@@ -22,7 +22,8 @@ OWN_DEFAULTS = {("--complexity", "demo"): "a room with few objects keeps the dem
                 ("--detector", "eval keyframes"): "the key-frame study scores synthetic scenes with the oracle",
                 ("--depth", "eval pose"): "the pose benchmark reads RGB-D folders (no auto)",
                 ("--depth", "eval scene"): "the real-room benchmark reads RGB-D folders (no auto)",
-                ("--gravity", "eval scene"): "the real-room targets are measured with the floor fit alone"}
+                ("--gravity", "eval scene"): "the real-room targets are measured with the floor fit alone",
+                ("--matcher", "ask"): "ask runs the bundle's matcher model when the bundle has one, else sift"}
 # --keyframes defaults that are not the pipeline's K, and why (the help must say the number and the why)
 OWN_KEYFRAMES = {"demo": 12, "eval pose": 32, "eval keyframes": 8}
 

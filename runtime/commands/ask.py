@@ -36,7 +36,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_keyframes(p)
     p.add_argument("--keyframe-method", choices=["iterative", "uniform", "exhaustive"], default="iterative")
     add_stage_flags(p, matcher=True, detector=True)
-    p.set_defaults(detector="model")
+    for a in p._actions:  # one flag definition (cli.add_stage_flags); ask's own default: the bundle's matcher
+        if a.dest == "matcher":
+            a.help = "feature matcher (default: the bundle's matcher model when it has one, else sift)"
+    p.set_defaults(detector="model", matcher=None)
     p.add_argument("--depth", choices=["auto", "sensor", "model"], default="auto",
                    help="depth source (auto: sensor depth when the source has it, else the bundle's depth model)")
     p.add_argument("--miss-rate", type=float, default=0.1, help="oracle detector miss rate (synthetic scenes)")
@@ -66,7 +69,9 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     profile = load_profile(args.profile) if args.profile else None
     if profile is not None:
         profile.apply_to_machine(trace)  # core_affinity applied (or refused loudly), threads fit to the cores
-    conf = {"depth": args.depth, "matcher": args.matcher, "keyframe_method": args.keyframe_method}
+    matcher = args.matcher or default_matcher(args.bundle)
+    trace.decide("ask.matcher", {"matcher": matcher, "given": args.matcher is not None})
+    conf = {"depth": args.depth, "matcher": matcher, "keyframe_method": args.keyframe_method}
     perception = None
     src = Path(args.source)
     is_map = src.suffix.lower() == ".json"
@@ -76,8 +81,8 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                              f"`mosaic synth`); use --detector model with a --bundle for real videos")
         from ..evaluation.oracle_perception import oracle_perception
 
-        perception = oracle_perception(src, miss_rate=args.miss_rate, matcher=args.matcher
-                                       if args.matcher != "model" else "sift")
+        perception = oracle_perception(src, miss_rate=args.miss_rate, matcher=matcher
+                                       if matcher != "model" else "sift")
         trace.decide("perception", perception.describe)
     out = Path(args.out) if args.out else None
     outs = RunOutputs(out) if out is not None else None  # checked and locked before the pipeline runs
@@ -104,11 +109,51 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     d = res.to_dict()
     d.update({"schema": "mosaicthinker.ask/1", "question": question, "options": options, "files": files,
               "warnings": [e["message"] for e in trace.events if e["kind"] in WARNING_KINDS],
-              "random_weights_used": trace.random_weights_used,
+              "random_weights_used": trace.random_weights_used, "evidence": res.answer.evidence,
+              "ran": what_ran(trace, args.depth, res.build is not None),
+              "undetectable": sorted({n for e in trace.events if e["kind"] == "undetectable"
+                                      for n in e.get("names", [])}),
               "seconds": trace.to_dict()["wall_seconds"]})
     if outs is not None:
         d.update({"run_id": outs.run_id, "write_error": write_error, "exit_code": code or d.get("exit_code", 0)})
     return d
+
+
+def default_matcher(bundle: Any) -> str:
+    """'model' when the bundle has a `matcher` role (its learned matcher is what it was built with), else sift."""
+    if not bundle:
+        return "sift"
+    from ..bundle import load_bundle
+
+    try:
+        return "model" if load_bundle(bundle).has_role("matcher") else "sift"
+    except InputError:
+        return "sift"  # an unreadable bundle fails later with its own message, where it is loaded
+
+
+def what_ran(trace: Any, depth: str, built: bool) -> dict[str, Any] | None:
+    """Depth source, matcher and model variants that ran (None for a saved map: no perception ran). Depth: the
+    `depth` stage ran only when the depth model did (auto on RGB-D uses the sensor)."""
+    if not built:
+        return None
+    desc = trace.decisions.get("perception") or {}
+    model_depth = "depth" in trace.stages
+    dd = desc.get("depth")
+    out: dict[str, Any] = {"depth": ("model " + _variant(dd)) if model_depth and dd else
+                           "model" if model_depth else "sensor"}
+    if depth == "auto":
+        out["depth"] += " (auto)"
+    m = desc.get("matcher")
+    out["matcher"] = _variant(m) if m is not None else "?"
+    out["models"] = {r: _variant(v) for r, v in desc.items() if isinstance(v, dict) and r not in ("matcher",)
+                     and not (r == "depth" and not model_depth)}
+    return out
+
+
+def _variant(v: Any) -> str:
+    if isinstance(v, dict):
+        return " ".join(str(v[k]) for k in ("arch", "variant") if v.get(k)) or str(v.get("role", "?"))
+    return str(v)
 
 
 def render(r: dict[str, Any]) -> str:
@@ -120,6 +165,17 @@ def render(r: dict[str, Any]) -> str:
     if r.get("instances") is not None:
         lines.append(f"  map: {len(r['instances'])} object(s)" + (f" from {len(r['keyframes'])} key frames"
                                                                    if r.get("keyframes") else ""))
+    from ..evidence import line
+
+    if r.get("evidence"):
+        lines.append("  " + line(r["evidence"]))
+    if r.get("ran"):
+        ran = r["ran"]
+        models = ", ".join(f"{k} {v}" for k, v in ran.get("models", {}).items())
+        lines.append(f"  ran: depth {ran['depth']}; matcher {ran['matcher']}" + (f"; {models}" if models else ""))
+    if r.get("undetectable"):
+        lines.append(f"  cannot detect (no such class in the bundle's detector; not looked for): "
+                     f"{', '.join(r['undetectable'])}")
     for w in r.get("warnings", []):
         lines.append(f"  note: {w}")
     if r.get("random_weights_used"):

@@ -190,13 +190,16 @@ def floor_metrics(build: Any, source: Any, T_annot: np.ndarray, S: np.ndarray, c
     from it; needs no registration), the map floor's height in the annotation frame (through S), and every
     object's bottom vs the map's floor."""
     z = np.array([0.0, 0.0, 1.0])
-    errs = []
+    errs, root = [], build.map.meta.get("root")
+    err_root = None
     for i in [k for k in build.keyframes if k in build.poses_world]:
         T = build.poses_world[i]
         R = T[:3, :3] / np.linalg.norm(T[:3, 0])
         Rg = (T_annot @ source[i].pose_gt)[:3, :3]
         c = np.clip((R.T @ z) @ (Rg.T @ z), -1, 1)
         errs.append(float(np.degrees(np.arccos(c))))
+        if i == root:  # the alignment's root camera has no pose error of its own: the floor fit's error alone
+            err_root = errs[-1]
     smap = build.map
     floor_z = float(smap.room.floor_z) if smap.room is not None else 0.0
     cams = np.array([T[:3, 3] for T in build.poses_world.values()])
@@ -205,7 +208,7 @@ def floor_metrics(build: Any, source: Any, T_annot: np.ndarray, S: np.ndarray, c
                 "bottom_m": round(float(o.box.centroid[2] - o.box.axes_lengths[2] / 2 - floor_z), 3)}
                for o in smap.instances]
     return {"up_axis_err_deg": float(np.median(errs)) if errs else None,
-            "up_axis_err_max_deg": float(np.max(errs)) if errs else None,
+            "up_axis_err_max_deg": float(np.max(errs)) if errs else None, "up_axis_err_root_deg": err_root,
             "map_floor_z": floor_z,
             "floor_height_in_annotation_m": float(np.median(transform(S, on_floor)[:, 2])) if len(cams) else None,
             "bottoms": bottoms,
@@ -227,7 +230,7 @@ def score_answers(smap: Any, scene_name: str, meta_entry: dict[str, Any], conf: 
         recs.append({"id": q["id"], "question_type": q["question_type"], "question": q["question"],
                      "options": q.get("options"), "ground_truth": q["ground_truth"], "pred": a.text,
                      "status": a.status, "score": score_answer(q["question_type"], a.text, q["ground_truth"])
-                     if a.ok else 0.0, "evidence": a.explanation, "missing": a.missing})
+                     if a.ok else 0.0, "evidence": a.explanation, "support": a.evidence, "missing": a.missing})
     per = {}
     for qt in sorted({r["question_type"] for r in recs}):
         rs = [r for r in recs if r["question_type"] == qt]
@@ -258,14 +261,33 @@ def visible_meta(scene: dict[str, Any], visible: dict[str, list[bool]]) -> dict[
 
 
 def map_names_for(bundle: Any, annotated: list[str]) -> list[str]:
-    """Every vocabulary name the bundle's closed-set detector can detect, plus the annotated categories."""
+    """Every vocabulary name the bundle's closed-set detector can detect, plus the annotated categories; one
+    name per set of detector labels (`one_name_per_label`)."""
     from ..bundle import load_bundle
     from ..grounding import VOCABULARY, canonical_name
     from ..stages.detector import map_names
 
     labels = load_bundle(bundle).spec("detector", verify=False).semantics.get("labels") or []
+    want = [canonical_name(c) or c for c in annotated]
     mapping, _ = map_names(sorted(VOCABULARY), labels)
-    return sorted(set(mapping) | {canonical_name(c) or c for c in annotated})
+    return sorted(one_name_per_label(mapping, labels, want) | set(want))
+
+
+def one_name_per_label(mapping: dict[str, list[int]], labels: list[str], preferred: list[str]) -> set[str]:
+    """Names that reach the same detector labels are aliases of one detection (desk / table -> "dining table",
+    monitor / tv -> "tv"): keep one per label set — a `preferred` (annotated) name, else the one that is the
+    label itself, else the alphabetically first — so a map of every category names each detection once."""
+    from ..stages.detector import normalize_name
+
+    groups: dict[tuple[int, ...], list[str]] = {}
+    for n, ids in mapping.items():
+        groups.setdefault(tuple(sorted(ids)), []).append(n)
+    keep = set()
+    for ids, names in groups.items():
+        exact = [n for n in names if any(normalize_name(labels[i]) == normalize_name(n) for i in ids)]
+        pref = [n for n in names if n in preferred]
+        keep.add(sorted(pref)[0] if pref else sorted(exact)[0] if exact else sorted(names)[0])
+    return keep
 
 
 def evaluate_scene(data: str | Path, annotations: str | Path, bundle: str | Path, depth: str = "sensor",
@@ -344,7 +366,8 @@ def ask_questions(src: Any, recs: list[dict[str, Any]], n: int, perception: Any,
                          answerer="map", keyframes=keyframes)
         a = r.answer
         out.append({"id": q["id"], "question_type": q["question_type"], "pred": a.text, "status": a.status,
-                    "ground_truth": q["ground_truth"], "evidence": a.explanation, "seconds": time.perf_counter() - t0,
+                    "ground_truth": q["ground_truth"], "evidence": a.explanation, "support": a.evidence,
+                    "seconds": time.perf_counter() - t0,
                     "score": score_answer(q["question_type"], a.text, q["ground_truth"]) if a.ok else 0.0})
     return {"n": len(out), "score": float(np.mean([r["score"] for r in out])) if out else None, "records": out}
 
@@ -407,7 +430,8 @@ def render(r: dict[str, Any]) -> str:
                      f"  {p['count_error']:+d}     {f(p['median_centre_err_m'])}      {f(p['median_longest_side_err_m'])}")
     if ins["not_annotated"]:
         lines.append(f"  built, not annotated (not counted): {ins['not_annotated']}")
-    lines.append(f"floor: up-axis error {f(fl['up_axis_err_deg'], 1)} deg (max {f(fl['up_axis_err_max_deg'], 1)}), "
+    lines.append(f"floor: up-axis error {f(fl['up_axis_err_deg'], 1)} deg (max {f(fl['up_axis_err_max_deg'], 1)}, "
+                 f"root camera {f(fl.get('up_axis_err_root_deg'), 1)}), "
                  f"map floor at {f(fl['floor_height_in_annotation_m'], 3)} m in the annotation frame, "
                  f"{len(fl['below_floor'])} object(s) more than 5 cm below it")
     po = an["pooled"]
