@@ -26,7 +26,8 @@ import numpy as np
 from mosaicthinker.runtime.errors import ExportError
 
 from . import common as C
-from .hf_common import GraphSpec, export_variants, load_source, run_exporter
+from .hf_common import GraphSpec, export_variants, run_exporter
+from .sources import load_source
 
 HF_DEFAULTS = {"superpoint-lightglue": "ETH-CVG/lightglue_superpoint", "efficientloftr": "zju-community/efficientloftr"}
 GRAY = (0.299, 0.587, 0.114)

@@ -20,7 +20,9 @@ import numpy as np
 from mosaicthinker.runtime.errors import ExportError
 
 from . import common as C
-from .hf_common import GraphSpec, export_variants, load_source, run_exporter, word_level_tokenizer, write_tokenizer
+from .hf_common import GraphSpec, export_variants, run_exporter, word_level_tokenizer, write_tokenizer
+from .sources import load_source
+from .tiny import _TINY_SPECIALS, _TINY_WORDS, TINY_VOCAB, tiny_special_ids  # noqa: F401  (re-exported)
 
 HF_DEFAULTS = {"smolvlm": "HuggingFaceTB/SmolVLM-256M-Instruct", "internvl": "OpenGVLab/InternVL3-1B-hf"}
 
@@ -28,24 +30,7 @@ HF_DEFAULTS = {"smolvlm": "HuggingFaceTB/SmolVLM-256M-Instruct", "internvl": "Op
 # `bundle show` and the README state it next to every such variant.
 LOW_PRECISION_TOKEN_AGREEMENT = 0.5
 
-# Tiny tokenizer: specials first (fixed ids the tiny configs refer to), then a small word list.
-_TINY_SPECIALS = {
-    "smolvlm": ["<|pad|>", "<|im_start|>", "<end_of_utterance>", "<image>", "<fake_token_around_image>",
-                "<global-img>", "<|im_end|>", "[UNK]"],
-    "internvl": ["<|endoftext|>", "<|im_start|>", "<|im_end|>", "<IMG_CONTEXT>", "<img>", "</img>", "[UNK]"],
-}
-_TINY_WORDS = ("User Assistant user assistant : ? . , ! the a an is are of in on to and what where how many which "
-               "chair table sofa bed tv door window sink fridge lamp plant kitchen room left right near far "
-               "closest distance size count object objects image images this that there metres one two three "
-               "four five yes no").split()
-TINY_VOCAB = 96
-
-
-def tiny_special_ids(family: str) -> dict[str, int]:
-    sp = _TINY_SPECIALS[family]
-    if family == "smolvlm":
-        return {"pad": 0, "bos": 1, "eos": 2, "image": sp.index("<image>")}
-    return {"pad": 0, "bos": 1, "eos": 2, "image": sp.index("<IMG_CONTEXT>")}
+# the tiny models' vocabulary (special ids, word list) is owned by export/tiny.py
 
 
 def build_tiny_tokenizer(family: str, path: str | Path) -> Path:
