@@ -19,6 +19,7 @@ from __future__ import annotations
 import os
 import re
 import shutil
+from dataclasses import replace
 from pathlib import Path
 from typing import Any, Callable, Iterable, Sequence
 
@@ -286,6 +287,15 @@ def quantize_variant(fp32: str | os.PathLike, dst: str | os.PathLike, variant: s
     if not ok and dst.exists():
         dst.unlink()
     return {"ok": ok, "path": dst if ok else None, "parity": par, "task": task, "reason": reason}
+
+
+def run_target_step(export: Callable[[Path, Any], dict[str, Any]], conf: Any, out: str | os.PathLike,
+                    roles: Sequence[str], render: Callable[[dict[str, Any]], str]) -> dict[str, Any]:
+    """A deployment-target step (android, jetson) on `roles` unless its config names roles; prints its table."""
+    conf = conf if conf.roles else replace(conf, roles=tuple(roles))
+    res = export(Path(out), conf)
+    progress(render({"bundle": str(out), **res}))
+    return res
 
 
 def parse_precisions(text: str) -> list[str]:

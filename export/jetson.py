@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import argparse
 import re
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -372,12 +372,9 @@ def config_from_args(args: argparse.Namespace) -> JetsonConfig:
 
 
 def target_step(out: str | Path, roles: Sequence[str], args: argparse.Namespace) -> dict[str, Any]:
-    """`mosaic export ROLE ... --target jetson` (export/cli.py TARGETS): the roles just exported."""
-    conf = config_from_args(args)  # --jetson-roles when given, else the roles just exported
-    conf = conf if conf.roles else replace(conf, roles=tuple(roles))
-    res = export_jetson(out, conf)
-    C.progress(render({"bundle": str(out), **res}))
-    return res
+    """`mosaic export [ROLE] ... --target jetson` (export/cli.py TARGETS): --jetson-roles when given, else `roles`
+    (the roles just exported, or every role of the bundle)."""
+    return C.run_target_step(export_jetson, config_from_args(args), out, roles, render)
 
 
 def render(result: dict[str, Any]) -> str:

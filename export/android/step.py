@@ -5,7 +5,6 @@ from __future__ import annotations
 import argparse
 import shutil
 import tempfile
-from dataclasses import replace
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
@@ -242,12 +241,9 @@ def _parity_brief(par: dict[str, Any]) -> Any:
 
 
 def target_step(out: str | Path, roles: Sequence[str], args: argparse.Namespace) -> dict[str, Any]:
-    """`mosaic export ROLE ... --target android` (export/cli.py TARGETS): the roles just exported."""
-    conf = config_from_args(args)  # --android-roles when given, else the roles just exported
-    conf = conf if conf.roles else replace(conf, roles=tuple(roles))
-    res = export_android(out, conf)
-    C.progress(render({"bundle": str(out), **res}))
-    return res
+    """`mosaic export [ROLE] ... --target android` (export/cli.py TARGETS): --android-roles when given, else `roles`
+    (the roles just exported, or every role of the bundle)."""
+    return C.run_target_step(export_android, config_from_args(args), out, roles, render)
 
 
 def render(result: dict[str, Any]) -> str:
