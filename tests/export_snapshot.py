@@ -35,9 +35,9 @@ RUNS = [  # name, `mosaic export` arguments (--out added)
     ("vlm", ["vlm", "--source", "tiny", "--precision", "fp32", "--target", "android,jetson"]),
     ("seg", ["segmenter", "--source", "tiny", "--precision", "fp32", "--target", "android"]),
 ]
-RANDOM_KEYS = {"created", "updated", "seed", "sha256"}       # times, fresh seeds, hashes
+RANDOM_KEYS = {"created", "updated", "seed", "sha256", "bytes"}  # times, fresh seeds, hashes (files: see below)
 MEASURED = {"parity", "worst", "outputs", "kv_window_check", "check", "task"}  # floats measured on random inputs
-DECIMAL = re.compile(r"-?\d+\.\d+(e[-+]?\d+)?|-?\d+e[-+]?\d+", re.I)
+DECIMAL = re.compile(r"-?\d+\.\d+(e[-+]?\d+)?|-?\d+e[-+]?\d+|seed \d+|mosaic-[\w-]+", re.I)
 
 
 def make(out: Path) -> None:
@@ -75,6 +75,62 @@ def diff(a: Any, b: Any, path: str = "") -> list[str]:
     return [] if a == b else [f"{path}: {json.dumps(a)[:160]} != {json.dumps(b)[:160]}"]
 
 
+def _graph_key(path: Path) -> bytes:
+    """An ONNX graph without its metadata (torch's exporter stores source stack traces, which name the
+    exporter's own files and lines)."""
+    import onnx
+
+    m = onnx.load(str(path))
+    for n in m.graph.node:
+        del n.metadata_props[:]
+    del m.metadata_props[:]
+    return m.graph.SerializeToString(deterministic=True)
+
+
+def _ort_outputs_equal(a: Path, b: Path) -> bool:
+    """Both .ort files give bit-identical outputs on the same seeded random inputs (the converter's
+    flatbuffer layout is not byte-stable run to run, even at the same commit)."""
+    import numpy as np
+    import onnxruntime as ort
+
+    sa, sb = (ort.InferenceSession(str(p), providers=["CPUExecutionProvider"]) for p in (a, b))
+    rng = np.random.default_rng(0)
+    feeds = {}
+    for i in sa.get_inputs():
+        shape = [d if isinstance(d, int) else 1 for d in i.shape]
+        if "int" in i.type:
+            feeds[i.name] = rng.integers(0, 10, shape).astype(np.uint8 if "uint8" in i.type else
+                                                               np.int32 if "int32" in i.type else np.int64)
+        elif "bool" in i.type:
+            feeds[i.name] = np.ones(shape, bool)
+        else:
+            feeds[i.name] = rng.random(shape).astype(np.float16 if "float16" in i.type else np.float32)
+    try:
+        oa, ob = sa.run(None, feeds), sb.run(None, feeds)
+    except Exception:  # noqa: BLE001  inputs a generic filler cannot satisfy (e.g. a KV cache length)
+        return False
+    return all(np.array_equal(x, y, equal_nan=True) for x, y in zip(oa, ob))
+
+
+def _file_report(ra: Path, rb: Path, fa: dict[str, str], fb: dict[str, str]) -> tuple[int, int, list[str]]:
+    """(byte-identical, ONNX graph-identical but for metadata, the other differing files)."""
+    same = graph_same = 0
+    other = []
+    for f in sorted(fa.keys() & fb.keys()):
+        if fa[f] == fb[f]:
+            same += 1
+        elif f.endswith(".onnx") and _graph_key(ra / f) == _graph_key(rb / f):
+            graph_same += 1
+        elif f.endswith(".ort") and _ort_outputs_equal(ra / f, rb / f):
+            graph_same += 1
+        elif f.endswith(".usability.txt") and DECIMAL.sub("", (ra / f).read_text()) == \
+                DECIMAL.sub("", (rb / f).read_text()):
+            graph_same += 1  # the checker names the temporary copy it read
+        elif not f.endswith("manifest.json"):
+            other.append(f)
+    return same, graph_same, other
+
+
 def _files(root: Path) -> dict[str, str]:
     return {p.relative_to(root).as_posix(): hashlib.sha256(p.read_bytes()).hexdigest()
             for p in sorted(root.rglob("*")) if p.is_file()}
@@ -92,9 +148,11 @@ def compare(before: Path, after: Path) -> int:
         fa, fb = _files(before / name), _files(after / name)
         d += [f"file only before: {f}" for f in fa.keys() - fb.keys()]
         d += [f"file only after: {f}" for f in fb.keys() - fa.keys()]
-        same = sum(fa[f] == fb[f] for f in fa.keys() & fb.keys())
-        print(f"{name}: {len(d)} manifest/file-list differences; {same}/{len(fa.keys() & fb.keys())} files "
-              f"byte-identical")
+        same, graph_same, other = _file_report(before / name, after / name, fa, fb)
+        print(f"{name}: {len(d)} manifest/file-list differences; of {len(fa.keys() & fb.keys())} files "
+              f"{same} byte-identical, {graph_same} equivalent (.onnx but for torch's stack-trace metadata, .ort with "
+              f"bit-identical outputs, reports but for temporary paths), "
+              f"{len(other)} differ: {', '.join(other) or '-'}")
         for line in d[:40]:
             print("   ", line)
         bad += bool(d)
