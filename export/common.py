@@ -12,17 +12,14 @@ Every exporter (export/onnx_import.py, export/xfeat.py, export/hf_*.py) follows 
     if q["ok"]: add_variant_files(out, "depth", "int8-dynamic", {"model": q["path"]}, ...)
     else: record q["reason"] (never ship a quantised component whose parity fails)
 
-Parity always runs on FRESH random inputs (a new seed per call, recorded): exporters can bake example inputs
-into constants, and a check on the example input would not see that. A failing parity check raises ExportError
-(`require=True`, the default) so a broken export never lands in a bundle.
+Parity checks (fresh random inputs, one seed policy, one trial loop) live in export/parity.py.
 """
 from __future__ import annotations
 
 import os
 import re
 import shutil
-import sys
-import time
+from dataclasses import replace
 from pathlib import Path
 from typing import Any, Callable, Iterable, Sequence
 
@@ -31,35 +28,13 @@ import numpy as np
 from mosaicthinker.runtime.host import bundle_write as B
 from mosaicthinker.runtime.errors import ExportError
 
+from .log import brief, progress  # noqa: F401  (re-exported: every exporter logs through common)
+# the parity checks live in export/parity.py; re-exported for the exporters that call `C.parity_check`
+from .parity import (PARITY_TOL, PARITY_TRIALS, compare_outputs, ort_run, ort_session,  # noqa: F401
+                     parity_check, parity_rng, parity_trials)
+
 Feeds = dict[str, np.ndarray]
 DEFAULT_OPSET = 18
-# Parity tolerances by precision: (max relative error = max|a-b| / max|ref|, min cosine similarity).
-PARITY_TOL = {
-    "fp32": (1e-3, 0.99999),
-    "fp16": (2e-2, 0.999),
-    "int8-dynamic": (0.15, 0.98),
-    "int8-qdq": (0.15, 0.98),
-}
-# Fresh random inputs per parity check, by precision. A quantised graph's error varies a lot from input to input
-# (PyDNet++ int8-qdq: rel 0.02-0.97 over 40 inputs, 25% above tolerance), so two trials shipped it in about half
-# the runs; the worst of 16 makes the ship/refuse decision the same run after run. fp32 is exact to ~1e-6.
-PARITY_TRIALS = {"fp32": 4, "fp16": 16, "int8-dynamic": 16, "int8-qdq": 16}
-
-
-def brief(text: str, limit: int = 300) -> str:
-    """A long library message shortened at a space (never mid-word), marked with ' ...'."""
-    text = " ".join(str(text).split())
-    if len(text) <= limit:
-        return text
-    cut = text.rfind(" ", 0, limit)
-    return text[:cut if cut > limit // 2 else limit] + " ..."
-
-
-def progress(msg: str) -> None:
-    """One progress line on stderr (long steps: export, quantisation, calibration, parity)."""
-    from mosaicthinker.runtime.progress import write
-
-    write(f"[export {time.strftime('%H:%M:%S')}] {msg}")
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -132,101 +107,6 @@ def record_skipped_variant(out: str | os.PathLike, role: str, variant: str, reas
         raise ExportError(f"{out}: role {role} must exist before recording a skipped variant")
     rm.setdefault("skipped_variants", {})[variant] = reason
     B.write_manifest(out, manifest)
-
-
-# ---------------------------------------------------------------------------------------------------------------
-# Running graphs and parity
-
-def parity_rng(seed: int | None = None) -> tuple[int, np.random.Generator]:
-    """The one seed policy of every parity check: a fresh seed drawn here (unless the caller fixes one for a
-    reproduction), returned so the check records it in the manifest next to its result."""
-    seed = int.from_bytes(os.urandom(4), "little") if seed is None else int(seed)
-    return seed, np.random.default_rng(seed)
-
-
-def parity_trials(precision: str, trials: int | None = None) -> int:
-    """Number of fresh inputs a parity check of `precision` runs (PARITY_TRIALS unless given)."""
-    return int(trials) if trials is not None else PARITY_TRIALS.get(precision, PARITY_TRIALS["int8-qdq"])
-
-
-def ort_session(path: str | os.PathLike, threads: int = 1):
-    """A plain CPU onnxruntime session for export-time checks (the runtime uses runtime/providers.py)."""
-    import onnxruntime as ort
-
-    so = ort.SessionOptions()
-    so.intra_op_num_threads = threads
-    so.inter_op_num_threads = 1
-    so.log_severity_level = 3
-    return ort.InferenceSession(str(path), so, providers=["CPUExecutionProvider"])
-
-
-def ort_run(path_or_session: Any, feeds: Feeds) -> list[np.ndarray]:
-    sess = ort_session(path_or_session) if isinstance(path_or_session, (str, Path)) else path_or_session
-    names = {i.name for i in sess.get_inputs()}
-    return sess.run(None, {k: v for k, v in feeds.items() if k in names})
-
-
-def compare_outputs(ref: Sequence[np.ndarray], got: Sequence[np.ndarray]) -> list[dict[str, float]]:
-    """Per output: max_abs, mean_abs, rel (max_abs / max|ref|), cosine similarity, exact-equality fraction."""
-    if len(ref) != len(got):
-        raise ExportError(f"parity: reference has {len(ref)} outputs, graph has {len(got)}")
-    res = []
-    for r, g in zip(ref, got):
-        r = np.asarray(r)
-        g = np.asarray(g)
-        if r.shape != g.shape:
-            raise ExportError(f"parity: output shape {g.shape} differs from reference {r.shape}")
-        rf, gf = r.astype(np.float64).ravel(), g.astype(np.float64).ravel()
-        d = np.abs(rf - gf)
-        denom = max(float(np.abs(rf).max()) if rf.size else 0.0, 1e-12)
-        nr, ng = np.linalg.norm(rf), np.linalg.norm(gf)
-        cos = float(rf @ gf / (nr * ng)) if nr > 0 and ng > 0 else float(nr == ng)
-        res.append({"max_abs": float(d.max()) if d.size else 0.0, "mean_abs": float(d.mean()) if d.size else 0.0,
-                    "rel": float(d.max() / denom) if d.size else 0.0, "cosine": cos,
-                    "equal_frac": float((rf == gf).mean()) if rf.size else 1.0})
-    return res
-
-
-def parity_check(onnx_path: str | os.PathLike, reference: Callable[[Feeds], Sequence[np.ndarray]],
-                 make_inputs: Callable[[np.random.Generator], Feeds], *, precision: str = "fp32",
-                 trials: int | None = None, rel_tol: float | None = None, cos_min: float | None = None,
-                 outputs: Sequence[int] | None = None, seed: int | None = None, require: bool = True,
-                 label: str = "") -> dict[str, Any]:
-    """Run the ONNX graph and a reference on `trials` (default PARITY_TRIALS[precision]) fresh random inputs and
-    compare.
-
-    reference(feeds) -> list of output arrays in graph output order (e.g. the torch module, or the fp32 graph
-    for a quantised one); make_inputs(rng) -> feeds; outputs: indices of outputs to compare (default all);
-    tolerances default to PARITY_TOL[precision]. Returns {"ok", "precision", "trials", "seed", "worst":
-    {rel, cosine, max_abs}, "outputs": [...]} and raises ExportError when not ok and require=True.
-    """
-    rel_tol = PARITY_TOL.get(precision, PARITY_TOL["fp32"])[0] if rel_tol is None else rel_tol
-    cos_min = PARITY_TOL.get(precision, PARITY_TOL["fp32"])[1] if cos_min is None else cos_min
-    seed, rng = parity_rng(seed)
-    trials = parity_trials(precision, trials)
-    sess = ort_session(onnx_path)
-    per_out: list[list[dict]] = []
-    for _ in range(trials):
-        feeds = make_inputs(rng)
-        got = ort_run(sess, feeds)
-        ref = list(reference(feeds))
-        if outputs is not None:
-            got = [got[i] for i in outputs]
-            ref = [ref[i] for i in outputs]
-        per_out.append(compare_outputs(ref, got))
-    worst = {"rel": max(o["rel"] for t in per_out for o in t),
-             "cosine": min(o["cosine"] for t in per_out for o in t),
-             "max_abs": max(o["max_abs"] for t in per_out for o in t)}
-    ok = worst["rel"] <= rel_tol and worst["cosine"] >= cos_min
-    res = {"ok": bool(ok), "precision": precision, "trials": trials, "seed": seed, "inputs": "fresh random",
-           "tolerance": {"rel": rel_tol, "cosine_min": cos_min}, "worst": worst, "outputs": per_out[-1]}
-    progress(f"parity {label or Path(onnx_path).name} [{precision}]: rel={worst['rel']:.2e} "
-             f"cos={worst['cosine']:.6f} -> {'ok' if ok else 'FAIL'}")
-    if require and not ok:
-        raise ExportError(f"parity check failed for {onnx_path} ({precision}): worst relative error "
-                          f"{worst['rel']:.3g} (tol {rel_tol}), cosine {worst['cosine']:.5f} (min {cos_min}); "
-                          f"the artifact was not added to the bundle")
-    return res
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -409,6 +289,15 @@ def quantize_variant(fp32: str | os.PathLike, dst: str | os.PathLike, variant: s
     return {"ok": ok, "path": dst if ok else None, "parity": par, "task": task, "reason": reason}
 
 
+def run_target_step(export: Callable[[Path, Any], dict[str, Any]], conf: Any, out: str | os.PathLike,
+                    roles: Sequence[str], render: Callable[[dict[str, Any]], str]) -> dict[str, Any]:
+    """A deployment-target step (android, jetson) on `roles` unless its config names roles; prints its table."""
+    conf = conf if conf.roles else replace(conf, roles=tuple(roles))
+    res = export(Path(out), conf)
+    progress(render({"bundle": str(out), **res}))
+    return res
+
+
 def parse_precisions(text: str) -> list[str]:
     """'fp32,fp16,int8' -> ['fp32', 'fp16', 'int8-dynamic', 'int8-qdq'] ('int8' means both int8 variants)."""
     out: list[str] = []
@@ -423,29 +312,6 @@ def parse_precisions(text: str) -> list[str]:
     if "fp32" not in out:
         out.insert(0, "fp32")  # the reference every other precision is checked against
     return out
-
-
-def target_step_main(module: Any, argv: Sequence[str] | None = None) -> int:
-    """`python -m mosaicthinker.export.<target> BUNDLE`: run one deployment-target step (a module with
-    add_arguments/run/render) alone on an existing bundle."""
-    import argparse
-    import json
-
-    from mosaicthinker.runtime.errors import MosaicError
-
-    p = argparse.ArgumentParser(prog=f"python -m {module.__name__}", description=(module.__doc__ or "").split("\n")[0])
-    p.add_argument("bundle", metavar="BUNDLE")
-    p.add_argument("--json", action="store_true")
-    module.add_arguments(p)
-    args = p.parse_args(argv)
-    args.out = args.bundle
-    try:
-        res = module.run(args)
-    except MosaicError as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 2
-    print(json.dumps(res, default=str) if args.json else module.render(res))
-    return 0
 
 
 # ---------------------------------------------------------------------------------------------------------------

@@ -20,50 +20,12 @@ from mosaicthinker.runtime.errors import ExportError
 from mosaicthinker.runtime.progress import ticked
 
 from . import common as C
+from .parity import agreement_check
 
 IMAGENET_MEAN = [0.485, 0.456, 0.406]
 IMAGENET_STD = [0.229, 0.224, 0.225]
 CLIP_MEAN = [0.48145466, 0.4578275, 0.40821073]
 CLIP_STD = [0.26862954, 0.26130258, 0.27577711]
-
-
-# ------------------------------------------------------------------------------------------------------------
-# Source loading (shared by the hf_* exporters)
-
-def load_source(source: str, role: str, hf_class: Any, *, tiny_kwargs: dict | None = None) -> tuple[Any, dict]:
-    """The torch model for `hf:ID[@REV]`, `dir:PATH`, `tiny` or `tiny:ARCH`, and its provenance.
-
-    hf_class: the transformers class to call `from_pretrained` on (real checkpoints; needs the hub or a local
-    folder). Returns (model in eval mode, {"source", "arch"?, "random_weights"}).
-    """
-    from . import tiny
-
-    if source == "tiny" or source.startswith("tiny:"):
-        arch = tiny.resolve(role, source)
-        return tiny.build(arch, **(tiny_kwargs or {})), {"source": f"tiny:{arch}", "arch": arch,
-                                                       "random_weights": True, "seed": tiny.SEED}
-    if source.startswith("hf:"):
-        ident, _, rev = source[3:].partition("@")
-        kw = {"revision": rev} if rev else {}
-    elif source.startswith("dir:"):
-        ident, kw = source[4:], {}
-        if not Path(ident).is_dir():
-            raise ExportError(f"--source {source}: folder {ident} does not exist")
-    else:
-        raise ExportError(f"--source {source}: expected hf:ID, dir:PATH, tiny or tiny:ARCH for the {role} role")
-    try:
-        model = hf_class.from_pretrained(ident, **kw)
-    except Exception as e:  # noqa: BLE001  (hub/network/format errors all end here)
-        raise ExportError(f"--source {source}: could not load {hf_class.__name__} ({type(e).__name__}: "
-                          f"{str(e)[:300]}); model hubs need network access, else pass dir:PATH of a local "
-                          f"checkpoint") from e
-    model.eval()
-    marker = Path(ident) / "RANDOM_WEIGHTS.json" if source.startswith("dir:") else None
-    if marker is not None and marker.is_file():  # a random-weight checkpoint of a real config (benchmarks)
-        import json
-
-        return model, {"source": source, "random_weights": True, "random": json.loads(marker.read_text())}
-    return model, {"source": source, "random_weights": False}
 
 
 # ------------------------------------------------------------------------------------------------------------
@@ -334,21 +296,8 @@ def _parity(g: GraphSpec, path: Path, reference: Callable, precision: str, label
 
 def _agreement(g: GraphSpec, path: Path, reference: Callable, precision: str, *, require: bool,
                trials: int | None = None) -> dict[str, Any]:
-    seed, rng = C.parity_rng()
-    trials = C.parity_trials(precision, trials)
-    sess = C.ort_session(path)
-    vals = []
-    for _ in range(trials):
-        feeds = g.make_inputs(rng)
-        vals.append(float(g.agreement(list(reference(feeds)), C.ort_run(sess, feeds))))
-    need = g.agreement_min.get(precision, 0.9)
-    ok = min(vals) >= need
-    C.progress(f"agreement {g.name} [{precision}]: {min(vals):.3f} (min {need}) -> {'ok' if ok else 'FAIL'}")
-    if require and not ok:
-        raise ExportError(f"parity (set agreement) failed for {path} ({precision}): {min(vals):.3f} < {need}; "
-                          f"the artifact was not added to the bundle")
-    return {"ok": bool(ok), "worst": min(vals), "min": need, "trials": trials, "seed": seed,
-            "inputs": "fresh random"}
+    return agreement_check(path, reference, g.make_inputs, g.agreement, g.agreement_min.get(precision, 0.9),
+                           precision=precision, trials=trials, require=require, label=g.name)
 
 
 def run_exporter(fn: Callable[..., dict], source: str, precisions: Sequence[str], out: str | Path, *,

@@ -14,7 +14,8 @@ import numpy as np
 from mosaicthinker.runtime.errors import ExportError
 
 from . import common as C
-from .hf_common import IMAGENET_MEAN, IMAGENET_STD, GraphSpec, _image_calibration, export_variants, load_source, run_exporter
+from .hf_common import IMAGENET_MEAN, IMAGENET_STD, GraphSpec, _image_calibration, export_variants, run_exporter
+from .sources import load_source
 
 
 HF_DEFAULTS = {"relative": "depth-anything/Depth-Anything-V2-Small-hf",

@@ -26,7 +26,8 @@ import numpy as np
 from mosaicthinker.runtime.errors import ExportError
 
 from . import common as C
-from .hf_common import GraphSpec, export_variants, load_source, run_exporter
+from .hf_common import GraphSpec, export_variants, run_exporter
+from .sources import load_source
 
 HF_DEFAULTS = {"superpoint-lightglue": "ETH-CVG/lightglue_superpoint", "efficientloftr": "zju-community/efficientloftr"}
 GRAY = (0.299, 0.587, 0.114)
@@ -166,20 +167,7 @@ def _arch_for(source: str) -> str:
     return "efficientloftr" if "loftr" in source.lower() else "superpoint-lightglue"
 
 
-def export_matcher(source: str, out: str | Path, precisions: Sequence[str], *, height: int | None = None,
-                   width: int | None = None, k: int | None = None, threshold: float = 0.005,
-                   calibration_frames: list[np.ndarray] | None = None, **_: Any) -> dict[str, Any]:
-    """Add the matcher role to the bundle at `out` (SuperPoint+LightGlue or EfficientLoFTR by source)."""
-    import torch
-    from transformers import EfficientLoFTRForKeypointMatching, LightGlueForKeypointMatching
-
-    arch = _arch_for(source)
-    tiny_src = source.startswith("tiny")
-    H = int(height or (64 if tiny_src else 480))
-    W = int(width or (96 if tiny_src else 640))
-    pre = {"size": [H, W], "layout": "NCHW", "channel_order": "RGB", "dtype": "float32", "scale": 1 / 255,
-           "resize": "bilinear", "keep_aspect": False}
-
+def _image_inputs(H: int, W: int):
     def image_inputs(rng: np.random.Generator, names=("image",)) -> dict[str, np.ndarray]:
         # a random image, and for pairs a shifted noisy copy of it: the pair has true matches to find
         base = rng.random((1, 3, H, W)).astype(np.float32)
@@ -190,43 +178,23 @@ def export_matcher(source: str, out: str | Path, precisions: Sequence[str], *, h
             out[n] = np.clip(shifted, 0, 1).astype(np.float32)
         return out
 
+    return image_inputs
+
+
+def _calibration(frames: list[np.ndarray] | None, pre: dict[str, Any]):
+    """calib(names) -> a GraphSpec calibration callable over the --calib frames (None without frames)."""
     def calib(names):
-        if not calibration_frames:
+        if not frames:
             return None
         from mosaicthinker.runtime.stages import preprocess_image
 
-        fr = calibration_frames
-        return lambda: [{n: preprocess_image(fr[(i + j) % len(fr)], pre) for j, n in enumerate(names)}
-                        for i in range(len(fr))]
+        return lambda: [{n: preprocess_image(frames[(i + j) % len(frames)], pre) for j, n in enumerate(names)}
+                        for i in range(len(frames))]
 
-    if arch == "efficientloftr":
-        if H % 32 or W % 32:
-            raise ExportError(f"EfficientLoFTR needs height/width multiples of 32, got {H}x{W}")
-        model, prov = load_source(source, "matcher", EfficientLoFTRForKeypointMatching)
-        pair = loftr_pair(model)
-        ex = image_inputs(np.random.default_rng(3), ("image0", "image1"))
-        g = GraphSpec("pair", pair, (torch.from_numpy(ex["image0"]), torch.from_numpy(ex["image1"])),
-                      ["image0", "image1"], ["kpts0", "kpts1", "scores"],
-                      lambda rng: image_inputs(rng, ("image0", "image1")), quantize=False,
-                      calibration=calib(("image0", "image1")), parity_outputs=[], agreement=pair_agreement)
-        meta = C.role_meta("efficientloftr", preprocessing=pre, semantics={"contract": "pair"}, provenance=prov,
-                           licence="Apache-2.0", random_weights=prov["random_weights"],
-                           config={"min_score": 0.0, "coarse_matching_threshold":
-                                   float(model.config.coarse_matching_threshold)})
-        # int8 disabled: argmax/mutual-NN over quantised similarities flips matches discretely, so an
-        # element-wise parity figure would not mean anything; fp16 keeps the same discrete risk and is checked.
-        return export_variants(out, "matcher", [g], meta, precisions)
+    return calib
 
-    model, prov = load_source(source, "matcher", LightGlueForKeypointMatching)
-    # static graph: no adaptive depth (early stop) nor width (point pruning)
-    model.depth_confidence = -1.0
-    model.width_confidence = -1.0
-    sp = model.keypoint_detector
-    K = int(k or (64 if tiny_src else 1024))
-    ext = superpoint_extractor(sp, K, threshold)
-    mat = lightglue_matcher(model, H, W)
-    D = int(sp.config.descriptor_decoder_dim)
 
+def _match_inputs(K: int, D: int, H: int, W: int):
     def match_inputs(rng: np.random.Generator) -> dict[str, np.ndarray]:
         # image 1 sees a shuffled, slightly moved and noisy copy of image 0's keypoints: real matches exist
         feeds = {}
@@ -243,7 +211,48 @@ def export_matcher(source: str, out: str | Path, precisions: Sequence[str], *, h
             feeds[f"kpt_scores{i}"] = s
         return feeds
 
-    exm = match_inputs(np.random.default_rng(11))
+    return match_inputs
+
+
+def _export_loftr(source: str, out: str | Path, precisions: Sequence[str], H: int, W: int, pre: dict[str, Any],
+                  calib: Any) -> dict[str, Any]:
+    import torch
+    from transformers import EfficientLoFTRForKeypointMatching
+
+    if H % 32 or W % 32:
+        raise ExportError(f"EfficientLoFTR needs height/width multiples of 32, got {H}x{W}")
+    model, prov = load_source(source, "matcher", EfficientLoFTRForKeypointMatching)
+    pair = loftr_pair(model)
+    image_inputs = _image_inputs(H, W)
+    ex = image_inputs(np.random.default_rng(3), ("image0", "image1"))  # export example, not parity
+    g = GraphSpec("pair", pair, (torch.from_numpy(ex["image0"]), torch.from_numpy(ex["image1"])),
+                  ["image0", "image1"], ["kpts0", "kpts1", "scores"],
+                  lambda rng: image_inputs(rng, ("image0", "image1")), quantize=False,
+                  calibration=calib(("image0", "image1")), parity_outputs=[], agreement=pair_agreement)
+    meta = C.role_meta("efficientloftr", preprocessing=pre, semantics={"contract": "pair"}, provenance=prov,
+                       licence="Apache-2.0", random_weights=prov["random_weights"],
+                       config={"min_score": 0.0, "coarse_matching_threshold":
+                               float(model.config.coarse_matching_threshold)})
+    # int8 disabled: argmax/mutual-NN over quantised similarities flips matches discretely, so an
+    # element-wise parity figure would not mean anything; fp16 keeps the same discrete risk and is checked.
+    return export_variants(out, "matcher", [g], meta, precisions)
+
+
+def _export_lightglue(source: str, out: str | Path, precisions: Sequence[str], H: int, W: int,
+                      pre: dict[str, Any], calib: Any, k: int | None, threshold: float) -> dict[str, Any]:
+    import torch
+    from transformers import LightGlueForKeypointMatching
+
+    model, prov = load_source(source, "matcher", LightGlueForKeypointMatching)
+    # static graph: no adaptive depth (early stop) nor width (point pruning)
+    model.depth_confidence = -1.0
+    model.width_confidence = -1.0
+    sp = model.keypoint_detector
+    K = int(k or (64 if source.startswith("tiny") else 1024))
+    ext = superpoint_extractor(sp, K, threshold)
+    mat = lightglue_matcher(model, H, W)
+    image_inputs, match_inputs = _image_inputs(H, W), _match_inputs(K, int(sp.config.descriptor_decoder_dim), H, W)
+    exm = match_inputs(np.random.default_rng(11))  # export examples, not parity
     names_m = ["kpts0", "kpts1", "desc0", "desc1", "kpt_scores0", "kpt_scores1"]
     graphs = [
         GraphSpec("extractor", ext, (torch.from_numpy(image_inputs(np.random.default_rng(2))["image"]),), ["image"],
@@ -258,6 +267,22 @@ def export_matcher(source: str, out: str | Path, precisions: Sequence[str], *, h
                        provenance=prov, licence=licence, random_weights=prov["random_weights"],
                        config={"k": K, "normalize_kpts": False, "keypoint_threshold": threshold, "min_score": 0.0})
     return export_variants(out, "matcher", graphs, meta, precisions)
+
+
+def export_matcher(source: str, out: str | Path, precisions: Sequence[str], *, height: int | None = None,
+                   width: int | None = None, k: int | None = None, threshold: float = 0.005,
+                   calibration_frames: list[np.ndarray] | None = None, **_: Any) -> dict[str, Any]:
+    """Add the matcher role to the bundle at `out` (SuperPoint+LightGlue or EfficientLoFTR by source)."""
+    arch = _arch_for(source)
+    tiny_src = source.startswith("tiny")
+    H = int(height or (64 if tiny_src else 480))
+    W = int(width or (96 if tiny_src else 640))
+    pre = {"size": [H, W], "layout": "NCHW", "channel_order": "RGB", "dtype": "float32", "scale": 1 / 255,
+           "resize": "bilinear", "keep_aspect": False}
+    calib = _calibration(calibration_frames, pre)
+    if arch == "efficientloftr":
+        return _export_loftr(source, out, precisions, H, W, pre, calib)
+    return _export_lightglue(source, out, precisions, H, W, pre, calib, k, threshold)
 
 
 def export_role(role: str, source: str, precisions: Sequence[str], out: str | Path, *, calib: str | None = None,

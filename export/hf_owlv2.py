@@ -21,7 +21,8 @@ import numpy as np
 from mosaicthinker.runtime.errors import ExportError
 
 from . import common as C
-from .hf_common import CLIP_MEAN, CLIP_STD, GraphSpec, export_variants, load_source, run_exporter, word_level_tokenizer, write_tokenizer
+from .hf_common import CLIP_MEAN, CLIP_STD, GraphSpec, export_variants, run_exporter, word_level_tokenizer, write_tokenizer
+from .sources import load_source
 
 HF_DEFAULTS = {"owlv2": "google/owlv2-base-patch16-ensemble"}
 _TINY_WORDS = ("a photo of the chair table sofa bed tv door window sink fridge lamp plant oven microwave "

@@ -17,7 +17,8 @@ from typing import Any, Sequence
 import numpy as np
 
 from . import common as C
-from .hf_common import IMAGENET_MEAN, IMAGENET_STD, GraphSpec, export_variants, load_source, run_exporter
+from .hf_common import IMAGENET_MEAN, IMAGENET_STD, GraphSpec, export_variants, run_exporter
+from .sources import load_source
 
 HF_DEFAULTS = {"sam": "facebook/sam-vit-base", "slimsam": "nielsr/slimsam-50-uniform"}
 

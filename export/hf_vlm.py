@@ -20,7 +20,9 @@ import numpy as np
 from mosaicthinker.runtime.errors import ExportError
 
 from . import common as C
-from .hf_common import GraphSpec, export_variants, load_source, run_exporter, word_level_tokenizer, write_tokenizer
+from .hf_common import GraphSpec, export_variants, run_exporter, word_level_tokenizer, write_tokenizer
+from .sources import load_source
+from .tiny import _TINY_SPECIALS, _TINY_WORDS, TINY_VOCAB, tiny_special_ids  # noqa: F401  (re-exported)
 
 HF_DEFAULTS = {"smolvlm": "HuggingFaceTB/SmolVLM-256M-Instruct", "internvl": "OpenGVLab/InternVL3-1B-hf"}
 
@@ -28,24 +30,7 @@ HF_DEFAULTS = {"smolvlm": "HuggingFaceTB/SmolVLM-256M-Instruct", "internvl": "Op
 # `bundle show` and the README state it next to every such variant.
 LOW_PRECISION_TOKEN_AGREEMENT = 0.5
 
-# Tiny tokenizer: specials first (fixed ids the tiny configs refer to), then a small word list.
-_TINY_SPECIALS = {
-    "smolvlm": ["<|pad|>", "<|im_start|>", "<end_of_utterance>", "<image>", "<fake_token_around_image>",
-                "<global-img>", "<|im_end|>", "[UNK]"],
-    "internvl": ["<|endoftext|>", "<|im_start|>", "<|im_end|>", "<IMG_CONTEXT>", "<img>", "</img>", "[UNK]"],
-}
-_TINY_WORDS = ("User Assistant user assistant : ? . , ! the a an is are of in on to and what where how many which "
-               "chair table sofa bed tv door window sink fridge lamp plant kitchen room left right near far "
-               "closest distance size count object objects image images this that there metres one two three "
-               "four five yes no").split()
-TINY_VOCAB = 96
-
-
-def tiny_special_ids(family: str) -> dict[str, int]:
-    sp = _TINY_SPECIALS[family]
-    if family == "smolvlm":
-        return {"pad": 0, "bos": 1, "eos": 2, "image": sp.index("<image>")}
-    return {"pad": 0, "bos": 1, "eos": 2, "image": sp.index("<IMG_CONTEXT>")}
+# the tiny models' vocabulary (special ids, word list) is owned by export/tiny.py
 
 
 def build_tiny_tokenizer(family: str, path: str | Path) -> Path:
@@ -209,38 +194,18 @@ def token_check(model: Any, family: str, files: dict[str, Path], cfg: dict[str, 
 
 # ------------------------------------------------------------------------------------------------ export
 
-def export_vlm(source: str, out: str | Path, precisions: Sequence[str], *, max_new_tokens: int = 12,
-               **_: Any) -> dict[str, Any]:
-    """Add the vlm role (vision + embed + decoder graphs, tokenizer.json) to the bundle at `out`."""
+def _vlm_preprocessing(family: str, S: int) -> dict[str, Any]:
+    mean, std = ([0.5, 0.5, 0.5], [0.5, 0.5, 0.5]) if family == "smolvlm" else \
+        ([0.485, 0.456, 0.406], [0.229, 0.224, 0.225])
+    return {"size": [S, S], "layout": "NCHW", "channel_order": "RGB", "dtype": "float32", "scale": 1 / 255,
+            "mean": mean, "std": std, "resize": "bilinear", "keep_aspect": False}
+
+
+def _vlm_graphs(model: Any, family: str, dims: dict[str, int], S: int) -> list[GraphSpec]:
+    """The vision, embed and decoder-with-KV-cache graphs, with their fresh parity inputs and dynamic axes."""
     import torch
-    from transformers import AutoModelForImageTextToText
 
-    family = _family_of(source)
-    if source.startswith("tiny"):
-        model, prov = load_source(source, "vlm", None, tiny_kwargs={"vocab": TINY_VOCAB})
-    else:
-        model, prov = load_source(source, "vlm", AutoModelForImageTextToText)
-    model.config.use_cache = True
-    dims = _text_dims(model, family)
-    out = Path(out)
-    tok_dst = write_tokenizer(out, "vlm", source, prov["random_weights"], lambda p: build_tiny_tokenizer(family, p))
-
-    vc = model.config.vision_config
-    S = int(vc.image_size[0] if isinstance(vc.image_size, (list, tuple)) else vc.image_size)
     vision, embed, dec = vision_wrapper(model, family), embed_wrapper(model), decoder_wrapper(model, family)
-    with torch.no_grad():
-        T = int(vision(torch.zeros(2, 3, S, S)).shape[1])
-    image_token_id = int(model.config.image_token_id)
-    pre = ({"size": [S, S], "layout": "NCHW", "channel_order": "RGB", "dtype": "float32", "scale": 1 / 255,
-            "mean": [0.5, 0.5, 0.5], "std": [0.5, 0.5, 0.5], "resize": "bilinear", "keep_aspect": False}
-           if family == "smolvlm" else
-           {"size": [S, S], "layout": "NCHW", "channel_order": "RGB", "dtype": "float32", "scale": 1 / 255,
-            "mean": [0.485, 0.456, 0.406], "std": [0.229, 0.224, 0.225], "resize": "bilinear", "keep_aspect": False})
-    from mosaicthinker.runtime.stages.vlm import TEMPLATES
-
-    cfg = {"family": family, **dims, "image_token_id": image_token_id, "image_seq_len": T, "image_size": S,
-           "stop_tokens": TEMPLATES[family]["stop"], "max_new_tokens": 64,
-           "pad_token_id": int(getattr(_text_model(model, family).config, "pad_token_id", None) or 0)}
     L, KV, D = dims["num_layers"], dims["num_kv_heads"], dims["head_dim"]
     Hs, V = dims["hidden_size"], dims["vocab_size"]
     Nd = torch.export.Dim("images", min=1, max=16)
@@ -265,7 +230,7 @@ def export_vlm(source: str, out: str | Path, precisions: Sequence[str], *, max_n
             f[f"past_value_{i}"] = rng.standard_normal((1, KV, p, D)).astype(np.float32)
         return f
 
-    ex = dec_inputs(np.random.default_rng(1), s=3, p=4)
+    ex = dec_inputs(np.random.default_rng(1), s=3, p=4)  # export example, not parity
     dec_names = ["inputs_embeds", "attention_mask", "position_ids"] + [f"past_{kv}_{i}" for i in range(L)
                                                                       for kv in ("key", "value")]
     dec_out = ["logits"] + [f"present_{kv}_{i}" for i in range(L) for kv in ("key", "value")]
@@ -275,7 +240,7 @@ def export_vlm(source: str, out: str | Path, precisions: Sequence[str], *, max_n
     # the decoder takes *past: dynamic shapes as one positional structure
     dec_dyn_pos = (dec_dyn["inputs_embeds"], dec_dyn["attention_mask"], dec_dyn["position_ids"],
                    tuple(dec_dyn[n] for n in dec_names[3:]))
-    graphs = [
+    return [
         GraphSpec("vision", vision, (torch.randn(2, 3, S, S),), ["pixel_values"], ["image_features"], vision_inputs,
                   dynamic_shapes={"pixel_values": {0: Nd}}),
         GraphSpec("embed", embed, (torch.randint(0, V, (1, 4)),), ["input_ids"], ["inputs_embeds"], embed_inputs,
@@ -283,6 +248,11 @@ def export_vlm(source: str, out: str | Path, precisions: Sequence[str], *, max_n
         GraphSpec("decoder", dec, tuple(torch.from_numpy(ex[n]) for n in dec_names), dec_names, dec_out, dec_inputs,
                   dynamic_shapes=dec_dyn_pos),
     ]
+
+
+def _vlm_task(model: Any, family: str, cfg: dict[str, Any], tok_dst: Path, pre: dict[str, Any],
+              max_new_tokens: int):
+    """task(files, variant): greedy tokens of the exported graphs vs transformers generate."""
     prompts = ["what is the closest object to the sofa ?", "how many chairs are in the room ?"]
 
     def task(files: dict[str, Path], variant: str) -> dict[str, Any]:
@@ -297,14 +267,43 @@ def export_vlm(source: str, out: str | Path, precisions: Sequence[str], *, max_n
         ok = (res["token_agreement"] == 1.0 and res["kv_cache_consistent"]) if fp32 else res["token_agreement"] >= need
         return {"ok": bool(ok), "accepted_at": need, **res}
 
+    return task
+
+
+def export_vlm(source: str, out: str | Path, precisions: Sequence[str], *, max_new_tokens: int = 12,
+               **_: Any) -> dict[str, Any]:
+    """Add the vlm role (vision + embed + decoder graphs, tokenizer.json) to the bundle at `out`."""
+    import torch
+    from transformers import AutoModelForImageTextToText
+
+    from mosaicthinker.runtime.bundle import sha256_file
+    from mosaicthinker.runtime.stages.vlm import TEMPLATES
+
+    family = _family_of(source)
+    if source.startswith("tiny"):
+        model, prov = load_source(source, "vlm", None, tiny_kwargs={"vocab": TINY_VOCAB})
+    else:
+        model, prov = load_source(source, "vlm", AutoModelForImageTextToText)
+    model.config.use_cache = True
+    dims = _text_dims(model, family)
+    out = Path(out)
+    tok_dst = write_tokenizer(out, "vlm", source, prov["random_weights"], lambda p: build_tiny_tokenizer(family, p))
+    vc = model.config.vision_config
+    S = int(vc.image_size[0] if isinstance(vc.image_size, (list, tuple)) else vc.image_size)
+    with torch.no_grad():
+        T = int(vision_wrapper(model, family)(torch.zeros(2, 3, S, S)).shape[1])
+    pre = _vlm_preprocessing(family, S)
+    cfg = {"family": family, **dims, "image_token_id": int(model.config.image_token_id), "image_seq_len": T,
+           "image_size": S, "stop_tokens": TEMPLATES[family]["stop"], "max_new_tokens": 64,
+           "pad_token_id": int(getattr(_text_model(model, family).config, "pad_token_id", None) or 0)}
+    graphs = _vlm_graphs(model, family, dims, S)
     licence = "Apache-2.0" if family == "smolvlm" else "MIT"
     meta = C.role_meta(family, preprocessing=pre, semantics={"kind": "vlm", "tiling": False}, provenance=prov,
                        licence=licence, random_weights=prov["random_weights"], config=cfg,
                        tokenizer={"file": "vlm/tokenizer.json", "sha256": ""})
-    from mosaicthinker.runtime.bundle import sha256_file
-
     meta["tokenizer"]["sha256"] = sha256_file(tok_dst)
-    return export_variants(out, "vlm", graphs, meta, precisions, task_check=task)
+    return export_variants(out, "vlm", graphs, meta, precisions,
+                           task_check=_vlm_task(model, family, cfg, tok_dst, pre, max_new_tokens))
 
 
 def export_role(role: str, source: str, precisions: Sequence[str], out: str | Path, *, calib: str | None = None,

@@ -24,11 +24,9 @@ a profile for every dynamic input once any is given.
 """
 from __future__ import annotations
 
-import sys
-
 import argparse
 import re
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -36,8 +34,9 @@ from mosaicthinker.runtime.host import bundle_write as B
 from mosaicthinker.runtime.errors import ExportError
 
 from . import common as C
+from .formats import target_format
 
-SOURCE_PRECISIONS = ("fp32", "fp16", "int8-qdq")
+SOURCE_PRECISIONS = target_format("jetson").precisions
 SCRIPT = "jetson/build_engines.sh"
 NOT_RUN = ("TensorRT is not installed on the export machine: no engine was built and no TensorRT run was made "
            "here. The provider options, profile shapes and trtexec lines are generated and checked for form "
@@ -248,70 +247,66 @@ def qdq_info(onnx_path: str | Path) -> dict[str, Any]:
             "zero_point_dtypes": sorted(dtypes), "nonzero_zero_points": nonzero, "trt_int8_compatible": ok}
 
 
-def export_jetson(bundle_dir: str | Path, conf: JetsonConfig | None = None) -> dict[str, Any]:
-    """Record TensorRT provider options, profile shapes and trtexec commands for every role/variant/component
-    of the bundle (ONNX components only) and write jetson/build_engines.sh. Returns a summary."""
-    conf = conf or JetsonConfig()
-    root = Path(bundle_dir)
-    bundle = B.load_bundle(root, verify=True)
-    manifest = bundle.manifest
-    roles = list(conf.roles or bundle.roles)
+def _jetson_entry(root: Path, role: str, v: str, c: str, cm: dict[str, Any], rm: dict[str, Any],
+                  conf: JetsonConfig) -> dict[str, Any]:
+    """One component's `jetson` entry: profile shapes, provider chain, trtexec line, Q/DQ facts, warnings."""
+    profile = profile_shapes(cm.get("inputs", []), rm, conf)
+    q = qdq_info(B.safe_path(root, cm["file"]))
+    # Q/DQ nodes TensorRT takes need the int8 builder flag; ones it cannot take (uint8, non-zero zero
+    # points) get no int8 flag and no standalone engine: trtexec would fail on them
+    trt_int8 = q["qdq"] and q["trt_int8_compatible"]
+    prec = "int8-qdq" if trt_int8 else ("fp16" if v == "int8-qdq" else v)
+    opts = trt_provider_options(role, v, c, prec, profile, conf)
+    argv = None if q["qdq"] and not trt_int8 else trtexec_command(cm["file"], role, v, c, prec, profile, conf)
+    entry = {"trt_profile_shapes": profile if profile["min"] else {},
+             "providers": provider_chain(opts), "trtexec": argv, "qdq": q, "warnings": []}
+    if q["qdq"] and not q["trt_int8_compatible"]:
+        entry["warnings"].append(
+            f"Q/DQ nodes with zero-point types {q['zero_point_dtypes']} and {q['nonzero_zero_points']} "
+            f"non-zero zero points: TensorRT takes only symmetric int8 Q/DQ, so these run outside "
+            f"TensorRT (CUDA/CPU). For Jetson re-quantise with int8 symmetric activations "
+            f"(onnxruntime quantize_static activation_type=QInt8, extra_options "
+            f"ActivationSymmetric=True) or use the fp16 engine of a float graph.")
+    if q["weight_only"]:
+        entry["warnings"].append(
+            "weight-only int8 (DequantizeLinear on weights, float activations): TensorRT's handling "
+            "depends on its version; if the int8 build fails or is slow, use the fp16 engine")
+    if v == "fp32" and (not q["qdq"] or q["weight_only"]):
+        # the usual Jetson choice: an fp16 engine built from the fp32 graph
+        fp16 = trt_provider_options(role, "fp32-trtfp16", c, "fp16", profile, conf)
+        entry["providers_fp16_engine"] = provider_chain(fp16)
+        entry["trtexec_fp16_engine"] = trtexec_command(cm["file"], role, "fp32-trtfp16", c, "fp16", profile, conf)
+    return entry
+
+
+def _jetson_role(root: Path, role: str, rm: dict[str, Any], conf: JetsonConfig) -> dict[str, Any]:
+    """Write the `jetson` entries of one role's variants (ONNX components only) into `rm`; its summary."""
+    role_sum = {}
+    for v in conf.precisions:
+        vm = rm["variants"].get(v)
+        if vm is None:
+            continue
+        comps = {c: _jetson_entry(root, role, v, c, cm, rm, conf) for c, cm in vm["components"].items()
+                 if cm.get("format", "onnx") == "onnx"}
+        if comps:
+            vm["jetson"] = {"components": comps, "precision": v,
+                            "int8": ("explicit (QDQ nodes), no calibration table" if v == "int8-qdq" else None),
+                            "engine_built_here": False}
+            role_sum[v] = {c: {"profile": d["trt_profile_shapes"],
+                               "trtexec": " ".join(d["trtexec"]) if d["trtexec"] else None,
+                               "warnings": d["warnings"]} for c, d in comps.items()}
+    rm["jetson"] = {"variants": sorted(role_sum)}
+    return role_sum
+
+
+def build_script(manifest: dict[str, Any], conf: JetsonConfig) -> str:
+    """jetson/build_engines.sh: a trtexec line for every role with Jetson settings so far."""
     lines = ["#!/usr/bin/env bash",
              "# Standalone TensorRT engines for this bundle (generated by `mosaic export --target jetson`).",
              "# Run on the Jetson (inside the container of jetson/Dockerfile): BUNDLE=/bundle CACHE=/cache/trt.",
              "# NOT run on the export machine (no TensorRT there).", "set -euo pipefail",
              f'BUNDLE="${{BUNDLE:-{conf.bundle_dir}}}"', f'CACHE="${{CACHE:-{conf.cache_dir}}}"']
-    summary: dict[str, Any] = {"roles": {}}
-    for role in roles:
-        rm = bundle.role_meta(role)
-        role_sum = {}
-        for v in conf.precisions:
-            vm = rm["variants"].get(v)
-            if vm is None:
-                continue
-            comps = {}
-            for c, cm in vm["components"].items():
-                if cm.get("format", "onnx") != "onnx":
-                    continue
-                profile = profile_shapes(cm.get("inputs", []), rm, conf)
-                q = qdq_info(B.safe_path(root, cm["file"]))
-                # Q/DQ nodes TensorRT takes need the int8 builder flag; ones it cannot take (uint8, non-zero zero
-                # points) get no int8 flag and no standalone engine: trtexec would fail on them
-                trt_int8 = q["qdq"] and q["trt_int8_compatible"]
-                prec = "int8-qdq" if trt_int8 else ("fp16" if v == "int8-qdq" else v)
-                opts = trt_provider_options(role, v, c, prec, profile, conf)
-                argv = None if q["qdq"] and not trt_int8 else trtexec_command(cm["file"], role, v, c, prec,
-                                                                              profile, conf)
-                entry = {"trt_profile_shapes": profile if profile["min"] else {},
-                         "providers": provider_chain(opts), "trtexec": argv, "qdq": q, "warnings": []}
-                if q["qdq"] and not q["trt_int8_compatible"]:
-                    entry["warnings"].append(
-                        f"Q/DQ nodes with zero-point types {q['zero_point_dtypes']} and {q['nonzero_zero_points']} "
-                        f"non-zero zero points: TensorRT takes only symmetric int8 Q/DQ, so these run outside "
-                        f"TensorRT (CUDA/CPU). For Jetson re-quantise with int8 symmetric activations "
-                        f"(onnxruntime quantize_static activation_type=QInt8, extra_options "
-                        f"ActivationSymmetric=True) or use the fp16 engine of a float graph.")
-                if q["weight_only"]:
-                    entry["warnings"].append(
-                        "weight-only int8 (DequantizeLinear on weights, float activations): TensorRT's handling "
-                        "depends on its version; if the int8 build fails or is slow, use the fp16 engine")
-                if v == "fp32" and (not q["qdq"] or q["weight_only"]):
-                    # the usual Jetson choice: an fp16 engine built from the fp32 graph
-                    fp16 = trt_provider_options(role, "fp32-trtfp16", c, "fp16", profile, conf)
-                    entry["providers_fp16_engine"] = provider_chain(fp16)
-                    entry["trtexec_fp16_engine"] = trtexec_command(cm["file"], role, "fp32-trtfp16", c, "fp16",
-                                                                   profile, conf)
-                comps[c] = entry
-            if comps:
-                vm["jetson"] = {"components": comps, "precision": v,
-                                "int8": ("explicit (QDQ nodes), no calibration table" if v == "int8-qdq" else None),
-                                "engine_built_here": False}
-                role_sum[v] = {c: {"profile": d["trt_profile_shapes"],
-                                   "trtexec": " ".join(d["trtexec"]) if d["trtexec"] else None,
-                                   "warnings": d["warnings"]} for c, d in comps.items()}
-        rm["jetson"] = {"variants": sorted(role_sum)}
-        summary["roles"][role] = role_sum
-    for role, rm in manifest["roles"].items():  # the script covers every role with Jetson settings so far
+    for role, rm in manifest["roles"].items():
         for v, vm in rm["variants"].items():
             for c, d in ((vm.get("jetson") or {}).get("components") or {}).items():
                 if not d["trtexec"] and not d.get("trtexec_fp16_engine"):
@@ -322,9 +317,22 @@ def export_jetson(bundle_dir: str | Path, conf: JetsonConfig | None = None) -> d
                         lines.append(f'mkdir -p "{Path(argv[2].split("=", 1)[1]).parent}"'
                                      .replace(f"{conf.cache_dir}/", "$CACHE/"))
                         lines.append(script_line(argv, conf))
+    return "\n".join(lines) + "\n"
+
+
+def export_jetson(bundle_dir: str | Path, conf: JetsonConfig | None = None) -> dict[str, Any]:
+    """Record TensorRT provider options, profile shapes and trtexec commands for every role/variant/component
+    of the bundle (ONNX components only) and write jetson/build_engines.sh. Returns a summary."""
+    conf = conf or JetsonConfig()
+    root = Path(bundle_dir)
+    bundle = B.load_bundle(root, verify=True)
+    manifest = bundle.manifest
+    summary: dict[str, Any] = {"roles": {}}
+    for role in list(conf.roles or bundle.roles):
+        summary["roles"][role] = _jetson_role(root, role, bundle.role_meta(role), conf)
     script = root / SCRIPT
     script.parent.mkdir(parents=True, exist_ok=True)
-    script.write_text("\n".join(lines) + "\n")
+    script.write_text(build_script(manifest, conf))
     script.chmod(0o755)
     manifest["jetson"] = {"provider_chain": ["TensorrtExecutionProvider", "CUDAExecutionProvider",
                                              "CPUExecutionProvider"],
@@ -364,20 +372,9 @@ def config_from_args(args: argparse.Namespace) -> JetsonConfig:
 
 
 def target_step(out: str | Path, roles: Sequence[str], args: argparse.Namespace) -> dict[str, Any]:
-    """`mosaic export ROLE ... --target jetson` (export/cli.py TARGETS): the roles just exported."""
-    conf = config_from_args(args)  # --jetson-roles when given, else the roles just exported
-    conf = conf if conf.roles else replace(conf, roles=tuple(roles))
-    res = export_jetson(out, conf)
-    C.progress(render({"bundle": str(out), **res}))
-    return res
-
-
-def run(args: argparse.Namespace) -> dict[str, Any]:
-    bundle = getattr(args, "out", None) or getattr(args, "bundle", None)
-    if not bundle:
-        raise ExportError("--target jetson needs the bundle folder (--out DIR or --bundle DIR)")
-    return {"schema": "mosaicthinker.export.jetson/1", "bundle": str(bundle),
-            **export_jetson(bundle, config_from_args(args))}
+    """`mosaic export [ROLE] ... --target jetson` (export/cli.py TARGETS): --jetson-roles when given, else `roles`
+    (the roles just exported, or every role of the bundle)."""
+    return C.run_target_step(export_jetson, config_from_args(args), out, roles, render)
 
 
 def render(result: dict[str, Any]) -> str:
@@ -389,14 +386,3 @@ def render(result: dict[str, Any]) -> str:
                 lines += [f"    WARNING: {w}" for w in d.get("warnings", [])]
     lines += [f"engine build script: {result['script']}", result["not_run"]]
     return "\n".join(lines)
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    """`python -m mosaicthinker.export.jetson BUNDLE`: the Jetson step alone on an existing bundle."""
-    from mosaicthinker.export.common import target_step_main
-
-    return target_step_main(sys.modules[__name__], argv)
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -247,6 +247,60 @@ def depth_errors(pred_m: np.ndarray, gt_m: np.ndarray, max_depth_m: float = 10.0
             "n": int(ok.sum())}
 
 
+def _depth_row(depth: Any, f: Any) -> dict[str, Any]:
+    """PyDNet++ vs sensor depth on one frame: scale+shift fit, scale-only fit, constant baseline."""
+    from mosaicthinker.runtime.stages.depth import fit_to_sensor
+
+    pred = depth.predict(f.rgb)
+    ss = fit_to_sensor(pred, f.depth, depth.semantics, shift=True)
+    so = fit_to_sensor(pred, f.depth, depth.semantics, shift=False)
+    gt = f.depth
+    valid = (gt > 0) & (gt < 10.0)
+    const = np.where(valid, np.median(gt[valid]), 0).astype(np.float32)
+    return {"scale_shift": depth_errors(ss.apply(pred), gt), "scale_only": depth_errors(so.apply(pred), gt),
+            "constant": depth_errors(const, gt), "s": ss.s, "t": ss.t}
+
+
+def _agreement_row(n: str, dets: Any, lab: np.ndarray, seg: Any, shape: tuple[int, int], agree: dict,
+                   min_seg_fraction: float, box_fill: float) -> tuple[float | None, float]:
+    """Detector vs segmenter on class `n` in one frame (counts into `agree[n]`); (best box fill, seg fraction)."""
+    from mosaicthinker.runtime.stages.detector import map_names
+
+    H, W = shape
+    cm = np.isin(lab, map_names([n], seg.labels)[0].get(n, []))
+    seg_sees = cm.mean() >= min_seg_fraction
+    boxes = dets.boxes[[k for k, x in enumerate(dets.names) if x == n]]
+    det_sees = len(boxes) > 0
+    fills = []
+    for b in boxes:
+        x0, y0, x1, y1 = [int(round(v)) for v in b]
+        win = cm[max(0, y0):min(H, y1), max(0, x0):min(W, x1)]
+        fills.append(float(win.mean()) if win.size else 0.0)
+    ok = det_sees and max(fills) >= box_fill
+    if det_sees or seg_sees:
+        a = agree[n]
+        a["either"] += 1
+        a["agree"] += int(ok)
+        a["det_only"] += int(det_sees and not seg_sees)
+        a["seg_only"] += int(seg_sees and not det_sees)
+    return (max(fills) if fills else None), float(cm.mean())
+
+
+def _summary(per_frame: list[dict], agree: dict, absent_counts: dict, nf: int) -> dict[str, Any]:
+    dr = [r["depth"] for r in per_frame if "depth" in r]
+
+    def mean(key, metric):
+        return float(np.nanmean([d[key][metric] for d in dr])) if dr else float("nan")
+
+    depth_sum = {k: {"absrel": mean(k, "absrel"), "delta1": mean(k, "delta1")}
+                 for k in ("scale_shift", "scale_only", "constant")}
+    depth_sum["beats_constant"] = bool(depth_sum["scale_shift"]["absrel"] < depth_sum["constant"]["absrel"])
+    agreement = {n: {**a, "rate": a["agree"] / a["either"] if a["either"] else float("nan")} for n, a in agree.items()}
+    absent = {m: {n: c / nf for n, c in d.items()} for m, d in absent_counts.items()}
+    return {"depth": depth_sum, "agreement": agreement, "absent_rate": absent,
+            "absent_max_rate": max([v for d in absent.values() for v in d.values()] or [0.0])}
+
+
 def shared_model_checks(bundle: str | os.PathLike, frames_dir: str | os.PathLike, indices: list[int] | None = None,
                         *, threads: int = 1, min_seg_fraction: float = 0.005, box_fill: float = 0.10,
                         trace: Any = None) -> dict[str, Any]:
@@ -263,16 +317,13 @@ def shared_model_checks(bundle: str | os.PathLike, frames_dir: str | os.PathLike
     """
     from mosaicthinker.runtime.frames import open_source
     from mosaicthinker.runtime.stages import load_role
-    from mosaicthinker.runtime.stages.depth import fit_to_sensor
     from mosaicthinker.runtime.stages.detector import map_names
     from mosaicthinker.runtime.trace import Trace
 
     trace = trace if trace is not None else Trace()
     src = open_source(frames_dir)
     idx = list(range(len(src))) if indices is None else list(indices)
-    depth = load_role(bundle, "depth", threads=threads, trace=trace)
-    det = load_role(bundle, "detector", threads=threads, trace=trace)
-    seg = load_role(bundle, "segmenter", threads=threads, trace=trace)
+    depth, det, seg = (load_role(bundle, r, threads=threads, trace=trace) for r in ("depth", "detector", "segmenter"))
     absent_det = [n for n in ABSENT_FROM_KITCHEN if not map_names([n], det.labels)[1]]
     absent_seg = [n for n in ABSENT_FROM_KITCHEN if not map_names([n], seg.labels)[1]]
     per_frame, agree = [], {n: {"either": 0, "agree": 0, "det_only": 0, "seg_only": 0} for n in AGREEMENT_NAMES}
@@ -281,56 +332,20 @@ def shared_model_checks(bundle: str | os.PathLike, frames_dir: str | os.PathLike
         f = src[i]
         row: dict[str, Any] = {"frame": int(i)}
         if f.depth is not None:
-            pred = depth.predict(f.rgb)
-            ss = fit_to_sensor(pred, f.depth, depth.semantics, shift=True)
-            so = fit_to_sensor(pred, f.depth, depth.semantics, shift=False)
-            gt = f.depth
-            valid = (gt > 0) & (gt < 10.0)
-            const = np.where(valid, np.median(gt[valid]), 0).astype(np.float32)
-            row["depth"] = {"scale_shift": depth_errors(ss.apply(pred), gt), "scale_only": depth_errors(so.apply(pred), gt),
-                            "constant": depth_errors(const, gt), "s": ss.s, "t": ss.t}
-        H, W = f.rgb.shape[:2]
+            row["depth"] = _depth_row(depth, f)
         dets = det.detect(f.rgb, list(AGREEMENT_NAMES) + absent_det)
         lab = seg.classes(f.rgb)
         row["detections"] = {n: int(sum(1 for x in dets.names if x == n)) for n in set(dets.names)}
         for n in AGREEMENT_NAMES:
-            cm = np.isin(lab, map_names([n], seg.labels)[0].get(n, []))
-            seg_sees = cm.mean() >= min_seg_fraction
-            boxes = dets.boxes[[k for k, x in enumerate(dets.names) if x == n]]
-            det_sees = len(boxes) > 0
-            fills = []
-            for b in boxes:
-                x0, y0, x1, y1 = [int(round(v)) for v in b]
-                win = cm[max(0, y0):min(H, y1), max(0, x0):min(W, x1)]
-                fills.append(float(win.mean()) if win.size else 0.0)
-            ok = det_sees and max(fills) >= box_fill
-            if det_sees or seg_sees:
-                a = agree[n]
-                a["either"] += 1
-                a["agree"] += int(ok)
-                a["det_only"] += int(det_sees and not seg_sees)
-                a["seg_only"] += int(seg_sees and not det_sees)
-            row[f"fill_{n}"] = max(fills) if fills else None
-            row[f"seg_fraction_{n}"] = float(cm.mean())
+            row[f"fill_{n}"], row[f"seg_fraction_{n}"] = _agreement_row(n, dets, lab, seg, f.rgb.shape[:2], agree,
+                                                                        min_seg_fraction, box_fill)
         for n in absent_det:
             absent_counts["detector"][n] += int(n in dets.names)
         for n in absent_seg:
             cm = np.isin(lab, map_names([n], seg.labels)[0][n])
             absent_counts["segmenter"][n] += int(cm.mean() >= min_seg_fraction)
         per_frame.append(row)
-    nf = max(len(idx), 1)
-    dr = [r["depth"] for r in per_frame if "depth" in r]
-
-    def mean(key, metric):
-        return float(np.nanmean([d[key][metric] for d in dr])) if dr else float("nan")
-
-    depth_sum = {k: {"absrel": mean(k, "absrel"), "delta1": mean(k, "delta1")}
-                 for k in ("scale_shift", "scale_only", "constant")}
-    depth_sum["beats_constant"] = bool(depth_sum["scale_shift"]["absrel"] < depth_sum["constant"]["absrel"])
-    agreement = {n: {**a, "rate": a["agree"] / a["either"] if a["either"] else float("nan")} for n, a in agree.items()}
-    absent = {m: {n: c / nf for n, c in d.items()} for m, d in absent_counts.items()}
-    return {"frames": len(idx), "depth": depth_sum, "agreement": agreement, "absent_rate": absent,
-            "absent_max_rate": max([v for d in absent.values() for v in d.values()] or [0.0]),
+    return {"frames": len(idx), **_summary(per_frame, agree, absent_counts, max(len(idx), 1)),
             "thresholds": {"min_seg_fraction": min_seg_fraction, "box_fill": box_fill,
                            "detector_score": det.conf.score_threshold},
             "per_frame": per_frame}

@@ -15,6 +15,27 @@ import torch
 
 SEED = 0
 
+# Tiny VLM tokenizer (export/hf_vlm.py builds it): specials first (fixed ids the tiny configs refer to), then
+# a small word list.
+_TINY_SPECIALS = {
+    "smolvlm": ["<|pad|>", "<|im_start|>", "<end_of_utterance>", "<image>", "<fake_token_around_image>",
+                "<global-img>", "<|im_end|>", "[UNK]"],
+    "internvl": ["<|endoftext|>", "<|im_start|>", "<|im_end|>", "<IMG_CONTEXT>", "<img>", "</img>", "[UNK]"],
+}
+_TINY_WORDS = ("User Assistant user assistant : ? . , ! the a an is are of in on to and what where how many which "
+               "chair table sofa bed tv door window sink fridge lamp plant kitchen room left right near far "
+               "closest distance size count object objects image images this that there metres one two three "
+               "four five yes no").split()
+TINY_VOCAB = 96
+
+
+def tiny_special_ids(family: str) -> dict[str, int]:
+    """pad/bos/eos/image token ids of a tiny VLM family ("smolvlm", "internvl")."""
+    sp = _TINY_SPECIALS[family]
+    if family == "smolvlm":
+        return {"pad": 0, "bos": 1, "eos": 2, "image": sp.index("<image>")}
+    return {"pad": 0, "bos": 1, "eos": 2, "image": sp.index("<IMG_CONTEXT>")}
+
 
 def _seeded(fn: Callable[..., Any]) -> Callable[..., Any]:
     def wrapper(*a: Any, **k: Any) -> Any:
@@ -179,8 +200,6 @@ def smolvlm(vocab: int):
     """SmolVLM (Idefics3 family: SigLIP-style vision tower + pixel-shuffle connector + Llama decoder)."""
     from transformers import SmolVLMConfig, SmolVLMForConditionalGeneration
 
-    from .hf_vlm import tiny_special_ids
-
     ids = tiny_special_ids("smolvlm")
     cfg = SmolVLMConfig(
         vision_config=dict(hidden_size=32, intermediate_size=64, num_hidden_layers=2, num_attention_heads=2,
@@ -196,8 +215,6 @@ def smolvlm(vocab: int):
 def internvl(vocab: int):
     """InternVL (InternViT + pixel-shuffle MLP projector + Qwen2 decoder)."""
     from transformers import InternVLConfig, InternVLForConditionalGeneration
-
-    from .hf_vlm import tiny_special_ids
 
     ids = tiny_special_ids("internvl")
     cfg = InternVLConfig(

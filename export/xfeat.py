@@ -21,16 +21,16 @@ from __future__ import annotations
 
 import tempfile
 from pathlib import Path
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 
 from mosaicthinker.runtime.errors import ExportError
 from mosaicthinker.runtime.progress import ticked
 
-from .common import (add_variant_files, calibration_frames, export_torch, ort_run, ort_session, parity_check,
-                     parity_rng, parity_trials, progress, quantize_int8_dynamic, quantize_int8_qdq,
-                     record_skipped_variant, role_meta, to_fp16)
+from .common import (add_variant_files, calibration_frames, export_torch, progress, quantize_int8_dynamic,
+                     quantize_int8_qdq, record_skipped_variant, role_meta, to_fp16)
+from .parity import ort_run, ort_session, parity_check, parity_trials, run_trials
 
 DEFAULT_SIZE = (480, 640)   # H, W (multiples of 32, the net's stride constraint)
 DEFAULT_K = 1024
@@ -115,19 +115,11 @@ def xfeat_meta(size: tuple[int, int], k: int, random_weights: bool = False) -> d
         config={"k": k, "detection_threshold": DETECTION_THRESHOLD, "min_cossim": MIN_COSSIM})
 
 
-def export_xfeat(out: str | Path, precisions: list[str] = ("fp32",), *, size: tuple[int, int] = DEFAULT_SIZE,
-                 k: int = DEFAULT_K, calib: str | Path | None = None, task_pair: tuple | None = None
-                 ) -> dict[str, Any]:
-    """Export XFeat into bundle `out` as role `matcher` (see module docstring). Parity on fresh random images
-    for every component; for quantised variants also a task check on `task_pair` (two RGB frames): the
-    quantised pipeline must keep >= 50 % of the fp32 mutual matches. Returns a summary dict."""
+def _io_functions(ext: Any, mat: Any, size: tuple[int, int], k: int) -> tuple:
+    """(img_inputs, ext_ref, mat_inputs, mat_ref): fresh parity inputs and torch references of both graphs."""
     import torch
 
-    torch.set_num_threads(max(1, torch.get_num_threads()))
-    ext, mat = _torch_modules(k, DETECTION_THRESHOLD, MIN_COSSIM)
     H, W = size
-    meta = xfeat_meta(size, k)
-    res: dict[str, Any] = {"role": "matcher", "variants": {}, "skipped": {}}
 
     def img_inputs(rng):
         # smooth random images (upsampled noise + fine noise) so that keypoints exist and ties are rare
@@ -156,9 +148,65 @@ def export_xfeat(out: str | Path, precisions: list[str] = ("fp32",), *, size: tu
             return [t.numpy() for t in mat(*(torch.from_numpy(feeds[n]) for n in
                                              ("desc0", "desc1", "kpt_scores0", "kpt_scores1")))]
 
+    return img_inputs, ext_ref, mat_inputs, mat_ref
+
+
+def _calibration(precisions: Sequence[str], calib: str | Path | None, size: tuple[int, int]) -> list:
+    """int8-qdq calibration feeds from --calib frames (none for the other precisions)."""
+    if "int8-qdq" not in precisions:
+        return []
+    if calib is None:
+        raise ExportError("xfeat int8-qdq needs calibration frames: --calib FOLDER")
+    import cv2
+
+    H, W = size
+    return [{"image": cv2.resize(f, (W, H)).transpose(2, 0, 1)[None].astype(np.float32)}
+            for f in calibration_frames(calib, 16)]
+
+
+def _quantised_extractor(prec: str, e32: Path, qpath: Path, m32: Path, cal: list, img_inputs: Any,
+                         task_pair: tuple | None, size: tuple[int, int]) -> tuple[bool, Any, Any, str | None]:
+    """Convert the fp32 extractor to `prec` and check it (parity vs fp32, task check on `task_pair`).
+    Returns (ok, parity, task, reason); a converter failure is a refusal, not a crash."""
+    try:
+        if prec == "fp16":
+            to_fp16(e32, qpath)
+        elif prec == "int8-dynamic":
+            quantize_int8_dynamic(e32, qpath)
+        elif prec == "int8-qdq":
+            # Conv only: quantising the keypoint head's Softmax / the NMS comparison moves most keypoints
+            # (measured: 9 % keypoint overlap with fp32 when everything is quantised, 71 % Conv-only)
+            quantize_int8_qdq(e32, qpath, cal, op_types=["Conv"])
+        else:
+            raise ExportError(f"xfeat: unknown precision {prec!r}")
+        ref_sess = ort_session(e32)
+        par = extractor_parity(qpath, lambda f: ort_run(ref_sess, f), img_inputs, precision=prec, require=False)
+        task = _task_check(e32, qpath, m32, task_pair, size) if task_pair is not None else None
+        ok = par["ok"] and (task is None or task["ok"])
+        reason = None if ok else (f"parity vs fp32: {par['worst']}" if not par["ok"] else f"task: {task}")
+    except ExportError:
+        raise
+    except Exception as e:  # noqa: BLE001  a converter failure means: do not ship this precision
+        ok, par, task, reason = False, None, None, f"{type(e).__name__}: {str(e)[:300]}"
+    return ok, par, task, reason
+
+
+def export_xfeat(out: str | Path, precisions: list[str] = ("fp32",), *, size: tuple[int, int] = DEFAULT_SIZE,
+                 k: int = DEFAULT_K, calib: str | Path | None = None, task_pair: tuple | None = None
+                 ) -> dict[str, Any]:
+    """Export XFeat into bundle `out` as role `matcher` (see module docstring). Parity on fresh random images
+    for every component; for quantised variants also a task check on `task_pair` (two RGB frames): the
+    quantised pipeline must keep >= 50 % of the fp32 mutual matches. Returns a summary dict."""
+    import torch
+
+    torch.set_num_threads(max(1, torch.get_num_threads()))
+    ext, mat = _torch_modules(k, DETECTION_THRESHOLD, MIN_COSSIM)
+    meta = xfeat_meta(size, k)
+    res: dict[str, Any] = {"role": "matcher", "variants": {}, "skipped": {}}
+    img_inputs, ext_ref, mat_inputs, mat_ref = _io_functions(ext, mat, size, k)
     with tempfile.TemporaryDirectory() as td:
         td = Path(td)
-        ex = torch.from_numpy(img_inputs(np.random.default_rng(0))["image"])
+        ex = torch.from_numpy(img_inputs(np.random.default_rng(0))["image"])  # export example, not parity
         e32 = export_torch(ext, (ex,), td / "extractor.onnx", ["image"], ["kpts", "kpt_scores", "desc"])
         m_ex = {n: torch.from_numpy(v) for n, v in mat_inputs(np.random.default_rng(0)).items()}
         m32 = export_torch(mat, tuple(m_ex[n] for n in ("desc0", "desc1", "kpt_scores0", "kpt_scores1")),
@@ -169,38 +217,10 @@ def export_xfeat(out: str | Path, precisions: list[str] = ("fp32",), *, size: tu
         add_variant_files(out, "matcher", "fp32", {"extractor": e32, "matcher": m32}, meta=meta, precision="fp32",
                           parity={"extractor": p_ext, "matcher": p_mat}, default=True)
         res["variants"]["fp32"] = {"extractor": p_ext["worst"], "matcher": p_mat["worst"]}
-
-        cal = []
-        if "int8-qdq" in precisions:
-            if calib is None:
-                raise ExportError("xfeat int8-qdq needs calibration frames: --calib FOLDER")
-            import cv2
-
-            cal = [{"image": cv2.resize(f, (W, H)).transpose(2, 0, 1)[None].astype(np.float32)}
-                   for f in calibration_frames(calib, 16)]
+        cal = _calibration(precisions, calib, size)
         for prec in ticked([p for p in precisions if p != "fp32"], "export matcher", "variant"):
             qpath = td / f"extractor.{prec}.onnx"
-            try:
-                if prec == "fp16":
-                    to_fp16(e32, qpath)
-                elif prec == "int8-dynamic":
-                    quantize_int8_dynamic(e32, qpath)
-                elif prec == "int8-qdq":
-                    # Conv only: quantising the keypoint head's Softmax / the NMS comparison moves most keypoints
-                    # (measured: 9 % keypoint overlap with fp32 when everything is quantised, 71 % Conv-only)
-                    quantize_int8_qdq(e32, qpath, cal, op_types=["Conv"])
-                else:
-                    raise ExportError(f"xfeat: unknown precision {prec!r}")
-                ref_sess = ort_session(e32)
-                par = extractor_parity(qpath, lambda f: ort_run(ref_sess, f), img_inputs, precision=prec,
-                                       require=False)
-                task = _task_check(e32, qpath, m32, task_pair, size) if task_pair is not None else None
-                ok = par["ok"] and (task is None or task["ok"])
-                reason = None if ok else (f"parity vs fp32: {par['worst']}" if not par["ok"] else f"task: {task}")
-            except ExportError:
-                raise
-            except Exception as e:  # noqa: BLE001  a converter failure means: do not ship this precision
-                ok, par, task, reason = False, None, None, f"{type(e).__name__}: {str(e)[:300]}"
+            ok, par, task, reason = _quantised_extractor(prec, e32, qpath, m32, cal, img_inputs, task_pair, size)
             if not ok:
                 record_skipped_variant(out, "matcher", prec, f"extractor: {reason}")
                 res["skipped"][prec] = reason
@@ -216,6 +236,26 @@ def export_xfeat(out: str | Path, precisions: list[str] = ("fp32",), *, size: tu
     return res
 
 
+def keypoint_agreement(ref: Sequence[np.ndarray], got: Sequence[np.ndarray]) -> dict[str, float]:
+    """One trial of `extractor_parity`: keypoints (kpts, scores, descriptors) compared as sets of pixel
+    positions, scores and descriptors on the common keypoints."""
+    (k_r, s_r, d_r), (k_g, s_g, d_g) = ref, got
+    vr, vg = s_r > 0, s_g > 0
+    key_r = {(int(x), int(y)): i for i, (x, y) in enumerate(k_r) if vr[i]}
+    key_g = {(int(x), int(y)): i for i, (x, y) in enumerate(k_g) if vg[i]}
+    common = [(key_r[p], key_g[p]) for p in key_r if p in key_g]
+    if common:
+        ir, ig = np.array(common).T
+        srel = float(np.abs(s_r[ir] - s_g[ig]).max() / max(float(np.abs(s_r[ir]).max()), 1e-12))
+        cos = np.sum(d_r[ir] * d_g[ig], 1) / (np.linalg.norm(d_r[ir], axis=1) * np.linalg.norm(d_g[ig], axis=1)
+                                              + 1e-12)
+        cmin, cmed = float(cos.min()), float(np.median(cos))
+    else:
+        srel, cmin, cmed = float("inf"), 0.0, 0.0
+    return {"kpt_overlap": len(common) / max(len(key_r), 1), "score_rel": srel, "desc_cos_min": cmin,
+            "desc_cos_median": cmed, "valid_kpts": int(vr.sum())}
+
+
 def extractor_parity(path: Path, reference, make_inputs, *, precision: str = "fp32", trials: int | None = None,
                      require: bool = True) -> dict[str, Any]:
     """Parity of an extractor graph on fresh random images, keypoint-set based: top-K order and near-ties may
@@ -223,30 +263,14 @@ def extractor_parity(path: Path, reference, make_inputs, *, precision: str = "fp
     reference's valid keypoints found at the same pixel), and scores / descriptors are compared on the common
     keypoints (`score_rel`, `desc_cos_min`). fp32 needs overlap >= 0.98, desc cosine >= 0.9999, score rel
     <= 1e-3; lower precisions overlap >= 0.5, desc cosine (median) >= 0.9 (the task check then decides)."""
-    seed, rng = parity_rng()
     trials = parity_trials(precision, trials)
     sess = ort_session(path)
-    worst = {"kpt_overlap": 1.0, "score_rel": 0.0, "desc_cos_min": 1.0, "desc_cos_median": 1.0}
-    for _ in range(trials):
-        feeds = make_inputs(rng)
-        k_r, s_r, d_r = reference(feeds)
-        k_g, s_g, d_g = ort_run(sess, feeds)
-        vr, vg = s_r > 0, s_g > 0
-        key_r = {(int(x), int(y)): i for i, (x, y) in enumerate(k_r) if vr[i]}
-        key_g = {(int(x), int(y)): i for i, (x, y) in enumerate(k_g) if vg[i]}
-        common = [(key_r[p], key_g[p]) for p in key_r if p in key_g]
-        overlap = len(common) / max(len(key_r), 1)
-        if common:
-            ir, ig = np.array(common).T
-            srel = float(np.abs(s_r[ir] - s_g[ig]).max() / max(float(np.abs(s_r[ir]).max()), 1e-12))
-            cos = np.sum(d_r[ir] * d_g[ig], 1) / (np.linalg.norm(d_r[ir], axis=1) * np.linalg.norm(d_g[ig], axis=1)
-                                                  + 1e-12)
-            cmin, cmed = float(cos.min()), float(np.median(cos))
-        else:
-            srel, cmin, cmed = float("inf"), 0.0, 0.0
-        worst = {"kpt_overlap": min(worst["kpt_overlap"], overlap), "score_rel": max(worst["score_rel"], srel),
-                 "desc_cos_min": min(worst["desc_cos_min"], cmin),
-                 "desc_cos_median": min(worst["desc_cos_median"], cmed), "valid_kpts": int(vr.sum())}
+    seed, per = run_trials(make_inputs, trials, lambda feeds: keypoint_agreement(reference(feeds),
+                                                                                 ort_run(sess, feeds)))
+    worst = {"kpt_overlap": min(1.0, *(t["kpt_overlap"] for t in per)),
+             "score_rel": max(0.0, *(t["score_rel"] for t in per)),
+             "desc_cos_min": min(1.0, *(t["desc_cos_min"] for t in per)),
+             "desc_cos_median": min(1.0, *(t["desc_cos_median"] for t in per)), "valid_kpts": per[-1]["valid_kpts"]}
     if precision == "fp32":
         ok = worst["kpt_overlap"] >= 0.98 and worst["desc_cos_min"] >= 0.9999 and worst["score_rel"] <= 1e-3
     else:
@@ -261,8 +285,6 @@ def extractor_parity(path: Path, reference, make_inputs, *, precision: str = "fp
 
 def _run_pair(ext_path: Path, mat_path: Path, pair: tuple, size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
     import cv2
-
-    from .common import ort_session
 
     H, W = size
     e, m = ort_session(ext_path), ort_session(mat_path)

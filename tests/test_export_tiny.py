@@ -257,7 +257,7 @@ def test_checkpoint_sources_fail_clearly(tmp_path):
     """`dir:` of a missing or non-checkpoint folder -> ExportError naming the source (no hub access needed)."""
     from transformers import DepthAnythingForDepthEstimation
 
-    from mosaicthinker.export.hf_common import load_source
+    from mosaicthinker.export.sources import load_source
     from mosaicthinker.runtime.errors import ExportError
 
     with pytest.raises(ExportError, match="does not exist"):

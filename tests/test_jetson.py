@@ -289,3 +289,33 @@ def test_export_target_step_honours_jetson_roles_and_says_what_it_wrote(bundle, 
     assert "jetson settings written into" in err and "segmenter/fp32/model: trtexec" in err and J.SCRIPT in err
     res = J.target_step(copy, ["segmenter", "vlm"], argparse.Namespace())  # no --jetson-roles: the exported ones
     assert sorted(res["roles"]) == ["segmenter", "vlm"]
+
+
+def test_one_target_entry_runs_the_step_on_an_existing_bundle(bundle, tmp_path):
+    """`mosaic export --target jetson --out B` without a ROLE: the step alone, on every role of B (the one
+    entry that replaced `python -m mosaicthinker.export.jetson B`)."""
+    import sys
+
+    root, _ = bundle
+    copy = tmp_path / "bundle"
+    shutil.copytree(root, copy)
+    (copy / J.SCRIPT).unlink()
+    m = json.loads((copy / "manifest.json").read_text())
+    for rm in m["roles"].values():
+        rm.pop("jetson", None)
+        for vm in rm["variants"].values():
+            vm.pop("jetson", None)
+    m.pop("jetson", None)
+    (copy / "manifest.json").write_text(json.dumps(m))
+    exe = Path(sys.executable).with_name("mosaic")
+    r = subprocess.run([str(exe), "export", "--target", "jetson", "--out", str(copy), "--json"],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    res = json.loads(r.stdout)
+    assert res["roles"] == {} and sorted(res["targets"]["jetson"]["roles"]) == ["detector", "segmenter", "vlm"]
+    m2 = json.loads((copy / "manifest.json").read_text())
+    assert (copy / J.SCRIPT).is_file() and m2["jetson"]["build_engines"]["file"] == J.SCRIPT
+    assert all("jetson" in m2["roles"][r] for r in ("detector", "segmenter", "vlm"))
+    bad = subprocess.run([str(exe), "export", "--target", "tpu", "--out", str(copy)], capture_output=True,
+                         text=True, timeout=300)
+    assert bad.returncode != 0 and "--target tpu" in bad.stderr
