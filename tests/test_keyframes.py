@@ -77,7 +77,8 @@ def test_batch_sizes_spend_exactly_the_budget():
     assert sum(sizes) == 45 and set(sizes) == {2, 3}
     sizes = kf.batch_sizes(7, 20)
     assert sum(sizes) == 7 and max(sizes) == 1 and len(sizes) == 20
-    assert kf.batch_sizes(10, 3, batch=4) == [4, 4, 4]
+    assert kf.batch_sizes(10, 3, batch=4) == [4, 4, 2]  # a fixed batch never spends past the budget
+    assert kf.batch_sizes(12, 2, batch=4) == [4, 4]
     assert kf.resolve_budget(100, kf.KeyFrameConf()) == 25
     assert kf.resolve_budget(100, kf.KeyFrameConf(budget=500)) == 100
 
@@ -234,7 +235,9 @@ def small_eval(tmp_path_factory):
                    "--size", "96x72", "--keyframes", "6", "--out", str(out), "--json",
                    "--variant", 'topup={"min_keyframes": 6}'])
     assert rc == 0
-    return json.loads(buf.getvalue())
+    r = json.loads(buf.getvalue())
+    r["_out"] = out
+    return r
 
 
 def test_end_to_end_keyframes_on_a_small_scene(small_eval):
@@ -254,6 +257,21 @@ def test_end_to_end_keyframes_on_a_small_scene(small_eval):
     assert m["topup"]["f1"] >= 0.8 and m["topup"]["f1"] > m["uniform"]["f1"] + 0.1
 
 
+def test_eval_keyframes_out_is_written_as_one_group(small_eval):
+    """`--out`: the result through runtime/outputs.py (temp file + rename, run.json complete, same run id) and
+    the scene renamed into place only once complete (no partial folder left)."""
+    import json
+
+    out = small_eval["_out"]
+    saved = json.loads((out / "keyframes.json").read_text())
+    run = json.loads((out / "run.json").read_text())
+    assert run["status"] == "complete" and run["files"] == ["keyframes.json"]
+    assert saved["run_id"] == run["run_id"] == small_eval["run_id"]
+    assert saved["methods"] == small_eval["methods"]
+    assert not [p.name for p in out.iterdir() if p.name.startswith((".partial-", ".mosaic-tmp."))]
+    assert (out / small_eval["scenes"][0]["scene"] / "scene.json").exists()
+
+
 def test_min_keyframes_tops_up_from_scored_frames_spread_out():
     """Nothing stands out (flat scores), so nothing passes; the top-up takes the best scored positive frames,
     first those more than r candidates from one already taken."""
@@ -270,7 +288,8 @@ def test_min_keyframes_tops_up_from_scored_frames_spread_out():
             exp.append(f)
     assert res.chosen.tolist() == sorted(exp)
     assert any("fewer than K: 0 of 4" in n for n in res.notes) and any("filled 3" in n for n in res.notes)
-    assert sum(e["kind"] == "degraded" for e in tr.events) == 2
+    deg = [e["message"] for e in tr.events if e["kind"] == "degraded"]
+    assert len(deg) == 3 and "content prior is off" in deg[0]  # no images: said, then fewer than K, filled
     with pytest.raises(InputError, match="min_keyframes"):
         kf.KeyFrameConf.merged(keyframes=4, min_keyframes=5)
 
@@ -502,3 +521,58 @@ def test_evaluate_long_video_records(tiny_long_video):
     assert s["exhaustive"]["all"]["found"] == 1.0 and s["exhaustive"]["all"]["scored_candidates"] == 1.0
     assert s["iterative"]["all"]["scored_candidates"] == pytest.approx(0.25, abs=0.02)
     assert s["uniform"]["all"]["scored_candidates"] == 0.0
+
+
+# ------------------------------------------------------------------------------ content prior (issue 17)
+
+
+def test_edge_density_and_content_axis_exact():
+    flat = np.full((48, 64, 3), 128, np.uint8)
+    assert kf.edge_density(flat) == 0.0
+    bars = flat.copy()
+    bars[:, ::8] = 255  # vertical lines: edges on both sides of each
+    assert 0.1 < kf.edge_density(bars) <= 1.0
+    np.testing.assert_allclose(kf.content_axis(np.full(5, 0.3)), np.arange(5.0))  # flat: the index
+    # steps d/mean + floor = [2.1, 0.1, 0.1, 2.1]; neighbour distances [1.1, 0.1, 1.1] rescaled to span 3
+    np.testing.assert_allclose(kf.content_axis(np.array([0.2, 0.0, 0.0, 0.2]), floor=0.1),
+                               np.array([0.0, 1.1, 1.2, 2.3]) * 3 / 2.3)
+    assert kf.content_axis(np.zeros(4)).tolist() == [0.0, 1.0, 2.0, 3.0]  # nothing anywhere: the index
+    # distances along the axis: two empty candidates between two views sit next to each other
+    x = kf.content_axis(np.array([0.2, 0.0, 0.0, 0.2]), floor=0.1)
+    np.testing.assert_allclose(kf.gap_novelty(4, np.array([0]), power=1.0, axis=x), x / x.mean())
+    with pytest.raises(InputError, match="content_floor"):
+        kf.KeyFrameConf.merged(content_floor=0)
+
+
+def _walk(m: int = 600, seg: int = 50):
+    """Rooms (textured images) and empty corridors (flat grey), `seg` candidates each; a 4-candidate object
+    stretch in every room at a seeded place. Returns (images, table, stretches)."""
+    rng = np.random.default_rng(11)
+    tex = [rng.integers(0, 256, (48, 64, 3), dtype=np.uint8) for _ in range(8)]
+    imgs, starts = {}, []
+    for f in range(m):
+        room = (f // seg) % 2 == 0
+        imgs[f] = tex[f % 8] if room else np.full((48, 64, 3), 100, np.uint8)
+    for r0 in range(0, m, 2 * seg):
+        starts.append(r0 + int(rng.integers(0, seg - 4)))
+    table = _peaks_table(m, {f: 0.9 for s in starts for f in range(s, s + 4)})
+    return imgs, table, starts
+
+
+def test_content_prior_spends_the_detector_where_the_views_show_something():
+    """Half of the candidates are empty views: measured along the content axis the search explores the rooms
+    and finds more object stretches at 10% scored than the same search evenly in time, averaged over seeds;
+    it spends exactly the budget either way."""
+    imgs, table, starts = _walk()
+
+    def found(prior: bool) -> float:
+        hits = []
+        for seed in range(6):
+            conf = kf.KeyFrameConf.merged(keyframes=6, budget=60, seed=seed, content_prior=prior)
+            res = kf.iterative_search(range(600), ["tv"], [], table_detector(table), imgs.__getitem__, conf)
+            assert res.frames_scored == 60 == len(set(res.order))
+            hits.append(sum(any(s <= f < s + 4 for f in res.order) for s in starts))
+        return float(np.mean(hits))
+
+    on, off = found(True), found(False)
+    assert on >= off + 1.0 and on >= 4.5  # 6 stretches; evenly in time a 1-in-10 grid expects 2.4
