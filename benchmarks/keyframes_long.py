@@ -67,10 +67,7 @@ def _methods(K: int) -> dict[str, tuple[str, dict[str, Any]]]:
         out[f"iterative@{fr:.0%}"] = ("iterative", base)
         out[f"iterative kernels off@{fr:.0%}"] = ("iterative", {**base, "gain": 0.0})
         out[f"paper sampling@{fr:.0%}"] = ("iterative", {**base, **PAPER})
-        out[f"paper sampling kernels off@{fr:.0%}"] = ("iterative", {**base, **PAPER, "gain": 0.0})
         out[f"content prior off@{fr:.0%}"] = ("iterative", {**base, "content_prior": False})
-        out[f"content prior off, kernels off@{fr:.0%}"] = ("iterative", {**base, "content_prior": False,
-                                                                          "gain": 0.0})
         out[f"previous default@{fr:.0%}"] = ("iterative", {**base, **PREVIOUS})
     return out
 
@@ -159,8 +156,8 @@ def run_long(args: argparse.Namespace) -> dict[str, Any]:
     cache = Path(args.cache)
     videos = [(s, _video(s, cache)) for s in range(args.seed, args.seed + args.videos)]
     n_min = min(len(v) for _, v in videos)
-    main, sweeps = _confs(_methods(args.keyframes), args.keyframes), _confs(_sweeps(args.keyframes, n_min),
-                                                                           args.keyframes)
+    main = _confs(_methods(args.keyframes), args.keyframes)
+    sweeps = {} if args.no_sweeps else _confs(_sweeps(args.keyframes, n_min), args.keyframes)
     from mosaicthinker.runtime.keyframes import KeyFrameConf
 
     rec_o, rec_s, info = [], [], []
@@ -300,6 +297,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--ssd-videos", type=int, default=4)
     p.add_argument("--no-short", action="store_true")
     p.add_argument("--no-kitchen", action="store_true")
+    p.add_argument("--no-sweeps", action="store_true", help="only the method table (threshold, iterations, "
+                   "kernel-width sweeps off)")
     p.add_argument("--cache", default="/tmp/mosaic-keyframes-long", help="rendered videos, SSD answers, scenes")
     p.add_argument("--out", default=str(OUT))
     args = p.parse_args(argv)
