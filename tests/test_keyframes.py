@@ -48,7 +48,8 @@ def test_zscores_population_std_and_flat_input():
 
 
 def test_sigma_interpolates_between_one_over_k_and_r_over_k():
-    conf = kf.KeyFrameConf()  # r = 3, k = 2
+    assert (kf.KeyFrameConf().sigma_min, kf.KeyFrameConf().sigma_max) == (2.0, 6.0)  # default r = 3, k = 0.5
+    conf = kf.KeyFrameConf.merged(k=2.0)  # the paper's r = 3, k = 2
     assert (conf.sigma_min, conf.sigma_max) == (0.5, 1.5)
     assert kf.sigma_from_similarity(0.0, conf) == 0.5
     assert kf.sigma_from_similarity(0.5, conf) == 1.0
