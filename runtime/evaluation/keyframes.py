@@ -168,7 +168,7 @@ def _ensure_scene(conf: Any, out: Path, workers: int) -> dict[str, Any]:
     part = out.parent / f".partial-{out.name}-{os.getpid()}"
     shutil.rmtree(part, ignore_errors=True)
     try:
-        info = write_scene(conf, part, workers=workers, video=False)
+        info = write_scene(conf, part, workers=workers, video=False, name=out.name)
         if out.exists():
             out.rmdir()  # the empty folder checked above
         os.replace(part, out)
