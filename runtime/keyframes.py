@@ -13,8 +13,15 @@ the search decides *which* frames to score:
 3. Iterative temporal search. Each iteration draws a batch of not-yet-scored candidates (default batch: scoring
    budget / iterations, spread so that the total is exactly the budget) from a sampling distribution built from
    one Gaussian kernel per scored frame, at its candidate index, of width sigma interpolated linearly between
-   sigma_min = 1/k and sigma_max = r/k (candidate-index units) by the frame's mean colour-histogram similarity to
-   the candidates within +-r (r = 3, k = 2): a frame that looks like its neighbours spreads its evidence wider.
+   sigma_min = 1/k and sigma_max = r/k by the frame's mean colour-histogram similarity to the candidates within
+   +-r (r = 3; k = 2 in the paper, 0.5 here: chosen on the long-video benchmark's tuning seeds, see
+   docs/keyframes.md): a frame that looks like its neighbours spreads its evidence wider.
+   Distances (kernels, gaps) are measured along the **content axis** (`content_prior`, default on): every
+   candidate's edge density (`edge_density`, a cheap signal computed on every candidate, no detector call)
+   sets its step (`content_axis`), so empty views (bare walls, corridors) take almost no room and the
+   exploration spends the detector where the views can show something. Without images: the candidate index
+   (said in the notes and the trace). `grid_share` > 0 scores that share of the budget first as an even grid
+   along the axis (measured, off by default).
    `sampling`:
    - "expected" (default): the kernel-weighted expected score of every candidate (`expected_scores`,
      Nadaraya-Watson: near a positive frame its score, near zero-score frames ~0, elsewhere the mean score
@@ -79,7 +86,7 @@ class KeyFrameConf(StageConf):
     budget_fraction: float = 0.25   # paper: 26% of the frames on LV-Haystack
     batch: int | None = None        # frames per iteration; None -> budget spread evenly over the iterations
     r: int = 3                      # histogram neighbourhood (+-r candidates) and sigma_max = r / k
-    k: float = 2.0                  # sigma_min = 1 / k
+    k: float = 0.5                  # sigma_min = 1 / k (paper 2; 0.5 on the content axis, issue 17 sweep)
     gain: float = 1.0               # kernel amplitude for a frame with the maximum possible score
     target_weight: float = 1.0
     cue_weight: float = 0.5
@@ -94,6 +101,10 @@ class KeyFrameConf(StageConf):
     draw: str = "sequential"        # "sequential": each pick of a batch counts as explored; "iid": paper
     prior_weight: float = 1.0       # "expected": pseudo-observations of the mean score at every candidate
     novelty: float = 2.0            # "expected": prior weighted by (gap to the nearest scored frame) ** novelty
+    content_prior: bool = True      # distances along the content axis (edge density of every candidate)
+    content_floor: float = 0.01     # content axis: an empty view's step (the mean view's is 1 + floor)
+    grid_share: float = 0.0         # share of the budget scored first as an even grid along the axis
+    spread_passes: bool = False     # more passes than K: the best more than r candidates apart first
     seed: int = 0
     record_distributions: bool = False
 
@@ -125,6 +136,10 @@ class KeyFrameConf(StageConf):
                 raise InputError(f"key-frame config: {name} must be one of {', '.join(ok)} (got {val!r})")
         if self.prior_weight <= 0:
             raise InputError(f"key-frame config: prior_weight must be > 0 (got {self.prior_weight})")
+        if not 0 <= self.grid_share <= 1:
+            raise InputError(f"key-frame config: grid_share must be in [0, 1] (got {self.grid_share})")
+        if self.content_floor <= 0:
+            raise InputError(f"key-frame config: content_floor must be > 0 (got {self.content_floor})")
 
     @property
     def sigma_min(self) -> float:
@@ -246,9 +261,10 @@ def sampling_probabilities(weights: np.ndarray, scored: np.ndarray) -> np.ndarra
 
 
 def batch_sizes(budget: int, iterations: int, batch: int | None = None) -> list[int]:
-    """Frames to draw at each iteration: `batch` each, or the budget spread so that the total is exactly it."""
+    """Frames to draw at each iteration: `batch` each (never past the budget in total), or the budget spread so
+    that the total is exactly it: the budget is what the search spends, whatever the batch."""
     if batch is not None:
-        return [batch] * iterations
+        return [max(0, min(batch, budget - t * batch)) for t in range(iterations)]
     return [(t + 1) * budget // iterations - t * budget // iterations for t in range(iterations)]
 
 
@@ -258,30 +274,39 @@ def resolve_budget(n_candidates: int, conf: KeyFrameConf) -> int:
     return int(min(max(b, 1), n_candidates))
 
 
-def kernel_matrix(m: int, centres: np.ndarray, sigmas: np.ndarray) -> np.ndarray:
-    """[n, m] float64: row i is the unit-amplitude Gaussian of width sigmas[i] at candidate centres[i]."""
-    j = np.arange(m, dtype=np.float64)[None, :]
-    c = np.asarray(centres, np.float64)[:, None]
-    return np.exp(-0.5 * ((j - c) / np.asarray(sigmas, np.float64)[:, None]) ** 2)
+def _axis(m: int, axis: np.ndarray | None) -> np.ndarray:
+    """Candidate coordinates [m]: `axis` (a `content_axis`) or the candidate index itself."""
+    return np.arange(m, dtype=np.float64) if axis is None else np.asarray(axis, np.float64)
 
 
-def gap_novelty(m: int, centres: np.ndarray, power: float = 2.0) -> np.ndarray:
+def kernel_matrix(m: int, centres: np.ndarray, sigmas: np.ndarray, axis: np.ndarray | None = None) -> np.ndarray:
+    """[n, m] float64: row i is the unit-amplitude Gaussian of width sigmas[i] at candidate centres[i]
+    (distances along `axis`, default the candidate index)."""
+    x = _axis(m, axis)
+    c = x[np.asarray(centres, np.int64)][:, None]
+    return np.exp(-0.5 * ((x[None, :] - c) / np.asarray(sigmas, np.float64)[:, None]) ** 2)
+
+
+def gap_novelty(m: int, centres: np.ndarray, power: float = 2.0, axis: np.ndarray | None = None) -> np.ndarray:
     """[m] how unexplored each candidate is: (distance to the nearest scored candidate / its mean over the
     candidates) ** power; all ones before anything is scored. Weighting the prior by it sends exploration into
-    the widest unscored gaps first (coarse to fine) instead of anywhere at random."""
+    the widest unscored gaps first (coarse to fine) instead of anywhere at random. Distances along `axis`
+    (default the candidate index; `content_axis` stretches frames with content, shrinks empty views)."""
     c = np.asarray(centres, np.int64)
     if c.size == 0 or power == 0:
         return np.ones(m)
     c = np.sort(c)
     j = np.arange(m)
+    x = _axis(m, axis)
     k = np.searchsorted(c, j)  # nearest scored candidate: the one at or after j, or the one before
-    d = np.minimum(np.abs(c[np.minimum(k, len(c) - 1)] - j), np.abs(j - c[np.maximum(k - 1, 0)])).astype(np.float64)
+    d = np.minimum(np.abs(x[c[np.minimum(k, len(c) - 1)]] - x), np.abs(x - x[c[np.maximum(k - 1, 0)]]))
     mean = d.mean()
     return (d / mean) ** power if mean > 0 else np.ones(m)
 
 
 def expected_scores(m: int, centres: np.ndarray, scores: np.ndarray, sigmas: np.ndarray, gain: float = 1.0,
-                    prior_weight: float = 1.0, novelty: float = 0.0, parts: bool = False) -> Any:
+                    prior_weight: float = 1.0, novelty: float = 0.0, parts: bool = False,
+                    axis: np.ndarray | None = None) -> Any:
     """Kernel-weighted expected score [m] of every candidate from the frames scored so far (Nadaraya-Watson
     with a prior): (w0 * mean + gain * sum_i s_i G_i(j)) / (w0 + gain * sum_i G_i(j)).
 
@@ -291,17 +316,47 @@ def expected_scores(m: int, centres: np.ndarray, scores: np.ndarray, sigmas: np.
     set by the data: when positives are rare (a needle in a long video) the mean is small and the draws
     concentrate around them; when most frames are positive (a short walk in one room) it stays near uniform.
     `novelty` > 0 weights the prior by `gap_novelty` (coarse-to-fine exploration). parts=True returns
-    (numerator [m], denominator [m], mean [m]) without the novelty, for a caller that updates it."""
+    (numerator [m], denominator [m], mean [m]) without the novelty, for a caller that updates it. Distances
+    along `axis` (default the candidate index)."""
     s = np.asarray(scores, np.float64)
     mean = np.full(m, float(s.mean()) if s.size else 0.0)
     if s.size == 0 or gain <= 0:
         num, den = np.zeros(m), np.full(m, float(prior_weight))
     else:
-        G = gain * kernel_matrix(m, centres, sigmas)
+        G = gain * kernel_matrix(m, centres, sigmas, axis)
         num, den = s @ G, prior_weight + G.sum(0)
     if parts:  # (kernel numerator, denominator, mean): the caller applies its own novelty
         return num, den, mean
-    return (prior_weight * mean * gap_novelty(m, centres, novelty) + num) / den
+    return (prior_weight * mean * gap_novelty(m, centres, novelty, axis) + num) / den
+
+
+# -------------------------------------------------------------------------------- content prior (cheap)
+
+
+def edge_density(rgb: np.ndarray, size: int = 64) -> float:
+    """Share of edge pixels (Canny 50/150) in a `size`-wide grey copy of `rgb` [H, W, 3] uint8: how much a view
+    could show. A blank wall, floor or ceiling has almost none; any object adds outlines."""
+    h, w = rgb.shape[:2]
+    g = cv2.cvtColor(np.ascontiguousarray(rgb), cv2.COLOR_RGB2GRAY) if rgb.ndim == 3 else rgb
+    if w > size:
+        g = cv2.resize(g, (size, max(1, round(h * size / w))), interpolation=cv2.INTER_AREA)
+    return float((cv2.Canny(g, 50, 150) > 0).mean())
+
+
+def content_axis(density: np.ndarray, floor: float = 0.1) -> np.ndarray:
+    """Candidate coordinates [M] for the search: cumulative content, each candidate's step = its edge density
+    / the mean density + `floor` (so an empty view still takes a little room), rescaled to a mean step of 1
+    (x[0] = 0, x[-1] = M - 1; all equal densities give the candidate index). Exploration that is even along
+    this axis spends the detector where the views show something, instead of evenly in time."""
+    d = np.asarray(density, np.float64)
+    m = d.size
+    if m < 2:
+        return np.zeros(m)
+    mean = d.mean()
+    step = (d / mean if mean > 0 else np.ones(m)) + floor
+    mid = 0.5 * (step[1:] + step[:-1])  # the distance between neighbours: half of each one's share
+    x = np.concatenate([[0.0], np.cumsum(mid)])
+    return x * (m - 1) / x[-1]
 
 
 # ------------------------------------------------------------------------------------------- histograms
@@ -355,6 +410,19 @@ def top_k(frames: Sequence[int], scores: Mapping[int, float], k: int) -> np.ndar
     """The k highest-scoring `frames` (ties: earlier frame first), returned in time order [<=k] int64."""
     ranked = sorted(frames, key=lambda f: (-scores[f], f))[:k]
     return np.array(sorted(ranked), dtype=np.int64)
+
+
+def top_k_spread(frames: Sequence[int], scores: Mapping[int, float], k: int, position: Callable[[int], int],
+                 gap: int) -> np.ndarray:
+    """The k best `frames` by score, first only those more than `gap` candidate positions (`position(frame)`)
+    from every one taken, then the best of the rest; in time order [<=k] int64 (gap < 0: `top_k`)."""
+    ranked = sorted(frames, key=lambda f: (-scores[f], f))
+    out: list[int] = []
+    for f in ranked:
+        if len(out) < k and all(abs(position(f) - position(g)) > gap for g in out):
+            out.append(f)
+    out += [f for f in ranked if f not in out][:k - len(out)]
+    return np.array(sorted(out), dtype=np.int64)
 
 
 def _fill(chosen: list[int], scores: Mapping[int, float], candidates: np.ndarray, n: int, conf: KeyFrameConf,
@@ -454,8 +522,9 @@ class _Search:
     """State of one iterative search over M candidates: scored positions, their scores and kernel widths, the
     paper's sampling weights (`sampling="paper"`) and the passes of the threshold."""
 
-    def __init__(self, m: int, conf: KeyFrameConf, max_score: float):
+    def __init__(self, m: int, conf: KeyFrameConf, max_score: float, axis: np.ndarray | None = None):
         self.m, self.conf, self.max_score = m, conf, max_score
+        self.axis = axis                        # candidate coordinates (`content_axis`); None: the index
         self.w = np.ones(m, dtype=np.float64)   # paper: uniform start, + one kernel per scored frame
         self.scored = np.zeros(m, dtype=bool)
         self.pos: list[int] = []
@@ -480,10 +549,11 @@ class _Search:
             return sampling_probabilities(self.w, taken)
         pos = np.array(self.pos, np.int64)
         explored = np.concatenate([pos, np.asarray(pending, np.int64)])
-        nov = gap_novelty(self.m, explored, self.conf.novelty)
+        nov = gap_novelty(self.m, explored, self.conf.novelty, self.axis)
         if self._kernel_part is None:  # the scored frames' part is the same for the whole batch
             self._kernel_part = expected_scores(self.m, pos, np.array(self.score), np.array(self.sigma),
-                                                self.conf.gain, self.conf.prior_weight, 0.0, parts=True)
+                                                self.conf.gain, self.conf.prior_weight, 0.0, parts=True,
+                                                axis=self.axis)
         num, den, prior = self._kernel_part
         p = sampling_probabilities((self.conf.prior_weight * prior * nov + num) / den, taken)
         # nothing positive seen yet: explore by the gaps alone
@@ -505,6 +575,16 @@ class _Search:
             if len(picks) < size:
                 p = self.probabilities(picks)
         return np.array(picks, np.int64), p0
+
+    def grid(self, size: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+        """The first batch as an even grid of `size` along the axis (random offset; the candidate nearest each
+        point, each once): low discrepancy instead of random gaps. Returns (positions, uniform [M])."""
+        x = _axis(self.m, self.axis)
+        pts = (np.arange(size) + rng.random()) * (x[-1] - x[0]) / size + x[0]
+        k = np.clip(np.searchsorted(x, pts), 1, self.m - 1) if self.m > 1 else np.zeros(size, np.int64)
+        near = np.where(np.abs(x[k - 1] - pts) <= np.abs(x[k] - pts), k - 1, k) if self.m > 1 else k
+        picks = list(dict.fromkeys(int(j) for j in near))
+        return np.array(picks, np.int64), np.full(self.m, 1.0 / self.m)
 
     def threshold(self) -> None:
         """Judge every scored frame against all scores seen so far (z) or the raw score; a pass is kept."""
@@ -540,7 +620,8 @@ def iterative_search(candidates: Sequence[int], targets: Sequence[str], cues: Se
                      trace: Any | None = None,
                      histograms: MutableMapping[int, np.ndarray] | None = None,
                      prefetch: Callable[[Sequence[int]], None] | None = None,
-                     image_size: tuple[int, int] | None = None) -> KeyFrameResult:
+                     image_size: tuple[int, int] | None = None,
+                     densities: MutableMapping[int, float] | None = None) -> KeyFrameResult:
     """The paper's iterative temporal search over `candidates` [M] frame indices.
 
     detect(frame_index, names) -> Detections scores one frame; image(frame_index) -> [H, W, 3] uint8 RGB feeds
@@ -555,6 +636,9 @@ def iterative_search(candidates: Sequence[int], targets: Sequence[str], cues: Se
     candidates, and the decisions `keyframes.method`, `keyframes.frames_scored`.
     `image_size` (W, H) lets the `min_keyframes` top-up cover objects first (the largest box per name is kept
     per scored frame; see `_fill`); without it the top-up goes by score only.
+    `content_prior` (default on) reads every candidate's image once for its edge density (`edge_density`, a
+    Canny on a 64-px copy, ~0.1 ms; `densities` caches them per frame index) and measures every distance of
+    the search along `content_axis`: a cheap signal on every candidate, no detector call.
     """
     trace = as_trace(trace)
     conf = conf or KeyFrameConf()
@@ -574,19 +658,23 @@ def iterative_search(candidates: Sequence[int], targets: Sequence[str], cues: Se
     rng = np.random.default_rng(conf.seed)
     area = float(image_size[0] * image_size[1]) if image_size else None
     seen: dict[int, dict[str, float]] = {}     # frame -> name -> largest box area share (top-up coverage)
-    st = _Search(m, conf, sum(weights.values()))
+    notes = _budget_note(m, conf, trace)
+    axis = _content_axis(c, image, conf, notes, trace, densities)
+    st = _Search(m, conf, sum(weights.values()), axis)
     order: list[int] = []
     dists: list[np.ndarray] = []
-    notes = _budget_note(m, conf, trace)
     if hist is None:
         notes.append("no images given: every kernel uses sigma_min (histogram similarity unavailable)")
 
-    for size in batch_sizes(resolve_budget(m, conf), conf.iterations, conf.batch):
+    owed = 0  # frames a batch could not take (grid points on one candidate): the next batch spends them
+    for t, size in enumerate(_schedule(resolve_budget(m, conf), conf)):
         if st.scored.all():
             break
+        size += owed
         if size == 0:
             continue
-        batch, p = st.draw(size, rng)
+        batch, p = st.grid(size, rng) if t == 0 and conf.grid_share > 0 else st.draw(size, rng)
+        owed = size - len(batch)
         if conf.record_distributions:
             dists.append(p.copy())
         if prefetch is not None:
@@ -601,6 +689,35 @@ def iterative_search(candidates: Sequence[int], targets: Sequence[str], cues: Se
             st.add(pos, s, _kernel_sigma(pos, s, hist, conf))
         st.threshold()
     return _finish(c, st, order, conf, notes, trace, seen, dists)
+
+
+def _schedule(budget: int, conf: KeyFrameConf) -> list[int]:
+    """Frames per iteration: with `grid_share` > 0 the first iteration is that share of the budget (an even
+    grid, `_Search.grid`) and the rest is spread over the other iterations; else `batch_sizes`."""
+    if conf.grid_share <= 0 or conf.batch is not None or conf.iterations < 2:
+        return batch_sizes(budget, conf.iterations, conf.batch)
+    n0 = min(budget, max(1, int(round(conf.grid_share * budget))))
+    return [n0] + batch_sizes(budget - n0, conf.iterations - 1)
+
+
+def _content_axis(c: np.ndarray, image: ImageFn | None, conf: KeyFrameConf, notes: list[str], trace: Any,
+                  store: MutableMapping[int, float] | None) -> np.ndarray | None:
+    """The content axis of the candidates (`content_prior`): one edge density per candidate (`store`: frame
+    index -> density, may be shared between searches over the same video). Without images the search runs on
+    the candidate index, said in the notes and the trace. Only with `sampling="expected"` (the paper's rule
+    has no distances but its kernels')."""
+    if not conf.content_prior or conf.sampling != "expected":
+        return None
+    if image is None:
+        msg = "no images given: the content prior is off (the search explores evenly in time)"
+        notes.append(msg)
+        as_trace(trace).event("degraded", "key frames: " + msg, stage="keyframes")
+        return None
+    store = {} if store is None else store
+    for f in c:
+        if int(f) not in store:
+            store[int(f)] = edge_density(image(int(f)), conf.hist_size)
+    return content_axis(np.array([store[int(f)] for f in c]), conf.content_floor)
 
 
 def _kernel_sigma(pos: int, score: float, hist: _HistogramCache | None, conf: KeyFrameConf) -> float:
@@ -618,9 +735,14 @@ def _finish(c: np.ndarray, st: _Search, order: list[int], conf: KeyFrameConf, no
     m = len(c)
     frame_scores = {int(c[q]): s for q, s in zip(st.pos, st.score)}
     passed_frames = [int(c[q]) for q in st.passed]
-    chosen = top_k(passed_frames, frame_scores, conf.keyframes)
+    if conf.spread_passes:  # one frame per stretch first: several passes of one view add no new object
+        pos = {int(f): i for i, f in enumerate(c)}
+        chosen = top_k_spread(passed_frames, frame_scores, conf.keyframes, lambda f: pos[f], conf.r)
+    else:
+        chosen = top_k(passed_frames, frame_scores, conf.keyframes)
     if len(passed_frames) > conf.keyframes:
-        notes.append(f"{len(passed_frames)} frames passed the threshold: kept the top {conf.keyframes} by score")
+        how = "by score, more than r candidates apart first" if conf.spread_passes else "by score"
+        notes.append(f"{len(passed_frames)} frames passed the threshold: kept the top {conf.keyframes} {how}")
     if len(chosen) < conf.keyframes:
         msg = (f"fewer than K: {len(chosen)} of {conf.keyframes} key frames passed the threshold "
                f"({conf.threshold_mode} >= {conf.threshold}) after scoring {len(order)} of {m} candidates")
@@ -647,12 +769,13 @@ def select_keyframes(method: str, candidates: Sequence[int], targets: Sequence[s
                      trace: Any | None = None,
                      histograms: MutableMapping[int, np.ndarray] | None = None,
                      prefetch: Callable[[Sequence[int]], None] | None = None,
-                     image_size: tuple[int, int] | None = None) -> KeyFrameResult:
+                     image_size: tuple[int, int] | None = None,
+                     densities: MutableMapping[int, float] | None = None) -> KeyFrameResult:
     """Run one of `METHODS` ("iterative", "uniform", "random", "exhaustive") with the same inputs (`prefetch`,
-    `image_size`: see `iterative_search`)."""
+    `image_size`, `densities`: see `iterative_search`)."""
     if method == "iterative":
         return iterative_search(candidates, targets, cues, detect, image, conf, trace, histograms, prefetch,
-                                image_size)
+                                image_size, densities)
     if method == "uniform":
         return uniform_keyframes(candidates, conf)
     if method == "random":

@@ -164,7 +164,16 @@ def _ensure_scene(conf: Any, out: Path, workers: int) -> dict[str, Any]:
         raise InputError(f"{out}: holds a scene with another configuration; give another --out or delete it")
     if out.exists() and any(out.iterdir()):
         raise InputError(f"{out}: exists and is not a complete generated scene; delete it or give another --out")
-    info = write_scene(conf, out, workers=workers, video=False)
+    # rendered into a hidden sibling and renamed when complete: a killed run leaves no half-written scene
+    part = out.parent / f".partial-{out.name}-{os.getpid()}"
+    shutil.rmtree(part, ignore_errors=True)
+    try:
+        info = write_scene(conf, part, workers=workers, video=False, name=out.name)
+        if out.exists():
+            out.rmdir()  # the empty folder checked above
+        os.replace(part, out)
+    finally:
+        shutil.rmtree(part, ignore_errors=True)
     return {"generated": True, "seconds": info.get("seconds")}
 
 
@@ -264,6 +273,7 @@ def evaluate_scene(scene_dir: Path, level: str, args: argparse.Namespace,
     vocab = sorted({n for q in questions for n in parse_question(q["question"], q.get("options")).objects})
     det_fn, det_desc = _detector(scene_dir, args, image, vocab)
     histograms: dict[int, np.ndarray] = {}
+    densities: dict[int, float] = {}
     records: list[dict[str, Any]] = []
     skipped: dict[str, int] = {}
     for q in questions:
@@ -281,7 +291,8 @@ def evaluate_scene(scene_dir: Path, level: str, args: argparse.Namespace,
         detect = _Memo(det_fn)  # per question: every method sees identical detections
         for label, (m, conf) in methods.items():
             t0 = time.perf_counter()
-            res = select_keyframes(m, cands, pq.targets, pq.cues, detect, image, conf, histograms=histograms)
+            res = select_keyframes(m, cands, pq.targets, pq.cues, detect, image, conf, histograms=histograms,
+                                   densities=densities)
             sc = score_selection([int(f) for f in res.chosen], eligible, vis, args.min_visible)
             records.append({
                 "scene": meta["scene_name"], "level": level, "question": int(q.get("id", -1)),
@@ -313,6 +324,7 @@ def evaluate_long_video(video: Any, questions: list[dict[str, Any]], detect: Cal
     vis = video.visibility()
     cands = list(range(len(video)))
     histograms: dict[int, np.ndarray] = {}
+    densities: dict[int, float] = {}  # the content prior's edge densities, once per frame for every question
     records = []
     for q in questions:
         memo = _Memo(detect)  # every method sees identical detections
@@ -320,7 +332,7 @@ def evaluate_long_video(video: Any, questions: list[dict[str, Any]], detect: Cal
             qc = dataclasses.replace(conf, seed=1000 * int(seed) + int(q["id"]))
             t0 = time.perf_counter()
             res = select_keyframes(m, cands, q["targets"], q["cues"], memo, lambda f: video.rgb[f], qc,
-                                   histograms=histograms, image_size=video.size)
+                                   histograms=histograms, image_size=video.size, densities=densities)
             sc = score_selection([int(f) for f in res.chosen], set(q["instances"]), vis, min_visible)
             found = score_selection(res.order, set(q["instances"]), vis, min_visible).recall if res.order \
                 else sc.recall
@@ -389,6 +401,10 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         methods[label] = ("iterative", KeyFrameConf.merged({**over, **vo, "keyframes": args.keyframes}))
     t0 = time.perf_counter()
     tmp = None
+    if args.out:
+        from ..outputs import check_out_dir
+
+        check_out_dir(Path(args.out))  # before generating and evaluating, not after
     root = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix="mosaic-kf-"))
     if not args.out:
         tmp = root
@@ -420,6 +436,10 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     }
     if args.records:
         out["records"] = records
+    if args.out:  # the result beside the scenes, written atomically (locked, temp file + rename, run.json)
+        from ..outputs import write_group
+
+        write_group(args.out, [("keyframes_json", "keyframes.json", dict(out))], out)
     return out
 
 
