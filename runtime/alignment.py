@@ -224,22 +224,21 @@ def align_pair_essential(m: Matches, depth_a: np.ndarray, K_a: np.ndarray, depth
     sel = np.arange(n)
     if conf.essential_matches and n > conf.essential_matches:
         sel = np.argsort(-m.scores, kind="stable")[:conf.essential_matches]
+    elif conf.essential_method == "magsac-prosac":  # PROSAC samples the best scores first
+        sel = np.argsort(-m.scores, kind="stable")
     uva, uvb = m.uv0[sel].astype(np.float64), m.uv1[sel].astype(np.float64)
     xa = cv2.undistortPoints(uva.reshape(-1, 1, 2), K_a, None if dist_a is None else np.asarray(dist_a, float))
     xb = cv2.undistortPoints(uvb.reshape(-1, 1, 2), K_b, None if dist_b is None else np.asarray(dist_b, float))
     xa, xb = xa.reshape(-1, 2), xb.reshape(-1, 2)
     f = 0.25 * (K_a[0, 0] + K_a[1, 1] + K_b[0, 0] + K_b[1, 1])
     px = conf.essential_px if conf.essential_px is not None else 1.0
-    method = {"magsac": cv2.USAC_MAGSAC, "accurate": cv2.USAC_ACCURATE, "ransac": cv2.RANSAC}.get(
-        conf.essential_method)
-    if method is None:
-        raise InputError(f"alignment config: essential_method must be 'magsac', 'accurate' or 'ransac', got "
-                         f"{conf.essential_method!r}")
-    E, mask = cv2.findEssentialMat(xa, xb, np.eye(3), method=method, prob=0.999,
-                                   threshold=px / f)
+    E, mask = _find_essential(xa, xb, px / f, conf.essential_method)
     if E is None or E.shape[0] < 3:
         return fail("no essential matrix", len(sel))
-    ninl, R, t, mask2 = cv2.recoverPose(E[:3], xa, xb, np.eye(3), mask=mask.copy())
+    q0 = np.flatnonzero(mask.ravel())  # cheirality test on the RANSAC inliers only (same result, less work)
+    _n, R, t, m2 = cv2.recoverPose(E[:3], xa[q0], xb[q0], np.eye(3))
+    mask2 = np.zeros(len(sel), np.uint8)
+    mask2[q0[m2.ravel() > 0]] = 1
     inl = mask2.ravel() > 0
     ninl = int(inl.sum())
     if ninl < conf.min_inliers:
@@ -278,6 +277,27 @@ def align_pair_essential(m: Matches, depth_a: np.ndarray, K_a: np.ndarray, depth
         T[:3, :3] = (s_a / s_b) * R.T
         T[:3, 3] = -s_a * (R.T @ t)
     return PairResult(T, True, n, nv, ninl, spread, time.perf_counter() - t0, scale_a=s_a, scale_b=s_b)
+
+
+def _find_essential(xa: np.ndarray, xb: np.ndarray, thr: float, method: str) -> tuple[Any, Any]:
+    """Robust essential matrix of normalised correspondences xa, xb [N, 2] -> (E, mask). "magsac":
+    cv2.USAC_MAGSAC; "accurate": cv2.USAC_ACCURATE; "ransac": cv2.RANSAC; "magsac-prosac": MAGSAC++ scoring and
+    sigma consensus with PROSAC sampling over the score order (xa, xb best first) - measured on 7-Scenes + XFeat
+    K=32: 22% less CPU for the edges but ATE 0.089 m against 0.065-0.085 m for "magsac" over 5 match orders, so
+    not the default."""
+    import cv2
+
+    if method == "magsac-prosac":
+        p = cv2.UsacParams()
+        p.confidence, p.maxIterations, p.threshold = 0.999, 1000, thr
+        p.sampler, p.score, p.loMethod = cv2.SAMPLING_PROSAC, cv2.SCORE_METHOD_MAGSAC, cv2.LOCAL_OPTIM_SIGMA
+        I3, z = np.eye(3), np.zeros(5)
+        return cv2.findEssentialMat(xa, xb, I3, I3, z, z, params=p)
+    flag = {"magsac": cv2.USAC_MAGSAC, "accurate": cv2.USAC_ACCURATE, "ransac": cv2.RANSAC}.get(method)
+    if flag is None:
+        raise InputError(f"alignment config: essential_method must be 'magsac', 'accurate', 'ransac' or "
+                         f"'magsac-prosac', got {method!r}")
+    return cv2.findEssentialMat(xa, xb, np.eye(3), method=flag, prob=0.999, threshold=thr)
 
 
 def refine_essential(R: np.ndarray, t: np.ndarray, xa: np.ndarray, xb: np.ndarray, scale: float,
