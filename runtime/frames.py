@@ -683,7 +683,7 @@ class VideoSource(FrameSource):
             ts.append(ms / 1000.0 if ms > 0 or not ts else (len(ts) / fps if fps > 0 else float(len(ts))))
             if od is not None and od.wants(ts[-1]):  # online redundant-frame removal: this frame is sampled
                 ok, bgr = cap.retrieve()
-                if not ok or bgr is None:
+                if not ok or bgr is None or min(bgr.shape[:2]) < MIN_FRAME_SIDE:  # _set_size says why below
                     od = None
                 else:
                     od.push(len(ts) - 1, _small_gray_bgr(bgr, od.conf.work_width))
