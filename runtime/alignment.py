@@ -225,22 +225,21 @@ def align_pair_essential(m: Matches, depth_a: np.ndarray, K_a: np.ndarray, depth
     sel = np.arange(n)
     if conf.essential_matches and n > conf.essential_matches:
         sel = np.argsort(-m.scores, kind="stable")[:conf.essential_matches]
+    elif conf.essential_method == "magsac-prosac":  # PROSAC samples the best scores first
+        sel = np.argsort(-m.scores, kind="stable")
     uva, uvb = m.uv0[sel].astype(np.float64), m.uv1[sel].astype(np.float64)
     xa = cv2.undistortPoints(uva.reshape(-1, 1, 2), K_a, None if dist_a is None else np.asarray(dist_a, float))
     xb = cv2.undistortPoints(uvb.reshape(-1, 1, 2), K_b, None if dist_b is None else np.asarray(dist_b, float))
     xa, xb = xa.reshape(-1, 2), xb.reshape(-1, 2)
     f = 0.25 * (K_a[0, 0] + K_a[1, 1] + K_b[0, 0] + K_b[1, 1])
     px = conf.essential_px if conf.essential_px is not None else 1.0
-    method = {"magsac": cv2.USAC_MAGSAC, "accurate": cv2.USAC_ACCURATE, "ransac": cv2.RANSAC}.get(
-        conf.essential_method)
-    if method is None:
-        raise InputError(f"alignment config: essential_method must be 'magsac', 'accurate' or 'ransac', got "
-                         f"{conf.essential_method!r}")
-    E, mask = cv2.findEssentialMat(xa, xb, np.eye(3), method=method, prob=0.999,
-                                   threshold=px / f)
+    E, mask = _find_essential(xa, xb, px / f, conf.essential_method)
     if E is None or E.shape[0] < 3:
         return fail("no essential matrix", len(sel))
-    ninl, R, t, mask2 = cv2.recoverPose(E[:3], xa, xb, np.eye(3), mask=mask.copy())
+    q0 = np.flatnonzero(mask.ravel())  # cheirality test on the RANSAC inliers only (same result, less work)
+    _n, R, t, m2 = cv2.recoverPose(E[:3], xa[q0], xb[q0], np.eye(3))
+    mask2 = np.zeros(len(sel), np.uint8)
+    mask2[q0[m2.ravel() > 0]] = 1
     inl = mask2.ravel() > 0
     ninl = int(inl.sum())
     if ninl < conf.min_inliers:
@@ -281,40 +280,106 @@ def align_pair_essential(m: Matches, depth_a: np.ndarray, K_a: np.ndarray, depth
     return PairResult(T, True, n, nv, ninl, spread, time.perf_counter() - t0, scale_a=s_a, scale_b=s_b)
 
 
-def refine_essential(R: np.ndarray, t: np.ndarray, xa: np.ndarray, xb: np.ndarray, scale: float
-                     ) -> tuple[np.ndarray, np.ndarray]:
+def _find_essential(xa: np.ndarray, xb: np.ndarray, thr: float, method: str) -> tuple[Any, Any]:
+    """Robust essential matrix of normalised correspondences xa, xb [N, 2] -> (E, mask). "magsac":
+    cv2.USAC_MAGSAC; "accurate": cv2.USAC_ACCURATE; "ransac": cv2.RANSAC; "magsac-prosac": MAGSAC++ scoring and
+    sigma consensus with PROSAC sampling over the score order (xa, xb best first) - measured on 7-Scenes + XFeat
+    K=32: 22% less CPU for the edges but ATE 0.089 m against 0.065-0.085 m for "magsac" over 5 match orders, so
+    not the default."""
+    import cv2
+
+    if method == "magsac-prosac":
+        p = cv2.UsacParams()
+        p.confidence, p.maxIterations, p.threshold = 0.999, 1000, thr
+        p.sampler, p.score, p.loMethod = cv2.SAMPLING_PROSAC, cv2.SCORE_METHOD_MAGSAC, cv2.LOCAL_OPTIM_SIGMA
+        I3, z = np.eye(3), np.zeros(5)
+        return cv2.findEssentialMat(xa, xb, I3, I3, z, z, params=p)
+    flag = {"magsac": cv2.USAC_MAGSAC, "accurate": cv2.USAC_ACCURATE, "ransac": cv2.RANSAC}.get(method)
+    if flag is None:
+        raise InputError(f"alignment config: essential_method must be 'magsac', 'accurate', 'ransac' or "
+                         f"'magsac-prosac', got {method!r}")
+    return cv2.findEssentialMat(xa, xb, np.eye(3), method=flag, prob=0.999, threshold=thr)
+
+
+def refine_essential(R: np.ndarray, t: np.ndarray, xa: np.ndarray, xb: np.ndarray, scale: float,
+                     iterations: int = 20) -> tuple[np.ndarray, np.ndarray]:
     """Least-squares refinement of a relative pose (x_b = R x_a + t, |t| = 1) on inlier correspondences in
     normalised coordinates xa, xb [N, 2]: Sampson error, Huber loss at `scale`, rotation as a rotation vector
-    update and t on the unit sphere (2 tangent directions). Returns (R [3, 3], t [3])."""
-    from scipy.optimize import least_squares
+    update and t on the unit sphere (2 tangent directions). Returns (R [3, 3], t [3]).
 
-    from .geometry import rotation_about
-
+    Levenberg-Marquardt with Huber IRLS weights (the minimum of scipy's least_squares(loss="huber") on the same
+    residuals); the Jacobian by forward differences, all 6 residual vectors in one batched evaluation (was
+    scipy's trf with one Python call per difference: ~50 ms a pair, now ~1 ms)."""
     ha = np.hstack([xa, np.ones((len(xa), 1))])
     hb = np.hstack([xb, np.ones((len(xb), 1))])
     u = np.cross(t, [1.0, 0, 0] if abs(t[0]) < 0.9 else [0, 1.0, 0])
     u /= np.linalg.norm(u)
     v = np.cross(t, u)
+    p = np.zeros(5)
+    r = _sampson_batch(R, t, u, v, p[None], ha, hb)[0]
+    cost = _huber_cost(r, scale)
+    lam, eps = 1e-3, 1e-7
+    for _ in range(iterations):
+        P = np.vstack([p, p + eps * np.eye(5)])
+        rr = _sampson_batch(R, t, u, v, P, ha, hb)          # [6, N]
+        J = (rr[1:] - rr[0]).T / eps                        # [N, 5]
+        a = np.abs(rr[0])
+        w = np.where(a <= scale, 1.0, scale / np.maximum(a, 1e-300))  # Huber IRLS weights
+        A = J.T @ (J * w[:, None])
+        g = J.T @ (w * rr[0])
+        improved = False
+        for _ in range(6):
+            step = np.linalg.solve(A + lam * np.diag(np.diag(A) + 1e-12), -g)
+            r_new = _sampson_batch(R, t, u, v, (p + step)[None], ha, hb)[0]
+            c_new = _huber_cost(r_new, scale)
+            if c_new < cost:
+                gain = cost - c_new
+                p, cost, lam, improved = p + step, c_new, max(lam / 3, 1e-9), True
+                break
+            lam *= 4
+        if not improved or gain < 1e-8 * cost:  # converged (scipy's ftol default)
+            break
+    return _pose_update(R, t, u, v, p[None])
 
-    def pose(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        w = p[:3]
-        a = float(np.linalg.norm(w))
-        Rn = (rotation_about(w / a, a) if a > 1e-12 else np.eye(3)) @ R
-        tn = t + p[3] * u + p[4] * v
-        return Rn, tn / np.linalg.norm(tn)
 
-    def res(p: np.ndarray) -> np.ndarray:
-        Rn, tn = pose(p)
-        tx = np.array([[0, -tn[2], tn[1]], [tn[2], 0, -tn[0]], [-tn[1], tn[0], 0]])
-        E = tx @ Rn
-        Ea = ha @ E.T   # E x_a
-        Eb = hb @ E     # E^T x_b
-        num = np.sum(hb * Ea, 1)
-        den = np.sqrt(Ea[:, 0]**2 + Ea[:, 1]**2 + Eb[:, 0]**2 + Eb[:, 1]**2) + 1e-12
-        return num / den
+def _huber_cost(r: np.ndarray, scale: float) -> float:
+    a = np.abs(r)
+    return float(np.sum(np.where(a <= scale, 0.5 * r * r, scale * a - 0.5 * scale * scale)))
 
-    sol = least_squares(res, np.zeros(5), loss="huber", f_scale=scale, method="trf", max_nfev=50)
-    return pose(sol.x)
+
+def _pose_update(R: np.ndarray, t: np.ndarray, u: np.ndarray, v: np.ndarray, P: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """Parameter rows P [B, 5] (rotation vector, two tangent steps of t) -> R [B, 3, 3], t [B, 3] (one row: unbatched)."""
+    w = P[:, :3]
+    ang = np.linalg.norm(w, axis=1)
+    k = w / np.where(ang > 1e-12, ang, 1.0)[:, None]
+    Kx = np.zeros((len(P), 3, 3))
+    Kx[:, 0, 1], Kx[:, 0, 2], Kx[:, 1, 2] = -k[:, 2], k[:, 1], -k[:, 0]
+    Kx -= Kx.transpose(0, 2, 1)
+    s, c = np.sin(ang)[:, None, None], (1 - np.cos(ang))[:, None, None]
+    Rn = (np.eye(3) + s * Kx + c * (Kx @ Kx)) @ R
+    tn = t + P[:, 3:4] * u + P[:, 4:5] * v
+    tn /= np.linalg.norm(tn, axis=1, keepdims=True)
+    if len(P) == 1:
+        return Rn[0], tn[0]
+    return Rn, tn
+
+
+def _sampson_batch(R: np.ndarray, t: np.ndarray, u: np.ndarray, v: np.ndarray, P: np.ndarray, ha: np.ndarray,
+                   hb: np.ndarray) -> np.ndarray:
+    """Signed Sampson errors [B, N] of homogeneous correspondences ha, hb [N, 3] for the poses of P [B, 5]."""
+    B = len(P)
+    Rn, tn = _pose_update(R, t, u, v, P)
+    Rn, tn = Rn.reshape(B, 3, 3), tn.reshape(B, 3)
+    tx = np.zeros((B, 3, 3))
+    tx[:, 0, 1], tx[:, 0, 2], tx[:, 1, 2] = -tn[:, 2], tn[:, 1], -tn[:, 0]
+    tx -= tx.transpose(0, 2, 1)
+    E = tx @ Rn                                                   # [B, 3, 3]
+    Ea = (ha @ E.reshape(3 * B, 3).T).reshape(len(ha), B, 3)      # E x_a, one GEMM for the batch
+    Eb = (hb @ E.transpose(1, 0, 2).reshape(3, 3 * B)).reshape(len(hb), B, 3)  # E^T x_b
+    num = np.einsum("nj,nbj->bn", hb, Ea)
+    den = np.sqrt(Ea[..., 0]**2 + Ea[..., 1]**2 + Eb[..., 0]**2 + Eb[..., 1]**2).T + 1e-12
+    return num / den
 
 
 def essential_frame_scales(n: int, root: int, edges: Mapping[tuple[int, int], PairResult],

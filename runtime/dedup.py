@@ -109,34 +109,134 @@ def _small_gray(rgb: np.ndarray, width: int) -> np.ndarray:
     return g
 
 
-def orb_track(g0: np.ndarray, g1: np.ndarray, n_features: int = 500) -> tuple[float, float]:
-    """Track ORB keypoints from gray image g0 to g1 ([H, W] uint8): (fraction of g0's keypoints with a mutual,
-    ratio-tested match, median displacement in pixels). (0, inf) when nothing can be tracked."""
+def orb_features(g: np.ndarray, n_features: int = 500) -> tuple[Any, Any]:
+    """ORB keypoints and descriptors of a gray image [H, W] uint8 (computed once per frame: a kept frame's
+    features are reused as the reference of the next comparisons)."""
     import cv2
 
-    orb = cv2.ORB_create(nfeatures=n_features, fastThreshold=12)
-    k0, d0 = orb.detectAndCompute(g0, None)
-    k1, d1 = orb.detectAndCompute(g1, None)
+    return cv2.ORB_create(nfeatures=n_features, fastThreshold=12).detectAndCompute(g, None)
+
+
+def orb_track(g0: np.ndarray, g1: np.ndarray, n_features: int = 500, f0: Any = None, f1: Any = None
+              ) -> tuple[float, float]:
+    """Track ORB keypoints from gray image g0 to g1 ([H, W] uint8): (fraction of g0's keypoints with a mutual,
+    ratio-tested match, median displacement in pixels). (0, inf) when nothing can be tracked. f0/f1: their
+    `orb_features` when already computed."""
+    import cv2
+
+    k0, d0 = f0 if f0 is not None else orb_features(g0, n_features)
+    k1, d1 = f1 if f1 is not None else orb_features(g1, n_features)
     if d0 is None or d1 is None or len(k0) < 8 or len(k1) < 2:
         return 0.0, float("inf")
     bf = cv2.BFMatcher(cv2.NORM_HAMMING)
-    back = {m.queryIdx: m.trainIdx for m in bf.match(d1, d0)}
-    disp = []
-    for ms in bf.knnMatch(d0, d1, k=2):
-        if len(ms) < 2:
-            continue
-        m, n = ms
-        if m.distance < 0.8 * n.distance and back.get(m.trainIdx) == m.queryIdx:
-            disp.append(np.hypot(*(np.subtract(k1[m.trainIdx].pt, k0[m.queryIdx].pt))))
-    if not disp:
+    m10 = bf.match(d1, d0)
+    back_q = np.array([m.queryIdx for m in m10], int)
+    back_t = np.array([m.trainIdx for m in m10], int)
+    best_back = np.full(len(k1), -1)
+    best_back[back_q] = back_t  # k1 -> its best k0
+    rows = [(m.queryIdx, m.trainIdx, m.distance, n.distance) for m, n in
+            (ms for ms in bf.knnMatch(d0, d1, k=2) if len(ms) >= 2)]
+    if not rows:
         return 0.0, float("inf")
-    return len(disp) / len(k0), float(np.median(disp))
+    q, t, dm, dn = (np.array(c) for c in zip(*rows))
+    q, t = q.astype(int), t.astype(int)
+    good = (dm < 0.8 * dn) & (best_back[t] == q)  # ratio test + mutual best match
+    if not good.any():
+        return 0.0, float("inf")
+    p0, p1 = cv2.KeyPoint_convert(k0), cv2.KeyPoint_convert(k1)
+    disp = np.hypot(*(p1[t[good]] - p0[q[good]]).T.astype(np.float64))
+    return int(good.sum()) / len(k0), float(np.median(disp))
+
+
+class OnlineDedup:
+    """Redundant-frame removal one frame at a time, in time order (steps 1-3 of the module docstring): a video
+    reader can run it while it decodes (`frames.VideoSource` does, in the scan it makes on opening), so the
+    video is decoded once and only the sampled frames are converted, as small gray images.
+
+    `wants(t)` says whether the frame at time t is sampled (call it for every frame, in order); `push(index,
+    gray)` gives the sampled frame's small gray image (`small_gray`); `result(n, index_at)` the DedupResult."""
+
+    def __init__(self, conf: DedupConf | Mapping[str, Any] | None = None):
+        self.conf = DedupConf.merged(conf)
+        self.sampled: list[int] = []    # positions
+        self.kept: list[int] = []       # frame indices
+        self.dropped: dict[int, str] = {}
+        self.scores: dict[int, dict[str, float]] = {}
+        self.n_cand = self.n_dup = 0
+        self._pos = -1
+        self._next_t = -np.inf
+        self._last: tuple[int, np.ndarray, Any] | None = None  # (index, gray, ORB features) of the last kept
+
+    def wants(self, t: float) -> bool:
+        self._pos += 1
+        c = self.conf
+        if c.sample_fps:
+            if t >= self._next_t - 1e-9:
+                self._next_t = t + 1.0 / c.sample_fps
+            else:
+                return False
+        elif self._pos % max(1, int(c.stride)):
+            return False
+        self.sampled.append(self._pos)
+        return True
+
+    def push(self, index: int, g: np.ndarray) -> bool:
+        """The sampled frame's gray image [h, w] uint8 (width <= work_width) -> True when it is kept."""
+        c = self.conf
+        feats = orb_features(g, c.orb_features)
+        if self._last is None:
+            self._last = (index, g, feats)
+            self.kept.append(index)
+            return True
+        i0, g0, f0 = self._last
+        if g.shape != g0.shape:
+            raise InputError(f"frame {index}: size {g.shape} differs from the previous frame {g0.shape}")
+        tracked, motion = orb_track(g0, g, c.orb_features, f0, feats)
+        sc = {"tracked": round(tracked, 4), "motion_px": round(motion, 2) if np.isfinite(motion) else None}
+        self.scores[index] = sc
+        if tracked >= c.min_tracked and motion <= c.max_motion * g.shape[1]:
+            self.n_cand += 1
+            s = ssim(g0, g)
+            sc["ssim"] = round(s, 4)
+            if s >= c.ssim_threshold:
+                self.n_dup += 1
+                self.dropped[index] = (f"near-duplicate of frame {i0} (SSIM {s:.3f} >= {c.ssim_threshold}; ORB "
+                                       f"tracked {tracked:.0%}, motion {motion:.1f} px)")
+                return False
+        self.kept.append(index)
+        self._last = (index, g, feats)
+        return True
+
+    def result(self, n: int, index_at: Any) -> DedupResult:
+        """DedupResult over n frames (positions 0..n-1; index_at(position) -> frame index)."""
+        c = self.conf
+        why = f"downsampled to {c.sample_fps} fps" if c.sample_fps else f"downsampled (stride {c.stride})"
+        sset = set(self.sampled)
+        dropped = dict(self.dropped)
+        for p in range(n):
+            if p not in sset:
+                dropped[index_at(p)] = why
+        counts = {"input": n, "after_downsampling": len(self.sampled), "downsampled_away": n - len(self.sampled),
+                  "candidates": self.n_cand, "near_duplicates": self.n_dup, "kept": len(self.kept)}
+        return DedupResult(list(self.kept), dict(sorted(dropped.items())), counts, dict(self.scores))
+
+
+def small_gray(rgb: np.ndarray, width: int, bgr: bool = False) -> np.ndarray:
+    """Gray image [h, w] uint8 at most `width` wide (INTER_AREA) of an RGB (or BGR) image [H, W, 3]."""
+    import cv2
+
+    if rgb.ndim == 3:
+        rgb = cv2.cvtColor(np.ascontiguousarray(rgb), cv2.COLOR_BGR2GRAY if bgr else cv2.COLOR_RGB2GRAY)
+    return _small_gray(rgb, width)
 
 
 def remove_redundant(source_or_frames: Any, conf: DedupConf | Mapping[str, Any] | None = None,
                      trace: Any = None) -> DedupResult:
     """Drop redundant frames of a FrameSource (or a sequence of Frames, with .rgb, .t, .index).
-    Returns DedupResult with the kept frame indices and a reason for every dropped one."""
+    Returns DedupResult with the kept frame indices and a reason for every dropped one.
+
+    A source that already ran the same removal while decoding (`online_dedup()`: VideoSource's opening scan,
+    with the same config) gives its result without decoding the video again."""
     trace = as_trace(trace)
     conf = DedupConf.merged(conf)
     src = source_or_frames
@@ -144,57 +244,25 @@ def remove_redundant(source_or_frames: Any, conf: DedupConf | Mapping[str, Any] 
     if n == 0:
         raise InputError("remove_redundant: no frames")
     is_source = hasattr(src, "timestamps")  # a FrameSource (else a plain sequence of Frames)
+    online = getattr(src, "online_dedup", None) if is_source else None
+    res = online(conf) if online is not None else None
+    if res is not None:
+        trace.decide("dedup.online", True)
+        trace.decide("dedup.counts", res.counts)
+        return res
     ts = np.asarray(src.timestamps if is_source else [f.t for f in src], dtype=np.float64)
-    get = src.__getitem__
 
     def index_at(p: int) -> int:
         return src.index_of(p) if is_source else int(src[p].index)
 
-    # 1. uniform down-sampling by time (robust to uneven timestamps) or stride
-    if conf.sample_fps:
-        sampled, next_t = [], -np.inf
-        for i, t in enumerate(ts):
-            if t >= next_t - 1e-9:
-                sampled.append(i)
-                next_t = t + 1.0 / conf.sample_fps
-    else:
-        sampled = list(range(0, n, max(1, int(conf.stride))))
-    sset = set(sampled)
-    dropped: dict[int, str] = {}
-    # no prefetch of all sampled frames: it would decode them once into a bounded cache that evicts the first
-    # ones, and the loop below would then seek back and decode everything again; reading in increasing order
-    # decodes a video exactly once, forward
-    idx_of = {p: index_at(p) for p in sampled}
-    why = f"downsampled to {conf.sample_fps} fps" if conf.sample_fps else f"downsampled (stride {conf.stride})"
-    for p in range(n):
-        if p not in sset:
-            dropped[index_at(p)] = why
-    # 2.-3. ORB tracking against the last kept frame, SSIM on candidates
-    kept = [sampled[0]]
-    g_last = _small_gray(get(sampled[0]).rgb, conf.work_width)
-    scores: dict[int, dict[str, float]] = {}
-    n_cand = n_dup = 0
-    for p in sampled[1:]:
-        g = _small_gray(get(p).rgb, conf.work_width)
-        if g.shape != g_last.shape:
-            raise InputError(f"frame {idx_of[p]}: size {g.shape} differs from the previous frame {g_last.shape}")
-        tracked, motion = orb_track(g_last, g, conf.orb_features)
-        sc = {"tracked": round(tracked, 4), "motion_px": round(motion, 2) if np.isfinite(motion) else None}
-        if tracked >= conf.min_tracked and motion <= conf.max_motion * g.shape[1]:
-            n_cand += 1
-            s = ssim(g_last, g)
-            sc["ssim"] = round(s, 4)
-            if s >= conf.ssim_threshold:
-                n_dup += 1
-                dropped[idx_of[p]] = (f"near-duplicate of frame {idx_of[kept[-1]]} (SSIM {s:.3f} >= "
-                                      f"{conf.ssim_threshold}; ORB tracked {tracked:.0%}, motion {motion:.1f} px)")
-                scores[idx_of[p]] = sc
-                continue
-        scores[idx_of[p]] = sc
-        kept.append(p)
-        g_last = g
-    counts = {"input": n, "after_downsampling": len(sampled), "downsampled_away": n - len(sampled),
-              "candidates": n_cand, "near_duplicates": n_dup, "kept": len(kept)}
-    res = DedupResult([idx_of[p] for p in kept], dict(sorted(dropped.items())), counts, scores)
-    trace.decide("dedup.counts", counts)
+    # reading in increasing order decodes a video exactly once, forward (no prefetch into an evicting cache);
+    # sources with a `gray(position, width)` read skip the colour conversion and the frame cache
+    gray = getattr(src, "gray", None) if is_source else None
+    od = OnlineDedup(conf)
+    for p, t in enumerate(ts):
+        if od.wants(float(t)):
+            g = gray(p, conf.work_width) if gray is not None else _small_gray(src[p].rgb, conf.work_width)
+            od.push(index_at(p), g)
+    res = od.result(n, index_at)
+    trace.decide("dedup.counts", res.counts)
     return res

@@ -345,6 +345,13 @@ class FrameSource:
         """Frame index of the frame at `position` (the same for sources; FrameList keeps its frames' indices)."""
         return int(position)
 
+    def gray(self, position: int, width: int) -> np.ndarray:
+        """Gray image [h, w] uint8, at most `width` wide, of the frame at `position` (redundant-frame removal;
+        sources that can decode it more cheaply than the colour frame override this)."""
+        from .dedup import small_gray
+
+        return small_gray(self[position].rgb, width)
+
     def prefetch(self, indices: Sequence[int]) -> None:
         """Hint that these frames are needed soon (the video source decodes them in one forward pass)."""
 
@@ -625,6 +632,16 @@ class ImageFolderSource(FrameSource):
         return Frame(_downscale(rgb, self.scale), float(self.timestamps[i]), i, self.K)
 
 
+def _small_gray_bgr(bgr: np.ndarray, width: int, scale: float = 1.0) -> np.ndarray:
+    """Gray [h, w] uint8 of a decoded BGR frame, downscaled like the colour frame, then to at most `width`."""
+    import cv2
+
+    from .dedup import small_gray
+
+    g = cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY)
+    return small_gray(_downscale(g, scale) if scale != 1.0 else g, width)
+
+
 class VideoSource(FrameSource):
     """A video decoded sequentially with OpenCV.
 
@@ -644,7 +661,7 @@ class VideoSource(FrameSource):
 
     def __init__(self, path: Path, hfov_deg: float = 60.0, K: np.ndarray | None = None,
                  dist: np.ndarray | None = None, cache_size: int = 64, max_frames: int | None = None,
-                 max_side: int = MAX_DECODE_SIDE):
+                 max_side: int = MAX_DECODE_SIDE, dedup: Any = "default"):
         super().__init__(cache_size)
         self.path = Path(path)
         self.name = self.path.stem
@@ -658,11 +675,18 @@ class VideoSource(FrameSource):
         fps = cap.get(self._cv2.CAP_PROP_FPS) or 0.0
         self.container_frames = int(cap.get(self._cv2.CAP_PROP_FRAME_COUNT) or 0)
         ts: list[float] = []
+        od = self._start_online_dedup(dedup)
         while max_frames is None or len(ts) < max_frames:
             if not cap.grab():
                 break
             ms = cap.get(self._cv2.CAP_PROP_POS_MSEC)
             ts.append(ms / 1000.0 if ms > 0 or not ts else (len(ts) / fps if fps > 0 else float(len(ts))))
+            if od is not None and od.wants(ts[-1]):  # online redundant-frame removal: this frame is sampled
+                ok, bgr = cap.retrieve()
+                if not ok or bgr is None or min(bgr.shape[:2]) < MIN_FRAME_SIDE:  # _set_size says why below
+                    od = None
+                else:
+                    od.push(len(ts) - 1, _small_gray_bgr(bgr, od.conf.work_width))
         cap.release()
         if not ts:
             raise InputError(f"{_show(self.path)}: no decodable video frames (corrupt file or unsupported codec)")
@@ -678,6 +702,8 @@ class VideoSource(FrameSource):
         else:
             self.timestamp_source = "container"
         self.timestamps = t
+        # the online removal sampled by the container timestamps: void if they were replaced
+        self._online = od if od is not None and self.timestamp_source == "container" else None
         # seeking is verified against the scan's container timestamps; without them only sequential decoding
         # is exact
         self.seek_mode = "verified" if self.timestamp_source == "container" else "sequential"
@@ -691,6 +717,30 @@ class VideoSource(FrameSource):
         self._set_K(K if K is not None else intrinsics_from_fov(W, H, hfov_deg), "K" if K is not None else
                     f"hfov_deg={hfov_deg}")
         self.dist = None if dist is None else np.asarray(dist, dtype=np.float64)
+
+    @staticmethod
+    def _start_online_dedup(dedup: Any) -> Any:
+        """dedup: "default" (DedupConf defaults), a DedupConf / mapping, or None (no removal while scanning)."""
+        if dedup is None:
+            return None
+        from .dedup import OnlineDedup
+
+        return OnlineDedup(None if isinstance(dedup, str) and dedup == "default" else dedup)
+
+    def online_dedup(self, conf: Any) -> Any:
+        """The redundant-frame removal made while the opening scan decoded the video (`dedup.OnlineDedup`), as
+        a DedupResult, when it ran with the same config `conf` (a DedupConf); else None (remove_redundant then
+        decodes the sampled frames again)."""
+        od = getattr(self, "_online", None)
+        if od is None or od.conf != conf or self.scale != 1.0:  # the scan saw the frames before downscaling
+            return None
+        return od.result(len(self), self.index_of)
+
+    def gray(self, position: int, width: int) -> np.ndarray:
+        """Gray image of a frame, decoded without the RGB copy and without entering the frame cache."""
+        if position in self._cache:
+            return super().gray(position, width)
+        return _small_gray_bgr(self._decode_bgr(position), width, self.scale)
 
     def _opencv_path(self, path: Path) -> str:
         """A path OpenCV can open: the file itself, or (for a name that is not valid UTF-8, which OpenCV's
@@ -745,6 +795,10 @@ class VideoSource(FrameSource):
         self._cap, self._pos = self._open(), 0
 
     def _decode(self, i: int) -> np.ndarray:
+        return _downscale(np.ascontiguousarray(self._decode_bgr(i)[:, :, ::-1]), self.scale)
+
+    def _decode_bgr(self, i: int) -> np.ndarray:
+        """Frame i as decoded (BGR, original size)."""
         seek = (self.seek_mode == "verified" and self._cap is not None
                 and (i < self._pos or i - self._pos > self.seek_min))
         if seek and self._seek(i):
@@ -752,7 +806,7 @@ class VideoSource(FrameSource):
             ms = self._cap.get(self._cv2.CAP_PROP_POS_MSEC)
             if ok and bgr is not None and abs(ms / 1000.0 - self.timestamps[i]) < 1e-3:
                 self._pos = i + 1
-                return _downscale(np.ascontiguousarray(bgr[:, :, ::-1]), self.scale)
+                return bgr
             self._seek_failed(f"frame {i}: timestamp {ms / 1000.0:.4f} s after seeking, scan gave "
                               f"{self.timestamps[i]:.4f} s")
         if self._cap is None or i < self._pos:
@@ -767,7 +821,7 @@ class VideoSource(FrameSource):
         if not ok or bgr is None:
             raise InputError(f"{_show(self.path)}: cannot decode frame {i}")
         self._pos += 1
-        return _downscale(np.ascontiguousarray(bgr[:, :, ::-1]), self.scale)
+        return bgr
 
     def _load(self, i: int) -> Frame:
         return Frame(self._decode(i), float(self.timestamps[i]), i, self.K, dist=self.dist)
