@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import copy
 import json
+import math
 import shutil
 import sys
 
@@ -13,6 +14,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from mosaicthinker.runtime import budget as B
+from mosaicthinker.runtime.errors import InputError
 from mosaicthinker.runtime.bundle import bundle_hash
 from mosaicthinker.runtime.trace import peak_rss_mb, reset_peak_rss
 from mosaicthinker.runtime.errors import BudgetError, ProfileError
@@ -166,9 +168,10 @@ def test_plan_arithmetic_by_hand():
 
     # memory-bound: all resident 100 + 200 + 10k <= 400 gives k <= 10; one session at a time (stage-major)
     # 100 + max(100) + 10k <= 400 gives k <= 20, so the planner loads them one at a time: K = 20, and the search
-    # gets its full target of 125 (6000 - 2300 - 20 x 91 = 1880 ms leaves room for 170).
+    # gets its target min(ceil(0.25 x 500) = 125, 6 per key frame x 20 = 120) = 120 (6000 - 2300 - 20 x 91 =
+    # 1880 ms leaves room for 170).
     p = B.plan(B.parse_profile(hand_profile(6000, 400)), 100, 10, conf=HAND)
-    assert (p.keyframes, p.limited_by, p.scored_frames) == (20, "memory", 125)
+    assert (p.keyframes, p.limited_by, p.scored_frames) == (20, "memory", 120)
     assert p.session_policy == "one_at_a_time" and p.total_memory_mb == pytest.approx(100 + 100 + 200)
 
     # 100 + 100 + 10k <= 250 -> K = 5
@@ -485,3 +488,18 @@ def test_a_variant_name_the_bundle_lacks_entirely_runs_its_default_loudly(shared
     assert prof.variant_in("depth", shared_bundle, trace) is None
     ev = [e for e in trace.events if e["kind"] == "degraded" and e.get("requested") == "custom-build"]
     assert ev and ev[0]["used"] == "fp32" and "default variant 'fp32'" in ev[0]["message"]
+
+
+def test_scored_budget_does_not_grow_with_duration():
+    # issue 14: at the same K the search's scored-frame target is capped per key frame, so a 10x longer clip
+    # (10x the candidates) does not score 10x the frames; without the cap it would follow scored_fraction.
+    prof = B.parse_profile(hand_profile(10**9, 10**6))
+    short = B.plan(prof, 60, 10, conf={**HAND, "keyframes_max": 8})
+    long = B.plan(prof, 600, 10, conf={**HAND, "keyframes_max": 8})
+    assert short.keyframes == long.keyframes == 8
+    assert long.candidates == 10 * short.candidates
+    assert long.scored_frames == short.scored_frames == 6 * 8
+    free = B.plan(prof, 600, 10, conf={**HAND, "keyframes_max": 8, "max_scored_per_keyframe": None})
+    assert free.scored_frames == math.ceil(0.25 * free.candidates) > 6 * 8
+    with pytest.raises(InputError, match="max_scored_per_keyframe"):
+        B.plan(prof, 60, 10, conf={**HAND, "max_scored_per_keyframe": 1})

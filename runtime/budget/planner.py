@@ -41,6 +41,9 @@ class PlanConf(StageConf):
     scored_fraction: float = 0.25      # search target: share of candidates scored (keyframes.KeyFrameConf)
     min_scored_per_keyframe: int = 4   # the search scores at least this many frames per key frame wanted
     max_scored_frames: int | None = None
+    # the search budget does not grow with duration (issue 14: a 600 s clip costs <= 1.5x a 60 s one): at most
+    # this many scored frames per key frame, whatever the number of candidates (None: scored_fraction alone)
+    max_scored_per_keyframe: float | None = 6.0
     iterations: int = 20               # search iterations (keyframes.KeyFrameConf.iterations)
     dedup_keep_fraction: float = 0.5   # candidates / frames after redundant-frame removal (estimate)
     prompts_per_keyframe: float = 4.0  # segmenter prompts (objects) per key frame
@@ -66,6 +69,9 @@ class PlanConf(StageConf):
         if not 0 <= c.safety_fraction < 1 or c.iterations < 1 or c.min_scored_per_keyframe < 1:
             raise InputError("plan config: need 0 <= safety_fraction < 1, iterations >= 1, "
                              "min_scored_per_keyframe >= 1")
+        if c.max_scored_per_keyframe is not None and not c.max_scored_per_keyframe >= c.min_scored_per_keyframe:
+            raise InputError(f"plan config: max_scored_per_keyframe must be >= min_scored_per_keyframe "
+                             f"({c.min_scored_per_keyframe}; got {c.max_scored_per_keyframe})")
 
 
 # pipeline stages the controller budgets (names the pipeline passes to start_stage/end_stage)
@@ -249,6 +255,8 @@ class _Terms:
         t = max(int(math.ceil(c.scored_fraction * self.n_c)), self.s_floor(k))
         if c.max_scored_frames is not None:
             t = max(min(t, c.max_scored_frames), self.s_floor(k))
+        if c.max_scored_per_keyframe is not None:
+            t = max(min(t, int(math.ceil(c.max_scored_per_keyframe * k))), self.s_floor(k))
         return min(self.n_c, t)
 
     def lat(self, k: int, s: int) -> float:
