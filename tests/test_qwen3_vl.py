@@ -57,7 +57,7 @@ def test_tiny_export_and_runtime_loop_match_transformers(tmp_path):
 
     out = tmp_path / "b"
     args = build_parser(("export",), cli).parse_args(
-        ["vlm", "--source", "tiny:qwen3_vl", "--precision", "fp32,int8-dynamic", "--set", f"image_size={IMAGE}",
+        ["vlm", "--source", "tiny:qwen3_vl", "--precision", "fp32", "--set", f"image_size={IMAGE}",
          "--set", "check_tokens=6", "--out", str(out)])
     cli.run(args)
     rm = load_bundle(out).role_meta("vlm")
@@ -67,7 +67,6 @@ def test_tiny_export_and_runtime_loop_match_transformers(tmp_path):
     assert chk["vision_vs_transformers"]["rel"] < 1e-4
     assert all(r["hf"] == r["ort"] for r in chk["runs"])
     assert rm["config"]["deepstack_layers"] == 2 and rm["config"]["image_seq_len"] == (IMAGE // 32) ** 2
-    assert "int8-dynamic" in rm["variants"]
     trace = Trace()
     vlm = load_role(out, "vlm", variant="fp32", threads=1, trace=trace)
     assert isinstance(vlm, Qwen3VL)
