@@ -21,8 +21,14 @@ session. The vision graph is exported for a FIXED grid (S x S image, S a multipl
 masks and the rotary table are constants computed by transformers' own helpers at export, and the processor
 resizes every image to S x S so the grid always matches (a map image is one fixed-size picture).
 
+Precision per package: fp32 = everything fp32; int8 / int4 = the builder's int8 / int4 decoder with an int8
+vision graph (onnxruntime's MatMulNBitsQuantizer, 8-bit weight-only, int8 compute) and an int8 embedding table
+(one fp32 scale per 128 columns, standard Gather + Cast + Mul), `--option side=fp32` to keep them fp32;
+at 3B that takes the vision weights from ~2.5 GB to ~0.7 GB and the table from 1.2 GB to ~0.3 GB.
+
 Qwen3-VL: the builder handles its text decoder (`Qwen3VLForConditionalGeneration`), but its vision tower feeds
-DeepStack features into decoder layers, which the 0.18.0 decoder graph has no input for; not packaged here.
+DeepStack features into decoder layers, which the 0.18.0 decoder graph has no input for; it is exported with the
+project's own graphs instead (export/hf_qwen3_vl.py).
 """
 from __future__ import annotations
 
