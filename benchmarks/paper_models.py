@@ -364,7 +364,8 @@ def step_side(name: str, big: Path, runs: int, threads: int, image_size: int = 4
                 **json.loads(r.stdout.strip().splitlines()[-1]),
                 **({"parity_vs_fp32": g["parity"][c]["worst"]} if prec == "int8" else {})}
     for prec in ("fp32", "int8"):
-        res[prec]["rss_after_run_mb_sum"] = round(sum(res[prec][c]["rss_after_run_mb"] for c in ("vision", "embedding")))
+        res[prec]["rss_after_run_mb_sum"] = round(sum(res[prec][c]["rss_after_run_mb"]
+                                                      for c in ("vision", "embedding")))
     return res
 
 
@@ -394,7 +395,8 @@ def probe(component: str, path: str, runs: int, threads: int) -> dict:
         feeds = {"input_ids": ids, "image_features": rng.standard_normal((256, h)).astype(np.float32)}
     sess.run(None, feeds)
     p50, ts = _p50(lambda: sess.run(None, feeds), runs)
-    return {"load_s": round(load_s, 2), "rss_after_load_mb": round(load_mb), "rss_after_run_mb": round(_rss_mb() - base),
+    return {"load_s": round(load_s, 2), "rss_after_load_mb": round(load_mb),
+            "rss_after_run_mb": round(_rss_mb() - base),
             "p50_s": round(p50, 3), "runs_s": ts,
             "process_peak_rss_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)}
 

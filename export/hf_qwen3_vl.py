@@ -203,7 +203,8 @@ def hf_generate(model: Any, ids: list[int], pixel_values: np.ndarray, image_size
     g = image_size // model.config.vision_config.patch_size
     t = torch.tensor([ids])
     with torch.no_grad():
-        out = model.generate(input_ids=t, attention_mask=torch.ones_like(t), pixel_values=torch.from_numpy(pixel_values),
+        out = model.generate(input_ids=t, attention_mask=torch.ones_like(t),
+                             pixel_values=torch.from_numpy(pixel_values),
                              image_grid_thw=torch.tensor([[1, g, g]]), mm_token_type_ids=(t == IMAGE_TOKEN).int(),
                              max_new_tokens=n_new, do_sample=False, num_beams=1, eos_token_id=None,
                              pad_token_id=151643)
@@ -245,7 +246,7 @@ def _tokenizer(out: Path, source: str, random_weights: bool) -> Path:
             dst.write_bytes(write_synthetic_tokenizer(t).read_bytes())
         return dst
 
-    return write_tokenizer(out, "vlm", source if not source.startswith("dir:") else source, random_weights, synthetic)
+    return write_tokenizer(out, "vlm", source, random_weights, synthetic)
 
 
 def runtime_config(model: Any, image_size: int) -> dict[str, Any]:
@@ -360,9 +361,9 @@ def export_qwen3_vl(source: str, out: str | Path, precisions: Sequence[str], *, 
         ok = res["token_agreement"] >= need
         if variant == "fp32":
             ok = ok and res["vision_vs_transformers"]["rel"] < 1e-3
+        vis = res.get("vision_vs_transformers")
         C.progress(f"qwen3_vl/{variant}: token agreement vs transformers {res['token_agreement']:.3f} over "
-                   f"{res['tokens']} tokens" + (f", vision vs transformers rel {res['vision_vs_transformers']['rel']:.2e}"
-                                               if "vision_vs_transformers" in res else ""))
+                   f"{res['tokens']} tokens" + (f", vision vs transformers rel {vis['rel']:.2e}" if vis else ""))
         return {"ok": bool(ok), "accepted_at": need, **res}
 
     meta = C.role_meta(ARCH, preprocessing=pre, semantics={"kind": "vlm", "tiling": False}, provenance=prov,
