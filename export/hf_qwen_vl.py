@@ -327,6 +327,8 @@ def quantize_vision_int8(src: Path, dst: Path, block: int = 128) -> Path:
         log.setLevel(level)
     dst.parent.mkdir(parents=True, exist_ok=True)
     q.model.save_model_to_file(str(dst), use_external_data_format=True)
+    for f in dst.parent.iterdir():  # the quantiser writes its .data 0600 (a temp file): readable like the rest
+        f.chmod(0o644)
     left = sum(nd.op_type in ("MatMul", "Gemm") for nd in onnx.load(str(dst), load_external_data=False).graph.node)
     C.progress(f"vision int8: {n} Gemm rewritten, MatMulNBits(8) everywhere but {left} MatMul/Gemm "
                f"(activation x activation)")
