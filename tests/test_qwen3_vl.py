@@ -11,6 +11,7 @@ import pytest
 torch = pytest.importorskip("torch")
 pytest.importorskip("transformers")
 
+pytestmark = [pytest.mark.export]
 IMAGE = 128  # 8 x 8 patches of 16 px -> 4 x 4 = 16 image tokens
 
 
@@ -45,7 +46,6 @@ def test_mrope_positions_follow_transformers_get_rope_index():
     assert nxt == len(ids) + int(delta)
 
 
-@pytest.mark.export
 @pytest.mark.slow
 def test_tiny_export_and_runtime_loop_match_transformers(tmp_path):
     from mosaicthinker.export import cli
