@@ -5,6 +5,7 @@ CPU latency; writes benchmarks/results/paper_models.json (merged per model, so s
     python benchmarks/paper_models.py export --model qwen2.5-vl-3b         # mosaic export ... --source dir:CKPT
     python benchmarks/paper_models.py measure --model qwen2.5-vl-3b        # latency (2 threads, p50 of >= 5 runs)
     python benchmarks/paper_models.py all --model depth-anything-v2-small  # the three steps
+    python benchmarks/paper_models.py side --model qwen2.5-vl-3b           # vision + embedding fp32 vs int8 alone
 
 Random weights of the real configurations are honest for everything except accuracy: export at size (2 GB
 protobuf limit, external data, quantiser memory), artifact sizes, peak memory and latency. Every record carries
@@ -325,6 +326,81 @@ def measure_genai_vlm(out: Path, runs: int, threads: int, text_chars: int | None
     return res
 
 
+# ------------------------------------------------------------------------------------------------ side
+
+def step_side(name: str, big: Path, runs: int, threads: int, image_size: int = 448) -> dict:
+    """Qwen2.5-VL's vision graph and embedding table, fp32 and int8 (the int8/int4 packages' side), from the
+    checkpoint alone -- no GenAI builder, no decoder: sizes, parity (int8 vs fp32 on fresh inputs), and each
+    graph's session RSS and latency measured in its own fresh process (`_probe`). Graphs kept under
+    BIG/side/NAME for a later package."""
+    import gc
+    import shutil
+
+    from mosaicthinker.export.hf_qwen_vl import export_graphs, export_int8_graphs, load_vision_side
+
+    if name != "qwen2.5-vl-3b":
+        raise SystemExit("side: only qwen2.5-vl-3b (its GenAI package's vision + embedding)")
+    work = big / "side" / name
+    shutil.rmtree(work, ignore_errors=True)
+    t = time.time()
+    model = load_vision_side(big / "ckpt" / name)
+    g32 = export_graphs(model, work / "fp32", image_size)
+    t32 = time.time() - t
+    g8 = export_int8_graphs(model, g32, work / "int8")
+    t8 = time.time() - t - t32
+    del model
+    gc.collect()
+    res = {"image_size": image_size, "threads": threads, "export_s": {"fp32": round(t32, 1), "int8": round(t8, 1)},
+           "int8_quant": {"vision": g8["vision_quant"], "embedding": g8["embedding_quant"]}}
+    for prec, g in (("fp32", g32), ("int8", g8)):
+        for c in ("vision", "embedding"):
+            d = Path(g[c]).parent
+            r = subprocess.run([PY, __file__, "_probe", c, str(g[c]), "--runs", str(runs), "--threads", str(threads)],
+                               capture_output=True, text=True)
+            if r.returncode != 0:
+                raise SystemExit(f"probe {prec} {c} failed:\n{r.stderr[-2000:]}")
+            res.setdefault(prec, {})[c] = {
+                "size_mib": round(sum(f.stat().st_size for f in d.iterdir()) / 2**20, 1),
+                **json.loads(r.stdout.strip().splitlines()[-1]),
+                **({"parity_vs_fp32": g["parity"][c]["worst"]} if prec == "int8" else {})}
+    for prec in ("fp32", "int8"):
+        res[prec]["rss_after_run_mb_sum"] = round(sum(res[prec][c]["rss_after_run_mb"]
+                                                      for c in ("vision", "embedding")))
+    return res
+
+
+def probe(component: str, path: str, runs: int, threads: int) -> dict:
+    """One graph in this fresh process: RSS after the session load and after runs (vision: one 448 map image;
+    embedding: the real prompt length, 979 ids with 256 image rows), p50 latency, peak RSS."""
+    import resource
+
+    import onnxruntime as ort
+
+    base = _rss_mb()
+    so = ort.SessionOptions()
+    so.intra_op_num_threads, so.inter_op_num_threads = threads, 1
+    t = time.perf_counter()
+    sess = ort.InferenceSession(path, so, providers=["CPUExecutionProvider"])
+    load_s, load_mb = time.perf_counter() - t, _rss_mb() - base
+    rng = np.random.default_rng(0)
+    if component == "vision":
+        n = {i.name: i.shape for i in sess.get_inputs()}["pixel_values"][0]
+        g = int(round(n ** 0.5))
+        feeds = {"pixel_values": rng.standard_normal((n, 1176)).astype(np.float32),
+                 "image_grid_thw": np.array([[1, g, g]], np.int64)}
+    else:
+        ids = rng.integers(0, 151643, size=(1, 979)).astype(np.int64)
+        ids[0, 20:276] = 151655
+        h = {i.name: i.shape for i in sess.get_inputs()}["image_features"][1]  # static: the text hidden size
+        feeds = {"input_ids": ids, "image_features": rng.standard_normal((256, h)).astype(np.float32)}
+    sess.run(None, feeds)
+    p50, ts = _p50(lambda: sess.run(None, feeds), runs)
+    return {"load_s": round(load_s, 2), "rss_after_load_mb": round(load_mb),
+            "rss_after_run_mb": round(_rss_mb() - base),
+            "p50_s": round(p50, 3), "runs_s": ts,
+            "process_peak_rss_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)}
+
+
 # ------------------------------------------------------------------------------------------------ profile
 
 # profile cost item -> (model, variant, {field: (component, what)}); what: p50 | load | rss
@@ -447,8 +523,10 @@ def save(name: str, step: str, res: dict) -> None:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("step", choices=["checkpoint", "export", "measure", "all", "profile", "table", "_child"])
+    ap.add_argument("step", choices=["checkpoint", "export", "measure", "side", "all", "profile", "table",
+                                     "_child", "_probe"])
     ap.add_argument("child_step", nargs="?")
+    ap.add_argument("probe_path", nargs="?")
     ap.add_argument("--model", choices=sorted(MODELS))
     ap.add_argument("--big", type=Path, default=Path(os.environ.get("MOSAIC_BIG", "/work/big/issue16")))
     ap.add_argument("--runs", type=int, default=5)
@@ -462,12 +540,17 @@ def main(argv=None) -> int:
     if args.step == "table":
         print(cost_table(json.loads(OUT.read_text())))
         return 0
+    if args.step == "_probe":  # one graph's session in this fresh process (step_side)
+        print(json.dumps(probe(args.child_step, args.probe_path, args.runs, args.threads)))
+        return 0
     if not args.model:
         ap.error("--model is required")
     if args.step == "_child":
-        fn = {"checkpoint": step_checkpoint, "export": step_export, "measure": step_measure}[args.child_step]
+        fn = {"checkpoint": step_checkpoint, "export": step_export, "measure": step_measure,
+              "side": step_side}[args.child_step]
         kw = ({"runs": args.runs, "threads": args.threads, "text_chars": args.text_chars}
-              if args.child_step == "measure" else {})
+              if args.child_step == "measure" else
+              {"runs": args.runs, "threads": args.threads} if args.child_step == "side" else {})
         print(json.dumps(fn(args.model, args.big, **kw)))
         return 0
     for step in (["checkpoint", "export", "measure"] if args.step == "all" else [args.step]):

@@ -32,7 +32,7 @@ def test_build_prompt_expands_images():
     assert p.count("<image>") == 6 and p.startswith("<|im_start|>User:") and p.endswith("Assistant:")
     q = build_prompt("internvl", "hi", 1, 4)
     assert q.count("<IMG_CONTEXT>") == 4 and "<|im_start|>assistant\n" in q
-    assert set(TEMPLATES) == {"smolvlm", "internvl"}
+    assert set(TEMPLATES) == {"smolvlm", "internvl", "qwen3_vl"}
 
 
 @pytest.mark.slow

@@ -52,6 +52,36 @@ def test_cli_result_and_manifest(qwen_bundle):
     assert 0 <= rm["variants"]["int4"]["task_check"]["kl_vs_fp32"] < 1.0
 
 
+def test_int4_package_ships_int8_vision_and_embedding(qwen_bundle):
+    """The int4 package's vision graph is MatMulNBits(8) weight-only and its embedding table int8 (4x smaller
+    than fp32), each with parity on fresh inputs vs fp32, and the int8 side alone (fp32 decoder) barely moves the
+    next-token distribution."""
+    import onnx
+
+    from mosaicthinker.runtime.bundle import load_bundle
+
+    out, _ = qwen_bundle
+    rm = load_bundle(out).role_meta("vlm")
+    v4, v32 = rm["variants"]["int4"], rm["variants"]["fp32"]
+    assert v4["genai"]["component_precision"] == {"decoder": "int4", "vision": "int8", "embedding": "int8"}
+    assert v32["genai"]["component_precision"] == {"decoder": "fp32", "vision": "fp32", "embedding": "fp32"}
+    vis = onnx.load(str(out / "vlm" / "int4" / "vision" / "model.onnx"), load_external_data=False)
+    nbits = [n for n in vis.graph.node if n.op_type == "MatMulNBits"]
+    assert len(nbits) >= 4 * 2 and all(a.i == 8 for n in nbits for a in n.attribute if a.name == "bits")
+    assert not any(n.op_type == "Gemm" for n in vis.graph.node)
+    emb = onnx.load(str(out / "vlm" / "int4" / "embedding" / "model.onnx"))
+    dtypes = {t.data_type for t in emb.graph.initializer if len(t.dims) == 2 and t.dims[0] == 151936}
+    assert dtypes == {onnx.TensorProto.INT8, onnx.TensorProto.FLOAT}  # int8 rows + fp32 block scales
+    size = lambda v: sum((out / "vlm" / v / "embedding" / f).stat().st_size for f in ("model.onnx", "model.onnx.data"))
+    assert size("int4") < 0.3 * size("fp32")
+    for c in ("vision", "embedding"):
+        par = v4["parity"][c]
+        assert par["ok"] and par["inputs"] == "fresh random" and par["precision"] == "int8-dynamic"
+        assert 0 < par["worst"]["rel"] < 0.15 and par["worst"]["cosine"] > 0.99
+    side = v4["task_check"]["side_only"]
+    assert 0 <= side["kl_vs_fp32"] < 1e-2
+
+
 def test_tampered_package_file_is_refused(qwen_bundle, tmp_path):
     import shutil
 

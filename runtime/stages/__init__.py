@@ -54,6 +54,7 @@ ARCHS: dict[str, str] = {
     "smolvlm": "vlm:VLM",                     # vision + embed + decoder-with-KV-cache
     "internvl": "vlm:VLM",
     "qwen2_5_vl": "vlm_genai:GenAIVLM",       # ONNX Runtime GenAI package (decoder, embedding, vision)
+    "qwen3_vl": "vlm:Qwen3VL",                # own graphs: vision with DeepStack, M-RoPE decoder
 }
 
 

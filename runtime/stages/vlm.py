@@ -39,6 +39,12 @@ TEMPLATES: dict[str, dict[str, Any]] = {
         "image_token": "<IMG_CONTEXT>",
         "stop": ["<|im_end|>", "<|endoftext|>"],
     },
+    "qwen3_vl": {  # Qwen3-VL (Qwen chat format; the image is one fixed-grid block of merged patches)
+        "prompt": "<|im_start|>user\n{content}<|im_end|>\n<|im_start|>assistant\n",
+        "image": "<|vision_start|>{image_tokens}<|vision_end|>",
+        "image_token": "<|image_pad|>",
+        "stop": ["<|im_end|>", "<|endoftext|>"],
+    },
 }
 
 
@@ -186,3 +192,119 @@ class OrtRunner:
     def run(self, feeds: dict[str, np.ndarray], outputs: Sequence[str] | None = None) -> list[np.ndarray]:
         return self.sess.run(outputs, feeds)
 
+
+
+# ------------------------------------------------------------------------------------------------ Qwen3-VL
+# Qwen3-VL (export/hf_qwen3_vl.py): the vision graph also emits DeepStack features, and the decoder takes 3-D
+# M-RoPE positions and those features scattered to the image rows:
+# - vision:  `pixel_values [P, 3*T*p*p]` -> `image_features [P/m^2, H]`, `deepstack_features [K, P/m^2, H]`
+# - decoder: `inputs_embeds [1, L, H]`, `attention_mask [1, P+L]`, `position_ids [3, 1, L]`,
+#            `deepstack [K, 1, L, H]`, `past_key_i / past_value_i` -> `logits`, `present_key_i / present_value_i`
+
+def qwen_patches(chw: np.ndarray, patch: int, merge: int, temporal: int) -> np.ndarray:
+    """[3, S, S] normalised image -> [(S/p)^2, 3*T*p*p] patches in merge-unit order (Qwen2-VL's image
+    processor layout: the frame repeated T times, patches of one merge unit adjacent)."""
+    c, h, w = chw.shape
+    gh, gw = h // patch, w // patch
+    x = np.broadcast_to(chw[None], (temporal, c, h, w))
+    x = x.reshape(temporal, c, gh // merge, merge, patch, gw // merge, merge, patch)
+    x = x.transpose(2, 5, 3, 6, 1, 0, 4, 7)
+    return np.ascontiguousarray(x.reshape(gh * gw, c * temporal * patch * patch), dtype=np.float32)
+
+
+def mrope_positions(ids: Sequence[int], image_token_id: int, grid_hw: tuple[int, int]) -> tuple[np.ndarray, int]:
+    """M-RoPE position ids [3, 1, L] (t, h, w) for one prompt, each run of image tokens one merged grid of
+    `grid_hw` = (rows, cols): text advances all three by one; an image block starting at s holds (s, s+r, s+c)
+    and the text after it resumes at s + max(rows, cols). Returns (positions, next position)."""
+    ids_a = np.asarray(ids, np.int64)
+    pos = np.zeros((3, ids_a.size), np.int64)
+    i, cur, rows, cols = 0, 0, int(grid_hw[0]), int(grid_hw[1])
+    while i < ids_a.size:
+        if ids_a[i] != image_token_id:
+            pos[:, i] = cur
+            i, cur = i + 1, cur + 1
+            continue
+        n = rows * cols
+        if not np.all(ids_a[i:i + n] == image_token_id):
+            raise InputError(f"an image block at token {i} is shorter than its {rows}x{cols} grid")
+        r, c = np.divmod(np.arange(n), cols)
+        pos[0, i:i + n], pos[1, i:i + n], pos[2, i:i + n] = cur, cur + r, cur + c
+        i, cur = i + n, cur + max(rows, cols)
+    return pos[:, None], cur
+
+
+class MRopeDecoder(GreedyDecoder):
+    """The greedy loop for decoders with 3-D M-RoPE positions and DeepStack inputs (Qwen3-VL)."""
+
+    def __init__(self, vision: Any, embed: Any, decoder: Any, cfg: dict[str, Any]):
+        super().__init__(vision, embed, decoder, cfg)
+        self.grid = tuple(int(g) for g in cfg["merged_grid"])
+        self.deepstack = int(cfg["deepstack_layers"])
+        self.hidden = int(cfg["hidden_size"])
+
+    def image_features(self, pixel_values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """pixel_values [P, 3*T*p*p] of one image -> (features [T, H], deepstack [K, T, H])."""
+        feats, deep = self.vision.run({"pixel_values": pixel_values})[:2]
+        return np.asarray(feats, np.float32), np.asarray(deep, np.float32)
+
+    def step3(self, embeds: np.ndarray, pos: np.ndarray, deep: np.ndarray, past: list[np.ndarray],
+              past_len: int) -> tuple[np.ndarray, list[np.ndarray]]:
+        L = embeds.shape[1]
+        feeds = {"inputs_embeds": embeds, "attention_mask": np.ones((1, past_len + L), np.int64),
+                 "position_ids": pos, "deepstack": deep}
+        for i in range(self.layers):
+            feeds[f"past_key_{i}"], feeds[f"past_value_{i}"] = past[2 * i], past[2 * i + 1]
+        out = self.decoder.run(feeds)
+        return np.asarray(out[0]), list(out[1:])
+
+    def prefill(self, ids: Sequence[int], image: tuple[np.ndarray, np.ndarray] | None):
+        """-> (logits, presents, next position) after the whole prompt (image rows: features + DeepStack)."""
+        feats, deep = image if image is not None else (None, None)
+        emb = self.prefill_embeds(ids, None if feats is None else feats[None])
+        dense = np.zeros((self.deepstack, 1, len(ids), emb.shape[2]), np.float32)
+        if deep is not None:
+            dense[:, 0, np.flatnonzero(np.asarray(ids) == self.image_token_id)] = deep
+        pos, nxt = mrope_positions(ids, self.image_token_id, self.grid)
+        logits, past = self.step3(emb, pos, dense, self.empty_past(), 0)
+        return logits, past, nxt
+
+    def generate_ids(self, ids: Sequence[int], image: tuple[np.ndarray, np.ndarray] | None, max_new_tokens: int,
+                     stop_ids: Sequence[int]) -> list[int]:
+        logits, past, cur = self.prefill(ids, image)
+        n, out = len(ids), []
+        zeros = np.zeros((self.deepstack, 1, 1, self.hidden), np.float32)
+        for _ in range(max_new_tokens):
+            nxt = int(np.argmax(logits[0, -1]))
+            out.append(nxt)
+            if nxt in stop_ids:
+                break
+            e = np.asarray(self.embed.run({"input_ids": np.array([[nxt]], np.int64)})[0], np.float32)
+            logits, past = self.step3(e, np.full((3, 1, 1), cur, np.int64), zeros, past, n)
+            n, cur = n + 1, cur + 1
+        return out
+
+
+class Qwen3VL(VLM):
+    """Qwen3-VL over the project's own graphs: one fixed-grid image (S x S), DeepStack, M-RoPE."""
+
+    def __init__(self, spec, sessions, trace, conf: VLMConf | None = None):
+        super().__init__(spec, sessions, trace, conf)
+        for k in ("merged_grid", "deepstack_layers", "hidden_size", "patch_size", "merge_size", "temporal_patch_size"):
+            if k not in spec.config:
+                raise BundleError(f"{spec.bundle.manifest_path}: roles.vlm.config.{k} is missing")
+        self.core = MRopeDecoder(self.session("vision"), self.session("embed"), self.session("decoder"), spec.config)
+
+    def encode(self, images: Sequence[np.ndarray], prompt: str):
+        if len(images) > 1:
+            raise InputError("the Qwen3-VL graphs take one image per prompt (the map image); got "
+                             f"{len(images)}")
+        ids, image = super().encode([], prompt)[0], None
+        if images:
+            c = self.spec.config
+            ids = self.tokenizer.encode(build_prompt(self.family, prompt, 1, int(c["image_seq_len"])),
+                                        add_special_tokens=False).ids
+            chw = preprocess_image(images[0], self.spec.preprocessing)[0]
+            px = qwen_patches(chw, int(c["patch_size"]), int(c["merge_size"]), int(c["temporal_patch_size"]))
+            with self.trace.stage("vlm.vision"):
+                image = self.core.image_features(px)
+        return ids, image

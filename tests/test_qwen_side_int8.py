@@ -1,0 +1,49 @@
+"""The int8 side of the Qwen2.5-VL GenAI packages, piece by piece: the block-int8 embedding table and the
+Gemm -> MatMul rewrite the weight-only quantiser needs (export/hf_qwen_vl.py)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+onnx = pytest.importorskip("onnx")
+pytestmark = [pytest.mark.export]
+
+
+def test_block_int8_table_error_is_bounded_by_half_a_step():
+    from mosaicthinker.export.hf_qwen_vl import quantize_rows_int8
+
+    g = torch.Generator().manual_seed(0)
+    w = torch.randn(1000, 64, generator=g) * torch.logspace(-3, 1, 1000)[:, None]  # rows of very different scale
+    q, s = quantize_rows_int8(w, 16, chunk=300)  # chunks not dividing V
+    assert q.dtype == torch.int8 and s.shape == (1000, 4)
+    deq = (q.float().reshape(1000, 4, 16) * s[..., None]).reshape(1000, 64)
+    step = s.repeat_interleave(16, 1)
+    assert torch.all((deq - w).abs() <= 0.5 * step + 1e-7)
+    assert torch.allclose(w.reshape(1000, 4, 16).abs().amax(-1), 127 * s)  # each block's max hits the grid end
+
+
+def test_gemm_rewrite_keeps_the_numbers(tmp_path):
+    import onnxruntime as ort
+    from onnx import helper, numpy_helper
+
+    from mosaicthinker.export.hf_qwen_vl import gemm_to_matmul
+
+    rng = np.random.default_rng(1)
+    w, b = rng.standard_normal((4, 3)).astype(np.float32), rng.standard_normal(4).astype(np.float32)
+    w2 = rng.standard_normal((4, 5)).astype(np.float32)
+    g = helper.make_graph(
+        [helper.make_node("Gemm", ["x", "W", "B"], ["h"], transB=1, name="g1"),
+         helper.make_node("Gemm", ["h", "W2"], ["y"], name="g2")], "g",
+        [helper.make_tensor_value_info("x", onnx.TensorProto.FLOAT, [2, 3])],
+        [helper.make_tensor_value_info("y", onnx.TensorProto.FLOAT, [2, 5])],
+        [numpy_helper.from_array(w, "W"), numpy_helper.from_array(b, "B"), numpy_helper.from_array(w2, "W2")])
+    m = helper.make_model(g, opset_imports=[helper.make_opsetid("", 18)])
+    x = rng.standard_normal((2, 3)).astype(np.float32)
+    ref = x @ w.T + b
+    ref = ref @ w2
+    assert gemm_to_matmul(m) == 2
+    assert [n.op_type for n in m.graph.node] == ["MatMul", "Add", "MatMul"]
+    onnx.checker.check_model(m)
+    got = ort.InferenceSession(m.SerializeToString(), providers=["CPUExecutionProvider"]).run(None, {"x": x})[0]
+    np.testing.assert_allclose(got, ref, rtol=1e-5, atol=1e-5)
