@@ -49,7 +49,7 @@ HF_EXPORTERS: dict[str, str] = {
     "detector": "hf_owlv2:export_role",       # OWLv2: image + text branches
     "embedder": "hf_clip:export_role",        # CLIP / SigLIP vision towers
     "matcher": "hf_matchers:export_role",     # SuperPoint+LightGlue, EfficientLoFTR
-    "vlm": "hf_vlm:export_role",              # SmolVLM, InternVL: vision + embed + decoder-with-KV-cache
+    "vlm": "vlm:export_role",                 # per family: Qwen2.5-VL GenAI package, Qwen3-VL / SmolVLM / InternVL own graphs
 }
 # target -> "module:function(out: Path, roles: list[str], args) -> dict": the steps of export/formats.py FORMATS
 TARGETS: dict[str, str] = formats.target_steps()

@@ -308,12 +308,5 @@ def export_vlm(source: str, out: str | Path, precisions: Sequence[str], *, max_n
 
 def export_role(role: str, source: str, precisions: Sequence[str], out: str | Path, *, calib: str | None = None,
                 options: dict[str, str] | None = None, **_: Any) -> dict[str, Any]:
-    """`mosaic export vlm --source hf:ID|dir:PATH|tiny[:ARCH]` (registered in export/cli.py). Qwen2.5-VL sources
-    go to the ONNX Runtime GenAI packager (export/hf_qwen_vl.py)."""
-    from . import hf_qwen3_vl, hf_qwen_vl
-
-    if hf_qwen3_vl.is_qwen3_source(source):  # own graphs + loop: GenAI 0.18.0 has no DeepStack input
-        return hf_qwen3_vl.export_role(role, source, precisions, out, options=options)
-    if hf_qwen_vl.is_qwen_source(source):
-        return hf_qwen_vl.export_role(role, source, precisions, out, options=options)
+    """SmolVLM / InternVL through the project's own graphs (export/vlm.py picks this exporter per source)."""
     return run_exporter(export_vlm, source, precisions, out, calib=calib, options=options)

@@ -233,7 +233,7 @@ def qwen2_5_vl():
     and special-token ids; packaged for ONNX Runtime GenAI by export/hf_qwen_vl.py."""
     from transformers import Qwen2_5_VLForConditionalGeneration
 
-    from .hf_qwen_vl import qwen_config
+    from .qwen_vl_config import qwen_config
 
     return Qwen2_5_VLForConditionalGeneration(qwen_config("tiny"))
 
