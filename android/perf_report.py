@@ -158,7 +158,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--raw", required=True, help="folder with the pulled perf_test outputs")
     p.add_argument("--out", required=True, help="where report.json / report.md / PNGs go")
     args = p.parse_args(argv)
-    from mosaicthinker.runtime.host.report import write_report
+    from mosaicthinker.host.report import write_report
 
     report = build_report(args.bundle, args.raw)
     files = write_report(report, args.out)

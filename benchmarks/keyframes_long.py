@@ -3,7 +3,7 @@
     nice -n 10 python benchmarks/keyframes_long.py [--videos 16] [--ssd-videos 4] [--cache DIR]
 
 Settings, all in one table so that no setting hides another:
-  long / oracle   `--videos` synthetic walk-throughs (runtime/synth/longvideo.py: 6-10 rooms joined by empty
+  long / oracle   `--videos` synthetic walk-throughs (host/synth/longvideo.py: 6-10 rooms joined by empty
                   corridors, 5-9 min at 2 frames/s, every frame a candidate, 160x120), questions whose objects
                   are visible in < 5% of the frames; the oracle detector with misses (10%), score noise (0.1),
                   false positives (2% per frame and name) and a confidence that grows with visibility.
@@ -47,7 +47,7 @@ PREVIOUS = {"content_prior": False, "k": 2.0}  # the search before the content a
 
 
 def _video(seed: int, cache: Path) -> Any:
-    from mosaicthinker.runtime.synth.longvideo import LongVideoConf, make_long_video
+    from mosaicthinker.host.synth.longvideo import LongVideoConf, make_long_video
 
     conf = LongVideoConf(seed=seed)
     key = hashlib.sha1(json.dumps(conf.__dict__, sort_keys=True).encode()).hexdigest()[:10]
@@ -149,9 +149,9 @@ def content_bound(video: Any, questions: list[dict[str, Any]], fraction: float, 
 
 
 def run_long(args: argparse.Namespace) -> dict[str, Any]:
-    from mosaicthinker.runtime.evaluation.keyframes import evaluate_long_video, summarise, vocabulary_detector
+    from mosaicthinker.host.evaluation.keyframes import evaluate_long_video, summarise, vocabulary_detector
     from mosaicthinker.runtime.stages.detector import map_names
-    from mosaicthinker.runtime.synth.longvideo import LongVideoOracle, long_questions
+    from mosaicthinker.host.synth.longvideo import LongVideoOracle, long_questions
 
     cache = Path(args.cache)
     videos = [(s, _video(s, cache)) for s in range(args.seed, args.seed + args.videos)]
@@ -204,7 +204,7 @@ def run_long(args: argparse.Namespace) -> dict[str, Any]:
 def run_short(args: argparse.Namespace) -> dict[str, Any]:
     """The short-scene measurement through `mosaic eval keyframes`, with this benchmark's method set."""
     from mosaicthinker.runtime.cli import add_common_flags
-    from mosaicthinker.runtime.evaluation import keyframes as ev
+    from mosaicthinker.host.evaluation import keyframes as ev
 
     p = argparse.ArgumentParser()
     add_common_flags(p)

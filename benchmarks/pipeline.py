@@ -45,8 +45,8 @@ DETECTABLE = ("chair", "sofa", "tv", "bed", "table", "toilet", "sink", "fridge",
 
 
 def ensure_scene(work: Path) -> Path:
-    from mosaicthinker.runtime.synth.generate import write_scene
-    from mosaicthinker.runtime.synth.scene import SceneConfig
+    from mosaicthinker.host.synth.generate import write_scene
+    from mosaicthinker.host.synth.scene import SceneConfig
 
     scene = work / "scene60"
     if not (scene / "scene.json").exists():
@@ -152,7 +152,7 @@ def map_scores(mb: Any, job: dict[str, Any]) -> dict[str, Any]:
     """Instance recall of the built map against the scene's ground truth (evaluation.e2e.map_quality) and the
     map reasoner's mean score over the scene's questions (same questions for every run)."""
     from mosaicthinker.runtime.answer import MapReasoner
-    from mosaicthinker.runtime.evaluation.e2e import _load_questions, _score, map_quality
+    from mosaicthinker.host.evaluation.e2e import _load_questions, _score, map_quality
 
     scene = Path(job["scene"])
     meta = json.loads((scene / "scene.json").read_text())

@@ -96,7 +96,7 @@ class _SensorFittedDepth:
 
 
 def pose(bundle: Path, k: int) -> dict:
-    from mosaicthinker.runtime.evaluation.pose import evaluate_pose, pick_frames
+    from mosaicthinker.host.evaluation.pose import evaluate_pose, pick_frames
     from mosaicthinker.runtime.frames import open_source
     from mosaicthinker.runtime.stages import load_role
     from mosaicthinker.runtime.trace import Trace
@@ -134,7 +134,7 @@ def pose_essential_diagnostic(bundle: Path, k: int) -> dict:
     and how much from PyDNet's scale."""
     import cv2
 
-    from mosaicthinker.runtime.evaluation.pose import ate_rmse, pick_frames
+    from mosaicthinker.host.evaluation.pose import ate_rmse, pick_frames
     from mosaicthinker.runtime.frames import open_source
     from mosaicthinker.runtime.geometry import invert, sample_depth
     from mosaicthinker.runtime.stages import load_role

@@ -37,8 +37,8 @@ def main() -> int:
     ap.add_argument("--room", default="medium")
     ap.add_argument("--out", default=str(Path(__file__).parent / "results" / "synth_render.json"))
     a = ap.parse_args()
-    from mosaicthinker.runtime.synth.generate import write_scene
-    from mosaicthinker.runtime.synth.scene import SceneConfig
+    from mosaicthinker.host.synth.generate import write_scene
+    from mosaicthinker.host.synth.scene import SceneConfig
 
     w, h = (int(v) for v in a.size.split("x"))
     conf = SceneConfig(seed=a.seed, objects=a.objects, room=a.room, duration=a.duration, fps=a.fps, width=w,

@@ -25,7 +25,7 @@ from typing import Any, Callable, Iterable, Sequence
 
 import numpy as np
 
-from mosaicthinker.runtime.host import bundle_write as B
+from mosaicthinker.host import bundle_write as B
 from mosaicthinker.runtime.errors import ExportError
 
 from .log import brief, progress  # noqa: F401  (re-exported: every exporter logs through common)

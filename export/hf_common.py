@@ -184,7 +184,7 @@ def _strip_value_info(src: Path, dst: Path) -> Path:
 
 
 def _drop_role(out: str | Path, role: str) -> None:
-    from mosaicthinker.runtime.host import bundle_write as B
+    from mosaicthinker.host import bundle_write as B
 
     if (Path(out) / B.MANIFEST).is_file():
         manifest = B.read_manifest(out)

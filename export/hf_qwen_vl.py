@@ -708,7 +708,7 @@ def export_qwen_vl(source: str, out: str | Path, precisions: Sequence[str], *, i
     fp32 package), side_block: their int8 block size (columns per scale)."""
     import tempfile
 
-    from mosaicthinker.runtime.host import bundle_write as B
+    from mosaicthinker.host import bundle_write as B
 
     from .hf_common import _drop_role
 
@@ -768,7 +768,7 @@ def export_qwen_vl(source: str, out: str | Path, precisions: Sequence[str], *, i
 
 def _add_variant(out: Path, v: str, pkg: Path, prov: dict, graphs: dict, build: dict, check: dict,
                  image_size: int, vc: Any, side: str = "fp32") -> None:
-    from mosaicthinker.runtime.host import bundle_write as B
+    from mosaicthinker.host import bundle_write as B
 
     comps, files = package_components(out, pkg)
     cfg = {"family": ARCH, "runtime": "onnxruntime-genai", "genai_version": GENAI_VERSION, "image_size": image_size,

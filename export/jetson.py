@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Sequence
 
-from mosaicthinker.runtime.host import bundle_write as B
+from mosaicthinker.host import bundle_write as B
 from mosaicthinker.runtime.errors import ExportError
 
 from . import common as C

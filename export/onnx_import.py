@@ -23,7 +23,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from mosaicthinker.runtime.host import bundle_write as B
+from mosaicthinker.host import bundle_write as B
 from mosaicthinker.runtime.errors import ExportError, InputError
 from mosaicthinker.runtime.progress import ticked
 

@@ -49,7 +49,7 @@ are verified without a schema change. Paths must be relative, must not contain `
 
 Command module for ``mosaic bundle verify DIR`` and ``mosaic bundle show DIR``. This module only reads bundles
 (the device side); writing them (`new_manifest`, `write_manifest`, `add_role`, `add_variant`,
-`io_spec_from_onnx`) is host-side, in `runtime/host/bundle_write.py`.
+`io_spec_from_onnx`) is host-side, in `host/bundle_write.py`.
 """
 from __future__ import annotations
 
@@ -693,16 +693,3 @@ def bundle_hash(bundle: Any) -> str:
     for where, ref in sorted(iter_file_refs(b.manifest), key=lambda x: x[0]):
         h.update(f"{where}={ref.get('sha256')}\n".encode())
     return h.hexdigest()[:16]
-
-
-# Writing moved to the host side (runtime/host/bundle_write.py); these names still resolve from here, imported on
-# first use only, so code written against `bundle.write_manifest` keeps working and the device never loads them.
-_MOVED_TO_HOST = ("new_manifest", "write_manifest", "add_role", "add_variant", "io_spec_from_onnx")
-
-
-def __getattr__(name: str) -> Any:
-    if name in _MOVED_TO_HOST:
-        from .host import bundle_write
-
-        return getattr(bundle_write, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

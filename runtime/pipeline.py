@@ -9,7 +9,7 @@ only wires them, asks the budget for the plan and records everything in a `Trace
     first-seen times (semantic_map) ─▶ visual prompt (prompt) ─▶ answer (answer)
 
 Perception is injected (`Perception`): bundle models, or the synthetic oracle (evaluation only — this module
-never imports `runtime.synth`). Bundle loading and the budget planner are imported where they are used (they
+never imports `host.synth`). Bundle loading and the budget planner are imported where they are used (they
 pull in onnxruntime and the profile machinery, which a saved-map question never needs).
 """
 from __future__ import annotations

@@ -15,7 +15,7 @@ thread default):
 
 Outputs in --out: `report.json` (schema mosaicthinker.profile_report/1), `report.md`, `latency.png` (per call),
 `memory.png`, and `pipeline.png` (seconds per stage of the question) when one ran (Pillow charts, no
-matplotlib; written by the host-side `runtime/host/report.py` as one atomic group, like `ask` and `map`). `--update-profile` writes the measured costs back into the profile TOML (status "measured", today's
+matplotlib; written by the host-side `host/report.py` as one atomic group, like `ask` and `map`). `--update-profile` writes the measured costs back into the profile TOML (status "measured", today's
 date and the bundle hash). Random-weight models are marked everywhere:
 their timings are real, their outputs are not.
 """
@@ -580,7 +580,7 @@ def run_profile(bundle: Any, profile: Profile | str | None = None, *, video: str
                              notes=notes)
         report["updated_profile"] = str(prof.path)
     if out is not None:  # as one group: folder locked, temp files renamed, run id in every file
-        from .host.report import save_report
+        from mosaicthinker.host.report import save_report
 
         save_report(report, out, trace)
     return report
@@ -703,12 +703,3 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                        progress=not (args.no_progress or args.json) and stderr_is_terminal(),
                        isolate=not args.in_process, question=None if args.no_question else args.question,
                        keyframes=args.keyframes)
-
-
-def __getattr__(name: str) -> Any:
-    """`write_report` moved to the host side (runtime/host/report.py); still importable from here."""
-    if name == "write_report":
-        from .host.report import write_report
-
-        return write_report
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

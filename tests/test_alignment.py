@@ -11,7 +11,7 @@ from mosaicthinker.runtime import geometry as G
 from mosaicthinker.runtime.alignment import (align_frames, choose_root, compose_tree, maximum_spanning_tree,
                                              similarity_matrix)
 from mosaicthinker.runtime.errors import AlignmentError
-from mosaicthinker.runtime.evaluation.pose import ate_rmse, evaluate_pose, pick_frames, rpe
+from mosaicthinker.host.evaluation.pose import ate_rmse, evaluate_pose, pick_frames, rpe
 from mosaicthinker.runtime.frames import Frame, open_source
 from mosaicthinker.runtime.matching import Matches, match_features
 

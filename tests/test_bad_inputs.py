@@ -452,7 +452,7 @@ def test_core_affinity_that_exists_is_applied():
 
 
 def test_profile_out_is_written_as_one_group_and_checked_first(tmp_path, capsys):
-    from mosaicthinker.runtime.host.report import save_report
+    from mosaicthinker.host.report import save_report
 
     f = tmp_path / "file"
     f.write_text("x")
@@ -486,7 +486,7 @@ def test_synth_out_is_one_group(tmp_path, capsys):
 
 
 def test_synth_failure_leaves_no_half_scene(tmp_path, capsys, monkeypatch):
-    from mosaicthinker.runtime.synth import generate
+    from mosaicthinker.host.synth import generate
 
     def boom(*a, **k):
         raise OSError(28, "No space left on device")

@@ -11,8 +11,8 @@ from collections import Counter, defaultdict
 import numpy as np
 import pytest
 
-from mosaicthinker.runtime.evaluation import box_truth as bt
-from mosaicthinker.runtime.evaluation.box_truth import Box
+from mosaicthinker.host.evaluation import box_truth as bt
+from mosaicthinker.host.evaluation.box_truth import Box
 
 
 def _box(cat: str, c, L, yaw_deg: float = 0.0) -> Box:

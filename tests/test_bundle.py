@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from mosaicthinker.host import bundle_write as BW
 from mosaicthinker.runtime import bundle as B
 from mosaicthinker.runtime.errors import BundleError, ExportError
 
@@ -273,7 +274,7 @@ def test_bundle_show_never_cuts_parity_or_notes(tiny_bundle: Path):
     vm["parity"] = {"model": {"ok": True, "worst": {"rel": 0.0123, "cosine": 0.99987}, "tolerance": {"rel": 0.02},
                               "outputs": [{"name": f"output_{i}", "rel": 0.01} for i in range(40)]}}
     vm["notes"] = " ".join(f"note{i}" for i in range(80))
-    B.write_manifest(tiny_bundle, m)
+    BW.write_manifest(tiny_bundle, m)
     record_skipped_variant(tiny_bundle, "embedder", "int8-qdq", " ".join(f"why{i}" for i in range(70)))
     r = subprocess.run([sys.executable, "-m", "mosaicthinker.runtime.cli", "bundle", "show", str(tiny_bundle)],
                        capture_output=True, text=True)

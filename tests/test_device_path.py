@@ -17,9 +17,9 @@ import pytest
 # Host-side packages: synthetic scenes, evaluation, bundle writing and report files, the export toolchain and
 # its heavy dependencies. One list: when a package moves to the host side, add it here.
 HOST = [
-    "mosaicthinker.runtime.synth",
-    "mosaicthinker.runtime.evaluation",
-    "mosaicthinker.runtime.host",
+    "mosaicthinker.host.synth",
+    "mosaicthinker.host.evaluation",
+    "mosaicthinker.host",
     "mosaicthinker.export",
     "torch",
     "transformers",
@@ -41,10 +41,10 @@ res = R.ask({source!r}, "How many chairs are in this room?", bundle=b)
 rc_map = main(["map", {source!r}, "--bundle", {bundle!r}, "--out", {out!r}])
 rc_ask = main(["ask", {out!r} + "/map.json", "How many chairs are in this room?", "--json"])
 seen = host_modules()
-import mosaicthinker.runtime.host.bundle_write  # the detector itself sees a host import (the test can fail)
+import mosaicthinker.host.bundle_write  # the detector itself sees a host import (the test can fail)
 n_map = len(json.load(open({out!r} + "/map.json"))["instances"])
 print(json.dumps({{"host": seen, "answer": res.answer.text, "rc_map": rc_map, "rc_ask": rc_ask, "n_map": n_map,
-                  "detector_works": "mosaicthinker.runtime.host.bundle_write" in host_modules()}}))
+                  "detector_works": "mosaicthinker.host.bundle_write" in host_modules()}}))
 """
 
 

@@ -279,7 +279,7 @@ def test_the_parser_reads_only_the_question_and_options():
 def test_scoring_uses_only_the_question_text_and_options(tmp_path):
     """A file whose question_type disagrees with its text: the answer follows the text (question_type is only
     used to score), and any room set in meta_info format and any question file score the same way."""
-    from mosaicthinker.runtime.evaluation.vsibench import evaluate
+    from mosaicthinker.host.evaluation.vsibench import evaluate
 
     meta = {"room1": {"object_bbox": {n: [{"centroid": list(c), "axesLengths": list(s),
                                            "normalizedAxes": np.eye(3).reshape(-1).tolist()}

@@ -205,7 +205,7 @@ def test_iterative_is_deterministic_and_validates():
 
 
 def test_score_selection_exact():
-    from mosaicthinker.runtime.evaluation.keyframes import score_selection
+    from mosaicthinker.host.evaluation.keyframes import score_selection
 
     vis = [{1: 0.5}, {1: 0.1, 2: 0.3}, {}, {3: 0.9}, {2: 0.25, 3: 0.2}]
     sc = score_selection([0, 1, 2], {1, 2}, vis)  # frame 1 shows 2 (0.3); frame 2 shows nothing
@@ -457,7 +457,7 @@ def test_random_baseline_scores_nothing_and_is_seeded():
 
 @pytest.fixture(scope="module")
 def tiny_long_video():
-    from mosaicthinker.runtime.synth.longvideo import LongVideoConf, make_long_video
+    from mosaicthinker.host.synth.longvideo import LongVideoConf, make_long_video
 
     return make_long_video(LongVideoConf(seed=3, rooms=2, room_seconds=6, corridor_seconds=4, fps=2, width=64,
                                          height=48))
@@ -476,7 +476,7 @@ def test_long_video_segments_and_ground_truth(tiny_long_video):
 
 
 def test_long_questions_keep_rare_objects_only(tiny_long_video):
-    from mosaicthinker.runtime.synth.longvideo import long_questions
+    from mosaicthinker.host.synth.longvideo import long_questions
 
     v = tiny_long_video
     qs, skipped = long_questions(v, max_share=0.3)
@@ -492,7 +492,7 @@ def test_long_questions_keep_rare_objects_only(tiny_long_video):
 
 
 def test_long_video_oracle_misses_and_false_positives(tiny_long_video):
-    from mosaicthinker.runtime.synth.longvideo import LongVideoOracle
+    from mosaicthinker.host.synth.longvideo import LongVideoOracle
 
     v = tiny_long_video
     names = sorted(set(v.names.values()))
@@ -512,8 +512,8 @@ def test_long_video_oracle_misses_and_false_positives(tiny_long_video):
 
 
 def test_evaluate_long_video_records(tiny_long_video):
-    from mosaicthinker.runtime.evaluation.keyframes import evaluate_long_video, summarise
-    from mosaicthinker.runtime.synth.longvideo import LongVideoOracle, long_questions
+    from mosaicthinker.host.evaluation.keyframes import evaluate_long_video, summarise
+    from mosaicthinker.host.synth.longvideo import LongVideoOracle, long_questions
 
     v = tiny_long_video
     qs, _ = long_questions(v, max_share=0.5)

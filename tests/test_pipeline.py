@@ -15,8 +15,8 @@ SCENE = dict(seed=4, objects="low", room="medium", duration=10.0, fps=6.0, width
 
 def synthetic_scene(factory) -> Path:
     """One small generated scene per test session (shared by test_pipeline and test_commands)."""
-    from mosaicthinker.runtime.synth.generate import write_scene
-    from mosaicthinker.runtime.synth.scene import SceneConfig
+    from mosaicthinker.host.synth.generate import write_scene
+    from mosaicthinker.host.synth.scene import SceneConfig
 
     d = factory.getbasetemp() / "mosaic_scene_seed4"
     if not (d / "questions.jsonl").is_file():
@@ -32,8 +32,8 @@ def scene(tmp_path_factory) -> Path:
 @pytest.fixture(scope="module")
 def built(scene):
     from mosaicthinker.runtime import Trace, build_map, open_source
-    from mosaicthinker.runtime.evaluation.oracle_perception import oracle_perception
-    from mosaicthinker.runtime.synth.generate import load_scene
+    from mosaicthinker.host.evaluation.oracle_perception import oracle_perception
+    from mosaicthinker.host.synth.generate import load_scene
 
     meta = load_scene(scene)
     names = sorted(meta["object_counts"])
@@ -44,7 +44,7 @@ def built(scene):
 
 
 def test_built_map_recall_and_centre_error_through_the_camera_track(built):
-    from mosaicthinker.runtime.evaluation.e2e import map_quality
+    from mosaicthinker.host.evaluation.e2e import map_quality
 
     mb, trace, src, meta, names = built
     q = map_quality(mb.map, {i: mb.poses_world[i] for i in mb.keyframes if i in mb.poses_world}, src, meta, names)
@@ -85,8 +85,8 @@ def test_ask_answers_a_generated_question_from_the_video(scene):
     import json
 
     from mosaicthinker.runtime import ask
-    from mosaicthinker.runtime.evaluation.oracle_perception import oracle_perception
-    from mosaicthinker.runtime.evaluation.vsibench import score_answer
+    from mosaicthinker.host.evaluation.oracle_perception import oracle_perception
+    from mosaicthinker.host.evaluation.vsibench import score_answer
 
     qs = [json.loads(l) for l in (scene / "questions.jsonl").read_text().splitlines()]
     q = next(q for q in qs if q["question_type"] == "object_size_estimation")
@@ -204,8 +204,8 @@ def test_a_slow_stage_reduces_the_plan_of_the_stages_after_it(scene):
 
     from mosaicthinker.runtime import Trace, build_map, open_source
     from mosaicthinker.runtime import budget as B
-    from mosaicthinker.runtime.evaluation.oracle_perception import oracle_perception
-    from mosaicthinker.runtime.synth.generate import load_scene
+    from mosaicthinker.host.evaluation.oracle_perception import oracle_perception
+    from mosaicthinker.host.synth.generate import load_scene
 
     names = sorted(load_scene(scene)["object_counts"])
     src = open_source(scene)
@@ -231,8 +231,8 @@ def test_a_slow_stage_reduces_the_plan_of_the_stages_after_it(scene):
 def test_without_overrun_the_plan_is_kept(scene):
     from mosaicthinker.runtime import Trace, build_map, open_source
     from mosaicthinker.runtime import budget as B
-    from mosaicthinker.runtime.evaluation.oracle_perception import oracle_perception
-    from mosaicthinker.runtime.synth.generate import load_scene
+    from mosaicthinker.host.evaluation.oracle_perception import oracle_perception
+    from mosaicthinker.host.synth.generate import load_scene
 
     names = sorted(load_scene(scene)["object_counts"])
     src = open_source(scene)

@@ -98,7 +98,7 @@ def test_mosaic_profile_report_on_shared_models(shared_bundle, tmp_path, capsys)
 @pytest.mark.export
 def test_profile_marks_random_weights_and_reports_fallback(shared_bundle, tmp_path):
     # a copy of the bundle whose embedder claims random weights, profiled under the Jetson provider chain
-    from mosaicthinker.runtime.host.bundle_write import read_manifest, write_manifest
+    from mosaicthinker.host.bundle_write import read_manifest, write_manifest
 
     b2 = tmp_path / "b2"
     shutil.copytree(shared_bundle, b2)

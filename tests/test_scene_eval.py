@@ -7,9 +7,9 @@ from pathlib import Path
 
 import numpy as np
 
-from mosaicthinker.runtime.evaluation.scene import (SceneEvalConfig, iou_3d, load_annotation, match_instances,
+from mosaicthinker.host.evaluation.scene import (SceneEvalConfig, iou_3d, load_annotation, match_instances,
                                                     register_box, score_instances)
-from mosaicthinker.runtime.evaluation.scene_annotate import floor_height, largest_components, up_transform
+from mosaicthinker.host.evaluation.scene_annotate import floor_height, largest_components, up_transform
 from mosaicthinker.runtime.geometry import OrientedBox, rotation_about
 from mosaicthinker.runtime.semantic_map import Observation, box_depth_mask, fuse_observations
 
@@ -97,7 +97,7 @@ def test_committed_annotation_loads_and_matches_its_marks():
 
 
 def test_register_cameras_recovers_a_similarity_from_a_straight_track():
-    from mosaicthinker.runtime.evaluation.scene import register_cameras
+    from mosaicthinker.host.evaluation.scene import register_cameras
 
     rng = np.random.default_rng(3)
     S = np.eye(4)

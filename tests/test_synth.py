@@ -11,10 +11,10 @@ import pytest
 
 from mosaicthinker.runtime import geometry as G
 from mosaicthinker.runtime.frames import open_source
-from mosaicthinker.runtime.synth.generate import load_scene, write_scene
-from mosaicthinker.runtime.synth.oracle import OracleDetector
-from mosaicthinker.runtime.synth.scene import SceneConfig, _overlap2d, generate_scene
-from mosaicthinker.runtime.synth.stats import STATS_PATH, box_dims, compute_stats, load_meta_info
+from mosaicthinker.host.synth.generate import load_scene, write_scene
+from mosaicthinker.host.synth.oracle import OracleDetector
+from mosaicthinker.host.synth.scene import SceneConfig, _overlap2d, generate_scene
+from mosaicthinker.host.synth.stats import STATS_PATH, box_dims, compute_stats, load_meta_info
 
 SMALL = dict(duration=6.0, fps=8.0, width=256, height=192)
 

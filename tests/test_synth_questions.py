@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from mosaicthinker.runtime.grounding import parse_question
-from mosaicthinker.runtime.synth.generate import load_scene, write_scene
-from mosaicthinker.runtime.synth.scene import SceneConfig
+from mosaicthinker.host.synth.generate import load_scene, write_scene
+from mosaicthinker.host.synth.scene import SceneConfig
 
 
 @pytest.fixture(scope="module")
@@ -181,7 +181,7 @@ def test_reasoner_on_the_exact_map_without_margins(scenes):
     """With the answers from the boxes, the reasoner on the true map is measured, not assumed: every candidate
     question (no margin rule applied; appearance gap kept) answered and scored against box_truth's key."""
     from mosaicthinker.runtime.answer import MapReasoner
-    from mosaicthinker.runtime.synth.questions import generate_questions, ground_truth_map
+    from mosaicthinker.host.synth.questions import generate_questions, ground_truth_map
 
     zero = {"angle_deg": 0.0, "turn_deg": 0.0, "rel_dist_m": 0.0, "min_sep_m": 0.0, "pool": 150}
     n = 0

@@ -9,7 +9,7 @@ import pytest
 
 from mosaicthinker.runtime.cli import main
 from mosaicthinker.runtime.errors import InputError
-from mosaicthinker.runtime.evaluation.vsibench import (MRA_THRESHOLDS, evaluate, find_disagreements, load_meta,
+from mosaicthinker.host.evaluation.vsibench import (MRA_THRESHOLDS, evaluate, find_disagreements, load_meta,
                                                        load_questions, mean_relative_accuracy, score_answer)
 
 MC_TYPES = ("object_rel_direction_easy", "object_rel_direction_medium", "object_rel_direction_hard",

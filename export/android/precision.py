@@ -7,7 +7,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from mosaicthinker.runtime.host import bundle_write as B
+from mosaicthinker.host import bundle_write as B
 
 from .. import common as C
 from ..parity import ort_run, ort_session, parity_check

@@ -8,7 +8,7 @@ import tempfile
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
-from mosaicthinker.runtime.host import bundle_write as B
+from mosaicthinker.host import bundle_write as B
 
 from .. import common as C
 from ..parity import ORT_PARITY_TOL, ort_parity

@@ -79,7 +79,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         if not (src.is_dir() and (src / "scene.json").is_file()):
             raise InputError(f"{src}: --detector oracle needs a synthetic scene folder (with scene.json, from "
                              f"`mosaic synth`); use --detector model with a --bundle for real videos")
-        from ..evaluation.oracle_perception import oracle_perception
+        from mosaicthinker.host.evaluation.oracle_perception import oracle_perception
 
         perception = oracle_perception(src, miss_rate=args.miss_rate, matcher=matcher
                                        if matcher != "model" else "sift")

@@ -1,6 +1,6 @@
 """`mosaic demo`: the whole pipeline on a generated scene, no model files needed.
 
-1. generates a small synthetic room and a walk-through video (`runtime.synth`: RGB-D frames, ground truth,
+1. generates a small synthetic room and a walk-through video (`host.synth`: RGB-D frames, ground truth,
    questions in VSI-Bench wording);
 2. grounds a handful of its questions (one per type), builds ONE semantic map of their objects from the video:
    dedup -> iterative key-frame search -> perception (the oracle detector/segmenter from the rendered instance
@@ -64,14 +64,14 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
 
 def _run(args: argparse.Namespace, out: Path, outs: "RunOutputs", size: tuple[int, int]) -> dict[str, Any]:
     from ..answer import answer_question
-    from ..evaluation.oracle_perception import oracle_perception
-    from ..evaluation.vsibench import score_answer
+    from mosaicthinker.host.evaluation.oracle_perception import oracle_perception
+    from mosaicthinker.host.evaluation.vsibench import score_answer
     from ..frames import open_source
     from ..grounding import parse_question
     from ..pipeline import build_map, load_vlm, perception_from_bundle
     from ..prompt import render as render_prompt
-    from ..synth.generate import write_scene
-    from ..synth.scene import SceneConfig
+    from mosaicthinker.host.synth.generate import write_scene
+    from mosaicthinker.host.synth.scene import SceneConfig
     from ..trace import Trace
 
     w, h = size

@@ -67,7 +67,7 @@ def add_size(p: argparse.ArgumentParser, default: str, what: str = "frame size")
 
 def parse_duration(text: str) -> float:
     """'45' -> 45.0 s; 'short' | 'medium' | 'long' -> the synthetic levels (30 | 60 | 120 s) (argparse type)."""
-    from ..synth.scene import DURATION_LEVELS
+    from mosaicthinker.host.synth.scene import DURATION_LEVELS
 
     if text in DURATION_LEVELS:
         return float(DURATION_LEVELS[text])

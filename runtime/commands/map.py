@@ -46,7 +46,7 @@ def default_objects(args: argparse.Namespace, source: Path) -> list[str]:
     from ..grounding import VOCABULARY, canonical_name
 
     if args.detector == "oracle":
-        from ..synth.generate import load_scene
+        from mosaicthinker.host.synth.generate import load_scene
 
         return sorted({canonical_name(n) or n for n in load_scene(source)["object_counts"]})
     if not args.bundle:
@@ -103,7 +103,7 @@ def _run(args: argparse.Namespace, src: Path, outs: RunOutputs, paths: tuple[Pat
     if args.detector == "oracle":
         if not (src.is_dir() and (src / "scene.json").is_file()):
             raise InputError(f"{src}: --detector oracle needs a synthetic scene folder (with scene.json)")
-        from ..evaluation.oracle_perception import oracle_perception
+        from mosaicthinker.host.evaluation.oracle_perception import oracle_perception
 
         perception = oracle_perception(src, miss_rate=args.miss_rate,
                                        matcher=args.matcher if args.matcher != "model" else "sift")

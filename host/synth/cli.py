@@ -1,4 +1,4 @@
-"""`mosaic synth`: generate synthetic indoor scenes with full ground truth (see runtime/synth/generate.py).
+"""`mosaic synth`: generate synthetic indoor scenes with full ground truth (see host/synth/generate.py).
 
     mosaic synth --out DIR --seed S --complexity low|med|high --room small|medium|large --duration 60 --fps 15 \
         --size 640x480 [--scenes N] [--workers 2] [--no-video] [--no-questions]
@@ -11,15 +11,15 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from ..errors import InputError
-from .scene import SceneConfig
+from mosaicthinker.runtime.errors import InputError
+from mosaicthinker.host.synth.scene import SceneConfig
 
 
 COMMON_FLAGS = ("out",)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from ..commands.flags import add_clip, add_complexity, add_size
+    from mosaicthinker.runtime.commands.flags import add_clip, add_complexity, add_size
 
     p.add_argument("--seed", type=int, default=0, help="random seed (scene k of --scenes uses seed + k)")
     add_complexity(p, "med")
@@ -41,7 +41,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     """Every scene is generated into a hidden staging folder of --out (checked and locked first) and moved
     into place only when all of them are complete; run.json names the run and says when it finished. A kill
     leaves the previous contents and no half-written scene."""
-    from ..outputs import run_group
+    from mosaicthinker.runtime.outputs import run_group
 
     if not args.out:
         raise InputError("mosaic synth: --out DIR is required (the folder to write the scene(s) into)")
@@ -60,8 +60,8 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def _write_one(args: argparse.Namespace, k: int, final: Path, stage: Path) -> dict[str, Any]:
-    from ..errors import OutputError
-    from .generate import write_scene
+    from mosaicthinker.runtime.errors import OutputError
+    from mosaicthinker.host.synth.generate import write_scene
 
     conf = SceneConfig(seed=args.seed + k, objects=args.complexity, room=args.room, duration=args.duration,
                        fps=args.fps, width=args.size[0], height=args.size[1], hfov_deg=args.hfov,

@@ -22,10 +22,10 @@ from typing import Any
 
 import numpy as np
 
-from ..answer import Answer, MapReasoner, NUMERIC_QTYPES
-from ..errors import InputError
-from ..progress import ticked
-from ..semantic_map import SemanticMap
+from mosaicthinker.runtime.answer import Answer, MapReasoner, NUMERIC_QTYPES
+from mosaicthinker.runtime.errors import InputError
+from mosaicthinker.runtime.progress import ticked
+from mosaicthinker.runtime.semantic_map import SemanticMap
 
 SCHEMA = "mosaicthinker.eval.vsibench/1"
 MRA_THRESHOLDS = tuple(float(t) for t in np.linspace(0.50, 0.95, 10))  # as lmms-eval's vsibench utils
@@ -146,7 +146,7 @@ def classify_disagreement(q: dict[str, Any], rec: dict[str, Any], meta_scene: di
 
 def _reason_for(q: dict[str, Any], rec: dict[str, Any], meta_scene: dict[str, Any]) -> str:
     """A reason derived from the geometry of the benchmark's own boxes (general rules, no per-question text)."""
-    from ..grounding import canonical_name, parse_question
+    from mosaicthinker.runtime.grounding import canonical_name, parse_question
 
     qt = rec["question_type"]
     if rec["status"] != "ok":
@@ -224,14 +224,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
-    from ..outputs import run_group
+    from mosaicthinker.runtime.outputs import run_group
 
     with run_group(args.out) as outs:  # --out checked and locked before scoring
         return _run(args, outs)
 
 
 def _run(args: argparse.Namespace, outs: Any) -> dict[str, Any]:
-    from ..outputs import write_file_atomic
+    from mosaicthinker.runtime.outputs import write_file_atomic
 
     questions = load_questions(args.questions)
     meta = load_meta(args.meta)
@@ -258,7 +258,7 @@ def _run(args: argparse.Namespace, outs: Any) -> dict[str, Any]:
     if getattr(args, "result", None):
         write_file_atomic(args.result, json.dumps(result, indent=1, default=str))
     if outs is not None:
-        from ..outputs import finish_group
+        from mosaicthinker.runtime.outputs import finish_group
 
         finish_group(outs, [("vsibench_json", "vsibench.json", dict(result))], result)
     return result

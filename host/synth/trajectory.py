@@ -15,8 +15,8 @@ from scipy.ndimage import gaussian_filter1d
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import dijkstra
 
-from ..geometry import make_pose
-from .scene import Scene
+from mosaicthinker.runtime.geometry import make_pose
+from mosaicthinker.host.synth.scene import Scene
 
 CELL = 0.1  # planning grid (m)
 

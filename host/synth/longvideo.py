@@ -37,9 +37,9 @@ from typing import Any
 import numpy as np
 from scipy.ndimage import find_objects
 
-from ..errors import InputError
-from ..perception import Detections
-from .scene import SceneConfig, generate_scene
+from mosaicthinker.runtime.errors import InputError
+from mosaicthinker.runtime.perception import Detections
+from mosaicthinker.host.synth.scene import SceneConfig, generate_scene
 
 ROOM_LEVELS = ("small", "medium", "large")
 OBJECT_LEVELS = ("low", "med", "high")
@@ -138,10 +138,10 @@ def _frame_boxes(inst: np.ndarray, offset: int) -> dict[int, np.ndarray]:
 
 def make_long_video(conf: LongVideoConf | None = None) -> LongVideo:
     """Generate and render a long walk-through (deterministic in `conf`)."""
-    from ..geometry import intrinsics_from_fov
-    from .generate import in_frame_fraction, visibility_entries
-    from .render import Renderer
-    from .trajectory import camera_track
+    from mosaicthinker.runtime.geometry import intrinsics_from_fov
+    from mosaicthinker.host.synth.generate import in_frame_fraction, visibility_entries
+    from mosaicthinker.host.synth.render import Renderer
+    from mosaicthinker.host.synth.trajectory import camera_track
 
     conf = conf or LongVideoConf()
     conf.validate()
@@ -234,7 +234,7 @@ class LongVideoOracle:
                 raise InputError(f"long-video oracle: {nm} must be in [0, 1], got {v}")
         if score_noise < 0 or full_confidence_at <= 0:
             raise InputError("long-video oracle: need score_noise >= 0 and full_confidence_at > 0")
-        from ..grounding import canonical_name
+        from mosaicthinker.runtime.grounding import canonical_name
 
         self.video, self.seed = video, int(seed)
         self.miss_rate, self.score_noise, self.fp_rate = float(miss_rate), float(score_noise), float(false_positive_rate)

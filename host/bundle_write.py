@@ -2,7 +2,7 @@
 
 The schema, its checks and the read side (`load_bundle`, `read_manifest`, `safe_path`, `sha256_file`,
 `external_data_locations` ...) live in `runtime/bundle.py` and are re-exported here, so export code needs one
-import: `from mosaicthinker.runtime.host import bundle_write as B`.
+import: `from mosaicthinker.host import bundle_write as B`.
 """
 from __future__ import annotations
 
@@ -13,11 +13,11 @@ import tempfile
 from pathlib import Path, PurePosixPath
 from typing import Any
 
-from ..bundle import (MANIFEST, ROLES, SCHEMA, SUPPORTED_SCHEMAS, VARIANT_PREFERENCE, Bundle, Component,  # noqa: F401
+from mosaicthinker.runtime.bundle import (MANIFEST, ROLES, SCHEMA, SUPPORTED_SCHEMAS, VARIANT_PREFERENCE, Bundle, Component,  # noqa: F401
                       RoleSpec, _varint, bundle_hash, check_schema, external_data_locations, iter_file_refs,
                       load_bundle, parity_text, read_manifest, safe_path, sha256_file, strict_json_loads,
                       task_text)
-from ..errors import BundleError
+from mosaicthinker.runtime.errors import BundleError
 
 
 def new_manifest() -> dict[str, Any]:

@@ -25,8 +25,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from ..geometry import invert
-from .scene import POSTER_PATTERNS, Scene
+from mosaicthinker.runtime.geometry import invert
+from mosaicthinker.host.synth.scene import POSTER_PATTERNS, Scene
 
 T = 256  # texture size (texels), power of two
 LEVELS = 4

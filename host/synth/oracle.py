@@ -14,9 +14,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError
-from ..perception import Detections
-from .generate import load_scene
+from mosaicthinker.runtime.errors import InputError
+from mosaicthinker.runtime.perception import Detections
+from mosaicthinker.host.synth.generate import load_scene
 
 
 class OracleDetector:
@@ -37,7 +37,7 @@ class OracleDetector:
         self.n_frames = int(cam["frames"])
         # default: the scene's own "seen" threshold (0.1% of the image, at least 10 pixels)
         self.min_pixels = int(self.meta.get("seen_min_pixels", 10) if min_pixels is None else min_pixels)
-        from ..grounding import canonical_name
+        from mosaicthinker.runtime.grounding import canonical_name
 
         self._canon = canonical_name
         self.names = {int(o["id"]): o["name"] for o in self.meta["instances"]}
@@ -53,7 +53,7 @@ class OracleDetector:
         if not 0 <= int(frame_index) < self.n_frames:
             raise IndexError(f"{self.root}: frame {frame_index} out of range (0..{self.n_frames - 1})")
         p = self.root / f"frame-{int(frame_index):06d}.instances.png"
-        from ..frames import imread_path
+        from mosaicthinker.runtime.frames import imread_path
 
         m = imread_path(p, cv2.IMREAD_UNCHANGED, "instance mask")
         if m is None or m.ndim != 2:

@@ -15,8 +15,8 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from ..errors import InputError, MosaicError
-from ..geometry import invert, rotation_angle_deg, transform, transform_scale, umeyama
+from mosaicthinker.runtime.errors import InputError, MosaicError
+from mosaicthinker.runtime.geometry import invert, rotation_angle_deg, transform, transform_scale, umeyama
 
 SCHEMA = "mosaicthinker.eval.pose/1"
 
@@ -100,7 +100,7 @@ def _load_role(bundle: str | None, role: str, trace: Any) -> Any:
         raise InputError(f"`{role}=model` needs `bundle` (the bundle holding the {role} model)",
                          fields=(role, "bundle"))
     try:
-        from ..stages import load_role  # lazy: the stage adapters are another part of the runtime
+        from mosaicthinker.runtime.stages import load_role  # lazy: the stage adapters are another part of the runtime
     except ImportError as e:
         raise MosaicError(f"--{role} model: the model stages (mosaicthinker.runtime.stages.load_role) are not "
                           f"available in this build ({e}); use --{role} "
@@ -113,7 +113,7 @@ def evaluate_pose(source: Any, indices: Sequence[int], matcher: Any = "sift", st
     """Align frames `indices` of a source with ground-truth poses and score them. matcher: 'orb' | 'sift' |
     matcher object (a shared FeatureMatcher keeps its feature cache across calls); depth_model: None (sensor
     depth) or an adapter with .predict(rgb) and .semantics."""
-    from ..alignment import align_frames
+    from mosaicthinker.runtime.alignment import align_frames
 
     frames = []
     with_scale = False
@@ -161,8 +161,8 @@ COMMON_FLAGS = ("bundle", "out")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from ..cli import add_stage_flags
-    from ..commands.flags import add_keyframes
+    from mosaicthinker.runtime.cli import add_stage_flags
+    from mosaicthinker.runtime.commands.flags import add_keyframes
 
     parser.add_argument("--data", required=True, metavar="DIR",
                         help="RGB-D folder with ground-truth poses (7-Scenes or TUM layout)")
@@ -176,15 +176,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
-    from ..outputs import run_group
+    from mosaicthinker.runtime.outputs import run_group
 
     with run_group(args.out) as outs:  # --out checked and locked before the evaluation runs
         return _run(args, outs)
 
 
 def _run(args: argparse.Namespace, outs: Any) -> dict[str, Any]:
-    from ..frames import open_source
-    from ..trace import Trace
+    from mosaicthinker.runtime.frames import open_source
+    from mosaicthinker.runtime.trace import Trace
 
     trace = Trace()
     t0 = time.perf_counter()
@@ -195,7 +195,7 @@ def _run(args: argparse.Namespace, outs: Any) -> dict[str, Any]:
     idx = pick_frames(len(src), args.keyframes, args.sampling, args.seed)
     depth_model = _load_role(args.bundle, "depth", trace) if args.depth == "model" else None
     matcher = _load_role(args.bundle, "matcher", trace) if args.matcher == "model" else args.matcher
-    from ..progress import phase
+    from mosaicthinker.runtime.progress import phase
 
     with phase("alignment", len(idx), "frame") as bar:  # one call: the bar shows the time it takes
         out = evaluate_pose(src, idx, matcher, args.strategy, depth_model, trace=trace)
@@ -205,7 +205,7 @@ def _run(args: argparse.Namespace, outs: Any) -> dict[str, Any]:
                 "seed": args.seed, "strategy": args.strategy, "depth": args.depth, "matcher": args.matcher,
                 "events": trace.events})
     if outs is not None:
-        from ..outputs import finish_group
+        from mosaicthinker.runtime.outputs import finish_group
 
         finish_group(outs, [("eval_pose_json", "eval_pose.json", dict(out)),
                             ("trace_json", "trace.json", trace.to_dict())], out, trace)

@@ -34,10 +34,10 @@ from typing import Any
 import cv2
 import numpy as np
 
-from ..errors import InputError
-from ..geometry import intrinsics_from_fov, project
-from ..progress import start
-from .scene import Scene, SceneConfig, config_dict, generate_scene
+from mosaicthinker.runtime.errors import InputError
+from mosaicthinker.runtime.geometry import intrinsics_from_fov, project
+from mosaicthinker.runtime.progress import start
+from mosaicthinker.host.synth.scene import Scene, SceneConfig, config_dict, generate_scene
 
 SCENE_SCHEMA = "mosaicthinker.synth.scene/1"
 
@@ -86,7 +86,7 @@ def _render_one(i: int) -> tuple[int, bytes, np.ndarray, np.ndarray, np.ndarray]
     res = r.render(T_wc, frame_seed=i)
     stem = out / f"frame-{i:06d}"
     bgr = np.ascontiguousarray(res.rgb[:, :, ::-1])
-    from ..frames import imwrite_path  # checked, path-safe writes (any folder name)
+    from mosaicthinker.runtime.frames import imwrite_path  # checked, path-safe writes (any folder name)
 
     imwrite_path(f"{stem}.color.jpg", bgr, [cv2.IMWRITE_JPEG_QUALITY, 92])
     mm = np.clip(np.round(res.depth * 1000.0), 0, 65534).astype(np.uint16)
@@ -99,7 +99,7 @@ def _render_one(i: int) -> tuple[int, bytes, np.ndarray, np.ndarray, np.ndarray]
 
 def _init_worker(conf: dict[str, Any], out: str, K: np.ndarray, poses: np.ndarray, threads: int = 1) -> None:
     """Build the renderer in this process (the scene is regenerated from its config: deterministic)."""
-    from .render import Renderer
+    from mosaicthinker.host.synth.render import Renderer
 
     if threads:
         cv2.setNumThreads(threads)
@@ -159,7 +159,7 @@ def write_scene(conf: SceneConfig, out_dir: str | os.PathLike, workers: int = 1,
                 questions: bool = True, name: str | None = None) -> dict[str, Any]:
     """Generate, render and write one scene into `out_dir` (created). Returns a summary dict."""
     t0 = time.perf_counter()
-    from .trajectory import camera_track
+    from mosaicthinker.host.synth.trajectory import camera_track
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -191,7 +191,7 @@ def write_questions(meta: dict[str, Any], out: Path, margins: dict[str, float] |
                     per_type: dict[str, int] | None = None) -> tuple[int, dict[str, Any]]:
     """(Re)write `questions.jsonl` of a scene from its ground truth (deterministic in the scene's seed)
     -> (number of questions, the generator's report: margin removals per type)."""
-    from .questions import generate_questions
+    from mosaicthinker.host.synth.questions import generate_questions
 
     qs, report = generate_questions(meta, seed=int(meta["seed"]), margins=margins, per_type=per_type)
     (Path(out) / "questions.jsonl").write_text("".join(json.dumps(q) + "\n" for q in qs))
@@ -241,7 +241,7 @@ def scene_json(scene: Scene, name: str, K: np.ndarray, times: np.ndarray, rows: 
 
 
 def _plain(x: Any) -> Any:
-    from ..trace import jsonable
+    from mosaicthinker.runtime.trace import jsonable
 
     return jsonable(x)
 

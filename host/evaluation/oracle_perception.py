@@ -1,4 +1,4 @@
-"""Oracle perception for synthetic scenes (evaluation only; the pipeline never imports `runtime.synth`).
+"""Oracle perception for synthetic scenes (evaluation only; the pipeline never imports `host.synth`).
 
 Wraps the synthetic ground truth into the pipeline's `Perception`:
 - detect: `synth.oracle.OracleDetector` (boxes, masks and instance ids from the rendered instance masks, with a
@@ -22,7 +22,7 @@ class OraclePromptSegmenter:
     detector: the scene's `OracleDetector` (its instance masks and id -> category table are used)."""
 
     def __init__(self, detector: Any, min_votes: float = 0.5, cache: int = 16):
-        from ..grounding import canonical_name
+        from mosaicthinker.runtime.grounding import canonical_name
 
         self.det = detector
         self.min_votes = min_votes
@@ -59,8 +59,8 @@ class OraclePromptSegmenter:
 def oracle_perception(scene_dir: str | Path, miss_rate: float = 0.1, score_noise: float = 0.1, seed: int = 0,
                       matcher: Any = "sift", refine: bool = True) -> Any:
     """The pipeline's `Perception` over a synthetic scene's ground truth (see the module docstring)."""
-    from ..pipeline import Perception
-    from ..synth.oracle import OracleDetector
+    from mosaicthinker.runtime.pipeline import Perception
+    from mosaicthinker.host.synth.oracle import OracleDetector
 
     det = OracleDetector(scene_dir, miss_rate=miss_rate, score_noise=score_noise, seed=seed)
     return Perception(detect=lambda frame, names: det.detect(frame.index, names), matcher=matcher,

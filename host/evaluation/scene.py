@@ -32,8 +32,8 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import InputError
-from ..geometry import OrientedBox, transform
+from mosaicthinker.runtime.errors import InputError
+from mosaicthinker.runtime.geometry import OrientedBox, transform
 
 SCHEMA = "mosaicthinker.eval.scene/1"
 
@@ -75,7 +75,7 @@ def visible_instances(source: Any, T_annot: np.ndarray, scene: dict[str, Any], c
                       ) -> dict[str, list[bool]]:
     """Per category, per box: seen in some frame of `source` (its sample points project into the image in front of
     the sensor depth, within 10 cm or nearer). Ground-truth poses and depth: scoring only."""
-    from ..geometry import project
+    from mosaicthinker.runtime.geometry import project
 
     boxes = {c: [OrientedBox.from_meta(m) for m in lst] for c, lst in scene["object_bbox"].items()}
     seen = {c: [0] * len(lst) for c, lst in boxes.items()}
@@ -218,9 +218,9 @@ def floor_metrics(build: Any, source: Any, T_annot: np.ndarray, S: np.ndarray, c
 def score_answers(smap: Any, scene_name: str, meta_entry: dict[str, Any], conf: SceneEvalConfig
                   ) -> tuple[dict[str, Any], list[dict[str, Any]]]:
     """Questions from the annotation (box-only ground truth), answered from the map, scored per type."""
-    from ..answer import MapReasoner
-    from .box_truth import generate_questions
-    from .vsibench import NUMERIC_QTYPES, score_answer
+    from mosaicthinker.runtime.answer import MapReasoner
+    from mosaicthinker.host.evaluation.box_truth import generate_questions
+    from mosaicthinker.host.evaluation.vsibench import NUMERIC_QTYPES, score_answer
 
     qs, removed = generate_questions(meta_entry, scene_name, rng=conf.seed, per_type=conf.per_type)
     reasoner = MapReasoner(smap)
@@ -263,9 +263,9 @@ def visible_meta(scene: dict[str, Any], visible: dict[str, list[bool]]) -> dict[
 def map_names_for(bundle: Any, annotated: list[str]) -> list[str]:
     """Every vocabulary name the bundle's closed-set detector can detect, plus the annotated categories; one
     name per set of detector labels (`one_name_per_label`)."""
-    from ..bundle import load_bundle
-    from ..grounding import VOCABULARY, canonical_name
-    from ..stages.detector import map_names
+    from mosaicthinker.runtime.bundle import load_bundle
+    from mosaicthinker.runtime.grounding import VOCABULARY, canonical_name
+    from mosaicthinker.runtime.stages.detector import map_names
 
     labels = load_bundle(bundle).spec("detector", verify=False).semantics.get("labels") or []
     want = [canonical_name(c) or c for c in annotated]
@@ -277,7 +277,7 @@ def one_name_per_label(mapping: dict[str, list[int]], labels: list[str], preferr
     """Names that reach the same detector labels are aliases of one detection (desk / table -> "dining table",
     monitor / tv -> "tv"): keep one per label set — a `preferred` (annotated) name, else the one that is the
     label itself, else the alphabetically first — so a map of every category names each detection once."""
-    from ..stages.detector import normalize_name
+    from mosaicthinker.runtime.stages.detector import normalize_name
 
     groups: dict[tuple[int, ...], list[str]] = {}
     for n, ids in mapping.items():
@@ -295,11 +295,11 @@ def evaluate_scene(data: str | Path, annotations: str | Path, bundle: str | Path
                    keyframe_method: str = "iterative",
                    conf: SceneEvalConfig | None = None, out: str | Path | None = None) -> dict[str, Any]:
     """Build, register and score (see the module doc). Returns the JSON result."""
-    from .. import pipeline
-    from ..frames import open_source
-    from ..grounding import canonical_name
-    from ..trace import Trace, peak_rss_mb, reset_peak_rss
-    from .pose import align_trajectories
+    from mosaicthinker.runtime import pipeline
+    from mosaicthinker.runtime.frames import open_source
+    from mosaicthinker.runtime.grounding import canonical_name
+    from mosaicthinker.runtime.trace import Trace, peak_rss_mb, reset_peak_rss
+    from mosaicthinker.host.evaluation.pose import align_trajectories
 
     conf = conf or SceneEvalConfig()
     name, scene, T_annot = load_annotation(annotations)
@@ -354,8 +354,8 @@ def evaluate_scene(data: str | Path, annotations: str | Path, bundle: str | Path
 def ask_questions(src: Any, recs: list[dict[str, Any]], n: int, perception: Any, pconf: dict[str, Any],
                   keyframes: int) -> dict[str, Any]:
     """`pipeline.ask` on the video (per-question key frames) for n questions, spread over the types."""
-    from .. import pipeline
-    from .vsibench import score_answer
+    from mosaicthinker.runtime import pipeline
+    from mosaicthinker.host.evaluation.vsibench import score_answer
 
     order = sorted(range(len(recs)), key=lambda k: (recs[k]["id"] % max(1, len(recs) // n), k))[:n]
     out = []
@@ -373,7 +373,7 @@ def ask_questions(src: Any, recs: list[dict[str, Any]], n: int, perception: Any,
 
 
 def _write_out(out: Path, res: dict[str, Any], build: Any, S: np.ndarray, vmeta: dict[str, Any], trace: Any) -> None:
-    from .scene_annotate import render_topdown
+    from mosaicthinker.host.evaluation.scene_annotate import render_topdown
 
     out.mkdir(parents=True, exist_ok=True)
     clouds = [transform(S, c) for c in build.clouds if len(c)]
@@ -393,8 +393,8 @@ COMMON_FLAGS = ("bundle", "out")  # the common flags this command reads
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from ..cli import add_stage_flags
-    from ..commands.flags import add_gravity, add_keyframes
+    from mosaicthinker.runtime.cli import add_stage_flags
+    from mosaicthinker.runtime.commands.flags import add_gravity, add_keyframes
 
     p.add_argument("--data", required=True, metavar="DIR",
                    help="RGB-D frame folder with ground-truth poses (7-Scenes layout)")
@@ -409,7 +409,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> dict[str, Any]:
     if not args.bundle:
         raise InputError("mosaic eval scene needs --bundle (the real models: `mosaic export shared-models`)")
-    from ..commands.flags import pipeline_keyframes
+    from mosaicthinker.runtime.commands.flags import pipeline_keyframes
 
     k = args.keyframes if args.keyframes is not None else pipeline_keyframes()
     return evaluate_scene(args.data, args.annotations, args.bundle, args.depth, args.matcher, k,

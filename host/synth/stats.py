@@ -8,8 +8,8 @@ the empirical quantiles of the floor area (`room_size`) and of the total object 
 
 The result is checked in as `vsibench_stats.json` (so `mosaic synth` works without ../shared) and is reproducible:
 
-    python -m mosaicthinker.runtime.synth.stats --meta ../shared/data/vsibench/meta_info.json \
-        --out runtime/synth/vsibench_stats.json
+    python -m mosaicthinker.host.synth.stats --meta ../shared/data/vsibench/meta_info.json \
+        --out host/synth/vsibench_stats.json
 
 (tests/test_synth.py recomputes it from ../shared and compares).
 """
@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import InputError
+from mosaicthinker.runtime.errors import InputError
 
 STATS_PATH = Path(__file__).with_name("vsibench_stats.json")
 STATS_SCHEMA = "mosaicthinker.synth.vsibench_stats/1"
@@ -107,7 +107,7 @@ def load_stats(path: str | Path | None = None) -> dict[str, Any]:
         d = json.loads(p.read_text())
     except (OSError, json.JSONDecodeError) as e:
         raise InputError(f"{p}: cannot read scene statistics ({e}); regenerate with "
-                         f"`python -m mosaicthinker.runtime.synth.stats --meta META --out {p}`") from None
+                         f"`python -m mosaicthinker.host.synth.stats --meta META --out {p}`") from None
     if d.get("schema") == STATS_SCHEMA:
         return d
     if all(isinstance(v, dict) and "object_bbox" in v for v in d.values()):

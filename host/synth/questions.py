@@ -22,9 +22,9 @@ from typing import Any
 
 import numpy as np
 
-from ..evaluation import box_truth
-from ..geometry import OrientedBox
-from ..semantic_map import ObjectInstance, Room, SemanticMap
+from mosaicthinker.host.evaluation import box_truth
+from mosaicthinker.runtime.geometry import OrientedBox
+from mosaicthinker.runtime.semantic_map import ObjectInstance, Room, SemanticMap
 
 Q_ORDER = "What will be the first-time appearance order of the following categories in the video: {cats}?"
 

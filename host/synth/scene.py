@@ -24,9 +24,9 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import InputError
-from ..geometry import OrientedBox
-from .stats import load_stats, sample_count, sample_dims, sample_quantiles
+from mosaicthinker.runtime.errors import InputError
+from mosaicthinker.runtime.geometry import OrientedBox
+from mosaicthinker.host.synth.stats import load_stats, sample_count, sample_dims, sample_quantiles
 
 # ----------------------------------------------------------------------------- configuration
 

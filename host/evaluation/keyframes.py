@@ -36,9 +36,9 @@ from typing import Any, Callable
 
 import numpy as np
 
-from ..errors import InputError
-from ..keyframes import METHODS, KeyFrameConf, select_keyframes
-from ..perception import Detections
+from mosaicthinker.runtime.errors import InputError
+from mosaicthinker.runtime.keyframes import METHODS, KeyFrameConf, select_keyframes
+from mosaicthinker.runtime.perception import Detections
 
 SCHEMA = "mosaicthinker.eval.keyframes/1"
 LEVELS = {"objects": ("low", "med", "high"), "room": ("small", "medium", "large"),
@@ -135,7 +135,7 @@ def check_targets(summary: dict[str, Any]) -> dict[str, Any]:
 
 def _scene_config(i: int, args: argparse.Namespace) -> tuple[Any, str]:
     """Scene i: the varied factor cycles through its three levels, the others stay at their middle level."""
-    from ..synth.scene import DURATION_LEVELS, SceneConfig
+    from mosaicthinker.host.synth.scene import DURATION_LEVELS, SceneConfig
 
     level = LEVELS[args.vary][i % 3]
     kw: dict[str, Any] = {"objects": "med", "room": "medium", "duration": args.duration}
@@ -145,7 +145,7 @@ def _scene_config(i: int, args: argparse.Namespace) -> tuple[Any, str]:
         kw["room"] = level
     else:
         kw["duration"] = DURATION_LEVELS[level] * args.duration / DURATION_LEVELS["medium"]
-    from ..commands.flags import size_of
+    from mosaicthinker.runtime.commands.flags import size_of
 
     w, h = size_of(args)
     conf = SceneConfig(seed=args.seed * 1000 + i, fps=args.fps, width=w, height=h, **kw)
@@ -154,8 +154,8 @@ def _scene_config(i: int, args: argparse.Namespace) -> tuple[Any, str]:
 
 def _ensure_scene(conf: Any, out: Path, workers: int) -> dict[str, Any]:
     """Generate the scene into `out` unless a scene with the same configuration is already there."""
-    from ..synth.generate import load_scene, write_scene
-    from ..synth.scene import config_dict
+    from mosaicthinker.host.synth.generate import load_scene, write_scene
+    from mosaicthinker.host.synth.scene import config_dict
 
     if (out / "scene.json").exists() and (out / "questions.jsonl").exists():
         meta = load_scene(out)
@@ -179,12 +179,12 @@ def _ensure_scene(conf: Any, out: Path, workers: int) -> dict[str, Any]:
 
 def _candidates(scene_dir: Path, use_dedup: bool) -> tuple[list[int], str]:
     """Frames kept by redundant-frame removal (or every frame, said so)."""
-    from ..frames import open_source
+    from mosaicthinker.runtime.frames import open_source
 
     src = open_source(scene_dir)
     if use_dedup:
         try:
-            from ..dedup import remove_redundant
+            from mosaicthinker.runtime.dedup import remove_redundant
         except ImportError:
             return list(range(len(src))), "all frames (runtime.dedup is not available)"
         res = remove_redundant(src)
@@ -197,7 +197,7 @@ def _image_reader(scene_dir: Path) -> Callable[[int], np.ndarray]:
 
     def image(f: int) -> np.ndarray:
         p = scene_dir / f"frame-{int(f):06d}.color.jpg"
-        from ..frames import imread_path
+        from mosaicthinker.runtime.frames import imread_path
 
         bgr = imread_path(p, cv2.IMREAD_COLOR)
         if bgr is None:
@@ -213,13 +213,13 @@ def _detector(scene_dir: Path, args: argparse.Namespace, image: Callable[[int], 
     call takes the names it asks for (a closed-set detector's answer for one name does not depend on the
     others), so the exhaustive baseline costs one network run per candidate, not one per question."""
     if args.detector == "oracle":
-        from ..synth.oracle import OracleDetector
+        from mosaicthinker.host.synth.oracle import OracleDetector
 
         det = OracleDetector(scene_dir, miss_rate=args.miss_rate, score_noise=args.score_noise, seed=args.seed)
         return det.detect, f"oracle (miss_rate={args.miss_rate}, score_noise={args.score_noise})"
     if not args.bundle:
         raise InputError("--detector model needs --bundle DIR (a bundle with a detector role)")
-    from ..stages import load_role
+    from mosaicthinker.runtime.stages import load_role
 
     model = load_role(args.bundle, "detector")
     return vocabulary_detector(model, image, vocabulary), f"bundle detector ({args.bundle}: " \
@@ -260,8 +260,8 @@ def evaluate_scene(scene_dir: Path, level: str, args: argparse.Namespace,
                    methods: dict[str, tuple[str, KeyFrameConf]]) -> tuple[list[dict[str, Any]], dict[str, Any]]:
     """All questions of one generated scene x all methods (label -> (method, config)) -> per-question records
     and a scene summary."""
-    from ..grounding import parse_question
-    from ..synth.generate import load_scene
+    from mosaicthinker.runtime.grounding import parse_question
+    from mosaicthinker.host.synth.generate import load_scene
 
     meta = load_scene(scene_dir)
     vis = visibility_table(meta)
@@ -353,8 +353,8 @@ COMMON_FLAGS = ("bundle", "out")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from ..cli import add_stage_flags
-    from ..commands.flags import add_clip, add_deprecated_size_parts, add_keyframes, add_size
+    from mosaicthinker.runtime.cli import add_stage_flags
+    from mosaicthinker.runtime.commands.flags import add_clip, add_deprecated_size_parts, add_keyframes, add_size
 
     p.add_argument("--scenes", type=int, default=3, help="number of generated scenes (default 3)")
     p.add_argument("--seed", type=int, default=0, help="scene i uses seed 1000*S + i; also the oracle's seed")
@@ -402,7 +402,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     t0 = time.perf_counter()
     tmp = None
     if args.out:
-        from ..outputs import check_out_dir
+        from mosaicthinker.runtime.outputs import check_out_dir
 
         check_out_dir(Path(args.out))  # before generating and evaluating, not after
     root = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix="mosaic-kf-"))
@@ -410,7 +410,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         tmp = root
     records: list[dict[str, Any]] = []
     scenes: list[dict[str, Any]] = []
-    from ..progress import ticked
+    from mosaicthinker.runtime.progress import ticked
 
     try:
         for i in ticked(range(args.scenes), "scenes", "scene"):
@@ -437,14 +437,14 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     if args.records:
         out["records"] = records
     if args.out:  # the result beside the scenes, written atomically (locked, temp file + rename, run.json)
-        from ..outputs import write_group
+        from mosaicthinker.runtime.outputs import write_group
 
         write_group(args.out, [("keyframes_json", "keyframes.json", dict(out))], out)
     return out
 
 
 def _argv(args: argparse.Namespace) -> list[str]:
-    from ..commands.flags import size_of
+    from mosaicthinker.runtime.commands.flags import size_of
 
     keep = ["scenes", "seed", "keyframes", "detector", "vary", "duration", "fps", "miss_rate", "score_noise",
             "min_visible"]

@@ -1,6 +1,6 @@
 """`mosaic eval e2e`: end-to-end answer accuracy on synthetic scenes, and the quality of the built maps.
 
-For N generated scenes (`runtime.synth`, seeds S..S+N-1, object level cycling low / med / high) and their
+For N generated scenes (`host.synth`, seeds S..S+N-1, object level cycling low / med / high) and their
 questions (`questions.jsonl`, VSI-Bench types and wording), three maps answer every question with the map
 reasoner, scored as VSI-Bench does (exact match for multiple choice, MRA for numbers):
 
@@ -33,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import InputError
+from mosaicthinker.runtime.errors import InputError
 
 LEVELS = ("low", "med", "high")
 
@@ -41,7 +41,7 @@ LEVELS = ("low", "med", "high")
 def robust_track_alignment(est: np.ndarray, gt: np.ndarray, min_thr: float = 0.1) -> tuple[np.ndarray, np.ndarray]:
     """T [4, 4] mapping estimated camera centres est [N, 3] onto true ones gt [N, 3] (rigid Umeyama, 3 rounds
     dropping residuals above max(min_thr, 3 x median)); returns (T, inlier mask [N])."""
-    from ..geometry import transform, umeyama
+    from mosaicthinker.runtime.geometry import transform, umeyama
 
     keep = np.ones(len(est), bool)
     if len(est) < 3:
@@ -63,8 +63,8 @@ def map_quality(smap: Any, poses_world: dict[int, np.ndarray], source: Any, meta
     ground-truth poses; names: the categories that were searched."""
     from scipy.optimize import linear_sum_assignment
 
-    from ..geometry import transform
-    from ..grounding import canonical_name
+    from mosaicthinker.runtime.geometry import transform
+    from mosaicthinker.runtime.grounding import canonical_name
 
     idx = [i for i in sorted(poses_world) if source[i].pose_gt is not None]
     est = np.array([poses_world[i][:3, 3] for i in idx])
@@ -111,9 +111,9 @@ def generate_scenes(n: int, seed: int, data: Path, size: tuple[int, int], fps: f
     """Generate (or reuse) N synthetic scenes under `data`; returns their folders and the answer key's report.
     A reused scene's questions are rewritten by the current generator (answers from `box_truth`).
     all_candidates: every candidate question, margin rules off (the appearance gap stays), no per-type limit."""
-    from ..synth.generate import load_scene, write_questions, write_scene
-    from ..synth.questions import LIMITS
-    from ..synth.scene import SceneConfig
+    from mosaicthinker.host.synth.generate import load_scene, write_questions, write_scene
+    from mosaicthinker.host.synth.questions import LIMITS
+    from mosaicthinker.host.synth.scene import SceneConfig
 
     out, removed = [], {}
     for k in range(n):
@@ -140,7 +140,7 @@ def generate_scenes(n: int, seed: int, data: Path, size: tuple[int, int], fps: f
 
 
 def _score(q: dict[str, Any], ans: Any) -> float:
-    from .vsibench import score_answer
+    from mosaicthinker.host.evaluation.vsibench import score_answer
 
     return score_answer(q["question_type"], ans.text if ans.status == "ok" else None, q["ground_truth"])
 
@@ -152,8 +152,8 @@ def _load_questions(d: Path) -> list[dict[str, Any]]:
 
 def _detectable(bundle: Any, names: list[str]) -> tuple[set[str], list[str]]:
     """Names the bundle's detector label list covers (closed set) — all names for an open-vocabulary one."""
-    from ..bundle import load_bundle
-    from ..stages.detector import map_names
+    from mosaicthinker.runtime.bundle import load_bundle
+    from mosaicthinker.runtime.stages.detector import map_names
 
     b = load_bundle(bundle)
     if not b.has_role("detector"):
@@ -169,8 +169,8 @@ def _oracle_matcher(conf: dict[str, Any], bundle: Any, trace: Any) -> Any:
     """The oracle mode's matcher: OpenCV by name, or the bundle's matcher model for --matcher model."""
     if conf.get("matcher", "sift") != "model":
         return conf.get("matcher", "sift")
-    from ..bundle import load_bundle
-    from ..stages import load_role
+    from mosaicthinker.runtime.bundle import load_bundle
+    from mosaicthinker.runtime.stages import load_role
 
     b = load_bundle(bundle)
     if not b.has_role("matcher"):
@@ -181,14 +181,14 @@ def _oracle_matcher(conf: dict[str, Any], bundle: Any, trace: Any) -> Any:
 def evaluate_scene(d: Path, modes: list[str], conf: dict[str, Any], bundle: Any, map_per: str,
                    keyframes: int, miss_rate: float, seed: int) -> dict[str, Any]:
     """All questions of one scene under each mode -> per-question records and per-map quality."""
-    from ..answer import MapReasoner
-    from ..frames import open_source
-    from ..grounding import parse_question
-    from ..pipeline import build_map, perception_from_bundle
-    from ..synth.generate import load_scene
-    from ..synth.questions import ground_truth_map
-    from ..trace import Trace
-    from .oracle_perception import oracle_perception
+    from mosaicthinker.runtime.answer import MapReasoner
+    from mosaicthinker.runtime.frames import open_source
+    from mosaicthinker.runtime.grounding import parse_question
+    from mosaicthinker.runtime.pipeline import build_map, perception_from_bundle
+    from mosaicthinker.host.synth.generate import load_scene
+    from mosaicthinker.host.synth.questions import ground_truth_map
+    from mosaicthinker.runtime.trace import Trace
+    from mosaicthinker.host.evaluation.oracle_perception import oracle_perception
 
     meta = load_scene(d)
     qs = _load_questions(d)
@@ -288,8 +288,8 @@ COMMON_FLAGS = ("bundle", "out")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from ..cli import add_stage_flags
-    from ..commands.flags import add_clip, add_gravity, add_keyframes, add_size
+    from mosaicthinker.runtime.cli import add_stage_flags
+    from mosaicthinker.runtime.commands.flags import add_clip, add_gravity, add_keyframes, add_size
 
     p.add_argument("--scenes", type=int, default=3, help="number of synthetic scenes")
     p.add_argument("--seed", type=int, default=0, help="first scene seed")
@@ -318,7 +318,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                          "export/onnx_import.py)")
     if args.matcher == "model" and not args.bundle:
         raise InputError("--matcher model needs --bundle (a bundle with a `matcher` role)")
-    from ..outputs import run_group
+    from mosaicthinker.runtime.outputs import run_group
 
     with run_group(args.out) as outs:  # --out checked and locked before generating and evaluating
         return _run(args, modes, outs)
@@ -338,10 +338,10 @@ def _run(args: argparse.Namespace, modes: list[str], outs: Any) -> dict[str, Any
     records, maps = [], []
     conf = {"matcher": args.matcher, "gravity": args.gravity}
     if args.keyframes is None:
-        from ..commands.flags import pipeline_keyframes
+        from mosaicthinker.runtime.commands.flags import pipeline_keyframes
 
         args.keyframes = pipeline_keyframes()  # recorded in the settings as the K used
-    from ..progress import ticked
+    from mosaicthinker.runtime.progress import ticked
 
     for d in ticked(dirs, "scenes", "scene"):
         r = evaluate_scene(d, modes, conf, args.bundle, args.map_per, args.keyframes, args.miss_rate, args.seed)
@@ -357,7 +357,7 @@ def _run(args: argparse.Namespace, modes: list[str], outs: Any) -> dict[str, Any
                                                                  "total": round(time.perf_counter() - t0, 1)},
            "maps": maps, "records": records}
     if outs is not None:
-        from ..outputs import finish_group
+        from mosaicthinker.runtime.outputs import finish_group
 
         finish_group(outs, [("e2e_json", "e2e.json", dict(res))], res)
     return res
