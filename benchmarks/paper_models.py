@@ -91,12 +91,12 @@ def step_checkpoint(name: str, big: Path) -> dict:
 
         random_checkpoint("3b", ck, dtype="bfloat16")
     else:
-        from mosaicthinker.export.tiny import _torch_default_init
+        from mosaicthinker.export.tiny import torch_default_init
 
         cls, cfg = real_config(name)
         torch.manual_seed(0)
         model = cls(cfg).eval()
-        _torch_default_init(model)
+        torch_default_init(model)
         if name == "depth-anything-v2-small":  # as export/tiny.py: the ReLU head of a random net is all zero
             torch.nn.init.constant_(model.head.conv3.bias, 0.1)
         n = sum(p.numel() for p in model.parameters())

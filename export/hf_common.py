@@ -128,7 +128,7 @@ def export_variants(out: str | Path, role: str, graphs: list[GraphSpec], meta: d
         if task is not None and not task.get("ok"):
             raise ExportError(f"{role}: fp32 task check failed: {task}")
         cmeta = {g.name: {**g.meta, "precision": "fp32"} for g in graphs}
-        _drop_role(out, role)  # a re-export replaces the role: no stale variants of an older model
+        drop_role(out, role)  # a re-export replaces the role: no stale variants of an older model
         C.add_variant_files(out, role, "fp32", fp32, meta=meta, precision="fp32", parity=par32,
                             component_meta=cmeta, default=True, extra={"task_check": task} if task else None)
         report["variants"]["fp32"] = {"components": {g.name: "fp32" for g in graphs}, "parity": par32, "task": task}
@@ -183,7 +183,7 @@ def _strip_value_info(src: Path, dst: Path) -> Path:
     return dst
 
 
-def _drop_role(out: str | Path, role: str) -> None:
+def drop_role(out: str | Path, role: str) -> None:
     from mosaicthinker.host import bundle_write as B
 
     if (Path(out) / B.MANIFEST).is_file():

@@ -25,7 +25,7 @@ from .hf_common import CLIP_MEAN, CLIP_STD, GraphSpec, export_variants, run_expo
 from .sources import load_source
 
 HF_DEFAULTS = {"owlv2": "google/owlv2-base-patch16-ensemble"}
-_TINY_WORDS = ("a photo of the chair table sofa bed tv door window sink fridge lamp plant oven microwave "
+TINY_WORDS = ("a photo of the chair table sofa bed tv door window sink fridge lamp plant oven microwave "
                "toilet car person cup bottle bowl book clock vase laptop keyboard mouse phone bag bench "
                "stool desk shelf cabinet counter pillow rug picture mirror").split()
 
@@ -34,7 +34,7 @@ def build_tiny_tokenizer(path: str | Path, vocab_size: int) -> Path:
     """WordLevel tokenizer.json for the tiny OWLv2: pad 0, [UNK] 1, words, start = vocab-2, end = vocab-1
     (the text tower pools at argmax(input_ids), i.e. at the end token, as with CLIP's vocabulary)."""
     vocab = {"!": 0, "[UNK]": 1}
-    for w in _TINY_WORDS:
+    for w in TINY_WORDS:
         vocab.setdefault(w, len(vocab))
     if len(vocab) > vocab_size - 2:
         raise ExportError("tiny OWLv2 tokenizer vocabulary exceeds the tiny model's vocab size")

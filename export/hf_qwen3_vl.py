@@ -81,11 +81,11 @@ def random_model(size: str, seed: int = 0) -> Any:
     import torch
     from transformers import Qwen3VLForConditionalGeneration
 
-    from .tiny import _torch_default_init
+    from .tiny import torch_default_init
 
     torch.manual_seed(seed)
     model = Qwen3VLForConditionalGeneration(qwen3_config(size)).float().eval()
-    _torch_default_init(model)  # fan-in init: O(1) activations, so random logits are not flat
+    torch_default_init(model)  # fan-in init: O(1) activations, so random logits are not flat
     return model
 
 

@@ -70,7 +70,7 @@ def random_checkpoint(size: str, dst: str | Path, *, dtype: str = "float32", see
     import torch
     from transformers import Qwen2_5_VLForConditionalGeneration
 
-    from .tiny import _torch_default_init
+    from .tiny import torch_default_init
 
     dst = Path(dst)
     dst.mkdir(parents=True, exist_ok=True)
@@ -82,7 +82,7 @@ def random_checkpoint(size: str, dst: str | Path, *, dtype: str = "float32", see
         model = Qwen2_5_VLForConditionalGeneration(cfg)
     finally:
         torch.set_default_dtype(prev)
-    _torch_default_init(model)  # fan-in init: O(1) activations (HF's 0.02 init makes random logits flat)
+    torch_default_init(model)  # fan-in init: O(1) activations (HF's 0.02 init makes random logits flat)
     model.eval().save_pretrained(str(dst))
     del model
     write_synthetic_tokenizer(dst, cfg.text_config.vocab_size)
@@ -710,7 +710,7 @@ def export_qwen_vl(source: str, out: str | Path, precisions: Sequence[str], *, i
 
     from mosaicthinker.host import bundle_write as B
 
-    from .hf_common import _drop_role
+    from .hf_common import drop_role
 
     if image_size % 28:
         raise ExportError(f"--option image_size={image_size}: must be a multiple of 28 (patch 14 x merge 2)")
@@ -740,7 +740,7 @@ def export_qwen_vl(source: str, out: str | Path, precisions: Sequence[str], *, i
             g8.update(seconds=round(time.time() - t, 1), image_tokens=graphs["image_tokens"], vocab=graphs["vocab"])
             sides.update({v: g8 for v in variants if v != "fp32"})
         del model
-        _drop_role(out, "vlm")
+        drop_role(out, "vlm")
         fp32_ref = None
         for v in variants:
             pkg = assemble_package(out / "vlm" / v, work / f"dec-{v}", sides[v], ckpt, vc, image_size, context_length)

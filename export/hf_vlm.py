@@ -22,7 +22,7 @@ from mosaicthinker.runtime.errors import ExportError
 from . import common as C
 from .hf_common import GraphSpec, export_variants, run_exporter, word_level_tokenizer, write_tokenizer
 from .sources import load_source
-from .tiny import _TINY_SPECIALS, _TINY_WORDS, TINY_VOCAB, tiny_special_ids  # noqa: F401  (re-exported)
+from .tiny import TINY_SPECIALS, TINY_WORDS, TINY_VOCAB, tiny_special_ids  # noqa: F401  (re-exported)
 
 HF_DEFAULTS = {"smolvlm": "HuggingFaceTB/SmolVLM-256M-Instruct", "internvl": "OpenGVLab/InternVL3-1B-hf"}
 
@@ -35,10 +35,10 @@ LOW_PRECISION_TOKEN_AGREEMENT = 0.5
 
 def build_tiny_tokenizer(family: str, path: str | Path) -> Path:
     """A WordLevel tokenizer.json with the family's special/image tokens (ids < TINY_VOCAB)."""
-    vocab = {t: i for i, t in enumerate(_TINY_SPECIALS[family] + _TINY_WORDS)}
+    vocab = {t: i for i, t in enumerate(TINY_SPECIALS[family] + TINY_WORDS)}
     if len(vocab) > TINY_VOCAB:
         raise ExportError("tiny tokenizer vocabulary exceeds the tiny model's vocab size")
-    return word_level_tokenizer(vocab, _TINY_SPECIALS[family], path)
+    return word_level_tokenizer(vocab, TINY_SPECIALS[family], path)
 
 
 def _family_of(source: str) -> str:

@@ -17,12 +17,12 @@ SEED = 0
 
 # Tiny VLM tokenizer (export/hf_vlm.py builds it): specials first (fixed ids the tiny configs refer to), then
 # a small word list.
-_TINY_SPECIALS = {
+TINY_SPECIALS = {
     "smolvlm": ["<|pad|>", "<|im_start|>", "<end_of_utterance>", "<image>", "<fake_token_around_image>",
                 "<global-img>", "<|im_end|>", "[UNK]"],
     "internvl": ["<|endoftext|>", "<|im_start|>", "<|im_end|>", "<IMG_CONTEXT>", "<img>", "</img>", "[UNK]"],
 }
-_TINY_WORDS = ("User Assistant user assistant : ? . , ! the a an is are of in on to and what where how many which "
+TINY_WORDS = ("User Assistant user assistant : ? . , ! the a an is are of in on to and what where how many which "
                "chair table sofa bed tv door window sink fridge lamp plant kitchen room left right near far "
                "closest distance size count object objects image images this that there metres one two three "
                "four five yes no").split()
@@ -31,7 +31,7 @@ TINY_VOCAB = 96
 
 def tiny_special_ids(family: str) -> dict[str, int]:
     """pad/bos/eos/image token ids of a tiny VLM family ("smolvlm", "internvl")."""
-    sp = _TINY_SPECIALS[family]
+    sp = TINY_SPECIALS[family]
     if family == "smolvlm":
         return {"pad": 0, "bos": 1, "eos": 2, "image": sp.index("<image>")}
     return {"pad": 0, "bos": 1, "eos": 2, "image": sp.index("<IMG_CONTEXT>")}
@@ -41,7 +41,7 @@ def _seeded(fn: Callable[..., Any]) -> Callable[..., Any]:
     def wrapper(*a: Any, **k: Any) -> Any:
         torch.manual_seed(SEED)
         model = fn(*a, **k)
-        _torch_default_init(model)
+        torch_default_init(model)
         post = getattr(model, "_tiny_post", None)
         if post is not None:
             post(model)
@@ -53,7 +53,7 @@ def _seeded(fn: Callable[..., Any]) -> Callable[..., Any]:
     return wrapper
 
 
-def _torch_default_init(model: Any) -> None:
+def torch_default_init(model: Any) -> None:
     """Re-initialise layers with PyTorch's default (fan-in scaled) init. HF's `initializer_range` 0.02 init
     makes a tiny random net's outputs ~1e-7, below fp16 resolution, so fp16/int8 parity would measure noise;
     fan-in init keeps activations O(1) like a trained model's."""

@@ -108,8 +108,8 @@ VOCABULARY: dict[str, tuple[str, ...]] = {
     "mug": ("mug",),
 }
 
-_SYN: dict[str, str] = {s: canon for canon, syns in VOCABULARY.items() for s in (canon, *syns)}
-_MAX_NGRAM = max(len(s.split()) for s in _SYN)
+NAME_SYNONYMS: dict[str, str] = {s: canon for canon, syns in VOCABULARY.items() for s in (canon, *syns)}
+_MAX_NGRAM = max(len(s.split()) for s in NAME_SYNONYMS)
 _ARTICLES = {"the", "a", "an", "my", "this", "that", "these", "those", "some", "same"}
 # a noun phrase's head ends where an attachment starts ("the stool by the piano", "the tv on the table")
 _PREPOSITIONS = {"by", "on", "near", "next", "with", "in", "under", "beside", "behind", "closest", "closer",
@@ -165,8 +165,8 @@ def _match(words: list[str]) -> str | None:
     for n in range(min(_MAX_NGRAM, len(words)), 0, -1):
         gram = words[len(words) - n:]
         for cand in (" ".join(gram), " ".join(gram[:-1] + [singular(gram[-1])])):
-            if cand in _SYN:
-                return _SYN[cand]
+            if cand in NAME_SYNONYMS:
+                return NAME_SYNONYMS[cand]
     return None
 
 
@@ -191,8 +191,8 @@ def canonical_name(s: str) -> str | None:
     if not words:
         return None
     joined = " ".join(words)
-    if joined in _SYN:
-        return _SYN[joined]
+    if joined in NAME_SYNONYMS:
+        return NAME_SYNONYMS[joined]
     while len(words) > 1 and words[0] in _PREPOSITIONS:  # "closest sofa", "nearest chair"
         words = words[1:]
     head: list[str] = []

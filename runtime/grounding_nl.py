@@ -23,7 +23,7 @@ from __future__ import annotations
 import re
 from typing import Any
 
-from .grounding import _SYN, ParsedQuestion, canonical_name, name_key, split_options
+from .grounding import NAME_SYNONYMS, ParsedQuestion, canonical_name, name_key, split_options
 
 UNIT_M = {"m": 1.0, "cm": 0.01, "mm": 0.001, "ft": 0.3048, "in": 0.0254}
 _UNIT_WORDS = {"m": "m", "meter": "m", "meters": "m", "metre": "m", "metres": "m", "cm": "cm", "centimeter": "cm",
@@ -168,7 +168,7 @@ def noun_phrases(toks: list[str]) -> list[dict[str, Any]]:
                 words, j = [], j + 1  # "the kitchen's sink": the owner only qualifies the object
         sel = []
         while len(words) > 1 and (words[0] in _SUPERLATIVE or words[0] in _COLOURS or words[0] in _ORDINALS):
-            if name_key(" ".join(words)) in _SYN:  # "white board" is a name, not a white board
+            if name_key(" ".join(words)) in NAME_SYNONYMS:  # "white board" is a name, not a white board
                 break
             sel.append(words.pop(0))
         if words:

@@ -500,6 +500,38 @@ def run_profile(bundle: Any, profile: Profile | str | None = None, *, video: str
             continue
         for v in _variant_for(b, role, prof, variants):
             todo.append((role, v))
+    report = _report_header(b, bhash, prof, runs, warmup, threads, frames_from, isolate, base_rss)
+    bar = tqdm(total=len(todo) + 1 + int(bool(video and question)), desc="mosaic profile", unit="step",
+               disable=not progress, leave=False)
+    for role, v in todo:
+        bar.set_postfix_str(f"{role}/{v}")
+        _profile_role(report, b, role, v, prof, threads, runs, warmup, trace, rng, frames, isolate)
+        bar.update(1)
+    bar.set_postfix_str("cpu-side stages")
+    report["cpu_side"] = profile_cpu_side(video, frames, runs)
+    bar.update(1)
+    if video and question:
+        bar.set_postfix_str("one full question")
+        report["pipeline"] = _profile_question(video, question, b, prof, keyframes, isolate)
+        bar.update(1)
+    bar.close()
+    report["fallbacks"] = trace.fallbacks()
+    report["random_weights_used"] = list(trace.random_weights_used)
+    report["peak_rss_mb"] = round(max(peak_rss_mb(), rss_mb()), 1)
+    costs, provs = _costs_from(report)
+    report["measured_costs"] = costs
+    if update_profile and prof is not None and prof.path is not None:
+        _write_costs(report, prof, costs, provs, bhash)
+    if out is not None:  # as one group: folder locked, temp files renamed, run id in every file
+        from mosaicthinker.host.report import save_report
+
+        save_report(report, out, trace)
+    return report
+
+
+def _report_header(b: Any, bhash: str, prof: Profile | None, runs: int, warmup: int, threads: int | None,
+                   frames_from: str, isolate: bool, base_rss: float) -> dict[str, Any]:
+    """The report's machine / bundle / settings part (roles are filled in as they are profiled)."""
     report: dict[str, Any] = {
         "schema": REPORT_SCHEMA, "date": _dt.date.today().isoformat(),
         "machine": {"platform": platform.platform(), "processor": platform.processor() or platform.machine(),
@@ -517,73 +549,66 @@ def run_profile(bundle: Any, profile: Profile | str | None = None, *, video: str
         report["machine"]["providers_available"] = list(ort.get_available_providers())
     except Exception:  # pragma: no cover
         pass
-    bar = tqdm(total=len(todo) + 1 + int(bool(video and question)), desc="mosaic profile", unit="step",
-               disable=not progress, leave=False)
-    for role, v in todo:
-        bar.set_postfix_str(f"{role}/{v}")
-        meta = b.role_meta(role)
-        providers = prof.providers_for(role) if prof else None
-        rr = report["roles"].setdefault(role, {
-            "arch": meta.get("arch"), "random_weights": bool(meta.get("random_weights")),
-            "licence": meta.get("licence"), "planned_variant": v, "providers_requested": providers or ["cpu"],
-            "variants": {}})
-        if rr["random_weights"] and isolate:  # in-process, load_role notes it in this trace itself
-            trace.note_random_weights(f"{role}:{meta.get('arch')} ({b.root})")
-        if isolate:
-            job = {"bundle": str(b.root), "role": role, "variant": v, "providers": providers, "threads": threads,
-                   "runs": runs, "warmup": warmup, "frames": frames}
-            res = _run_isolated(job)
-            comps, adapter = res["components"], res["adapter"]
-            for e in res["events"]:
-                if e["kind"] != "random_weights":
-                    trace.events.append({**e, "isolated_process": True})
-            for k, pv in res["providers"].items():
-                trace.providers[k] = pv
-        else:
-            comps = profile_components(b, role, v, providers, threads, runs, warmup, trace, rng)
-            adapter = profile_adapter(b, role, v, providers, threads, runs, warmup, trace, frames)
-        rr["variants"][v] = {"precision": meta["variants"][v].get("precision"), "components": comps,
-                             "adapter": adapter}
-        bar.update(1)
-    bar.set_postfix_str("cpu-side stages")
-    report["cpu_side"] = profile_cpu_side(video, frames, runs)
-    bar.update(1)
-    if video and question:
-        bar.set_postfix_str("one full question")
-        job = {"video": str(video), "question": question, "bundle": str(b.root),
-               "profile": str(prof.path) if prof is not None and prof.path else None, "keyframes": keyframes}
-        try:
-            report["pipeline"] = _run_isolated(job, _question_worker) if isolate else _question_worker(job)
-        except MosaicError as e:
-            report["pipeline"] = {"error": str(e), "question": question}
-        except Exception as e:  # noqa: BLE001 - reported; the per-model figures stand on their own
-            report["pipeline"] = {"error": f"{type(e).__name__}: {str(e)[:300]}", "question": question}
-        bar.update(1)
-    bar.close()
-    report["fallbacks"] = trace.fallbacks()
-    report["random_weights_used"] = list(trace.random_weights_used)
-    report["peak_rss_mb"] = round(max(peak_rss_mb(), rss_mb()), 1)
-    costs, provs = _costs_from(report)
-    report["measured_costs"] = costs
-    if update_profile and prof is not None and prof.path is not None:
-        notes = {k: v for k, v in COST_NOTES.items() if k in costs}
-        vd = report["cpu_side"].get("video_decode", {})
-        if "video_decode" in costs:
-            notes["video_decode"] = f"per frame of a {vd.get('source')} ({report['frames_from'].split(' frames')[0]})"
-        load = report["machine"].get("load_average_1min")
-        if load is not None and os.cpu_count() and load > os.cpu_count():
-            for k in costs:
-                notes[k] = (notes.get(k, "") + ("; " if k in notes else "")
-                            + f"measured with load average {load} on {os.cpu_count()} CPUs: other jobs shared "
-                              f"the CPUs, timings may be inflated")
-        update_profile_costs(prof.path, costs, bundle_hash_=bhash, date=report["date"], providers=provs,
-                             notes=notes)
-        report["updated_profile"] = str(prof.path)
-    if out is not None:  # as one group: folder locked, temp files renamed, run id in every file
-        from mosaicthinker.host.report import save_report
-
-        save_report(report, out, trace)
     return report
+
+
+def _profile_role(report: dict[str, Any], b: Any, role: str, v: str, prof: Profile | None,
+                  threads: int | None, runs: int, warmup: int, trace: Trace, rng: np.random.Generator,
+                  frames: list[np.ndarray], isolate: bool) -> None:
+    """Profile one role's variant (in a fresh process when `isolate`) into report["roles"]."""
+    meta = b.role_meta(role)
+    providers = prof.providers_for(role) if prof else None
+    rr = report["roles"].setdefault(role, {
+        "arch": meta.get("arch"), "random_weights": bool(meta.get("random_weights")),
+        "licence": meta.get("licence"), "planned_variant": v, "providers_requested": providers or ["cpu"],
+        "variants": {}})
+    if rr["random_weights"] and isolate:  # in-process, load_role notes it in this trace itself
+        trace.note_random_weights(f"{role}:{meta.get('arch')} ({b.root})")
+    if isolate:
+        job = {"bundle": str(b.root), "role": role, "variant": v, "providers": providers, "threads": threads,
+               "runs": runs, "warmup": warmup, "frames": frames}
+        res = _run_isolated(job)
+        comps, adapter = res["components"], res["adapter"]
+        for e in res["events"]:
+            if e["kind"] != "random_weights":
+                trace.events.append({**e, "isolated_process": True})
+        for k, pv in res["providers"].items():
+            trace.providers[k] = pv
+    else:
+        comps = profile_components(b, role, v, providers, threads, runs, warmup, trace, rng)
+        adapter = profile_adapter(b, role, v, providers, threads, runs, warmup, trace, frames)
+    rr["variants"][v] = {"precision": meta["variants"][v].get("precision"), "components": comps,
+                         "adapter": adapter}
+
+
+def _profile_question(video: str, question: str, b: Any, prof: Profile | None, keyframes: int | None,
+                      isolate: bool) -> dict[str, Any]:
+    """One full question through `pipeline.ask`; an error is reported, not raised (the per-model figures stand)."""
+    job = {"video": str(video), "question": question, "bundle": str(b.root),
+           "profile": str(prof.path) if prof is not None and prof.path else None, "keyframes": keyframes}
+    try:
+        return _run_isolated(job, _question_worker) if isolate else _question_worker(job)
+    except MosaicError as e:
+        return {"error": str(e), "question": question}
+    except Exception as e:  # noqa: BLE001 - reported; the per-model figures stand on their own
+        return {"error": f"{type(e).__name__}: {str(e)[:300]}", "question": question}
+
+
+def _write_costs(report: dict[str, Any], prof: Profile, costs: dict, provs: dict, bhash: str) -> None:
+    """Write the measured costs into the profile file, each with its note (and a load warning when busy)."""
+    notes = {k: v for k, v in COST_NOTES.items() if k in costs}
+    vd = report["cpu_side"].get("video_decode", {})
+    if "video_decode" in costs:
+        notes["video_decode"] = f"per frame of a {vd.get('source')} ({report['frames_from'].split(' frames')[0]})"
+    load = report["machine"].get("load_average_1min")
+    if load is not None and os.cpu_count() and load > os.cpu_count():
+        for k in costs:
+            notes[k] = (notes.get(k, "") + ("; " if k in notes else "")
+                        + f"measured with load average {load} on {os.cpu_count()} CPUs: other jobs shared "
+                          f"the CPUs, timings may be inflated")
+    update_profile_costs(prof.path, costs, bundle_hash_=bhash, date=report["date"], providers=provs,
+                         notes=notes)
+    report["updated_profile"] = str(prof.path)
 
 
 # ------------------------------------------------------------------------------------------------ output
