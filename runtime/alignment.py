@@ -528,6 +528,9 @@ class AlignmentResult:
     edge: str = "rgbd"    # pairwise edge type used: "rgbd" (3D-3D RANSAC) or "essential" (see AlignConf.edge)
     # tree edges the depth check rejected (`verify_tree`): later rounds never use them again
     rejected_edges: list[tuple[int, int]] = field(default_factory=list)
+    # pairs already tried with whole-image matches (`attach_frames`): a pair that failed inside object boxes
+    # is not one of them (few boxes give few matches; the whole image may still align it)
+    whole_tried: set[frozenset] = field(default_factory=set)
 
     @property
     def aligned(self) -> list[int]:
@@ -880,7 +883,8 @@ def attach_frames(al: AlignmentResult, frames: dict[int, Any], todo: Sequence[in
     tries = conf.attach_tries if tries is None else tries
     aconf = AlignConf.merged(conf.alignment)
     rng = np.random.default_rng(aconf.seed)
-    tried = set(frozenset(e) for e in al.edge_stats) | set(frozenset(e) for e in al.rejected_edges)
+    # not al.edge_stats: those pairs failed with matches inside the boxes only (the trial's 0-of-13 attached)
+    tried = al.whole_tried | set(frozenset(e) for e in al.rejected_edges)
     attached: list[int] = []
     changed = True
     while changed:
@@ -891,6 +895,7 @@ def attach_frames(al: AlignmentResult, frames: dict[int, Any], todo: Sequence[in
                           key=lambda a: (abs(float(frames[a].t) - float(fu.t)), a))[:tries]
             for a in near:
                 tried.add(frozenset((a, u)))
+                al.whole_tried.add(frozenset((a, u)))
                 fa = frames[a]
                 mt = matcher.match_keys(a, fa.rgb, u, fu.rgb, None, None)
                 r = align_pair(mt, fa.depth, fa.K, fu.depth, fu.K, aconf, False, rng, getattr(fa, "dist", None),
