@@ -1066,6 +1066,9 @@ def bridge_attach(al: AlignmentResult, frames: list[Any], source: Any, matcher: 
     keys = set(pool)
     used: list[Any] = []
     budget = conf.bridge_frames
+    n0 = len(al.unaligned)
+    failed: set[tuple[int, int]] = set()  # (anchor, direction) whose chain did not reach its key frame
+    skipped: list[int] = []
     for u in sorted(al.unaligned, key=lambda u: min((abs(u - a) for a in al.poses if a in keys), default=0)):
         if budget <= 0 or u in al.poses:
             continue
@@ -1077,13 +1080,25 @@ def bridge_attach(al: AlignmentResult, frames: list[Any], source: Any, matcher: 
         for a in sorted((j for j in sides if j is not None), key=lambda j: abs(j - u)):
             if u in al.poses or abs(float(source.timestamps[u]) - float(source.timestamps[a])) > conf.bridge_max_gap_s:
                 continue
+            if (a, int(np.sign(u - a))) in failed:
+                # a nearer key frame across the same gap from the same anchor was not reached: a chain to this
+                # one must cross the same frames, so it would spend the budget without buying a frame
+                skipped.append(u)
+                continue
             budget, chain = bridge_chain(al, pool, a, u, source, matcher, with_depth, conf, budget)
             used += chain
+            end = chain[-1].index if chain else a
+            if u not in al.poses and abs(float(source.timestamps[u]) - float(source.timestamps[end])) \
+                    >= 2 * conf.bridge_gap_s:  # stuck inside the gap (not merely u itself failing at its end)
+                failed.add((a, int(np.sign(u - a))))
     al.unaligned = [i for i in al.unaligned if i not in al.poses]
     as_trace(trace).event("degraded" if al.unaligned else "alignment",
-                          f"bridging: {conf.bridge_frames - budget} video frame(s) tried, {len(used)} attached; "
-                          f"{len(al.unaligned)} key frame(s) left unaligned", stage="alignment",
-                          bridges=[f.index for f in used], unaligned=list(al.unaligned))
+                          f"bridging: {conf.bridge_frames - budget} video frame(s) tried, {len(used)} attached as "
+                          f"bridges, {n0 - len(al.unaligned)} of {n0} key frame(s) aligned through them; "
+                          f"{len(al.unaligned)} key frame(s) left unaligned"
+                          + (f" ({len(set(skipped))} not tried: behind a gap a chain did not cross)" if skipped
+                             else ""), stage="alignment", bridges=[f.index for f in used],
+                          unaligned=list(al.unaligned), skipped=sorted(set(skipped)))
     return used
 
 

@@ -110,3 +110,36 @@ def test_attach_retries_pairs_that_failed_inside_boxes(redkitchen):
     # a pair already tried with whole images is not tried again
     al2 = AlignmentResult({50: np.eye(4)}, 50, [], [55], "mst", whole_tried={frozenset((50, 55))})
     assert attach_frames(al2, frames, [55], make_matcher("sift"), PipelineConfig()) == []
+
+
+def test_bridging_skips_key_frames_behind_a_gap_a_chain_did_not_cross(redkitchen):
+    """`bridge_attach`: the chain from frame 0 towards key frame 48 gets stuck in the gap (no edge passes), so the
+    key frame 60 behind it on the same side is not chained to (it would cross the same frames): the budget
+    goes only to the first chain, and the skip is recorded."""
+    from mosaicthinker.runtime.alignment import AlignmentResult, bridge_attach
+    from mosaicthinker.runtime.frames import open_source
+    from mosaicthinker.runtime.matching import make_matcher
+    from mosaicthinker.runtime.pipeline import PipelineConfig
+    from mosaicthinker.runtime.trace import Trace
+
+    class NoMatches:
+        def match(self, rgb0, rgb1, boxes0=None, boxes1=None):
+            from mosaicthinker.runtime.matching import Matches
+
+            return Matches.empty()
+
+    src = open_source(redkitchen)
+    al = AlignmentResult({0: np.eye(4)}, 0, [], [48, 60], "mst")
+    loaded: list[int] = []
+
+    def with_depth(f):
+        loaded.append(f.index)
+        return f
+
+    trace = Trace()
+    conf = PipelineConfig.merged(bridge_gap_s=0.4)
+    used = bridge_attach(al, [src[0], src[48], src[60]], src, make_matcher(NoMatches()), with_depth, conf, trace)
+    assert used == [] and al.unaligned == [48, 60]
+    assert loaded == [24, 12, 6, 18, 30, 36, 42]  # the chain to 48 only (test_layout's schedule)
+    ev = [e for e in trace.events if "bridging" in e["message"]][-1]
+    assert ev["skipped"] == [60] and "0 of 2 key frame(s) aligned" in ev["message"]
