@@ -1067,7 +1067,7 @@ def bridge_attach(al: AlignmentResult, frames: list[Any], source: Any, matcher: 
     used: list[Any] = []
     budget = conf.bridge_frames
     n0 = len(al.unaligned)
-    failed: set[tuple[int, int]] = set()  # (anchor, direction) whose chain did not reach its key frame
+    failed: dict[tuple[int, int], int] = {}  # (anchor, direction) -> the key frame its chain got stuck before
     skipped: list[int] = []
     for u in sorted(al.unaligned, key=lambda u: min((abs(u - a) for a in al.poses if a in keys), default=0)):
         if budget <= 0 or u in al.poses:
@@ -1080,9 +1080,10 @@ def bridge_attach(al: AlignmentResult, frames: list[Any], source: Any, matcher: 
         for a in sorted((j for j in sides if j is not None), key=lambda j: abs(j - u)):
             if u in al.poses or abs(float(source.timestamps[u]) - float(source.timestamps[a])) > conf.bridge_max_gap_s:
                 continue
-            if (a, int(np.sign(u - a))) in failed:
+            d = int(np.sign(u - a))
+            if (a, d) in failed and d * (u - failed[(a, d)]) > 0:
                 # a nearer key frame across the same gap from the same anchor was not reached: a chain to this
-                # one must cross the same frames, so it would spend the budget without buying a frame
+                # one, beyond it, must cross the same frames, so it would spend the budget without buying one
                 skipped.append(u)
                 continue
             budget, chain = bridge_chain(al, pool, a, u, source, matcher, with_depth, conf, budget)
@@ -1090,7 +1091,7 @@ def bridge_attach(al: AlignmentResult, frames: list[Any], source: Any, matcher: 
             end = chain[-1].index if chain else a
             if u not in al.poses and abs(float(source.timestamps[u]) - float(source.timestamps[end])) \
                     >= 2 * conf.bridge_gap_s:  # stuck inside the gap (not merely u itself failing at its end)
-                failed.add((a, int(np.sign(u - a))))
+                failed.setdefault((a, d), u)  # the nearest such key frame (they come nearest first)
     al.unaligned = [i for i in al.unaligned if i not in al.poses]
     as_trace(trace).event("degraded" if al.unaligned else "alignment",
                           f"bridging: {conf.bridge_frames - budget} video frame(s) tried, {len(used)} attached as "
