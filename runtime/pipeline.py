@@ -90,8 +90,8 @@ class PipelineConfig(StageConf):
     bridge_rounds: int = 2               # bridge, check, bridge again around edges the check rejected
     bridge_max_gap_s: float = 10.0       # ... and only across gaps up to this long (long chains drift)
     # floor-standing furniture seen from above (a table top, a chair back) reaches down to the floor when the key
-    # frames saw its support: points under the footprint in >= `floor_band_share` of the 10 cm height bands
-    # between the floor and the box, the lowest band included (`extend_to_floor`); () = off
+    # frames saw its support (points under the footprint in >= `floor_band_share` of the 10 cm height bands, the
+    # lowest included) or saw no open space under it (hidden bands are unknown) (`extend_to_floor`); () = off
     floor_standing: tuple[str, ...] = ("table", "chair", "sofa", "couch", "bed", "bench", "desk", "stool",
                                        "refrigerator", "toilet", "cabinet", "shelf", "bookshelf")
     floor_band_share: float = 0.6
