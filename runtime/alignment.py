@@ -593,6 +593,9 @@ class AlignmentResult:
     edge: str = "rgbd"    # pairwise edge type used: "rgbd" (3D-3D RANSAC) or "essential" (see AlignConf.edge)
     # tree edges the depth check rejected (`verify_tree`): later rounds never use them again
     rejected_edges: list[tuple[int, int]] = field(default_factory=list)
+    # pairs already tried with whole-image matches (`attach_frames`): a pair that failed inside object boxes
+    # is not one of them (few boxes give few matches; the whole image may still align it)
+    whole_tried: set[frozenset] = field(default_factory=set)
 
     @property
     def aligned(self) -> list[int]:
@@ -945,7 +948,8 @@ def attach_frames(al: AlignmentResult, frames: dict[int, Any], todo: Sequence[in
     tries = conf.attach_tries if tries is None else tries
     aconf = AlignConf.merged(conf.alignment)
     rng = np.random.default_rng(aconf.seed)
-    tried = set(frozenset(e) for e in al.edge_stats) | set(frozenset(e) for e in al.rejected_edges)
+    # not al.edge_stats: those pairs failed with matches inside the boxes only (the trial's 0-of-13 attached)
+    tried = al.whole_tried | set(frozenset(e) for e in al.rejected_edges)
     attached: list[int] = []
     changed = True
     while changed:
@@ -956,6 +960,7 @@ def attach_frames(al: AlignmentResult, frames: dict[int, Any], todo: Sequence[in
                           key=lambda a: (abs(float(frames[a].t) - float(fu.t)), a))[:tries]
             for a in near:
                 tried.add(frozenset((a, u)))
+                al.whole_tried.add(frozenset((a, u)))
                 fa = frames[a]
                 mt = matcher.match_keys(a, fa.rgb, u, fu.rgb, None, None)
                 r = align_pair(mt, fa.depth, fa.K, fu.depth, fu.K, aconf, False, rng, getattr(fa, "dist", None),
@@ -1126,6 +1131,9 @@ def bridge_attach(al: AlignmentResult, frames: list[Any], source: Any, matcher: 
     keys = set(pool)
     used: list[Any] = []
     budget = conf.bridge_frames
+    n0 = len(al.unaligned)
+    failed: dict[tuple[int, int], int] = {}  # (anchor, direction) -> the key frame its chain got stuck before
+    skipped: list[int] = []
     for u in sorted(al.unaligned, key=lambda u: min((abs(u - a) for a in al.poses if a in keys), default=0)):
         if budget <= 0 or u in al.poses:
             continue
@@ -1137,13 +1145,26 @@ def bridge_attach(al: AlignmentResult, frames: list[Any], source: Any, matcher: 
         for a in sorted((j for j in sides if j is not None), key=lambda j: abs(j - u)):
             if u in al.poses or abs(float(source.timestamps[u]) - float(source.timestamps[a])) > conf.bridge_max_gap_s:
                 continue
+            d = int(np.sign(u - a))
+            if (a, d) in failed and d * (u - failed[(a, d)]) > 0:
+                # a nearer key frame across the same gap from the same anchor was not reached: a chain to this
+                # one, beyond it, must cross the same frames, so it would spend the budget without buying one
+                skipped.append(u)
+                continue
             budget, chain = bridge_chain(al, pool, a, u, source, matcher, with_depth, conf, budget)
             used += chain
+            end = chain[-1].index if chain else a
+            if u not in al.poses and abs(float(source.timestamps[u]) - float(source.timestamps[end])) \
+                    >= 2 * conf.bridge_gap_s:  # stuck inside the gap (not merely u itself failing at its end)
+                failed.setdefault((a, d), u)  # the nearest such key frame (they come nearest first)
     al.unaligned = [i for i in al.unaligned if i not in al.poses]
     as_trace(trace).event("degraded" if al.unaligned else "alignment",
-                          f"bridging: {conf.bridge_frames - budget} video frame(s) tried, {len(used)} attached; "
-                          f"{len(al.unaligned)} key frame(s) left unaligned", stage="alignment",
-                          bridges=[f.index for f in used], unaligned=list(al.unaligned))
+                          f"bridging: {conf.bridge_frames - budget} video frame(s) tried, {len(used)} attached as "
+                          f"bridges, {n0 - len(al.unaligned)} of {n0} key frame(s) aligned through them; "
+                          f"{len(al.unaligned)} key frame(s) left unaligned"
+                          + (f" ({len(set(skipped))} not tried: behind a gap a chain did not cross)" if skipped
+                             else ""), stage="alignment", bridges=[f.index for f in used],
+                          unaligned=list(al.unaligned), skipped=sorted(set(skipped)))
     return used
 
 

@@ -90,8 +90,8 @@ class PipelineConfig(StageConf):
     bridge_rounds: int = 2               # bridge, check, bridge again around edges the check rejected
     bridge_max_gap_s: float = 10.0       # ... and only across gaps up to this long (long chains drift)
     # floor-standing furniture seen from above (a table top, a chair back) reaches down to the floor when the key
-    # frames saw its support: points under the footprint in >= `floor_band_share` of the 10 cm height bands
-    # between the floor and the box, the lowest band included (`extend_to_floor`); () = off
+    # frames saw its support (points under the footprint in >= `floor_band_share` of the 10 cm height bands, the
+    # lowest included) or saw no open space under it (hidden bands are unknown) (`extend_to_floor`); () = off
     floor_standing: tuple[str, ...] = ("table", "chair", "sofa", "couch", "bed", "bench", "desk", "stool",
                                        "refrigerator", "toilet", "cabinet", "shelf", "bookshelf")
     floor_band_share: float = 0.6
@@ -166,6 +166,8 @@ class Perception:
     embed: Callable[[np.ndarray], np.ndarray] | None = None
     depth_relative: bool = False
     describe: dict[str, Any] = field(default_factory=dict)
+    # every object the detector names in a frame (not only the question's): the boxes alignment matches inside
+    detect_all: Callable[[Frame], Detections] | None = None
 
 
 @dataclass
@@ -425,7 +427,7 @@ def _align(frames: list[Frame], dets: dict[int, Detections], source: FrameSource
     if perception.embed is not None:
         with trace.stage("embed"):
             emb = np.stack([perception.embed(f.rgb) for f in frames])
-    boxes = {f.index: (dets[f.index].boxes if len(dets[f.index]) else None) for f in frames}
+    boxes = {f.index: _align_boxes(f, dets[f.index], perception, trace) for f in frames}
     matcher = make_matcher(perception.matcher, conf.match)  # one matcher: features cached across the rounds
     if budget is not None:  # one plan stage from matching to refinement (fusion is an alias of alignment)
         budget.start_stage("alignment")
@@ -435,6 +437,18 @@ def _align(frames: list[Frame], dets: dict[int, Detections], source: FrameSource
                                 lambda unaligned: _over_budget(budget, trace, unaligned))
     bar.done(aligned=f"{sum(f.index in al.poses for f in frames)}/{len(frames)} key frames")
     return al, matcher
+
+
+def _align_boxes(f: Frame, d: Detections, perception: Perception, trace: Trace) -> np.ndarray | None:
+    """The boxes a key frame's matches are restricted to: every object the detector names in it, not only the
+    question's (a few small targets give too few matches); the question's alone without `detect_all`."""
+    boxes = [d.boxes] if len(d) else []
+    if perception.detect_all is not None:
+        with trace.stage("detect"):
+            a = perception.detect_all(f)
+        if len(a):
+            boxes.append(a.boxes)
+    return np.concatenate(boxes).astype(np.float32) if boxes else None
 
 
 def _gravity(frames: list[Frame], poses_root: dict[int, np.ndarray], source: FrameSource, root: int,
@@ -622,6 +636,9 @@ def perception_from_bundle(bundle: Any, conf: PipelineConfig | dict | None = Non
                          f"`detector=oracle` on a synthetic scene", fields=("bundle", "detector"))
     det = load("detector")
     p = Perception(detect=lambda frame, names: det.detect(frame.rgb, names))
+    if getattr(det, "labels", None):
+        labels = [x for x in dict.fromkeys(det.labels) if x and x.strip("?") and x.lower() != "n/a"]
+        p.detect_all = lambda frame: det.detect(frame.rgb, labels)
     if has("segmenter"):
         seg = load("segmenter")
         if getattr(seg, "kind", "") == "semantic":
@@ -713,7 +730,9 @@ class AskResult:
                     {"id": o.id, "name": o.name, "centre": np.round(o.center, 3).tolist(),
                      "size": np.round(np.asarray(o.box.axes_lengths), 3).tolist(), "first_seen": o.first_seen}
                     for o in self.map.instances],
-                "keyframes": None if self.build is None else self.build.keyframes}
+                "keyframes": None if self.build is None else self.build.keyframes,
+                # key frames left out of the map (no verified pose): stated with the answer, not only in the trace
+                "unaligned": None if self.build is None else sorted(self.build.unaligned)}
 
 
 def _open(source: Any) -> FrameSource | SemanticMap:

@@ -164,7 +164,8 @@ def render(r: dict[str, Any]) -> str:
         lines.append(f"  how: {r['explanation']}")
     if r.get("instances") is not None:
         lines.append(f"  map: {len(r['instances'])} object(s)" + (f" from {len(r['keyframes'])} key frames"
-                                                                   if r.get("keyframes") else ""))
+                                                                   if r.get("keyframes") else "")
+                     + (f" ({len(r['unaligned'])} unaligned, left out)" if r.get("unaligned") is not None else ""))
     from ..evidence import line
 
     if r.get("evidence"):
