@@ -9,8 +9,8 @@ replayed), on 7-Scenes frames, for both depth kinds the pipeline aligns with:
     python benchmarks/align_core.py [--keyframes 32] [--repeats 5] [--depths sensor,model] [--bundle B]
 
 Fusion input: the bundle's detector (SSD) and segmenter (DeepLab) on each key frame, box-prompted where DeepLab
-leaves a detection empty (the pipeline's `_box_prompted`); timed: `lift_observations` for every frame with a pose
-+ `fuse_observations` (the pipeline's "fusion" stage; gravity excluded, poses in the root frame).
+leaves a detection empty (the pipeline's `_box_prompted`); timed: `pipeline.fuse_frames` (lift every frame with a pose
++ fuse: the pipeline's "fusion" stage; gravity excluded, poses in the root frame).
 
 Prints and writes benchmarks/results/align_core.json: per depth kind and strategy (mst and sequential) median wall
 and CPU seconds per alignment (CPU time is the fairer figure on a shared machine), pairs tried, pairwise seconds,
@@ -91,18 +91,12 @@ def detections(frames: list, perception: Any) -> dict[int, Any]:
 
 def fusion_seconds(frames: list, dets: dict[int, Any], poses: dict[int, np.ndarray]) -> tuple[float, int]:
     """The pipeline's fusion stage over the aligned frames: (seconds, instances)."""
-    from mosaicthinker.runtime.semantic_map import FusionConfig, fuse_observations, lift_observations
+    from mosaicthinker.runtime.pipeline import fuse_frames
+    from mosaicthinker.runtime.semantic_map import FusionConfig
 
     fconf = FusionConfig()
     t0 = time.perf_counter()
-    obs = []
-    for f in frames:
-        if f.index not in poses:
-            continue
-        d = dets[f.index]
-        obs += lift_observations(f.rgb.shape[:2], f.depth, f.K, poses[f.index], d.boxes, d.names, d.scores,
-                                 d.masks, f.index, f.t, fconf, d.instance_ids)
-    instances, _ = fuse_observations(obs, fconf)
+    _, instances, _ = fuse_frames(frames, dets, poses, fconf)  # the pipeline's own fusion step
     return time.perf_counter() - t0, len(instances)
 
 

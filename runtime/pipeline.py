@@ -463,7 +463,7 @@ def _gravity(frames: list[Frame], poses_root: dict[int, np.ndarray], source: Fra
     return gravity_from_frames(frames, poses_root, down, conf.camera_height_m, conf.floor_fit_max_depth_m, trace)
 
 
-def _fuse(frames: list[Frame], dets: dict[int, Detections], poses: dict[int, np.ndarray], fconf: FusionConfig
+def fuse_frames(frames: list[Frame], dets: dict[int, Detections], poses: dict[int, np.ndarray], fconf: FusionConfig
           ) -> tuple[list[Observation], list[ObjectInstance], list[np.ndarray]]:
     """Lift every posed key frame's detections into the world and fuse them into instances."""
     obs: list[Observation] = []
@@ -566,7 +566,7 @@ def build_map(source: FrameSource, targets: Sequence[str], cues: Sequence[str] =
     poses = {i: W @ T for i, T in al.poses.items()}
     fconf = FusionConfig.merged(conf.fusion)
     with trace.stage("fusion"):
-        obs, instances, clouds = _fuse(frames, dets, poses, fconf)
+        obs, instances, clouds = fuse_frames(frames, dets, poses, fconf)
     instances, clouds, recovered = _refine(instances, clouds, obs, frames, poses, dets, perception, fconf, matcher,
                                            conf, trace, budget)
     if budget is not None:

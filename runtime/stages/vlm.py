@@ -18,7 +18,7 @@ Tokenizer: `tokenizer.json` from the bundle, through the `tokenizers` library (n
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
@@ -60,6 +60,20 @@ def build_prompt(family: str, prompt: str, n_images: int, image_seq_len: int) ->
 @dataclass
 class VLMConf:
     max_new_tokens: int = 64
+
+
+def greedy(logits: np.ndarray, advance: Callable[[int], np.ndarray], max_new_tokens: int,
+           stop_ids: Sequence[int]) -> list[int]:
+    """Greedy decoding: argmax of `logits [1, T, V]`'s last row, then `advance(token) -> next logits`, until a stop
+    token (included as the last id) or `max_new_tokens`. One loop for every decoder that keeps its own KV cache."""
+    out: list[int] = []
+    for _ in range(max_new_tokens):
+        nxt = int(np.argmax(logits[0, -1]))
+        out.append(nxt)
+        if nxt in stop_ids:
+            break
+        logits = advance(nxt)
+    return out
 
 
 class GreedyDecoder:
@@ -108,16 +122,18 @@ class GreedyDecoder:
         """Greedy new token ids (the stop token, when reached, is included as the last id)."""
         emb = self.prefill_embeds(ids, feats)
         logits, past = self.step(emb, self.empty_past(), 0)
-        n, out = len(ids), []
-        for _ in range(max_new_tokens):
-            nxt = int(np.argmax(logits[0, -1]))
-            out.append(nxt)
-            if nxt in stop_ids:
-                break
-            e = np.asarray(self.embed.run({"input_ids": np.array([[nxt]], np.int64)})[0], np.float32)
-            logits, past = self.step(e, past, n)
-            n += 1
-        return out
+        state = {"past": past, "n": len(ids)}
+
+        def advance(nxt: int) -> np.ndarray:
+            out, state["past"] = self.step(self.embed_token(nxt), state["past"], state["n"])
+            state["n"] += 1
+            return out
+
+        return greedy(logits, advance, max_new_tokens, stop_ids)
+
+    def embed_token(self, token: int) -> np.ndarray:
+        """[1, 1, H] embedding of one token id."""
+        return np.asarray(self.embed.run({"input_ids": np.array([[token]], np.int64)})[0], np.float32)
 
     def generate_ids_nocache(self, ids: Sequence[int], feats: np.ndarray | None, max_new_tokens: int,
                              stop_ids: Sequence[int]) -> list[int]:
@@ -271,17 +287,17 @@ class MRopeDecoder(GreedyDecoder):
     def generate_ids(self, ids: Sequence[int], image: tuple[np.ndarray, np.ndarray] | None, max_new_tokens: int,
                      stop_ids: Sequence[int]) -> list[int]:
         logits, past, cur = self.prefill(ids, image)
-        n, out = len(ids), []
-        zeros = np.zeros((self.deepstack, 1, 1, self.hidden), np.float32)
-        for _ in range(max_new_tokens):
-            nxt = int(np.argmax(logits[0, -1]))
-            out.append(nxt)
-            if nxt in stop_ids:
-                break
-            e = np.asarray(self.embed.run({"input_ids": np.array([[nxt]], np.int64)})[0], np.float32)
-            logits, past = self.step3(e, np.full((3, 1, 1), cur, np.int64), zeros, past, n)
-            n, cur = n + 1, cur + 1
-        return out
+        zeros = np.zeros((self.deepstack, 1, 1, self.hidden), np.float32)  # DeepStack feeds image rows only
+        state = {"past": past, "n": len(ids), "cur": cur}
+
+        def advance(nxt: int) -> np.ndarray:
+            pos = np.full((3, 1, 1), state["cur"], np.int64)
+            out, state["past"] = self.step3(self.embed_token(nxt), pos, zeros, state["past"], state["n"])
+            state["n"] += 1
+            state["cur"] += 1
+            return out
+
+        return greedy(logits, advance, max_new_tokens, stop_ids)
 
 
 class Qwen3VL(VLM):
