@@ -77,14 +77,14 @@ def load_perception(bundle: Path, with_model_depth: bool) -> Any:
 
 def detections(frames: list, perception: Any) -> dict[int, Any]:
     """Detector + segmenter once per frame (masks box-prompted where the segmenter leaves them empty)."""
-    from mosaicthinker.runtime.pipeline import _box_prompted
+    from mosaicthinker.runtime.pipeline import PipelineConfig, _box_prompted
     from mosaicthinker.runtime.trace import Trace
 
-    out = {}
+    out, share = {}, PipelineConfig().box_prompt_min_share
     for f in frames:
         d = perception.detect(f, NAMES)
         if d.masks is None and perception.segment is not None and len(d):
-            d = dataclasses.replace(d, masks=_box_prompted(perception.segment(f, d), f.depth, d, Trace()))
+            d = dataclasses.replace(d, masks=_box_prompted(perception.segment(f, d), f.depth, d, Trace(), share))
         out[f.index] = d
     return out
 
