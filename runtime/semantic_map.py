@@ -419,9 +419,8 @@ def lift_observations(rgb_shape: tuple[int, int], depth: np.ndarray, K: np.ndarr
     """
     import cv2
 
-    from .geometry import backproject, transform
+    from .geometry import transform
 
-    H, W = depth.shape
     rng = np.random.default_rng(conf.seed + frame)
     out: list[Observation] = []
     d = np.where(depth < conf.max_depth_m, depth, 0).astype(np.float32)
@@ -430,14 +429,15 @@ def lift_observations(rgb_shape: tuple[int, int], depth: np.ndarray, K: np.ndarr
     for j, (box, name) in enumerate(zip(boxes, names)):
         if keep is not None and not keep[j]:
             continue
-        if masks is not None:
-            m = masks[j].astype(np.uint8)
-            if kernel is not None:
-                eroded = cv2.erode(m, kernel)
-                m = eroded if eroded.sum() >= conf.min_points else m
-        else:
-            m = box_depth_mask(d, box).astype(np.uint8)
-        pts, _ = backproject(d, K, m.astype(bool), conf.stride)
+        full = masks[j] if masks is not None else box_depth_mask(d, box)
+        win = _mask_window(full, conf.erode_px if masks is not None else 0, conf.stride)
+        if win is None:
+            continue
+        m = full[win].astype(np.uint8)
+        if masks is not None and kernel is not None:
+            eroded = cv2.erode(m, kernel)
+            m = eroded if eroded.sum() >= conf.min_points else m
+        pts = _backproject_window(d, K, m.astype(bool), win, conf.stride)
         if len(pts) < conf.min_points:
             continue
         if len(pts) > conf.max_points:
@@ -449,6 +449,31 @@ def lift_observations(rgb_shape: tuple[int, int], depth: np.ndarray, K: np.ndarr
         out.append(Observation(name, float(scores[j]), frame, t, transform(T_wc, pts), np.asarray(box, np.float32),
                                None if instance_ids is None else int(instance_ids[j])))
     return out
+
+
+def _mask_window(mask: np.ndarray, margin: int, stride: int) -> tuple[slice, slice] | None:
+    """Rows/cols window of `mask [H, W]` around its pixels, `margin` wider (what an erosion reads), starting on
+    the stride grid: the per-detection work (erosion, lifting) runs on the window, not the whole image, with
+    the same result. None for an empty mask."""
+    rows, cols = np.flatnonzero(mask.any(1)), np.flatnonzero(mask.any(0))
+    if not len(rows):
+        return None
+    H, W = mask.shape
+    y0, x0 = max(0, rows[0] - margin) // stride * stride, max(0, cols[0] - margin) // stride * stride
+    return slice(y0, min(H, rows[-1] + 1 + margin)), slice(x0, min(W, cols[-1] + 1 + margin))
+
+
+def _backproject_window(depth: np.ndarray, K: np.ndarray, mask: np.ndarray, win: tuple[slice, slice],
+                        stride: int) -> np.ndarray:
+    """`geometry.backproject(depth, K, full_mask, stride)` points for a mask given on `win` (its window, starting
+    on the stride grid): the same points in the same order. -> [N, 3]"""
+    from .geometry import backproject_pixels
+
+    d = depth[win][::stride, ::stride]
+    ok = np.isfinite(d) & (d > 0) & mask[::stride, ::stride]
+    v, u = np.nonzero(ok)
+    uv = np.stack([u * stride + win[1].start, v * stride + win[0].start], 1).astype(np.float64)
+    return backproject_pixels(uv, d[ok].astype(np.float64), K)
 
 
 def box_depth_mask(depth: np.ndarray, box: np.ndarray, band_m: float = 0.15, band_rel: float = 0.15,
@@ -560,12 +585,12 @@ def components(points: np.ndarray, link_m: float) -> np.ndarray:
     cell_of = np.empty(n, np.int64)
     cell_of[order] = np.repeat(np.arange(nc), np.diff(np.r_[first, n]))
     ps = points[order]
-    grid = _Cells(fs[first], span, np.minimum.reduceat(ps, first, 0), np.maximum.reduceat(ps, first, 0), ps[first],
-                  link_m * link_m)
+    grid = _Cells(fs[first], span, np.hstack([np.minimum.reduceat(ps, first, 0), np.maximum.reduceat(ps, first, 0)]),
+                  ps[first], link_m * link_m)
     a, b, sure = grid.pairs(np.arange(nc), _TOUCHING)
     lab = _graph_labels(nc, a[sure], b[sure])
     if lab.max() > 0:
-        a2, b2, s2 = grid.pairs(grid.near_other(lab, link_m), _FARTHER)
+        a2, b2, s2 = grid.pairs(grid.near_other(lab), _FARTHER)
         a, b, sure = np.r_[a, a2], np.r_[b, b2], np.r_[sure, s2]
         lab = _graph_labels(nc, a[sure], b[sure])
     open_ = ~sure & (lab[a] != lab[b])
@@ -584,13 +609,12 @@ def components(points: np.ndarray, link_m: float) -> np.ndarray:
 
 @dataclass
 class _Cells:
-    """Occupied grid cells of `components`: sorted flat keys [C], grid span [3], the points' box lo/hi [C, 3],
-    one point rep [C, 3] per cell, link distance squared."""
+    """Occupied grid cells of `components`: sorted flat keys [C], grid span [3], each cell's point box as
+    lo|hi [C, 6], one point rep [C, 3] per cell, link distance squared."""
 
     keys: np.ndarray
     span: np.ndarray
-    lo: np.ndarray
-    hi: np.ndarray
+    box: np.ndarray
     rep: np.ndarray
     r2: float
 
@@ -602,24 +626,25 @@ class _Cells:
         j = np.searchsorted(self.keys, nb).clip(0, len(self.keys) - 1)
         hit = self.keys[j] == nb
         a, b = np.broadcast_to(src, nb.shape)[hit], j[hit]
-        lo, hi = self.lo, self.hi
-        gap = np.maximum(0, np.maximum(lo[b] - hi[a], lo[a] - hi[b]))
+        ba, bb = self.box[a], self.box[b]
+        gap = np.maximum(0, np.maximum(bb[:, :3] - ba[:, 3:], ba[:, :3] - bb[:, 3:]))
         near = np.einsum("ij,ij->i", gap, gap) <= self.r2
-        a, b = a[near], b[near]
-        far, d = np.maximum(hi[b] - lo[a], hi[a] - lo[b]), self.rep[a] - self.rep[b]
+        a, b, ba, bb = a[near], b[near], ba[near], bb[near]
+        far, d = np.maximum(bb[:, 3:] - ba[:, :3], ba[:, 3:] - bb[:, :3]), self.rep[a] - self.rep[b]
         return a, b, (np.einsum("ij,ij->i", far, far) <= self.r2) | (np.einsum("ij,ij->i", d, d) <= self.r2)
 
-    def near_other(self, lab: np.ndarray, link_m: float) -> np.ndarray:
-        """Cells within `link_m` of the bounding box of a component (label `lab [C]`) other than their own: only
-        these can link two components (all cells when there are very many components)."""
+    def near_other(self, lab: np.ndarray) -> np.ndarray:
+        """Cells within link distance of the bounding box of a component (label `lab [C]`) other than their own:
+        only these can link two components (all cells when there are very many components)."""
         L = int(lab.max()) + 1
         if L * len(lab) > 1_000_000:
             return np.arange(len(lab))
-        clo, chi = np.full((L, 3), np.inf), np.full((L, 3), -np.inf)
-        np.minimum.at(clo, lab, self.lo)
-        np.maximum.at(chi, lab, self.hi)
-        gap = np.maximum(0, np.maximum(clo[None] - self.hi[:, None], self.lo[:, None] - chi[None]))  # [C, L, 3]
-        close = np.einsum("ckj,ckj->ck", gap, gap) <= link_m * link_m
+        order = np.argsort(lab, kind="stable")
+        starts = np.flatnonzero(np.r_[True, np.diff(lab[order]) != 0])
+        clo = np.minimum.reduceat(self.box[order, :3], starts, 0)
+        chi = np.maximum.reduceat(self.box[order, 3:], starts, 0)
+        gap = np.maximum(0, np.maximum(clo[None] - self.box[:, None, 3:], self.box[:, None, :3] - chi[None]))
+        close = np.einsum("ckj,ckj->ck", gap, gap) <= self.r2  # [C, L]
         close[np.arange(len(lab)), lab] = False
         return np.flatnonzero(close.any(1))
 
@@ -688,8 +713,10 @@ def remove_outliers(points: np.ndarray, k: float, radius: float | None = None, m
     if radius is not None:
         from scipy.spatial import cKDTree
 
-        cnt = np.asarray(cKDTree(points).query_ball_point(points, radius, return_length=True)) - 1
-        dense = cnt >= min_neighbors
+        # the min_neighbors-th other point within radius (<= radius, as a ball count): a k-NN query stops at k
+        # points where counting the ball visits all ~20 neighbours of a voxel cloud
+        kth = cKDTree(points).query(points, k=min_neighbors + 1, distance_upper_bound=np.nextafter(radius, np.inf))[0]
+        dense = np.isfinite(kth.reshape(len(points), -1)[:, -1])
         if dense.sum() >= 8:
             points = points[dense]
     c = np.median(points, 0)
