@@ -82,12 +82,14 @@ class AlignConf(StageConf):
                                        # ATE 0.12 -> 0.08 m at K=32) and 0 for rgbd edges (the paper's
                                        # similarity alone; SIFT + sensor depth meets its targets without)
     verify_rank: str = "auto"          # how the candidates are ranked: "inliers" = each is verified first and
-                                       # weighs 1 + its inlier count; "matches" = weighs 1 + its match count and
-                                       # is verified only when Kruskal takes it (lazy: ~K pairs instead of ~2.5K);
-                                       # "auto" = matches for rgbd, inliers for essential edges. Measured on
-                                       # 7-Scenes K=32 (5 match orders): SIFT rgbd ATE mean 0.0485 m both, 32
-                                       # instead of 80 pairs; XFeat essential 0.071 (inliers) vs 0.127 (matches:
-                                       # the graph scales need the extra edges, the tree their inlier counts)
+                                       # weighs 1 + its inlier count; "matches" = weighs 1 + its count of matches
+                                       # with depth in both frames (RANSAC's input) and is verified only when
+                                       # Kruskal takes it (lazy: ~K pairs instead of ~2.5K); "auto" = matches
+                                       # for rgbd, inliers for essential edges. Measured on 7-Scenes (SIFT,
+                                       # sensor depth): uniform K=32 ATE 0.0475 vs 0.0489 m with 32 instead of 80
+                                       # pairs, random K=16 seeds 1-10 median 0.0583 vs 0.0529 (mean 0.0573 vs
+                                       # 0.0558); XFeat essential edges 0.127 vs 0.071 m (5 match orders): their
+                                       # graph scales need every candidate, the tree their inlier counts
     max_attempts: int | None = None    # cap on pairwise alignments tried by Kruskal (None = as many as needed)
     seed: int = 0
     # edge type: "rgbd" = 3D-3D RANSAC on depth-lifted matches (SE(3) metric / Sim(3) relative); "essential" =
@@ -150,8 +152,7 @@ def align_pair(m: Matches, depth_a: np.ndarray, K_a: np.ndarray, depth_b: np.nda
     t0 = time.perf_counter()
     za = sample_depth(depth_a, m.uv0)
     zb = sample_depth(depth_b, m.uv1)
-    lim = conf.max_depth_m if not with_scale else np.inf
-    ok = (za > 0) & (zb > 0) & (za < lim) & (zb < lim)
+    ok = depth_valid(m, depth_a, depth_b, conf, with_scale, za, zb)
     if conf.edge_radius > 0:  # keypoints sit on corners, often on depth edges: their depth is unreliable
         q = np.flatnonzero(ok)
         ok[q] = depth_smooth(depth_a, m.uv0[q], conf.edge_radius, conf.edge_rel) & \
@@ -201,6 +202,16 @@ def align_pair(m: Matches, depth_a: np.ndarray, K_a: np.ndarray, depth_b: np.nda
         else:
             T, icp = T2, "applied"
     return PairResult(T, good, len(m), nv, r.n_inliers, r.residual, time.perf_counter() - t0, reason, icp, icp_rms)
+
+
+def depth_valid(m: Matches, depth_a: np.ndarray, depth_b: np.ndarray, conf: AlignConf, with_scale: bool,
+                za: np.ndarray | None = None, zb: np.ndarray | None = None) -> np.ndarray:
+    """[M] bool: matches with depth > 0 at both ends (and below `max_depth_m` for metric depth); za, zb: the
+    sampled depths when already known."""
+    za = sample_depth(depth_a, m.uv0) if za is None else za
+    zb = sample_depth(depth_b, m.uv1) if zb is None else zb
+    lim = conf.max_depth_m if not with_scale else np.inf
+    return (za > 0) & (zb > 0) & (za < lim) & (zb < lim)
 
 
 def align_pair_essential(m: Matches, depth_a: np.ndarray, K_a: np.ndarray, depth_b: np.ndarray, K_b: np.ndarray,
@@ -724,8 +735,11 @@ class _PairVerifier:
             self.secs["match"] += time.perf_counter() - t0
         return self._matches[(a, b)]
 
-    def n_matches(self, a: int, b: int) -> int:
-        return len(self.match(min(a, b), max(a, b)))
+    def n_depth_matches(self, a: int, b: int) -> int:
+        """Matches with valid depth in both frames: what RANSAC could use, an upper bound of its inliers."""
+        a, b = min(a, b), max(a, b)
+        m = self.match(a, b)
+        return int(depth_valid(m, self.frames[a].depth, self.frames[b].depth, self.conf, self.with_scale).sum())
 
     def verify(self, a: int, b: int) -> bool:
         fa, fb = self.frames[a], self.frames[b]
@@ -804,7 +818,7 @@ def _align_mst(frames: list[Any], pv: _PairVerifier, embeddings: np.ndarray | No
             pv.defer_refine = pv.edge == "essential"
             W = refine_with_inliers(S, pv.verify_cached, pv.inliers, conf.verify_top, nb)
         else:  # lazy: ranked by match count, verified by Kruskal only when it takes the edge
-            W = refine_with_inliers(S, lambda i, j: True, pv.n_matches, conf.verify_top, nb)
+            W = refine_with_inliers(S, lambda i, j: True, pv.n_depth_matches, conf.verify_top, nb)
     tree, _failed = maximum_spanning_tree(W, pv.verify_cached, conf.max_attempts)
     while pv.defer_refine:  # the tree's edges refined; one that fails then is dropped and the tree re-grown
         bad = [e for e in tree if not pv.refine_edge(*e)]

@@ -565,7 +565,8 @@ def components(points: np.ndarray, link_m: float) -> np.ndarray:
     link_m / sqrt(3) every cell is one clique, so only cell pairs up to 2 cells apart can link. Touching cells
     are tested first; cells 2 apart only near another component's bounding box. A cell pair links for sure when
     its points' boxes are within link_m at their farthest corners or one point of each is, never when the boxes
-    are farther apart; the rest (cells along a gap) are decided point by point, where they join two components."""
+    are farther apart; the rest (cells along a gap) are decided point by point, where they join two components.
+    (A pair exactly link_m apart may round either way, as in any floating-point distance test.)"""
     n = len(points)
     if n == 0:
         return np.zeros(0, np.int64)
