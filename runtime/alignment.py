@@ -81,15 +81,15 @@ class AlignConf(StageConf):
                                        # (their inlier counts favour short, ill-conditioned baselines: measured
                                        # ATE 0.12 -> 0.08 m at K=32) and 0 for rgbd edges (the paper's
                                        # similarity alone; SIFT + sensor depth meets its targets without)
-    verify_rank: str = "auto"          # how the candidates are ranked: "inliers" = each is verified first and
+    verify_rank: str = "inliers"       # how the candidates are ranked: "inliers" = each is verified first and
                                        # weighs 1 + its inlier count; "matches" = weighs 1 + its count of matches
                                        # with depth in both frames (RANSAC's input) and is verified only when
-                                       # Kruskal takes it (lazy: ~K pairs instead of ~2.5K); "auto" = matches
-                                       # for rgbd, inliers for essential edges. Measured on 7-Scenes (SIFT,
-                                       # sensor depth): uniform K=32 ATE 0.0475 vs 0.0489 m with 32 instead of 80
-                                       # pairs, random K=16 seeds 1-10 median 0.0583 vs 0.0529 (mean 0.0573 vs
-                                       # 0.0558); XFeat essential edges 0.127 vs 0.071 m (5 match orders): their
-                                       # graph scales need every candidate, the tree their inlier counts
+                                       # Kruskal takes it (lazy: ~K pairs instead of ~2.5K). Measured on 7-Scenes
+                                       # (benchmarks/pose_table.py, sensor depth), "matches" vs "inliers": SIFT
+                                       # uniform K=16/32/64 ATE 0.047/0.048/0.050 vs 0.049/0.049/0.048 m, random
+                                       # K=16 median 0.058 vs 0.053; ORB uniform K=32 0.090 vs 0.070, random K=16
+                                       # 0.107 vs 0.085; XFeat essential edges 0.127 vs 0.071 (their graph scales
+                                       # need every candidate): worse where it counts, so not the default
     max_attempts: int | None = None    # cap on pairwise alignments tried by Kruskal (None = as many as needed)
     seed: int = 0
     # edge type: "rgbd" = 3D-3D RANSAC on depth-lifted matches (SE(3) metric / Sim(3) relative); "essential" =
@@ -699,8 +699,8 @@ def _check_frames(frames: list[Any], strategy: str, conf: AlignConf) -> None:
         raise InputError("align_frames: frame indices must be unique")
     if conf.edge not in ("auto", "rgbd", "essential"):
         raise InputError(f"alignment config: edge must be 'auto', 'rgbd' or 'essential', got {conf.edge!r}")
-    if conf.verify_rank not in ("auto", "inliers", "matches"):
-        raise InputError(f"alignment config: verify_rank must be 'auto', 'inliers' or 'matches', got "
+    if conf.verify_rank not in ("inliers", "matches"):
+        raise InputError(f"alignment config: verify_rank must be 'inliers' or 'matches', got "
                          f"{conf.verify_rank!r}")
     if conf.scale_mode not in ("chain", "graph", "shared"):
         raise InputError(f"alignment config: scale_mode must be 'chain', 'graph' or 'shared', got "
@@ -812,8 +812,7 @@ def _align_mst(frames: list[Any], pv: _PairVerifier, embeddings: np.ndarray | No
         order = _time_order(frames)
         n_nb = conf.verify_neighbours if conf.verify_neighbours is not None else int(pv.edge == "essential")
         nb = [(order[p], order[p + d]) for d in range(1, n_nb + 1) for p in range(len(order) - d)]
-        rank = conf.verify_rank if conf.verify_rank != "auto" else ("inliers" if pv.edge == "essential" else "matches")
-        if rank == "inliers":
+        if conf.verify_rank == "inliers":
             # ranking and the scale graph need every candidate's inliers and scales, not its refined pose
             pv.defer_refine = pv.edge == "essential"
             W = refine_with_inliers(S, pv.verify_cached, pv.inliers, conf.verify_top, nb)

@@ -162,7 +162,7 @@ def test_lazy_verification_fewer_pairs_same_poses():
     frames, scene, poses = _synthetic(8)
     om = _OracleMatcher(scene, isolated=6)
     eager = align_frames(frames, om, "mst", embeddings=_emb(8), conf={"verify_rank": "inliers"})
-    lazy = align_frames(frames, om, "mst", embeddings=_emb(8))  # auto = matches for rgbd edges
+    lazy = align_frames(frames, om, "mst", embeddings=_emb(8), conf={"verify_rank": "matches"})
     assert len(lazy.edge_stats) < len(eager.edge_stats)
     assert lazy.unaligned == eager.unaligned == [16] and sorted(lazy.edges) == sorted(eager.edges)
     root = lazy.root
