@@ -155,6 +155,8 @@ def main(argv: list[str] | None = None) -> int:
                  "keyframes": a.keyframes, "repeats": a.repeats, "target_core_s": TARGET_CORE_S,
                  "command": "python benchmarks/align_core.py " + " ".join(
                      argv if argv is not None else sys.argv[1:]), "depths": {}}
+    out["package"] = str(Path(al.__file__).resolve().parents[1])  # the code measured (a before/after run may
+    # put an older checkout first on PYTHONPATH)
     out["load_average_1min_start"] = os.getloadavg()[0]
     for kind in depths:
         p = load_perception(Path(a.bundle), kind == "model") if (a.fusion or kind == "model") else None
