@@ -14,8 +14,9 @@ leaves a detection empty (the pipeline's `_box_prompted`); timed: `pipeline.fuse
 
 Prints and writes benchmarks/results/align_core.json: per depth kind and strategy (mst and sequential) median wall
 and CPU seconds per alignment (CPU time is the fairer figure on a shared machine), pairs tried, pairwise seconds,
-ms per pair, ATE (Sim(3)-aligned for relative depth), and for mst the fusion seconds and `core_s` = alignment +
-fusion (the target: <= 0.2 s at K = 32). Single-threaded BLAS (OMP_NUM_THREADS=1), as on a 2-core device sharing
+ms per pair, ATE (Sim(3)-aligned for relative depth), and for mst the fusion wall/CPU seconds, the instances
+(name, centre, box size: to compare maps across code versions), `core_s` = alignment + fusion wall (the target:
+<= 0.2 s at K = 32) and `core_cpu_s` = the same in CPU seconds. Single-threaded BLAS (OMP_NUM_THREADS=1), as on a 2-core device sharing
 its cores with the model stages.
 """
 from __future__ import annotations
@@ -77,33 +78,35 @@ def load_perception(bundle: Path, with_model_depth: bool) -> Any:
 
 def detections(frames: list, perception: Any) -> dict[int, Any]:
     """Detector + segmenter once per frame (masks box-prompted where the segmenter leaves them empty)."""
-    from mosaicthinker.runtime.pipeline import _box_prompted
+    from mosaicthinker.runtime.pipeline import PipelineConfig, _box_prompted
     from mosaicthinker.runtime.trace import Trace
 
-    out = {}
+    out, share = {}, PipelineConfig().box_prompt_min_share
     for f in frames:
         d = perception.detect(f, NAMES)
         if d.masks is None and perception.segment is not None and len(d):
-            d = dataclasses.replace(d, masks=_box_prompted(perception.segment(f, d), f.depth, d, Trace()))
+            d = dataclasses.replace(d, masks=_box_prompted(perception.segment(f, d), f.depth, d, Trace(), share))
         out[f.index] = d
     return out
 
 
-def fusion_seconds(frames: list, dets: dict[int, Any], poses: dict[int, np.ndarray]) -> tuple[float, int]:
-    """The pipeline's fusion stage over the aligned frames: (seconds, instances)."""
+def fusion_seconds(frames: list, dets: dict[int, Any], poses: dict[int, np.ndarray]) -> tuple[float, float, list]:
+    """The pipeline's fusion stage over the aligned frames: (wall s, CPU s, instances as [name, centre, size])."""
     from mosaicthinker.runtime.pipeline import fuse_frames
     from mosaicthinker.runtime.semantic_map import FusionConfig
 
     fconf = FusionConfig()
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     _, instances, _ = fuse_frames(frames, dets, poses, fconf)  # the pipeline's own fusion step
-    return time.perf_counter() - t0, len(instances)
+    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+    return wall, cpu, [[o.name, np.round(o.center, 4).tolist(), np.round(np.asarray(o.box.axes_lengths), 4).tolist()]
+                       for o in instances]
 
 
 def measure(frames: list, rm: ReplayMatcher, strategy: str, with_scale: bool, repeats: int,
             dets: dict[int, Any] | None) -> dict[str, Any]:
     al.align_frames(frames, rm, strategy, with_scale=with_scale)  # warm-up: fills the match cache
-    walls, cpus, pair_s, fus, res, n_inst = [], [], [], [], None, 0
+    walls, cpus, pair_s, fus, fus_cpu, res, inst = [], [], [], [], [], None, []
     for _ in range(repeats):
         t0, c0 = time.perf_counter(), time.process_time()
         res = al.align_frames(frames, rm, strategy, with_scale=with_scale)
@@ -111,8 +114,9 @@ def measure(frames: list, rm: ReplayMatcher, strategy: str, with_scale: bool, re
         cpus.append(time.process_time() - c0)
         pair_s.append(res.seconds["ransac"])
         if dets is not None:
-            s, n_inst = fusion_seconds(frames, dets, res.poses)
+            s, c, inst = fusion_seconds(frames, dets, res.poses)
             fus.append(s)
+            fus_cpu.append(c)
     ev = [f for f in frames if f.index in res.poses]
     ate = ate_rmse(np.array([res.poses[f.index] for f in ev]), np.array([f.pose_gt for f in ev]), with_scale)[0]
     n = len(res.edge_stats)
@@ -124,9 +128,11 @@ def measure(frames: list, rm: ReplayMatcher, strategy: str, with_scale: bool, re
            "aligned": len(res.aligned)}
     if fus:
         row["fusion_seconds_median"] = round(float(np.median(fus)), 4)
-        row["instances"] = n_inst
-        core = [w + f for w, f in zip(walls, fus)]
-        row["core_s"] = round(float(np.median(core)), 4)
+        row["fusion_cpu_seconds_median"] = round(float(np.median(fus_cpu)), 4)
+        row["instances"] = len(inst)
+        row["instance_list"] = inst  # [name, centre, box size]: compares maps across code versions
+        row["core_s"] = round(float(np.median([w + f for w, f in zip(walls, fus)])), 4)
+        row["core_cpu_s"] = round(float(np.median([c + f for c, f in zip(cpus, fus_cpu)])), 4)
         row["core_ok"] = row["core_s"] <= TARGET_CORE_S
     return row
 
@@ -149,6 +155,8 @@ def main(argv: list[str] | None = None) -> int:
                  "keyframes": a.keyframes, "repeats": a.repeats, "target_core_s": TARGET_CORE_S,
                  "command": "python benchmarks/align_core.py " + " ".join(
                      argv if argv is not None else sys.argv[1:]), "depths": {}}
+    out["package"] = str(Path(al.__file__).resolve().parents[1])  # the code measured (a before/after run may
+    # put an older checkout first on PYTHONPATH)
     out["load_average_1min_start"] = os.getloadavg()[0]
     for kind in depths:
         p = load_perception(Path(a.bundle), kind == "model") if (a.fusion or kind == "model") else None
@@ -162,7 +170,8 @@ def main(argv: list[str] | None = None) -> int:
         out["depths"][kind] = {"matcher": mname, "with_scale": with_scale, "strategies": {
             s: measure(fr, rm, s, with_scale, a.repeats, dets if s == "mst" else None)
             for s in ("mst", "sequential")}}
-        print(f"[align_core] {kind}: {json.dumps(out['depths'][kind]['strategies']['mst'])}", file=sys.stderr)
+        mst = {k: v for k, v in out["depths"][kind]["strategies"]["mst"].items() if k != "instance_list"}
+        print(f"[align_core] {kind}: {json.dumps(mst)}", file=sys.stderr)
     out["load_average_1min"] = os.getloadavg()[0]
     out["date"] = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
     Path(a.out).parent.mkdir(parents=True, exist_ok=True)

@@ -165,9 +165,12 @@ def test_each_pair_matched_and_verified_once():
     calls = []
     inner = om.match
     om.match = lambda a, b, b0=None, b1=None: calls.append((int(a[0, 0, 0]), int(b[0, 0, 0]))) or inner(a, b, b0, b1)
-    res = align_frames(frames, om, "mst", embeddings=_emb(6))
-    pairs = [tuple(sorted(c)) for c in calls]
-    assert len(pairs) == len(set(pairs)) == len(res.edge_stats)  # refinement + Kruskal share one verification
+    for rank in ("inliers", "matches"):
+        calls.clear()
+        res = align_frames(frames, om, "mst", embeddings=_emb(6), conf={"verify_rank": rank})
+        pairs = [(min(c) + 10, max(c) + 10) for c in calls]  # frame index = 10 + the position in the pixel
+        assert len(pairs) == len(set(pairs))  # ranking + Kruskal share one match and one verification per pair
+        assert set(res.edge_stats) <= set(pairs) and (rank == "matches" or len(pairs) == len(res.edge_stats))
 
 
 def test_sequential_baseline_keeps_previous_pose():
