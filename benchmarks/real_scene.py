@@ -59,6 +59,9 @@ def summary(r: dict) -> dict:
             "mc_pooled": an["pooled"]["multiple_choice"], "n_mc": an["pooled"]["n_mc"],
             "numeric_mra_pooled": an["pooled"]["numeric_mra"], "n_numeric": an["pooled"]["n_numeric"],
             "per_category_recall": {c: p["recall"] for c, p in ins["per_category"].items()},
+            "per_type": {q: {k: p.get(k) for k in ("n", "score", "answered", "answered_score", "not_in_map")}
+                         for q, p in an["per_type"].items()},
+            "mc_why": an["pooled"].get("mc_why"), "numeric_why": an["pooled"].get("numeric_why"),
             "unaligned": len(r["unaligned"]),
             "ate_m": r["registration"]["ate_rmse_m"],
             "alignment_s": r["stages"].get("alignment", {}).get("seconds")}

@@ -377,6 +377,7 @@ class FusionConfig(StageConf):
     merge_footprint: bool = True  # after fusion, merge same-name instances whose floor footprints overlap
     min_instance_points: int = 40
     duplicate_iou: float = 0.7    # one frame's boxes of two names this alike are one object named twice (0 = off)
+    same_frame_share: float = 0.5  # one frame's same-name box whose points lie on another's: group/duplicate (0 = off)
     seed: int = 0
 
     def validate(self) -> None:
@@ -630,18 +631,67 @@ class _Acc:
         return m["radius"]
 
 
-def fuse_observations(observations: list[Observation], conf: FusionConfig = default_fusion_conf
-                      ) -> tuple[list[ObjectInstance], list[np.ndarray]]:
+def same_frame_redundant(observations: list[Observation], radius_m: float, share: float = 0.5
+                         ) -> dict[int, str]:
+    """Observations (by index) that one frame holds twice, among that frame's detections of the same name, with
+    why: a `group` box — its points cover (>= `share` within `radius_m`) two or more of the frame's other
+    detections that do not cover each other (the detector's union box of two side-by-side objects) — or a
+    `duplicate` — its points lie (>= `share`) on a higher-scored detection's (a box NMS left inside another box of
+    the same object). Objects in front of one another have points at other depths: both kept. Pure."""
+    from scipy.spatial import cKDTree
+
+    groups: dict[tuple[int, str], list[int]] = {}
+    for i, ob in enumerate(observations):
+        groups.setdefault((ob.frame, ob.name), []).append(i)
+    out: dict[int, str] = {}
+    for idx in groups.values():
+        if len(idx) < 2:
+            continue
+        pts = [voxel_downsample(observations[i].points, radius_m / 3) for i in idx]
+        trees = [cKDTree(p) for p in pts]
+        cov = np.array([[1.0 if a == b else float(np.mean(np.isfinite(
+            trees[a].query(pts[b], distance_upper_bound=radius_m)[0]))) for b in range(len(idx))]
+            for a in range(len(idx))])  # cov[a, b]: share of b's points near a's
+        for a in range(len(idx)):
+            inner = [b for b in range(len(idx)) if b != a and cov[a, b] >= share]
+            if any(cov[x, y] < share and cov[y, x] < share for x in inner for y in inner if x < y):
+                out[idx[a]] = "group"
+        for a in range(len(idx)):
+            if idx[a] in out:
+                continue
+            for b in sorted(range(len(idx)), key=lambda b: -observations[idx[b]].score):
+                if b != a and idx[b] not in out and cov[b, a] >= share and \
+                        (observations[idx[b]].score, -b) > (observations[idx[a]].score, -a):
+                    out[idx[a]] = "duplicate"
+                    break
+    return out
+
+
+def fuse_observations(observations: list[Observation], conf: FusionConfig = default_fusion_conf,
+                      trace: Any = None) -> tuple[list[ObjectInstance], list[np.ndarray]]:
     """Fuse observations into instances (same name + 3D overlap or close centres), remove outliers and fit
     gravity-aligned oriented boxes (yaw from floor-projected points).
 
     Returns the instances and their fused point clouds ([M, 3] each, same order).
     Two observations of one name merge when >= `merge_overlap` of the new points lie within `merge_radius_m`
     of the instance's points, or when the centres are closer than `merge_centre_m` and than the larger of the
-    two radii (an object seen from two sides overlaps little but shares its centre).
+    two radii (an object seen from two sides overlaps little but shares its centre). One frame's group boxes and
+    duplicate boxes of one object (`same_frame_redundant`) are left out first (the trace's `fusion` event); every
+    other pair of one frame's detections stays two instances.
     """
     from .geometry import fit_gravity_box
 
+    if conf.same_frame_share > 0:
+        drop = same_frame_redundant(observations, conf.merge_radius_m, conf.same_frame_share)
+        if drop:
+            from .trace import as_trace
+
+            as_trace(trace).event("fusion", f"fusion: left out {len(drop)} detection(s) that repeat others of their "
+                                  f"frame: " + ", ".join(f"{observations[i].name} in frame {observations[i].frame} "
+                                                         f"({why})" for i, why in sorted(drop.items())),
+                                  stage="fusion", dropped=[{"frame": observations[i].frame, "name": observations[i].name,
+                                                            "why": why} for i, why in sorted(drop.items())])
+            observations = [o for i, o in enumerate(observations) if i not in drop]
     accs: list[_Acc] = []
     for ob in sorted(observations, key=lambda o: (o.t, o.frame, -o.score)):
         pts = voxel_downsample(ob.points, conf.voxel_m)
@@ -656,6 +706,10 @@ def fuse_observations(observations: list[Observation], conf: FusionConfig = defa
             ov = float(np.mean(np.isfinite(dist)))
             cdist = float(np.linalg.norm(c_new - a.centre()))
             close = cdist < min(conf.merge_centre_m, max(a.radius(), r_new))
+            # overlap alone is not enough: a detection that spans two side-by-side objects overlaps the one seen
+            # before by its edge; the views of one object hold each other's centre within their extents
+            if ov >= conf.merge_overlap and not close and not _centred(a.points, pts, conf.merge_radius_m):
+                continue
             if (ov >= conf.merge_overlap or close) and ov + (1.0 if close else 0.0) > best_ov:
                 best, best_ov = a, ov + (1.0 if close else 0.0)
         if best is None:
@@ -685,6 +739,16 @@ def fuse_observations(observations: list[Observation], conf: FusionConfig = defa
         instances.append(inst)
         clouds.append(pts)
     return instances, clouds
+
+
+def _centred(a: np.ndarray, b: np.ndarray, margin_m: float, lo: float = 2.0, hi: float = 98.0) -> bool:
+    """Whether the median of point set a [N, 3] lies inside b's extent (per-axis `lo`..`hi` percentiles grown by
+    `margin_m`) or b's median inside a's. Pure."""
+    def inside(p: np.ndarray, q: np.ndarray) -> bool:
+        lo_q, hi_q = np.percentile(q, lo, axis=0) - margin_m, np.percentile(q, hi, axis=0) + margin_m
+        c = np.median(p, 0)
+        return bool(np.all((c >= lo_q) & (c <= hi_q)))
+    return inside(a, b) or inside(b, a)
 
 
 def view_estimates(box: OrientedBox, views: list[tuple[int, float, np.ndarray]], margin_m: float = 0.05,
