@@ -706,10 +706,6 @@ def fuse_observations(observations: list[Observation], conf: FusionConfig = defa
             ov = float(np.mean(np.isfinite(dist)))
             cdist = float(np.linalg.norm(c_new - a.centre()))
             close = cdist < min(conf.merge_centre_m, max(a.radius(), r_new))
-            # overlap alone is not enough: a detection that spans two side-by-side objects overlaps the one seen
-            # before by its edge; the views of one object hold each other's centre within their extents
-            if ov >= conf.merge_overlap and not close and not _centred(a.points, pts, conf.merge_radius_m):
-                continue
             if (ov >= conf.merge_overlap or close) and ov + (1.0 if close else 0.0) > best_ov:
                 best, best_ov = a, ov + (1.0 if close else 0.0)
         if best is None:
@@ -739,16 +735,6 @@ def fuse_observations(observations: list[Observation], conf: FusionConfig = defa
         instances.append(inst)
         clouds.append(pts)
     return instances, clouds
-
-
-def _centred(a: np.ndarray, b: np.ndarray, margin_m: float, lo: float = 2.0, hi: float = 98.0) -> bool:
-    """Whether the median of point set a [N, 3] lies inside b's extent (per-axis `lo`..`hi` percentiles grown by
-    `margin_m`) or b's median inside a's. Pure."""
-    def inside(p: np.ndarray, q: np.ndarray) -> bool:
-        lo_q, hi_q = np.percentile(q, lo, axis=0) - margin_m, np.percentile(q, hi, axis=0) + margin_m
-        c = np.median(p, 0)
-        return bool(np.all((c >= lo_q) & (c <= hi_q)))
-    return inside(a, b) or inside(b, a)
 
 
 def view_estimates(box: OrientedBox, views: list[tuple[int, float, np.ndarray]], margin_m: float = 0.05,
