@@ -647,7 +647,7 @@ def same_frame_redundant(observations: list[Observation], radius_m: float, share
     for idx in groups.values():
         if len(idx) < 2:
             continue
-        pts = [voxel_downsample(observations[i].points, radius_m / 3) for i in idx]
+        pts = [voxel_downsample(observations[i].points, radius_m / 2) for i in idx]
         trees = [cKDTree(p) for p in pts]
         cov = np.array([[1.0 if a == b else float(np.mean(np.isfinite(
             trees[a].query(pts[b], distance_upper_bound=radius_m)[0]))) for b in range(len(idx))]
@@ -682,7 +682,9 @@ def fuse_observations(observations: list[Observation], conf: FusionConfig = defa
     from .geometry import fit_gravity_box
 
     if conf.same_frame_share > 0:
-        drop = same_frame_redundant(observations, conf.merge_radius_m, conf.same_frame_share)
+        # one frame, one depth image: a box repeating another holds the very same surface points, so the radius is
+        # the voxel size (two small objects a few cm apart do not cover each other)
+        drop = same_frame_redundant(observations, conf.voxel_m, conf.same_frame_share)
         if drop:
             from .trace import as_trace
 

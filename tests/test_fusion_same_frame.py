@@ -47,3 +47,7 @@ def test_one_object_in_front_of_another_and_objects_side_by_side_stay():
     obs = [_ob(near, 0, 0.5, "chair"), _ob(far, 0, 0.7, "chair"), _ob(side, 0, 0.6, "chair")]
     assert same_frame_redundant(obs, 0.12) == {}
     assert len(fuse_observations(obs)[0]) == 3
+    # two mugs 2 cm apart: the voxel-size radius fusion uses does not take one for a copy of the other
+    mug = lambda x0: np.c_[rng.uniform(x0, x0 + 0.08, 200), rng.uniform(1.0, 1.08, 200), rng.uniform(0.75, 0.85, 200)]
+    mugs = [_ob(mug(0.0), 0, 0.6, "cup"), _ob(mug(0.10), 0, 0.5, "cup")]
+    assert same_frame_redundant(mugs, FusionConfig().voxel_m) == {}
