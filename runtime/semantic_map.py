@@ -406,6 +406,7 @@ class Observation:
     points: np.ndarray
     box2d: np.ndarray
     instance_hint: int | None = None
+    recovered: bool = False  # a view occlusion refinement re-prompted for one instance (not a detection)
 
 
 def lift_observations(rgb_shape: tuple[int, int], depth: np.ndarray, K: np.ndarray, T_wc: np.ndarray,
@@ -633,7 +634,8 @@ class _Acc:
 
 def same_frame_redundant(observations: list[Observation], radius_m: float, share: float = 0.5
                          ) -> dict[int, str]:
-    """Observations (by index) that one frame holds twice, among that frame's detections of the same name, with
+    """Observations (by index) that one frame holds twice, among that frame's detections of the same name (not
+    refinement's `recovered` views), with
     why: a `group` box — its points cover (>= `share` within `radius_m`) two or more of the frame's other
     detections that do not cover each other (the detector's union box of two side-by-side objects) — or a
     `duplicate` — its points lie (>= `share`) on a higher-scored detection's (a box NMS left inside another box of
@@ -642,7 +644,8 @@ def same_frame_redundant(observations: list[Observation], radius_m: float, share
 
     groups: dict[tuple[int, str], list[int]] = {}
     for i, ob in enumerate(observations):
-        groups.setdefault((ob.frame, ob.name), []).append(i)
+        if not ob.recovered:  # the detector's repeats; refinement's prompted views are not detections
+            groups.setdefault((ob.frame, ob.name), []).append(i)
     out: dict[int, str] = {}
     for idx in groups.values():
         if len(idx) < 2:
@@ -1418,6 +1421,7 @@ def refine(instances: list[ObjectInstance], obs: list[Observation], frames: list
                 inside = inst.box.contains(ob.points, margin=0.15)
                 if inside.mean() >= 0.5:
                     ob.points = ob.points[inside]
+                    ob.recovered = True
                     found.setdefault((ii, fi), []).append(ob)
     new_obs = [ob for key in sorted(found) for ob in found[key]]
     gained = {instances[ii].id for ii, _ in found}
@@ -1425,5 +1429,5 @@ def refine(instances: list[ObjectInstance], obs: list[Observation], frames: list
         return instances, [np.zeros((0, 3))] * len(instances), 0
     as_trace(trace).event("refinement", f"occlusion refinement recovered {len(new_obs)} view(s) of {len(gained)} "
                           f"instance(s)", views=len(new_obs), instances=len(gained))
-    inst2, clouds = fuse_observations(obs + new_obs, conf)
+    inst2, clouds = fuse_observations(obs + new_obs, conf, trace)
     return inst2, clouds, len(gained)

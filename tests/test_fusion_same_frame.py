@@ -51,3 +51,11 @@ def test_one_object_in_front_of_another_and_objects_side_by_side_stay():
     mug = lambda x0: np.c_[rng.uniform(x0, x0 + 0.08, 200), rng.uniform(1.0, 1.08, 200), rng.uniform(0.75, 0.85, 200)]
     mugs = [_ob(mug(0.0), 0, 0.6, "cup"), _ob(mug(0.10), 0, 0.5, "cup")]
     assert same_frame_redundant(mugs, FusionConfig().voxel_m) == {}
+
+
+def test_refinement_views_are_not_detector_repeats():
+    rng = np.random.default_rng(3)
+    whole = _slab(rng, 0.0, 1.0, 3.0)
+    part = _ob(_slab(rng, 0.1, 0.7, 3.0), 0, 0.5)
+    part.recovered = True  # re-prompted by occlusion refinement, not a detection
+    assert same_frame_redundant([part, _ob(whole, 0, 0.7)], 0.12) == {}
