@@ -59,6 +59,9 @@ def summary(r: dict) -> dict:
             "mc_pooled": an["pooled"]["multiple_choice"], "n_mc": an["pooled"]["n_mc"],
             "numeric_mra_pooled": an["pooled"]["numeric_mra"], "n_numeric": an["pooled"]["n_numeric"],
             "per_category_recall": {c: p["recall"] for c, p in ins["per_category"].items()},
+            "per_type": {q: {k: p.get(k) for k in ("n", "score", "answered", "answered_score", "not_in_map")}
+                         for q, p in an["per_type"].items()},
+            "mc_why": an["pooled"].get("mc_why"), "numeric_why": an["pooled"].get("numeric_why"),
             "unaligned": len(r["unaligned"]),
             "ate_m": r["registration"]["ate_rmse_m"],
             "alignment_s": r["stages"].get("alignment", {}).get("seconds")}
@@ -79,6 +82,70 @@ def same_outputs(a: Path, b: Path) -> dict:
     return {"same_map": ma == mb, "same_answers": qa == qb, "instances": len(ma or []), "questions": len(qa)}
 
 
+def probe_detector(bundle: Path, stride: int = 3, threshold: float = 0.2) -> dict:
+    """How the bundle's detector sees the annotated instances (a diagnosis of the map's misses, not a score):
+    the raw detector at `threshold` on every `stride`-th frame; per annotated category, the frames where one of
+    its boxes projects into the image (ground-truth pose, in front of the camera, >= 30 % of its projected box
+    inside), the best score of a detection of the category's label on it (box IoU >= 0.3 with the projected box,
+    or its centre inside it), how many such detections reach the pipeline's threshold, and how many detections of
+    that label at that threshold lie on none of the annotated boxes."""
+    import numpy as np
+
+    from mosaicthinker.host.evaluation.scene import load_annotation
+    from mosaicthinker.runtime.bundle import load_bundle
+    from mosaicthinker.runtime.frames import open_source
+    from mosaicthinker.runtime.geometry import OrientedBox, project
+    from mosaicthinker.runtime.stages import load_role
+    from mosaicthinker.runtime.stages.detector import map_names
+    from mosaicthinker.runtime.trace import Trace
+
+    det = load_role(load_bundle(bundle), "detector", trace=Trace())
+    keep = det.conf.score_threshold
+    det.conf.score_threshold = threshold
+    _, scene, T = load_annotation(ANNOT)
+    src = open_source(DATA)
+    boxes = {c: [OrientedBox.from_meta(m) for m in lst] for c, lst in scene["object_bbox"].items()}
+    labels = {c: set(map_names([c], det.labels)[0].get(c, [])) for c in boxes}
+    out = {c: {"labels": sorted(det.labels[i] for i in labels[c]), "frames_in_view": 0, "best_on_instance": 0.0,
+               "on_instance_at_threshold": 0, "elsewhere_at_threshold": 0} for c in boxes}
+
+    def iou(a, b) -> float:
+        w = max(0.0, min(a[2], b[2]) - max(a[0], b[0]))
+        h = max(0.0, min(a[3], b[3]) - max(a[1], b[1]))
+        u = (a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1]) - w * h
+        return w * h / u if u > 0 else 0.0
+
+    for i in range(0, len(src), stride):
+        f = src[i]
+        H, W = f.rgb.shape[:2]
+        px, cls, sc = det.raw(f.rgb)
+        for c, lst in boxes.items():
+            proj = []
+            for b in lst:
+                uv, z = project(b.corners(), f.K, T @ f.pose_gt)
+                if np.any(z <= 0.1):
+                    continue
+                full = np.r_[uv.min(0), uv.max(0)]
+                clip = np.r_[np.clip(full[:2], 0, [W, H]), np.clip(full[2:], 0, [W, H])]
+                area = max(1e-9, float((full[2] - full[0]) * (full[3] - full[1])))
+                seen = (clip[2] - clip[0]) * (clip[3] - clip[1])
+                if seen >= 0.3 * area or seen >= 0.15 * W * H:  # mostly inside, or filling much of the image
+                    proj.append(clip)
+            out[c]["frames_in_view"] += bool(proj)
+            for bb, k, s in zip(px, cls, sc):
+                if int(k) not in labels[c]:
+                    continue
+                cx, cy = (bb[0] + bb[2]) / 2, (bb[1] + bb[3]) / 2
+                on = any(iou(bb, p) >= 0.3 or (p[0] <= cx <= p[2] and p[1] <= cy <= p[3]) for p in proj)
+                if on:
+                    out[c]["best_on_instance"] = round(max(out[c]["best_on_instance"], float(s)), 3)
+                    out[c]["on_instance_at_threshold"] += int(s >= keep)
+                else:
+                    out[c]["elsewhere_at_threshold"] += int(s >= keep)
+    return {"stride": stride, "probe_threshold": threshold, "pipeline_threshold": keep,
+            "frames": len(range(0, len(src), stride)), "per_category": out}
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--bundle", type=Path, default=REPO / "bundles" / "real")
@@ -90,7 +157,17 @@ def main(argv: list[str] | None = None) -> int:
                                                            "the map and the answers are the same (seeded)")
     ap.add_argument("--retable", action="store_true", help="rebuild the table of an existing results file from "
                                                             "its stored runs (no new runs)")
+    ap.add_argument("--probe-detector", action="store_true", help="only the detector diagnosis (probe_detector) "
+                                                                   "into benchmarks/results/real_scene_detector.json")
     a = ap.parse_args(argv)
+    if a.probe_detector:
+        doc = {"schema": "mosaicthinker.bench.real_scene_detector/1", "cmd": " ".join(sys.argv),
+               "date": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "load_avg_1min": os.getloadavg()[0],
+               **probe_detector(a.bundle)}
+        path = OUT.with_name("real_scene_detector.json")
+        path.write_text(json.dumps(doc, indent=1, default=float))
+        print(json.dumps(doc["per_category"], indent=1))
+        return 0
     if a.retable:
         doc = json.loads(OUT.read_text())
         doc["table"] = {k: summary(v) for k, v in doc["runs"].items()}

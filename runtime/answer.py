@@ -215,6 +215,7 @@ class MapReasoner:
         self._pq: ParsedQuestion | None = None
         self._used: list[ObjectInstance] = []  # instances the current answer read (its evidence)
         self._spread: tuple[str, list[float], str | None] | None = None  # (quantity, per-view values, unit)
+        self._ambiguous: list[dict[str, Any]] = []  # question names that matched several instances (`_choice`)
 
     # ------------------------------------------------------------------ entry point
     def answer(self, question: str, options: list[str] | None = None,
@@ -229,11 +230,13 @@ class MapReasoner:
         ans = self._answer(pq, options)
         if ans.ok:
             q = self._spread or (None, [], None)
-            ans.evidence = ev.build(self._used, q[0], q[1], q[2])
+            ans.evidence = ev.build(self._used, q[0], q[1], q[2], self._ambiguous)
+            if self._ambiguous:  # said in the answer itself, not only in the evidence
+                ans.explanation += "; " + "; ".join(ev.ambiguity_text(a) for a in self._ambiguous)
         return ans
 
     def _answer(self, pq: ParsedQuestion, options: list[str] | None) -> Answer:
-        self._used, self._spread = [], None
+        self._used, self._spread, self._ambiguous = [], None, []
         try:
             value, expl = getattr(self, "_" + pq.qtype)(pq)
         except _NotFound as e:
@@ -308,6 +311,17 @@ class MapReasoner:
         out = {n: self._select(n, self._find(n)) for n in names}
         self._used += [o for v in out.values() for o in v]
         return out
+
+    def _choice(self, name: str, inst: list[ObjectInstance], used: ObjectInstance, rule: str,
+                values: dict[int, float] | None = None, unit: str | None = None) -> None:
+        """Record that the question's `name` matched several instances and which one the answer used (`rule`:
+        how it was picked; `values`: the asked quantity with each instance instead, by id)."""
+        if len(inst) < 2:
+            return
+        self._ambiguous.append({"name": self._ph(name), "instances": [int(o.id) for o in inst], "used": int(used.id),
+                                "rule": rule, "unit": unit,
+                                "alternatives": None if values is None else
+                                {int(k): round(float(v), 3) for k, v in values.items()}})
 
     def _sel(self, name: str) -> dict[str, Any]:
         return self._pq.selectors.get(name, {}) if self._pq is not None else {}
@@ -458,6 +472,7 @@ class MapReasoner:
         self._spread = (f"per-view {'longest side' if dim == 'longest' else dim}",
                         ev.size_values(inst[i], lambda o: _measure(o, dim), UNIT_M[unit]), unit)
         note = "" if len(inst) == 1 else f" (largest of {len(inst)} instances)"
+        self._choice(pq.params["object"], inst, inst[i], "the largest", {o.id: v for o, v in zip(inst, sizes)}, unit)
         what = "longest box dimension" if dim == "longest" else f"box {dim}"
         return sizes[i], f"{what} of {self._ph(pq.params['object'])} #{inst[i].id}: {sizes[i]:.1f} {unit}{note}"
 
@@ -477,6 +492,9 @@ class MapReasoner:
         unit = pq.params.get("unit", "m")
         v = d / UNIT_M[unit]
         self._spread = ("per-view-pair distance", ev.distance_values(x, y, UNIT_M[unit]), unit)
+        for n, own, other, used in ((a, inst[a], inst[b], x), (b, inst[b], inst[a], y)):
+            self._choice(n, own, used, "the nearest", {o.id: self._min_distance([o], other)[0] / UNIT_M[unit]
+                                                       for o in own if [p for p in other if p is not o]}, unit)
         return v, f"closest points of {self._ph(a)} #{x.id} and {self._ph(b)} #{y.id}: {v:.3f} {unit}"
 
     def _object_rel_distance(self, pq: ParsedQuestion) -> tuple[Any, str]:
@@ -487,6 +505,13 @@ class MapReasoner:
         if not dists:
             raise _Unsupported("no candidate other than the reference object itself")
         pick = (min if pq.params.get("extreme", "closest") == "closest" else max)(dists, key=dists.get)
+        for c in [ref] + list(pairs):
+            if c == ref:
+                self._choice(ref, inst[ref], pairs[pick][2], f"the one nearest the {self._ph(pick)}")
+            else:
+                self._choice(c, inst[c], pairs[c][1], "the nearest", {
+                    o.id: self._min_distance([o], inst[ref])[0] for o in inst[c]
+                    if [r for r in inst[ref] if r is not o]}, "m")
         self._spread = (f"per-view-pair distance of {self._ph(pick)}",
                         ev.distance_values(pairs[pick][1], pairs[pick][2]), "m")
         return pick, f"closest-point distances to {self._ph(ref)}: " + ", ".join(
@@ -522,6 +547,7 @@ class MapReasoner:
             return inst[0], ""
         c = np.mean(near, 0)
         o = min(inst, key=lambda o: float(np.linalg.norm(o.center[:2] - c[:2])))
+        self._choice(name, inst, o, "the one nearest the other objects")
         return o, f"; {self._ph(name)}: {len(inst)} instances, used #{o.id} (nearest the other objects)"
 
     def _angle(self, pq: ParsedQuestion) -> tuple[float, str]:
@@ -641,6 +667,8 @@ class MapReasoner:
         if not pairs:
             raise _Unsupported(f"beginning at {p['start']} facing the same {p['facing']}: heading unknown")
         a, b = min(pairs, key=lambda ab: float(np.linalg.norm(ab[0].center[:2] - ab[1].center[:2])))
+        self._choice(p["start"], start, a, f"the one nearest the {self._ph(p['facing'])}")
+        self._choice(p["facing"], face, b, f"the one nearest the {self._ph(p['start'])}")
         pos, heading = a.center[:2].copy(), b.center[:2] - a.center[:2]
         turns, log = [], []
         pending = False
@@ -649,6 +677,7 @@ class MapReasoner:
                 pending = True
                 continue
             tgt = min(self._find(s["until"]), key=lambda o: float(np.linalg.norm(o.center[:2] - pos)))
+            self._choice(s["until"], self._find(s["until"]), tgt, "the one nearest the previous waypoint")
             move = tgt.center[:2] - pos
             if np.linalg.norm(move) < 1e-6:
                 if pending:

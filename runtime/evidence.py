@@ -9,6 +9,10 @@ Per question type (`MapReasoner` picks one):
   of each instance, evenly spread);
 - directions: the angle of C standing at A facing B, over combinations of per-view centres.
 A map without per-view estimates (built from benchmark boxes, or an older map file) gives std None and says so.
+The spread is per-view noise (how much the views of the used instances disagree), not the map's error: a wrong
+association (two objects fused as one, one object split) or a wrong pick among several instances is not in it.
+So the evidence also lists every question name that matched several instances (`ambiguous`: the ids, the one
+used, the rule that picked it and the asked quantity with each of the others) — the answer says so too.
 All functions are pure (numpy over the instances given).
 """
 from __future__ import annotations
@@ -94,11 +98,15 @@ def spread(values: Sequence[float]) -> dict[str, Any]:
             "min": round(float(v.min()), 4), "max": round(float(v.max()), 4)}
 
 
+SPREAD_IS = "per-view noise of the used instances, not the map's error (wrong associations or picks are not in it)"
+
+
 def build(instances: Sequence[Any], quantity: str | None = None, values: Sequence[float] | None = None,
-          unit: str | None = None) -> dict[str, Any]:
+          unit: str | None = None, ambiguous: Sequence[dict[str, Any]] = ()) -> dict[str, Any]:
     """The evidence dict of an answer: instances used (id, name, views, fused detections), views (distinct
-    frames), detections (fused, in all), and the spread of the asked quantity (None when the question type has
-    no per-view estimate, e.g. the room's area)."""
+    frames), detections (fused, in all), the spread of the asked quantity (None when the question type has
+    no per-view estimate, e.g. the room's area) and what that spread measures (`spread_is`), and the question
+    names that matched several instances (`ambiguous`, see the module doc)."""
     seen: dict[int, Any] = {}
     for o in instances:
         seen.setdefault(int(o.id), o)
@@ -106,10 +114,20 @@ def build(instances: Sequence[Any], quantity: str | None = None, values: Sequenc
             for i, o in seen.items()]
     frames = {int(f) for o in seen.values() for f in o.frames}
     ev: dict[str, Any] = {"instances": rows, "views": len(frames), "detections": sum(r["detections"] for r in rows),
-                          "quantity": quantity, "unit": unit, **spread(values or [])}
+                          "quantity": quantity, "unit": unit, **spread(values or []),
+                          "spread_is": SPREAD_IS if quantity is not None else None, "ambiguous": list(ambiguous)}
     if quantity is not None and seen and not any(getattr(o, "views", []) for o in seen.values()):
         ev["note"] = "the map holds no per-view estimates (built from boxes, or an older map file)"
     return ev
+
+
+def ambiguity_text(a: dict[str, Any]) -> str:
+    """`2 tv(s) in the map (#0 #2); used #0, the nearest (tv #2: 0.84 m)`."""
+    alt = {int(k): v for k, v in (a.get("alternatives") or {}).items() if int(k) != a["used"]}
+    u = f" {a['unit']}" if a.get("unit") else ""
+    others = ", ".join(f"{a['name']} #{k}: {_fmt(v)}{u}" for k, v in alt.items())
+    return (f"{len(a['instances'])} {a['name']}(s) in the map ({' '.join('#' + str(i) for i in a['instances'])}); "
+            f"used #{a['used']}, {a['rule']}" + (f" ({others})" if others else ""))
 
 
 def line(ev: dict[str, Any] | None, max_ids: int = 8) -> str:
@@ -127,8 +145,11 @@ def line(ev: dict[str, Any] | None, max_ids: int = 8) -> str:
     if ev.get("quantity"):
         u = f" {ev['unit']}" if ev.get("unit") else ""
         std = ev.get("std")
-        s += (f"; {ev['quantity']} std {_fmt(std)}{u} (n={ev.get('n', 0)})" if std is not None
+        s += (f"; {ev['quantity']} std {_fmt(std)}{u} (n={ev.get('n', 0)}), per-view noise, not the map's error"
+              if std is not None
               else f"; {ev['quantity']}: no spread ({ev.get('note') or str(ev.get('n', 0)) + ' per-view value(s)'})")
+    for a in ev.get("ambiguous") or []:
+        s += f"; AMBIGUOUS: {ambiguity_text(a)}"
     return s
 
 

@@ -463,8 +463,8 @@ def _gravity(frames: list[Frame], poses_root: dict[int, np.ndarray], source: Fra
     return gravity_from_frames(frames, poses_root, down, conf.camera_height_m, conf.floor_fit_max_depth_m, trace)
 
 
-def fuse_frames(frames: list[Frame], dets: dict[int, Detections], poses: dict[int, np.ndarray], fconf: FusionConfig
-          ) -> tuple[list[Observation], list[ObjectInstance], list[np.ndarray]]:
+def fuse_frames(frames: list[Frame], dets: dict[int, Detections], poses: dict[int, np.ndarray], fconf: FusionConfig,
+                trace: Trace | None = None) -> tuple[list[Observation], list[ObjectInstance], list[np.ndarray]]:
     """Lift every posed key frame's detections into the world and fuse them into instances."""
     obs: list[Observation] = []
     with phase("fusion", len(frames), "key frame") as bar:
@@ -475,7 +475,7 @@ def fuse_frames(frames: list[Frame], dets: dict[int, Detections], poses: dict[in
             obs += lift_observations(f.rgb.shape[:2], f.depth, f.K, poses[f.index], d.boxes, d.names, d.scores,
                                      d.masks, f.index, f.t, fconf, d.instance_ids)
             bar.update()
-        instances, clouds = fuse_observations(obs, fconf)
+        instances, clouds = fuse_observations(obs, fconf, trace)
         bar.note(instances=len(instances))
     return obs, instances, clouds
 
@@ -566,7 +566,7 @@ def build_map(source: FrameSource, targets: Sequence[str], cues: Sequence[str] =
     poses = {i: W @ T for i, T in al.poses.items()}
     fconf = FusionConfig.merged(conf.fusion)
     with trace.stage("fusion"):
-        obs, instances, clouds = fuse_frames(frames, dets, poses, fconf)
+        obs, instances, clouds = fuse_frames(frames, dets, poses, fconf, trace)
     instances, clouds, recovered = _refine(instances, clouds, obs, frames, poses, dets, perception, fconf, matcher,
                                            conf, trace, budget)
     if budget is not None:

@@ -377,6 +377,7 @@ class FusionConfig(StageConf):
     merge_footprint: bool = True  # after fusion, merge same-name instances whose floor footprints overlap
     min_instance_points: int = 40
     duplicate_iou: float = 0.7    # one frame's boxes of two names this alike are one object named twice (0 = off)
+    same_frame_share: float = 0.5  # one frame's same-name box whose points lie on another's: group/duplicate (0 = off)
     seed: int = 0
 
     def validate(self) -> None:
@@ -405,6 +406,7 @@ class Observation:
     points: np.ndarray
     box2d: np.ndarray
     instance_hint: int | None = None
+    recovered: bool = False  # a view occlusion refinement re-prompted for one instance (not a detection)
 
 
 def lift_observations(rgb_shape: tuple[int, int], depth: np.ndarray, K: np.ndarray, T_wc: np.ndarray,
@@ -766,18 +768,71 @@ class _Acc:
         return m["radius"]
 
 
-def fuse_observations(observations: list[Observation], conf: FusionConfig = default_fusion_conf
-                      ) -> tuple[list[ObjectInstance], list[np.ndarray]]:
+def same_frame_redundant(observations: list[Observation], radius_m: float, share: float = 0.5
+                         ) -> dict[int, str]:
+    """Observations (by index) that one frame holds twice, among that frame's detections of the same name (not
+    refinement's `recovered` views), with
+    why: a `group` box — its points cover (>= `share` within `radius_m`) two or more of the frame's other
+    detections that do not cover each other (the detector's union box of two side-by-side objects) — or a
+    `duplicate` — its points lie (>= `share`) on a higher-scored detection's (a box NMS left inside another box of
+    the same object). Objects in front of one another have points at other depths: both kept. Pure."""
+    from scipy.spatial import cKDTree
+
+    groups: dict[tuple[int, str], list[int]] = {}
+    for i, ob in enumerate(observations):
+        if not ob.recovered:  # the detector's repeats; refinement's prompted views are not detections
+            groups.setdefault((ob.frame, ob.name), []).append(i)
+    out: dict[int, str] = {}
+    for idx in groups.values():
+        if len(idx) < 2:
+            continue
+        pts = [voxel_downsample(observations[i].points, radius_m / 2) for i in idx]
+        trees = [cKDTree(p) for p in pts]
+        cov = np.array([[1.0 if a == b else float(np.mean(np.isfinite(
+            trees[a].query(pts[b], distance_upper_bound=radius_m)[0]))) for b in range(len(idx))]
+            for a in range(len(idx))])  # cov[a, b]: share of b's points near a's
+        for a in range(len(idx)):
+            inner = [b for b in range(len(idx)) if b != a and cov[a, b] >= share]
+            if any(cov[x, y] < share and cov[y, x] < share for x in inner for y in inner if x < y):
+                out[idx[a]] = "group"
+        for a in range(len(idx)):
+            if idx[a] in out:
+                continue
+            for b in sorted(range(len(idx)), key=lambda b: -observations[idx[b]].score):
+                if b != a and idx[b] not in out and cov[b, a] >= share and \
+                        (observations[idx[b]].score, -b) > (observations[idx[a]].score, -a):
+                    out[idx[a]] = "duplicate"
+                    break
+    return out
+
+
+def fuse_observations(observations: list[Observation], conf: FusionConfig = default_fusion_conf,
+                      trace: Any = None) -> tuple[list[ObjectInstance], list[np.ndarray]]:
     """Fuse observations into instances (same name + 3D overlap or close centres), remove outliers and fit
     gravity-aligned oriented boxes (yaw from floor-projected points).
 
     Returns the instances and their fused point clouds ([M, 3] each, same order).
     Two observations of one name merge when >= `merge_overlap` of the new points lie within `merge_radius_m`
     of the instance's points, or when the centres are closer than `merge_centre_m` and than the larger of the
-    two radii (an object seen from two sides overlaps little but shares its centre).
+    two radii (an object seen from two sides overlaps little but shares its centre). One frame's group boxes and
+    duplicate boxes of one object (`same_frame_redundant`) are left out first (the trace's `fusion` event); every
+    other pair of one frame's detections stays two instances.
     """
     from .geometry import fit_gravity_box
 
+    if conf.same_frame_share > 0:
+        # one frame, one depth image: a box repeating another holds the very same surface points, so the radius is
+        # the voxel size (two small objects a few cm apart do not cover each other)
+        drop = same_frame_redundant(observations, conf.voxel_m, conf.same_frame_share)
+        if drop:
+            from .trace import as_trace
+
+            as_trace(trace).event("fusion", f"fusion: left out {len(drop)} detection(s) that repeat others of their "
+                                  f"frame: " + ", ".join(f"{observations[i].name} in frame {observations[i].frame} "
+                                                         f"({why})" for i, why in sorted(drop.items())),
+                                  stage="fusion", dropped=[{"frame": observations[i].frame, "name": observations[i].name,
+                                                            "why": why} for i, why in sorted(drop.items())])
+            observations = [o for i, o in enumerate(observations) if i not in drop]
     accs: list[_Acc] = []
     for ob in sorted(observations, key=lambda o: (o.t, o.frame, -o.score)):
         pts = voxel_downsample(ob.points, conf.voxel_m)
@@ -1502,6 +1557,7 @@ def refine(instances: list[ObjectInstance], obs: list[Observation], frames: list
                 inside = inst.box.contains(ob.points, margin=0.15)
                 if inside.mean() >= 0.5:
                     ob.points = ob.points[inside]
+                    ob.recovered = True
                     found.setdefault((ii, fi), []).append(ob)
     new_obs = [ob for key in sorted(found) for ob in found[key]]
     gained = {instances[ii].id for ii, _ in found}
@@ -1509,5 +1565,5 @@ def refine(instances: list[ObjectInstance], obs: list[Observation], frames: list
         return instances, [np.zeros((0, 3))] * len(instances), 0
     as_trace(trace).event("refinement", f"occlusion refinement recovered {len(new_obs)} view(s) of {len(gained)} "
                           f"instance(s)", views=len(new_obs), instances=len(gained))
-    inst2, clouds = fuse_observations(obs + new_obs, conf)
+    inst2, clouds = fuse_observations(obs + new_obs, conf, trace)
     return inst2, clouds, len(gained)

@@ -236,7 +236,8 @@ def score_answers(smap: Any, scene_name: str, meta_entry: dict[str, Any], conf: 
         rs = [r for r in recs if r["question_type"] == qt]
         per[qt] = {"n": len(rs), "metric": "MRA" if qt in NUMERIC_QTYPES else "accuracy",
                    "score": float(np.mean([r["score"] for r in rs])) if len(rs) >= conf.min_per_type else None,
-                   "not_scored": None if len(rs) >= conf.min_per_type else f"fewer than {conf.min_per_type}"}
+                   "not_scored": None if len(rs) >= conf.min_per_type else f"fewer than {conf.min_per_type}",
+                   **why_wrong(rs)}
     mc = [p["score"] for q, p in per.items() if p["score"] is not None and p["metric"] == "accuracy"]
     num = [p["score"] for q, p in per.items() if p["score"] is not None and p["metric"] == "MRA"]
     # a small room yields fewer than `min_per_type` questions of some types: also pooled over all of them
@@ -245,8 +246,23 @@ def score_answers(smap: Any, scene_name: str, meta_entry: dict[str, Any], conf: 
     return {"per_type": per, "multiple_choice": float(np.mean(mc)) if mc else None,
             "numeric_mra": float(np.mean(num)) if num else None,
             "pooled": {"multiple_choice": float(np.mean(pool_mc)) if pool_mc else None, "n_mc": len(pool_mc),
-                       "numeric_mra": float(np.mean(pool_num)) if pool_num else None, "n_numeric": len(pool_num)},
+                       "numeric_mra": float(np.mean(pool_num)) if pool_num else None, "n_numeric": len(pool_num),
+                       "mc_why": why_wrong([r for r in recs if r["question_type"] not in NUMERIC_QTYPES]),
+                       "numeric_why": why_wrong([r for r in recs if r["question_type"] in NUMERIC_QTYPES])},
             "generator_removed": removed}, recs
+
+
+def why_wrong(recs: list[dict[str, Any]]) -> dict[str, Any]:
+    """Where the score of these questions went (a breakdown, the score itself unchanged): how many were not
+    answered because a category they name is not in the map (`not_in_map`, by name), how many were answered,
+    and the mean score of the answered ones (`answered_score`: what the map got right where it had the objects)."""
+    names: dict[str, int] = {}
+    for r in recs:
+        for n in r.get("missing") or []:
+            names[n] = names.get(n, 0) + 1
+    ok = [r["score"] for r in recs if r["status"] == "ok"]
+    return {"not_in_map": sum(r["status"] == "not_found" for r in recs), "missing_names": names,
+            "answered": len(ok), "answered_score": float(np.mean(ok)) if ok else None}
 
 
 def visible_meta(scene: dict[str, Any], visible: dict[str, list[bool]]) -> dict[str, Any]:
@@ -439,7 +455,13 @@ def render(r: dict[str, Any]) -> str:
                  f">= 10 questions); pooled: multiple choice {f(po['multiple_choice'])} (n={po['n_mc']}), numeric MRA "
                  f"{f(po['numeric_mra'])} (n={po['n_numeric']})")
     for qt, p in an["per_type"].items():
-        lines.append(f"  {qt:28s} n={p['n']:3d}  {p['metric']:8s} {f(p['score'])}{'  ' + p['not_scored'] if p['not_scored'] else ''}")
+        lines.append(f"  {qt:28s} n={p['n']:3d}  {p['metric']:8s} {f(p['score'])}{'  ' + p['not_scored'] if p['not_scored'] else ''}"
+                     f"  (answered {p['answered']}, score {f(p['answered_score'])}; not in the map: {p['not_in_map']})")
+    for k in ("mc_why", "numeric_why"):
+        w = po[k]
+        if w["missing_names"]:
+            lines.append(f"  {'multiple choice' if k == 'mc_why' else 'numeric'}: {w['not_in_map']} question(s) name a "
+                         f"category not in the map ({', '.join(f'{n} {c}' for n, c in sorted(w['missing_names'].items()))})")
     if r.get("ask"):
         lines.append(f"ask on the video: {r['ask']['n']} questions, score {f(r['ask']['score'])}")
     st = ", ".join(f"{k} {v['seconds']:.1f}s" for k, v in sorted(r["stages"].items(), key=lambda kv: -kv[1]["seconds"])[:8])
