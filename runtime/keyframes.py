@@ -25,21 +25,26 @@ the search decides *which* frames to score:
    `sampling`:
    - "expected" (default): the kernel-weighted expected score of every candidate (`expected_scores`,
      Nadaraya-Watson: near a positive frame its score, near zero-score frames ~0, elsewhere the mean score
-     seen, weighted by `gap_novelty`: distance to the nearest scored frame / its mean, squared), drawn one at a
-     time within a batch (`draw="sequential"`: each pick counts as explored for the next). The exploitation /
-     exploration ratio follows the data: a needle (objects in a few % of the frames) gives a small mean and
-     the draws close in on the hits; objects everywhere give a flat estimate and the draws stay spread. Far
-     from any hit the gap novelty makes exploration coarse to fine (widest unscored gaps first).
+     seen, weighted by `gap_novelty`: distance to the nearest scored frame / its mean, to the 4th power),
+     picked one at a time within a batch, each pick counting as explored for the next: `draw="greedy"`
+     (default) takes the most probable candidate (ties at random), `"sequential"` draws it at random. Far from
+     any hit the greedy picks are farthest-point picks along the axis: an even grid that refines coarse to
+     fine (every prefix is spread out, the widest unscored gap goes first); a positive frame's neighbours
+     rise above the gaps once its kernel outweighs them. The exploitation / exploration ratio follows the
+     data: a needle (objects in a few % of the frames) gives a small mean and the picks close in on the hits;
+     objects everywhere give a flat estimate and the picks stay spread.
    - "paper": weights start at 1 per candidate and each scored frame adds a kernel of amplitude
      `gain * score / max_score` (max_score = sum of the object weights); batches drawn iid (`draw="iid"`).
      Measured (benchmarks/keyframes_long.py): the kernels hardly move this distribution (a kernel's mass
      ~2.5 sigma against M for the uniform part), so it behaves as random scoring.
    gain 0 switches the kernels off in both (expected: the novelty-weighted mean everywhere).
-4. If more frames pass than the key-frame budget K, the top K by score are kept; if fewer pass, fewer are
+4. If more frames pass than the key-frame budget K, the top K by score are kept, the best frame of each
+   detected stretch first (`stretch_first`, `stretches`: positive frames no scored zero-score frame separates;
+   a stretch is one view of one object, the next stretch may show another instance); if fewer pass, fewer are
    returned and a note says so (and a "degraded" trace event is recorded). `min_keyframes` (default 0, off: the
    paper's rule; the pipeline sets K) tops the selection up from the scored positive frames below the
    threshold -- objects no chosen frame shows well first (when the image size is known), then by score,
-   spaced -- noted and recorded too.
+   spaced and from stretches no chosen frame comes from -- noted and recorded too.
 5. The budget (`budget`, e.g. the planner's scored-frame count, or `budget_fraction` of the candidates) is what
    the search spends; when it exceeds the candidates all are scored and a note and a "budget" trace event say
    that the candidates ran out first.
@@ -453,7 +458,8 @@ def _fill(chosen: list[int], scores: Mapping[int, float], candidates: np.ndarray
     1. Coverage (only with `seen`: frame -> name -> largest box area, share of the image): while an object the
        detector saw in some scored frame has no view of at least `cover_min_area` in a chosen frame, add the
        scored frame with its largest box;
-    2. then the rest by score;
+    2. then the rest by score, first from stretches (`stretch`: frame -> id, see `stretches`) no chosen frame
+       comes from, then from any;
     both only among frames spaced from every chosen one (near neighbours add no new view): at least `topup_gap`
     frame indices apart when set, else more than `r` candidates apart; 3. with `topup_relax`, then any by score.
     """
@@ -461,9 +467,10 @@ def _fill(chosen: list[int], scores: Mapping[int, float], candidates: np.ndarray
     out: list[int] = []
     taken = lambda: chosen + out  # noqa: E731
 
+    def new_stretch(f: int) -> bool:  # a preference, not a rule: a stretch's second frame may still come
+        return stretch is None or stretch.get(f) not in {stretch.get(g) for g in taken()}
+
     def spaced(f: int) -> bool:
-        if stretch is not None and stretch.get(f) in {stretch.get(g) for g in taken()}:
-            return False
         if conf.topup_gap is not None:
             return all(abs(f - g) >= conf.topup_gap for g in taken())
         return all(abs(pos[f] - pos[g]) > conf.r for g in taken())
@@ -486,11 +493,12 @@ def _fill(chosen: list[int], scores: Mapping[int, float], candidates: np.ndarray
             missing -= covered() | {nm}
             n_cov += 1
     ranked = [f for f in sorted(scores, key=lambda f: (-scores[f], f))]
-    for strict in (True, False) if conf.topup_relax else (True,):
+    tiers = [lambda f: new_stretch(f) and spaced(f), spaced] + ([lambda f: True] if conf.topup_relax else [])
+    for ok in tiers:
         for f in ranked:
             if len(chosen) + len(out) >= n:
                 return out, n_cov
-            if free(f) and (not strict or spaced(f)):
+            if free(f) and ok(f):
                 out.append(int(f))
     return out, n_cov
 

@@ -632,6 +632,13 @@ def test_stretch_selection_keeps_a_second_object_the_score_ranking_drops():
                                                                **over}))
         assert len(res.chosen) == 4
         assert any(f >= 90 for f in res.chosen) == shows_b
+    # the stretch rule orders the top-up, it does not shrink it: without the relaxed pass (the pipeline's
+    # setting) the spaced frames of a stretch already used still fill up to K
+    res = kf.iterative_search(range(m), ["chair"], [], table_detector(table),
+                              conf=kf.KeyFrameConf.merged({"keyframes": 6, "budget": m, "min_keyframes": 6,
+                                                           "threshold": 5.0, "topup_relax": False,
+                                                           "topup_gap": 2}))
+    assert len(res.chosen) == 6 and any(f >= 90 for f in res.chosen)
 
 
 def test_greedy_draw_without_hits_is_an_even_coarse_to_fine_grid():
