@@ -78,6 +78,16 @@ def _methods(K: int) -> dict[str, tuple[str, dict[str, Any]]]:
     return out
 
 
+def _variants(specs: list[str], K: int) -> dict[str, tuple[str, dict[str, Any]]]:
+    """`--variant LABEL=JSON`: more iterative rows (10% scored, top-up to K, then the JSON's overrides), e.g.
+    the design comparisons of docs/keyframes.md."""
+    out = {}
+    for spec in specs:
+        lab, _, js = spec.partition("=")
+        out[lab] = ("iterative", {"budget_fraction": 0.10, "min_keyframes": K, **json.loads(js or "{}")})
+    return out
+
+
 def _sweeps(K: int, n_min: int) -> dict[str, tuple[str, dict[str, Any]]]:
     out: dict[str, tuple[str, dict[str, Any]]] = {}
     for mode in ("z", "raw"):  # raw 1.5 / 2: unreachable for a one-target question (score <= 1), kept to show it
@@ -168,7 +178,7 @@ def run_long(args: argparse.Namespace) -> dict[str, Any]:
     cache = Path(args.cache)
     seeds = list(range(args.seed, args.seed + args.videos))
     n_min = min(LongVideoConf(seed=s).n_frames() for s in seeds)
-    main = _confs(_methods(args.keyframes), args.keyframes)
+    main = _confs({**_methods(args.keyframes), **_variants(args.variant, args.keyframes)}, args.keyframes)
     sweeps = {} if args.no_sweeps else _confs(_sweeps(args.keyframes, n_min), args.keyframes)
     from mosaicthinker.runtime.keyframes import KeyFrameConf
 
@@ -311,6 +321,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--keyframes", type=int, default=8)
     p.add_argument("--ssd-videos", type=int, default=4)
+    p.add_argument("--variant", action="append", default=[], metavar="LABEL=JSON",
+                   help="an extra iterative row on the long videos: 10%% scored, top-up to K, these overrides")
     p.add_argument("--no-short", action="store_true")
     p.add_argument("--no-kitchen", action="store_true")
     p.add_argument("--no-sweeps", action="store_true", help="only the method table (threshold, iterations, "
