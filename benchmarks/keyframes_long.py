@@ -1,6 +1,7 @@
 """Key-frame search on long videos (issue 17): writes benchmarks/results/keyframes_long.json and .md.
 
-    nice -n 10 python benchmarks/keyframes_long.py [--videos 16] [--ssd-videos 4] [--cache DIR]
+    nice -n 10 python benchmarks/keyframes_long.py [--videos 48] [--ssd-videos 4] [--splits 16,32] [--cache DIR]
+        [--variant LABEL=JSON ...] [--diagnose] [--no-sweeps] [--no-short] [--no-kitchen] [--out FILE]
 
 Settings, all in one table so that no setting hides another:
   long / oracle   `--videos` synthetic walk-throughs (host/synth/longvideo.py: 6-10 rooms joined by empty
@@ -19,7 +20,9 @@ scored), iterative (default), iterative with the kernels off (gain 0), the paper
 iid draws) with and without kernels; every iterative variant tops up to K (`min_keyframes = K`, as the pipeline
 does). Sweeps on long / oracle at 10%: threshold 1 / 1.5 / 2 as z-score and as raw score (without the top-up,
 the paper's rule alone, and with it), iterations 11 / 14 / 20 / 33 / 100 (fixed budget, and fixed batch so that
-the fraction scored grows with the iterations as in the paper's table).
+the fraction scored grows with the iterations as in the paper's table). Every long / oracle row is also reported
+per seed group (`--splits`: seeds 0-15 were looked at while designing, 16-31 and 32-47 are held out).
+`--diagnose`: where the default's recall goes at 10% and the grid recall along other cheap signals.
 """
 from __future__ import annotations
 
@@ -168,6 +171,70 @@ def _group(seed: int, splits: list[int]) -> str:
     return f"{'design' if i == 0 else f'held out {i}'} (seeds {edges[i]}-{hi})"
 
 
+def _signals(rgb: np.ndarray) -> dict[str, float]:
+    """Cheap per-frame signals compared as placement axes (`--diagnose`), each on a 64-px copy except edge128."""
+    import cv2
+    from mosaicthinker.runtime.keyframes import edge_density
+
+    h, w = rgb.shape[:2]
+    small = cv2.resize(rgb, (64, round(h * 64 / w)), interpolation=cv2.INTER_AREA)
+    grey = cv2.cvtColor(small, cv2.COLOR_RGB2GRAY)
+    x = small.astype(np.float64)
+    rg, yb = x[..., 0] - x[..., 1], 0.5 * (x[..., 0] + x[..., 1]) - x[..., 2]
+    g = grey.astype(np.float32)
+    e = edge_density(rgb)
+    return {"edge density": e, "edge density^2": e * e, "edge density 128 px": edge_density(rgb, 128),
+            "Canny 25/75": float((cv2.Canny(grey, 25, 75) > 0).mean()),
+            "gradient energy": float(np.hypot(cv2.Sobel(g, cv2.CV_32F, 1, 0), cv2.Sobel(g, cv2.CV_32F, 0, 1)).mean()),
+            "colourfulness": float(np.hypot(rg.std(), yb.std()) + 0.3 * np.hypot(rg.mean(), yb.mean()))}
+
+
+def _instance_ids(det: Any) -> set[int]:
+    return set() if det.instance_ids is None else {int(i) for i in det.instance_ids}
+
+
+def diagnose(video: Any, questions: list[dict[str, Any]], detect: Any, conf: Any, min_visible: float = 0.2,
+             offsets: int = 16) -> dict[str, Any]:
+    """Where the default search's recall goes, per instance (chosen / detected but not chosen / scored where the
+    detector missed it / detected only below `min_visible` / only glimpsed / never scored), and the recall of a
+    grid even along each cheap signal's axis that hits a frame with visibility >= `min_visible` directly."""
+    import dataclasses
+    from mosaicthinker.runtime.keyframes import colour_histogram, content_axis, histogram_similarity, iterative_search
+
+    vis = video.visibility()
+    kinds: dict[str, int] = {}
+    dens: dict[int, float] = {}
+    for q in questions:
+        qc = dataclasses.replace(conf, seed=1000 * int(video.conf.seed) + int(q["id"]))
+        res = iterative_search(list(range(len(video))), q["targets"], q["cues"], detect, lambda f: video.rgb[f], qc,
+                               image_size=video.size, densities=dens)
+        ids = {f: _instance_ids(detect(f, q["targets"])) for f in res.order}
+        for i in q["instances"]:
+            hi = [f for f in res.order if vis[f].get(i, 0) >= min_visible]
+            k = ("chosen" if any(vis[f].get(i, 0) >= min_visible for f in res.chosen) else
+                 "detected, not chosen" if any(i in ids[f] for f in hi) else "scored, detector missed" if hi else
+                 "detected below the visibility" if any(i in ids[f] for f in res.order) else
+                 "glimpsed only" if any(vis[f].get(i, 0) > 0 for f in res.order) else "never scored")
+            kinds[k] = kinds.get(k, 0) + 1
+    sig = [_signals(video.rgb[f]) for f in range(len(video))]
+    hist = [colour_histogram(video.rgb[f]) for f in range(len(video))]
+    change = np.array([1 - histogram_similarity(hist[max(f - 1, 0)], hist[f]) for f in range(len(video))])
+    n, b = len(video), int(np.ceil(conf.budget_fraction * len(video)))
+    axes = {nm: content_axis(np.array([s[nm] for s in sig]), conf.content_floor) for nm in sig[0]}
+    e = np.array([s["edge density"] for s in sig])
+    axes["edge density + colour change"] = content_axis(e / e.mean() + change / change.mean(), conf.content_floor)
+    axes["candidate index"] = np.arange(n, dtype=np.float64)
+    good = [[f for f in range(n) if vis[f].get(i, 0) >= min_visible] for q in questions for i in q["instances"]]
+    grid = {}
+    for nm, x in axes.items():
+        hits = []
+        for u in (np.arange(offsets) + 0.5) / offsets:
+            picks = set(np.clip(np.searchsorted(x, (np.arange(b) + u) * x[-1] / b), 0, n - 1).tolist())
+            hits.append(sum(any(f in picks for f in g) for g in good))
+        grid[nm] = float(np.mean(hits))
+    return {"instances": len(good), "kinds": kinds, "grid_hits": grid}
+
+
 def run_long(args: argparse.Namespace) -> dict[str, Any]:
     from mosaicthinker.host.evaluation.keyframes import evaluate_long_video, summarise, vocabulary_detector
     from mosaicthinker.runtime.stages.detector import map_names
@@ -186,6 +253,7 @@ def run_long(args: argparse.Namespace) -> dict[str, Any]:
     bound: dict[str, list[float]] = {"5%": [], "10%": [], "25%": []}
     cbound: dict[str, list[float]] = {"5%": [], "10%": [], "25%": []}
     density_s: list[float] = []
+    diag: dict[str, Any] = {"instances": 0, "kinds": {}, "grid_hits": {}}
     model = _ssd(Path(args.cache) / "bundle-ssd") if args.ssd_videos else None
     for i, seed in enumerate(seeds):
         v = _video(seed, cache)  # one video in memory at a time (~60 MB each)
@@ -197,6 +265,13 @@ def run_long(args: argparse.Namespace) -> dict[str, Any]:
             cbound[lab] += cb
             density_s.append(sec)
         rec_o += evaluate_long_video(v, qs, orc.detect, {**main, **sweeps}, name=f"long-{seed}", seed=seed)
+        if args.diagnose:
+            d = diagnose(v, qs, orc.detect, main["iterative@10%"][1])
+            diag["instances"] += d["instances"]
+            for k, c in d["kinds"].items():
+                diag["kinds"][k] = diag["kinds"].get(k, 0) + c
+            for k, c in d["grid_hits"].items():
+                diag["grid_hits"][k] = diag["grid_hits"].get(k, 0.0) + c
         row = {"seed": seed, "frames": len(v), "minutes": round(len(v) / v.conf.fps / 60, 2),
                "rooms": sum(s["kind"] == "room" for s in v.rooms), "questions": len(qs), "skipped": skipped,
                "mean_share": round(float(np.mean([q["share"] for q in qs])), 4) if qs else None}
@@ -218,6 +293,9 @@ def run_long(args: argparse.Namespace) -> dict[str, Any]:
     return {"videos": info, "coverage_bound": {k: round(float(np.mean(b)), 4) for k, b in bound.items()},
             "content_bound": {k: round(float(np.mean(b)), 4) for k, b in cbound.items()},
             "edge_density_ms_per_frame": round(1000 * float(np.median(density_s)), 3),
+            "diagnosis": ({"instances": diag["instances"], "kinds": diag["kinds"],
+                           "grid_recall": {k: round(c / diag["instances"], 4) for k, c in diag["grid_hits"].items()}}
+                          if args.diagnose and diag["instances"] else None),
             "split": {g: summarise(rs, list(main) + list(sweeps)) for g, rs in sorted(groups.items())},
             "question_share_mean": round(float(np.mean([r["share"] for r in rec_o if r["method"] == "uniform"])), 4),
             "oracle": summarise(rec_o, list(main) + list(sweeps)),
@@ -323,6 +401,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--ssd-videos", type=int, default=4)
     p.add_argument("--variant", action="append", default=[], metavar="LABEL=JSON",
                    help="an extra iterative row on the long videos: 10%% scored, top-up to K, these overrides")
+    p.add_argument("--diagnose", action="store_true", help="where the default's recall goes at 10%% and the grid "
+                   "recall along other cheap signals (long / oracle)")
     p.add_argument("--no-short", action="store_true")
     p.add_argument("--no-kitchen", action="store_true")
     p.add_argument("--no-sweeps", action="store_true", help="only the method table (threshold, iterations, "
