@@ -25,7 +25,7 @@ the search decides *which* frames to score:
    `sampling`:
    - "expected" (default): the kernel-weighted expected score of every candidate (`expected_scores`,
      Nadaraya-Watson: near a positive frame its score, near zero-score frames ~0, elsewhere the mean score
-     seen, weighted by `gap_novelty`: distance to the nearest scored frame / its mean, to the 4th power),
+     seen, weighted by `gap_novelty`: distance to the nearest scored frame / its mean, cubed),
      picked one at a time within a batch, each pick counting as explored for the next: `draw="greedy"`
      (default) takes the most probable candidate (ties at random), `"sequential"` draws it at random. Far from
      any hit the greedy picks are farthest-point picks along the axis: an even grid that refines coarse to
@@ -106,7 +106,7 @@ class KeyFrameConf(StageConf):
     draw: str = "greedy"            # "greedy": each pick the most probable, counting as explored for the next;
     #                                 "sequential": the same drawn at random; "iid": the paper's batch draw
     prior_weight: float = 1.0       # "expected": pseudo-observations of the mean score at every candidate
-    novelty: float = 4.0            # "expected": prior weighted by (gap to the nearest scored frame) ** novelty
+    novelty: float = 3.0            # "expected": prior weighted by (gap to the nearest scored frame) ** novelty
     content_prior: bool = True      # distances along the content axis (edge density of every candidate)
     content_floor: float = 0.01     # content axis: an empty view's step (the mean view's is 1 + floor)
     grid_share: float = 0.0         # share of the budget scored first as an even grid along the axis
