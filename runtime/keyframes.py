@@ -25,21 +25,26 @@ the search decides *which* frames to score:
    `sampling`:
    - "expected" (default): the kernel-weighted expected score of every candidate (`expected_scores`,
      Nadaraya-Watson: near a positive frame its score, near zero-score frames ~0, elsewhere the mean score
-     seen, weighted by `gap_novelty`: distance to the nearest scored frame / its mean, squared), drawn one at a
-     time within a batch (`draw="sequential"`: each pick counts as explored for the next). The exploitation /
-     exploration ratio follows the data: a needle (objects in a few % of the frames) gives a small mean and
-     the draws close in on the hits; objects everywhere give a flat estimate and the draws stay spread. Far
-     from any hit the gap novelty makes exploration coarse to fine (widest unscored gaps first).
+     seen, weighted by `gap_novelty`: distance to the nearest scored frame / its mean, cubed),
+     picked one at a time within a batch, each pick counting as explored for the next: `draw="greedy"`
+     (default) takes the most probable candidate (ties at random), `"sequential"` draws it at random. Far from
+     any hit the greedy picks are farthest-point picks along the axis: an even grid that refines coarse to
+     fine (every prefix is spread out, the widest unscored gap goes first); a positive frame's neighbours
+     rise above the gaps once its kernel outweighs them. The exploitation / exploration ratio follows the
+     data: a needle (objects in a few % of the frames) gives a small mean and the picks close in on the hits;
+     objects everywhere give a flat estimate and the picks stay spread.
    - "paper": weights start at 1 per candidate and each scored frame adds a kernel of amplitude
      `gain * score / max_score` (max_score = sum of the object weights); batches drawn iid (`draw="iid"`).
      Measured (benchmarks/keyframes_long.py): the kernels hardly move this distribution (a kernel's mass
      ~2.5 sigma against M for the uniform part), so it behaves as random scoring.
    gain 0 switches the kernels off in both (expected: the novelty-weighted mean everywhere).
-4. If more frames pass than the key-frame budget K, the top K by score are kept; if fewer pass, fewer are
+4. If more frames pass than the key-frame budget K, the top K by score are kept, the best frame of each
+   detected stretch first (`stretch_first`, `stretches`: positive frames no scored zero-score frame separates;
+   a stretch is one view of one object, the next stretch may show another instance); if fewer pass, fewer are
    returned and a note says so (and a "degraded" trace event is recorded). `min_keyframes` (default 0, off: the
    paper's rule; the pipeline sets K) tops the selection up from the scored positive frames below the
    threshold -- objects no chosen frame shows well first (when the image size is known), then by score,
-   spaced -- noted and recorded too.
+   spaced and from stretches no chosen frame comes from -- noted and recorded too.
 5. The budget (`budget`, e.g. the planner's scored-frame count, or `budget_fraction` of the candidates) is what
    the search spends; when it exceeds the candidates all are scored and a note and a "budget" trace event say
    that the candidates ran out first.
@@ -98,13 +103,14 @@ class KeyFrameConf(StageConf):
     cover_min_area: float = 0.02    # top-up coverage: an object counts as well seen from this box-area share
     threshold_mode: str = "z"       # "z": z-score against the scores seen so far; "raw": the score itself
     sampling: str = "expected"      # "expected": kernel-weighted expected score; "paper": 1 + sum of kernels
-    draw: str = "sequential"        # "sequential": each pick of a batch counts as explored; "iid": paper
+    draw: str = "greedy"            # "greedy": each pick the most probable, counting as explored for the next;
+    #                                 "sequential": the same drawn at random; "iid": the paper's batch draw
     prior_weight: float = 1.0       # "expected": pseudo-observations of the mean score at every candidate
-    novelty: float = 2.0            # "expected": prior weighted by (gap to the nearest scored frame) ** novelty
+    novelty: float = 3.0            # "expected": prior weighted by (gap to the nearest scored frame) ** novelty
     content_prior: bool = True      # distances along the content axis (edge density of every candidate)
     content_floor: float = 0.01     # content axis: an empty view's step (the mean view's is 1 + floor)
     grid_share: float = 0.0         # share of the budget scored first as an even grid along the axis
-    spread_passes: bool = False     # more passes than K: the best more than r candidates apart first
+    stretch_first: bool = True      # selection: the best frame of each detected stretch first (`stretches`)
     seed: int = 0
     record_distributions: bool = False
 
@@ -131,7 +137,7 @@ class KeyFrameConf(StageConf):
             raise InputError(f"key-frame config: cover_min_area must be in [0, 1] (got {self.cover_min_area})")
         for name, val, ok in (("threshold_mode", self.threshold_mode, ("z", "raw")),
                               ("sampling", self.sampling, ("expected", "paper")),
-                              ("draw", self.draw, ("sequential", "iid"))):
+                              ("draw", self.draw, ("sequential", "iid", "greedy"))):
             if val not in ok:
                 raise InputError(f"key-frame config: {name} must be one of {', '.join(ok)} (got {val!r})")
         if self.prior_weight <= 0:
@@ -412,34 +418,57 @@ def top_k(frames: Sequence[int], scores: Mapping[int, float], k: int) -> np.ndar
     return np.array(sorted(ranked), dtype=np.int64)
 
 
-def top_k_spread(frames: Sequence[int], scores: Mapping[int, float], k: int, position: Callable[[int], int],
-                 gap: int) -> np.ndarray:
-    """The k best `frames` by score, first only those more than `gap` candidate positions (`position(frame)`)
-    from every one taken, then the best of the rest; in time order [<=k] int64 (gap < 0: `top_k`)."""
+def stretches(positions: Sequence[int], scores: Sequence[float]) -> dict[int, int]:
+    """Stretch id of every positive scored candidate position: runs of positive frames (in candidate order) that
+    no zero-score scored frame separates. One stretch is most likely one view of one object (or one false
+    positive); a second object the question needs shows up as another stretch."""
+    out: dict[int, int] = {}
+    sid, prev_pos = -1, False
+    for p, sc in sorted(zip((int(q) for q in positions), scores)):
+        if sc > 0:
+            if not prev_pos:
+                sid += 1
+            out[p] = sid
+        prev_pos = sc > 0
+    return out
+
+
+def top_k_stretches(frames: Sequence[int], scores: Mapping[int, float], k: int,
+                    stretch: Mapping[int, int]) -> np.ndarray:
+    """The k best `frames` by score, first the best of each stretch (`stretch`: frame -> stretch id, see
+    `stretches`), then the best of the rest; in time order [<=k] int64. Several frames of one stretch show the
+    same object; the next stretch may show another."""
     ranked = sorted(frames, key=lambda f: (-scores[f], f))
     out: list[int] = []
+    used: set[int] = set()
     for f in ranked:
-        if len(out) < k and all(abs(position(f) - position(g)) > gap for g in out):
+        if len(out) < k and stretch.get(f, -1 - f) not in used:
             out.append(f)
+            used.add(stretch.get(f, -1 - f))
     out += [f for f in ranked if f not in out][:k - len(out)]
     return np.array(sorted(out), dtype=np.int64)
 
 
 def _fill(chosen: list[int], scores: Mapping[int, float], candidates: np.ndarray, n: int, conf: KeyFrameConf,
-          seen: Mapping[int, Mapping[str, float]] | None = None) -> tuple[list[int], int]:
+          seen: Mapping[int, Mapping[str, float]] | None = None,
+          stretch: Mapping[int, int] | None = None) -> tuple[list[int], int]:
     """Top-up behind `min_keyframes`: positive-score frames not chosen, up to `n` in all. Returns (added frames,
     how many of them were added for coverage).
 
     1. Coverage (only with `seen`: frame -> name -> largest box area, share of the image): while an object the
        detector saw in some scored frame has no view of at least `cover_min_area` in a chosen frame, add the
        scored frame with its largest box;
-    2. then the rest by score;
+    2. then the rest by score, first from stretches (`stretch`: frame -> id, see `stretches`) no chosen frame
+       comes from, then from any;
     both only among frames spaced from every chosen one (near neighbours add no new view): at least `topup_gap`
     frame indices apart when set, else more than `r` candidates apart; 3. with `topup_relax`, then any by score.
     """
     pos = {int(f): i for i, f in enumerate(candidates)}
     out: list[int] = []
     taken = lambda: chosen + out  # noqa: E731
+
+    def new_stretch(f: int) -> bool:  # a preference, not a rule: a stretch's second frame may still come
+        return stretch is None or stretch.get(f) not in {stretch.get(g) for g in taken()}
 
     def spaced(f: int) -> bool:
         if conf.topup_gap is not None:
@@ -464,11 +493,12 @@ def _fill(chosen: list[int], scores: Mapping[int, float], candidates: np.ndarray
             missing -= covered() | {nm}
             n_cov += 1
     ranked = [f for f in sorted(scores, key=lambda f: (-scores[f], f))]
-    for strict in (True, False) if conf.topup_relax else (True,):
+    tiers = [lambda f: new_stretch(f) and spaced(f), spaced] + ([lambda f: True] if conf.topup_relax else [])
+    for ok in tiers:
         for f in ranked:
             if len(chosen) + len(out) >= n:
                 return out, n_cov
-            if free(f) and (not strict or spaced(f)):
+            if free(f) and ok(f):
                 out.append(int(f))
     return out, n_cov
 
@@ -571,7 +601,7 @@ class _Search:
         picks: list[int] = []
         p = p0
         for _ in range(size):
-            picks.append(int(rng.choice(self.m, p=p)))
+            picks.append(_argmax(p, rng) if self.conf.draw == "greedy" else int(rng.choice(self.m, p=p)))
             if len(picks) < size:
                 p = self.probabilities(picks)
         return np.array(picks, np.int64), p0
@@ -594,6 +624,12 @@ class _Search:
             if zq >= self.conf.threshold and sq > 0 and q not in self.passed:
                 self.passed[q] = float(zq)
 
+
+
+def _argmax(p: np.ndarray, rng: np.random.Generator) -> int:
+    """The most probable candidate, ties drawn at random (the first pick of a search: a random grid offset)."""
+    best = np.flatnonzero(p >= p.max() * (1 - 1e-9))
+    return int(best[0] if best.size == 1 else rng.choice(best))
 
 
 def _record_boxes(seen: dict[int, dict[str, float]], frame: int, det: Detections, area: float | None) -> None:
@@ -735,13 +771,13 @@ def _finish(c: np.ndarray, st: _Search, order: list[int], conf: KeyFrameConf, no
     m = len(c)
     frame_scores = {int(c[q]): s for q, s in zip(st.pos, st.score)}
     passed_frames = [int(c[q]) for q in st.passed]
-    if conf.spread_passes:  # one frame per stretch first: several passes of one view add no new object
-        pos = {int(f): i for i, f in enumerate(c)}
-        chosen = top_k_spread(passed_frames, frame_scores, conf.keyframes, lambda f: pos[f], conf.r)
+    stretch = ({int(c[q]): i for q, i in stretches(st.pos, st.score).items()} if conf.stretch_first else None)
+    if stretch is not None:  # one frame per stretch first: several passes of one view add no new object
+        chosen = top_k_stretches(passed_frames, frame_scores, conf.keyframes, stretch)
     else:
         chosen = top_k(passed_frames, frame_scores, conf.keyframes)
     if len(passed_frames) > conf.keyframes:
-        how = "by score, more than r candidates apart first" if conf.spread_passes else "by score"
+        how = "by score, the best of each stretch first" if stretch is not None else "by score"
         notes.append(f"{len(passed_frames)} frames passed the threshold: kept the top {conf.keyframes} {how}")
     if len(chosen) < conf.keyframes:
         msg = (f"fewer than K: {len(chosen)} of {conf.keyframes} key frames passed the threshold "
@@ -750,7 +786,7 @@ def _finish(c: np.ndarray, st: _Search, order: list[int], conf: KeyFrameConf, no
         trace.event("degraded", "key frames: " + msg, stage="keyframes", chosen=len(chosen),
                     requested=conf.keyframes)
     if len(chosen) < conf.min_keyframes:
-        extra, n_cov = _fill(chosen.tolist(), frame_scores, c, conf.min_keyframes, conf, seen or None)
+        extra, n_cov = _fill(chosen.tolist(), frame_scores, c, conf.min_keyframes, conf, seen or None, stretch)
         if extra:
             chosen = np.array(sorted(chosen.tolist() + extra), dtype=np.int64)
             msg = (f"filled {len(extra)} key frame(s) from the scored frames below the threshold "

@@ -598,3 +598,61 @@ def test_first_grid_is_even_along_the_axis_and_the_budget_is_spent_exactly():
     assert len(picks) == 10 and set(np.diff(np.sort(picks)).tolist()) <= {9, 10, 11}
     with pytest.raises(InputError, match="grid_share"):
         kf.KeyFrameConf.merged(grid_share=1.5)
+
+
+def test_stretches_split_at_zero_scored_frames():
+    """Positive frames belong to one stretch until a scored zero-score frame separates them (unscored gaps do
+    not); zero-score frames get no stretch."""
+    pos = [40, 3, 5, 9, 12, 30, 31, 50]
+    sc = [0.7, 0.4, 0.9, 0.0, 0.5, 0.6, 0.0, 0.2]
+    # in candidate order: 3+ 5+ | 9 zero | 12+ 30+ | 31 zero | 40+ 50+
+    assert kf.stretches(pos, sc) == {3: 0, 5: 0, 12: 1, 30: 1, 40: 2, 50: 2}
+    assert kf.stretches([], []) == {}
+
+
+def test_top_k_stretches_takes_the_best_of_each_stretch_first():
+    """Six high frames of one stretch and a weaker one elsewhere: top-3 by score alone takes three of the first
+    stretch; by stretch it takes the other stretch's best too."""
+    scores = {10: 0.95, 11: 0.9, 12: 0.92, 13: 0.93, 14: 0.91, 15: 0.9, 80: 0.5, 81: 0.45}
+    stretch = {f: 0 for f in range(10, 16)} | {80: 1, 81: 1}
+    assert kf.top_k(list(scores), scores, 3).tolist() == [10, 12, 13]
+    assert kf.top_k_stretches(list(scores), scores, 3, stretch).tolist() == [10, 13, 80]
+    assert kf.top_k_stretches(list(scores), scores, 1, stretch).tolist() == [10]
+
+
+def test_stretch_selection_keeps_a_second_object_the_score_ranking_drops():
+    """Exhaustive budget, K = 4: object A is seen well in eight frames, object B weaker in three, far away.
+    The default selection (one frame per stretch first) shows B; ranking by score alone (`stretch_first`
+    off) fills K from A."""
+    m = 120
+    table = {f: {"chair": 0.9 + 0.001 * f} for f in range(20, 28)} | {f: {"chair": 0.5} for f in (90, 91, 92)}
+    for over, shows_b in (({}, True), ({"stretch_first": False}, False)):
+        res = kf.iterative_search(range(m), ["chair"], [], table_detector(table),
+                                  conf=kf.KeyFrameConf.merged({"keyframes": 4, "budget": m, "min_keyframes": 4,
+                                                               **over}))
+        assert len(res.chosen) == 4
+        assert any(f >= 90 for f in res.chosen) == shows_b
+    # the stretch rule orders the top-up, it does not shrink it: without the relaxed pass (the pipeline's
+    # setting) the spaced frames of a stretch already used still fill up to K
+    res = kf.iterative_search(range(m), ["chair"], [], table_detector(table),
+                              conf=kf.KeyFrameConf.merged({"keyframes": 6, "budget": m, "min_keyframes": 6,
+                                                           "threshold": 5.0, "topup_relax": False,
+                                                           "topup_gap": 2}))
+    assert len(res.chosen) == 6 and any(f >= 90 for f in res.chosen)
+
+
+def test_greedy_draw_without_hits_is_an_even_coarse_to_fine_grid():
+    """No detection anywhere: the greedy draws are farthest-point picks along the axis, so after any number of
+    picks the widest unscored gap is at most twice an even grid's (random first pick: a random offset)."""
+    m = 400
+    for seed in (0, 1, 2):
+        st = kf._Search(m, kf.KeyFrameConf.merged(seed=seed), 1.0)
+        rng = np.random.default_rng(seed)
+        for n in (8, 8, 16, 8):
+            picks, _ = st.draw(n, rng)
+            for p in picks:
+                st.add(int(p), 0.0, st.conf.sigma_max)
+            edges = np.concatenate([[-1], np.sort(st.pos), [m]])
+            assert np.diff(edges).max() <= 2 * math.ceil(m / len(st.pos)) + 1
+    assert len({int(kf._Search(m, kf.KeyFrameConf.merged(seed=s), 1.0).draw(1, np.random.default_rng(s))[0][0])
+                for s in range(6)}) > 1

@@ -68,6 +68,12 @@ class LongVideoConf:
         if self.width < 32 or self.height < 24:
             raise InputError(f"long video: size must be at least 32x24 (got {self.width}x{self.height})")
 
+    def n_frames(self) -> int:
+        """Frames the video will have (without rendering it): rooms and corridors at `fps`."""
+        per = lambda sec: max(1, int(round(sec * self.fps)))  # noqa: E731 (as make_long_video counts)
+        n = self.n_rooms()
+        return n * per(self.room_seconds) + ((n - 1) * per(self.corridor_seconds) if self.corridor_seconds > 0 else 0)
+
     def n_rooms(self) -> int:
         if self.rooms is not None:
             return int(self.rooms)
