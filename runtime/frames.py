@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import os
 import re
+import time
 from collections import OrderedDict
 from dataclasses import dataclass
 from pathlib import Path
@@ -301,6 +302,8 @@ class FrameSource:
     gravity: np.ndarray | None = None
     has_depth: bool = False
     has_pose: bool = False
+    load_seconds: float = 0.0   # class defaults: a subclass that skips __init__ still counts
+    loads: int = 0
 
     def __init__(self, cache_size: int = 32):
         self._cache: OrderedDict[int, Frame] = OrderedDict()
@@ -308,6 +311,9 @@ class FrameSource:
         # what the reader had to degrade (greyscale, missing depth, partial decode, downscaling): the pipeline
         # records each as a `degraded` trace event, which the answer prints as a note
         self.notes: list[str] = []
+        # decoding cost (every `_load`, cache misses only): the pipeline books it as trace stage "frames.load"
+        self.load_seconds = 0.0
+        self.loads = 0
 
     def __len__(self) -> int:
         return len(self.timestamps)
@@ -322,9 +328,17 @@ class FrameSource:
         if i in self._cache:
             self._cache.move_to_end(i)
             return self._cache[i]
-        f = self._load(i)
+        f = self._timed_load(i)
         self._remember(i, f)
         return f
+
+    def _timed_load(self, i: int) -> Frame:
+        t0 = time.perf_counter()
+        try:
+            return self._load(i)
+        finally:
+            self.load_seconds += time.perf_counter() - t0
+            self.loads += 1
 
     def __iter__(self) -> Iterator[Frame]:
         for i in range(len(self)):
@@ -832,7 +846,7 @@ class VideoSource(FrameSource):
         want = sorted(set(int(i) for i in indices if 0 <= int(i) < len(self)))
         for i in want[:max(0, self._cache_size)]:
             if i not in self._cache:
-                self._remember(i, self._load(i))
+                self._remember(i, self._timed_load(i))
 
     def __del__(self) -> None:
         if getattr(self, "_cap", None) is not None:

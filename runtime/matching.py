@@ -9,6 +9,7 @@ however many pairs are tried.
 """
 from __future__ import annotations
 
+import time
 from collections import OrderedDict
 from dataclasses import dataclass, replace
 from typing import Any, ClassVar, Hashable, Mapping, Protocol, runtime_checkable
@@ -197,17 +198,20 @@ class FeatureMatcher:
         self.name = self.conf.method
         self._cache: OrderedDict[Hashable, Features] = OrderedDict()
         self._cache_size = cache_size
+        # counters the pipeline books as trace stages "features.extract" / "features.match"
         self.extract_seconds = 0.0
+        self.extracts = 0
+        self.match_seconds = 0.0
+        self.matches_done = 0
 
     def features(self, key: Hashable | None, rgb: np.ndarray) -> Features:
-        import time
-
         if key is not None and key in self._cache:
             self._cache.move_to_end(key)
             return self._cache[key]
         t0 = time.perf_counter()
         f = extract_features(rgb, self.conf)
         self.extract_seconds += time.perf_counter() - t0
+        self.extracts += 1
         if key is not None:
             self._cache[key] = f
             while len(self._cache) > self._cache_size:
@@ -218,8 +222,12 @@ class FeatureMatcher:
                    boxes0: np.ndarray | None = None, boxes1: np.ndarray | None = None) -> Matches:
         f0, f1 = self.features(k0, rgb0), self.features(k1, rgb1)
         m = self.conf.box_margin
-        return match_descriptors(f0, f1, self.conf, in_boxes(f0.uv, boxes0, m) if boxes0 is not None else None,
-                                 in_boxes(f1.uv, boxes1, m) if boxes1 is not None else None)
+        t0 = time.perf_counter()
+        out = match_descriptors(f0, f1, self.conf, in_boxes(f0.uv, boxes0, m) if boxes0 is not None else None,
+                                in_boxes(f1.uv, boxes1, m) if boxes1 is not None else None)
+        self.match_seconds += time.perf_counter() - t0
+        self.matches_done += 1
+        return out
 
     def match(self, rgb0: np.ndarray, rgb1: np.ndarray, boxes0: np.ndarray | None = None,
               boxes1: np.ndarray | None = None) -> Matches:

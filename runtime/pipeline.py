@@ -524,6 +524,16 @@ def _map_extras(instances: list[ObjectInstance], frames: list[Frame], poses: dic
     return room, cams
 
 
+def _book_counters(trace: Trace, source: FrameSource, loaded0: tuple[float, int], matcher: Any) -> None:
+    """Work that happens inside other stages, booked as stages of its own (seconds and calls, overlapping the
+    stages it ran in): frame decoding ("frames.load", cache misses), OpenCV feature extraction and descriptor
+    matching ("features.extract", "features.match"; a bundle matcher books "matcher.*" itself)."""
+    trace.add_time("frames.load", source.load_seconds - loaded0[0], source.loads - loaded0[1])
+    if hasattr(matcher, "extracts"):
+        trace.add_time("features.extract", matcher.extract_seconds, matcher.extracts)
+        trace.add_time("features.match", matcher.match_seconds, matcher.matches_done)
+
+
 def _start_build(source: FrameSource, targets: Sequence[str], cues: Sequence[str], perception: Perception,
                  conf: PipelineConfig, trace: Trace, keyframes: int | None, budget: Any
                  ) -> tuple[list[str], Perception, int]:
@@ -557,6 +567,7 @@ def build_map(source: FrameSource, targets: Sequence[str], cues: Sequence[str] =
         raise InputError("build_map needs a Perception (bundle models or the synthetic oracle)")
     conf = conf if isinstance(conf, PipelineConfig) else PipelineConfig.merged(conf)
     trace = trace if trace is not None else Trace()
+    loaded0 = (source.load_seconds, source.loads)
     names, perception, K = _start_build(source, targets, cues, perception, conf, trace, keyframes, budget)
     chosen, det, _, _cands = select(source, targets, cues, perception, conf, trace, keyframes=K, budget=budget)
     frames, dets = _perceive(source, chosen, det, names, perception, conf, trace, budget)
@@ -573,6 +584,7 @@ def build_map(source: FrameSource, targets: Sequence[str], cues: Sequence[str] =
         budget.end_stage("alignment")
     _record_instances(instances, names, recovered, trace)
     room, cams = _map_extras(instances, frames, poses, det, names, source, perception, conf, fconf, trace)
+    _book_counters(trace, source, loaded0, matcher)
     smap = SemanticMap(instances, room, cams,
                        {"source": getattr(source, "name", "frames"), "built_from": "video", "keyframes": chosen,
                         "root": al.root, "unaligned": al.unaligned, "objects": names, "recovered": recovered})

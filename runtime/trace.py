@@ -98,6 +98,14 @@ class Trace:
             rec.calls += 1
             rec.rss_peak_mb = max(rec.rss_peak_mb, before, rss_mb())
 
+    def add_time(self, name: str, seconds: float, calls: int = 1) -> StageRecord:
+        """Book `seconds` over `calls` to stage `name` without timing a block (counters kept elsewhere: frame
+        decoding, feature extraction, an adapter's own overhead); no RSS sampling (cheap per call)."""
+        rec = self.stages.setdefault(name, StageRecord(name))
+        rec.seconds += float(seconds)
+        rec.calls += int(calls)
+        return rec
+
     def event(self, kind: str, message: str, *, warn: bool = False, **data: Any) -> None:
         """Record something the user must be able to see afterwards (fallback, degradation, warning)."""
         self.events.append({"kind": kind, "message": message, "t": round(time.time() - self.started, 4), **data})
@@ -177,6 +185,9 @@ class NullTrace(Trace):
 
     def decide(self, key: str, value: Any) -> None:
         return None
+
+    def add_time(self, name: str, seconds: float, calls: int = 1) -> StageRecord:
+        return StageRecord(name)
 
 
 def as_trace(trace: Trace | None) -> Trace:

@@ -106,6 +106,10 @@ class TwoStageMatcher(RoleModel):
     def features(self, rgb: np.ndarray, key: Any = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """rgb [H, W, 3] uint8 -> (kpts [K, 2] model-input pixels, kpt_scores [K], desc [K, D]), cached by
         `key` (default: a hash of the image bytes)."""
+        with self._overhead("matcher.extract", "matcher.match"):
+            return self._features(rgb, key)
+
+    def _features(self, rgb: np.ndarray, key: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         if key is None:
             key = (rgb.shape, hash(rgb[::4, ::4].tobytes()))
         if key in self._cache:
@@ -131,6 +135,11 @@ class TwoStageMatcher(RoleModel):
     def match(self, rgb0: np.ndarray, rgb1: np.ndarray, boxes0: np.ndarray | None = None,
               boxes1: np.ndarray | None = None, key0: Any = None, key1: Any = None) -> Matches:
         """rgb0, rgb1: [H, W, 3] uint8 -> Matches in original-image pixels (key0/key1: optional cache keys)."""
+        with self._overhead("matcher.extract", "matcher.match"):
+            return self._match(rgb0, rgb1, boxes0, boxes1, key0, key1)
+
+    def _match(self, rgb0: np.ndarray, rgb1: np.ndarray, boxes0: np.ndarray | None, boxes1: np.ndarray | None,
+               key0: Any, key1: Any) -> Matches:
         k0, s0, d0 = self.features(rgb0, key0)
         k1, s1, d1 = self.features(rgb1, key1)
         hw = _model_size(self.spec) or rgb0.shape[:2]
