@@ -1,8 +1,8 @@
 """Segmenter adapters: boxes (and, for promptable models, points) -> masks.
 
 `SemanticSegmenter` wraps a per-pixel classifier (DeepLabv3 on PASCAL VOC here). It runs once per frame
-(class maps of the last 16 images cached: refinement asks one class mask per object and frame) and answers `segment(rgb, boxes, names)` with, for each box, the pixels inside the
-box whose class is the name's class (through the same synonym table as the detector). It IGNORES point prompts
+(class maps of the last 16 images cached: refinement asks one class mask per object and frame) and answers
+`segment(rgb, boxes, names)` with, for each box, the pixels inside the box whose class is the name's class (through the same synonym table as the detector). It IGNORES point prompts
 (a `points` argument is accepted for interface compatibility and recorded once in the trace as "degraded"):
 refinement with it can only intersect boxes with class pixels; it cannot split two touching instances of one
 class nor segment classes outside its label list (those boxes get an empty mask and the name is reported).
