@@ -423,12 +423,14 @@ def _align(frames: list[Frame], dets: dict[int, Detections], source: FrameSource
            conf: PipelineConfig, trace: Trace, budget: Any) -> tuple[Any, Any]:
     """Alignment of the key frames (`alignment.align_keyframes`). Returns (alignment, the matcher: its feature
     cache serves refinement too)."""
+    matcher = make_matcher(perception.matcher, conf.match)  # one matcher: features cached across the rounds
+    if hasattr(matcher, "prefetch"):  # every key frame is matched: extract on worker threads while embedding
+        matcher.prefetch([(f.index, f.rgb) for f in frames])
     emb = None
     if perception.embed is not None:
         with trace.stage("embed"):
             emb = np.stack([perception.embed(f.rgb) for f in frames])
     boxes = {f.index: _align_boxes(f, dets[f.index], perception, trace) for f in frames}
-    matcher = make_matcher(perception.matcher, conf.match)  # one matcher: features cached across the rounds
     if budget is not None:  # one plan stage from matching to refinement (fusion is an alias of alignment)
         budget.start_stage("alignment")
     bar = start("alignment", unit="round")
