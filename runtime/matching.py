@@ -142,14 +142,36 @@ def _knn2_from_distances(D: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndar
     return np.stack([j1, j2], 1), np.stack([d1, d2], 1).astype(np.float64), mutual
 
 
+def _integer_exact(a: np.ndarray, b: np.ndarray, aa: np.ndarray, bb: np.ndarray) -> bool:
+    """Whether every squared distance between rows of a and b, and every partial sum on the way, is an integer
+    float32 holds exactly (< 2^24): integer-valued descriptors (OpenCV's SIFT: 0..255) with small norms. Then
+    the order of the additions cannot change a single bit of the distances."""
+    if not (len(aa) and len(bb)):
+        return False
+    bound = (np.sqrt(float(aa.max())) + np.sqrt(float(bb.max()))) ** 2  # >= every |partial sum| (Cauchy-Schwarz)
+    return bound < 2.0 ** 24 and np.array_equal(a, np.rint(a)) and np.array_equal(b, np.rint(b))
+
+
 def _knn2_l2(d0: np.ndarray, d1: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Euclidean two nearest neighbours (one matmul; see `_knn2_from_distances`)."""
+    """Euclidean two nearest neighbours (one matmul; see `_knn2_from_distances`). Integer descriptors (SIFT)
+    get the squared distances |a|^2 + |b|^2 - 2 a.b from ONE matmul of [a, |a|^2, 1] by [-2b, 1, |b|^2]: exact
+    (`_integer_exact`), so bit for bit the distances of the three-pass form, without three passes over the
+    [N, M] matrix."""
     a = np.ascontiguousarray(d0, dtype=np.float32)
     b = np.ascontiguousarray(d1, dtype=np.float32)
+    aa, bb = (a * a).sum(1), (b * b).sum(1)
+    if _integer_exact(a, b, aa, bb):
+        n, dim = a.shape
+        A = np.empty((n, dim + 2), np.float32)
+        A[:, :dim], A[:, dim], A[:, dim + 1] = a, aa, 1.0
+        B = np.empty((len(b), dim + 2), np.float32)
+        B[:, :dim], B[:, dim], B[:, dim + 1] = b * np.float32(-2.0), 1.0, bb
+        idx, dd, mutual = _knn2_from_distances(A @ B.T)  # exact integers >= 0: nothing to clip
+        return idx, np.sqrt(dd), mutual
     D = a @ b.T
     D *= -2.0
-    D += (b * b).sum(1)[None, :]
-    D += (a * a).sum(1)[:, None]  # squared distances, in place (no [N, M] temporaries)
+    D += bb[None, :]
+    D += aa[:, None]  # squared distances, in place (no [N, M] temporaries)
     np.maximum(D, 0.0, out=D)
     idx, dd, mutual = _knn2_from_distances(D)
     return idx, np.sqrt(dd), mutual

@@ -106,3 +106,29 @@ def test_trace_add_time_books_without_timing():
     t.add_time("frames.load", 0.5, 3)
     t.add_time("frames.load", 0.25)
     assert t.stages["frames.load"].seconds == pytest.approx(0.75) and t.stages["frames.load"].calls == 4
+
+
+def test_sift_nearest_neighbours_are_the_exact_ones(kitchen_rgbs):
+    """The one-matmul distances (integer SIFT descriptors) against a float64 brute force computed here: the
+    same two nearest distances per row, the same nearest column, the same mutual flags; non-integer
+    descriptors take the general path and agree to float32 precision."""
+    from mosaicthinker.runtime.matching import _integer_exact, _knn2_l2, extract_features
+
+    f0, f1 = (extract_features(r) for r in kitchen_rgbs[:2])
+    a, b = f0.desc[:700].astype(np.float64), f1.desc[:900].astype(np.float64)
+    D = ((a[:, None, :] - b[None, :, :]) ** 2).sum(-1)
+    order = np.argsort(D, 1, kind="stable")
+    want_d = np.sqrt(np.take_along_axis(D, order[:, :2], 1))
+    idx, dd, mutual = _knn2_l2(f0.desc[:700], f1.desc[:900])
+    assert _integer_exact(f0.desc, f1.desc, (f0.desc ** 2).sum(1), (f1.desc ** 2).sum(1))
+    np.testing.assert_array_equal(dd, want_d)  # bit for bit: integer distances
+    unique = want_d[:, 0] < want_d[:, 1]  # no tie for the nearest
+    np.testing.assert_array_equal(idx[unique, 0], order[unique, 0])
+    col_min = D.min(0)
+    np.testing.assert_array_equal(mutual, D[np.arange(len(a)), idx[:, 0]] <= col_min[idx[:, 0]])
+    g = np.random.default_rng(1)
+    x, y = g.normal(size=(300, 64)).astype(np.float32), g.normal(size=(400, 64)).astype(np.float32)
+    assert not _integer_exact(x, y, (x * x).sum(1), (y * y).sum(1))
+    _, dd2, _ = _knn2_l2(x, y)
+    E = np.sort(((x[:, None, :].astype(np.float64) - y[None]) ** 2).sum(-1), 1)[:, :2]
+    np.testing.assert_allclose(dd2, np.sqrt(E), rtol=1e-4)
