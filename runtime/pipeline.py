@@ -214,6 +214,11 @@ def _count_reasons(dropped: Any) -> dict[str, int]:
     return out
 
 
+def _colour(source: FrameSource, i: int) -> Frame:
+    """Frame i as a colour-only reader needs it (`FrameSource.colour`; a plain sequence of frames: the frame)."""
+    return source.colour(i) if hasattr(source, "colour") else source[i]
+
+
 class _CachedDetector:
     """Detections per (frame, names): the search and the map reuse the same detector calls."""
 
@@ -225,8 +230,8 @@ class _CachedDetector:
     def __call__(self, index: int, names: list[str]) -> Detections:
         key = (int(index), tuple(names))
         if key not in self.cache:
-            with self.trace.stage("detect"):
-                self.cache[key] = self.fn(self.source[int(index)], list(names))
+            with self.trace.stage("detect"):  # detection reads colour only: no depth decoded for it
+                self.cache[key] = self.fn(_colour(self.source, int(index)), list(names))
             if self.on_call is not None:
                 self.on_call()
         return self.cache[key]
@@ -266,7 +271,7 @@ def select(source: FrameSource, targets: Sequence[str], cues: Sequence[str], per
     with _stage(budget, trace, "keyframes"), phase("keyframes", kc.get("budget", K), "frame") as bar:
         det.on_call = bar.update  # one tick per frame scored
         res = select_keyframes(conf.keyframe_method, cands, list(targets), list(cues), det,
-                               lambda i: source[int(i)].rgb, kconf, trace,
+                               lambda i: _colour(source, int(i)).rgb, kconf, trace,
                                prefetch=getattr(source, "prefetch", None), image_size=tuple(source.size))
         det.on_call = None
         bar.note(keyframes=len(res.chosen))

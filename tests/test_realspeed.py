@@ -132,3 +132,21 @@ def test_sift_nearest_neighbours_are_the_exact_ones(kitchen_rgbs):
     _, dd2, _ = _knn2_l2(x, y)
     E = np.sort(((x[:, None, :].astype(np.float64) - y[None]) ** 2).sum(-1), 1)[:, :2]
     np.testing.assert_allclose(dd2, np.sqrt(E), rtol=1e-4)
+
+
+def test_colour_reads_skip_depth_and_give_the_same_images(redkitchen):
+    """`FrameSource.colour`: the colour of the whole frame, no depth or pose decoded; a whole frame read later
+    has them, and a cached whole frame serves colour reads too. Redundant-frame removal's gray images are
+    those of the whole frames."""
+    from mosaicthinker.runtime.dedup import small_gray
+    from mosaicthinker.runtime.frames import open_source
+
+    src, ref = open_source(redkitchen), open_source(redkitchen)
+    c = src.colour(30)
+    assert c.depth is None and c.pose_gt is None and c.index == 30 and c.t == ref[30].t
+    np.testing.assert_array_equal(c.rgb, ref[30].rgb)
+    np.testing.assert_array_equal(src.gray(31, 320), small_gray(ref[31].rgb, 320))
+    whole = src[30]
+    assert whole.depth is not None and whole.pose_gt is not None
+    np.testing.assert_array_equal(whole.depth, ref[30].depth)
+    assert src.colour(30) is whole  # the whole frame now serves colour reads
