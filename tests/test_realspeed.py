@@ -150,3 +150,18 @@ def test_colour_reads_skip_depth_and_give_the_same_images(redkitchen):
     assert whole.depth is not None and whole.pose_gt is not None
     np.testing.assert_array_equal(whole.depth, ref[30].depth)
     assert src.colour(30) is whole  # the whole frame now serves colour reads
+
+
+def test_stages_record_cpu_seconds_beside_wall_seconds():
+    import time
+
+    t = Trace()
+    with t.stage("busy"):
+        x = 0
+        for i in range(300000):
+            x += i
+    with t.stage("wait"):
+        time.sleep(0.05)
+    assert t.stages["busy"].cpu_seconds > 0.005 and t.stages["wait"].cpu_seconds < 0.5 * t.stages["wait"].seconds
+    d = t.to_dict()
+    assert d["stages"]["busy"]["cpu_seconds"] > 0 and d["cpu_seconds"] >= d["stages"]["busy"]["cpu_seconds"]
