@@ -304,6 +304,7 @@ class FrameSource:
     has_pose: bool = False
     load_seconds: float = 0.0   # class defaults: a subclass that skips __init__ still counts
     loads: int = 0
+    splits_colour: bool = False  # `_load_colour` reads less than `_load` (depth and pose are separate files)
 
     def __init__(self, cache_size: int = 32):
         self._cache: OrderedDict[int, Frame] = OrderedDict()
@@ -332,7 +333,11 @@ class FrameSource:
         """Frame i for a reader of its colour only (redundant-frame removal, the key-frame search's detections
         and histograms): the cached whole frame when there is one, else the frame without depth and pose
         (`_load_colour`: a 7-Scenes frame's depth PNG costs more to decode than its JPEG, and the search scores
-        3x the frames that get used), kept in a colour cache of half the frame cache's size."""
+        3x the frames that get used), kept in a colour cache of half the frame cache's size. Sources without a
+        cheaper colour read (`splits_colour` False: a video decodes the frame either way) give the whole frame,
+        through the frame cache."""
+        if not self.splits_colour:
+            return self[i]
         i = self._position(i)
         if i in self._cache:
             self._cache.move_to_end(i)
@@ -515,6 +520,8 @@ class SevenScenesSource(FrameSource):
             names = ", ".join(_show(p.name) for p in missing[:3]) + (" ..." if len(missing) > 3 else "")
             self.notes.append(f"{len(missing)} of {n} frames have no {what} file ({names}): {effect}")
 
+    splits_colour = True
+
     def _load_colour(self, i: int) -> Frame:
         rgb = _downscale(_imread_rgb(self.color_paths[i], self.notes), self.scale)
         return Frame(rgb, float(self.timestamps[i]), i, self.K, None, None, self.dist)
@@ -633,6 +640,8 @@ class TUMSource(FrameSource):
         first_depth = next((p for p in self.depth_paths if p is not None), None)
         if first_depth is not None:
             check_depth_units(_imread_depth(first_depth, 5000.0), first_depth, 5000.0)
+
+    splits_colour = True
 
     def _load_colour(self, i: int) -> Frame:
         rgb = _downscale(_imread_rgb(self.rgb_paths[i], self.notes), self.scale)

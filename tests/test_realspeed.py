@@ -165,3 +165,19 @@ def test_stages_record_cpu_seconds_beside_wall_seconds():
     assert t.stages["busy"].cpu_seconds > 0.005 and t.stages["wait"].cpu_seconds < 0.5 * t.stages["wait"].seconds
     d = t.to_dict()
     assert d["stages"]["busy"]["cpu_seconds"] > 0 and d["cpu_seconds"] >= d["stages"]["busy"]["cpu_seconds"]
+
+
+def test_sources_without_a_cheaper_colour_read_serve_it_from_the_frame_cache(tmp_path):
+    """A video or an image folder decodes the whole frame either way: `colour` goes through the frame cache,
+    so the key frames the search read are not decoded (or seeked) again."""
+    import cv2
+
+    from mosaicthinker.runtime.frames import open_source
+
+    for k in range(3):
+        cv2.imwrite(str(tmp_path / f"{k:03d}.png"), np.full((48, 64, 3), 40 * k, np.uint8))
+    src = open_source(tmp_path)
+    assert not src.splits_colour
+    n0 = src.loads
+    c = src.colour(1)
+    assert src[1] is c and src.loads == n0 + 1
