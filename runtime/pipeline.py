@@ -535,7 +535,8 @@ def _book_counters(trace: Trace, source: FrameSource, loaded0: tuple[float, int]
     """Work that happens inside other stages, booked as stages of its own (seconds and calls, overlapping the
     stages it ran in): frame decoding ("frames.load", cache misses), OpenCV feature extraction and descriptor
     matching ("features.extract", "features.match"; a bundle matcher books "matcher.*" itself)."""
-    trace.add_time("frames.load", source.load_seconds - loaded0[0], source.loads - loaded0[1])
+    trace.add_time("frames.load", getattr(source, "load_seconds", 0.0) - loaded0[0],
+                   getattr(source, "loads", 0) - loaded0[1])
     if hasattr(matcher, "extracts"):
         trace.add_time("features.extract", matcher.extract_seconds, matcher.extracts)
         trace.add_time("features.match", matcher.match_seconds, matcher.matches_done)
@@ -574,7 +575,7 @@ def build_map(source: FrameSource, targets: Sequence[str], cues: Sequence[str] =
         raise InputError("build_map needs a Perception (bundle models or the synthetic oracle)")
     conf = conf if isinstance(conf, PipelineConfig) else PipelineConfig.merged(conf)
     trace = trace if trace is not None else Trace()
-    loaded0 = (source.load_seconds, source.loads)
+    loaded0 = (getattr(source, "load_seconds", 0.0), getattr(source, "loads", 0))
     names, perception, K = _start_build(source, targets, cues, perception, conf, trace, keyframes, budget)
     chosen, det, _, _cands = select(source, targets, cues, perception, conf, trace, keyframes=K, budget=budget)
     frames, dets = _perceive(source, chosen, det, names, perception, conf, trace, budget)
