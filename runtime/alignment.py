@@ -660,6 +660,9 @@ class AlignmentResult:
     # pairs already tried with whole-image matches (`attach_frames`): a pair that failed inside object boxes
     # is not one of them (few boxes give few matches; the whole image may still align it)
     whole_tried: set[frozenset] = field(default_factory=set)
+    # what became of each key frame in the end (`align_keyframes`): the step that gave its final pose, or
+    # "unaligned"; the steps' own trace events are the history, this is the state
+    fates: dict[int, str] = field(default_factory=dict)
 
     @property
     def aligned(self) -> list[int]:
@@ -670,6 +673,7 @@ class AlignmentResult:
                 "aligned": len(self.aligned), "unaligned": list(self.unaligned), "guessed": list(self.guessed),
                 "similarity": self.similarity_kind, "with_scale": self.with_scale, "edge": self.edge,
                 "pairs_tried": len(self.edge_stats), "pairs_failed": sum(not r.ok for r in self.edge_stats.values()),
+                "fates": {str(i): f for i, f in self.fates.items()},
                 "edge_stats": {f"{a}-{b}": r.to_dict() for (a, b), r in self.edge_stats.items()},
                 "seconds": {k: round(v, 4) for k, v in self.seconds.items()}}
 
@@ -853,15 +857,18 @@ def _align_sequential(frames: list[Any], pv: _PairVerifier
     return root, poses, edges, guessed
 
 
-def _record_alignment(trace: Any, res: AlignmentResult, n: int) -> None:
+def _record_alignment(trace: Any, res: AlignmentResult, n: int, step: bool = False) -> None:
+    """Decisions and the unaligned frames of one `align_frames` call: a final state ("degraded") for a caller
+    that stops there, history (kind "alignment") for a first round that later steps continue (`step`)."""
     t = as_trace(trace)
     t.decide("alignment.strategy", res.strategy)
     t.decide("alignment.edge", res.edge)
     t.decide("alignment.similarity", res.similarity_kind or "time_order")
     t.decide("alignment.root", res.root)
     if res.unaligned:
-        t.event("degraded", f"{len(res.unaligned)} of {n} frames could not be aligned "
-                f"(no verified edge to the root's tree)", frames=res.unaligned)
+        t.event("alignment" if step else "degraded",
+                f"{'first round: ' if step else ''}{len(res.unaligned)} of {n} frames could not be aligned "
+                f"(no verified edge to the root's tree)", frames=res.unaligned, stage="alignment")
     if res.guessed:
         t.event("degraded", f"sequential chaining: {len(res.guessed)} failed links kept the previous pose",
                 frames=res.guessed)
@@ -870,14 +877,15 @@ def _record_alignment(trace: Any, res: AlignmentResult, n: int) -> None:
 def align_frames(frames: Sequence[Any], matcher: Any = "sift", strategy: str = "mst",
                  conf: AlignConf | Mapping[str, Any] | None = None, embeddings: np.ndarray | None = None,
                  boxes: Sequence[np.ndarray | None] | Mapping[int, np.ndarray] | None = None,
-                 with_scale: bool = False, trace: Any = None) -> AlignmentResult:
+                 with_scale: bool = False, trace: Any = None, step: bool = False) -> AlignmentResult:
     """Align frames (objects with .rgb [H, W, 3], .depth [H, W] metres (or relative depth with with_scale),
     .K [3, 3], .index) into the root camera's frame.
 
     matcher: 'sift' | 'orb' | a `matching.Matcher` (features are cached per frame when it is a `KeyedMatcher`);
     strategy: 'mst' | 'sequential'; embeddings: [K, D] for the similarity matrix (else colour histograms);
     boxes: per-frame [N, 4] boxes to restrict matching (list in frame order or {frame index: boxes});
-    with_scale: estimate Sim(3) per edge (relative, non-metric depth).
+    with_scale: estimate Sim(3) per edge (relative, non-metric depth); step: a first round that later steps
+    continue (its unaligned frames are recorded as history, not as the final state).
     """
     conf = AlignConf.merged(conf)
     frames = list(frames)
@@ -902,7 +910,7 @@ def align_frames(frames: Sequence[Any], matcher: Any = "sift", strategy: str = "
     unaligned = [i for i in idx if i not in poses]
     res = AlignmentResult(poses, idx[root], edges, unaligned, strategy, guessed, pv.stats, S, kind, with_scale, secs,
                           edge)
-    _record_alignment(trace, res, len(idx))
+    _record_alignment(trace, res, len(idx), step)
     return res
 
 
@@ -1049,8 +1057,8 @@ def verify_tree(al: AlignmentResult, frames: dict[int, Any], conf: AlignPolicy, 
         poses.pop(i)
     reattached = _reattach(al, poses, dropped, ok)
     lost = [i for i in dropped if i not in poses]
-    as_trace(trace).event("degraded" if lost else "alignment",
-                          f"depth check rejected tree edge(s) {bad}: {len(dropped)} frame(s) detached, "
+    as_trace(trace).event("alignment", f"depth check rejected tree edge(s) {bad}: {len(dropped)} frame(s) "
+                          f"detached, "
                           f"{len(reattached)} re-attached through other verified pairs, {len(lost)} left unaligned",
                           stage="alignment", rejected=[list(e) for e in bad], unaligned=lost)
     al.poses = poses
@@ -1161,8 +1169,8 @@ def bridge_realign(al: AlignmentResult, frames: list[Any], boxes: dict[int, Any]
     before = len(al.unaligned)
     al2.unaligned = [i for i in al2.unaligned if i in have]
     al2.rejected_edges = list(al.rejected_edges)
-    trace.event("degraded" if al2.unaligned else "alignment",
-                f"{before} key frame(s) had no verified edge to the tree; {len(extra)} bridge frames between them "
+    trace.event("alignment", f"{before} key frame(s) had no verified edge to the tree; {len(extra)} bridge "
+                f"frames between them "
                 f"and their neighbours in time left {len(al2.unaligned)} unaligned", stage="alignment",
                 bridges=extra, unaligned=al2.unaligned)
     if len(al2.poses) and sum(i in have for i in al2.poses) >= sum(i in have for i in al.poses):
@@ -1177,7 +1185,8 @@ def _whole_image_realign(al: AlignmentResult, frames: list[Any], boxes: dict[int
     the better tree is kept. Returns (alignment, the boxes it used)."""
     with trace.stage("alignment"):
         al2 = align_frames(frames, matcher, "mst", conf.alignment, emb, None, with_scale=with_scale, trace=None)
-    trace.event("fallback", f"alignment inside object boxes left {len(al.unaligned)} of {len(frames)} key frames "
+    trace.event("alignment", f"alignment inside object boxes left {len(al.unaligned)} of {len(frames)} key "
+                f"frames "
                 f"unaligned; whole-image matching left {len(al2.unaligned)}", stage="alignment",
                 boxes_unaligned=list(al.unaligned), whole_unaligned=list(al2.unaligned))
     if len(al2.unaligned) < len(al.unaligned):
@@ -1185,16 +1194,49 @@ def _whole_image_realign(al: AlignmentResult, frames: list[Any], boxes: dict[int
     return al, boxes
 
 
+class Fates:
+    """What became of each key frame: the step that gave it its current pose, or "unaligned" (`after` is called
+    once per step; a step that leaves a frame's pose object as it was leaves its fate too)."""
+
+    def __init__(self, keys: Sequence[int]):
+        self.keys = sorted(int(i) for i in keys)
+        self.how: dict[int, str] = {}
+        self.steps: list[str] = []   # in the order they ran (the summary's order)
+        self._poses: dict[int, Any] = {}
+
+    def after(self, al: AlignmentResult, step: str) -> None:
+        if step not in self.steps:
+            self.steps.append(step)
+        for i in self.keys:
+            T = al.poses.get(i)
+            if T is None:
+                self.how[i] = "unaligned"
+            elif self._poses.get(i) is not T:
+                self.how[i] = step
+            self._poses[i] = T
+
+    def summary(self) -> str:
+        """"12 of 16 key frames aligned (9 box-matched tree, 3 through bridge frames)"."""
+        n = len(self.keys)
+        got_by = [self.how.get(i, "unaligned") for i in self.keys]
+        counts = {k: got_by.count(k) for k in self.steps if k != "unaligned" and k in got_by}
+        got = sum(counts.values())
+        return f"{got} of {n} key frames aligned" + (f" ({', '.join(f'{c} {k}' for k, c in counts.items())})"
+                                                    if counts else "")
+
+
 def align_rest_relative(al: AlignmentResult, frames: list[Any], boxes: dict[int, Any], emb: Any,
                         matcher: KeyedMatcher, source: Any, with_depth: WithDepth, with_scale: bool,
-                        conf: AlignPolicy, trace: Any, over_budget: Callable[[list[int]], bool]
-                        ) -> tuple[AlignmentResult, list[Any]]:
+                        conf: AlignPolicy, trace: Any, over_budget: Callable[[list[int]], bool],
+                        fates: Fates | None = None) -> tuple[AlignmentResult, list[Any]]:
     """Relative depth (no depth check): the box-matched tree's unaligned frames get a whole-image re-alignment,
     then bridge rounds (`bridge_realign`) while they buy aligned key frames. Returns (alignment, bridge frames
     used)."""
     trace = as_trace(trace)
+    fates = fates or Fates([f.index for f in frames])
     if al.unaligned and conf.whole_image_fallback:
         al, boxes = _whole_image_realign(al, frames, boxes, emb, matcher, with_scale, conf, trace)
+        fates.after(al, "whole-image tree")
     used: list[Any] = []
     keys = {f.index for f in frames}
     al.unaligned = [i for i in al.unaligned if i in keys]
@@ -1214,30 +1256,36 @@ def align_rest_relative(al: AlignmentResult, frames: list[Any], boxes: dict[int,
                         f"{len(al.unaligned)}): kept the tree without it, no further rounds", stage="alignment")
             break
         al, used = al_b, bridges
+        fates.after(al, "tree with bridge frames")
     return al, used
 
 
 def align_rest_metric(al: AlignmentResult, frames: list[Any], matcher: KeyedMatcher, source: Any,
                       with_depth: WithDepth, conf: AlignPolicy, trace: Any,
-                      over_budget: Callable[[list[int]], bool]) -> list[Any]:
+                      over_budget: Callable[[list[int]], bool], fates: Fates | None = None) -> list[Any]:
     """Metric depth after the box-matched tree: depth-check its edges, attach what it left out by whole-image
     edges, then bridge what is still out. Returns the bridge frames used."""
     trace = as_trace(trace)
+    fates = fates or Fates([f.index for f in frames])
     with trace.stage("alignment.verify"):
         al = verify_tree(al, {f.index: f for f in frames}, conf, trace)
+    fates.after(al, "re-attached after the depth check")
     keys = {f.index for f in frames}
     al.unaligned = [i for i in al.unaligned if i in keys]
     if al.unaligned and conf.whole_image_fallback:
         before = list(al.unaligned)
         with trace.stage("alignment"):
             got = attach_frames(al, {f.index: f for f in frames}, before, matcher, conf)
-        trace.event("fallback", f"box-matched tree left {len(before)} of {len(frames)} key frames unaligned; "
+        trace.event("alignment", f"box-matched tree left {len(before)} of {len(frames)} key frames unaligned; "
                     f"whole-image edges attached {len(got)}, {len(al.unaligned)} left", stage="alignment",
                     boxes_unaligned=before, attached=got)
+        fates.after(al, "whole-image edge")
     if not al.unaligned or conf.bridge_frames <= 0 or conf.bridge_rounds <= 0 or over_budget(al.unaligned):
         return []
     with trace.stage("alignment"):
-        return bridge_attach(al, frames, source, matcher, with_depth, conf, trace)
+        used = bridge_attach(al, frames, source, matcher, with_depth, conf, trace)
+    fates.after(al, "through bridge frames")
+    return used
 
 
 def bridge_attach(al: AlignmentResult, frames: list[Any], source: Any, matcher: KeyedMatcher, with_depth: WithDepth,
@@ -1279,8 +1327,8 @@ def bridge_attach(al: AlignmentResult, frames: list[Any], source: Any, matcher: 
                     >= 2 * conf.bridge_gap_s:  # stuck inside the gap (not merely u itself failing at its end)
                 failed.setdefault((a, d), u)  # the nearest such key frame (they come nearest first)
     al.unaligned = [i for i in al.unaligned if i not in al.poses]
-    as_trace(trace).event("degraded" if al.unaligned else "alignment",
-                          f"bridging: {conf.bridge_frames - budget} video frame(s) tried, {len(used)} attached as "
+    as_trace(trace).event("alignment", f"bridging: {conf.bridge_frames - budget} video frame(s) tried, "
+                          f"{len(used)} attached as "
                           f"bridges, {n0 - len(al.unaligned)} of {n0} key frame(s) aligned through them; "
                           f"{len(al.unaligned)} key frame(s) left unaligned"
                           + (f" ({len(set(skipped))} not tried: behind a gap a chain did not cross)" if skipped
@@ -1340,15 +1388,32 @@ def align_keyframes(frames: list[Any], matcher: KeyedMatcher, boxes: dict[int, A
     Returns (alignment over the key frames only, the bridge frames used)."""
     trace = as_trace(trace)
     with trace.stage("alignment"):
-        al = align_frames(frames, matcher, "mst", conf.alignment, emb, boxes, with_scale=with_scale, trace=trace)
+        al = align_frames(frames, matcher, "mst", conf.alignment, emb, boxes, with_scale=with_scale, trace=trace,
+                          step=True)
     keys = {f.index for f in frames}
+    fates = Fates(keys)
+    fates.after(al, "box-matched tree")
     if conf.verify_depth and not with_scale:  # metric depth: one edge at a time onto the verified tree (cheap)
-        used = align_rest_metric(al, frames, matcher, source, with_depth, conf, trace, over_budget)
+        used = align_rest_metric(al, frames, matcher, source, with_depth, conf, trace, over_budget, fates)
     else:
         al, used = align_rest_relative(al, frames, boxes, emb, matcher, source, with_depth, with_scale, conf, trace,
-                                       over_budget)
+                                       over_budget, fates)
     al.unaligned = [i for i in al.unaligned if i in keys]
-    if al.unaligned:
-        trace.event("degraded", f"{len(al.unaligned)} of {len(frames)} key frames unaligned after alignment "
-                    f"(left out of the map): {sorted(al.unaligned)}", stage="alignment", unaligned=sorted(al.unaligned))
+    _record_fates(trace, al, fates)
     return al, used
+
+
+def _record_fates(trace: Any, al: AlignmentResult, fates: Fates) -> None:
+    """The final state after every step, once: per key frame in `al.fates` and the trace decision
+    `alignment.frames`; one count in an event the printed answer repeats ("degraded" when frames stay out)."""
+    for i in fates.keys:  # every step recorded its frames; a frame no step placed has no pose
+        if i not in al.poses:
+            fates.how[i] = "unaligned"
+    al.fates = {i: fates.how.get(i, "unaligned") for i in fates.keys}
+    trace.decide("alignment.frames", {str(i): f for i, f in al.fates.items()})
+    out = sorted(i for i in fates.keys if al.fates[i] == "unaligned")
+    msg = f"alignment: {fates.summary()}"
+    if out:
+        msg += f"; {len(out)} unaligned, left out of the map: {out}"
+    trace.event("degraded" if out else "alignment", msg, stage="alignment", unaligned=out,
+                fates={str(i): f for i, f in al.fates.items()})

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import os
 import re
+import time
 from collections import OrderedDict
 from dataclasses import dataclass
 from pathlib import Path
@@ -301,36 +302,83 @@ class FrameSource:
     gravity: np.ndarray | None = None
     has_depth: bool = False
     has_pose: bool = False
+    load_seconds: float = 0.0   # class defaults: a subclass that skips __init__ still counts
+    loads: int = 0
+    splits_colour: bool = False  # `_load_colour` reads less than `_load` (depth and pose are separate files)
 
     def __init__(self, cache_size: int = 32):
         self._cache: OrderedDict[int, Frame] = OrderedDict()
         self._cache_size = int(cache_size)
+        self._colour: OrderedDict[int, Frame] = OrderedDict()  # frames read without depth and pose (`colour`)
         # what the reader had to degrade (greyscale, missing depth, partial decode, downscaling): the pipeline
         # records each as a `degraded` trace event, which the answer prints as a note
         self.notes: list[str] = []
+        # decoding cost (every `_load`, cache misses only): the pipeline books it as trace stage "frames.load"
+        self.load_seconds = 0.0
+        self.loads = 0
 
     def __len__(self) -> int:
         return len(self.timestamps)
 
-    def __getitem__(self, i: int) -> Frame:
+    def _position(self, i: int) -> int:
         n = len(self)
         i = int(i)
         if i < 0:
             i += n
         if not 0 <= i < n:
             raise IndexError(f"{self.name}: frame {i} out of range (0..{n - 1})")
+        return i
+
+    def colour(self, i: int) -> Frame:
+        """Frame i for a reader of its colour only (redundant-frame removal, the key-frame search's detections
+        and histograms): the cached whole frame when there is one, else the frame without depth and pose
+        (`_load_colour`: a 7-Scenes frame's depth PNG costs more to decode than its JPEG, and the search scores
+        3x the frames that get used), kept in a colour cache of half the frame cache's size. Sources without a
+        cheaper colour read (`splits_colour` False: a video decodes the frame either way) give the whole frame,
+        through the frame cache."""
+        if not self.splits_colour:
+            return self[i]
+        i = self._position(i)
         if i in self._cache:
             self._cache.move_to_end(i)
             return self._cache[i]
-        f = self._load(i)
+        if i in self._colour:
+            self._colour.move_to_end(i)
+            return self._colour[i]
+        f = self._timed_load(i, self._load_colour)
+        if self._cache_size > 0:
+            self._colour[i] = f
+            while len(self._colour) > max(1, self._cache_size // 2):
+                self._colour.popitem(last=False)
+        return f
+
+    def _load_colour(self, i: int) -> Frame:
+        """Frame i without depth and pose; sources that decode those separately override this."""
+        return self._load(i)
+
+    def __getitem__(self, i: int) -> Frame:
+        i = self._position(i)
+        if i in self._cache:
+            self._cache.move_to_end(i)
+            return self._cache[i]
+        f = self._timed_load(i)
         self._remember(i, f)
         return f
+
+    def _timed_load(self, i: int, load: Any = None) -> Frame:
+        t0 = time.perf_counter()
+        try:
+            return (load or self._load)(i)
+        finally:
+            self.load_seconds += time.perf_counter() - t0
+            self.loads += 1
 
     def __iter__(self) -> Iterator[Frame]:
         for i in range(len(self)):
             yield self[i]
 
     def _remember(self, i: int, f: Frame) -> None:
+        self._colour.pop(i, None)
         if self._cache_size <= 0:
             return
         self._cache[i] = f
@@ -350,7 +398,7 @@ class FrameSource:
         sources that can decode it more cheaply than the colour frame override this)."""
         from .dedup import small_gray
 
-        return small_gray(self[position].rgb, width)
+        return small_gray(self.colour(position).rgb, width)
 
     def prefetch(self, indices: Sequence[int]) -> None:
         """Hint that these frames are needed soon (the video source decodes them in one forward pass)."""
@@ -472,6 +520,12 @@ class SevenScenesSource(FrameSource):
             names = ", ".join(_show(p.name) for p in missing[:3]) + (" ..." if len(missing) > 3 else "")
             self.notes.append(f"{len(missing)} of {n} frames have no {what} file ({names}): {effect}")
 
+    splits_colour = True
+
+    def _load_colour(self, i: int) -> Frame:
+        rgb = _downscale(_imread_rgb(self.color_paths[i], self.notes), self.scale)
+        return Frame(rgb, float(self.timestamps[i]), i, self.K, None, None, self.dist)
+
     def _load(self, i: int) -> Frame:
         rgb = _imread_rgb(self.color_paths[i], self.notes)
         depth = None
@@ -586,6 +640,12 @@ class TUMSource(FrameSource):
         first_depth = next((p for p in self.depth_paths if p is not None), None)
         if first_depth is not None:
             check_depth_units(_imread_depth(first_depth, 5000.0), first_depth, 5000.0)
+
+    splits_colour = True
+
+    def _load_colour(self, i: int) -> Frame:
+        rgb = _downscale(_imread_rgb(self.rgb_paths[i], self.notes), self.scale)
+        return Frame(rgb, float(self.timestamps[i]), i, self.K, None, None, self.dist)
 
     def _load(self, i: int) -> Frame:
         rgb = _downscale(_imread_rgb(self.rgb_paths[i], self.notes), self.scale)
@@ -832,7 +892,7 @@ class VideoSource(FrameSource):
         want = sorted(set(int(i) for i in indices if 0 <= int(i) < len(self)))
         for i in want[:max(0, self._cache_size)]:
             if i not in self._cache:
-                self._remember(i, self._load(i))
+                self._remember(i, self._timed_load(i))
 
     def __del__(self) -> None:
         if getattr(self, "_cap", None) is not None:

@@ -9,9 +9,12 @@ however many pairs are tried.
 """
 from __future__ import annotations
 
+import os
+import time
 from collections import OrderedDict
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, replace
-from typing import Any, ClassVar, Hashable, Mapping, Protocol, runtime_checkable
+from typing import Any, ClassVar, Hashable, Mapping, Protocol, Sequence, runtime_checkable
 
 import numpy as np
 
@@ -139,14 +142,36 @@ def _knn2_from_distances(D: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndar
     return np.stack([j1, j2], 1), np.stack([d1, d2], 1).astype(np.float64), mutual
 
 
+def _integer_exact(a: np.ndarray, b: np.ndarray, aa: np.ndarray, bb: np.ndarray) -> bool:
+    """Whether every squared distance between rows of a and b, and every partial sum on the way, is an integer
+    float32 holds exactly (< 2^24): integer-valued descriptors (OpenCV's SIFT: 0..255) with small norms. Then
+    the order of the additions cannot change a single bit of the distances."""
+    if not (len(aa) and len(bb)):
+        return False
+    bound = (np.sqrt(float(aa.max())) + np.sqrt(float(bb.max()))) ** 2  # >= every |partial sum| (Cauchy-Schwarz)
+    return bound < 2.0 ** 24 and np.array_equal(a, np.rint(a)) and np.array_equal(b, np.rint(b))
+
+
 def _knn2_l2(d0: np.ndarray, d1: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Euclidean two nearest neighbours (one matmul; see `_knn2_from_distances`)."""
+    """Euclidean two nearest neighbours (one matmul; see `_knn2_from_distances`). Integer descriptors (SIFT)
+    get the squared distances |a|^2 + |b|^2 - 2 a.b from ONE matmul of [a, |a|^2, 1] by [-2b, 1, |b|^2]: exact
+    (`_integer_exact`), so bit for bit the distances of the three-pass form, without three passes over the
+    [N, M] matrix."""
     a = np.ascontiguousarray(d0, dtype=np.float32)
     b = np.ascontiguousarray(d1, dtype=np.float32)
+    aa, bb = (a * a).sum(1), (b * b).sum(1)
+    if _integer_exact(a, b, aa, bb):
+        n, dim = a.shape
+        A = np.empty((n, dim + 2), np.float32)
+        A[:, :dim], A[:, dim], A[:, dim + 1] = a, aa, 1.0
+        B = np.empty((len(b), dim + 2), np.float32)
+        B[:, :dim], B[:, dim], B[:, dim + 1] = b * np.float32(-2.0), 1.0, bb
+        idx, dd, mutual = _knn2_from_distances(A @ B.T)  # exact integers >= 0: nothing to clip
+        return idx, np.sqrt(dd), mutual
     D = a @ b.T
     D *= -2.0
-    D += (b * b).sum(1)[None, :]
-    D += (a * a).sum(1)[:, None]  # squared distances, in place (no [N, M] temporaries)
+    D += bb[None, :]
+    D += aa[:, None]  # squared distances, in place (no [N, M] temporaries)
     np.maximum(D, 0.0, out=D)
     idx, dd, mutual = _knn2_from_distances(D)
     return idx, np.sqrt(dd), mutual
@@ -197,33 +222,97 @@ class FeatureMatcher:
         self.name = self.conf.method
         self._cache: OrderedDict[Hashable, Features] = OrderedDict()
         self._cache_size = cache_size
+        # counters the pipeline books as trace stages "features.extract" / "features.match"
         self.extract_seconds = 0.0
+        self.extracts = 0
+        self.match_seconds = 0.0
+        self.matches_done = 0
+        self._pending: dict[Hashable, tuple[Future, np.ndarray]] = {}
+        self._pool: ThreadPoolExecutor | None = None
+
+    def prefetch(self, items: Sequence[tuple[Hashable, np.ndarray]], workers: int = 1) -> None:
+        """Start extracting the features of these (key, rgb) frames on `workers` threads (OpenCV releases the GIL;
+        SIFT itself runs on one core): the caller's next steps run meanwhile, and `features` extracts a frame no
+        worker has started itself, and while it waits for a started one extracts the last queued (so the caller's
+        thread is one more extractor). The features are the same as
+        extracted in turn; `extract_seconds` sums every thread's seconds. One worker by default: each thread
+        extracting at once holds its own image pyramid (2 workers: +80 MB peak RSS)."""
+        todo = [(k, rgb) for k, rgb in items if k is not None and k not in self._cache and k not in self._pending]
+        if not todo:
+            return
+        if self._pool is None:
+            self._pool = ThreadPoolExecutor(max(1, min(int(workers), os.cpu_count() or 1)),
+                                            thread_name_prefix="features")
+        for k, rgb in todo:
+            self._pending[k] = (self._pool.submit(_timed_extract, rgb, self.conf), rgb)
+
+    def _collect(self, key: Hashable, rgb: np.ndarray) -> Features:
+        job, _ = self._pending.pop(key)
+        if job.cancel():  # not started: extract here
+            f, dt = _timed_extract(rgb, self.conf)
+        else:
+            while not job.done() and self._steal():
+                pass
+            f, dt = job.result()
+        self._book(dt)
+        if not self._pending and self._pool is not None:  # idle workers are not kept
+            self._pool.shutdown(wait=False)
+            self._pool = None
+        return f
+
+    def _steal(self) -> bool:
+        """Extract the last queued frame no worker has started on this thread; False when there is none."""
+        for k in reversed(list(self._pending)):
+            job, rgb = self._pending[k]
+            if job.cancel():
+                del self._pending[k]
+                f, dt = _timed_extract(rgb, self.conf)
+                self._book(dt)
+                self._remember(k, f)
+                return True
+        return False
+
+    def _book(self, dt: float) -> None:
+        self.extract_seconds += dt
+        self.extracts += 1
+
+    def _remember(self, key: Hashable, f: Features) -> None:
+        self._cache[key] = f
+        while len(self._cache) > self._cache_size:
+            self._cache.popitem(last=False)
 
     def features(self, key: Hashable | None, rgb: np.ndarray) -> Features:
-        import time
-
         if key is not None and key in self._cache:
             self._cache.move_to_end(key)
             return self._cache[key]
-        t0 = time.perf_counter()
-        f = extract_features(rgb, self.conf)
-        self.extract_seconds += time.perf_counter() - t0
+        if key is not None and key in self._pending:
+            f = self._collect(key, rgb)
+        else:
+            f, dt = _timed_extract(rgb, self.conf)
+            self._book(dt)
         if key is not None:
-            self._cache[key] = f
-            while len(self._cache) > self._cache_size:
-                self._cache.popitem(last=False)
+            self._remember(key, f)
         return f
 
     def match_keys(self, k0: Hashable, rgb0: np.ndarray, k1: Hashable, rgb1: np.ndarray,
                    boxes0: np.ndarray | None = None, boxes1: np.ndarray | None = None) -> Matches:
         f0, f1 = self.features(k0, rgb0), self.features(k1, rgb1)
         m = self.conf.box_margin
-        return match_descriptors(f0, f1, self.conf, in_boxes(f0.uv, boxes0, m) if boxes0 is not None else None,
-                                 in_boxes(f1.uv, boxes1, m) if boxes1 is not None else None)
+        t0 = time.perf_counter()
+        out = match_descriptors(f0, f1, self.conf, in_boxes(f0.uv, boxes0, m) if boxes0 is not None else None,
+                                in_boxes(f1.uv, boxes1, m) if boxes1 is not None else None)
+        self.match_seconds += time.perf_counter() - t0
+        self.matches_done += 1
+        return out
 
     def match(self, rgb0: np.ndarray, rgb1: np.ndarray, boxes0: np.ndarray | None = None,
               boxes1: np.ndarray | None = None) -> Matches:
         return self.match_keys(None, rgb0, None, rgb1, boxes0, boxes1)
+
+
+def _timed_extract(rgb: np.ndarray, conf: MatchConf) -> tuple[Features, float]:
+    t0 = time.perf_counter()
+    return extract_features(rgb, conf), time.perf_counter() - t0
 
 
 def match_features(rgb0: np.ndarray, rgb1: np.ndarray, boxes0: np.ndarray | None = None,

@@ -214,6 +214,11 @@ def _count_reasons(dropped: Any) -> dict[str, int]:
     return out
 
 
+def _colour(source: FrameSource, i: int) -> Frame:
+    """Frame i as a colour-only reader needs it (`FrameSource.colour`; a plain sequence of frames: the frame)."""
+    return source.colour(i) if hasattr(source, "colour") else source[i]
+
+
 class _CachedDetector:
     """Detections per (frame, names): the search and the map reuse the same detector calls."""
 
@@ -225,8 +230,8 @@ class _CachedDetector:
     def __call__(self, index: int, names: list[str]) -> Detections:
         key = (int(index), tuple(names))
         if key not in self.cache:
-            with self.trace.stage("detect"):
-                self.cache[key] = self.fn(self.source[int(index)], list(names))
+            with self.trace.stage("detect"):  # detection reads colour only: no depth decoded for it
+                self.cache[key] = self.fn(_colour(self.source, int(index)), list(names))
             if self.on_call is not None:
                 self.on_call()
         return self.cache[key]
@@ -266,7 +271,7 @@ def select(source: FrameSource, targets: Sequence[str], cues: Sequence[str], per
     with _stage(budget, trace, "keyframes"), phase("keyframes", kc.get("budget", K), "frame") as bar:
         det.on_call = bar.update  # one tick per frame scored
         res = select_keyframes(conf.keyframe_method, cands, list(targets), list(cues), det,
-                               lambda i: source[int(i)].rgb, kconf, trace,
+                               lambda i: _colour(source, int(i)).rgb, kconf, trace,
                                prefetch=getattr(source, "prefetch", None), image_size=tuple(source.size))
         det.on_call = None
         bar.note(keyframes=len(res.chosen))
@@ -423,12 +428,14 @@ def _align(frames: list[Frame], dets: dict[int, Detections], source: FrameSource
            conf: PipelineConfig, trace: Trace, budget: Any) -> tuple[Any, Any]:
     """Alignment of the key frames (`alignment.align_keyframes`). Returns (alignment, the matcher: its feature
     cache serves refinement too)."""
+    matcher = make_matcher(perception.matcher, conf.match)  # one matcher: features cached across the rounds
+    if hasattr(matcher, "prefetch"):  # every key frame is matched: extract on worker threads while embedding
+        matcher.prefetch([(f.index, f.rgb) for f in frames])
     emb = None
     if perception.embed is not None:
         with trace.stage("embed"):
             emb = np.stack([perception.embed(f.rgb) for f in frames])
     boxes = {f.index: _align_boxes(f, dets[f.index], perception, trace) for f in frames}
-    matcher = make_matcher(perception.matcher, conf.match)  # one matcher: features cached across the rounds
     if budget is not None:  # one plan stage from matching to refinement (fusion is an alias of alignment)
         budget.start_stage("alignment")
     bar = start("alignment", unit="round")
@@ -524,6 +531,17 @@ def _map_extras(instances: list[ObjectInstance], frames: list[Frame], poses: dic
     return room, cams
 
 
+def _book_counters(trace: Trace, source: FrameSource, loaded0: tuple[float, int], matcher: Any) -> None:
+    """Work that happens inside other stages, booked as stages of its own (seconds and calls, overlapping the
+    stages it ran in): frame decoding ("frames.load", cache misses), OpenCV feature extraction and descriptor
+    matching ("features.extract", "features.match"; a bundle matcher books "matcher.*" itself)."""
+    trace.add_time("frames.load", getattr(source, "load_seconds", 0.0) - loaded0[0],
+                   getattr(source, "loads", 0) - loaded0[1])
+    if hasattr(matcher, "extracts"):
+        trace.add_time("features.extract", matcher.extract_seconds, matcher.extracts)
+        trace.add_time("features.match", matcher.match_seconds, matcher.matches_done)
+
+
 def _start_build(source: FrameSource, targets: Sequence[str], cues: Sequence[str], perception: Perception,
                  conf: PipelineConfig, trace: Trace, keyframes: int | None, budget: Any
                  ) -> tuple[list[str], Perception, int]:
@@ -557,6 +575,7 @@ def build_map(source: FrameSource, targets: Sequence[str], cues: Sequence[str] =
         raise InputError("build_map needs a Perception (bundle models or the synthetic oracle)")
     conf = conf if isinstance(conf, PipelineConfig) else PipelineConfig.merged(conf)
     trace = trace if trace is not None else Trace()
+    loaded0 = (getattr(source, "load_seconds", 0.0), getattr(source, "loads", 0))
     names, perception, K = _start_build(source, targets, cues, perception, conf, trace, keyframes, budget)
     chosen, det, _, _cands = select(source, targets, cues, perception, conf, trace, keyframes=K, budget=budget)
     frames, dets = _perceive(source, chosen, det, names, perception, conf, trace, budget)
@@ -573,6 +592,7 @@ def build_map(source: FrameSource, targets: Sequence[str], cues: Sequence[str] =
         budget.end_stage("alignment")
     _record_instances(instances, names, recovered, trace)
     room, cams = _map_extras(instances, frames, poses, det, names, source, perception, conf, fconf, trace)
+    _book_counters(trace, source, loaded0, matcher)
     smap = SemanticMap(instances, room, cams,
                        {"source": getattr(source, "name", "frames"), "built_from": "video", "keyframes": chosen,
                         "root": al.root, "unaligned": al.unaligned, "objects": names, "recovered": recovered})

@@ -58,6 +58,9 @@ class StageRecord:
     name: str
     seconds: float = 0.0
     calls: int = 0
+    # CPU seconds of the whole process (every thread) while the stage ran: on a shared machine the wall time
+    # carries other jobs' load, this much less
+    cpu_seconds: float = 0.0
     rss_before_mb: float = 0.0
     rss_peak_mb: float = 0.0
     provider: str | None = None
@@ -66,6 +69,7 @@ class StageRecord:
         return {
             "seconds": round(self.seconds, 6),
             "calls": self.calls,
+            "cpu_seconds": round(self.cpu_seconds, 6),
             "rss_before_mb": round(self.rss_before_mb, 1),
             "rss_peak_mb": round(self.rss_peak_mb, 1),
             "provider": self.provider,
@@ -82,6 +86,7 @@ class Trace:
     providers: dict[str, dict[str, Any]] = field(default_factory=dict)
     random_weights_used: list[str] = field(default_factory=list)
     started: float = field(default_factory=time.time)
+    started_cpu: float = field(default_factory=time.process_time)
 
     @contextmanager
     def stage(self, name: str) -> Iterator[StageRecord]:
@@ -90,13 +95,22 @@ class Trace:
         before = rss_mb()
         if rec.calls == 0:
             rec.rss_before_mb = before
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         try:
             yield rec
         finally:
             rec.seconds += time.perf_counter() - t0
+            rec.cpu_seconds += time.process_time() - c0
             rec.calls += 1
             rec.rss_peak_mb = max(rec.rss_peak_mb, before, rss_mb())
+
+    def add_time(self, name: str, seconds: float, calls: int = 1) -> StageRecord:
+        """Book `seconds` over `calls` to stage `name` without timing a block (counters kept elsewhere: frame
+        decoding, feature extraction, an adapter's own overhead); no RSS sampling (cheap per call)."""
+        rec = self.stages.setdefault(name, StageRecord(name))
+        rec.seconds += float(seconds)
+        rec.calls += int(calls)
+        return rec
 
     def event(self, kind: str, message: str, *, warn: bool = False, **data: Any) -> None:
         """Record something the user must be able to see afterwards (fallback, degradation, warning)."""
@@ -120,6 +134,7 @@ class Trace:
         return {
             "schema": TRACE_SCHEMA,
             "wall_seconds": round(time.time() - self.started, 4),
+            "cpu_seconds": round(time.process_time() - self.started_cpu, 4),
             "peak_rss_mb": round(max([r.rss_peak_mb for r in self.stages.values()] + [rss_mb()]), 1),
             "stages": {k: v.to_dict() for k, v in self.stages.items()},
             "providers": self.providers,
@@ -177,6 +192,9 @@ class NullTrace(Trace):
 
     def decide(self, key: str, value: Any) -> None:
         return None
+
+    def add_time(self, name: str, seconds: float, calls: int = 1) -> StageRecord:
+        return StageRecord(name)
 
 
 def as_trace(trace: Trace | None) -> Trace:

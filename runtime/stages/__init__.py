@@ -19,8 +19,11 @@ created sessions.
 """
 from __future__ import annotations
 
+import hashlib
 import importlib
 import os
+import time
+from collections import OrderedDict
 from contextlib import contextmanager
 from typing import Any, Iterator, Sequence
 
@@ -88,6 +91,28 @@ class RoleModel:
         with self.trace.stage(name) as rec:
             rec.provider = getattr(self.session(component), "provider", None)
             yield rec
+
+    @contextmanager
+    def _overhead(self, *model_stages: str) -> Iterator[None]:
+        """Times one adapter call and books what is not a graph run (the seconds `model_stages` gained inside it:
+        pre- and post-processing, cache look-ups) as stage `<role>.overhead` (role: the first model stage's
+        prefix), next to the model's own stages: the trace shows the adapter's cost beside the model's."""
+        if getattr(self, "_in_call", False):  # a nested adapter call (predict inside predict_metric): the outer books
+            yield
+            return
+        st = self.trace.stages
+
+        def inner() -> float:
+            return sum(st[n].seconds for n in model_stages if n in st)
+
+        inner0, t0 = inner(), time.perf_counter()
+        self._in_call = True
+        try:
+            yield
+        finally:
+            self._in_call = False
+            total = time.perf_counter() - t0
+            self.trace.add_time(f"{model_stages[0].split('.')[0]}.overhead", max(0.0, total - (inner() - inner0)))
 
     def providers_used(self) -> dict[str, str | None]:
         return {c: getattr(s, "provider", None) for c, s in self.sessions.items()}
@@ -175,6 +200,44 @@ def check_image_input(spec: RoleSpec, cname: str, sess: Any) -> None:
     if got is not None and got != want:
         raise BundleError(f"{w}.dtype is {want!r} but the graph {name} input "
                           f"{inp.name!r} takes {got}; fix preprocessing.dtype or re-export the role")
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Per-image result cache (one home for the adapters' "same frame, same answer")
+
+
+class ImageLRU:
+    """Results keyed by an image's full content (shape, dtype, every byte), least recently used dropped past
+    `size` images: a frame shown to a model twice (the key-frame search detects it, alignment wants its boxes of
+    every label; refinement asks one class mask per object) runs the model once. The key is a 128-bit BLAKE2
+    digest of the bytes (~1 ms for 640x480): any changed pixel is a new key. `hits` counts the runs saved."""
+
+    def __init__(self, size: int):
+        self.size = int(size)
+        self._d: OrderedDict[bytes, Any] = OrderedDict()
+        self.hits = 0
+
+    @staticmethod
+    def key(rgb: np.ndarray) -> bytes:
+        a = np.ascontiguousarray(rgb)
+        h = hashlib.blake2b(f"{a.shape}{a.dtype.str}".encode(), digest_size=16)
+        h.update(a.data)
+        return h.digest()
+
+    def get(self, key: bytes) -> Any:
+        """The cached value or None."""
+        if key not in self._d:
+            return None
+        self._d.move_to_end(key)
+        self.hits += 1
+        return self._d[key]
+
+    def put(self, key: bytes, value: Any) -> Any:
+        if self.size > 0:
+            self._d[key] = value
+            while len(self._d) > self.size:
+                self._d.popitem(last=False)
+        return value
 
 
 # ---------------------------------------------------------------------------------------------------------------

@@ -200,6 +200,10 @@ class DepthModel(RoleModel):
 
     def predict(self, rgb: np.ndarray) -> np.ndarray:
         """rgb [H, W, 3] uint8 -> [H, W] float32 in `.semantics` units (bilinear resize to the input size)."""
+        with self._overhead("depth.model"):
+            return self._predict(rgb)
+
+    def _predict(self, rgb: np.ndarray) -> np.ndarray:
         import cv2
 
         d = self.predict_raw(rgb)
@@ -213,6 +217,11 @@ class DepthModel(RoleModel):
                        prior_median_m: float = 2.0) -> tuple[np.ndarray, ScaleShift | None]:
         """Metric depth [H, W] float32: as-is for metric models, else fitted to `sensor` when given, else the
         median prior (recorded in the trace as a "degraded" event because its scale is only a guess)."""
+        with self._overhead("depth.model"):
+            return self._predict_metric(rgb, sensor, prior_median_m)
+
+    def _predict_metric(self, rgb: np.ndarray, sensor: np.ndarray | None, prior_median_m: float
+                        ) -> tuple[np.ndarray, ScaleShift | None]:
         pred = self.predict(rgb)
         if self.semantics == "metric_m":
             return pred, None

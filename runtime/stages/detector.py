@@ -13,7 +13,7 @@ from typing import Sequence
 import numpy as np
 
 from ..perception import Detections
-from . import RoleModel, preprocess_image
+from . import ImageLRU, RoleModel, preprocess_image
 
 # question name -> candidate labels (the first one present in the model's label list is used; several may be).
 SYNONYMS: dict[str, list[str]] = {
@@ -110,9 +110,22 @@ class ClosedSetDetector(RoleModel):
         self.labels: list[str] = list(spec.semantics["labels"])
         self.vocabulary = "closed"
         self._input = self.session().input_names[0]
+        # the search detects a frame with the question's names, alignment again with every label: one graph run
+        self._raw = ImageLRU(32)
 
     def raw(self, rgb: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """All detections above the threshold: boxes [N, 4] pixels x0 y0 x1 y1, class ids [N], scores [N]."""
+        """All detections above the threshold: boxes [N, 4] pixels x0 y0 x1 y1, class ids [N], scores [N]
+        (read-only arrays, shared by every call on the same image)."""
+        key = ImageLRU.key(rgb)
+        hit = self._raw.get(key)
+        if hit is not None:
+            return hit
+        out = self._run(rgb)
+        for a in out:
+            a.setflags(write=False)
+        return self._raw.put(key, out)
+
+    def _run(self, rgb: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         H, W = rgb.shape[:2]
         x = preprocess_image(rgb, self.spec.preprocessing)
         with self._stage("detector"):
@@ -126,6 +139,10 @@ class ClosedSetDetector(RoleModel):
 
     def detect(self, rgb: np.ndarray, names: Sequence[str]) -> Detections:
         """rgb [H, W, 3] uint8, names: the question's object names -> Detections in those names."""
+        with self._overhead("detector"):
+            return self._detect(rgb, names)
+
+    def _detect(self, rgb: np.ndarray, names: Sequence[str]) -> Detections:
         mapping, missing = map_names(names, self.labels)
         if missing and not getattr(self, "_warned", set()) >= set(missing):
             self._warned = getattr(self, "_warned", set()) | set(missing)

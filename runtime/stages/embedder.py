@@ -27,6 +27,10 @@ class Embedder(RoleModel):
 
     def embed(self, rgb: np.ndarray) -> np.ndarray:
         """rgb [H, W, 3] uint8 -> [D] float32 with unit L2 norm (all-zero features stay zero)."""
+        with self._overhead("embedder"):
+            return self._embed(rgb)
+
+    def _embed(self, rgb: np.ndarray) -> np.ndarray:
         x = preprocess_image(rgb, self.spec.preprocessing)
         with self._stage("embedder"):
             out = self.session().run({self._input: x})[self.output_index]

@@ -90,9 +90,13 @@ class TwoStageMatcher(RoleModel):
 
     role = "matcher"
     cache_size = 64
+    pair_cache_size = 128
 
     def __init__(self, spec, sessions, trace):
         super().__init__(spec, sessions, trace)
+        # whole-image matches per keyed pair: boxes only filter them afterwards (`_restrict`), so the box round
+        # and the whole-image round of alignment (and the tree's re-verifications) share one matcher run per pair
+        self._pairs: OrderedDict[Any, Matches] = OrderedDict()
         self._ext = self.session("extractor")
         self._mat = self.session("matcher")
         self._ext_in = self._ext.input_names[0]
@@ -106,6 +110,10 @@ class TwoStageMatcher(RoleModel):
     def features(self, rgb: np.ndarray, key: Any = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """rgb [H, W, 3] uint8 -> (kpts [K, 2] model-input pixels, kpt_scores [K], desc [K, D]), cached by
         `key` (default: a hash of the image bytes)."""
+        with self._overhead("matcher.extract", "matcher.match"):
+            return self._features(rgb, key)
+
+    def _features(self, rgb: np.ndarray, key: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         if key is None:
             key = (rgb.shape, hash(rgb[::4, ::4].tobytes()))
         if key in self._cache:
@@ -131,6 +139,26 @@ class TwoStageMatcher(RoleModel):
     def match(self, rgb0: np.ndarray, rgb1: np.ndarray, boxes0: np.ndarray | None = None,
               boxes1: np.ndarray | None = None, key0: Any = None, key1: Any = None) -> Matches:
         """rgb0, rgb1: [H, W, 3] uint8 -> Matches in original-image pixels (key0/key1: optional cache keys)."""
+        with self._overhead("matcher.extract", "matcher.match"):
+            return self._match(rgb0, rgb1, boxes0, boxes1, key0, key1)
+
+    def _match(self, rgb0: np.ndarray, rgb1: np.ndarray, boxes0: np.ndarray | None, boxes1: np.ndarray | None,
+               key0: Any, key1: Any) -> Matches:
+        pk = None if key0 is None or key1 is None else (key0, key1, rgb0.shape, rgb1.shape)
+        m = self._pairs.get(pk) if pk is not None else None
+        if m is None:
+            m = self._match_whole(rgb0, rgb1, key0, key1)
+            if pk is not None:
+                for a in (m.uv0, m.uv1, m.scores):
+                    a.setflags(write=False)  # shared by every later call on the pair
+                self._pairs[pk] = m
+                while len(self._pairs) > self.pair_cache_size:
+                    self._pairs.popitem(last=False)
+        else:
+            self._pairs.move_to_end(pk)
+        return _restrict(m, boxes0, boxes1)
+
+    def _match_whole(self, rgb0: np.ndarray, rgb1: np.ndarray, key0: Any, key1: Any) -> Matches:
         k0, s0, d0 = self.features(rgb0, key0)
         k1, s1, d1 = self.features(rgb1, key1)
         hw = _model_size(self.spec) or rgb0.shape[:2]
@@ -147,6 +175,5 @@ class TwoStageMatcher(RoleModel):
         m0 = np.asarray(m0).reshape(-1).astype(np.int64)
         sc = np.asarray(sc, np.float32).reshape(-1)
         ok = (m0 >= 0) & (sc > 0)
-        m = Matches(_rescale(k0[ok], hw, rgb0.shape[:2]), _rescale(k1[m0[ok]], hw, rgb1.shape[:2]),
-                    np.clip(sc[ok], 0.0, 1.0))
-        return _restrict(m, boxes0, boxes1)
+        return Matches(_rescale(k0[ok], hw, rgb0.shape[:2]), _rescale(k1[m0[ok]], hw, rgb1.shape[:2]),
+                       np.clip(sc[ok], 0.0, 1.0))

@@ -1,8 +1,8 @@
 """Segmenter adapters: boxes (and, for promptable models, points) -> masks.
 
 `SemanticSegmenter` wraps a per-pixel classifier (DeepLabv3 on PASCAL VOC here). It runs once per frame
-(cached for the last image) and answers `segment(rgb, boxes, names)` with, for each box, the pixels inside the
-box whose class is the name's class (through the same synonym table as the detector). It IGNORES point prompts
+(class maps of the last 16 images cached: refinement asks one class mask per object and frame) and answers
+`segment(rgb, boxes, names)` with, for each box, the pixels inside the box whose class is the name's class (through the same synonym table as the detector). It IGNORES point prompts
 (a `points` argument is accepted for interface compatibility and recorded once in the trace as "degraded"):
 refinement with it can only intersect boxes with class pixels; it cannot split two touching instances of one
 class nor segment classes outside its label list (those boxes get an empty mask and the name is reported).
@@ -15,7 +15,7 @@ from typing import Sequence
 
 import numpy as np
 
-from . import RoleModel, preprocess_image
+from . import ImageLRU, RoleModel, preprocess_image
 from .detector import map_names
 
 
@@ -30,38 +30,50 @@ class SemanticSegmenter(RoleModel):
         self.kind = "semantic"
         self.logits_layout = spec.config.get("logits_layout", "NHWC")
         self._input = self.session().input_names[0]
-        self._cache: tuple[int, np.ndarray] | None = None
+        # refinement visits objects, then their frames: a one-image cache re-ran the graph on every switch
+        self._cache = ImageLRU(16)
         self.undetectable: list[str] = []
 
     def classes(self, rgb: np.ndarray) -> np.ndarray:
-        """rgb [H, W, 3] uint8 -> class id per pixel [H, W] int32 (logits resized to the image, then argmax)."""
+        """rgb [H, W, 3] uint8 -> class id per pixel [H, W] int32 (logits resized to the image, then argmax;
+        read-only, shared by every call on the same image)."""
+        key = ImageLRU.key(rgb)
+        hit = self._cache.get(key)
+        if hit is not None:
+            return hit
+        lab = self._run(rgb)
+        lab.setflags(write=False)
+        return self._cache.put(key, lab)
+
+    def _run(self, rgb: np.ndarray) -> np.ndarray:
         import cv2
 
-        key = hash((rgb.shape, rgb[::16, ::16].tobytes()))
-        if self._cache is not None and self._cache[0] == key:
-            return self._cache[1]
         x = preprocess_image(rgb, self.spec.preprocessing)
         with self._stage("segmenter"):
             logits = self.session().run({self._input: x})[0][0]
         if self.logits_layout == "NCHW":
             logits = logits.transpose(1, 2, 0)
         lab = logits.argmax(-1).astype(np.uint8)
-        lab = cv2.resize(lab, (rgb.shape[1], rgb.shape[0]), interpolation=cv2.INTER_NEAREST).astype(np.int32)
-        self._cache = (key, lab)
-        return lab
+        return cv2.resize(lab, (rgb.shape[1], rgb.shape[0]), interpolation=cv2.INTER_NEAREST).astype(np.int32)
 
     def class_mask(self, rgb: np.ndarray, name: str) -> np.ndarray | None:
         """[H, W] bool pixels of `name`'s class (None when the label list has no such class)."""
-        mapping, missing = map_names([name], self.labels)
-        if missing:
-            return None
-        return np.isin(self.classes(rgb), mapping[name])
+        with self._overhead("segmenter"):
+            mapping, missing = map_names([name], self.labels)
+            if missing:
+                return None
+            return np.isin(self.classes(rgb), mapping[name])
 
     def segment(self, rgb: np.ndarray, boxes: np.ndarray | None, names: Sequence[str],
                 points: np.ndarray | None = None) -> np.ndarray:
         """boxes [N, 4] x0 y0 x1 y1 (None = whole image per name), names: N names -> masks [N, H, W] bool.
         `points` are ignored (semantic model). Names outside the label list get empty masks and are listed in
         `.undetectable` after the call."""
+        with self._overhead("segmenter"):
+            return self._segment(rgb, boxes, names, points)
+
+    def _segment(self, rgb: np.ndarray, boxes: np.ndarray | None, names: Sequence[str],
+                 points: np.ndarray | None) -> np.ndarray:
         H, W = rgb.shape[:2]
         if points is not None and not getattr(self, "_points_noted", False):
             self._points_noted = True

@@ -1,0 +1,82 @@
+"""Issue 13: the alignment notes are a history, the printed answer a state. A key frame the first (box-matched)
+round leaves out and a later step aligns must not be printed as unaligned; the answer gets one final count, the
+trace the final state of every key frame (`alignment.frames`, `AlignmentResult.fates`). Real 7-Scenes frames,
+sensor depth, SIFT: nothing here is mocked."""
+from __future__ import annotations
+
+import numpy as np
+
+from mosaicthinker.runtime.commands.ask import WARNING_KINDS
+
+
+def _align(src, idx, boxes, **conf):
+    from mosaicthinker.runtime.alignment import align_keyframes
+    from mosaicthinker.runtime.matching import make_matcher
+    from mosaicthinker.runtime.pipeline import PipelineConfig
+    from mosaicthinker.runtime.trace import Trace
+
+    frames = [src[i] for i in idx]
+    t = Trace()
+    al, _ = align_keyframes(frames, make_matcher("sift"), boxes, None, src, lambda f: f, False,
+                            PipelineConfig.merged(conf), t)
+    return al, t
+
+
+def _printed(t) -> list[str]:
+    """The notes `mosaic ask` prints under the answer (its own filter)."""
+    return [e["message"] for e in t.events if e["kind"] in WARNING_KINDS]
+
+
+def test_a_frame_aligned_by_a_later_step_is_not_printed_as_unaligned(redkitchen):
+    from mosaicthinker.runtime.frames import open_source
+
+    src = open_source(redkitchen)
+    empty = np.zeros((0, 4), np.float32)  # no box: no match inside boxes, the first round cannot place them
+    al, t = _align(src, [50, 53, 56], {50: None, 53: empty, 56: empty}, bridge_frames=0)
+    history = [e["message"] for e in t.events if e.get("stage") == "alignment"]
+    assert any("first round: 2 of 3 frames could not be aligned" in m for m in history)  # the history is kept
+    assert sorted(al.poses) == [50, 53, 56] and al.unaligned == []
+    # the root (the frame most similar to the others) is the first round's whole tree: no pair had matches
+    want = {i: "box-matched tree" if i == al.root else "whole-image edge" for i in (50, 53, 56)}
+    assert al.fates == want
+    assert t.decisions["alignment.frames"] == {str(i): f for i, f in want.items()}
+    notes = _printed(t)
+    assert not any("could not be aligned" in m or "unaligned" in m for m in notes), notes
+    final = [e for e in t.events if e["message"].startswith("alignment: ")]
+    assert len(final) == 1 and final[0]["kind"] == "alignment"
+    assert final[0]["message"] == "alignment: 3 of 3 key frames aligned (1 box-matched tree, 2 whole-image edge)"
+
+
+def test_frames_left_out_are_counted_once_with_their_final_state(redkitchen):
+    from mosaicthinker.runtime.frames import open_source
+
+    src = open_source(redkitchen)
+    empty = np.zeros((0, 4), np.float32)
+    # 200 is far from 50-53 in the video and bridging is off: whole-image edges to 50/53 are all it gets
+    al, t = _align(src, [50, 53, 200], {50: None, 53: empty, 200: empty}, bridge_frames=0)
+    assert al.fates == {al.root: "box-matched tree", ({50, 53} - {al.root}).pop(): "whole-image edge",
+                        200: "unaligned"}
+    assert al.unaligned == [200] and 200 not in al.poses
+    notes = [m for m in _printed(t) if "align" in m]
+    assert notes == ["alignment: 2 of 3 key frames aligned (1 box-matched tree, 1 whole-image edge); 1 unaligned, "
+                     "left out of the map: [200]"]
+    assert t.decisions["alignment.frames"]["200"] == "unaligned"
+
+
+def test_fates_follow_pose_changes_step_by_step():
+    """`Fates.after`: a step that gives a frame a (new) pose names it; a step that keeps the pose object keeps
+    the name; a frame that loses its pose is unaligned."""
+    from mosaicthinker.runtime.alignment import AlignmentResult, Fates
+
+    I = np.eye(4)
+    al = AlignmentResult({0: I, 1: I.copy()}, 0, [(0, 1)], [2], "mst")
+    f = Fates([0, 1, 2])
+    f.after(al, "box-matched tree")
+    assert f.how == {0: "box-matched tree", 1: "box-matched tree", 2: "unaligned"}
+    al.poses = {0: al.poses[0], 2: I.copy()}  # 1 detached, 2 attached; 0 untouched
+    f.after(al, "whole-image edge")
+    assert f.how == {0: "box-matched tree", 1: "unaligned", 2: "whole-image edge"}
+    assert f.summary() == "2 of 3 key frames aligned (1 box-matched tree, 1 whole-image edge)"
+    al.poses[1] = I.copy()
+    f.after(al, "through bridge frames")
+    assert f.how[1] == "through bridge frames" and f.how[2] == "whole-image edge"
