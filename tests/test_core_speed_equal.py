@@ -184,3 +184,64 @@ def test_essential_tree_edges_refined_others_not(monkeypatch):
     res = align_frames(frames, _OracleMatcher(scene), "mst", embeddings=_emb(6), conf=AlignConf(edge="essential"),
                        with_scale=True)
     assert len(res.aligned) == 6 and len(refined) == len(res.edges) == 5 < len(res.edge_stats)
+
+
+def _same_alignment(a, b):
+    """Two AlignmentResults exactly equal: tree, root, poses, every pair's inliers / transform / scales."""
+    assert a.root == b.root and a.edges == b.edges and a.unaligned == b.unaligned and a.guessed == b.guessed
+    assert sorted(a.poses) == sorted(b.poses)
+    assert all(np.array_equal(a.poses[k], b.poses[k]) for k in a.poses)
+    assert list(a.edge_stats) == list(b.edge_stats)  # same pairs, recorded in the same order
+    for k, r in a.edge_stats.items():
+        s = b.edge_stats[k]
+        assert (r.ok, r.n_matches, r.n_valid, r.n_inliers, r.reason) == (s.ok, s.n_matches, s.n_valid, s.n_inliers,
+                                                                          s.reason)
+        assert np.array_equal(r.T_ab, s.T_ab) and np.array_equal([r.scale_a, r.scale_b], [s.scale_a, s.scale_b],
+                                                                 equal_nan=True)
+
+
+@pytest.mark.parametrize("edge", ["rgbd", "essential"])
+def test_threads_give_identical_alignment_synthetic(edge):
+    frames, scene, _ = _synthetic(8)
+    runs = [align_frames(frames, _OracleMatcher(scene, isolated=6), s, embeddings=_emb(8),
+                         conf=AlignConf(edge=edge, threads=t), with_scale=edge == "essential")
+            for s in ("mst", "sequential") for t in (1, 4, 4)]
+    for a, b in ((0, 1), (0, 2), (3, 4), (3, 5)):  # 1 vs 4 threads, and a repeat run
+        _same_alignment(runs[a], runs[b])
+    assert len(runs[0].edge_stats) > len(runs[0].edges) and runs[0].unaligned == [16]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("with_scale", [False, True])
+def test_threads_give_identical_alignment_and_map_7scenes(redkitchen, with_scale):
+    """Real frames (SIFT, K = 12): 1 thread vs 2 and 3 threads vs a repeat run, rgbd edges on sensor depth and
+    essential edges (depth as relative): the same pairs, inliers, transforms, poses; fusion on them the same."""
+    from mosaicthinker.host.evaluation.pose import pick_frames
+    from mosaicthinker.runtime.matching import FeatureMatcher
+
+    src = open_source(redkitchen)
+    frames = [src[i] for i in pick_frames(len(src), 12, "uniform")]
+    fm = FeatureMatcher("sift", cache_size=64)
+    runs = [align_frames(frames, fm, "mst", conf=AlignConf(threads=t), with_scale=with_scale) for t in (1, 2, 3, 3)]
+    assert len(runs[0].aligned) >= 10 and len(runs[0].edge_stats) >= 20
+    for r in runs[1:]:
+        _same_alignment(runs[0], r)
+    conf = sm.FusionConfig()
+    maps = []
+    for r in runs[:2]:
+        obs = []
+        for f in frames:
+            if f.index in r.poses:
+                H, W = f.depth.shape
+                obs += sm.lift_observations(f.depth.shape, f.depth, f.K, r.poses[f.index],
+                                            np.array([[0, 0, W // 2, H // 2], [W // 2, H // 2, W, H]], float),
+                                            ["a", "b"], np.array([0.9, 0.8]), None, f.index, f.t, conf)
+        maps.append(sm.fuse_observations(obs, conf)[0])
+    assert len(maps[0]) == len(maps[1]) > 0
+    assert all(x.name == y.name and np.array_equal(x.center, y.center) for x, y in zip(*maps))
+
+
+def test_threads_config_checked():
+    frames, scene, _ = _synthetic(3)
+    with pytest.raises(Exception, match="threads"):
+        align_frames(frames, _OracleMatcher(scene), "mst", conf={"threads": -1})
