@@ -32,7 +32,6 @@ keeps the previous pose (those frames are listed in `guessed`).
 """
 from __future__ import annotations
 
-import os
 import time
 from collections import deque
 from concurrent.futures import ThreadPoolExecutor
@@ -44,7 +43,7 @@ import numpy as np
 from .config import StageConf
 from .errors import AlignmentError, InputError
 from .geometry import (backproject_pixels, icp_point_to_plane, ransac_transform, rotation_angle_deg, sample_depth,
-                       transform, transform_scale, umeyama)
+                       transform, transform_scale, umeyama, worker_threads)
 from .matching import KeyedMatcher, Matches, make_matcher
 from .trace import as_trace
 
@@ -732,7 +731,7 @@ class _PairVerifier:
         self.stats: dict[tuple[int, int], PairResult] = {}
         self.Tpair: dict[tuple[int, int], np.ndarray] = {}
         self.secs = {"match": 0.0, "ransac": 0.0}
-        self.threads = conf.threads if conf.threads > 0 else min(4, os.cpu_count() or 1)
+        self.threads = worker_threads(conf.threads)
         self._ready: dict[tuple[int, int], tuple[PairResult, EssentialPose | None]] = {}  # `prefetch`ed results
         self._ready_refine: dict[tuple[int, int], PairResult] = {}
         self.ok_cache: dict[tuple[int, int], bool] = {}

@@ -213,7 +213,7 @@ def test_threads_give_identical_alignment_synthetic(edge):
 
 @pytest.mark.slow
 @pytest.mark.parametrize("with_scale", [False, True])
-def test_threads_give_identical_alignment_and_map_7scenes(redkitchen, with_scale):
+def test_threads_give_identical_alignment_and_map_7scenes(redkitchen, with_scale, monkeypatch):
     """Real frames (SIFT, K = 12): 1 thread vs 2 and 3 threads vs a repeat run, rgbd edges on sensor depth and
     essential edges (depth as relative): the same pairs, inliers, transforms, poses; fusion on them the same."""
     from mosaicthinker.host.evaluation.pose import pick_frames
@@ -226,19 +226,23 @@ def test_threads_give_identical_alignment_and_map_7scenes(redkitchen, with_scale
     assert len(runs[0].aligned) >= 10 and len(runs[0].edge_stats) >= 20
     for r in runs[1:]:
         _same_alignment(runs[0], r)
-    conf = sm.FusionConfig()
-    maps = []
-    for r in runs[:2]:
-        obs = []
-        for f in frames:
-            if f.index in r.poses:
-                H, W = f.depth.shape
-                obs += sm.lift_observations(f.depth.shape, f.depth, f.K, r.poses[f.index],
-                                            np.array([[0, 0, W // 2, H // 2], [W // 2, H // 2, W, H]], float),
-                                            ["a", "b"], np.array([0.9, 0.8]), None, f.index, f.t, conf)
-        maps.append(sm.fuse_observations(obs, conf)[0])
-    assert len(maps[0]) == len(maps[1]) > 0
-    assert all(x.name == y.name and np.array_equal(x.center, y.center) for x, y in zip(*maps))
+    maps = [_fused(frames, r.poses, t, monkeypatch) for r, t in ((runs[0], 1), (runs[1], 3), (runs[2], 3))]
+    for m in maps[1:]:  # the map on 1 thread vs 3 (alignment and the pipeline's per-frame lifting), repeated
+        assert len(m) == len(maps[0]) > 0
+        assert all(x.name == y.name and np.array_equal(x.center, y.center)
+                   and np.array_equal(x.box.axes_lengths, y.box.axes_lengths) for x, y in zip(maps[0], m))
+
+
+def _fused(frames, poses, threads, monkeypatch):
+    """The pipeline's fusion step (lifting per frame on `threads` threads) with two box detections per frame."""
+    from mosaicthinker.runtime import pipeline
+    from mosaicthinker.runtime.perception import Detections
+
+    monkeypatch.setattr(pipeline, "worker_threads", lambda n=0: threads)
+    H, W = frames[0].depth.shape
+    boxes = np.array([[0, 0, W // 2, H // 2], [W // 3, H // 3, W, H]], np.float32)
+    dets = {f.index: Detections(boxes, np.array([0.9, 0.8], np.float32), ["a", "b"]) for f in frames}
+    return pipeline.fuse_frames(frames, dets, poses, sm.FusionConfig())[1]
 
 
 def test_threads_config_checked():
