@@ -149,13 +149,16 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--matcher", default="sift", help="matcher for sensor depth (model depth uses the bundle's)")
     ap.add_argument("--no-fusion", dest="fusion", action="store_false")
     ap.add_argument("--threads", type=int, default=None,
-                    help="AlignConf.threads for the pairwise verifications (default: the AlignConf default)")
+                    help="threads for the pairwise verifications (AlignConf.threads) and the fusion step's lifting "
+                         "(MOSAIC_THREADS); default: 0 = the CPU count capped at 4")
     ap.add_argument("--out", default=str(HERE / "results" / "align_core.json"))
     a = ap.parse_args(argv)
     src = open_source(a.data)
     frames = [src[i] for i in pick_frames(len(src), a.keyframes, "uniform")]
     depths = [d for d in a.depths.split(",") if d]
     conf = None if a.threads is None else {"threads": a.threads}
+    if a.threads:  # the pipeline's fusion step reads the count from the environment (geometry.worker_threads)
+        os.environ["MOSAIC_THREADS"] = str(a.threads)
     aconf = al.AlignConf.merged(conf)
     threads = getattr(aconf, "threads", 1)  # an older checkout (before/after runs) has no threads: 1
     threads = threads if threads > 0 else min(4, os.cpu_count() or 1)

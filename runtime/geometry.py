@@ -166,9 +166,15 @@ class RansacResult:
 
 def worker_threads(n: int = 0) -> int:
     """Threads for independent per-pair / per-frame work (numpy and OpenCV release the GIL): n when > 0, else
-    the CPU count capped at 4 (1 = the caller's thread only)."""
+    $MOSAIC_THREADS when set, else the CPU count capped at 4 (1 = the caller's thread only). The results do not
+    depend on it."""
     import os
 
+    env = os.environ.get("MOSAIC_THREADS", "")
+    if n <= 0 and env:
+        if not env.isdigit() or int(env) < 1:
+            raise ValueError(f"MOSAIC_THREADS must be a positive integer, got {env!r}")
+        return int(env)
     return n if n > 0 else min(4, os.cpu_count() or 1)
 
 
