@@ -22,7 +22,6 @@ from typing import Any, Callable, ClassVar, Mapping, Sequence
 import numpy as np
 
 from .config import StageConf
-from .geometry import worker_threads
 from .errors import InputError, MosaicError
 from .frames import Frame, FrameSource
 from .perception import Detections
@@ -33,7 +32,7 @@ from .grounding import ground
 from .dedup import DedupConf, remove_redundant
 from .keyframes import KeyFrameConf, select_keyframes, uniform_keyframes
 from .matching import MatchConf, make_matcher
-from .alignment import AlignConf, align_keyframes
+from .alignment import AlignConf, align_keyframes, worker_threads
 from .semantic_map import (FusionConfig, ObjectInstance, Observation, SemanticMap, box_depth_mask,
                            extend_to_floor, first_seen_from_detections, fuse_observations, gravity_from_frames,
                            lift_observations, refine, room_extent)
