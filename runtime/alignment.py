@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import time
 from collections import deque
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from typing import Any, Callable, ClassVar, Mapping, Protocol, Sequence
 
@@ -42,7 +43,7 @@ import numpy as np
 from .config import StageConf
 from .errors import AlignmentError, InputError
 from .geometry import (backproject_pixels, icp_point_to_plane, ransac_transform, rotation_angle_deg, sample_depth,
-                       transform, transform_scale, umeyama)
+                       transform, transform_scale, umeyama, worker_threads)
 from .matching import KeyedMatcher, Matches, make_matcher
 from .trace import as_trace
 
@@ -91,7 +92,11 @@ class AlignConf(StageConf):
                                        # 0.107 vs 0.085; XFeat essential edges 0.127 vs 0.071 (their graph scales
                                        # need every candidate): worse where it counts, so not the default
     max_attempts: int | None = None    # cap on pairwise alignments tried by Kruskal (None = as many as needed)
-    seed: int = 0
+    seed: int = 0                      # RANSAC seed; each rgbd pair draws from its own stream (seed, frame a,
+                                       # frame b), so a pair's result does not depend on which pairs ran before
+    threads: int = 0                   # pairwise verifications run concurrently on this many threads (OpenCV and
+                                       # numpy release the GIL); 0 = os.cpu_count() capped at 4, 1 = in the
+                                       # caller's thread. The same results whatever the count (tested)
     # edge type: "rgbd" = 3D-3D RANSAC on depth-lifted matches (SE(3) metric / Sim(3) relative); "essential" =
     # 5-point essential matrix for rotation + translation direction, the depth only sets the translation
     # length (`align_pair_essential`); "auto" = essential when depth is relative (with_scale), else rgbd
@@ -589,6 +594,18 @@ def maximum_spanning_tree(S: np.ndarray, verify=None, max_attempts: int | None =
     return tree, failed
 
 
+def candidate_pairs(S: np.ndarray, top: int, extra: Sequence[tuple[int, int]] = ()) -> list[tuple[int, int]]:
+    """The pairs `refine_with_inliers` verifies, as sorted (i, j), i < j: every frame's `top` most similar
+    frames (by S [K, K]) plus the `extra` pairs."""
+    K = len(S)
+    cand = {(min(i, j), max(i, j)) for i, j in extra if i != j}
+    for i in range(K):
+        for j in np.argsort(-S[i])[:min(top, K - 1)]:
+            if int(j) != i:
+                cand.add((min(i, int(j)), max(i, int(j))))
+    return sorted(cand)
+
+
 def refine_with_inliers(S: np.ndarray, verify, inliers, top: int,
                         extra: Sequence[tuple[int, int]] = ()) -> np.ndarray:
     """Edge weights refined by geometric verification: every frame's `top` most similar frames (by S [K, K])
@@ -596,14 +613,8 @@ def refine_with_inliers(S: np.ndarray, verify, inliers, top: int,
     failed one -1 (never used), an untried one keeps its similarity (in [-1, 1], so verified edges come first and
     untried ones are the next-best fallbacks). verify(i, j) -> bool, inliers(i, j) -> int (after verify).
     Returns W [K, K]."""
-    K = len(S)
     W = np.array(S, dtype=np.float64)
-    cand = {(min(i, j), max(i, j)) for i, j in extra if i != j}
-    for i in range(K):
-        for j in np.argsort(-S[i])[:min(top, K - 1)]:
-            if int(j) != i:
-                cand.add((min(i, int(j)), max(i, int(j))))
-    for i, j in sorted(cand):
+    for i, j in candidate_pairs(S, top, extra):
         W[i, j] = W[j, i] = (1.0 + inliers(i, j)) if verify(i, j) else -1.0
     return W
 
@@ -706,6 +717,9 @@ def _check_frames(frames: list[Any], strategy: str, conf: AlignConf) -> None:
     if conf.verify_rank not in ("inliers", "matches"):
         raise InputError(f"alignment config: verify_rank must be 'inliers' or 'matches', got "
                          f"{conf.verify_rank!r}")
+    if not isinstance(conf.threads, int) or conf.threads < 0:
+        raise InputError(f"alignment config: threads must be an integer >= 0 (0 = the CPU count), got "
+                         f"{conf.threads!r}")
     if conf.scale_mode not in ("chain", "graph", "shared"):
         raise InputError(f"alignment config: scale_mode must be 'chain', 'graph' or 'shared', got "
                          f"{conf.scale_mode!r}")
@@ -721,7 +735,9 @@ class _PairVerifier:
         self.stats: dict[tuple[int, int], PairResult] = {}
         self.Tpair: dict[tuple[int, int], np.ndarray] = {}
         self.secs = {"match": 0.0, "ransac": 0.0}
-        self.rng = np.random.default_rng(conf.seed)
+        self.threads = worker_threads(conf.threads)
+        self._ready: dict[tuple[int, int], tuple[PairResult, EssentialPose | None]] = {}  # `prefetch`ed results
+        self._ready_refine: dict[tuple[int, int], PairResult] = {}
         self.ok_cache: dict[tuple[int, int], bool] = {}
         self.n_inl: dict[tuple[int, int], int] = {}
         self._matches: dict[tuple[int, int], Matches] = {}
@@ -746,26 +762,48 @@ class _PairVerifier:
         return int(depth_valid(m, self.frames[a].depth, self.frames[b].depth, self.conf, self.with_scale).sum())
 
     def verify(self, a: int, b: int) -> bool:
-        fa, fb = self.frames[a], self.frames[b]
-        mt = self.match(a, b)
-        if self.edge == "essential":
-            pose = essential_pose(mt, fa.K, fb.K, self.conf, getattr(fa, "dist", None), getattr(fb, "dist", None))
-            if isinstance(pose, PairResult):
-                r = pose
-            else:
-                refine = self.conf.essential_refine and not self.defer_refine
-                r = essential_edge(pose, fa.depth, fb.depth, self.conf, refine)
-                self._poses[(a, b)] = pose
-                if refine:
-                    self.refined.add((a, b))
-        else:
-            r = align_pair(mt, fa.depth, fa.K, fb.depth, fb.K, self.conf, self.with_scale, self.rng,
-                           getattr(fa, "dist", None), getattr(fb, "dist", None))
+        """Align frames at positions a, b (a result `prefetch` computed is taken, not recomputed) and record it."""
+        ready = self._ready.pop((a, b), None)
+        r, pose = ready if ready is not None else self._solve(a, b, self.match(a, b))
         self.secs["ransac"] += r.seconds
-        self.stats[(fa.index, fb.index)] = r
+        self.stats[(self.frames[a].index, self.frames[b].index)] = r
+        if pose is not None:
+            self._poses[(a, b)] = pose
+            if self.conf.essential_refine and not self.defer_refine:
+                self.refined.add((a, b))
         if r.ok:
             self.Tpair[(a, b)] = r.T_ab
         return r.ok
+
+    def _solve(self, a: int, b: int, mt: Matches) -> tuple[PairResult, EssentialPose | None]:
+        """One pair's alignment from its matches; touches no shared state (runs in worker threads). rgbd RANSAC
+        draws from the pair's own stream (seed, frame a, frame b); OpenCV's USAC seeds each call itself."""
+        fa, fb = self.frames[a], self.frames[b]
+        da, db = getattr(fa, "dist", None), getattr(fb, "dist", None)
+        if self.edge == "essential":
+            pose = essential_pose(mt, fa.K, fb.K, self.conf, da, db)
+            if isinstance(pose, PairResult):
+                return pose, None
+            refine = self.conf.essential_refine and not self.defer_refine
+            return essential_edge(pose, fa.depth, fb.depth, self.conf, refine), pose
+        rng = np.random.default_rng((self.conf.seed, int(fa.index), int(fb.index)))
+        return align_pair(mt, fa.depth, fa.K, fb.depth, fb.K, self.conf, self.with_scale, rng, da, db), None
+
+    def prefetch(self, pairs: Sequence[tuple[int, int]]) -> None:
+        """Align the given (a, b) pairs not aligned yet concurrently on `threads` threads; `verify` then records
+        them in whatever order it is called, so the state is exactly that of aligning them one by one. Matches
+        are computed here first, in order, in this thread (a matcher need not be thread-safe)."""
+        todo = list(dict.fromkeys(p for p in pairs if p not in self._ready and p not in self._done()))
+        if self.threads <= 1 or len(todo) < 2:
+            return
+        jobs = [(a, b, self.match(a, b)) for a, b in todo]
+        with ThreadPoolExecutor(min(self.threads, len(jobs))) as ex:
+            for (a, b, _m), res in zip(jobs, ex.map(lambda j: self._solve(*j), jobs)):
+                self._ready[(a, b)] = res
+
+    def _done(self) -> set[tuple[int, int]]:
+        pos = {int(f.index): k for k, f in enumerate(self.frames)}
+        return {(pos[i], pos[j]) for i, j in self.stats}
 
     def verify_cached(self, a: int, b: int) -> bool:
         a, b = min(a, b), max(a, b)
@@ -775,13 +813,26 @@ class _PairVerifier:
                                   if self.ok_cache[(a, b)] else 0)
         return self.ok_cache[(a, b)]
 
+    def prefetch_refine(self, edges: Sequence[tuple[int, int]]) -> None:
+        """The deferred refinements of verified essential edges (a < b), computed concurrently (see `prefetch`);
+        `refine_edge` takes them."""
+        todo = [e for e in edges if e not in self.refined and e in self._poses and e not in self._ready_refine]
+        if self.threads <= 1 or len(todo) < 2 or not self.conf.essential_refine:
+            return
+        def run(e: tuple[int, int]) -> PairResult:
+            fa, fb = self.frames[e[0]], self.frames[e[1]]
+            return essential_edge(self._poses[e], fa.depth, fb.depth, self.conf, True)
+        with ThreadPoolExecutor(min(self.threads, len(todo))) as ex:
+            self._ready_refine.update(zip(todo, ex.map(run, todo)))
+
     def refine_edge(self, a: int, b: int) -> bool:
         """A verified essential edge (a < b) with the refinement deferred: refine it now (same inliers; the pose
         and its baseline scales change). False when the refined pose no longer fixes the scale."""
         if (a, b) in self.refined or not self.conf.essential_refine:
             return self.ok_cache.get((a, b), False)
         fa, fb = self.frames[a], self.frames[b]
-        r = essential_edge(self._poses[(a, b)], fa.depth, fb.depth, self.conf, True)
+        r = self._ready_refine.pop((a, b), None) or essential_edge(self._poses[(a, b)], fa.depth, fb.depth,
+                                                                    self.conf, True)
         self.secs["ransac"] += r.seconds - self._poses[(a, b)].seconds
         self.stats[(fa.index, fb.index)] = r
         self.refined.add((a, b))
@@ -819,11 +870,13 @@ def _align_mst(frames: list[Any], pv: _PairVerifier, embeddings: np.ndarray | No
         if conf.verify_rank == "inliers":
             # ranking and the scale graph need every candidate's inliers and scales, not its refined pose
             pv.defer_refine = pv.edge == "essential"
+            pv.prefetch(candidate_pairs(S, conf.verify_top, nb))
             W = refine_with_inliers(S, pv.verify_cached, pv.inliers, conf.verify_top, nb)
         else:  # lazy: ranked by match count, verified by Kruskal only when it takes the edge
             W = refine_with_inliers(S, lambda i, j: True, pv.n_depth_matches, conf.verify_top, nb)
     tree, _failed = maximum_spanning_tree(W, pv.verify_cached, conf.max_attempts)
     while pv.defer_refine:  # the tree's edges refined; one that fails then is dropped and the tree re-grown
+        pv.prefetch_refine(tree)
         bad = [e for e in tree if not pv.refine_edge(*e)]
         if not bad:
             break
@@ -845,6 +898,7 @@ def _align_sequential(frames: list[Any], pv: _PairVerifier
     root = order[0]
     poses = {idx[root]: np.eye(4)}
     edges, guessed = [], []
+    pv.prefetch(list(zip(order[:-1], order[1:])))
     prev = root
     for k in order[1:]:
         if pv.verify(prev, k):

@@ -164,6 +164,20 @@ class RansacResult:
     extra: dict[str, Any] = field(default_factory=dict)
 
 
+def worker_threads(n: int = 0) -> int:
+    """Threads for independent per-pair / per-frame work (numpy and OpenCV release the GIL): n when > 0, else
+    $MOSAIC_THREADS when set, else the CPU count capped at 4 (1 = the caller's thread only). The results do not
+    depend on it."""
+    import os
+
+    env = os.environ.get("MOSAIC_THREADS", "")
+    if n <= 0 and env:
+        if not env.isdigit() or int(env) < 1:
+            raise ValueError(f"MOSAIC_THREADS must be a positive integer, got {env!r}")
+        return int(env)
+    return n if n > 0 else min(4, os.cpu_count() or 1)
+
+
 def ransac_transform(src: np.ndarray, dst: np.ndarray, threshold: float = 0.05, iterations: int = 1000,
                      with_scale: bool = False, min_inliers: int = 12, confidence: float = 0.999,
                      rng: np.random.Generator | int | None = 0) -> RansacResult:

@@ -15,6 +15,7 @@ pull in onnxruntime and the profile machinery, which a saved-map question never 
 from __future__ import annotations
 
 import dataclasses
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any, Callable, ClassVar, Mapping, Sequence
 
@@ -31,7 +32,7 @@ from .grounding import ground
 from .dedup import DedupConf, remove_redundant
 from .keyframes import KeyFrameConf, select_keyframes, uniform_keyframes
 from .matching import MatchConf, make_matcher
-from .alignment import AlignConf, align_keyframes
+from .alignment import AlignConf, align_keyframes, worker_threads
 from .semantic_map import (FusionConfig, ObjectInstance, Observation, SemanticMap, box_depth_mask,
                            extend_to_floor, first_seen_from_detections, fuse_observations, gravity_from_frames,
                            lift_observations, refine, room_extent)
@@ -474,13 +475,14 @@ def fuse_frames(frames: list[Frame], dets: dict[int, Detections], poses: dict[in
                 trace: Trace | None = None) -> tuple[list[Observation], list[ObjectInstance], list[np.ndarray]]:
     """Lift every posed key frame's detections into the world and fuse them into instances."""
     obs: list[Observation] = []
-    with phase("fusion", len(frames), "key frame") as bar:
-        for f in frames:
-            if f.index not in poses:
-                continue
-            d = dets[f.index]
-            obs += lift_observations(f.rgb.shape[:2], f.depth, f.K, poses[f.index], d.boxes, d.names, d.scores,
-                                     d.masks, f.index, f.t, fconf, d.instance_ids)
+    def lift(f: Frame) -> list[Observation]:
+        d = dets[f.index]
+        return lift_observations(f.rgb.shape[:2], f.depth, f.K, poses[f.index], d.boxes, d.names, d.scores,
+                                 d.masks, f.index, f.t, fconf, d.instance_ids)
+
+    with phase("fusion", len(frames), "key frame") as bar, ThreadPoolExecutor(worker_threads()) as ex:
+        for got in ex.map(lift, [f for f in frames if f.index in poses]):  # frames lift independently; in order
+            obs += got
             bar.update()
         instances, clouds = fuse_observations(obs, fconf, trace)
         bar.note(instances=len(instances))

@@ -184,3 +184,68 @@ def test_essential_tree_edges_refined_others_not(monkeypatch):
     res = align_frames(frames, _OracleMatcher(scene), "mst", embeddings=_emb(6), conf=AlignConf(edge="essential"),
                        with_scale=True)
     assert len(res.aligned) == 6 and len(refined) == len(res.edges) == 5 < len(res.edge_stats)
+
+
+def _same_alignment(a, b):
+    """Two AlignmentResults exactly equal: tree, root, poses, every pair's inliers / transform / scales."""
+    assert a.root == b.root and a.edges == b.edges and a.unaligned == b.unaligned and a.guessed == b.guessed
+    assert sorted(a.poses) == sorted(b.poses)
+    assert all(np.array_equal(a.poses[k], b.poses[k]) for k in a.poses)
+    assert list(a.edge_stats) == list(b.edge_stats)  # same pairs, recorded in the same order
+    for k, r in a.edge_stats.items():
+        s = b.edge_stats[k]
+        assert (r.ok, r.n_matches, r.n_valid, r.n_inliers, r.reason) == (s.ok, s.n_matches, s.n_valid, s.n_inliers,
+                                                                          s.reason)
+        assert np.array_equal(r.T_ab, s.T_ab) and np.array_equal([r.scale_a, r.scale_b], [s.scale_a, s.scale_b],
+                                                                 equal_nan=True)
+
+
+@pytest.mark.parametrize("edge", ["rgbd", "essential"])
+def test_threads_give_identical_alignment_synthetic(edge):
+    frames, scene, _ = _synthetic(8)
+    runs = [align_frames(frames, _OracleMatcher(scene, isolated=6), s, embeddings=_emb(8),
+                         conf=AlignConf(edge=edge, threads=t), with_scale=edge == "essential")
+            for s in ("mst", "sequential") for t in (1, 4, 4)]
+    for a, b in ((0, 1), (0, 2), (3, 4), (3, 5)):  # 1 vs 4 threads, and a repeat run
+        _same_alignment(runs[a], runs[b])
+    assert len(runs[0].edge_stats) > len(runs[0].edges) and runs[0].unaligned == [16]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("with_scale", [False, True])
+def test_threads_give_identical_alignment_and_map_7scenes(redkitchen, with_scale, monkeypatch):
+    """Real frames (SIFT, K = 12): 1 thread vs 2 and 3 threads vs a repeat run, rgbd edges on sensor depth and
+    essential edges (depth as relative): the same pairs, inliers, transforms, poses; fusion on them the same."""
+    from mosaicthinker.host.evaluation.pose import pick_frames
+    from mosaicthinker.runtime.matching import FeatureMatcher
+
+    src = open_source(redkitchen)
+    frames = [src[i] for i in pick_frames(len(src), 12, "uniform")]
+    fm = FeatureMatcher("sift", cache_size=64)
+    runs = [align_frames(frames, fm, "mst", conf=AlignConf(threads=t), with_scale=with_scale) for t in (1, 2, 3, 3)]
+    assert len(runs[0].aligned) >= 10 and len(runs[0].edge_stats) >= 20
+    for r in runs[1:]:
+        _same_alignment(runs[0], r)
+    maps = [_fused(frames, r.poses, t, monkeypatch) for r, t in ((runs[0], 1), (runs[1], 3), (runs[2], 3))]
+    for m in maps[1:]:  # the map on 1 thread vs 3 (alignment and the pipeline's per-frame lifting), repeated
+        assert len(m) == len(maps[0]) > 0
+        assert all(x.name == y.name and np.array_equal(x.center, y.center)
+                   and np.array_equal(x.box.axes_lengths, y.box.axes_lengths) for x, y in zip(maps[0], m))
+
+
+def _fused(frames, poses, threads, monkeypatch):
+    """The pipeline's fusion step (lifting per frame on `threads` threads) with two box detections per frame."""
+    from mosaicthinker.runtime import pipeline
+    from mosaicthinker.runtime.perception import Detections
+
+    monkeypatch.setattr(pipeline, "worker_threads", lambda n=0: threads)
+    H, W = frames[0].depth.shape
+    boxes = np.array([[0, 0, W // 2, H // 2], [W // 3, H // 3, W, H]], np.float32)
+    dets = {f.index: Detections(boxes, np.array([0.9, 0.8], np.float32), ["a", "b"]) for f in frames}
+    return pipeline.fuse_frames(frames, dets, poses, sm.FusionConfig())[1]
+
+
+def test_threads_config_checked():
+    frames, scene, _ = _synthetic(3)
+    with pytest.raises(Exception, match="threads"):
+        align_frames(frames, _OracleMatcher(scene), "mst", conf={"threads": -1})
