@@ -132,9 +132,6 @@ class PairResult:
     icp_rms_m: float = float("nan")
     scale_a: float = float("nan")  # essential edges: baseline length in frame a's / b's depth units
     scale_b: float = float("nan")
-    # essential edges: the triangulated inliers (pixels uv [M, 2] and z-depths [M] at unit baseline) in a and in
-    # b, for the per-frame affine depth fit (`essential_depth_affine`)
-    tri: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
 
     def to_dict(self) -> dict[str, Any]:
         return {"ok": self.ok, "matches": self.n_matches, "valid": self.n_valid, "inliers": self.n_inliers,
@@ -343,9 +340,8 @@ def essential_edge(pose: EssentialPose, depth_a: np.ndarray, depth_b: np.ndarray
     else:
         T[:3, :3] = (s_a / s_b) * R.T
         T[:3, 3] = -s_a * (R.T @ t)
-    tri = (pose.uva[inl][ok], X[ok, 2], pose.uvb[inl][ok], Xb[ok, 2])
     return PairResult(T, True, pose.n_matches, nv, ninl, spread, pose.seconds + time.perf_counter() - t0,
-                      scale_a=s_a, scale_b=s_b, tri=tri)
+                      scale_a=s_a, scale_b=s_b)
 
 
 def _find_essential(xa: np.ndarray, xb: np.ndarray, thr: float, method: str) -> tuple[Any, Any]:
@@ -477,37 +473,6 @@ def essential_frame_scales(n: int, root: int, edges: Mapping[tuple[int, int], Pa
         w = w0 * np.where(r > 0.1, 0.1 / np.maximum(r, 1e-12), 1.0) ** 0.5
         w[-1] = w0[-1]
     return np.exp(ls)
-
-
-def essential_depth_affine(poses: Mapping[int, np.ndarray], edges: Mapping[tuple[int, int], PairResult],
-                           depths: Mapping[int, np.ndarray], min_points: int = 30) -> dict[int, Any]:
-    """Per posed frame k, the affine map (`stages.depth.ScaleShift`, z' = s z + t) that brings its relative depth
-    depths[k] [H, W] to the depths of the points triangulated on its verified essential edges to other posed
-    frames, in k's depth units (baseline = the distance of the two camera centres in the composed poses, over
-    k's pose scale). Relative depth models are not scale-only (a scale fit leaves z = s d + t's shift as a
-    depth-dependent error: near objects placed too far; `benchmarks/real_scene.py --probe-depth`). Frames with
-    fewer than `min_points` points, or whose fit is not increasing, are left out (the caller keeps their scale)."""
-    from .stages.depth import fit_to_points
-
-    uvs: dict[int, list] = {}
-    zs: dict[int, list] = {}
-    for (a, b), r in edges.items():
-        if not r.ok or r.tri is None or a not in poses or b not in poses:
-            continue
-        # the edge's own baseline in each frame's depth units (median ratio 1): its points carry the depth's
-        # shape, not the composed poses' scale errors
-        for k, uv, z, sc in ((a, r.tri[0], r.tri[1], r.scale_a), (b, r.tri[2], r.tri[3], r.scale_b)):
-            uvs.setdefault(k, []).append(uv)
-            zs.setdefault(k, []).append(z * sc)
-    out = {}
-    for k, lst in uvs.items():
-        uv, z = np.concatenate(lst), np.concatenate(zs[k])
-        if len(z) < min_points or k not in depths:
-            continue
-        ss = fit_to_points(depths[k], uv, z, "relative", shift=True)
-        if ss.s > 0 and ss.n >= min_points:
-            out[k] = ss
-    return out
 
 
 def _undistort(uv: np.ndarray, K: np.ndarray, dist: np.ndarray | None) -> np.ndarray:

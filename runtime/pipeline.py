@@ -439,21 +439,6 @@ def _align(frames: list[Frame], dets: dict[int, Detections], source: FrameSource
     return al, matcher
 
 
-def _affine_depths(frames: list[Frame], al: Any, trace: Trace) -> list[Frame]:
-    """Key frames' relative depth with the scale and shift fitted to their triangulated matches
-    (`alignment.essential_depth_affine`); a frame without enough points keeps its scale only (traced)."""
-    from .alignment import essential_depth_affine
-
-    fits = essential_depth_affine(al.poses, al.edge_stats, {f.index: f.depth for f in frames})
-    kept = [f.index for f in frames if f.index in al.poses and f.index not in fits]
-    trace.event("depth", f"relative depth: scale and shift fitted to triangulated matches in {len(fits)} key "
-                f"frame(s)" + (f", scale only in {len(kept)} (too few points)" if kept else ""), stage="depth",
-                fits={int(k): v.to_dict() for k, v in fits.items()}, scale_only=kept)
-    return [f if f.index not in fits else
-            dataclasses.replace(f, depth=np.where(f.depth > 0, fits[f.index].apply(f.depth), 0.0).astype(np.float32))
-            for f in frames]
-
-
 def _align_boxes(f: Frame, d: Detections, perception: Perception, trace: Trace) -> np.ndarray | None:
     """The boxes a key frame's matches are restricted to: every object the detector names in it, not only the
     question's (a few small targets give too few matches); the question's alone without `detect_all`."""
@@ -576,8 +561,6 @@ def build_map(source: FrameSource, targets: Sequence[str], cues: Sequence[str] =
     chosen, det, _, _cands = select(source, targets, cues, perception, conf, trace, keyframes=K, budget=budget)
     frames, dets = _perceive(source, chosen, det, names, perception, conf, trace, budget)
     al, matcher = _align(frames, dets, source, perception, conf, trace, budget)
-    if perception.depth_relative and al.edge == "essential":  # scale and shift per frame, from the matches
-        frames = _affine_depths(frames, al, trace)
     with trace.stage("gravity"):
         W = _gravity(frames, al.poses, source, al.root, conf, trace)
     poses = {i: W @ T for i, T in al.poses.items()}
