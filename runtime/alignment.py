@@ -132,9 +132,6 @@ class PairResult:
     icp_rms_m: float = float("nan")
     scale_a: float = float("nan")  # essential edges: baseline length in frame a's / b's depth units
     scale_b: float = float("nan")
-    # essential edges: the triangulated inliers' pixels uv [M, 2] and depths [M] in a's, then b's depth units
-    # (the edge's own scale), for the per-object depth check (`triangulated_depths`)
-    tri: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
 
     def to_dict(self) -> dict[str, Any]:
         return {"ok": self.ok, "matches": self.n_matches, "valid": self.n_valid, "inliers": self.n_inliers,
@@ -343,9 +340,8 @@ def essential_edge(pose: EssentialPose, depth_a: np.ndarray, depth_b: np.ndarray
     else:
         T[:3, :3] = (s_a / s_b) * R.T
         T[:3, 3] = -s_a * (R.T @ t)
-    tri = (pose.uva[inl][ok], X[ok, 2] * s_a, pose.uvb[inl][ok], Xb[ok, 2] * s_b)
     return PairResult(T, True, pose.n_matches, nv, ninl, spread, pose.seconds + time.perf_counter() - t0,
-                      scale_a=s_a, scale_b=s_b, tri=tri)
+                      scale_a=s_a, scale_b=s_b)
 
 
 def _find_essential(xa: np.ndarray, xb: np.ndarray, thr: float, method: str) -> tuple[Any, Any]:
@@ -477,21 +473,6 @@ def essential_frame_scales(n: int, root: int, edges: Mapping[tuple[int, int], Pa
         w = w0 * np.where(r > 0.1, 0.1 / np.maximum(r, 1e-12), 1.0) ** 0.5
         w[-1] = w0[-1]
     return np.exp(ls)
-
-
-def triangulated_depths(poses: Mapping[int, np.ndarray], edges: Mapping[tuple[int, int], PairResult]
-                        ) -> dict[int, tuple[np.ndarray, np.ndarray]]:
-    """Per posed frame: (pixels uv [M, 2], depths [M] in the frame's depth units) of the points triangulated on
-    its verified essential edges to other posed frames (each edge's own scale: median ratio to the frame's depth
-    1 per edge, so where the ratio departs from 1 locally the depth model's shape is off there)."""
-    uvs: dict[int, list] = {}
-    zs: dict[int, list] = {}
-    for (a, b), r in edges.items():
-        if r.ok and r.tri is not None and a in poses and b in poses:
-            for k, uv, z in ((a, r.tri[0], r.tri[1]), (b, r.tri[2], r.tri[3])):
-                uvs.setdefault(k, []).append(uv)
-                zs.setdefault(k, []).append(z)
-    return {k: (np.concatenate(v), np.concatenate(zs[k])) for k, v in uvs.items()}
 
 
 def _undistort(uv: np.ndarray, K: np.ndarray, dist: np.ndarray | None) -> np.ndarray:

@@ -439,42 +439,6 @@ def _align(frames: list[Frame], dets: dict[int, Detections], source: FrameSource
     return al, matcher
 
 
-def _object_depths(frames: list[Frame], dets: dict[int, Detections], al: Any, trace: Trace,
-                   min_points: int = 8) -> list[Frame]:
-    """Relative depth inside each detection box rescaled by the median ratio of its triangulated matches to the
-    model's depth there (`alignment.triangulated_depths`): monocular models compress a frame's depth range, so a
-    near object takes background-like values a per-frame scale cannot undo. Larger boxes first, so a box in
-    front keeps its own ratio; boxes with fewer than `min_points` matches keep the frame's scale (traced)."""
-    from .alignment import triangulated_depths
-    from .geometry import sample_depth
-
-    tri = triangulated_depths(al.poses, al.edge_stats)
-    out, done, kept = [], {}, 0
-    for f in frames:
-        d = dets.get(f.index)
-        if f.index not in tri or d is None or not len(d):
-            out.append(f)
-            continue
-        uv, z = tri[f.index]
-        zd = sample_depth(f.depth, uv)
-        depth = f.depth.copy()
-        for j in np.argsort(-(d.boxes[:, 2] - d.boxes[:, 0]) * (d.boxes[:, 3] - d.boxes[:, 1])):
-            x0, y0, x1, y1 = d.boxes[j]
-            inb = (uv[:, 0] >= x0) & (uv[:, 0] < x1) & (uv[:, 1] >= y0) & (uv[:, 1] < y1) & (zd > 0)
-            if inb.sum() < min_points:
-                kept += 1
-                continue
-            r = float(np.median(z[inb] / zd[inb]))
-            ys, xs = slice(max(0, int(y0)), int(np.ceil(y1))), slice(max(0, int(x0)), int(np.ceil(x1)))
-            depth[ys, xs] = f.depth[ys, xs] * r
-            done.setdefault(int(f.index), []).append(round(r, 3))
-        out.append(dataclasses.replace(f, depth=depth))
-    trace.event("depth", f"relative depth: {sum(map(len, done.values()))} detection box(es) rescaled by their "
-                f"triangulated matches, {kept} kept the frame's scale (< {min_points} matches)", stage="depth",
-                ratios=done)
-    return out
-
-
 def _align_boxes(f: Frame, d: Detections, perception: Perception, trace: Trace) -> np.ndarray | None:
     """The boxes a key frame's matches are restricted to: every object the detector names in it, not only the
     question's (a few small targets give too few matches); the question's alone without `detect_all`."""
@@ -597,8 +561,6 @@ def build_map(source: FrameSource, targets: Sequence[str], cues: Sequence[str] =
     chosen, det, _, _cands = select(source, targets, cues, perception, conf, trace, keyframes=K, budget=budget)
     frames, dets = _perceive(source, chosen, det, names, perception, conf, trace, budget)
     al, matcher = _align(frames, dets, source, perception, conf, trace, budget)
-    if perception.depth_relative and al.edge == "essential":  # the objects' depth from their own matches
-        frames = _object_depths(frames, dets, al, trace)
     with trace.stage("gravity"):
         W = _gravity(frames, al.poses, source, al.root, conf, trace)
     poses = {i: W @ T for i, T in al.poses.items()}
