@@ -225,6 +225,37 @@ def probe_depth(bundle: Path, stride: int = 10) -> dict:
             "per_frame": rows}
 
 
+def probe_scales(bundle: Path, run: Path, fps: float = 15.0) -> dict:
+    """Per key frame of a relative-depth run's --out folder (map.json cameras, scene_eval.json registration):
+    the metric scale the map gave the frame's depth (registration scale x the prior's scale x the pose's scale
+    sigma_k from `essential_frame_scales`) over the frame's scale-only fit to the sensor depth (analysis only).
+    1.0 everywhere = consistent scales; the spread is the per-frame scale error left after the tree. Frame index =
+    camera time x `fps` (the source's rate)."""
+    import numpy as np
+
+    from mosaicthinker.runtime.bundle import load_bundle
+    from mosaicthinker.runtime.frames import open_source
+    from mosaicthinker.runtime.stages import load_role
+    from mosaicthinker.runtime.stages.depth import fit_to_sensor, scale_from_prior
+    from mosaicthinker.runtime.trace import Trace
+
+    cams = json.loads((run / "map.json").read_text())["cameras"]
+    c = json.loads((run / "scene_eval.json").read_text())["registration"]["scale"]
+    dm = load_role(load_bundle(bundle), "depth", trace=Trace())
+    src = open_source(DATA)
+    rows = []
+    for cam in cams:
+        T = np.asarray(cam["T_wc"], float)
+        f = src[int(round(cam["t"] * fps))]
+        d = dm.predict(f.rgb)
+        ratio = c * scale_from_prior(d).s * np.cbrt(abs(np.linalg.det(T[:3, :3]))) / fit_to_sensor(
+            d, f.depth, shift=False).s
+        rows.append({"frame": int(f.index), "map_over_sensor_scale": float(ratio)})
+    r = np.array([x["map_over_sensor_scale"] for x in rows])
+    return {"run": str(run), "median": float(np.median(r)), "min": float(r.min()), "max": float(r.max()),
+            "std_log": float(np.std(np.log(r))), "per_frame": rows}
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--bundle", type=Path, default=REPO / "bundles" / "real")
@@ -241,8 +272,17 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--probe-depth", action="store_true", help="only the relative-depth diagnosis (probe_depth, "
                                                                 "sensor depth for analysis only) into "
                                                                 "benchmarks/results/real_scene_depth.json")
+    ap.add_argument("--probe-scales", type=Path, metavar="RUN_DIR", help="only the per-key-frame scale check of "
+                    "a relative-depth run's --out folder (probe_scales) into real_scene_scales.json")
     ap.add_argument("--results", type=Path, default=OUT, help="results file of the benchmark runs")
     a = ap.parse_args(argv)
+    if a.probe_scales:
+        doc = {"schema": "mosaicthinker.bench.real_scene_scales/1", "cmd": " ".join(sys.argv),
+               "date": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "load_avg_1min": os.getloadavg()[0],
+               **probe_scales(a.bundle, a.probe_scales)}
+        OUT.with_name("real_scene_scales.json").write_text(json.dumps(doc, indent=1, default=float))
+        print(json.dumps({k: doc[k] for k in ("median", "min", "max", "std_log")}, indent=1))
+        return 0
     if a.probe_depth:
         doc = {"schema": "mosaicthinker.bench.real_scene_depth/1", "cmd": " ".join(sys.argv),
                "date": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "load_avg_1min": os.getloadavg()[0],
