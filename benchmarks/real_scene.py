@@ -1,8 +1,9 @@
 """Real-room benchmark: `mosaic eval scene` on the shared 7-Scenes kitchen with the real shared models, accuracy and
-speed in one table; writes benchmarks/results/real_scene.json.
+speed in one table; writes benchmarks/results/real_scene.json (or --results FILE).
 
     python benchmarks/real_scene.py --bundle bundles/real [--keyframes 16,32] [--configs sensor-sift,...]
-                                    [--ask 0] [--out out/real_scene]
+                                    [--ask 0] [--out out/real_scene] [--results FILE]
+    diagnoses (no map): --probe-detector, --probe-depth, --probe-scales RUN_DIR (see their functions)
 
 Configurations (depth + matcher): sensor-sift (sensor depth + OpenCV SIFT), sensor-xfeat (sensor depth + the
 bundle's XFeat), pydnet-xfeat (PyDNet++ relative depth + XFeat, Sim(3) registration). The bundle is the four
