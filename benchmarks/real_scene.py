@@ -1,8 +1,9 @@
 """Real-room benchmark: `mosaic eval scene` on the shared 7-Scenes kitchen with the real shared models, accuracy and
-speed in one table; writes benchmarks/results/real_scene.json.
+speed in one table; writes benchmarks/results/real_scene.json (or --results FILE).
 
     python benchmarks/real_scene.py --bundle bundles/real [--keyframes 16,32] [--configs sensor-sift,...]
-                                    [--ask 0] [--out out/real_scene]
+                                    [--ask 0] [--out out/real_scene] [--results FILE]
+    diagnoses (no map): --probe-detector, --probe-depth, --probe-scales RUN_DIR (see their functions)
 
 Configurations (depth + matcher): sensor-sift (sensor depth + OpenCV SIFT), sensor-xfeat (sensor depth + the
 bundle's XFeat), pydnet-xfeat (PyDNet++ relative depth + XFeat, Sim(3) registration). The bundle is the four
@@ -115,13 +116,15 @@ def probe_detector(bundle: Path, stride: int = 3, threshold: float = 0.2) -> dic
         u = (a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1]) - w * h
         return w * h / u if u > 0 else 0.0
 
+    inst = {(c, j): {"frames_in_view": 0, "best_score": 0.0, "frames_detected": set()}
+            for c, lst in boxes.items() for j in range(len(lst))}
     for i in range(0, len(src), stride):
         f = src[i]
         H, W = f.rgb.shape[:2]
         px, cls, sc = det.raw(f.rgb)
         for c, lst in boxes.items():
-            proj = []
-            for b in lst:
+            proj, pid = [], []
+            for j, b in enumerate(lst):
                 uv, z = project(b.corners(), f.K, T @ f.pose_gt)
                 if np.any(z <= 0.1):
                     continue
@@ -131,19 +134,127 @@ def probe_detector(bundle: Path, stride: int = 3, threshold: float = 0.2) -> dic
                 seen = (clip[2] - clip[0]) * (clip[3] - clip[1])
                 if seen >= 0.3 * area or seen >= 0.15 * W * H:  # mostly inside, or filling much of the image
                     proj.append(clip)
+                    pid.append(j)
+                    inst[(c, j)]["frames_in_view"] += 1
             out[c]["frames_in_view"] += bool(proj)
             for bb, k, s in zip(px, cls, sc):
                 if int(k) not in labels[c]:
                     continue
                 cx, cy = (bb[0] + bb[2]) / 2, (bb[1] + bb[3]) / 2
-                on = any(iou(bb, p) >= 0.3 or (p[0] <= cx <= p[2] and p[1] <= cy <= p[3]) for p in proj)
+                hit = [j for j, p in zip(pid, proj) if iou(bb, p) >= 0.3 or (p[0] <= cx <= p[2] and p[1] <= cy <= p[3])]
+                for j in hit:
+                    rec = inst[(c, j)]
+                    rec["best_score"] = round(max(rec["best_score"], float(s)), 3)
+                    if s >= keep:
+                        rec["frames_detected"].add(int(f.index))
+                on = bool(hit)
                 if on:
                     out[c]["best_on_instance"] = round(max(out[c]["best_on_instance"], float(s)), 3)
                     out[c]["on_instance_at_threshold"] += int(s >= keep)
                 else:
                     out[c]["elsewhere_at_threshold"] += int(s >= keep)
+    per_instance = [{"category": c, "instance": j, "frames_in_view": r["frames_in_view"],
+                     "best_score": r["best_score"], "frames_detected": len(r["frames_detected"]),
+                     "ever_detected": bool(r["frames_detected"])} for (c, j), r in inst.items()]
+    seen = [r for r in per_instance if r["frames_in_view"]]
+    ceiling = {"instances_in_view": len(seen), "ever_detected": sum(r["ever_detected"] for r in seen),
+               "recall_ceiling": round(sum(r["ever_detected"] for r in seen) / max(1, len(seen)), 3),
+               "rule": "an instance counts as detectable when some detection of its label at the pipeline "
+                       "threshold lies on it (IoU >= 0.3 with its projected box, or centre inside) in a frame "
+                       "that views it; a bound on the map's recall from the detector alone"}
     return {"stride": stride, "probe_threshold": threshold, "pipeline_threshold": keep,
-            "frames": len(range(0, len(src), stride)), "per_category": out}
+            "frames": len(range(0, len(src), stride)), "per_category": out, "per_instance": per_instance,
+            "recall_ceiling": ceiling}
+
+
+def probe_depth(bundle: Path, stride: int = 10) -> dict:
+    """How the bundle's relative depth model relates to the sensor depth (a diagnosis, sensor depth used here
+    only, never in the pipeline's relative-depth path): per `stride`-th frame, three fits of the prediction d to
+    the sensor depth z -- z = s d, z = s d + t, 1/z = a d + b (`stages.depth._fit`, trimmed least squares) -- with
+    the median relative depth error of each over the whole image and over the pixels whose sensor point lies in
+    an annotated box (the objects), signed (median (z_fit - z) / z: > 0 = placed farther); and the pipeline's
+    own scale (`scale_from_prior`, median 2 m) over the scale-only fit (its per-frame scale error)."""
+    import cv2
+    import numpy as np
+
+    from mosaicthinker.host.evaluation.scene import load_annotation
+    from mosaicthinker.runtime.bundle import load_bundle
+    from mosaicthinker.runtime.frames import open_source
+    from mosaicthinker.runtime.geometry import OrientedBox, backproject, transform
+    from mosaicthinker.runtime.stages import load_role
+    from mosaicthinker.runtime.stages.depth import _fit, scale_from_prior
+    from mosaicthinker.runtime.trace import Trace
+
+    dm = load_role(load_bundle(bundle), "depth", trace=Trace())
+    _, scene, T = load_annotation(ANNOT)
+    boxes = [OrientedBox.from_meta(m) for lst in scene["object_bbox"].values() for m in lst]
+    src = open_source(DATA)
+    rows = []
+    for i in range(0, len(src), stride):
+        f = src[i]
+        d, z = dm.predict(f.rgb).astype(np.float64), f.depth.astype(np.float64)
+        ok = (z > 0) & (z < 10) & np.isfinite(d)
+        pts = transform(T @ f.pose_gt, backproject(np.where(ok, z, 0.0), f.K)[0])
+        on = np.zeros(ok.sum(), bool)
+        for b in boxes:
+            on |= b.contains(pts)
+        img = np.zeros(z.shape, np.uint8)
+        img[ok] = on
+        # object pixels >= 8 px from the object's outline: 7-Scenes depth and colour come from two cameras, so
+        # border pixels may hold the background's prediction; the eroded set says whether the bias is more
+        on = cv2.erode(img, np.ones((17, 17), np.uint8))[ok].astype(bool)
+        x, y = d[ok], z[ok]
+        fits = {"z=s*d": _fit(x[::5], y[::5], False), "z=s*d+t": _fit(x[::5], y[::5], True)}
+        a, b0, *_ = _fit(x[::5], 1.0 / y[::5], True)
+        zh = {k: s * x + t for k, (s, t, *_r) in fits.items()}
+        zh["1/z=a*d+b"] = 1.0 / np.maximum(a * x + b0, 1e-3)
+        row = {"frame": int(f.index), "scale_only_s": fits["z=s*d"][0], "affine_s_t": fits["z=s*d+t"][:2],
+               "prior_over_fit": scale_from_prior(d.astype(np.float32)).s / fits["z=s*d"][0],
+               "object_pixels": int(on.sum())}
+        for k, v in zh.items():
+            e = (v - y) / y
+            row[k] = {"image_med_abs": float(np.median(np.abs(e))),
+                      "objects_med_abs": float(np.median(np.abs(e[on]))) if on.any() else None,
+                      "objects_med_signed": float(np.median(e[on])) if on.any() else None}
+        rows.append(row)
+    keys = ("z=s*d", "z=s*d+t", "1/z=a*d+b")
+    med = {k: {q: float(np.median([r[k][q] for r in rows if r[k][q] is not None]))
+               for q in ("image_med_abs", "objects_med_abs", "objects_med_signed")} for k in keys}
+    po = np.array([r["prior_over_fit"] for r in rows])
+    return {"stride": stride, "frames": len(rows), "median_over_frames": med,
+            "prior_over_fit": {"median": float(np.median(po)), "min": float(po.min()), "max": float(po.max())},
+            "per_frame": rows}
+
+
+def probe_scales(bundle: Path, run: Path, fps: float = 15.0) -> dict:
+    """Per key frame of a relative-depth run's --out folder (map.json cameras, scene_eval.json registration):
+    the metric scale the map gave the frame's depth (registration scale x the prior's scale x the pose's scale
+    sigma_k from `essential_frame_scales`) over the frame's scale-only fit to the sensor depth (analysis only).
+    1.0 everywhere = consistent scales; the spread is the per-frame scale error left after the tree. Frame index =
+    camera time x `fps` (the source's rate)."""
+    import numpy as np
+
+    from mosaicthinker.runtime.bundle import load_bundle
+    from mosaicthinker.runtime.frames import open_source
+    from mosaicthinker.runtime.stages import load_role
+    from mosaicthinker.runtime.stages.depth import fit_to_sensor, scale_from_prior
+    from mosaicthinker.runtime.trace import Trace
+
+    cams = json.loads((run / "map.json").read_text())["cameras"]
+    c = json.loads((run / "scene_eval.json").read_text())["registration"]["scale"]
+    dm = load_role(load_bundle(bundle), "depth", trace=Trace())
+    src = open_source(DATA)
+    rows = []
+    for cam in cams:
+        T = np.asarray(cam["T_wc"], float)
+        f = src[int(round(cam["t"] * fps))]
+        d = dm.predict(f.rgb)
+        ratio = c * scale_from_prior(d).s * np.cbrt(abs(np.linalg.det(T[:3, :3]))) / fit_to_sensor(
+            d, f.depth, shift=False).s
+        rows.append({"frame": int(f.index), "map_over_sensor_scale": float(ratio)})
+    r = np.array([x["map_over_sensor_scale"] for x in rows])
+    return {"run": str(run), "median": float(np.median(r)), "min": float(r.min()), "max": float(r.max()),
+            "std_log": float(np.std(np.log(r))), "per_frame": rows}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -159,19 +270,39 @@ def main(argv: list[str] | None = None) -> int:
                                                             "its stored runs (no new runs)")
     ap.add_argument("--probe-detector", action="store_true", help="only the detector diagnosis (probe_detector) "
                                                                    "into benchmarks/results/real_scene_detector.json")
+    ap.add_argument("--probe-depth", action="store_true", help="only the relative-depth diagnosis (probe_depth, "
+                                                                "sensor depth for analysis only) into "
+                                                                "benchmarks/results/real_scene_depth.json")
+    ap.add_argument("--probe-scales", type=Path, metavar="RUN_DIR", help="only the per-key-frame scale check of "
+                    "a relative-depth run's --out folder (probe_scales) into real_scene_scales.json")
+    ap.add_argument("--results", type=Path, default=OUT, help="results file of the benchmark runs")
     a = ap.parse_args(argv)
+    if a.probe_scales:
+        doc = {"schema": "mosaicthinker.bench.real_scene_scales/1", "cmd": " ".join(sys.argv),
+               "date": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "load_avg_1min": os.getloadavg()[0],
+               **probe_scales(a.bundle, a.probe_scales)}
+        OUT.with_name("real_scene_scales.json").write_text(json.dumps(doc, indent=1, default=float))
+        print(json.dumps({k: doc[k] for k in ("median", "min", "max", "std_log")}, indent=1))
+        return 0
+    if a.probe_depth:
+        doc = {"schema": "mosaicthinker.bench.real_scene_depth/1", "cmd": " ".join(sys.argv),
+               "date": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "load_avg_1min": os.getloadavg()[0],
+               **probe_depth(a.bundle)}
+        OUT.with_name("real_scene_depth.json").write_text(json.dumps(doc, indent=1, default=float))
+        print(json.dumps({k: doc[k] for k in ("median_over_frames", "prior_over_fit")}, indent=1))
+        return 0
     if a.probe_detector:
         doc = {"schema": "mosaicthinker.bench.real_scene_detector/1", "cmd": " ".join(sys.argv),
                "date": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "load_avg_1min": os.getloadavg()[0],
                **probe_detector(a.bundle)}
         path = OUT.with_name("real_scene_detector.json")
         path.write_text(json.dumps(doc, indent=1, default=float))
-        print(json.dumps(doc["per_category"], indent=1))
+        print(json.dumps({k: doc[k] for k in ("per_category", "per_instance", "recall_ceiling")}, indent=1))
         return 0
     if a.retable:
-        doc = json.loads(OUT.read_text())
+        doc = json.loads(a.results.read_text())
         doc["table"] = {k: summary(v) for k, v in doc["runs"].items()}
-        OUT.write_text(json.dumps(doc, indent=1, default=float))
+        a.results.write_text(json.dumps(doc, indent=1, default=float))
         print(json.dumps(doc["table"], indent=1, default=float))
         return 0
     if not (a.bundle / "manifest.json").exists():
@@ -201,11 +332,12 @@ def main(argv: list[str] | None = None) -> int:
         r16, r32 = table.get(f"{name}/K16", {}), table.get(f"{name}/K32", {})
         if r16.get("wall_s") and r32.get("wall_s"):
             ratios[name] = round(r32["wall_s"] / r16["wall_s"], 2)
-    doc = {"schema": "mosaicthinker.bench.real_scene/1", "data": str(DATA.relative_to(SHARED.parent)),
+    doc = {"schema": "mosaicthinker.bench.real_scene/1", "cmd": " ".join(sys.argv),
+           "date": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "data": str(DATA.relative_to(SHARED.parent)),
            "annotations": str(ANNOT.relative_to(REPO)), "machine": f"{os.cpu_count()} cores (shared)",
            "table": table, "k32_over_k16_wall": ratios, "repeat": repeat, "runs": runs}
-    OUT.parent.mkdir(parents=True, exist_ok=True)
-    OUT.write_text(json.dumps(doc, indent=1, default=float))
+    a.results.parent.mkdir(parents=True, exist_ok=True)
+    a.results.write_text(json.dumps(doc, indent=1, default=float))
     print(json.dumps({"table": table, "k32_over_k16_wall": ratios}, indent=1, default=float))
     return 0
 
