@@ -172,6 +172,48 @@ def _p50(fn, n: int) -> tuple[float, list[float]]:
     return float(np.median(ts)), [round(x, 4) for x in ts]
 
 
+def _cpu_timed(fn, n: int) -> dict:
+    """p50 wall AND process CPU seconds (every thread) of `fn` over n runs: under shared load the wall time moves
+    with the other jobs, the CPU seconds much less."""
+    wall, cpu = [], []
+    for _ in range(n):
+        t, c = time.perf_counter(), time.process_time()
+        fn()
+        wall.append(time.perf_counter() - t)
+        cpu.append(time.process_time() - c)
+    return {"p50_s": round(float(np.median(wall)), 3), "runs_s": [round(x, 3) for x in wall],
+            "cpu_p50_s": round(float(np.median(cpu)), 3), "cpu_runs_s": [round(x, 3) for x in cpu]}
+
+
+def vision_ab(big: Path, runs: int, threads: int, quant: str = "dynamic") -> dict:
+    """The fp32 and the quantised Qwen2.5-VL vision graphs of the side step in ONE process, runs alternated
+    (a, b, a, b, ...), so both see the same shared-CPU load: wall and CPU seconds per 448 px image."""
+    import onnxruntime as ort
+
+    side = big / "side" / "qwen2.5-vl-3b"
+    so = ort.SessionOptions()
+    so.intra_op_num_threads, so.inter_op_num_threads = threads, 1
+    paths = {"fp32": side / "fp32" / "vision" / "model.onnx", quant: side / f"vision-{quant}" / "model.onnx"}
+    sess = {k: ort.InferenceSession(str(v), so, providers=["CPUExecutionProvider"]) for k, v in paths.items()}
+    n = sess["fp32"].get_inputs()[0].shape[0]
+    g = int(round(n ** 0.5))
+    feeds = {"pixel_values": np.random.default_rng(0).standard_normal((n, 1176)).astype(np.float32),
+             "image_grid_thw": np.array([[1, g, g]], np.int64)}
+    for x in sess.values():
+        x.run(None, feeds)
+    rec = {k: {"runs_s": [], "cpu_runs_s": []} for k in sess}
+    for _ in range(runs):
+        for k, x in sess.items():
+            r = _cpu_timed(lambda: x.run(None, feeds), 1)
+            rec[k]["runs_s"] += r["runs_s"]
+            rec[k]["cpu_runs_s"] += r["cpu_runs_s"]
+    for r in rec.values():
+        r["p50_s"], r["cpu_p50_s"] = float(np.median(r["runs_s"])), float(np.median(r["cpu_runs_s"]))
+    return {"threads": threads, "load_start": _load(), **rec,
+            "wall_ratio": rec[quant]["p50_s"] / rec["fp32"]["p50_s"],
+            "cpu_ratio": rec[quant]["cpu_p50_s"] / rec["fp32"]["cpu_p50_s"], "load_end": _load()}
+
+
 def _feeds(sess, pre: dict) -> dict:
     """Random feeds for a perception graph: symbolic dims -> 1 (batch-like) or the preprocessing size."""
     size = pre.get("size") or [224, 224]
@@ -314,7 +356,8 @@ def measure_genai_vlm(out: Path, runs: int, threads: int, text_chars: int | None
         feeds = {"pixel_values": np.random.default_rng(0).standard_normal((g * g, 1176)).astype(np.float32),
                  "image_grid_thw": np.array([[1, g, g]], np.int64)}
         vs.run(None, feeds)
-        vis_p50, vis_ts = _p50(lambda: vs.run(None, feeds), runs)
+        vis = _cpu_timed(lambda: vs.run(None, feeds), runs)
+        vis_p50, vis_ts = vis["p50_s"], vis["runs_s"]
         del vs
         trace = Trace()
         rss0, t = _rss_mb(), time.perf_counter()
@@ -325,7 +368,8 @@ def measure_genai_vlm(out: Path, runs: int, threads: int, text_chars: int | None
             t = time.perf_counter()
             vlm.generate_ids([vp.image], prompt, max_new_tokens=16)
             rec.append({**vlm.last, "answer_s": round(time.perf_counter() - t, 3)})
-        res[v] = {"vision_448_p50_s": round(vis_p50, 3), "vision_runs_s": vis_ts, "load_s": round(load_s, 2),
+        res[v] = {"vision_448_p50_s": round(vis_p50, 3), "vision_runs_s": vis_ts,
+                  "vision_cpu_p50_s": vis["cpu_p50_s"], "load_s": round(load_s, 2),
                   "resident_mb_after_load": round(load_rss), "resident_mb_after_runs": round(_rss_mb() - rss0),
                   "prompt_tokens": rec[0]["prompt_tokens"],
                   "prefill_p50_s": float(np.median([r["prefill_s"] for r in rec])),
@@ -493,8 +537,11 @@ def qwen3_measure(big: Path, runs: int, threads: int, n_new: int = 16) -> dict:
                                                     / np.abs(refs["hf/logits0"]).max()),
                kl_vs_transformers=kl_next_token(refs["hf/logits0"], logits[0, -1]),
                rss_sessions_after_runs_mb=round(_rss_mb()),
-               peak_rss_mb=round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024), load_end=_load())
-    return res
+               peak_rss_mb_so_far=round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024), load_end=_load())
+    res["parity"] = {**{g: r["parity_vs_torch"] for g, r in res["graphs"].items()},
+                     **{k: res[k] for k in ("token_agreement_vs_transformers", "kl_vs_transformers",
+                                            "logits_rel_err_vs_transformers")}}
+    return {"fp32": res}
 
 
 # ------------------------------------------------------------------------------------------------ side
@@ -720,7 +767,7 @@ def cost_table(data: dict) -> str:
         e, ck = r.get("export") or {}, r.get("checkpoint") or {}
         meas = r.get("measure_text300") or r.get("measure") or {}
         for v, size in (e.get("size_mib") or {}).items():
-            par = e.get("parity", {}).get(v, {})
+            par = e.get("parity", {}).get(v) or (meas.get(v) or {}).get("parity", {})
             ptxt = ", ".join(f"{k} {x['rel']:.1e}" if isinstance(x, dict) else f"{k} {x:.3g}"
                              for k, x in par.items() if x is not None)
             lat = (meas.get("latency") or {}).get(v)
@@ -774,7 +821,8 @@ def save(name: str, step: str, res: dict) -> None:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("step", choices=["checkpoint", "export", "measure", "side", "all", "profile", "scale-profiles", "table",
+    ap.add_argument("step", choices=["checkpoint", "export", "measure", "side", "vision-ab", "all", "profile",
+                                     "scale-profiles", "table",
                                      "_child", "_probe"])
     ap.add_argument("child_step", nargs="?")
     ap.add_argument("probe_path", nargs="?")
@@ -803,12 +851,13 @@ def main(argv=None) -> int:
         ap.error("--model is required")
     if args.step == "_child":
         fn = {"checkpoint": step_checkpoint, "export": step_export, "measure": step_measure,
-              "side": step_side}[args.child_step]
+              "side": step_side, "vision-ab": lambda name, big, **kw: vision_ab(big, **kw)}[args.child_step]
         kw = ({"runs": args.runs, "threads": args.threads, "text_chars": args.text_chars}
               if args.child_step == "measure" else {"text_chars": args.text_chars}
               if args.child_step == "export" else
               {"runs": args.runs, "threads": args.threads,
-               "vision_quants": tuple(args.vision_quants.split(","))} if args.child_step == "side" else {})
+               "vision_quants": tuple(args.vision_quants.split(","))} if args.child_step == "side" else
+              {"runs": args.runs, "threads": args.threads} if args.child_step == "vision-ab" else {})
         print(json.dumps(fn(args.model, args.big, **kw)))
         return 0
     for step in (["checkpoint", "export", "measure"] if args.step == "all" else [args.step]):

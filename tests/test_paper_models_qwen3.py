@@ -26,7 +26,7 @@ def test_two_process_split_reproduces_transformers(tmp_path):
     assert set(exp["graphs"]) == {"vision", "embed", "decoder"}
     assert not any(g["external_data"] for g in exp["graphs"].values())  # tiny: one protobuf each
     assert exp["provenance"]["random_weights"] is True
-    m = PM.qwen3_measure(tmp_path, runs=1, threads=1, n_new=5)
+    m = PM.qwen3_measure(tmp_path, runs=1, threads=1, n_new=5)["fp32"]
     for g in m["graphs"].values():
         assert g["parity_vs_torch"]["rel"] < 1e-4 and g["parity_vs_torch"]["cosine"] > 0.9999
     assert max(o["rel"] for o in m["graphs"]["vision"]["vs_transformers"]) < 1e-4
