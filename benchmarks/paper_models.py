@@ -764,7 +764,7 @@ def cost_table(data: dict) -> str:
     rows = ["| model (random weights) | params | export s / peak RSS GB | precision | size MiB | parity | CPU 2 threads |",
             "|---|---|---|---|---|---|---|"]
     for name, r in data["models"].items():
-        e, ck = r.get("export") or {}, r.get("checkpoint") or {}
+        e, ck = r.get("export") or r.get("export_text300") or {}, r.get("checkpoint") or {}
         meas = r.get("measure_text300") or r.get("measure") or {}
         for v, size in (e.get("size_mib") or {}).items():
             par = e.get("parity", {}).get(v) or (meas.get(v) or {}).get("parity", {})
