@@ -194,6 +194,7 @@ def vision_ab(big: Path, runs: int, threads: int, quant: str = "dynamic") -> dic
     so = ort.SessionOptions()
     so.intra_op_num_threads, so.inter_op_num_threads = threads, 1
     paths = {"fp32": side / "fp32" / "vision" / "model.onnx", quant: side / f"vision-{quant}" / "model.onnx"}
+    load0 = _load()
     sess = {k: ort.InferenceSession(str(v), so, providers=["CPUExecutionProvider"]) for k, v in paths.items()}
     n = sess["fp32"].get_inputs()[0].shape[0]
     g = int(round(n ** 0.5))
@@ -209,7 +210,7 @@ def vision_ab(big: Path, runs: int, threads: int, quant: str = "dynamic") -> dic
             rec[k]["cpu_runs_s"] += r["cpu_runs_s"]
     for r in rec.values():
         r["p50_s"], r["cpu_p50_s"] = float(np.median(r["runs_s"])), float(np.median(r["cpu_runs_s"]))
-    return {"threads": threads, "load_start": _load(), **rec,
+    return {"threads": threads, "load_start": load0, **rec,
             "wall_ratio": rec[quant]["p50_s"] / rec["fp32"]["p50_s"],
             "cpu_ratio": rec[quant]["cpu_p50_s"] / rec["fp32"]["cpu_p50_s"], "load_end": _load()}
 
@@ -782,7 +783,7 @@ def cost_table(data: dict) -> str:
                 ltxt = f"answer (16 tok, {meas[v]['prompt_tokens']} prompt tok) {meas[v]['answer_16_tokens_p50_s']:.1f} s"
             else:
                 ltxt = "-"
-            rows.append(f"| {name} | {ck.get('parameters') or '-'} | {e.get('export_s', '-')} / "
+            rows.append(f"| {name} | {ck.get('parameters') or '-'} | {e.get('export_s') or e.get('export_wall_s') or '-'} / "
                         f"{(e.get('export_peak_rss_mb') or 0) / 1024:.1f} | {v} | {size} | {ptxt or '-'} | {ltxt} |")
     return "\n".join(rows)
 
