@@ -6,6 +6,9 @@ CPU latency; writes benchmarks/results/paper_models.json (merged per model, so s
     python benchmarks/paper_models.py measure --model qwen2.5-vl-3b        # latency (2 threads, p50 of >= 5 runs)
     python benchmarks/paper_models.py all --model depth-anything-v2-small  # the three steps
     python benchmarks/paper_models.py side --model qwen2.5-vl-3b           # vision + embedding fp32 vs int8 alone
+    python benchmarks/paper_models.py vision-ab --model qwen2.5-vl-3b      # fp32 vs int8 vision, runs alternated
+    python benchmarks/paper_models.py all --model qwen3-vl-2b              # the project's graphs, torch and ORT apart
+    python benchmarks/paper_models.py scale-profiles                       # other profiles' [paper_costs] (scaled)
 
 Random weights of the real configurations are honest for everything except accuracy: export at size (2 GB
 protobuf limit, external data, quantiser memory), artifact sizes, peak memory and latency. Every record carries

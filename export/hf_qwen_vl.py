@@ -25,7 +25,7 @@ Precision per package: fp32 = everything fp32; int8 / int4 = the builder's int8 
 vision graph and an int8 embedding table (one fp32 scale per 128 columns, standard Gather + Cast + Mul),
 `--option side=fp32` to keep both fp32. The vision quantiser is `--option vision_quant=` (VISION_QUANTS):
 `dynamic` (default: onnxruntime's quantize_dynamic, per-channel int8 weights, MatMulInteger -- ~2x faster than the
-fp32 graph or faster on this CPU), `nbits8` / `nbits4` (MatMulNBits weight-only; 8-bit measured ~4x slower than
+fp32 graph on this CPU at 3B), `nbits8` / `nbits4` (MatMulNBits weight-only; 8-bit measured ~4x slower than
 fp32 here, 4-bit fails the int8 parity gate at 3B), or `fp32` (int8 table, fp32 vision). At 3B the int8 side
 takes the vision weights from ~2.5 GB to ~0.65 GB and the table from 1.2 GB to ~0.3 GB.
 
