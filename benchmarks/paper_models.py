@@ -6,6 +6,9 @@ CPU latency; writes benchmarks/results/paper_models.json (merged per model, so s
     python benchmarks/paper_models.py measure --model qwen2.5-vl-3b        # latency (2 threads, p50 of >= 5 runs)
     python benchmarks/paper_models.py all --model depth-anything-v2-small  # the three steps
     python benchmarks/paper_models.py side --model qwen2.5-vl-3b           # vision + embedding fp32 vs int8 alone
+    python benchmarks/paper_models.py vision-ab --model qwen2.5-vl-3b      # fp32 vs int8 vision, runs alternated
+    python benchmarks/paper_models.py all --model qwen3-vl-2b              # the project's graphs, torch and ORT apart
+    python benchmarks/paper_models.py scale-profiles                       # other profiles' [paper_costs] (scaled)
 
 Random weights of the real configurations are honest for everything except accuracy: export at size (2 GB
 protobuf limit, external data, quantiser memory), artifact sizes, peak memory and latency. Every record carries
@@ -38,8 +41,11 @@ MOSAIC = str(Path(PY).with_name("mosaic"))
 # model -> (role, export precisions, exporter options). Sources: the configs published with each checkpoint
 # (transformers' config defaults are those checkpoints' configs where noted in `real_config`).
 MODELS = {
-    "qwen2.5-vl-3b": ("vlm", "fp32,int4", ["image_size=448", "hf_check=1"]),
+    # hf_check=1 (transformers fp32 reference, ~15 GB more) was run once: export_fp32_side in the results JSON
+    "qwen2.5-vl-3b": ("vlm", "fp32,int4", ["image_size=448", "hf_check=0", "vision_quant=dynamic"]),
     "smolvlm-256m": ("vlm", "fp32,int8-dynamic", []),
+    # the project's own graphs (no GenAI DeepStack): steps export/measure run qwen3_export / qwen3_measure
+    "qwen3-vl-2b": ("vlm", "fp32", ["image_size=448"]),
     "depth-anything-v2-small": ("depth", "fp32,int8-dynamic", ["size=518"]),  # random weights default to 70
     "sam-vit-base": ("segmenter", "fp32,int8-dynamic", []),
     "owlv2-base-patch16": ("detector", "fp32,int8-dynamic", []),
@@ -90,6 +96,11 @@ def step_checkpoint(name: str, big: Path) -> dict:
         from mosaicthinker.export.hf_qwen_vl import random_checkpoint
 
         random_checkpoint("3b", ck, dtype="bfloat16")
+    elif name == "qwen3-vl-2b":
+        from mosaicthinker.export.hf_qwen3_vl import random_checkpoint
+
+        random_checkpoint("2b", ck, dtype="bfloat16")
+        n = json.loads((ck / "RANDOM_WEIGHTS.json").read_text())["parameters"]
     else:
         from mosaicthinker.export.tiny import torch_default_init
 
@@ -105,7 +116,9 @@ def step_checkpoint(name: str, big: Path) -> dict:
     return {"checkpoint_s": round(time.time() - t, 1), "checkpoint": str(ck), "parameters": n}
 
 
-def step_export(name: str, big: Path) -> dict:
+def step_export(name: str, big: Path, text_chars: int | None = None) -> dict:
+    if name == "qwen3-vl-2b":
+        return qwen3_export(big, text_chars=text_chars)
     role, prec, opts = MODELS[name]
     ck = big / "ckpt" / name
     out = big / "bundles" / name
@@ -162,6 +175,49 @@ def _p50(fn, n: int) -> tuple[float, list[float]]:
     return float(np.median(ts)), [round(x, 4) for x in ts]
 
 
+def _cpu_timed(fn, n: int) -> dict:
+    """p50 wall AND process CPU seconds (every thread) of `fn` over n runs: under shared load the wall time moves
+    with the other jobs, the CPU seconds much less."""
+    wall, cpu = [], []
+    for _ in range(n):
+        t, c = time.perf_counter(), time.process_time()
+        fn()
+        wall.append(time.perf_counter() - t)
+        cpu.append(time.process_time() - c)
+    return {"p50_s": round(float(np.median(wall)), 3), "runs_s": [round(x, 3) for x in wall],
+            "cpu_p50_s": round(float(np.median(cpu)), 3), "cpu_runs_s": [round(x, 3) for x in cpu]}
+
+
+def vision_ab(big: Path, runs: int, threads: int, quant: str = "dynamic") -> dict:
+    """The fp32 and the quantised Qwen2.5-VL vision graphs of the side step in ONE process, runs alternated
+    (a, b, a, b, ...), so both see the same shared-CPU load: wall and CPU seconds per 448 px image."""
+    import onnxruntime as ort
+
+    side = big / "side" / "qwen2.5-vl-3b"
+    so = ort.SessionOptions()
+    so.intra_op_num_threads, so.inter_op_num_threads = threads, 1
+    paths = {"fp32": side / "fp32" / "vision" / "model.onnx", quant: side / f"vision-{quant}" / "model.onnx"}
+    load0 = _load()
+    sess = {k: ort.InferenceSession(str(v), so, providers=["CPUExecutionProvider"]) for k, v in paths.items()}
+    n = sess["fp32"].get_inputs()[0].shape[0]
+    g = int(round(n ** 0.5))
+    feeds = {"pixel_values": np.random.default_rng(0).standard_normal((n, 1176)).astype(np.float32),
+             "image_grid_thw": np.array([[1, g, g]], np.int64)}
+    for x in sess.values():
+        x.run(None, feeds)
+    rec = {k: {"runs_s": [], "cpu_runs_s": []} for k in sess}
+    for _ in range(runs):
+        for k, x in sess.items():
+            r = _cpu_timed(lambda: x.run(None, feeds), 1)
+            rec[k]["runs_s"] += r["runs_s"]
+            rec[k]["cpu_runs_s"] += r["cpu_runs_s"]
+    for r in rec.values():
+        r["p50_s"], r["cpu_p50_s"] = float(np.median(r["runs_s"])), float(np.median(r["cpu_runs_s"]))
+    return {"threads": threads, "load_start": load0, **rec,
+            "wall_ratio": rec[quant]["p50_s"] / rec["fp32"]["p50_s"],
+            "cpu_ratio": rec[quant]["cpu_p50_s"] / rec["fp32"]["cpu_p50_s"], "load_end": _load()}
+
+
 def _feeds(sess, pre: dict) -> dict:
     """Random feeds for a perception graph: symbolic dims -> 1 (batch-like) or the preprocessing size."""
     size = pre.get("size") or [224, 224]
@@ -187,6 +243,8 @@ def step_measure(name: str, big: Path, runs: int, threads: int, text_chars: int 
     out = big / "bundles" / name
     if name == "qwen2.5-vl-3b":
         return measure_genai_vlm(out, runs, threads, text_chars)
+    if name == "qwen3-vl-2b":
+        return qwen3_measure(big, runs, threads)
     if role == "vlm":
         return measure_own_vlm(out, runs, threads)
     import onnxruntime as ort
@@ -302,7 +360,8 @@ def measure_genai_vlm(out: Path, runs: int, threads: int, text_chars: int | None
         feeds = {"pixel_values": np.random.default_rng(0).standard_normal((g * g, 1176)).astype(np.float32),
                  "image_grid_thw": np.array([[1, g, g]], np.int64)}
         vs.run(None, feeds)
-        vis_p50, vis_ts = _p50(lambda: vs.run(None, feeds), runs)
+        vis = _cpu_timed(lambda: vs.run(None, feeds), runs)
+        vis_p50, vis_ts = vis["p50_s"], vis["runs_s"]
         del vs
         trace = Trace()
         rss0, t = _rss_mb(), time.perf_counter()
@@ -313,7 +372,8 @@ def measure_genai_vlm(out: Path, runs: int, threads: int, text_chars: int | None
             t = time.perf_counter()
             vlm.generate_ids([vp.image], prompt, max_new_tokens=16)
             rec.append({**vlm.last, "answer_s": round(time.perf_counter() - t, 3)})
-        res[v] = {"vision_448_p50_s": round(vis_p50, 3), "vision_runs_s": vis_ts, "load_s": round(load_s, 2),
+        res[v] = {"vision_448_p50_s": round(vis_p50, 3), "vision_runs_s": vis_ts,
+                  "vision_cpu_p50_s": vis["cpu_p50_s"], "load_s": round(load_s, 2),
                   "resident_mb_after_load": round(load_rss), "resident_mb_after_runs": round(_rss_mb() - rss0),
                   "prompt_tokens": rec[0]["prompt_tokens"],
                   "prefill_p50_s": float(np.median([r["prefill_s"] for r in rec])),
@@ -326,17 +386,182 @@ def measure_genai_vlm(out: Path, runs: int, threads: int, text_chars: int | None
     return res
 
 
+# ------------------------------------------------------------------------------------------------ Qwen3-VL-2B
+# The project's own graphs (export/hf_qwen3_vl.py) at the real 2B size, in two child processes so the torch model
+# and the onnxruntime sessions are never loaded together: qwen3_export (torch: graphs with external data, and
+# every reference output on fresh inputs saved to disk), then qwen3_measure (onnxruntime only: parity against
+# the saved references, latency of the runtime loop).
+
+def _qwen3_dir(big: Path) -> Path:
+    return big / "qwen3" / "qwen3-vl-2b"
+
+
+def _qwen3_prompt_ids(tok, cfg: dict, text_chars: int | None):
+    from mosaicthinker.runtime.stages import preprocess_image
+    from mosaicthinker.runtime.stages.vlm import build_prompt, qwen_patches
+
+    vp, prompt = _prompt(text_chars)
+    pre = {"size": [cfg["image_size"]] * 2, "layout": "NCHW", "channel_order": "RGB", "dtype": "float32",
+           "scale": 1 / 255, "mean": [0.5] * 3, "std": [0.5] * 3}
+    px = qwen_patches(preprocess_image(vp.image, pre)[0], cfg["patch_size"], cfg["merge_size"],
+                      cfg["temporal_patch_size"])
+    ids = tok.encode(build_prompt("qwen3_vl", prompt, 1, cfg["image_seq_len"]), add_special_tokens=False).ids
+    return ids, px
+
+
+def qwen3_export(big: Path, image_size: int = 448, n_new: int = 16, trials: int = 2,
+                 text_chars: int | None = None) -> dict:
+    """torch side: load the random 2B checkpoint (fp32), export vision / embed / decoder (external data past
+    1 GiB, export/hf_common.needs_external_data), and save to disk every reference the measure step compares
+    against: each graph's torch wrapper on `trials` fresh inputs, transformers' own vision forward and greedy
+    generate (tokens + first-step logits) on the paper prompt with the map image."""
+    import gc
+
+    import torch
+
+    from mosaicthinker.export import common as C
+    from mosaicthinker.export.hf_common import needs_external_data, torch_reference
+    from mosaicthinker.export.hf_qwen3_vl import IMAGE_TOKEN, graph_specs, hf_vision, load_model, runtime_config
+    from mosaicthinker.export.parity import parity_rng
+    from mosaicthinker.runtime.stages.vlm import load_tokenizer
+
+    ck, work = big / "ckpt" / "qwen3-vl-2b", _qwen3_dir(big)
+    import shutil
+
+    shutil.rmtree(work, ignore_errors=True)
+    (work / "fp32").mkdir(parents=True)
+    t = time.time()
+    model, prov = load_model(f"dir:{ck}")
+    res = {"load_s": round(time.time() - t, 1), "rss_after_load_mb": round(_rss_mb()), "provenance": prov,
+           "parameters": sum(p.numel() for p in model.parameters()), "load": _load()}
+    cfg = runtime_config(model, image_size)
+    refs: dict[str, np.ndarray] = {}
+    graphs = {}
+    for g in graph_specs(model, image_size):
+        t = time.time()
+        ext = needs_external_data(g.module)
+        path = C.export_torch(g.module, g.example, work / "fp32" / f"{g.name}.onnx", g.input_names,
+                              g.output_names, dynamic_shapes=g.dynamic_shapes, external_data=ext)
+        secs = time.time() - t
+        seed, rng = parity_rng()
+        ref = torch_reference(g.module, g.input_names)
+        for i in range(trials):
+            feeds = g.make_inputs(rng)
+            for k, v in feeds.items():
+                refs[f"{g.name}/{i}/in/{k}"] = v
+            for j, o in enumerate(ref(feeds)):
+                refs[f"{g.name}/{i}/out/{j}"] = o
+        graphs[g.name] = {"export_s": round(secs, 1), "external_data": ext, "parity_seed": seed,
+                          "size_mib": round(sum(f.stat().st_size for f in path.parent.iterdir()
+                                                if f.name.startswith(path.name)) / 2**20, 1),
+                          "rss_after_mb": round(_rss_mb())}
+        C.progress(f"qwen3-vl-2b {g.name}: exported in {secs:.0f} s, {graphs[g.name]['size_mib']} MiB")
+    tok = load_tokenizer(str(ck / "tokenizer.json"))
+    ids, px = _qwen3_prompt_ids(tok, cfg, text_chars)
+    refs["hf/vision/0"], refs["hf/vision/1"] = hf_vision(model, px, image_size)
+    g = image_size // cfg["patch_size"]
+    tt = torch.tensor([ids])
+    t = time.time()
+    with torch.no_grad():
+        out = model.generate(input_ids=tt, attention_mask=torch.ones_like(tt), pixel_values=torch.from_numpy(px),
+                             image_grid_thw=torch.tensor([[1, g, g]]), mm_token_type_ids=(tt == IMAGE_TOKEN).int(),
+                             max_new_tokens=n_new, do_sample=False, num_beams=1, eos_token_id=None,
+                             pad_token_id=151643, output_logits=True, return_dict_in_generate=True)
+    hf_s = time.time() - t
+    refs["hf/tokens"] = out.sequences[0, len(ids):].numpy()
+    refs["hf/logits0"] = out.logits[0][0].float().numpy()
+    refs["prompt/ids"], refs["prompt/pixel_values"] = np.asarray(ids, np.int64), px
+    np.savez(work / "refs.npz", **refs)
+    (work / "config.json").write_text(json.dumps(cfg))
+    del model, out
+    gc.collect()
+    return {**res, "graphs": graphs, "config": cfg, "image_size": image_size, "prompt_tokens": len(ids),
+            "text_block_chars": text_chars, "transformers_fp32_answer_s": round(hf_s, 1),
+            "size_mib": {"fp32": round(sum(x["size_mib"] for x in graphs.values()), 1)}, "dir": str(work)}
+
+
+def qwen3_measure(big: Path, runs: int, threads: int, n_new: int = 16) -> dict:
+    """onnxruntime side (no torch model in this process): each graph vs its saved torch references, the vision
+    graph vs transformers' vision forward, then the runtime loop (MRopeDecoder) on the paper prompt with the map
+    image: vision alone, prefill, decode tokens/s, the whole answer, and its tokens / first-step KL vs
+    transformers' greedy generate."""
+    import resource
+
+    import onnxruntime as ort
+
+    from mosaicthinker.export.hf_qwen_vl import kl_next_token
+    from mosaicthinker.export.parity import compare_outputs
+    from mosaicthinker.runtime.stages.vlm import MRopeDecoder, OrtRunner
+
+    work = _qwen3_dir(big)
+    refs = dict(np.load(work / "refs.npz"))
+    cfg = json.loads((work / "config.json").read_text())
+    so = ort.SessionOptions()
+    so.intra_op_num_threads, so.inter_op_num_threads = threads, 1
+    sess, res = {}, {"threads": threads, "load": _load(), "graphs": {}}
+    for name in ("vision", "embed", "decoder"):
+        rss0, t = _rss_mb(), time.perf_counter()
+        sess[name] = ort.InferenceSession(str(work / "fp32" / f"{name}.onnx"), so,
+                                          providers=["CPUExecutionProvider"])
+        rec = {"load_s": round(time.perf_counter() - t, 2), "rss_after_load_mb": round(_rss_mb() - rss0)}
+        worst = []
+        for i in range(len({k.split("/")[1] for k in refs if k.startswith(name + "/")})):
+            feeds = {k.split("/")[-1]: v for k, v in refs.items() if k.startswith(f"{name}/{i}/in/")}
+            ref = [refs[f"{name}/{i}/out/{j}"] for j in range(len(sess[name].get_outputs()))]
+            worst += compare_outputs(ref, sess[name].run(None, feeds))
+        rec["parity_vs_torch"] = {"rel": max(w["rel"] for w in worst), "cosine": min(w["cosine"] for w in worst)}
+        res["graphs"][name] = rec
+    px, ids = refs["prompt/pixel_values"], [int(x) for x in refs["prompt/ids"]]
+    vis = sess["vision"].run(None, {"pixel_values": px})
+    res["graphs"]["vision"]["vs_transformers"] = compare_outputs([refs["hf/vision/0"], refs["hf/vision/1"]], vis)
+    p50, ts = _p50(lambda: sess["vision"].run(None, {"pixel_values": px}), runs)
+    res["vision_448_p50_s"], res["vision_runs_s"] = round(p50, 3), ts
+    core = MRopeDecoder(*(OrtRunner(sess[c]) for c in ("vision", "embed", "decoder")), cfg)
+    answers = []
+    for _ in range(runs):
+        t0 = time.perf_counter()
+        image = core.image_features(px)
+        t1 = time.perf_counter()
+        logits, _, _ = core.prefill(ids, image)
+        t2 = time.perf_counter()
+        got = core.generate_ids(ids, image, n_new, [])  # prefill again inside: decode = total - prefill
+        t3 = time.perf_counter()
+        dec = max((t3 - t2) - (t2 - t1), 1e-9)
+        answers.append({"vision_s": round(t1 - t0, 3), "prefill_s": round(t2 - t1, 3),
+                        "decode_tok_s": round((len(got) - 1) / dec, 3),
+                        "answer_s": round((t1 - t0) + (t3 - t2), 3)})
+    hf_tokens = [int(x) for x in refs["hf/tokens"]]
+    res.update(prompt_tokens=len(ids), answers=answers, new_tokens=len(got),
+               prefill_p50_s=float(np.median([a["prefill_s"] for a in answers])),
+               decode_tok_s_p50=float(np.median([a["decode_tok_s"] for a in answers])),
+               answer_16_tokens_p50_s=float(np.median([a["answer_s"] for a in answers])),
+               tokens=got, hf_tokens=hf_tokens,
+               token_agreement_vs_transformers=float(np.mean([a == b for a, b in zip(got, hf_tokens)])),
+               logits_rel_err_vs_transformers=float(np.abs(logits[0, -1] - refs["hf/logits0"]).max()
+                                                    / np.abs(refs["hf/logits0"]).max()),
+               kl_vs_transformers=kl_next_token(refs["hf/logits0"], logits[0, -1]),
+               rss_sessions_after_runs_mb=round(_rss_mb()),
+               peak_rss_mb_so_far=round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024), load_end=_load())
+    res["parity"] = {**{g: r["parity_vs_torch"] for g, r in res["graphs"].items()},
+                     **{k: res[k] for k in ("token_agreement_vs_transformers", "kl_vs_transformers",
+                                            "logits_rel_err_vs_transformers")}}
+    return {"fp32": res}
+
+
 # ------------------------------------------------------------------------------------------------ side
 
-def step_side(name: str, big: Path, runs: int, threads: int, image_size: int = 448) -> dict:
-    """Qwen2.5-VL's vision graph and embedding table, fp32 and int8 (the int8/int4 packages' side), from the
-    checkpoint alone -- no GenAI builder, no decoder: sizes, parity (int8 vs fp32 on fresh inputs), and each
-    graph's session RSS and latency measured in its own fresh process (`_probe`). Graphs kept under
-    BIG/side/NAME for a later package."""
+def step_side(name: str, big: Path, runs: int, threads: int, image_size: int = 448,
+              vision_quants: tuple[str, ...] = ("dynamic", "nbits8", "nbits4")) -> dict:
+    """Qwen2.5-VL's vision graph (fp32 and each of `vision_quants`, export/hf_qwen_vl.py:VISION_QUANTS) and
+    embedding table (fp32, int8) -- the int8/int4 packages' side -- from the checkpoint alone, no GenAI builder,
+    no decoder: sizes, parity vs fp32 on fresh inputs, and each graph's session RSS and latency measured in its
+    own fresh process (`_probe`). Graphs kept under BIG/side/NAME for a later package."""
     import gc
     import shutil
 
-    from mosaicthinker.export.hf_qwen_vl import export_graphs, export_int8_graphs, load_vision_side
+    from mosaicthinker.export import common as C
+    from mosaicthinker.export.hf_qwen_vl import (VISION_QUANTS, export_graphs, export_int8_graphs, load_vision_side,
+                                                 quantize_vision)
 
     if name != "qwen2.5-vl-3b":
         raise SystemExit("side: only qwen2.5-vl-3b (its GenAI package's vision + embedding)")
@@ -346,27 +571,44 @@ def step_side(name: str, big: Path, runs: int, threads: int, image_size: int = 4
     model = load_vision_side(big / "ckpt" / name)
     g32 = export_graphs(model, work / "fp32", image_size)
     t32 = time.time() - t
-    g8 = export_int8_graphs(model, g32, work / "int8")
+    g8 = export_int8_graphs(model, g32, work / "int8", vision_quant="fp32")  # the int8 table only
     t8 = time.time() - t - t32
     del model
     gc.collect()
-    res = {"image_size": image_size, "threads": threads, "export_s": {"fp32": round(t32, 1), "int8": round(t8, 1)},
-           "int8_quant": {"vision": g8["vision_quant"], "embedding": g8["embedding_quant"]}}
-    for prec, g in (("fp32", g32), ("int8", g8)):
-        for c in ("vision", "embedding"):
-            d = Path(g[c]).parent
-            r = subprocess.run([PY, __file__, "_probe", c, str(g[c]), "--runs", str(runs), "--threads", str(threads)],
-                               capture_output=True, text=True)
-            if r.returncode != 0:
-                raise SystemExit(f"probe {prec} {c} failed:\n{r.stderr[-2000:]}")
-            res.setdefault(prec, {})[c] = {
-                "size_mib": round(sum(f.stat().st_size for f in d.iterdir()) / 2**20, 1),
-                **json.loads(r.stdout.strip().splitlines()[-1]),
-                **({"parity_vs_fp32": g["parity"][c]["worst"]} if prec == "int8" else {})}
-    for prec in ("fp32", "int8"):
-        res[prec]["rss_after_run_mb_sum"] = round(sum(res[prec][c]["rss_after_run_mb"]
-                                                      for c in ("vision", "embedding")))
+    res = {"image_size": image_size, "threads": threads, "load": _load(),
+           "export_s": {"fp32": round(t32, 1), "embedding_int8": round(t8, 1)},
+           "fp32": {"vision": {"parity_vs_transformers": g32["parity"]["vision"]["worst"]}},
+           "embedding_int8_quant": g8["embedding_quant"]}
+    graphs = {("fp32", "vision"): g32["vision"], ("fp32", "embedding"): g32["embedding"],
+              ("int8", "embedding"): g8["embedding"]}
+    ref = C.ort_session(g32["vision"], threads)
+    for q in vision_quants:
+        t = time.time()
+        path = quantize_vision(Path(g32["vision"]), work / f"vision-{q}" / "model.onnx", q)
+        par = C.parity_check(path, lambda f: C.ort_run(ref, f), g32["vision_inputs"], precision="int8-dynamic",
+                             trials=2, require=False, label=f"qwen vision {q} vs fp32")
+        res.setdefault(q, {})["vision"] = {"quant": VISION_QUANTS[q].format(block=128),
+                                           "quantize_s": round(time.time() - t, 1), "parity_vs_fp32": par["worst"],
+                                           "parity_ok": par["ok"]}
+        graphs[(q, "vision")] = path
+    del ref
+    gc.collect()
+    for (prec, c), path in graphs.items():
+        d = Path(path).parent
+        r = subprocess.run([PY, __file__, "_probe", c, str(path), "--runs", str(runs), "--threads", str(threads)],
+                           capture_output=True, text=True)
+        if r.returncode != 0:
+            raise SystemExit(f"probe {prec} {c} failed:\n{r.stderr[-2000:]}")
+        res.setdefault(prec, {}).setdefault(c, {}).update(
+            size_mib=round(sum(f.stat().st_size for f in d.iterdir()) / 2**20, 1),
+            **json.loads(r.stdout.strip().splitlines()[-1]), load=_load())
+    res["int8"]["embedding"]["parity_vs_fp32"] = g8["parity"]["embedding"]["worst"]
     return res
+
+
+def _load() -> str:
+    """/proc/loadavg's 1/5/15-minute figures: every timing here is an upper bound under shared load."""
+    return " ".join(Path("/proc/loadavg").read_text().split()[:3])
 
 
 def probe(component: str, path: str, runs: int, threads: int) -> dict:
@@ -451,7 +693,45 @@ def paper_costs(data: dict, big: Path) -> dict:
     return out
 
 
+PERCEPTION = ("depth", "segmenter", "detector", "embedder", "matcher")
+
+
+def scale_paper_costs(base: dict, device: dict, paper: dict, base_name: str = "cpu-generic") -> dict:
+    """[paper_costs.*] for another profile, scaled from the cpu-generic measurements with the device factors the
+    profile's own shared-model [costs.*] already encode (profiles/estimate.py):
+
+    - perception items: one accelerator factor per device = the smallest ms ratio device / cpu-generic over the
+      shared perception items (the others sit on estimate.py's per-call floor, so their ratio over-states the
+      time), applied to every ms field;
+    - vlm: the ratio of the device's vlm estimate to cpu-generic's, per field (ms_per_image, ms_per_token);
+    - load_ms and resident_mb: the cpu-generic figures (no basis to scale: same files, same precision).
+    Every entry is status "estimated" with the rule and the factor in its `source`."""
+    ratios = [device[k][f] / base[k][f] for k in PERCEPTION if k in device and k in base
+              for f in ("ms_per_call", "ms_per_pair") if base[k].get(f) and f in device[k]]
+    acc = min(ratios) if ratios else 1.0
+    out = {}
+    for item, e in paper.items():
+        nums = {f: v for f, v in e.items() if isinstance(v, (int, float)) and not isinstance(v, bool)}
+        if item == "vlm":
+            if "vlm" not in device or "vlm" not in base:
+                continue
+            fac = {f: device["vlm"][f] / base["vlm"][f] for f in ("ms_per_image", "ms_per_token")}
+            rule = (f"ms_per_image x {fac['ms_per_image']:.4g}, ms_per_token x {fac['ms_per_token']:.4g} (this "
+                    f"profile's [costs.vlm] / {base_name}'s, the shared VLM's device factor)")
+        else:
+            fac = {f: acc for f in nums if f.startswith("ms_")}
+            rule = (f"ms fields x {acc:.4g} (this profile's accelerator factor: the smallest ms ratio of its shared "
+                    f"perception [costs.*] to {base_name}'s)")
+        scaled = {f: round(v * fac[f], 2) if f in fac else v for f, v in nums.items()}
+        out[item] = {**scaled, "status": "estimated",
+                     "source": f"SCALED from {base_name}'s measured [paper_costs.{item}] ({e.get('note', '')}; "
+                               f"{e.get('date', '')}): {rule}; load_ms and resident_mb as measured on "
+                               f"{base_name}. An estimate, not a measurement on this device"}
+    return out
+
+
 def write_profile(big: Path, profile: Path) -> dict:
+    """[paper_costs.*] of cpu-generic from the measured results, then every other profile's scaled from them."""
     import tomllib
 
     import tomli_w
@@ -460,7 +740,27 @@ def write_profile(big: Path, profile: Path) -> dict:
     prof = tomllib.loads(profile.read_text())
     prof["paper_costs"] = paper_costs(data, big)
     profile.write_text(tomli_w.dumps(prof))
+    write_scaled_profiles(profile)
     return prof["paper_costs"]
+
+
+def write_scaled_profiles(base_profile: Path) -> dict:
+    """Every other profiles/*.toml gets [paper_costs.*] scaled from base_profile's (scale_paper_costs)."""
+    import tomllib
+
+    import tomli_w
+
+    base = tomllib.loads(base_profile.read_text())
+    done = {}
+    for p in sorted(base_profile.parent.glob("*.toml")):
+        if p == base_profile:
+            continue
+        d = tomllib.loads(p.read_text())
+        d["paper_costs"] = scale_paper_costs(base["costs"], d["costs"], base["paper_costs"],
+                                             base_profile.stem)
+        p.write_text(tomli_w.dumps(d))
+        done[p.stem] = sorted(d["paper_costs"])
+    return done
 
 
 def cost_table(data: dict) -> str:
@@ -468,10 +768,10 @@ def cost_table(data: dict) -> str:
     rows = ["| model (random weights) | params | export s / peak RSS GB | precision | size MiB | parity | CPU 2 threads |",
             "|---|---|---|---|---|---|---|"]
     for name, r in data["models"].items():
-        e, ck = r.get("export") or {}, r.get("checkpoint") or {}
+        e, ck = r.get("export") or r.get("export_text300") or {}, r.get("checkpoint") or {}
         meas = r.get("measure_text300") or r.get("measure") or {}
         for v, size in (e.get("size_mib") or {}).items():
-            par = e.get("parity", {}).get(v, {})
+            par = e.get("parity", {}).get(v) or (meas.get(v) or {}).get("parity", {})
             ptxt = ", ".join(f"{k} {x['rel']:.1e}" if isinstance(x, dict) else f"{k} {x:.3g}"
                              for k, x in par.items() if x is not None)
             lat = (meas.get("latency") or {}).get(v)
@@ -486,7 +786,7 @@ def cost_table(data: dict) -> str:
                 ltxt = f"answer (16 tok, {meas[v]['prompt_tokens']} prompt tok) {meas[v]['answer_16_tokens_p50_s']:.1f} s"
             else:
                 ltxt = "-"
-            rows.append(f"| {name} | {ck.get('parameters') or '-'} | {e.get('export_s', '-')} / "
+            rows.append(f"| {name} | {ck.get('parameters') or '-'} | {e.get('export_s') or e.get('export_wall_s') or '-'} / "
                         f"{(e.get('export_peak_rss_mb') or 0) / 1024:.1f} | {v} | {size} | {ptxt or '-'} | {ltxt} |")
     return "\n".join(rows)
 
@@ -499,6 +799,8 @@ def run_child(step: str, name: str, args) -> dict:
            "--runs", str(args.runs), "--threads", str(args.threads)]
     if args.text_chars:
         cmd += ["--text-chars", str(args.text_chars)]
+    if step == "side":
+        cmd += ["--vision-quants", args.vision_quants]
     t = time.time()
     r = subprocess.run(cmd, capture_output=True, text=True)
     peak = re.search(r"Maximum resident set size \(kbytes\): (\d+)", r.stderr)
@@ -523,7 +825,8 @@ def save(name: str, step: str, res: dict) -> None:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("step", choices=["checkpoint", "export", "measure", "side", "all", "profile", "table",
+    ap.add_argument("step", choices=["checkpoint", "export", "measure", "side", "vision-ab", "all", "profile",
+                                     "scale-profiles", "table",
                                      "_child", "_probe"])
     ap.add_argument("child_step", nargs="?")
     ap.add_argument("probe_path", nargs="?")
@@ -531,11 +834,16 @@ def main(argv=None) -> int:
     ap.add_argument("--big", type=Path, default=Path(os.environ.get("MOSAIC_BIG", "/work/big/issue16")))
     ap.add_argument("--runs", type=int, default=5)
     ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--vision-quants", default="dynamic,nbits4",
+                    help="side: vision quantisers to measure against fp32 (export/hf_qwen_vl.py:VISION_QUANTS)")
     ap.add_argument("--text-chars", type=int, help="VLM: cut the object text block to N characters (the real "
                                                    "tokenizer's prompt length with the synthetic byte tokenizer)")
     args = ap.parse_args(argv)
     if args.step == "profile":  # [paper_costs.*] of profiles/cpu-generic.toml from the measured results
         print(json.dumps(write_profile(args.big, REPO / "profiles" / "cpu-generic.toml"), indent=1))
+        return 0
+    if args.step == "scale-profiles":  # the other profiles' [paper_costs.*] scaled from cpu-generic's
+        print(json.dumps(write_scaled_profiles(REPO / "profiles" / "cpu-generic.toml"), indent=1))
         return 0
     if args.step == "table":
         print(cost_table(json.loads(OUT.read_text())))
@@ -547,10 +855,13 @@ def main(argv=None) -> int:
         ap.error("--model is required")
     if args.step == "_child":
         fn = {"checkpoint": step_checkpoint, "export": step_export, "measure": step_measure,
-              "side": step_side}[args.child_step]
+              "side": step_side, "vision-ab": lambda name, big, **kw: vision_ab(big, **kw)}[args.child_step]
         kw = ({"runs": args.runs, "threads": args.threads, "text_chars": args.text_chars}
-              if args.child_step == "measure" else
-              {"runs": args.runs, "threads": args.threads} if args.child_step == "side" else {})
+              if args.child_step == "measure" else {"text_chars": args.text_chars}
+              if args.child_step == "export" else
+              {"runs": args.runs, "threads": args.threads,
+               "vision_quants": tuple(args.vision_quants.split(","))} if args.child_step == "side" else
+              {"runs": args.runs, "threads": args.threads} if args.child_step == "vision-ab" else {})
         print(json.dumps(fn(args.model, args.big, **kw)))
         return 0
     for step in (["checkpoint", "export", "measure"] if args.step == "all" else [args.step]):

@@ -119,7 +119,7 @@ def export_variants(out: str | Path, role: str, graphs: list[GraphSpec], meta: d
         par32: dict[str, Any] = {}
         for g in graphs:
             p = C.export_torch(g.module, g.example, work / "fp32" / f"{g.name}.onnx", g.input_names, g.output_names,
-                               dynamic_shapes=g.dynamic_shapes)
+                               dynamic_shapes=g.dynamic_shapes, external_data=needs_external_data(g.module))
             par32[g.name] = _parity(g, p, torch_reference(g.module, g.input_names), "fp32", f"{role}/{g.name} vs torch",
                                     require=True)
             fp32[g.name] = p
@@ -171,6 +171,16 @@ def export_variants(out: str | Path, role: str, graphs: list[GraphSpec], meta: d
     return report
 
 
+# protobuf's hard limit is 2 GiB per file; weights past this go to `<graph>.onnx.data` beside the graph
+EXTERNAL_DATA_BYTES = 1 << 30
+
+
+def needs_external_data(module: Any) -> bool:
+    """Whether a torch module's weights (parameters + buffers) are too big for one protobuf file."""
+    n = sum(t.numel() * t.element_size() for t in list(module.parameters()) + list(module.buffers()))
+    return n > EXTERNAL_DATA_BYTES
+
+
 def _strip_value_info(src: Path, dst: Path) -> Path:
     """A copy of the graph without the exporter's intermediate `value_info` shapes: onnxruntime's quantiser
     re-infers shapes and rejects some that the dynamo exporter recorded (seen: CLIP's projection, 'Inferred
@@ -179,8 +189,15 @@ def _strip_value_info(src: Path, dst: Path) -> Path:
 
     model = onnx.load(str(src))
     model.graph.ClearField("value_info")
-    onnx.save(model, str(dst))
+    big = _has_external_data(src)  # an external-data source is past the protobuf limit once loaded
+    onnx.save(model, str(dst), save_as_external_data=big, location=dst.name + ".data" if big else None)
     return dst
+
+
+def _has_external_data(path: Path) -> bool:
+    from mosaicthinker.host import bundle_write as B
+
+    return bool(B.external_data_locations(path))
 
 
 def drop_role(out: str | Path, role: str) -> None:

@@ -41,8 +41,10 @@ from .hf_qwen_vl import IMAGE_TOKEN, QWEN_VOCAB, VISION_END, VISION_START, write
 # Qwen/Qwen3-VL-2B-Instruct's dimensions (vision: depth 24, hidden 1024, MLP 4096, 16 heads, patch 16, merge 2,
 # 2304 learned positions, DeepStack from blocks 5/11/17, out 2048; text: 2048 hidden, 28 layers, 16 heads,
 # 8 KV heads, head_dim 128, MLP 6144, vocab 151 936, tied embeddings, rope_theta 5e6, interleaved M-RoPE
-# sections 24/20/20). Written from the published config as recalled here without network: check them against
-# the checkpoint's config.json on a connected machine (a `dir:`/`hf:` export reads the real file anyway).
+# sections 24/20/20). Checked without network against pytorch/torchtitan's "2B" Qwen3-VL config
+# (torchtitan/experiments/qwen3_vl/__init__.py, commit 0375bb67): every dimension above agrees. Not in that
+# source (kept from the published config as recalled): hidden_act, rms_norm_eps 1e-6, max_position_embeddings
+# 262144 (only sizes the rotary cache). A `dir:`/`hf:` export reads the checkpoint's own config.json anyway.
 REAL_2B = dict(
     text=dict(hidden_size=2048, intermediate_size=6144, num_hidden_layers=28, num_attention_heads=16,
               num_key_value_heads=8, head_dim=128, vocab_size=QWEN_VOCAB, max_position_embeddings=262144,
@@ -87,6 +89,34 @@ def random_model(size: str, seed: int = 0) -> Any:
     model = Qwen3VLForConditionalGeneration(qwen3_config(size)).float().eval()
     torch_default_init(model)  # fan-in init: O(1) activations, so random logits are not flat
     return model
+
+
+def random_checkpoint(size: str, dst: str | Path, *, dtype: str = "bfloat16", seed: int = 0) -> Path:
+    """`save_pretrained` of a seeded random Qwen3-VL of `size` (built in `dtype`: bf16 halves the 2B build's
+    memory) with the synthetic Qwen tokenizer and the RANDOM_WEIGHTS.json marker a `dir:` export records."""
+    import torch
+    from transformers import Qwen3VLForConditionalGeneration
+
+    from .hf_qwen_vl import RANDOM_MARKER
+    from .tiny import torch_default_init
+
+    dst = Path(dst)
+    dst.mkdir(parents=True, exist_ok=True)
+    torch.manual_seed(seed)
+    prev = torch.get_default_dtype()
+    torch.set_default_dtype(getattr(torch, dtype))
+    try:
+        model = Qwen3VLForConditionalGeneration(qwen3_config(size)).eval()
+    finally:
+        torch.set_default_dtype(prev)
+    torch_default_init(model)  # fan-in init: O(1) activations, so random logits are not flat
+    model.save_pretrained(str(dst))
+    n = sum(p.numel() for p in model.parameters())
+    del model
+    write_synthetic_tokenizer(dst)
+    (dst / RANDOM_MARKER).write_text(json.dumps({"random_weights": True, "size": size, "seed": seed,
+                                                 "dtype": dtype, "parameters": n}))
+    return dst
 
 
 def is_qwen3_source(source: str) -> bool:

@@ -47,3 +47,52 @@ def test_gemm_rewrite_keeps_the_numbers(tmp_path):
     onnx.checker.check_model(m)
     got = ort.InferenceSession(m.SerializeToString(), providers=["CPUExecutionProvider"]).run(None, {"x": x})[0]
     np.testing.assert_allclose(got, ref, rtol=1e-5, atol=1e-5)
+
+
+@pytest.mark.parametrize("method,op,bits", [("dynamic", "MatMulInteger", None), ("nbits8", "MatMulNBits", 8),
+                                            ("nbits4", "MatMulNBits", 4)])
+def test_vision_quantisers_replace_every_constant_matmul(tmp_path, method, op, bits):
+    """Each --option vision_quant turns every constant-weight Linear (Gemm or MatMul) into its quantised op, keeps
+    the activation x activation MatMul in float, and stays within the int8 parity tolerance on fresh inputs."""
+    import onnxruntime as ort
+    from onnx import helper, numpy_helper
+
+    from mosaicthinker.export.hf_qwen_vl import quantize_vision
+
+    rng = np.random.default_rng(2)
+    w1 = (rng.standard_normal((256, 256)) / 16).astype(np.float32)
+    w2 = (rng.standard_normal((256, 128)) / 16).astype(np.float32)
+    b1 = rng.standard_normal(256).astype(np.float32)
+    g = helper.make_graph(
+        [helper.make_node("Gemm", ["x", "W1", "B1"], ["h"], transB=1, name="g1"),
+         helper.make_node("MatMul", ["h", "W2"], ["y"], name="m2"),
+         helper.make_node("Transpose", ["h"], ["ht"], perm=[1, 0]),
+         helper.make_node("MatMul", ["h", "ht"], ["a"], name="act")],  # activation x activation: stays float
+        "g", [helper.make_tensor_value_info("x", onnx.TensorProto.FLOAT, [64, 256])],
+        [helper.make_tensor_value_info("y", onnx.TensorProto.FLOAT, [64, 128]),
+         helper.make_tensor_value_info("a", onnx.TensorProto.FLOAT, [64, 64])],
+        [numpy_helper.from_array(w1, "W1"), numpy_helper.from_array(b1, "B1"), numpy_helper.from_array(w2, "W2")])
+    src = tmp_path / "fp32" / "model.onnx"
+    src.parent.mkdir()
+    onnx.save(helper.make_model(g, opset_imports=[helper.make_opsetid("", 18)]), str(src))
+    dst = quantize_vision(src, tmp_path / method / "model.onnx", method, block=128)
+    nodes = onnx.load(str(dst)).graph.node
+    quant = [n for n in nodes if n.op_type == op]
+    assert len(quant) == 2
+    if bits:
+        assert all(a.i == bits for n in quant for a in n.attribute if a.name == "bits")
+    assert [n.name for n in nodes if n.op_type == "MatMul"] == ["act"]
+    x = rng.standard_normal((64, 256)).astype(np.float32)
+    ref = ort.InferenceSession(str(src), providers=["CPUExecutionProvider"]).run(None, {"x": x})
+    got = ort.InferenceSession(str(dst), providers=["CPUExecutionProvider"]).run(None, {"x": x})
+    for r, q in zip(ref, got):
+        rel = np.abs(r - q).max() / np.abs(r).max()
+        assert 0 < rel < (0.15 if bits == 4 else 0.05)
+
+
+def test_unknown_vision_quantiser_is_refused(tmp_path):
+    from mosaicthinker.export.hf_qwen_vl import quantize_vision
+    from mosaicthinker.runtime.errors import ExportError
+
+    with pytest.raises(ExportError, match="vision_quant"):
+        quantize_vision(tmp_path / "x.onnx", tmp_path / "y.onnx", "int3")
