@@ -196,7 +196,7 @@ def _budget_profile(latency_ms: float) -> dict:
 
 
 def test_a_slow_stage_reduces_the_plan_of_the_stages_after_it(scene):
-    """Through the real pipeline: the key-frame search is forced slow (50 ms a detector call against the 1 ms
+    """Through the real pipeline: the key-frame search is forced slow (80 ms a detector call against the 1 ms
     planned), its stage overruns its share, and the controller re-plans: fewer key frames reach perception,
     the map is built from them, refinement is skipped once the run is over budget, and the trace says why."""
     import dataclasses
@@ -210,7 +210,9 @@ def test_a_slow_stage_reduces_the_plan_of_the_stages_after_it(scene):
     names = sorted(load_scene(scene)["object_counts"])
     src = open_source(scene)
     perc = oracle_perception(scene)
-    slow = dataclasses.replace(perc, detect=lambda f, n: (time.sleep(0.05), perc.detect(f, n))[1])
+    # 80 ms a call: the search alone takes more than the whole 1500 ms budget, so its overrun must trim the key
+    # frames whatever the machine's load (at 50 ms the rest of the plan was predicted to fit on some runs)
+    slow = dataclasses.replace(perc, detect=lambda f, n: (time.sleep(0.08), perc.detect(f, n))[1])
     trace = Trace()
     ctl = B.controller_for(B.parse_profile(_budget_profile(1500)), src, trace)
     planned = ctl.keyframes
@@ -220,10 +222,15 @@ def test_a_slow_stage_reduces_the_plan_of_the_stages_after_it(scene):
     kinds = [e["kind"] for e in trace.events]
     assert "replan" in kinds and any(e["message"].startswith("reduced plan:") for e in trace.events)
     reduced = [e for e in trace.events if e["kind"] == "reduced_plan"]
-    # the search's overrun trims its key frames (unless a slow dedup on a loaded machine re-planned even before
-    # the search, which then chose fewer)
-    replans = [e["message"] for e in trace.events if e["kind"] == "replan"]
-    assert any("key frames, because" in e["message"] for e in reduced) or "stage frames" in replans[0]
+    # the search's overrun trims its key frames: after the search chose them (a `reduced_plan` event), or, when
+    # the controller re-planned while the search was still running (or a slow dedup on a loaded machine
+    # re-planned even before it), the first re-plan names that stage and the search chose no more than it allows
+    replans = [e for e in trace.events if e["kind"] == "replan"]
+    first = replans[0]
+    early = ("stage keyframes" in first["message"] or "stage frames" in first["message"]) \
+        and len(mb.keyframes) <= max(first["keyframes"], 2)
+    assert any("key frames, because" in e["message"] for e in reduced) or early, \
+        ([e["message"] for e in trace.events if e["kind"] in ("replan", "reduced_plan", "deadline")], len(mb.keyframes))
     assert any("refinement skipped" in e["message"] for e in reduced)  # the budget was spent before fusion
     assert set(ctl.done) >= {"frames", "keyframes", "perception", "alignment"}  # every plan stage measured
 
