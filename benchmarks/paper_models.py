@@ -480,6 +480,23 @@ def qwen3_export(big: Path, image_size: int = 448, n_new: int = 16, trials: int 
             "size_mib": {"fp32": round(sum(x["size_mib"] for x in graphs.values()), 1)}, "dir": str(work)}
 
 
+class _TimedRunner:
+    """An onnxruntime session as a runner (`.run(feeds) -> list`) that records (start, end, CPU end, rows) of
+    every call and keeps the last multi-row (prefill) call's logits."""
+
+    def __init__(self, sess):
+        self.sess, self.calls, self.prefill_logits = sess, [], None
+
+    def run(self, feeds: dict, outputs=None) -> list:
+        t = time.perf_counter()
+        out = self.sess.run(outputs, feeds)
+        rows = feeds["inputs_embeds"].shape[1]
+        self.calls.append((t, time.perf_counter(), time.process_time(), rows))
+        if rows > 1:
+            self.prefill_logits = out[0]
+        return out
+
+
 def qwen3_measure(big: Path, runs: int, threads: int, n_new: int = 16) -> dict:
     """onnxruntime side (no torch model in this process): each graph vs its saved torch references, the vision
     graph vs transformers' vision forward, then the runtime loop (MRopeDecoder) on the paper prompt with the map
@@ -516,20 +533,24 @@ def qwen3_measure(big: Path, runs: int, threads: int, n_new: int = 16) -> dict:
     res["graphs"]["vision"]["vs_transformers"] = compare_outputs([refs["hf/vision/0"], refs["hf/vision/1"]], vis)
     p50, ts = _p50(lambda: sess["vision"].run(None, {"pixel_values": px}), runs)
     res["vision_448_p50_s"], res["vision_runs_s"] = round(p50, 3), ts
-    core = MRopeDecoder(*(OrtRunner(sess[c]) for c in ("vision", "embed", "decoder")), cfg)
+    dec = _TimedRunner(sess["decoder"])
+    core = MRopeDecoder(OrtRunner(sess["vision"]), OrtRunner(sess["embed"]), dec, cfg)
     answers = []
-    for _ in range(runs):
-        t0 = time.perf_counter()
+    for _ in range(runs):  # one pass per run: vision, then prefill and decode timed at the decoder calls
+        dec.calls.clear()
+        t0, c0 = time.perf_counter(), time.process_time()
         image = core.image_features(px)
-        t1 = time.perf_counter()
-        logits, _, _ = core.prefill(ids, image)
-        t2 = time.perf_counter()
-        got = core.generate_ids(ids, image, n_new, [])  # prefill again inside: decode = total - prefill
-        t3 = time.perf_counter()
-        dec = max((t3 - t2) - (t2 - t1), 1e-9)
+        t1, c1 = time.perf_counter(), time.process_time()
+        got = core.generate_ids(ids, image, n_new, [])
+        t3, c3 = time.perf_counter(), time.process_time()
+        (_, t2, c2, _), steps = dec.calls[0], dec.calls[1:]
         answers.append({"vision_s": round(t1 - t0, 3), "prefill_s": round(t2 - t1, 3),
-                        "decode_tok_s": round((len(got) - 1) / dec, 3),
-                        "answer_s": round((t1 - t0) + (t3 - t2), 3)})
+                        "decode_tok_s": round((len(got) - 1) / (t3 - t2), 3),
+                        "decode_step_s": [round(b - a, 3) for a, b, _, _ in steps],
+                        "answer_s": round(t3 - t0, 3), "cpu_s": {"vision": round(c1 - c0, 2),
+                                                                  "prefill": round(c2 - c1, 2),
+                                                                  "decode": round(c3 - c2, 2)}})
+    logits = dec.prefill_logits
     hf_tokens = [int(x) for x in refs["hf/tokens"]]
     res.update(prompt_tokens=len(ids), answers=answers, new_tokens=len(got),
                prefill_p50_s=float(np.median([a["prefill_s"] for a in answers])),
@@ -546,6 +567,69 @@ def qwen3_measure(big: Path, runs: int, threads: int, n_new: int = 16) -> dict:
                      **{k: res[k] for k in ("token_agreement_vs_transformers", "kl_vs_transformers",
                                             "logits_rel_err_vs_transformers")}}
     return {"fp32": res}
+
+
+def qwen3_profile(big: Path, threads: int, past: int = 921, prefill_len: int = 256, runs: int = 3,
+                  precision: str = "fp32") -> dict:
+    """Where the decoder's time goes (onnxruntime's own per-node profiler): `runs` decode steps (1 new token
+    after `past` cached ones, random cache) and one prefill of `prefill_len` tokens; per op type and the
+    top nodes, wall and CPU seconds of each call, and the logits MatMul (lm_head) share."""
+    import onnxruntime as ort
+
+    cfg = json.loads((_qwen3_dir(big) / "config.json").read_text())
+    L, KV, D, H, K = (cfg[k] for k in ("num_layers", "num_kv_heads", "head_dim", "hidden_size", "deepstack_layers"))
+    so = ort.SessionOptions()
+    so.intra_op_num_threads, so.inter_op_num_threads = threads, 1
+    so.enable_profiling = True
+    so.profile_file_prefix = str(Path("/tmp") / f"qwen3_{precision}_prof")
+    t = time.perf_counter()
+    sess = ort.InferenceSession(str(_qwen3_dir(big) / precision / "decoder.onnx"), so,
+                                providers=["CPUExecutionProvider"])
+    load_s = time.perf_counter() - t
+    rng = np.random.default_rng(0)
+
+    def feeds(s: int, p: int) -> dict:
+        f = {"inputs_embeds": rng.standard_normal((1, s, H)).astype(np.float32) * 0.02,
+             "attention_mask": np.ones((1, p + s), np.int64),
+             "position_ids": np.broadcast_to(np.arange(p, p + s), (3, 1, s)).astype(np.int64),
+             "deepstack": np.zeros((K, 1, s, H), np.float32)}
+        for i in range(L):
+            f[f"past_key_{i}"] = rng.standard_normal((1, KV, p, D)).astype(np.float32)
+            f[f"past_value_{i}"] = rng.standard_normal((1, KV, p, D)).astype(np.float32)
+        return f
+
+    dec = feeds(1, past)
+    sess.run(None, dec)  # warm-up (not profiled apart: dropped below by call index)
+    calls = {"decode": _cpu_timed(lambda: sess.run(None, dec), runs)}
+    pre = feeds(prefill_len, 0)
+    calls["prefill"] = _cpu_timed(lambda: sess.run(None, pre), 1)
+    prof = Path(sess.end_profiling())
+    ev = [e for e in json.loads(prof.read_text()) if e.get("cat") == "Node" and e["name"].endswith("_kernel_time")]
+    runs_ev = [e for e in json.loads(prof.read_text()) if e.get("cat") == "Session" and e["name"] == "model_run"]
+    prof.unlink()
+    # split the node events by model_run windows: [warm-up, decode x runs, prefill]
+    bounds = [(r["ts"], r["ts"] + r["dur"]) for r in runs_ev]
+
+    def summary(lo: int, hi: int, n: int) -> dict:
+        sel = [e for e in ev if any(a <= e["ts"] <= b for a, b in bounds[lo:hi])]
+        by_op: dict[str, float] = {}
+        for e in sel:
+            by_op[e["args"]["op_name"]] = by_op.get(e["args"]["op_name"], 0.0) + e["dur"] / 1e6 / n
+        nodes = sorted(sel, key=lambda e: -e["dur"])[:8]
+        tot = sum(by_op.values())
+        lm = [e for e in sel if e["args"]["op_name"] == "MatMul" and
+              int(np.prod(e["args"].get("output_type_shape", [{}])[0].get("float", [0]) or [0])) % cfg["vocab_size"] == 0
+              and cfg["vocab_size"] in (e["args"].get("output_type_shape", [{}])[0].get("float") or [])]
+        return {"node_s_per_call": round(tot, 3),
+                "by_op_s": {k: round(v, 4) for k, v in sorted(by_op.items(), key=lambda kv: -kv[1])[:10]},
+                "top_nodes": [{"name": e["name"][:-12], "op": e["args"]["op_name"], "s": round(e["dur"] / 1e6, 4)}
+                              for e in nodes],
+                "lm_head_s_per_call": round(sum(e["dur"] for e in lm) / 1e6 / n, 4)}
+
+    return {"precision": precision, "threads": threads, "load": _load(), "session_load_s": round(load_s, 1),
+            "past": past, "prefill_len": prefill_len, "calls": calls,
+            "decode_profile": summary(1, 1 + runs, runs), "prefill_profile": summary(1 + runs, 2 + runs, 1),
+            "rss_mb": round(_rss_mb()), "load_end": _load()}
 
 
 # ------------------------------------------------------------------------------------------------ side
@@ -827,7 +911,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("step", choices=["checkpoint", "export", "measure", "side", "vision-ab", "all", "profile",
                                      "scale-profiles", "table",
-                                     "_child", "_probe"])
+                                     "qwen3-profile", "_child", "_probe"])
     ap.add_argument("child_step", nargs="?")
     ap.add_argument("probe_path", nargs="?")
     ap.add_argument("--model", choices=sorted(MODELS))
@@ -838,6 +922,8 @@ def main(argv=None) -> int:
                     help="side: vision quantisers to measure against fp32 (export/hf_qwen_vl.py:VISION_QUANTS)")
     ap.add_argument("--text-chars", type=int, help="VLM: cut the object text block to N characters (the real "
                                                    "tokenizer's prompt length with the synthetic byte tokenizer)")
+    ap.add_argument("--prefill-len", type=int, default=256, help="qwen3-profile: prefill tokens")
+    ap.add_argument("--precision", default="fp32", help="qwen3-profile: graph folder under BIG/qwen3/qwen3-vl-2b")
     args = ap.parse_args(argv)
     if args.step == "profile":  # [paper_costs.*] of profiles/cpu-generic.toml from the measured results
         print(json.dumps(write_profile(args.big, REPO / "profiles" / "cpu-generic.toml"), indent=1))
@@ -847,6 +933,12 @@ def main(argv=None) -> int:
         return 0
     if args.step == "table":
         print(cost_table(json.loads(OUT.read_text())))
+        return 0
+    if args.step == "qwen3-profile":  # the 2B decoder graph under onnxruntime's profiler (no torch)
+        res = qwen3_profile(args.big, args.threads, past=921, prefill_len=args.prefill_len, runs=args.runs,
+                            precision=args.precision)
+        save("qwen3-vl-2b", f"profile_{args.precision}_prefill{args.prefill_len}", res)
+        print(json.dumps(res, indent=1))
         return 0
     if args.step == "_probe":  # one graph's session in this fresh process (step_side)
         print(json.dumps(probe(args.child_step, args.probe_path, args.runs, args.threads)))
