@@ -238,13 +238,14 @@ def _feeds(sess, pre: dict) -> dict:
     return feeds
 
 
-def step_measure(name: str, big: Path, runs: int, threads: int, text_chars: int | None = None) -> dict:
+def step_measure(name: str, big: Path, runs: int, threads: int, text_chars: int | None = None,
+                 precision: str = "fp32") -> dict:
     role = MODELS[name][0]
     out = big / "bundles" / name
     if name == "qwen2.5-vl-3b":
         return measure_genai_vlm(out, runs, threads, text_chars)
     if name == "qwen3-vl-2b":
-        return qwen3_measure(big, runs, threads)
+        return qwen3_measure(big, runs, threads, precision=precision)
     if role == "vlm":
         return measure_own_vlm(out, runs, threads)
     import onnxruntime as ort
@@ -497,7 +498,25 @@ class _TimedRunner:
         return out
 
 
-def qwen3_measure(big: Path, runs: int, threads: int, n_new: int = 16) -> dict:
+def qwen3_int8(big: Path) -> dict:
+    """The 2B fp32 decoder through the project's dynamic int8 quantiser (export/common.py; external data past
+    protobuf's 2 GiB): time and size (peak RSS: run_child). Vision and embed stay fp32."""
+    from mosaicthinker.export import common as C
+
+    src, dst = _qwen3_dir(big) / "fp32" / "decoder.onnx", _qwen3_dir(big) / "int8" / "decoder.onnx"
+    dst.parent.mkdir(parents=True, exist_ok=True)
+    for f in dst.parent.glob("decoder.onnx*"):
+        f.unlink()
+    t = time.time()
+    C.quantize_int8_dynamic(src, dst)
+    files = sorted(f for f in dst.parent.iterdir() if f.name.startswith(dst.name))
+    return {"quantize_s": round(time.time() - t, 1), "load": _load(), "files": [f.name for f in files],
+            "size_mib": round(sum(f.stat().st_size for f in files) / 2**20, 1),
+            "fp32_size_mib": round(sum(f.stat().st_size for f in src.parent.iterdir()
+                                       if f.name.startswith(src.name)) / 2**20, 1)}
+
+
+def qwen3_measure(big: Path, runs: int, threads: int, n_new: int = 16, precision: str = "fp32") -> dict:
     """onnxruntime side (no torch model in this process): each graph vs its saved torch references, the vision
     graph vs transformers' vision forward, then the runtime loop (MRopeDecoder) on the paper prompt with the map
     image: vision alone, prefill, decode tokens/s, the whole answer, and its tokens / first-step KL vs
@@ -516,17 +535,23 @@ def qwen3_measure(big: Path, runs: int, threads: int, n_new: int = 16) -> dict:
     so = ort.SessionOptions()
     so.intra_op_num_threads, so.inter_op_num_threads = threads, 1
     sess, res = {}, {"threads": threads, "load": _load(), "graphs": {}}
-    for name in ("vision", "embed", "decoder"):
+    for name in ("vision", "embed", "decoder"):  # vision and embed stay fp32 at every precision here
         rss0, t = _rss_mb(), time.perf_counter()
-        sess[name] = ort.InferenceSession(str(work / "fp32" / f"{name}.onnx"), so,
+        folder = work / (precision if name == "decoder" else "fp32")
+        sess[name] = ort.InferenceSession(str(folder / f"{name}.onnx"), so,
                                           providers=["CPUExecutionProvider"])
         rec = {"load_s": round(time.perf_counter() - t, 2), "rss_after_load_mb": round(_rss_mb() - rss0)}
-        worst = []
+        worst, kls = [], []
         for i in range(len({k.split("/")[1] for k in refs if k.startswith(name + "/")})):
             feeds = {k.split("/")[-1]: v for k, v in refs.items() if k.startswith(f"{name}/{i}/in/")}
             ref = [refs[f"{name}/{i}/out/{j}"] for j in range(len(sess[name].get_outputs()))]
-            worst += compare_outputs(ref, sess[name].run(None, feeds))
+            got = sess[name].run(None, feeds)
+            worst += compare_outputs(ref, got)
+            if name == "decoder":  # next-token distribution on these fresh inputs (output 0: last-row logits)
+                kls.append(kl_next_token(ref[0][0, -1], got[0][0, -1]))
         rec["parity_vs_torch"] = {"rel": max(w["rel"] for w in worst), "cosine": min(w["cosine"] for w in worst)}
+        if kls:
+            rec["parity_vs_torch"]["next_token_kl_max"] = float(max(kls))
         res["graphs"][name] = rec
     px, ids = refs["prompt/pixel_values"], [int(x) for x in refs["prompt/ids"]]
     vis = sess["vision"].run(None, {"pixel_values": px})
@@ -566,7 +591,8 @@ def qwen3_measure(big: Path, runs: int, threads: int, n_new: int = 16) -> dict:
     res["parity"] = {**{g: r["parity_vs_torch"] for g, r in res["graphs"].items()},
                      **{k: res[k] for k in ("token_agreement_vs_transformers", "kl_vs_transformers",
                                             "logits_rel_err_vs_transformers")}}
-    return {"fp32": res}
+    res["decoder_precision"] = precision
+    return {precision: res}
 
 
 def qwen3_profile(big: Path, threads: int, past: int = 921, prefill_len: int = 256, runs: int = 3,
@@ -626,7 +652,9 @@ def qwen3_profile(big: Path, threads: int, past: int = 921, prefill_len: int = 2
                               for e in nodes],
                 "lm_head_s_per_call": round(sum(e["dur"] for e in lm) / 1e6 / n, 4)}
 
+    rows = sess.get_outputs()[0].shape[1]  # 1: last position's logits; symbolic: every position's
     return {"precision": precision, "threads": threads, "load": _load(), "session_load_s": round(load_s, 1),
+            "logits": "last" if rows == 1 else "all",
             "past": past, "prefill_len": prefill_len, "calls": calls,
             "decode_profile": summary(1, 1 + runs, runs), "prefill_profile": summary(1 + runs, 2 + runs, 1),
             "rss_mb": round(_rss_mb()), "load_end": _load()}
@@ -885,6 +913,8 @@ def run_child(step: str, name: str, args) -> dict:
         cmd += ["--text-chars", str(args.text_chars)]
     if step == "side":
         cmd += ["--vision-quants", args.vision_quants]
+    if args.precision != "fp32":
+        cmd += ["--precision", args.precision]
     t = time.time()
     r = subprocess.run(cmd, capture_output=True, text=True)
     peak = re.search(r"Maximum resident set size \(kbytes\): (\d+)", r.stderr)
@@ -911,7 +941,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("step", choices=["checkpoint", "export", "measure", "side", "vision-ab", "all", "profile",
                                      "scale-profiles", "table",
-                                     "qwen3-profile", "_child", "_probe"])
+                                     "qwen3-profile", "qwen3-int8", "_child", "_probe"])
     ap.add_argument("child_step", nargs="?")
     ap.add_argument("probe_path", nargs="?")
     ap.add_argument("--model", choices=sorted(MODELS))
@@ -923,7 +953,8 @@ def main(argv=None) -> int:
     ap.add_argument("--text-chars", type=int, help="VLM: cut the object text block to N characters (the real "
                                                    "tokenizer's prompt length with the synthetic byte tokenizer)")
     ap.add_argument("--prefill-len", type=int, default=256, help="qwen3-profile: prefill tokens")
-    ap.add_argument("--precision", default="fp32", help="qwen3-profile: graph folder under BIG/qwen3/qwen3-vl-2b")
+    ap.add_argument("--precision", default="fp32", help="qwen3-profile / measure (qwen3-vl-2b): the decoder's folder under "
+                                                    "BIG/qwen3/qwen3-vl-2b (fp32, int8)")
     args = ap.parse_args(argv)
     if args.step == "profile":  # [paper_costs.*] of profiles/cpu-generic.toml from the measured results
         print(json.dumps(write_profile(args.big, REPO / "profiles" / "cpu-generic.toml"), indent=1))
@@ -937,7 +968,7 @@ def main(argv=None) -> int:
     if args.step == "qwen3-profile":  # the 2B decoder graph under onnxruntime's profiler (no torch)
         res = qwen3_profile(args.big, args.threads, past=921, prefill_len=args.prefill_len, runs=args.runs,
                             precision=args.precision)
-        save("qwen3-vl-2b", f"profile_{args.precision}_prefill{args.prefill_len}", res)
+        save("qwen3-vl-2b", f"profile_{args.precision}_prefill{args.prefill_len}_{res['logits']}_logits", res)
         print(json.dumps(res, indent=1))
         return 0
     if args.step == "_probe":  # one graph's session in this fresh process (step_side)
@@ -947,8 +978,10 @@ def main(argv=None) -> int:
         ap.error("--model is required")
     if args.step == "_child":
         fn = {"checkpoint": step_checkpoint, "export": step_export, "measure": step_measure,
+              "qwen3-int8": lambda name, big: qwen3_int8(big),
               "side": step_side, "vision-ab": lambda name, big, **kw: vision_ab(big, **kw)}[args.child_step]
-        kw = ({"runs": args.runs, "threads": args.threads, "text_chars": args.text_chars}
+        kw = ({"runs": args.runs, "threads": args.threads, "text_chars": args.text_chars,
+               **({"precision": args.precision} if args.precision != "fp32" else {})}
               if args.child_step == "measure" else {"text_chars": args.text_chars}
               if args.child_step == "export" else
               {"runs": args.runs, "threads": args.threads,
@@ -958,7 +991,8 @@ def main(argv=None) -> int:
         return 0
     for step in (["checkpoint", "export", "measure"] if args.step == "all" else [args.step]):
         res = run_child(step, args.model, args)
-        save(args.model, step + (f"_text{args.text_chars}" if args.text_chars else ""), res)
+        save(args.model, step + (f"_text{args.text_chars}" if args.text_chars else "")
+             + (f"_{args.precision}" if args.precision != "fp32" and step == "measure" else ""), res)
         print(json.dumps({args.model: {step: res}}, indent=1)[:3000])
     return 0
 
