@@ -881,8 +881,13 @@ def cost_table(data: dict) -> str:
             "|---|---|---|---|---|---|---|"]
     for name, r in data["models"].items():
         e, ck = r.get("export") or r.get("export_text300") or {}, r.get("checkpoint") or {}
-        meas = r.get("measure_text300") or r.get("measure") or {}
-        for v, size in (e.get("size_mib") or {}).items():
+        meas = dict(r.get("measure_text300") or r.get("measure") or {})
+        sizes = dict(e.get("size_mib") or {})
+        if "qwen3-int8" in r and "measure_int8" in r:  # int8 decoder, fp32 vision + embed (qwen3_int8)
+            q = r["qwen3-int8"]
+            sizes["int8 decoder"] = round(sizes["fp32"] - q["fp32_size_mib"] + q["size_mib"], 1)
+            meas["int8 decoder"] = r["measure_int8"]["int8"]
+        for v, size in sizes.items():
             par = e.get("parity", {}).get(v) or (meas.get(v) or {}).get("parity", {})
             ptxt = ", ".join(f"{k} {x['rel']:.1e}" if isinstance(x, dict) else f"{k} {x:.3g}"
                              for k, x in par.items() if x is not None)
