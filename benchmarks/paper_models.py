@@ -8,6 +8,9 @@ CPU latency; writes benchmarks/results/paper_models.json (merged per model, so s
     python benchmarks/paper_models.py side --model qwen2.5-vl-3b           # vision + embedding fp32 vs int8 alone
     python benchmarks/paper_models.py vision-ab --model qwen2.5-vl-3b      # fp32 vs int8 vision, runs alternated
     python benchmarks/paper_models.py all --model qwen3-vl-2b              # the project's graphs, torch and ORT apart
+    python benchmarks/paper_models.py qwen3-profile --prefill-len 256      # the 2B decoder under ORT's profiler
+    python benchmarks/paper_models.py qwen3-int8 --model qwen3-vl-2b       # int8 decoder (external data)
+    python benchmarks/paper_models.py measure --model qwen3-vl-2b --precision int8
     python benchmarks/paper_models.py scale-profiles                       # other profiles' [paper_costs] (scaled)
 
 Random weights of the real configurations are honest for everything except accuracy: export at size (2 GB
@@ -643,9 +646,10 @@ def qwen3_profile(big: Path, threads: int, past: int = 921, prefill_len: int = 2
             by_op[e["args"]["op_name"]] = by_op.get(e["args"]["op_name"], 0.0) + e["dur"] / 1e6 / n
         nodes = sorted(sel, key=lambda e: -e["dur"])[:8]
         tot = sum(by_op.values())
-        lm = [e for e in sel if e["args"]["op_name"] == "MatMul" and
-              int(np.prod(e["args"].get("output_type_shape", [{}])[0].get("float", [0]) or [0])) % cfg["vocab_size"] == 0
-              and cfg["vocab_size"] in (e["args"].get("output_type_shape", [{}])[0].get("float") or [])]
+        def out_shape(e: dict) -> list:  # the profiler's [{"float": [dims]}] of the node's first output
+            return next(iter((e["args"].get("output_type_shape") or [{}])[0].values()), [])
+
+        lm = [e for e in sel if cfg["vocab_size"] in out_shape(e)]  # the lm_head (int8: its integer MatMul)
         return {"node_s_per_call": round(tot, 3),
                 "by_op_s": {k: round(v, 4) for k, v in sorted(by_op.items(), key=lambda kv: -kv[1])[:10]},
                 "top_nodes": [{"name": e["name"][:-12], "op": e["args"]["op_name"], "s": round(e["dur"] / 1e6, 4)}
