@@ -8,6 +8,8 @@ import pytest
 onnx = pytest.importorskip("onnx")
 ort = pytest.importorskip("onnxruntime")
 
+pytestmark = [pytest.mark.export]
+
 
 def _matmul_model(path, w: np.ndarray, external: bool):
     from onnx import TensorProto, helper, numpy_helper
