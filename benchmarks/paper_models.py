@@ -8,6 +8,9 @@ CPU latency; writes benchmarks/results/paper_models.json (merged per model, so s
     python benchmarks/paper_models.py side --model qwen2.5-vl-3b           # vision + embedding fp32 vs int8 alone
     python benchmarks/paper_models.py vision-ab --model qwen2.5-vl-3b      # fp32 vs int8 vision, runs alternated
     python benchmarks/paper_models.py all --model qwen3-vl-2b              # the project's graphs, torch and ORT apart
+    python benchmarks/paper_models.py qwen3-profile --prefill-len 256      # the 2B decoder under ORT's profiler
+    python benchmarks/paper_models.py qwen3-int8 --model qwen3-vl-2b       # int8 decoder (external data)
+    python benchmarks/paper_models.py measure --model qwen3-vl-2b --precision int8
     python benchmarks/paper_models.py scale-profiles                       # other profiles' [paper_costs] (scaled)
 
 Random weights of the real configurations are honest for everything except accuracy: export at size (2 GB
@@ -238,13 +241,14 @@ def _feeds(sess, pre: dict) -> dict:
     return feeds
 
 
-def step_measure(name: str, big: Path, runs: int, threads: int, text_chars: int | None = None) -> dict:
+def step_measure(name: str, big: Path, runs: int, threads: int, text_chars: int | None = None,
+                 precision: str = "fp32") -> dict:
     role = MODELS[name][0]
     out = big / "bundles" / name
     if name == "qwen2.5-vl-3b":
         return measure_genai_vlm(out, runs, threads, text_chars)
     if name == "qwen3-vl-2b":
-        return qwen3_measure(big, runs, threads)
+        return qwen3_measure(big, runs, threads, precision=precision)
     if role == "vlm":
         return measure_own_vlm(out, runs, threads)
     import onnxruntime as ort
@@ -480,7 +484,42 @@ def qwen3_export(big: Path, image_size: int = 448, n_new: int = 16, trials: int 
             "size_mib": {"fp32": round(sum(x["size_mib"] for x in graphs.values()), 1)}, "dir": str(work)}
 
 
-def qwen3_measure(big: Path, runs: int, threads: int, n_new: int = 16) -> dict:
+class _TimedRunner:
+    """An onnxruntime session as a runner (`.run(feeds) -> list`) that records (start, end, CPU end, rows) of
+    every call and keeps the last multi-row (prefill) call's logits."""
+
+    def __init__(self, sess):
+        self.sess, self.calls, self.prefill_logits = sess, [], None
+
+    def run(self, feeds: dict, outputs=None) -> list:
+        t = time.perf_counter()
+        out = self.sess.run(outputs, feeds)
+        rows = feeds["inputs_embeds"].shape[1]
+        self.calls.append((t, time.perf_counter(), time.process_time(), rows))
+        if rows > 1:
+            self.prefill_logits = out[0]
+        return out
+
+
+def qwen3_int8(big: Path) -> dict:
+    """The 2B fp32 decoder through the project's dynamic int8 quantiser (export/common.py; external data past
+    protobuf's 2 GiB): time and size (peak RSS: run_child). Vision and embed stay fp32."""
+    from mosaicthinker.export import common as C
+
+    src, dst = _qwen3_dir(big) / "fp32" / "decoder.onnx", _qwen3_dir(big) / "int8" / "decoder.onnx"
+    dst.parent.mkdir(parents=True, exist_ok=True)
+    for f in dst.parent.glob("decoder.onnx*"):
+        f.unlink()
+    t = time.time()
+    C.quantize_int8_dynamic(src, dst)
+    files = sorted(f for f in dst.parent.iterdir() if f.name.startswith(dst.name))
+    return {"quantize_s": round(time.time() - t, 1), "load": _load(), "files": [f.name for f in files],
+            "size_mib": round(sum(f.stat().st_size for f in files) / 2**20, 1),
+            "fp32_size_mib": round(sum(f.stat().st_size for f in src.parent.iterdir()
+                                       if f.name.startswith(src.name)) / 2**20, 1)}
+
+
+def qwen3_measure(big: Path, runs: int, threads: int, n_new: int = 16, precision: str = "fp32") -> dict:
     """onnxruntime side (no torch model in this process): each graph vs its saved torch references, the vision
     graph vs transformers' vision forward, then the runtime loop (MRopeDecoder) on the paper prompt with the map
     image: vision alone, prefill, decode tokens/s, the whole answer, and its tokens / first-step KL vs
@@ -499,37 +538,47 @@ def qwen3_measure(big: Path, runs: int, threads: int, n_new: int = 16) -> dict:
     so = ort.SessionOptions()
     so.intra_op_num_threads, so.inter_op_num_threads = threads, 1
     sess, res = {}, {"threads": threads, "load": _load(), "graphs": {}}
-    for name in ("vision", "embed", "decoder"):
+    for name in ("vision", "embed", "decoder"):  # vision and embed stay fp32 at every precision here
         rss0, t = _rss_mb(), time.perf_counter()
-        sess[name] = ort.InferenceSession(str(work / "fp32" / f"{name}.onnx"), so,
+        folder = work / (precision if name == "decoder" else "fp32")
+        sess[name] = ort.InferenceSession(str(folder / f"{name}.onnx"), so,
                                           providers=["CPUExecutionProvider"])
         rec = {"load_s": round(time.perf_counter() - t, 2), "rss_after_load_mb": round(_rss_mb() - rss0)}
-        worst = []
+        worst, kls = [], []
         for i in range(len({k.split("/")[1] for k in refs if k.startswith(name + "/")})):
             feeds = {k.split("/")[-1]: v for k, v in refs.items() if k.startswith(f"{name}/{i}/in/")}
             ref = [refs[f"{name}/{i}/out/{j}"] for j in range(len(sess[name].get_outputs()))]
-            worst += compare_outputs(ref, sess[name].run(None, feeds))
+            got = sess[name].run(None, feeds)
+            worst += compare_outputs(ref, got)
+            if name == "decoder":  # next-token distribution on these fresh inputs (output 0: last-row logits)
+                kls.append(kl_next_token(ref[0][0, -1], got[0][0, -1]))
         rec["parity_vs_torch"] = {"rel": max(w["rel"] for w in worst), "cosine": min(w["cosine"] for w in worst)}
+        if kls:
+            rec["parity_vs_torch"]["next_token_kl_max"] = float(max(kls))
         res["graphs"][name] = rec
     px, ids = refs["prompt/pixel_values"], [int(x) for x in refs["prompt/ids"]]
     vis = sess["vision"].run(None, {"pixel_values": px})
     res["graphs"]["vision"]["vs_transformers"] = compare_outputs([refs["hf/vision/0"], refs["hf/vision/1"]], vis)
     p50, ts = _p50(lambda: sess["vision"].run(None, {"pixel_values": px}), runs)
     res["vision_448_p50_s"], res["vision_runs_s"] = round(p50, 3), ts
-    core = MRopeDecoder(*(OrtRunner(sess[c]) for c in ("vision", "embed", "decoder")), cfg)
+    dec = _TimedRunner(sess["decoder"])
+    core = MRopeDecoder(OrtRunner(sess["vision"]), OrtRunner(sess["embed"]), dec, cfg)
     answers = []
-    for _ in range(runs):
-        t0 = time.perf_counter()
+    for _ in range(runs):  # one pass per run: vision, then prefill and decode timed at the decoder calls
+        dec.calls.clear()
+        t0, c0 = time.perf_counter(), time.process_time()
         image = core.image_features(px)
-        t1 = time.perf_counter()
-        logits, _, _ = core.prefill(ids, image)
-        t2 = time.perf_counter()
-        got = core.generate_ids(ids, image, n_new, [])  # prefill again inside: decode = total - prefill
-        t3 = time.perf_counter()
-        dec = max((t3 - t2) - (t2 - t1), 1e-9)
+        t1, c1 = time.perf_counter(), time.process_time()
+        got = core.generate_ids(ids, image, n_new, [])
+        t3, c3 = time.perf_counter(), time.process_time()
+        (_, t2, c2, _), steps = dec.calls[0], dec.calls[1:]
         answers.append({"vision_s": round(t1 - t0, 3), "prefill_s": round(t2 - t1, 3),
-                        "decode_tok_s": round((len(got) - 1) / dec, 3),
-                        "answer_s": round((t1 - t0) + (t3 - t2), 3)})
+                        "decode_tok_s": round((len(got) - 1) / (t3 - t2), 3),
+                        "decode_step_s": [round(b - a, 3) for a, b, _, _ in steps],
+                        "answer_s": round(t3 - t0, 3), "cpu_s": {"vision": round(c1 - c0, 2),
+                                                                  "prefill": round(c2 - c1, 2),
+                                                                  "decode": round(c3 - c2, 2)}})
+    logits = dec.prefill_logits
     hf_tokens = [int(x) for x in refs["hf/tokens"]]
     res.update(prompt_tokens=len(ids), answers=answers, new_tokens=len(got),
                prefill_p50_s=float(np.median([a["prefill_s"] for a in answers])),
@@ -545,7 +594,74 @@ def qwen3_measure(big: Path, runs: int, threads: int, n_new: int = 16) -> dict:
     res["parity"] = {**{g: r["parity_vs_torch"] for g, r in res["graphs"].items()},
                      **{k: res[k] for k in ("token_agreement_vs_transformers", "kl_vs_transformers",
                                             "logits_rel_err_vs_transformers")}}
-    return {"fp32": res}
+    res["decoder_precision"] = precision
+    return {precision: res}
+
+
+def qwen3_profile(big: Path, threads: int, past: int = 921, prefill_len: int = 256, runs: int = 3,
+                  precision: str = "fp32") -> dict:
+    """Where the decoder's time goes (onnxruntime's own per-node profiler): `runs` decode steps (1 new token
+    after `past` cached ones, random cache) and one prefill of `prefill_len` tokens; per op type and the
+    top nodes, wall and CPU seconds of each call, and the logits MatMul (lm_head) share."""
+    import onnxruntime as ort
+
+    cfg = json.loads((_qwen3_dir(big) / "config.json").read_text())
+    L, KV, D, H, K = (cfg[k] for k in ("num_layers", "num_kv_heads", "head_dim", "hidden_size", "deepstack_layers"))
+    so = ort.SessionOptions()
+    so.intra_op_num_threads, so.inter_op_num_threads = threads, 1
+    so.enable_profiling = True
+    so.profile_file_prefix = str(Path("/tmp") / f"qwen3_{precision}_prof")
+    t = time.perf_counter()
+    sess = ort.InferenceSession(str(_qwen3_dir(big) / precision / "decoder.onnx"), so,
+                                providers=["CPUExecutionProvider"])
+    load_s = time.perf_counter() - t
+    rng = np.random.default_rng(0)
+
+    def feeds(s: int, p: int) -> dict:
+        f = {"inputs_embeds": rng.standard_normal((1, s, H)).astype(np.float32) * 0.02,
+             "attention_mask": np.ones((1, p + s), np.int64),
+             "position_ids": np.broadcast_to(np.arange(p, p + s), (3, 1, s)).astype(np.int64),
+             "deepstack": np.zeros((K, 1, s, H), np.float32)}
+        for i in range(L):
+            f[f"past_key_{i}"] = rng.standard_normal((1, KV, p, D)).astype(np.float32)
+            f[f"past_value_{i}"] = rng.standard_normal((1, KV, p, D)).astype(np.float32)
+        return f
+
+    dec = feeds(1, past)
+    sess.run(None, dec)  # warm-up (not profiled apart: dropped below by call index)
+    calls = {"decode": _cpu_timed(lambda: sess.run(None, dec), runs)}
+    pre = feeds(prefill_len, 0)
+    calls["prefill"] = _cpu_timed(lambda: sess.run(None, pre), 1)
+    prof = Path(sess.end_profiling())
+    ev = [e for e in json.loads(prof.read_text()) if e.get("cat") == "Node" and e["name"].endswith("_kernel_time")]
+    runs_ev = [e for e in json.loads(prof.read_text()) if e.get("cat") == "Session" and e["name"] == "model_run"]
+    prof.unlink()
+    # split the node events by model_run windows: [warm-up, decode x runs, prefill]
+    bounds = [(r["ts"], r["ts"] + r["dur"]) for r in runs_ev]
+
+    def summary(lo: int, hi: int, n: int) -> dict:
+        sel = [e for e in ev if any(a <= e["ts"] <= b for a, b in bounds[lo:hi])]
+        by_op: dict[str, float] = {}
+        for e in sel:
+            by_op[e["args"]["op_name"]] = by_op.get(e["args"]["op_name"], 0.0) + e["dur"] / 1e6 / n
+        nodes = sorted(sel, key=lambda e: -e["dur"])[:8]
+        tot = sum(by_op.values())
+        def out_shape(e: dict) -> list:  # the profiler's [{"float": [dims]}] of the node's first output
+            return next(iter((e["args"].get("output_type_shape") or [{}])[0].values()), [])
+
+        lm = [e for e in sel if cfg["vocab_size"] in out_shape(e)]  # the lm_head (int8: its integer MatMul)
+        return {"node_s_per_call": round(tot, 3),
+                "by_op_s": {k: round(v, 4) for k, v in sorted(by_op.items(), key=lambda kv: -kv[1])[:10]},
+                "top_nodes": [{"name": e["name"][:-12], "op": e["args"]["op_name"], "s": round(e["dur"] / 1e6, 4)}
+                              for e in nodes],
+                "lm_head_s_per_call": round(sum(e["dur"] for e in lm) / 1e6 / n, 4)}
+
+    rows = sess.get_outputs()[0].shape[1]  # 1: last position's logits; symbolic: every position's
+    return {"precision": precision, "threads": threads, "load": _load(), "session_load_s": round(load_s, 1),
+            "logits": "last" if rows == 1 else "all",
+            "past": past, "prefill_len": prefill_len, "calls": calls,
+            "decode_profile": summary(1, 1 + runs, runs), "prefill_profile": summary(1 + runs, 2 + runs, 1),
+            "rss_mb": round(_rss_mb()), "load_end": _load()}
 
 
 # ------------------------------------------------------------------------------------------------ side
@@ -769,8 +885,13 @@ def cost_table(data: dict) -> str:
             "|---|---|---|---|---|---|---|"]
     for name, r in data["models"].items():
         e, ck = r.get("export") or r.get("export_text300") or {}, r.get("checkpoint") or {}
-        meas = r.get("measure_text300") or r.get("measure") or {}
-        for v, size in (e.get("size_mib") or {}).items():
+        meas = dict(r.get("measure_text300") or r.get("measure") or {})
+        sizes = dict(e.get("size_mib") or {})
+        if "qwen3-int8" in r and "measure_int8" in r:  # int8 decoder, fp32 vision + embed (qwen3_int8)
+            q = r["qwen3-int8"]
+            sizes["int8 decoder"] = round(sizes["fp32"] - q["fp32_size_mib"] + q["size_mib"], 1)
+            meas["int8 decoder"] = r["measure_int8"]["int8"]
+        for v, size in sizes.items():
             par = e.get("parity", {}).get(v) or (meas.get(v) or {}).get("parity", {})
             ptxt = ", ".join(f"{k} {x['rel']:.1e}" if isinstance(x, dict) else f"{k} {x:.3g}"
                              for k, x in par.items() if x is not None)
@@ -801,6 +922,8 @@ def run_child(step: str, name: str, args) -> dict:
         cmd += ["--text-chars", str(args.text_chars)]
     if step == "side":
         cmd += ["--vision-quants", args.vision_quants]
+    if args.precision != "fp32":
+        cmd += ["--precision", args.precision]
     t = time.time()
     r = subprocess.run(cmd, capture_output=True, text=True)
     peak = re.search(r"Maximum resident set size \(kbytes\): (\d+)", r.stderr)
@@ -827,7 +950,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("step", choices=["checkpoint", "export", "measure", "side", "vision-ab", "all", "profile",
                                      "scale-profiles", "table",
-                                     "_child", "_probe"])
+                                     "qwen3-profile", "qwen3-int8", "_child", "_probe"])
     ap.add_argument("child_step", nargs="?")
     ap.add_argument("probe_path", nargs="?")
     ap.add_argument("--model", choices=sorted(MODELS))
@@ -838,6 +961,9 @@ def main(argv=None) -> int:
                     help="side: vision quantisers to measure against fp32 (export/hf_qwen_vl.py:VISION_QUANTS)")
     ap.add_argument("--text-chars", type=int, help="VLM: cut the object text block to N characters (the real "
                                                    "tokenizer's prompt length with the synthetic byte tokenizer)")
+    ap.add_argument("--prefill-len", type=int, default=256, help="qwen3-profile: prefill tokens")
+    ap.add_argument("--precision", default="fp32", help="qwen3-profile / measure (qwen3-vl-2b): the decoder's folder under "
+                                                    "BIG/qwen3/qwen3-vl-2b (fp32, int8)")
     args = ap.parse_args(argv)
     if args.step == "profile":  # [paper_costs.*] of profiles/cpu-generic.toml from the measured results
         print(json.dumps(write_profile(args.big, REPO / "profiles" / "cpu-generic.toml"), indent=1))
@@ -848,6 +974,12 @@ def main(argv=None) -> int:
     if args.step == "table":
         print(cost_table(json.loads(OUT.read_text())))
         return 0
+    if args.step == "qwen3-profile":  # the 2B decoder graph under onnxruntime's profiler (no torch)
+        res = qwen3_profile(args.big, args.threads, past=921, prefill_len=args.prefill_len, runs=args.runs,
+                            precision=args.precision)
+        save("qwen3-vl-2b", f"profile_{args.precision}_prefill{args.prefill_len}_{res['logits']}_logits", res)
+        print(json.dumps(res, indent=1))
+        return 0
     if args.step == "_probe":  # one graph's session in this fresh process (step_side)
         print(json.dumps(probe(args.child_step, args.probe_path, args.runs, args.threads)))
         return 0
@@ -855,8 +987,10 @@ def main(argv=None) -> int:
         ap.error("--model is required")
     if args.step == "_child":
         fn = {"checkpoint": step_checkpoint, "export": step_export, "measure": step_measure,
+              "qwen3-int8": lambda name, big: qwen3_int8(big),
               "side": step_side, "vision-ab": lambda name, big, **kw: vision_ab(big, **kw)}[args.child_step]
-        kw = ({"runs": args.runs, "threads": args.threads, "text_chars": args.text_chars}
+        kw = ({"runs": args.runs, "threads": args.threads, "text_chars": args.text_chars,
+               **({"precision": args.precision} if args.precision != "fp32" else {})}
               if args.child_step == "measure" else {"text_chars": args.text_chars}
               if args.child_step == "export" else
               {"runs": args.runs, "threads": args.threads,
@@ -866,7 +1000,8 @@ def main(argv=None) -> int:
         return 0
     for step in (["checkpoint", "export", "measure"] if args.step == "all" else [args.step]):
         res = run_child(step, args.model, args)
-        save(args.model, step + (f"_text{args.text_chars}" if args.text_chars else ""), res)
+        save(args.model, step + (f"_text{args.text_chars}" if args.text_chars else "")
+             + (f"_{args.precision}" if args.precision != "fp32" and step == "measure" else ""), res)
         print(json.dumps({args.model: {step: res}}, indent=1)[:3000])
     return 0
 

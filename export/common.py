@@ -162,9 +162,10 @@ def quantize_int8_dynamic(src: str | os.PathLike, dst: str | os.PathLike, *, per
     """Dynamic int8 (weights int8, activations quantised at run time): the CPU variant."""
     from onnxruntime.quantization import QuantType, quantize_dynamic
 
-    progress(f"quantize_dynamic int8 -> {Path(dst).name}")
+    ext = bool(B.external_data_locations(src))  # a source past protobuf's 2 GiB: its int8 copy may be too
+    progress(f"quantize_dynamic int8 -> {Path(dst).name}" + (" (external data)" if ext else ""))
     quantize_dynamic(str(src), str(dst), weight_type=QuantType.QInt8, per_channel=per_channel,
-                     op_types_to_quantize=list(op_types) if op_types else None)
+                     op_types_to_quantize=list(op_types) if op_types else None, use_external_data_format=ext)
     return Path(dst)
 
 

@@ -17,7 +17,8 @@ Graphs (numpy I/O; fixed image grid S x S like the Qwen2.5-VL package, S a multi
 - decoder: `inputs_embeds [1, L, H]`, `attention_mask [1, P+L]`, `position_ids [3, 1, L]` (M-RoPE t/h/w,
            interleaved), `deepstack [K, 1, L, H]` (the DeepStack features scattered to the image-token rows,
            zeros elsewhere: adding zeros is exact, and it keeps the graph free of data-dependent shapes),
-           `past_key_i / past_value_i [1, KV, P, D]` -> `logits [1, L, V]`, `present_key_i / present_value_i`.
+           `past_key_i / past_value_i [1, KV, P, D]` -> `logits [1, 1, V]` (last position only),
+           `present_key_i / present_value_i`.
 
 Checks at export: each graph vs its torch wrapper on fresh inputs (export_variants), the vision wrapper vs
 transformers' own `model.visual` (merged and DeepStack features), and the runtime loop's greedy tokens vs
@@ -180,7 +181,8 @@ def vision_wrapper(model: Any, image_size: int):
 
 
 def decoder_wrapper(model: Any):
-    """inputs_embeds, attention_mask, position_ids [3, 1, L], deepstack [K, 1, L, H], *past -> logits, *presents.
+    """inputs_embeds, attention_mask, position_ids [3, 1, L], deepstack [K, 1, L, H], *past -> logits
+    [1, 1, V] (the last position's), *presents.
     transformers' own text model, with its DeepStack step (masked row add) replaced by the dense add of
     features already scattered to the image rows (same numbers: the other rows get + 0)."""
     import types
@@ -211,7 +213,9 @@ def decoder_wrapper(model: Any):
             presents = []
             for layer in out.cache.layers:
                 presents += [layer.keys, layer.values]
-            return (self.lm_head(out.last_hidden_state), *presents)
+            # the last position's logits only (transformers' generate: logits_to_keep=1): the lm_head over
+            # every prompt row cost ~20% of a 2B prefill and greedy decoding reads only the last row
+            return (self.lm_head(out.last_hidden_state[:, -1:]), *presents)
 
     return DecoderGraph().eval()
 

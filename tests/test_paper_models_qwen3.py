@@ -33,6 +33,14 @@ def test_two_process_split_reproduces_transformers(tmp_path):
     assert m["prompt_tokens"] == exp["prompt_tokens"] and m["new_tokens"] == 5
     assert m["token_agreement_vs_transformers"] == 1.0
     assert m["kl_vs_transformers"] < 1e-6 and m["logits_rel_err_vs_transformers"] < 1e-4
+    # the int8 decoder path: the project's quantiser, then the same measure with that decoder (vision/embed fp32)
+    q = PM.qwen3_int8(tmp_path)
+    assert q["files"] == ["decoder.onnx"] and q["size_mib"] < q["fp32_size_mib"] / 2  # tiny: one protobuf
+    m8 = PM.qwen3_measure(tmp_path, runs=1, threads=1, n_new=5, precision="int8")["int8"]
+    assert m8["decoder_precision"] == "int8" and m8["new_tokens"] == 5
+    d8 = m8["graphs"]["decoder"]["parity_vs_torch"]
+    assert d8["rel"] > 100 * m["graphs"]["decoder"]["parity_vs_torch"]["rel"]  # really the int8 graph
+    assert 0 < d8["next_token_kl_max"] < 10 and m8["kl_vs_transformers"] > 0
 
 
 def test_external_data_threshold_follows_the_weight_bytes():

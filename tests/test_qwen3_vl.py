@@ -99,5 +99,6 @@ def test_deepstack_changes_the_answer_so_it_cannot_be_dropped():
                                          deepstack_visual_embeds=[deep[i, 0, 2:4] for i in range(K)])
     # the dense add reproduces transformers' masked add; dropping DeepStack does not
     from mosaicthinker.export import hf_qwen3_vl  # noqa: F401
-    assert torch.allclose(with_ds, model.lm_head(ref.last_hidden_state), atol=1e-5)
+    assert with_ds.shape == (1, 1, model.config.text_config.vocab_size)  # the last position only
+    assert torch.allclose(with_ds, model.lm_head(ref.last_hidden_state[:, -1:]), atol=1e-5)
     assert not torch.allclose(with_ds[0, -1], without[0, -1], atol=1e-3)
