@@ -547,6 +547,21 @@ def choose_root(S: np.ndarray) -> int:
     return int(np.argmax(S.sum(1)))
 
 
+def root_in_largest(S: np.ndarray, tree: Sequence[tuple[int, int]], root: int) -> int:
+    """`root` if its tree component is the largest (ties keep it), else the `choose_root` row of the largest
+    component of the verified forest: a split tree keeps the most key frames aligned, not the most similar
+    frame's few (the map is built from the root's component only)."""
+    dsu = _DSU(len(S))
+    for i, j in tree:
+        dsu.union(i, j)
+    comp = np.array([dsu.find(i) for i in range(len(S))])
+    sizes = np.bincount(comp, minlength=len(S))
+    if sizes[comp[root]] >= sizes.max():
+        return root
+    members = np.flatnonzero(comp == int(np.argmax(sizes)))
+    return int(members[np.argmax(S[np.ix_(members, members)].sum(1))])
+
+
 class _DSU:
     def __init__(self, n: int):
         self.p = list(range(n))
@@ -674,6 +689,8 @@ class AlignmentResult:
     # what became of each key frame in the end (`align_keyframes`): the step that gave its final pose, or
     # "unaligned"; the steps' own trace events are the history, this is the state
     fates: dict[int, str] = field(default_factory=dict)
+    # frames whose pose the last `verify_tree` only re-expressed in a new root's frame (their fate stays)
+    rebased: list[int] = field(default_factory=list)
 
     @property
     def aligned(self) -> list[int]:
@@ -884,6 +901,7 @@ def _align_mst(frames: list[Any], pv: _PairVerifier, embeddings: np.ndarray | No
             W[i, j] = W[j, i] = -1.0
         tree, _failed = maximum_spanning_tree(W, pv.verify_cached, conf.max_attempts)
     pv.secs["tree"] = time.perf_counter() - t0
+    root = root_in_largest(S, tree, root)
     if pv.edge == "essential" and conf.scale_mode == "graph":
         _rescale_essential(pv.Tpair, tree, pv.stats, idx, root)
     local, _parent = compose_tree(root, tree, pv.Tpair)
@@ -1072,11 +1090,12 @@ def _reattach(al: AlignmentResult, poses: dict[int, np.ndarray], dropped: list[i
 
 def verify_tree(al: AlignmentResult, frames: dict[int, Any], conf: AlignPolicy, trace: Any = None
                 ) -> AlignmentResult:
-    """Check every tree edge with `depth_consistency` in both directions; a frame whose edge to its parent puts
-    more than `max_free_space_violation` of the points into observed free space is detached with its subtree
-    and re-attached through another verified pair (from the pairs alignment already tried) that passes the same
-    check, if any; the rest become unaligned. Recorded in the trace; the rejected edges are kept in
-    `al.rejected_edges` so that a later round does not use them again."""
+    """Check every tree edge with `depth_consistency` in both directions; an edge that puts more than
+    `max_free_space_violation` of the points into observed free space is cut. The largest part of the cut tree
+    stays aligned (the root's part on a tie; else the root moves to the part's frame nearest the old root and
+    the poses are re-expressed in it), the other parts are re-attached through other verified pairs (from the
+    pairs alignment already tried) that pass the same check, if any; the rest become unaligned. Recorded in the
+    trace; the cut edges are kept in `al.rejected_edges` so that a later round does not use them again."""
     from .geometry import invert
 
     def ok(a: int, b: int, T_ab: np.ndarray) -> bool:
@@ -1084,40 +1103,58 @@ def verify_tree(al: AlignmentResult, frames: dict[int, Any], conf: AlignPolicy, 
             return True  # frames without kept depth are not checked
         return _edge_ok(frames[a], frames[b], T_ab, conf.max_free_space_violation)
 
-    adj: dict[int, list[int]] = {}
-    for a, b in al.edges:
-        adj.setdefault(a, []).append(b)
-        adj.setdefault(b, []).append(a)
     poses = dict(al.poses)
-    parent = {al.root: None}
-    order = deque([al.root])
+    order = _tree_order(al.root, al.edges, poses)
     bad: list[tuple[int, int]] = list(al.rejected_edges)
-    while order:  # breadth-first from the root: a failing edge drops its whole subtree
-        p = order.popleft()
-        for c in adj.get(p, []):
-            if c in parent or c not in poses:
-                continue
-            if ok(p, c, invert(poses[p]) @ poses[c]):
-                parent[c] = p
-                order.append(c)
-            else:
-                bad.append((p, c))
-    kept = set(parent)
-    dropped = [i for i in poses if i not in kept]
+    part = {al.root: al.root}
+    for p, c in order:  # breadth-first from the root: each edge (parent, child) once
+        if ok(p, c, invert(poses[p]) @ poses[c]):
+            part[c] = part[p]
+        else:
+            bad.append((p, c))
+            part[c] = c  # a new part, headed by the frame nearest the root
     al.rejected_edges = bad
+    sizes: dict[int, int] = {}
+    for h in part.values():
+        sizes[h] = sizes.get(h, 0) + 1
+    head = max(sizes, key=lambda h: (sizes[h], h == al.root))  # ties: the root's part, then the nearest
+    dropped = [i for i in poses if part.get(i) != head]
     if not dropped:
         return al
+    moved = head != al.root
+    if moved:  # the root's own part was the smaller: the map keeps the most key frames
+        T = invert(poses[head])
+        poses = {i: T @ P for i, P in poses.items()}
+        al.root = head
+        al.rebased = [i for i in poses if i not in dropped]
     for i in dropped:
         poses.pop(i)
     reattached = _reattach(al, poses, dropped, ok)
     lost = [i for i in dropped if i not in poses]
     as_trace(trace).event("alignment", f"depth check rejected tree edge(s) {bad}: {len(dropped)} frame(s) "
-                          f"detached, "
-                          f"{len(reattached)} re-attached through other verified pairs, {len(lost)} left unaligned",
-                          stage="alignment", rejected=[list(e) for e in bad], unaligned=lost)
+                          f"detached" + (f" (the larger part kept, rooted at frame {head})" if moved else "") +
+                          f", {len(reattached)} re-attached through other verified pairs, {len(lost)} left unaligned",
+                          stage="alignment", rejected=[list(e) for e in bad], unaligned=lost, root=al.root)
     al.poses = poses
     al.unaligned = sorted(set(al.unaligned) | set(lost))
     return al
+
+
+def _tree_order(root: int, edges: Sequence[tuple[int, int]], poses: Mapping[int, Any]) -> list[tuple[int, int]]:
+    """The tree's edges (parent, child) in breadth-first order from `root`, over frames with a pose."""
+    adj: dict[int, list[int]] = {}
+    for a, b in edges:
+        adj.setdefault(a, []).append(b)
+        adj.setdefault(b, []).append(a)
+    seen, queue, out = {root}, deque([root]), []
+    while queue:
+        p = queue.popleft()
+        for c in adj.get(p, []):
+            if c not in seen and c in poses:
+                seen.add(c)
+                out.append((p, c))
+                queue.append(c)
+    return out
 
 
 def attach_frames(al: AlignmentResult, frames: dict[int, Any], todo: Sequence[int], matcher: KeyedMatcher,
@@ -1265,9 +1302,10 @@ class Fates:
             T = al.poses.get(i)
             if T is None:
                 self.how[i] = "unaligned"
-            elif self._poses.get(i) is not T:
+            elif self._poses.get(i) is not T and i not in al.rebased:
                 self.how[i] = step
             self._poses[i] = T
+        al.rebased = []
 
     def summary(self) -> str:
         """"12 of 16 key frames aligned (9 box-matched tree, 3 through bridge frames)"."""
@@ -1465,6 +1503,7 @@ def _record_fates(trace: Any, al: AlignmentResult, fates: Fates) -> None:
             fates.how[i] = "unaligned"
     al.fates = {i: fates.how.get(i, "unaligned") for i in fates.keys}
     trace.decide("alignment.frames", {str(i): f for i, f in al.fates.items()})
+    trace.decide("alignment.root", al.root)  # the depth check may have moved it to the larger part
     out = sorted(i for i in fates.keys if al.fates[i] == "unaligned")
     msg = f"alignment: {fates.summary()}"
     if out:

@@ -80,3 +80,38 @@ def test_fates_follow_pose_changes_step_by_step():
     al.poses[1] = I.copy()
     f.after(al, "through bridge frames")
     assert f.how[1] == "through bridge frames" and f.how[2] == "whole-image edge"
+
+
+def test_depth_check_keeps_the_larger_part_of_a_cut_tree(redkitchen):
+    """A tree 50 - 53 - 56 whose edge 50-53 is wrong (53 and 56 placed 0.6 m too near 50's camera, consistent with
+    each other): the depth check cuts 50-53, and the map keeps the larger part {53, 56} - rooted at 53, its
+    poses re-expressed there, the other part unaligned - instead of the root's single frame. Real 7-Scenes frames
+    and sensor depth; the poses are the ground truth with the one wrong edge."""
+    from mosaicthinker.runtime.alignment import AlignmentResult, verify_tree
+    from mosaicthinker.runtime.frames import open_source
+    from mosaicthinker.runtime.geometry import invert
+    from mosaicthinker.runtime.pipeline import PipelineConfig
+
+    src = open_source(redkitchen)
+    fr = {i: src[i] for i in (50, 53, 56)}
+    rel = {i: invert(fr[50].pose_gt) @ fr[i].pose_gt for i in fr}
+    shift = np.eye(4)
+    shift[2, 3] = -0.6  # towards the root camera: 53's and 56's points land in space 50 sees as empty
+    poses = {50: rel[50], 53: shift @ rel[53], 56: shift @ rel[56]}
+    al = AlignmentResult(poses, 50, [(50, 53), (53, 56)], [], "mst")
+    al = verify_tree(al, fr, PipelineConfig(), None)
+    assert al.root == 53 and sorted(al.poses) == [53, 56] and al.unaligned == [50]
+    assert (50, 53) in al.rejected_edges
+    np.testing.assert_allclose(al.poses[53], np.eye(4), atol=1e-4)  # the GT rotations are orthonormal to ~1e-5
+    np.testing.assert_allclose(al.poses[56], invert(fr[53].pose_gt) @ fr[56].pose_gt, atol=1e-4)
+    assert sorted(al.rebased) == [53, 56]  # their fate stays (re-expressed, not re-attached)
+
+
+def test_root_in_largest_moves_the_root_to_the_largest_component():
+    from mosaicthinker.runtime.alignment import root_in_largest
+
+    S = np.ones((5, 5))
+    S[4, 3] = S[3, 4] = 5.0
+    assert root_in_largest(S, [(0, 1), (2, 3), (3, 4)], 0) == 3  # {2, 3, 4} beats {0, 1}; 3 the most similar
+    assert root_in_largest(S, [(0, 1), (3, 4)], 0) == 0           # a tie keeps the root
+    assert root_in_largest(S, [(0, 1), (1, 2), (2, 3), (3, 4)], 1) == 1
