@@ -25,7 +25,7 @@ import os
 import time
 from collections import OrderedDict
 from contextlib import contextmanager
-from typing import Any, Iterator, Sequence
+from typing import Any, Callable, Iterator, Sequence
 
 import numpy as np
 
@@ -238,6 +238,18 @@ class ImageLRU:
             while len(self._d) > self.size:
                 self._d.popitem(last=False)
         return value
+
+    def cached(self, rgb: np.ndarray, compute: Callable[[np.ndarray], Any]) -> Any:
+        """`compute(rgb)` once per image content: the cached value on a hit, else computed, its arrays (one, or
+        a tuple of them) made read-only (every later call on the image shares them) and cached."""
+        key = self.key(rgb)
+        hit = self.get(key)
+        if hit is not None:
+            return hit
+        out = compute(rgb)
+        for a in out if isinstance(out, tuple) else (out,):
+            a.setflags(write=False)
+        return self.put(key, out)
 
 
 # ---------------------------------------------------------------------------------------------------------------

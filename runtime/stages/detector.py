@@ -116,14 +116,7 @@ class ClosedSetDetector(RoleModel):
     def raw(self, rgb: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """All detections above the threshold: boxes [N, 4] pixels x0 y0 x1 y1, class ids [N], scores [N]
         (read-only arrays, shared by every call on the same image)."""
-        key = ImageLRU.key(rgb)
-        hit = self._raw.get(key)
-        if hit is not None:
-            return hit
-        out = self._run(rgb)
-        for a in out:
-            a.setflags(write=False)
-        return self._raw.put(key, out)
+        return self._raw.cached(rgb, self._run)
 
     def _run(self, rgb: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         H, W = rgb.shape[:2]

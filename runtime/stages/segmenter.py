@@ -37,13 +37,7 @@ class SemanticSegmenter(RoleModel):
     def classes(self, rgb: np.ndarray) -> np.ndarray:
         """rgb [H, W, 3] uint8 -> class id per pixel [H, W] int32 (logits resized to the image, then argmax;
         read-only, shared by every call on the same image)."""
-        key = ImageLRU.key(rgb)
-        hit = self._cache.get(key)
-        if hit is not None:
-            return hit
-        lab = self._run(rgb)
-        lab.setflags(write=False)
-        return self._cache.put(key, lab)
+        return self._cache.cached(rgb, self._run)
 
     def _run(self, rgb: np.ndarray) -> np.ndarray:
         import cv2
