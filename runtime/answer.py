@@ -40,6 +40,7 @@ from .config import StageConf
 from .errors import InputError
 from .geometry import box_distance
 from .grounding import ParsedQuestion, canonical_name, name_key, parse_question, safe_text, split_options
+from .grounding_nl import SUPERLATIVES
 from .semantic_map import ObjectInstance, SemanticMap
 from .trace import as_trace
 
@@ -157,10 +158,9 @@ def _measure(o: ObjectInstance, what: str) -> float:
     return horiz[1] if what == "depth" else horiz[0]  # length / width: the longer horizontal side (W x D x H)
 
 
-# selector word -> (measure, pick)
-_SUPERLATIVES = {"biggest": ("volume", max), "largest": ("volume", max), "smallest": ("volume", min),
-                 "tallest": ("height", max), "shortest": ("height", min), "highest": ("top", max),
-                 "lowest": ("top", min), "longest": ("length", max), "widest": ("width", max)}
+_SUPERLATIVES = SUPERLATIVES  # selector word -> (measure, pick)
+_MEASURE_WORDS = {"volume": "box volume", "height": "height", "top": "top height", "length": "length",
+                  "width": "width"}
 
 
 def describe_direction(theta_deg: float, back_deg: float = 135.0) -> dict[str, Any]:
@@ -539,6 +539,42 @@ class MapReasoner:
             value = o.name
         return value, f"{'farthest' if far else 'nearest'} to {self._ph(ref)}: " + ", ".join(
             f"{k} {dist[k][0]:.2f} m" for k in ranked)
+
+    def _object_size_compare(self, pq: ParsedQuestion) -> tuple[Any, str]:
+        """The object with the largest (smallest) box measure among the candidates, or among every object of the
+        map ("*"); a category with several instances counts by its extreme one (recorded as ambiguity)."""
+        key, pick = SUPERLATIVES[pq.params["measure"]]
+        cands, unit = pq.params["candidates"], "m3" if key == "volume" else "m"
+        if cands != "*" and len(cands) == 1:  # "which chair is the tallest?": one of its instances
+            inst = self._instances(cands[0])
+            o = pick(inst, key=lambda x: _measure(x, key))
+            ranked = sorted(inst, key=lambda x: _measure(x, key), reverse=pick is max)[:6]
+            return ({"text": f"{self._ph(cands[0])} #{o.id}", "object": o.name, "instance": int(o.id),
+                     "value": round(_measure(o, key), 3)},
+                    f"{_MEASURE_WORDS[key]}: " + ", ".join(f"#{x.id} {_measure(x, key):.2f} {unit}" for x in ranked))
+        groups = dict(self._idx) if cands == "*" else self._require(cands)
+        best = {n: pick(inst, key=lambda o: _measure(o, key)) for n, inst in groups.items() if inst}
+        if len(best) < 2:
+            raise _Unsupported("fewer than two objects to compare")
+        vals = {n: _measure(o, key) for n, o in best.items()}
+        win = pick(vals, key=vals.get)
+        if cands == "*":
+            self._used.append(best[win])
+        else:
+            for n, inst in groups.items():
+                self._choice(n, inst, best[n], f"the {pq.params['measure']}", {o.id: _measure(o, key) for o in inst},
+                             unit)
+        ranked = sorted(vals, key=vals.get, reverse=pick is max)[:6]
+        expl = f"{_MEASURE_WORDS[key]}: " + ", ".join(f"{self._ph(n)} #{best[n].id} {vals[n]:.2f} {unit}"
+                                                      for n in ranked)
+        if pq.params.get("yesno"):
+            a = cands[0]
+            yes = win == a and vals[cands[0]] != vals[cands[1]]
+            return {"text": "yes" if yes else "no", "answer": yes, "values_m": vals}, expl
+        if cands == "*" and not pq.options:
+            o = best[win]
+            return {"text": o.name, "object": o.name, "instance": int(o.id), "value": round(vals[win], 3)}, expl
+        return win, expl
 
     def _pick_unique(self, name: str, near: list[np.ndarray]) -> tuple[ObjectInstance, str]:
         """The instance of `name` to use as a position: the only one, or the one nearest the other objects."""

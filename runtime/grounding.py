@@ -240,6 +240,13 @@ class ParsedQuestion:
         """Targets then cues, without repeats."""
         return list(dict.fromkeys(self.targets + self.cues))
 
+    @property
+    def whole_map(self) -> bool:
+        """About everything in the map (room size, a list, "how many objects", "the biggest object"): the map is
+        built for every category the detector names, not for named objects."""
+        return (self.qtype in ("room_size_estimation", "object_list")
+                or "*" in (self.params.get("object"), self.params.get("candidates")))
+
     def phrase(self, name: str) -> str:
         """The question's own words for the object called `name` (the name itself when none was recorded)."""
         return self.phrases.get(name, name)

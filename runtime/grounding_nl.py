@@ -6,7 +6,8 @@ units and free-text options of an English question, in one pass over its tokens 
 - intents (qtype): the VSI-Bench types `object_counting`, `object_size_estimation`, `room_size_estimation`,
   `object_abs_distance`, `object_rel_distance`, `object_rel_direction_{easy,medium,hard}`,
   `obj_appearance_order`, plus `object_existence`, `object_where`, `object_list`, `object_nearest` (nearest /
-  farthest among everything in the map) and `object_direction` (free-form direction, no options);
+  farthest among everything in the map), `object_direction` (free-form direction, no options) and
+  `object_size_compare` (which is bigger / is A taller than B / the tallest object in the map);
 - object phrases are the runs of content words between function words ("the computer tower", "office chairs",
   "the kitchen's sink" -> "sink"); each keeps the question's words (`ParsedQuestion.phrases`) and a
   vocabulary name when it is one or a listed synonym (`grounding.canonical_name`); others stay as written (an
@@ -78,9 +79,18 @@ _COLOURS = {"red", "blue", "green", "yellow", "black", "white", "grey", "gray", 
 _ORDINALS = {"first", "second", "third", "fourth", "fifth", "last", "other", "left", "right", "middle", "1st",
              "2nd", "3rd"}
 _RANKS = {"second", "third", "fourth", "fifth", "2nd", "3rd", "4th", "5th", "penultimate"}
-_SUPERLATIVE = {"biggest": ("volume", max), "largest": ("volume", max), "smallest": ("volume", min),
+# size word -> (box measure of `answer._measure`, pick): one table for selectors ("the biggest table") and for
+# size comparisons ("which is bigger, ...", "the tallest object")
+SUPERLATIVES = {"biggest": ("volume", max), "largest": ("volume", max), "smallest": ("volume", min),
                 "tallest": ("height", max), "shortest": ("height", min), "highest": ("top", max),
-                "lowest": ("top", min), "longest": ("length", max), "widest": ("width", max)}
+                "lowest": ("top", min), "longest": ("length", max), "widest": ("width", max),
+                "narrowest": ("width", min)}
+COMPARATIVES = {"bigger": "biggest", "larger": "largest", "smaller": "smallest", "taller": "tallest",
+                "shorter": "shortest", "higher": "highest", "lower": "lowest", "longer": "longest",
+                "wider": "widest", "narrower": "narrowest"}
+_SUPERLATIVE = SUPERLATIVES
+_CMP_RX = r"\b(?:" + "|".join(COMPARATIVES) + r")\b"
+_SUP_RX = r"\b(?:" + "|".join(SUPERLATIVES) + r")\b"
 _NEAR_CUES = {"nearest", "closest", "next", "beside", "near", "by", "nearer", "closer"}
 _DIR_PHRASES = [  # (regex over the joined tokens, canonical direction)
     (r"front-left|front left|left front|forward left|ahead (?:and )?(?:to the )?left", "front-left"),
@@ -102,6 +112,8 @@ EXAMPLES: dict[str, list[str]] = {
     "object_rel_distance": ["Which is closest to the tv: the chair, the stool or the sofa?",
                             "Is the bed or the sofa farther from the door?"],
     "object_nearest": ["What is the nearest object to the fridge?", "What's farthest from the bed?"],
+    "object_size_compare": ["Which is bigger, the table or the sofa?", "Is the fridge taller than the door?",
+                            "What's the biggest object in the room?"],
     "object_rel_direction": ["Standing by the sofa facing the tv, is the lamp to my left?",
                              "If I stand at the stove and look at the fridge, is the table front-left, front-right, "
                              "back-left or back-right of me?"],
@@ -275,6 +287,9 @@ def _intent(j: str, n_obj: int, has_opts: bool) -> str | None:
         return "rel_distance"
     if _has(j, r"\b(?:what|what's|which)\b(?: \w+){0,3} (?:next to|beside|near|by)\b"):
         return "rel_distance"  # "what's next to the desk?": the nearest other object
+    if not _has(j, r"\bhow\b") and (_has(j, _CMP_RX) and _has(j, r"\b(?:which|whichever|what|or|than)\b")
+                                     or _has(j, _SUP_RX) and _has(j, r"^(?:which|what|what's)\b")):
+        return "size_compare"  # "which is bigger, the table or the sofa?", "what's the tallest thing here?"
     for intent, rx in _SIMPLE_INTENTS:
         if rx.search(j):
             return intent
@@ -343,11 +358,12 @@ def parse_natural(question: str, options: list[str] | None = None) -> ParsedQues
     nps_all = [p for p in noun_phrases(toks) if not p["scene"]]
     intent = _intent(joined, len(nps_all), bool(options))
     if intent is None:
-        pq.notes.append("no question type recognised (counting, existence, size, distance, nearest, direction, "
-                        "where, list, room size, appearance order)")
+        pq.notes.append("no question type recognised (counting, existence, size, size comparison, distance, "
+                        "nearest, direction, where, list, room size, appearance order)")
         pq.how = "none"
         return pq
-    handler = {"count": _count, "existence": _existence, "size": _size, "room_size": _room_size,
+    handler = {"count": _count, "existence": _existence, "size": _size, "size_compare": _size_compare,
+               "room_size": _room_size,
                "abs_distance": _abs_distance, "rel_distance": _rel_distance, "direction": _direction,
                "where": _where, "list": _list, "obj_appearance_order": _order}[intent]
     keep_attach = intent not in ("rel_distance", "direction")
@@ -454,6 +470,23 @@ def _size(pq, toks, joined, nps, extra) -> None:
     pq.params = {"object": n, "dimension": dim, "unit": _unit(joined, "cm")}
 
 
+def _size_compare(pq, toks, joined, nps, extra) -> None:
+    """"Which is bigger, A or B?" / "Is A taller than B?" (yes or no) / "What's the tallest object?" (over the
+    whole map) / "Which chair is the tallest?" (one instance of one name): params measure (a `SUPERLATIVES`
+    key), candidates (names, or "*" for every object), yesno."""
+    word = next(t for t in toks if t in COMPARATIVES or t in SUPERLATIVES)
+    sup = COMPARATIVES.get(word, word)
+    names = _option_names(pq) or _refs(pq, nps)
+    yesno = word in COMPARATIVES and "than" in toks and toks[0] in _COPULA | {"does", "do", "did"}
+    if (yesno and len(names) != 2) or (word in COMPARATIVES and len(names) < 2):
+        about = f" about '{pq.phrase(names[0])}'" if names else ""
+        return _fail(pq, f"a '{word}' question{about}", "the two objects to compare (e.g. 'is the tv bigger than "
+                                                        "the lamp?', 'which is taller, the fridge or the door?')")
+    pq.qtype = "object_size_compare"
+    pq.targets = names
+    pq.params = {"measure": sup, "candidates": names or "*", "yesno": yesno}
+
+
 def _room_size(pq, toks, joined, nps, extra) -> None:
     pq.qtype = "room_size_estimation"
     unit = "ft2" if _has(joined, r"square (?:feet|foot)|sq ?ft") else "m2"
@@ -499,6 +532,15 @@ def _reference_index(toks: list[str], nps: list[dict[str, Any]]) -> int | None:
     return None
 
 
+def _option_names(pq: ParsedQuestion) -> list[str]:
+    """The object each of the question's options names (its first object phrase, else its whole text)."""
+    cands = []
+    for _, text in split_options(pq.options):
+        onps = [p for p in noun_phrases(tokens(text)) if not p["scene"]]
+        cands.append(_refs(pq, onps[:1])[0] if onps else name_key(text))
+    return cands
+
+
 def _rel_distance(pq, toks, joined, nps, extra) -> None:
     far = _has(joined, _FAR + r"|\bfar\b") and not _has(joined, _CLOSE)
     k = _reference_index(toks, nps)
@@ -507,14 +549,7 @@ def _rel_distance(pq, toks, joined, nps, extra) -> None:
                                                          "(e.g. '... closest to the tv')")
     names = _refs(pq, nps)
     ref = names[k]
-    opts = split_options(pq.options)
-    if opts:
-        cands = []
-        for _, text in opts:
-            onps = [p for p in noun_phrases(tokens(text)) if not p["scene"]]
-            cands.append(_refs(pq, onps[:1])[0] if onps else name_key(text))
-    else:
-        cands = [n for i, n in enumerate(names) if i != k]
+    cands = _option_names(pq) or [n for i, n in enumerate(names) if i != k]
     extreme = "farthest" if far else "closest"
     pq.cues = [ref]
     if not cands:

@@ -28,7 +28,7 @@ from .perception import Detections
 from .progress import phase, start, ticking
 from .trace import Trace, as_trace
 # the stages, in the paper's order
-from .grounding import ground
+from .grounding import ParsedQuestion, ground
 from .dedup import DedupConf, remove_redundant
 from .keyframes import KeyFrameConf, select_keyframes, uniform_keyframes
 from .matching import MatchConf, make_matcher
@@ -803,6 +803,22 @@ def _render_prompt(smap: SemanticMap, build: MapBuild | None, mode: str, render:
     return vprompt.render(smap, {"mode": mode}, pts, ids) if render else None
 
 
+def _whole_map_targets(pq: ParsedQuestion, bundle: Any, trace: Trace) -> list[str]:
+    """The question's targets; for a question about everything ("what's in the room?", "the biggest object")
+    every name the bundle's closed-set detector knows, so the map holds what the video shows."""
+    if pq.objects or not pq.whole_map or pq.qtype == "room_size_estimation" or bundle is None:
+        return pq.targets
+    from .stages.detector import detectable_names
+
+    try:
+        names = detectable_names(bundle)
+    except InputError as e:  # an open-vocabulary detector finds only what it is asked for
+        trace.event("degraded", f"a question about every object, but {e}", stage="grounding")
+        return pq.targets
+    trace.decide("targets", {"whole_map": True, "names": names})
+    return names
+
+
 def ask(source: Any, question: str, options: list[str] | None = None, *, perception: Perception | None = None,
         bundle: Any = None, profile: Any = None, conf: PipelineConfig | dict | None = None,
         answerer: str = "auto", method: str = "mosaic", prompt_mode: str = "grid", vlm: Any = None,
@@ -840,15 +856,17 @@ def ask(source: Any, question: str, options: list[str] | None = None, *, percept
         smap = src
         trace.decide("map", {"source": "saved map", "instances": len(smap.instances)})
     else:
-        if not pq.objects and pq.qtype not in ("room_size_estimation", "object_list"):
+        if not pq.objects and not pq.whole_map:
             # nothing to look for: the reasoner's "not understood" reply (status unsupported, exit 0, trace kept)
             ans = MapReasoner(SemanticMap()).answer(question, options, parsed=pq)
-            trace.event("degraded", f"the question names no object to look for: {ans.explanation}", stage="grounding")
+            why = "the question was not understood" if pq.qtype is None else "the question names no object to look for"
+            trace.event("degraded", f"{why}: {ans.explanation}", stage="grounding")
             trace.decide("answer", {k: v for k, v in ans.to_dict().items() if k != "parsed"})
             return AskResult(ans, None, trace, None, None, pq, "mosaic")
         if perception is None:
             perception = perception_from_bundle(bundle, conf, trace, profile)
-        build = build_map(src, pq.targets, pq.cues, perception, conf, trace, keyframes, budget)
+        build = build_map(src, _whole_map_targets(pq, bundle, trace), pq.cues, perception, conf, trace, keyframes,
+                          budget)
         smap = build.map
     with trace.stage("prompt"):
         vp = _render_prompt(smap, build, prompt_mode, render_image or vlm is not None)

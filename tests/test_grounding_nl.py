@@ -309,3 +309,61 @@ def test_the_vlm_gets_the_raw_question_and_the_parsers_reading_as_a_hint():
     a = answer_question(room_map(), q, ["A. couch", "B. radiator"], answerer="vlm", vlm=vlm)
     assert a.text == "B" and q in vlm.prompts[0]
     assert "text parser read the question" in vlm.prompts[0] and "object_rel_distance" in vlm.prompts[0]
+
+
+# ----------------------------------------------------------------------------- size comparisons
+
+
+def _box_measure(name: str, what: str) -> float:
+    """The largest `what` over a ROOM category's boxes, from their sizes alone (axis-aligned, z up)."""
+    sizes = [np.array(s) for n, c, s in ROOM if n == name]
+    tops = [c[2] + s[2] / 2 for n, c, s in ROOM if n == name]
+    return max({"volume": [float(np.prod(s)) for s in sizes], "height": [float(s[2]) for s in sizes],
+                "top": tops}[what])
+
+
+@pytest.mark.parametrize("question, a, b, what, pick", [
+    ("Which is bigger, the desk or the couch?", "desk", "couch", "volume", max),
+    ("which one is smaller: the telephone or the laptop?", "telephone", "laptop", "volume", min),
+    ("Which is taller, the whiteboard or the radiator?", "whiteboard", "radiator", "height", max),
+    ("which is lower, the monitor or the power strip?", "monitor", "power strip", "top", min),
+])
+def test_which_is_bigger_picks_by_the_boxes(question, a, b, what, pick):
+    want = pick((a, b), key=lambda n: _box_measure(n, what))
+    ans = ask(question)
+    assert ans.ok and ans.qtype == "object_size_compare" and ans.text == want, (ans.text, ans.explanation)
+
+
+def test_is_a_taller_than_b_answers_yes_or_no_both_ways():
+    taller = _box_measure("whiteboard", "height") > _box_measure("monitor", "height")
+    assert ask("Is the whiteboard taller than the monitor?").text == ("yes" if taller else "no")
+    assert ask("is the monitor taller than the whiteboard?").text == ("no" if taller else "yes")
+
+
+def test_superlatives_over_the_whole_map_and_within_one_name():
+    names = sorted({n for n, _, _ in ROOM})
+    tallest = max(names, key=lambda n: _box_measure(n, "height"))
+    highest = max(names, key=lambda n: _box_measure(n, "top"))
+    q = parse_question("What's the tallest object in the room?")
+    assert q.whole_map and q.qtype == "object_size_compare"
+    assert ask("What's the tallest object in the room?").text == tallest
+    assert ask("what is the highest thing here?").text == highest
+    # "which chair ...": the instances of the chair category (its synonyms: office chairs) by volume
+    vols = [(float(np.prod(s)), -i) for i, (n, _, s) in enumerate(ROOM) if n in ("chair", "office chair")]
+    ans = ask("Which chair is the biggest?")
+    assert ans.ok and ans.text == f"chair #{-max(vols)[1]}"
+
+
+def test_size_comparison_with_options_and_what_it_cannot_compare():
+    want = min(("laptop", "telephone", "desk"), key=lambda n: _box_measure(n, "volume"))
+    opts = ["A. laptop", "B. telephone", "C. desk"]
+    assert ask("Which is the smallest?", opts).text == "ABC"[["laptop", "telephone", "desk"].index(want)]
+    for q in ("Which is bigger?", "Is the desk bigger?", "is the desk taller than?"):
+        a = ask(q)
+        assert a.status == "unsupported" and a.value is None, q
+    assert ask("Which is taller, the desk or the piano?").status == "not_found"
+    # questions that only look alike keep their types
+    assert ask("How big is the biggest chair?").qtype == "object_size_estimation"
+    assert ask("Which is closer to the desk, the laptop or the couch?").qtype == "object_rel_distance"
+    assert not parse_question("how many chairs are there?").whole_map
+    assert parse_question("how many objects are there?").whole_map

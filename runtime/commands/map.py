@@ -43,7 +43,7 @@ def _out_paths(out: str | None, source: Path) -> tuple[Path, Path, Path]:
 
 def default_objects(args: argparse.Namespace, source: Path) -> list[str]:
     """Every category the chosen detector can detect, as vocabulary names."""
-    from ..grounding import VOCABULARY, canonical_name
+    from ..grounding import canonical_name
 
     if args.detector == "oracle":
         from mosaicthinker.host.synth.generate import load_scene
@@ -52,17 +52,9 @@ def default_objects(args: argparse.Namespace, source: Path) -> list[str]:
     if not args.bundle:
         raise InputError("mosaic map with --detector model needs --bundle (or give --detector oracle on a "
                          "synthetic scene)")
-    from ..bundle import load_bundle
-    from ..stages.detector import map_names
+    from ..stages.detector import detectable_names
 
-    b = load_bundle(args.bundle)
-    if not b.has_role("detector"):
-        raise InputError(f"{args.bundle}: the bundle has no `detector` role")
-    labels = b.spec("detector", verify=False).semantics.get("labels")
-    if not labels:
-        raise InputError("the bundle's detector is open-vocabulary: say what to map with --objects a,b,c")
-    mapping, _ = map_names(sorted(VOCABULARY), labels)
-    return sorted(mapping)
+    return detectable_names(args.bundle)
 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:

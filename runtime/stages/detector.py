@@ -7,8 +7,9 @@ Open-vocabulary detectors (OWLv2, `owlv2.py`) take the names directly and cache 
 """
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
-from typing import Sequence
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -67,6 +68,25 @@ SYNONYMS: dict[str, list[str]] = {
 
 def normalize_name(name: str) -> str:
     return " ".join(name.lower().replace("_", " ").replace("-", " ").split())
+
+
+def detectable_names(bundle: Any) -> list[str]:
+    """Every vocabulary name the bundle's closed-set detector can detect (what a map of "everything" holds).
+    bundle: a bundle folder or a loaded `Bundle`. InputError when it has no detector or an open-vocabulary one
+    (which detects only what it is asked for)."""
+    from ..bundle import load_bundle
+    from ..errors import InputError
+    from ..grounding import VOCABULARY
+
+    b = load_bundle(bundle) if isinstance(bundle, (str, os.PathLike)) else bundle
+    if not b.has_role("detector"):
+        raise InputError(f"{b.root}: the bundle has no `detector` role")
+    labels = b.spec("detector", verify=False).semantics.get("labels")
+    if not labels:
+        raise InputError("the bundle's detector is open-vocabulary: name the objects (`mosaic map --objects "
+                         "a,b,c`, or a question that names them)")
+    mapping, _ = map_names(sorted(VOCABULARY), labels)
+    return sorted(mapping)
 
 
 def map_names(names: Sequence[str], labels: Sequence[str]) -> tuple[dict[str, list[int]], list[str]]:
