@@ -745,6 +745,7 @@ class AskResult:
 
     def to_dict(self) -> dict[str, Any]:
         return {"answer": self.answer.text, "status": self.answer.status, "value": self.answer.value,
+                "unit": self.answer.unit,
                 "explanation": self.answer.explanation, "qtype": self.answer.qtype, "missing": self.answer.missing,
                 "method": self.method,
                 "grounding": None if self.question is None else self.question.to_dict(),

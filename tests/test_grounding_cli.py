@@ -35,6 +35,19 @@ def test_natural_questions_on_a_saved_map(tmp_path, capsys):
         assert trace["decisions"]["grounding"]["qtype"] == d["qtype"]
 
 
+def test_printed_numbers_carry_their_unit_and_json_keeps_the_number(tmp_path, capsys):
+    m = tmp_path / "map.json"
+    room_map().save(m)
+    cases = (("How tall is the whiteboard in inches?", " inches"), ("How far is the desk from the couch?", " m"),
+             ("How many office chairs are there?", ""))
+    for q, unit in cases:
+        rc, out, _ = run(capsys, "ask", str(m), q)
+        rc_j, out_j, _ = run(capsys, "ask", str(m), q, "--json")
+        number = json.loads(out_j)["answer"]
+        assert rc == rc_j == 0 and float(number) >= 0
+        assert out.splitlines()[0] == f"answer: {number}{unit}", (q, out)
+
+
 def test_bad_input_and_examples(tmp_path, capsys):
     m = tmp_path / "map.json"
     room_map().save(m)

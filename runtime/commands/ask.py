@@ -6,6 +6,7 @@ Thin argument parsing over `pipeline.ask` (the Python API). Options of a multipl
 from __future__ import annotations
 
 import argparse
+import re
 from pathlib import Path
 from typing import Any
 
@@ -156,10 +157,20 @@ def _variant(v: Any) -> str:
     return str(v)
 
 
+def _unit_suffix(r: dict[str, Any]) -> str:
+    """" m" after a plain number in a unit (a person reads "1.3 m", the benchmark scores the number alone)."""
+    from ..answer import UNIT_WORDS
+
+    unit, text = r.get("unit"), str(r.get("answer", ""))
+    if r.get("status") != "ok" or not unit or not re.fullmatch(r"-?\d+(?:\.\d+)?", text):
+        return ""
+    return " " + UNIT_WORDS.get(unit, unit)
+
+
 def render(r: dict[str, Any]) -> str:
     if "examples" in r:
         return "\n".join(f"{k}:\n" + "\n".join(f"  {e}" for e in v) for k, v in r["examples"].items())
-    lines = [f"answer: {r['answer']}"]
+    lines = [f"answer: {r['answer']}" + _unit_suffix(r)]
     if r.get("explanation"):
         lines.append(f"  how: {r['explanation']}")
     if r.get("instances") is not None:
