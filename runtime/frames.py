@@ -17,7 +17,6 @@ from __future__ import annotations
 import os
 import re
 import time
-from collections import OrderedDict
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterator, Sequence
@@ -26,6 +25,7 @@ import numpy as np
 
 from .errors import InputError
 from .geometry import intrinsics_from_fov, make_pose
+from .lru import LRU
 
 IMAGE_EXTS = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp")
 VIDEO_EXTS = (".mp4", ".mov", ".avi", ".mkv", ".m4v", ".webm", ".3gp", ".mpg", ".mpeg")
@@ -307,9 +307,9 @@ class FrameSource:
     splits_colour: bool = False  # `_load_colour` reads less than `_load` (depth and pose are separate files)
 
     def __init__(self, cache_size: int = 32):
-        self._cache: OrderedDict[int, Frame] = OrderedDict()
+        self._cache = LRU(cache_size)
         self._cache_size = int(cache_size)
-        self._colour: OrderedDict[int, Frame] = OrderedDict()  # frames read without depth and pose (`colour`)
+        self._colour = LRU(max(1, self._cache_size // 2) if cache_size > 0 else 0)  # frames without depth, pose
         # what the reader had to degrade (greyscale, missing depth, partial decode, downscaling): the pipeline
         # records each as a `degraded` trace event, which the answer prints as a note
         self.notes: list[str] = []
@@ -339,18 +339,9 @@ class FrameSource:
         if not self.splits_colour:
             return self[i]
         i = self._position(i)
-        if i in self._cache:
-            self._cache.move_to_end(i)
-            return self._cache[i]
-        if i in self._colour:
-            self._colour.move_to_end(i)
-            return self._colour[i]
-        f = self._timed_load(i, self._load_colour)
-        if self._cache_size > 0:
-            self._colour[i] = f
-            while len(self._colour) > max(1, self._cache_size // 2):
-                self._colour.popitem(last=False)
-        return f
+        f = self._cache.get(i)
+        f = self._colour.get(i) if f is None else f
+        return f if f is not None else self._colour.put(i, self._timed_load(i, self._load_colour))
 
     def _load_colour(self, i: int) -> Frame:
         """Frame i without depth and pose; sources that decode those separately override this."""
@@ -358,11 +349,10 @@ class FrameSource:
 
     def __getitem__(self, i: int) -> Frame:
         i = self._position(i)
-        if i in self._cache:
-            self._cache.move_to_end(i)
-            return self._cache[i]
-        f = self._timed_load(i)
-        self._remember(i, f)
+        f = self._cache.get(i)
+        if f is None:
+            f = self._timed_load(i)
+            self._remember(i, f)
         return f
 
     def _timed_load(self, i: int, load: Any = None) -> Frame:
@@ -379,12 +369,7 @@ class FrameSource:
 
     def _remember(self, i: int, f: Frame) -> None:
         self._colour.pop(i, None)
-        if self._cache_size <= 0:
-            return
-        self._cache[i] = f
-        self._cache.move_to_end(i)
-        while len(self._cache) > self._cache_size:
-            self._cache.popitem(last=False)
+        self._cache.put(i, f)
 
     def _load(self, i: int) -> Frame:  # pragma: no cover - abstract
         raise NotImplementedError

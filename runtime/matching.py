@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import os
 import time
-from collections import OrderedDict
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, replace
 from typing import Any, ClassVar, Hashable, Mapping, Protocol, Sequence, runtime_checkable
@@ -20,6 +19,7 @@ import numpy as np
 
 from .config import StageConf
 from .errors import InputError
+from .lru import LRU
 
 
 @dataclass
@@ -220,8 +220,7 @@ class FeatureMatcher:
                  cache_size: int = 256):
         self.conf = MatchConf.merged(conf, method=method)
         self.name = self.conf.method
-        self._cache: OrderedDict[Hashable, Features] = OrderedDict()
-        self._cache_size = cache_size
+        self._cache = LRU(cache_size)
         # counters the pipeline books as trace stages "features.extract" / "features.match"
         self.extract_seconds = 0.0
         self.extracts = 0
@@ -277,14 +276,11 @@ class FeatureMatcher:
         self.extracts += 1
 
     def _remember(self, key: Hashable, f: Features) -> None:
-        self._cache[key] = f
-        while len(self._cache) > self._cache_size:
-            self._cache.popitem(last=False)
+        self._cache.put(key, f)
 
     def features(self, key: Hashable | None, rgb: np.ndarray) -> Features:
         if key is not None and key in self._cache:
-            self._cache.move_to_end(key)
-            return self._cache[key]
+            return self._cache.get(key)
         if key is not None and key in self._pending:
             f = self._collect(key, rgb)
         else:

@@ -23,7 +23,6 @@ import hashlib
 import importlib
 import os
 import time
-from collections import OrderedDict
 from contextlib import contextmanager
 from typing import Any, Callable, Iterator, Sequence
 
@@ -31,6 +30,7 @@ import numpy as np
 
 from ..bundle import Bundle, RoleSpec, load_bundle
 from ..errors import BundleError, InputError
+from ..lru import LRU
 from ..trace import Trace
 
 # arch (manifest roles.<role>.arch) -> "module:Class" inside mosaicthinker.runtime.stages
@@ -206,16 +206,11 @@ def check_image_input(spec: RoleSpec, cname: str, sess: Any) -> None:
 # Per-image result cache (one home for the adapters' "same frame, same answer")
 
 
-class ImageLRU:
+class ImageLRU(LRU):
     """Results keyed by an image's full content (shape, dtype, every byte), least recently used dropped past
     `size` images: a frame shown to a model twice (the key-frame search detects it, alignment wants its boxes of
     every label; refinement asks one class mask per object) runs the model once. The key is a 128-bit BLAKE2
     digest of the bytes (~1 ms for 640x480): any changed pixel is a new key. `hits` counts the runs saved."""
-
-    def __init__(self, size: int):
-        self.size = int(size)
-        self._d: OrderedDict[bytes, Any] = OrderedDict()
-        self.hits = 0
 
     @staticmethod
     def key(rgb: np.ndarray) -> bytes:
@@ -223,21 +218,6 @@ class ImageLRU:
         h = hashlib.blake2b(f"{a.shape}{a.dtype.str}".encode(), digest_size=16)
         h.update(a.data)
         return h.digest()
-
-    def get(self, key: bytes) -> Any:
-        """The cached value or None."""
-        if key not in self._d:
-            return None
-        self._d.move_to_end(key)
-        self.hits += 1
-        return self._d[key]
-
-    def put(self, key: bytes, value: Any) -> Any:
-        if self.size > 0:
-            self._d[key] = value
-            while len(self._d) > self.size:
-                self._d.popitem(last=False)
-        return value
 
     def cached(self, rgb: np.ndarray, compute: Callable[[np.ndarray], Any]) -> Any:
         """`compute(rgb)` once per image content: the cached value on a hit, else computed, its arrays (one, or

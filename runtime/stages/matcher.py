@@ -25,13 +25,13 @@ and floors give repeated-texture mismatches); with no boxes the whole image is u
 """
 from __future__ import annotations
 
-from collections import OrderedDict
 from typing import Any
 
 import numpy as np
 
+from ..lru import LRU
 from ..matching import Matches, in_boxes
-from . import RoleModel, preprocess_image
+from . import ImageLRU, RoleModel, preprocess_image
 
 
 def _model_size(spec) -> tuple[int, int] | None:
@@ -96,11 +96,11 @@ class TwoStageMatcher(RoleModel):
         super().__init__(spec, sessions, trace)
         # whole-image matches per keyed pair: boxes only filter them afterwards (`_restrict`), so the box round
         # and the whole-image round of alignment (and the tree's re-verifications) share one matcher run per pair
-        self._pairs: OrderedDict[Any, Matches] = OrderedDict()
+        self._pairs = LRU(self.pair_cache_size)
         self._ext = self.session("extractor")
         self._mat = self.session("matcher")
         self._ext_in = self._ext.input_names[0]
-        self._cache: OrderedDict[Any, tuple[np.ndarray, np.ndarray, np.ndarray]] = OrderedDict()
+        self._cache = ImageLRU(self.cache_size)
         self.normalize_kpts = bool(spec.config.get("normalize_kpts", False))
         # keypoint localisation noise (pixels) for geometric verification thresholds (alignment's essential-
         # matrix edges): XFeat's keypoints come from 8x8-cell heatmaps and are coarser than SIFT's sub-pixel ones;
@@ -114,11 +114,10 @@ class TwoStageMatcher(RoleModel):
             return self._features(rgb, key)
 
     def _features(self, rgb: np.ndarray, key: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        if key is None:
-            key = (rgb.shape, hash(rgb[::4, ::4].tobytes()))
-        if key in self._cache:
-            self._cache.move_to_end(key)
-            return self._cache[key]
+        key = self._cache.key(rgb) if key is None else key
+        hit = self._cache.get(key)
+        if hit is not None:
+            return hit
         x = preprocess_image(rgb, self.spec.preprocessing)
         with self._stage("matcher.extract", "extractor"):
             out = self._ext.run({self._ext_in: x})
@@ -126,10 +125,7 @@ class TwoStageMatcher(RoleModel):
         d = dict(zip(names, out))
         feats = (d.get("kpts", out[0]).reshape(-1, 2), d.get("kpt_scores", out[1]).reshape(-1),
                  d.get("desc", out[2]).reshape(len(d.get("kpt_scores", out[1]).reshape(-1)), -1))
-        self._cache[key] = feats
-        while len(self._cache) > self.cache_size:
-            self._cache.popitem(last=False)
-        return feats
+        return self._cache.put(key, feats)
 
     def match_keys(self, k0: Any, rgb0: np.ndarray, k1: Any, rgb1: np.ndarray, boxes0: np.ndarray | None = None,
                    boxes1: np.ndarray | None = None) -> Matches:
@@ -151,11 +147,7 @@ class TwoStageMatcher(RoleModel):
             if pk is not None:
                 for a in (m.uv0, m.uv1, m.scores):
                     a.setflags(write=False)  # shared by every later call on the pair
-                self._pairs[pk] = m
-                while len(self._pairs) > self.pair_cache_size:
-                    self._pairs.popitem(last=False)
-        else:
-            self._pairs.move_to_end(pk)
+                self._pairs.put(pk, m)
         return _restrict(m, boxes0, boxes1)
 
     def _match_whole(self, rgb0: np.ndarray, rgb1: np.ndarray, key0: Any, key1: Any) -> Matches:
