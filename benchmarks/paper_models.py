@@ -13,6 +13,7 @@ CPU latency; writes benchmarks/results/paper_models.json (merged per model, so s
     python benchmarks/paper_models.py measure --model qwen3-vl-2b --precision int8
     python benchmarks/paper_models.py scale-profiles                       # other profiles' [paper_costs] (scaled)
     python benchmarks/paper_models.py grounding                            # [paper_costs.grounding] from the e2e run
+    python benchmarks/paper_models.py variants                             # cpu-generic's other measured precisions
 
 Random weights of the real configurations are honest for everything except accuracy: export at size (2 GB
 protobuf limit, external data, quantiser memory), artifact sizes, peak memory and latency. Every record carries
@@ -797,8 +798,66 @@ def write_grounding_cost(profile: Path) -> dict:
     return prof["paper_costs"]["grounding"]
 
 
+def _variant_fields(item: str, lat: dict, fields: dict) -> dict:
+    """One measured variant's numeric fields: p50 ms per field, summed component loads and RSS growth."""
+    comps = [c for c, _ in fields.values()]
+    e = {f: round(lat[c]["p50_s"] * 1000, 1) for f, (c, _) in fields.items()}
+    e.setdefault("ms_per_call", 0.0)
+    if item == "segmenter":
+        e.setdefault("ms_per_prompt", 0.0)
+    if item == "matcher":
+        e.setdefault("ms_per_pair", 0.0)
+    e["load_ms"] = round(sum(lat[c]["load_s"] for c in comps) * 1000, 1)
+    e["resident_mb"] = round(max(0.0, sum(lat[c]["resident_mb"] for c in comps)), 1)
+    return e
+
+
+def measured_variants(data: dict, item: str) -> dict:
+    """[paper_costs.<item>.variants.*]: the item's other measured precisions (e.g. int8-dynamic), for the profile's
+    [roles] precision to pick. resident_mb stays the main variant's: `measure` reads each variant's RSS growth
+    after the previous variant's session in the same process, so freed memory is reused (CLIP int8: 0.4 MB)."""
+    model, v, fields = PAPER_COSTS[item]
+    lat = ((data["models"].get(model) or {}).get("measure") or {}).get("latency", {})
+    if v not in lat:
+        return {}
+    out = {}
+    for other, lv in lat.items():
+        if other == v or any("error" in lv.get(c, {"error": 1}) for c, _ in fields.values()):
+            continue
+        e = _variant_fields(item, lv, fields)
+        e["resident_mb"] = _variant_fields(item, lat[v], fields)["resident_mb"]
+        out[other] = {**e, "note": f"paper model {model} {other}, RANDOM weights, 2 threads, p50 of 5; "
+                                   f"resident_mb = the {v} figure (this variant's RSS was read after the {v} "
+                                   f"session in the same process: not a measurement)"}
+    return out
+
+
+def write_variants(profile: Path) -> dict:
+    """cpu-generic's [paper_costs.<item>] gain `variant` and their other measured precisions (the figures and
+    provenance of the main entries are kept); the other profiles are rescaled (scaled entries carry none)."""
+    import tomllib
+
+    import tomli_w
+
+    prof = tomllib.loads(profile.read_text())
+    data = json.loads(OUT.read_text())
+    done = {}
+    for item, (_, v, _) in PAPER_COSTS.items():
+        e = prof.get("paper_costs", {}).get(item)
+        if e is not None:
+            e["variant"] = v
+            e.pop("variants", None)
+            if others := measured_variants(data, item):  # no empty [..variants] table
+                e["variants"] = others
+            done[item] = sorted(others)
+    profile.write_text(tomli_w.dumps(prof))
+    write_scaled_profiles(profile)
+    return done
+
+
 def paper_costs(data: dict, big: Path) -> dict:
-    """[paper_costs.*] entries from the measured results (perception fp32; VLM: Qwen2.5-VL-3B int4)."""
+    """[paper_costs.*] entries from the measured results (perception fp32 + its other measured precisions as
+    variants; VLM: Qwen2.5-VL-3B int4)."""
     from mosaicthinker.runtime.bundle import bundle_hash, load_bundle
 
     date = time.strftime("%Y-%m-%d")
@@ -807,20 +866,12 @@ def paper_costs(data: dict, big: Path) -> dict:
         lat = ((data["models"].get(model) or {}).get("measure") or {}).get("latency", {}).get(v)
         if not lat:
             continue
-        comps = [c for c, _ in fields.values()]
-        e = {f: round(lat[c]["p50_s"] * 1000, 1) for f, (c, _) in fields.items()}
-        e.setdefault("ms_per_call", 0.0)
-        if item == "segmenter":
-            e.setdefault("ms_per_prompt", 0.0)
-        if item == "matcher":
-            e.setdefault("ms_per_pair", 0.0)
-        e["load_ms"] = round(sum(lat[c]["load_s"] for c in comps) * 1000, 1)
-        e["resident_mb"] = round(max(0.0, sum(lat[c]["resident_mb"] for c in comps)), 1)
-        out[item] = {**e, "status": "measured", "date": date,
+        out[item] = {**_variant_fields(item, lat, fields), "status": "measured", "date": date,
                      "bundle_hash": bundle_hash(load_bundle(big / "bundles" / model, verify=False)),
                      "provider": "CPUExecutionProvider",
                      "note": f"paper model {model} {v} at its real config with RANDOM weights "
-                             f"(benchmarks/paper_models.py; 2 threads, p50 of 5; shared CPUs)"}
+                             f"(benchmarks/paper_models.py; 2 threads, p50 of 5; shared CPUs)",
+                     "variant": v, **({"variants": m} if (m := measured_variants(data, item)) else {})}
     q = data["models"].get("qwen2.5-vl-3b", {})
     m = (q.get("measure_text300") or q.get("measure") or {}).get("int4")
     if m:
@@ -1003,7 +1054,7 @@ def save(name: str, step: str, res: dict) -> None:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("step", choices=["checkpoint", "export", "measure", "side", "vision-ab", "all", "profile",
-                                     "scale-profiles", "grounding", "table",
+                                     "scale-profiles", "grounding", "variants", "table",
                                      "qwen3-profile", "qwen3-int8", "_child", "_probe"])
     ap.add_argument("child_step", nargs="?")
     ap.add_argument("probe_path", nargs="?")
@@ -1021,6 +1072,9 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     if args.step == "profile":  # [paper_costs.*] of profiles/cpu-generic.toml from the measured results
         print(json.dumps(write_profile(args.big, REPO / "profiles" / "cpu-generic.toml"), indent=1))
+        return 0
+    if args.step == "variants":  # cpu-generic's [paper_costs.*.variants] from the measured precisions
+        print(json.dumps(write_variants(REPO / "profiles" / "cpu-generic.toml"), indent=1))
         return 0
     if args.step == "grounding":  # cpu-generic's [paper_costs.grounding] from the end-to-end run, then rescaled
         print(json.dumps(write_grounding_cost(REPO / "profiles" / "cpu-generic.toml"), indent=1))

@@ -115,3 +115,46 @@ def test_estimate_py_regenerates_the_device_profiles_byte_for_byte_keeping_paper
     for f in (ROOT / "profiles").glob("*.toml"):
         assert (tmp_path / f.name).read_bytes() == f.read_bytes(), f.name
         assert "[paper_costs." in f.read_text(), f.name
+
+
+def _cpu_generic_with(roles: dict) -> B.Profile:
+    import tomllib
+
+    data = tomllib.loads(B.resolve_profile_path("cpu-generic").read_text())
+    for role, rs in roles.items():
+        data["roles"][role] = {**data["roles"].get(role, {}), **rs}
+    return B.parse_profile(data)
+
+
+def test_the_profile_precision_picks_the_paper_variant_the_model_loading_would_run():
+    int8 = {"precision": "int8", "int8_kind": "dynamic"}
+    base = B.load_profile("cpu-generic")
+    det = base.paper_costs["detector"]
+    assert det.variant == "fp32" and "int8-dynamic" in det.variants
+    assert base.with_models("paper").cost("detector").ms_per_call == det.ms_per_call  # fp32 roles: fp32
+    p8 = _cpu_generic_with({"detector": int8, "segmenter": int8})
+    assert p8.with_models("paper").cost("detector").ms_per_call == det.variants["int8-dynamic"].ms_per_call
+    assert p8.with_models("paper").cost("segmenter").ms_per_prompt == \
+        base.paper_costs["segmenter"].variants["int8-dynamic"].ms_per_prompt
+    assert "[int8-dynamic]" in p8.with_models("paper").cost("detector").provenance()
+    # fp16 has no measured variant: the nearest (fp32) is costed, as nearest_variant would load it
+    assert _cpu_generic_with({"detector": {"precision": "fp16"}}).with_models("paper").cost(
+        "detector").ms_per_call == det.ms_per_call
+
+
+def test_cost_variants_are_validated(tmp_path):
+    import tomllib
+
+    from mosaicthinker.runtime.errors import ProfileError
+
+    data = tomllib.loads(B.resolve_profile_path("cpu-generic").read_text())
+    det = {**data["paper_costs"]["detector"], "variants": {"int8-dynamic": {"ms_per_call": 1}}}
+    bad = {**data, "paper_costs": {**data["paper_costs"], "detector": det}}
+    with pytest.raises(ProfileError, match=r"variants\.int8-dynamic: missing field\(s\) load_ms, resident_mb"):
+        B.parse_profile(bad)
+    no_own = {k: v for k, v in data["paper_costs"]["depth"].items() if k != "variant"}
+    with pytest.raises(ProfileError, match="names its own `variant`"):
+        B.parse_profile({**data, "paper_costs": {**data["paper_costs"], "depth": no_own}})
+    shared = {**data, "costs": {**data["costs"], "depth": {**data["costs"]["depth"], "variant": "fp32"}}}
+    with pytest.raises(ProfileError, match="unknown key 'variant'"):
+        B.parse_profile(shared)
