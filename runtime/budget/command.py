@@ -91,7 +91,8 @@ def _all_row(name: str, x: dict[str, Any], start: str) -> str:
     """One profile's line of `--profile all`: K and what limits it, or why no K fits (wrapped, whole)."""
     head = f"  {name:<26} "
     if x.get("keyframes") is None:
-        return _wrap(head, ("no K fits: " if x.get("no_fit") else "cannot plan: ") + x["error"])
+        err = x["error"].removeprefix(f"profile {name}: ")  # the row already names it
+        return _wrap(head, ("no K fits: " if x.get("no_fit") else "cannot plan: ") + err)
     row = f"K = {x['keyframes']:>3}  (limited by {x['limited_by']}, {x['planned_ms']:,.0f} ms"
     if start == "warm":
         row += (f"; cold start {x['cold_start_ms']:,.0f} ms once" if not x["loads_per_question_ms"]
