@@ -12,6 +12,8 @@ CPU latency; writes benchmarks/results/paper_models.json (merged per model, so s
     python benchmarks/paper_models.py qwen3-int8 --model qwen3-vl-2b       # int8 decoder (external data)
     python benchmarks/paper_models.py measure --model qwen3-vl-2b --precision int8
     python benchmarks/paper_models.py scale-profiles                       # other profiles' [paper_costs] (scaled)
+    python benchmarks/paper_models.py grounding                            # [paper_costs.grounding] from the e2e run
+    python benchmarks/paper_models.py variants                             # cpu-generic's other measured precisions
 
 Random weights of the real configurations are honest for everything except accuracy: export at size (2 GB
 protobuf limit, external data, quantiser memory), artifact sizes, peak memory and latency. Every record carries
@@ -38,6 +40,7 @@ import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 OUT = REPO / "benchmarks" / "results" / "paper_models.json"
+E2E = REPO / "benchmarks" / "results" / "paper_models_e2e_ask.json"  # `mosaic ask --answerer vlm`, whole question
 PY = sys.executable
 MOSAIC = str(Path(PY).with_name("mosaic"))
 
@@ -771,8 +774,90 @@ PAPER_COSTS = {
 }
 
 
+def grounding_cost(e2e: dict) -> dict:
+    """[paper_costs.grounding]: the VLM's grounding call as `mosaic ask` ran it with the Qwen2.5-VL-3B bundle
+    (grounding.ground: frames + question, a short reply) - with a VLM in the bundle the pipeline grounds through
+    it, not the template parser. "estimated" by the schema's rule: the run recorded no bundle hash."""
+    s = e2e["stages"]["grounding"]
+    return {"ms_per_call": round(s["seconds"] * 1000, 1), "status": "estimated",
+            "source": f"measured end to end, not by mosaic profile: {E2E.relative_to(REPO)} stages.grounding "
+                      f"({s['seconds']} s, {s['calls']} call, {e2e['date']}, load {e2e['load_avg_1min_end']} at "
+                      f"the end; {e2e['bundle']}); RANDOM weights; no bundle hash was recorded"}
+
+
+def write_grounding_cost(profile: Path) -> dict:
+    """cpu-generic's [paper_costs.grounding] from the end-to-end run (E2E), then every other profile rescaled."""
+    import tomllib
+
+    import tomli_w
+
+    prof = tomllib.loads(profile.read_text())
+    prof.setdefault("paper_costs", {})["grounding"] = grounding_cost(json.loads(E2E.read_text()))
+    profile.write_text(tomli_w.dumps(prof))
+    write_scaled_profiles(profile)
+    return prof["paper_costs"]["grounding"]
+
+
+def _variant_fields(item: str, lat: dict, fields: dict) -> dict:
+    """One measured variant's numeric fields: p50 ms per field, summed component loads and RSS growth."""
+    comps = [c for c, _ in fields.values()]
+    e = {f: round(lat[c]["p50_s"] * 1000, 1) for f, (c, _) in fields.items()}
+    e.setdefault("ms_per_call", 0.0)
+    if item == "segmenter":
+        e.setdefault("ms_per_prompt", 0.0)
+    if item == "matcher":
+        e.setdefault("ms_per_pair", 0.0)
+    e["load_ms"] = round(sum(lat[c]["load_s"] for c in comps) * 1000, 1)
+    e["resident_mb"] = round(max(0.0, sum(lat[c]["resident_mb"] for c in comps)), 1)
+    return e
+
+
+def measured_variants(data: dict, item: str) -> dict:
+    """[paper_costs.<item>.variants.*]: the item's other measured precisions (e.g. int8-dynamic), for the profile's
+    [roles] precision to pick. resident_mb stays the main variant's: `measure` reads each variant's RSS growth
+    after the previous variant's session in the same process, so freed memory is reused (CLIP int8: 0.4 MB)."""
+    model, v, fields = PAPER_COSTS[item]
+    lat = ((data["models"].get(model) or {}).get("measure") or {}).get("latency", {})
+    if v not in lat:
+        return {}
+    out = {}
+    for other, lv in lat.items():
+        if other == v or any("error" in lv.get(c, {"error": 1}) for c, _ in fields.values()):
+            continue
+        e = _variant_fields(item, lv, fields)
+        e["resident_mb"] = _variant_fields(item, lat[v], fields)["resident_mb"]
+        out[other] = {**e, "note": f"paper model {model} {other}, RANDOM weights, 2 threads, p50 of 5; "
+                                   f"resident_mb = the {v} figure (this variant's RSS was read after the {v} "
+                                   f"session in the same process: not a measurement)"}
+    return out
+
+
+def write_variants(profile: Path) -> dict:
+    """cpu-generic's [paper_costs.<item>] gain `variant` and their other measured precisions (the figures and
+    provenance of the main entries are kept); the other profiles are rescaled (scaled entries carry none)."""
+    import tomllib
+
+    import tomli_w
+
+    prof = tomllib.loads(profile.read_text())
+    data = json.loads(OUT.read_text())
+    done = {}
+    for item, (_, v, _) in PAPER_COSTS.items():
+        e = prof.get("paper_costs", {}).get(item)
+        if e is not None:
+            e["variant"] = v
+            e.pop("variants", None)
+            if others := measured_variants(data, item):  # no empty [..variants] table
+                e["variants"] = others
+            done[item] = sorted(others)
+    profile.write_text(tomli_w.dumps(prof))
+    write_scaled_profiles(profile)
+    return done
+
+
 def paper_costs(data: dict, big: Path) -> dict:
-    """[paper_costs.*] entries from the measured results (perception fp32; VLM: Qwen2.5-VL-3B int4)."""
+    """[paper_costs.*] entries from the measured results (perception fp32 + its other measured precisions as
+    variants; VLM: Qwen2.5-VL-3B int4)."""
     from mosaicthinker.runtime.bundle import bundle_hash, load_bundle
 
     date = time.strftime("%Y-%m-%d")
@@ -781,20 +866,12 @@ def paper_costs(data: dict, big: Path) -> dict:
         lat = ((data["models"].get(model) or {}).get("measure") or {}).get("latency", {}).get(v)
         if not lat:
             continue
-        comps = [c for c, _ in fields.values()]
-        e = {f: round(lat[c]["p50_s"] * 1000, 1) for f, (c, _) in fields.items()}
-        e.setdefault("ms_per_call", 0.0)
-        if item == "segmenter":
-            e.setdefault("ms_per_prompt", 0.0)
-        if item == "matcher":
-            e.setdefault("ms_per_pair", 0.0)
-        e["load_ms"] = round(sum(lat[c]["load_s"] for c in comps) * 1000, 1)
-        e["resident_mb"] = round(max(0.0, sum(lat[c]["resident_mb"] for c in comps)), 1)
-        out[item] = {**e, "status": "measured", "date": date,
+        out[item] = {**_variant_fields(item, lat, fields), "status": "measured", "date": date,
                      "bundle_hash": bundle_hash(load_bundle(big / "bundles" / model, verify=False)),
                      "provider": "CPUExecutionProvider",
                      "note": f"paper model {model} {v} at its real config with RANDOM weights "
-                             f"(benchmarks/paper_models.py; 2 threads, p50 of 5; shared CPUs)"}
+                             f"(benchmarks/paper_models.py; 2 threads, p50 of 5; shared CPUs)",
+                     "variant": v, **({"variants": m} if (m := measured_variants(data, item)) else {})}
     q = data["models"].get("qwen2.5-vl-3b", {})
     m = (q.get("measure_text300") or q.get("measure") or {}).get("int4")
     if m:
@@ -806,10 +883,41 @@ def paper_costs(data: dict, big: Path) -> dict:
                       "note": f"Qwen2.5-VL-3B int4 ONNX Runtime GenAI package, RANDOM weights; ms_per_image = "
                               f"vision + prefill of the whole prompt ({m['prompt_tokens']} tokens, one 448 px map "
                               f"image); 2 threads, p50 of 5"}
+    if E2E.is_file():
+        out["grounding"] = grounding_cost(json.loads(E2E.read_text()))
     return out
 
 
 PERCEPTION = ("depth", "segmenter", "detector", "embedder", "matcher")
+
+
+def _cpu_factor(base: dict, device: dict) -> float:
+    """The profile's host-CPU factor: its geometry cost over cpu-generic's (profiles/estimate.py scales every
+    CPU-side item by one per-device factor; geometry is one of them and is measured on cpu-generic)."""
+    return device["geometry"]["ms_per_call"] / base["geometry"]["ms_per_call"]
+
+
+def _scale_rule(item: str, base: dict, device: dict, nums: dict, acc: float,
+                base_name: str) -> tuple[dict[str, float], str] | None:
+    """(factor per field, the rule in words) for one [paper_costs] item; None when the device lacks the item.
+    resident_mb is never scaled (same files and precision: no basis)."""
+    if item in ("vlm", "grounding") and ("vlm" not in device or "vlm" not in base):
+        return None
+    if item == "grounding":  # a VLM call over frames: vision + prefill, as the VLM's per-image cost scales
+        f = device["vlm"]["ms_per_image"] / base["vlm"]["ms_per_image"]
+        return {"ms_per_call": f}, (f"ms_per_call x {f:.4g} (the VLM's grounding call: this profile's "
+                                    f"[costs.vlm].ms_per_image / {base_name}'s)")
+    if item == "vlm":
+        fac = {f: device["vlm"][f] / base["vlm"][f] for f in ("ms_per_image", "ms_per_token", "load_ms")}
+        return fac, (f"ms_per_image x {fac['ms_per_image']:.4g}, ms_per_token x {fac['ms_per_token']:.4g}, "
+                     f"load_ms x {fac['load_ms']:.4g} (this profile's [costs.vlm] / {base_name}'s, the shared "
+                     f"VLM's device factor per field)")
+    cpu = _cpu_factor(base, device)
+    fac = {f: (cpu if f == "load_ms" else acc) for f in nums if f.startswith("ms_") or f == "load_ms"}
+    return fac, (f"ms fields x {acc:.4g} (this profile's accelerator factor: the smallest ms ratio of its shared "
+                 f"perception [costs.*] to {base_name}'s); load_ms x {cpu:.4g} (this profile's host-CPU factor, "
+                 f"its [costs.geometry] / {base_name}'s: creating a session is host work - reading, optimising "
+                 f"and pre-packing the graph - with engines cached, as profiles/estimate.py assumes)")
 
 
 def scale_paper_costs(base: dict, device: dict, paper: dict, base_name: str = "cpu-generic") -> dict:
@@ -818,9 +926,10 @@ def scale_paper_costs(base: dict, device: dict, paper: dict, base_name: str = "c
 
     - perception items: one accelerator factor per device = the smallest ms ratio device / cpu-generic over the
       shared perception items (the others sit on estimate.py's per-call floor, so their ratio over-states the
-      time), applied to every ms field;
-    - vlm: the ratio of the device's vlm estimate to cpu-generic's, per field (ms_per_image, ms_per_token);
-    - load_ms and resident_mb: the cpu-generic figures (no basis to scale: same files, same precision).
+      time), applied to every ms field; load_ms x the device's host-CPU factor (`_cpu_factor`);
+    - vlm: the ratio of the device's vlm estimate to cpu-generic's, per field (ms_per_image, ms_per_token,
+      load_ms);
+    - resident_mb: the cpu-generic figure (no basis to scale: same files, same precision).
     Every entry is status "estimated" with the rule and the factor in its `source`."""
     ratios = [device[k][f] / base[k][f] for k in PERCEPTION if k in device and k in base
               for f in ("ms_per_call", "ms_per_pair") if base[k].get(f) and f in device[k]]
@@ -828,21 +937,17 @@ def scale_paper_costs(base: dict, device: dict, paper: dict, base_name: str = "c
     out = {}
     for item, e in paper.items():
         nums = {f: v for f, v in e.items() if isinstance(v, (int, float)) and not isinstance(v, bool)}
-        if item == "vlm":
-            if "vlm" not in device or "vlm" not in base:
-                continue
-            fac = {f: device["vlm"][f] / base["vlm"][f] for f in ("ms_per_image", "ms_per_token")}
-            rule = (f"ms_per_image x {fac['ms_per_image']:.4g}, ms_per_token x {fac['ms_per_token']:.4g} (this "
-                    f"profile's [costs.vlm] / {base_name}'s, the shared VLM's device factor)")
-        else:
-            fac = {f: acc for f in nums if f.startswith("ms_")}
-            rule = (f"ms fields x {acc:.4g} (this profile's accelerator factor: the smallest ms ratio of its shared "
-                    f"perception [costs.*] to {base_name}'s)")
+        got = _scale_rule(item, base, device, nums, acc, base_name)
+        if got is None:
+            continue
+        fac, rule = got
         scaled = {f: round(v * fac[f], 2) if f in fac else v for f, v in nums.items()}
         out[item] = {**scaled, "status": "estimated",
-                     "source": f"SCALED from {base_name}'s measured [paper_costs.{item}] ({e.get('note', '')}; "
-                               f"{e.get('date', '')}): {rule}; load_ms and resident_mb as measured on "
-                               f"{base_name}. An estimate, not a measurement on this device"}
+                     "source": f"SCALED from {base_name}'s {e.get('status', 'measured')} [paper_costs.{item}] "
+                               f"({'; '.join(x for x in (e.get('note') or e.get('source'), e.get('date')) if x)}): "
+                               f"{rule}"
+                               + (f"; resident_mb as measured on {base_name}" if "resident_mb" in nums else "")
+                               + ". An estimate, not a measurement on this device"}
     return out
 
 
@@ -949,7 +1054,7 @@ def save(name: str, step: str, res: dict) -> None:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("step", choices=["checkpoint", "export", "measure", "side", "vision-ab", "all", "profile",
-                                     "scale-profiles", "table",
+                                     "scale-profiles", "grounding", "variants", "table",
                                      "qwen3-profile", "qwen3-int8", "_child", "_probe"])
     ap.add_argument("child_step", nargs="?")
     ap.add_argument("probe_path", nargs="?")
@@ -967,6 +1072,12 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     if args.step == "profile":  # [paper_costs.*] of profiles/cpu-generic.toml from the measured results
         print(json.dumps(write_profile(args.big, REPO / "profiles" / "cpu-generic.toml"), indent=1))
+        return 0
+    if args.step == "variants":  # cpu-generic's [paper_costs.*.variants] from the measured precisions
+        print(json.dumps(write_variants(REPO / "profiles" / "cpu-generic.toml"), indent=1))
+        return 0
+    if args.step == "grounding":  # cpu-generic's [paper_costs.grounding] from the end-to-end run, then rescaled
+        print(json.dumps(write_grounding_cost(REPO / "profiles" / "cpu-generic.toml"), indent=1))
         return 0
     if args.step == "scale-profiles":  # the other profiles' [paper_costs.*] scaled from cpu-generic's
         print(json.dumps(write_scaled_profiles(REPO / "profiles" / "cpu-generic.toml"), indent=1))

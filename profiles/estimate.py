@@ -161,6 +161,10 @@ def main():
     for n, d in profs.items():
         for r, rs in d["roles"].items():
             rs.setdefault("input_size_px", SIZES[r])
+        # [paper_costs] is benchmarks/paper_models.py's table (measured / scaled there): carried over, never dropped
+        old = OUT / f"{n}.toml"
+        if old.exists() and "paper_costs" in (prev := tomllib.load(open(old, "rb"))):
+            d["paper_costs"] = prev["paper_costs"]
         with open(OUT / f"{n}.toml", "wb") as f:
             tomli_w.dump(d, f)
         print("wrote", n)

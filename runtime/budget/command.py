@@ -5,10 +5,12 @@ runtime/cli.py runs it as `mosaicthinker.runtime.budget.command`; the package re
 from __future__ import annotations
 
 import argparse
+import shutil
+import textwrap
 from typing import Any
 
-from ..errors import InputError, MosaicError
-from .planner import PlanConf, clip_of, plan
+from ..errors import BudgetError, InputError, MosaicError
+from .planner import STARTS, PlanConf, clip_of, plan
 from .profile import MODEL_SETS, list_profiles
 
 
@@ -32,6 +34,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--models", choices=MODEL_SETS, default="shared",
                         help="cost set: shared (the shared mobile models) or paper (the paper's models at real "
                              "size, [paper_costs.*]); --profile all plans every profile in profiles/")
+    parser.add_argument("--start", choices=STARTS, default="cold",
+                        help="cold (default): each question loads its models, as one `mosaic ask` process does; "
+                             "warm: a deployed app keeps its sessions open between questions, so the loads are a "
+                             "one-time cold start (shown apart) unless the models cannot stay resident in the "
+                             "memory budget")
 
 
 def _clip_from_args(args: argparse.Namespace) -> tuple[float, float]:
@@ -52,17 +59,19 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                          + ", ".join(p.stem for p in list_profiles()) + ")")
     duration, fps = _clip_from_args(args)
     conf = PlanConf.merged(keyframes_max=args.keyframes_max, use_vlm=args.answerer != "map",
-                           video_pass="online" if args.online else "question")
+                           video_pass="online" if args.online else "question", start=args.start)
     if args.profile == "all":  # K for every profile of profiles/ (those that cannot plan say why)
         rows = {}
         for path in list_profiles():
             try:
                 p = plan(path, duration, fps, bundle=args.bundle, conf=conf, candidates=args.candidates,
                          models=args.models)
-                rows[path.stem] = {"keyframes": p.keyframes, "limited_by": p.limited_by, "planned_ms": p.total_ms}
+                rows[path.stem] = {"keyframes": p.keyframes, "limited_by": p.limited_by, "planned_ms": p.total_ms,
+                                   "cold_start_ms": p.cold_start_ms,
+                                   "loads_per_question_ms": p.fixed_ms.get("model_loads", 0.0)}
             except MosaicError as e:
-                rows[path.stem] = {"keyframes": None, "error": str(e)}
-        return {"schema": "mosaicthinker.plan-all/1", "models": args.models, "profiles": rows}
+                rows[path.stem] = {"keyframes": None, "error": str(e), "no_fit": isinstance(e, BudgetError)}
+        return {"schema": "mosaicthinker.plan-all/1", "models": args.models, "start": args.start, "profiles": rows}
     p = plan(args.profile, duration, fps, bundle=args.bundle, conf=conf, candidates=args.candidates,
              models=args.models)
     d = p.to_dict()
@@ -70,13 +79,33 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     return d
 
 
+def _wrap(head: str, text: str) -> str:
+    """`head` + `text` wrapped at word boundaries to the terminal's width, continued under the text (a reason is
+    read whole, never cut)."""
+    width = max(60, shutil.get_terminal_size((100, 24)).columns - 1)
+    return textwrap.fill(text, width=width, initial_indent=head, subsequent_indent=" " * len(head),
+                         break_long_words=False, break_on_hyphens=False)
+
+
+def _all_row(name: str, x: dict[str, Any], start: str) -> str:
+    """One profile's line of `--profile all`: K and what limits it, or why no K fits (wrapped, whole)."""
+    head = f"  {name:<26} "
+    if x.get("keyframes") is None:
+        err = x["error"].removeprefix(f"profile {name}: ")  # the row already names it
+        return _wrap(head, ("no K fits: " if x.get("no_fit") else "cannot plan: ") + err)
+    row = f"K = {x['keyframes']:>3}  (limited by {x['limited_by']}, {x['planned_ms']:,.0f} ms"
+    if start == "warm":
+        row += (f"; cold start {x['cold_start_ms']:,.0f} ms once" if not x["loads_per_question_ms"]
+                else f"; loads {x['loads_per_question_ms']:,.0f} ms in every question: not resident")
+    return _wrap(head, row + ")")
+
+
 def render(result: dict[str, Any]) -> str:
     r = result
     if r.get("schema") == "mosaicthinker.plan-all/1":
-        return "\n".join([f"key frames K per profile ({r['models']} models):"] + [
-            f"  {n:<26} " + (f"K = {x['keyframes']:>3}  (limited by {x['limited_by']}, {x['planned_ms']:,.0f} ms)"
-                             if x.get("keyframes") is not None else f"cannot plan: {x['error'][:150]}")
-            for n, x in r["profiles"].items()])
+        start = r.get("start", "cold")
+        return "\n".join([f"key frames K per profile ({r['models']} models, {start} start):"]
+                         + [_all_row(n, x, start) for n, x in r["profiles"].items()])
     v = r["video"]
     lines = [f"plan for {r['profile']} ({r['device']})",
              f"clip {v['duration_s']:g} s at {v['fps']:g} fps = {v['frames']} frames, {v['candidates']} candidates"
@@ -88,7 +117,10 @@ def render(result: dict[str, Any]) -> str:
              f"  latency           {r['planned_ms']:>8,.0f} ms of {r['latency_budget_ms']:,.0f} ms "
              f"(slack {r['slack_ms']:,.0f} ms)",
              f"  memory            {r['planned_memory_mb']:>8,.0f} MB of {r['memory_budget_mb']:,.0f} MB "
-             f"({r['session_policy']})", "",
+             f"({r['session_policy']})",
+             f"  model loads       {r['loads_per_question_ms']:>8,.0f} ms in the question ({r['start']} start; "
+             f"loading every model once {r['cold_start_ms']:,.0f} ms, all sessions open {r['resident_mb']:,.0f} MB)",
+             "",
              f"  {'stage':<12} {'fixed ms':>10} {'ms / key fr':>11} {'ms / scored':>11} {'planned ms':>11}"]
     for n, st in r["stages"].items():
         lines.append(f"  {n:<12} {st['fixed_ms']:>10,.1f} {st['per_keyframe_ms']:>11,.1f} "

@@ -27,6 +27,7 @@ PLAN_SCHEMA = "mosaicthinker.plan/1"
 MAX_CLIP_S = 86400.0      # 24 h: longer clips are not one question's video (and overflow frame counts)
 MAX_FPS = 1000.0
 MIN_MAP_FRAMES = 2        # alignment needs two views
+STARTS = ("cold", "warm")
 
 
 @dataclass
@@ -56,6 +57,10 @@ class PlanConf(StageConf):
     safety_fraction: float = 0.0       # keep this share of the latency budget unplanned
     video_pass: str = "question"       # question: decode + dedup run after the question (a clip is given);
                                        # online: they run while the video is captured (not in the latency)
+    # cold: every question loads its models (one `mosaic ask` process per question: what the controller sees);
+    # warm: a deployed app keeps its sessions open between questions, so the loads are a one-time cold start,
+    # unless the resident set does not fit the memory budget (then sessions are re-opened and loads come back)
+    start: str = "cold"
 
     def validate(self) -> None:
         c = self
@@ -66,6 +71,8 @@ class PlanConf(StageConf):
             raise InputError("plan config: scored_fraction and dedup_keep_fraction must be in (0, 1]")
         if c.video_pass not in ("question", "online"):
             raise InputError(f"plan config: video_pass must be 'question' or 'online' (got {c.video_pass!r})")
+        if c.start not in STARTS:
+            raise InputError(f"plan config: start must be 'cold' or 'warm' (got {c.start!r})")
         if not 0 <= c.safety_fraction < 1 or c.iterations < 1 or c.min_scored_per_keyframe < 1:
             raise InputError("plan config: need 0 <= safety_fraction < 1, iterations >= 1, "
                              "min_scored_per_keyframe >= 1")
@@ -132,6 +139,8 @@ class Plan:
     conf: PlanConf
     bundle: str | None = None
     bundle_hash: str | None = None
+    cold_start_ms: float = 0.0     # every model load once: the app's start (inside each question when cold)
+    resident_mb: float = 0.0       # every session open at once: what a warm app holds between questions
 
     @property
     def total_ms(self) -> float:
@@ -165,7 +174,9 @@ class Plan:
             "keyframe_unit_ms": round(sum(self.per_keyframe_ms.values()), 2),
             "keyframes_ms": round(k * sum(self.per_keyframe_ms.values()), 1),
             "memory_mb": {a: round(b, 1) for a, b in self.memory_mb.items()}, "keyframe_mb": self.keyframe_mb,
-            "session_policy": self.session_policy,
+            "session_policy": self.session_policy, "start": self.conf.start,
+            "cold_start_ms": round(self.cold_start_ms, 1), "resident_mb": round(self.resident_mb, 1),
+            "loads_per_question_ms": round(self.fixed_ms.get("model_loads", 0.0), 1),
             "stages": {n: {**st.to_dict(), "planned_ms": round(st.ms(k, s), 1)} for n, st in self.stages.items()},
             "providers": self.providers, "resolutions": self.resolutions, "cost_status": self.cost_status,
             "arithmetic": self.arithmetic, "notes": self.notes, "conf": asdict(self.conf),
@@ -226,6 +237,7 @@ class _Terms:
     total_frames: int
     n_c: int                 # candidates
     loads: dict[str, float] = field(default_factory=dict)
+    load_total: float = 0.0  # every model loaded once (the cold start)
     per_frame_ms: float = 0.0
     video_ms: float = 0.0
     online_factor: float = 0.0
@@ -262,16 +274,28 @@ class _Terms:
     def lat(self, k: int, s: int) -> float:
         return self.F + s * self.c_s + k * self.c_k
 
+    def loads_in_question(self, policy: str) -> float:
+        """Model-load ms inside one question. Warm sessions that all stay resident were loaded at the app's start;
+        when they cannot (one at a time), the memory guard releases and re-opens them, so each question pays the
+        loads again - as does every cold question."""
+        return 0.0 if self.c.start == "warm" and policy == "all_resident" else self.load_total
+
+    def use(self, policy: str) -> None:
+        """Settle the session policy: it decides whether the loads are part of the question's fixed cost."""
+        self.fixed["model_loads"] = self.loads_in_question(policy)
+        self.F = sum(self.fixed.values())
+
     def fits(self, k: int, models_mb: float) -> bool:
         return self.lat(k, self.s_floor(k)) <= self.L and self.base_mb + models_mb + k * self.kf_mb <= self.M
 
 
 def _terms(prof: Profile, c: PlanConf, used: dict[str, bool], fps: float, total_frames: int, n_c: int,
-           notes: list[str]) -> _Terms:
+           notes: list[str], template_grounding_ms: float) -> _Terms:
     t = _Terms(prof, c, used, fps, total_frames, n_c)
     cost = t.cost
     # (1) fixed costs
     t.loads = {r: cost(r, "load_ms") for r in MODEL_COSTS if used[r]}
+    t.load_total = sum(t.loads.values())
     t.per_frame_ms = cost("dedup", "ms_per_call")  # the pass decodes what it needs itself
     t.video_ms = total_frames * t.per_frame_ms
     t.online_factor = t.per_frame_ms * fps / 1000.0  # share of real time the online video pass needs
@@ -283,8 +307,11 @@ def _terms(prof: Profile, c: PlanConf, used: dict[str, bool], fps: float, total_
                          f"{_fmt(1000 / fps)} ms between frames at {fps:g} fps: it cannot keep up with capture "
                          f"(x{t.online_factor:.2f} real time)")
     t.vlm_fixed = c.vlm_images * cost("vlm", "ms_per_image") + c.vlm_max_new_tokens * cost("vlm", "ms_per_token")
-    t.fixed = {"model_loads": sum(t.loads.values()), "video_pass": t.video_ms,
-               "grounding": cost("grounding", "ms_per_call"), "vlm_answer": t.vlm_fixed}
+    # a model set's grounding figure may be its VLM's grounding call ([paper_costs.grounding]); without a VLM
+    # the pipeline grounds with the template parser, the shared [costs.grounding]
+    grounding = cost("grounding", "ms_per_call") if used.get("vlm") else template_grounding_ms
+    t.fixed = {"model_loads": t.load_total, "video_pass": t.video_ms, "grounding": grounding,
+               "vlm_answer": t.vlm_fixed}
     # (2) search, per scored frame: fetching the frame (one decode) + the detector
     t.c_s = cost("detector", "ms_per_call") + cost("video_decode", "ms_per_call")
     # (3) per key frame
@@ -314,12 +341,10 @@ def _largest_k(t: _Terms, models_mb: float) -> int | None:
     return next((k for k in range(k_cap, k_lo - 1, -1) if t.fits(k, models_mb)), None)
 
 
-def _nothing_fits(t: _Terms, policy: str, models_mb: float) -> BudgetError:
-    """The error when even keyframes_min fails: which budget, by how much, and the terms that make it up."""
-    k = min(t.c.keyframes_min, t.n_c)
+def _shortfall(t: _Terms, policy: str, models_mb: float, k: int) -> list[str]:
+    """What fails at K = k under a session policy: the latency and/or memory budget, by how much, and its terms."""
+    t.use(policy)
     parts = []
-    if len(t.res) > 1:  # the shortfall is reported for the leanest policy
-        policy, models_mb = "one_at_a_time", max(t.res.values(), default=0.0)
     over_l = t.lat(k, t.s_floor(k)) - t.L
     over_m = t.base_mb + models_mb + k * t.kf_mb - t.M
     if over_l > 0:
@@ -330,10 +355,42 @@ def _nothing_fits(t: _Terms, policy: str, models_mb: float) -> BudgetError:
     if over_m > 0:
         parts.append(f"memory budget {_fmt(t.M)} MB fails by {_fmt(over_m)} MB: runtime {_fmt(t.base_mb)} + models "
                      f"{_fmt(models_mb)} ({policy}) + {k} key frames x {_fmt(t.kf_mb)} MB")
+    return parts
+
+
+def _largest_terms(t: _Terms, k: int, n: int = 3) -> str:
+    """The n largest latency terms at K = k under the settled policy: what would have to shrink to fit."""
+    s = t.s_floor(k)
+    terms = {"model loads": t.fixed["model_loads"], "video pass": t.video_ms, "grounding": t.fixed["grounding"],
+             "VLM answer": t.vlm_fixed, f"search {s} x (detector + decode)": s * t.c_s,
+             **{f"{name} x {k} key frames": k * v for name, v in t.per_kf.items()}}
+    top = sorted(((v, name) for name, v in terms.items() if v > 0), reverse=True)[:n]
+    return ", ".join(f"{name} {_fmt(v)} ms" for v, name in top)
+
+
+def _nothing_fits(t: _Terms, policy: str, models_mb: float) -> BudgetError:
+    """The error when even keyframes_min fails: which budget, by how much, the terms that make it up and the
+    largest of them. Cold: for the leanest policy. Warm: with every session resident (no loads) and, where
+    that cannot fit the memory, one at a time (the loads back in the question)."""
+    k = min(t.c.keyframes_min, t.n_c)
+    one = ("one_at_a_time", max(t.res.values(), default=0.0))
+    if t.c.start == "cold":
+        if len(t.res) > 1:  # the shortfall is reported for the leanest policy
+            policy, models_mb = one
+        parts, head = _shortfall(t, policy, models_mb, k), ""
+    else:
+        parts = [f"with every session resident (no loads in the question): "
+                 + "; ".join(_shortfall(t, "all_resident", sum(t.res.values()), k))]
+        if len(t.res) > 1:
+            parts.append("one session at a time (released and re-opened: the loads back in every question): "
+                         + "; ".join(_shortfall(t, *one, k)))
+        policy, head = "all_resident", " (warm start)"
+    t.use(policy)
     hint = (" (or plan with --online: decode + dedup while the video is captured)"
             if t.c.video_pass == "question" and t.video_ms > t.L / 2 else "")
-    return BudgetError(f"profile {t.prof.name}: nothing fits even at K = {k} key frames: " + "; ".join(parts)
-                       + ". Raise the budget, use a shorter clip or a cheaper bundle variant" + hint + ".")
+    return BudgetError(f"profile {t.prof.name}: nothing fits even at K = {k} key frames{head}: " + "; ".join(parts)
+                       + f". Largest terms ({policy}): {_largest_terms(t, k)}. Raise the budget, use a shorter "
+                       f"clip or a cheaper bundle variant" + hint + ".")
 
 
 def _choose_k(t: _Terms, notes: list[str]) -> tuple[int, str, float, str]:
@@ -341,8 +398,12 @@ def _choose_k(t: _Terms, notes: list[str]) -> tuple[int, str, float, str]:
     (stage-major) allows more key frames. BudgetError when nothing fits."""
     all_mb, one_mb = sum(t.res.values()), max(t.res.values(), default=0.0)
     policy, models_mb = "all_resident", all_mb
+    t.use("all_resident")
     chosen = _largest_k(t, all_mb)
-    k_one = _largest_k(t, one_mb) if len(t.res) > 1 else None
+    k_one = None
+    if len(t.res) > 1:
+        t.use("one_at_a_time")
+        k_one = _largest_k(t, one_mb)
     if k_one is not None and (chosen is None or k_one > chosen):
         policy, models_mb, chosen = "one_at_a_time", one_mb, k_one
         notes.append(f"memory: all models together ({_fmt(all_mb)} MB) leave room for fewer key frames; sessions "
@@ -350,6 +411,8 @@ def _choose_k(t: _Terms, notes: list[str]) -> tuple[int, str, float, str]:
                      f"session is released)")
     if chosen is None:
         raise _nothing_fits(t, policy, models_mb)
+    t.use(policy)
+    _start_note(t, policy, all_mb, notes)
     K = chosen
     if K == t.c.keyframes_max:
         why = f"keyframes_max ({t.c.keyframes_max})"
@@ -361,6 +424,19 @@ def _choose_k(t: _Terms, notes: list[str]) -> tuple[int, str, float, str]:
         m_fail = t.base_mb + models_mb + nxt * t.kf_mb > t.M
         why = " and ".join(w for w, f in (("latency", l_fail), ("memory", m_fail)) if f)
     return K, policy, models_mb, why
+
+
+def _start_note(t: _Terms, policy: str, all_mb: float, notes: list[str]) -> None:
+    """Warm start: say where the loads went (the cold start) or why they are back in every question."""
+    if t.c.start != "warm" or not t.loads:
+        return
+    if policy == "all_resident":
+        notes.append(f"warm start: the {len(t.res)} sessions ({_fmt(all_mb)} MB) stay open between questions; "
+                     f"their loads ({_fmt(t.load_total)} ms) are the app's cold start, not in the question")
+    else:
+        notes.append(f"warm start asked, but the resident set ({_fmt(all_mb)} MB) with the runtime and the key "
+                     f"frames does not fit the memory budget ({_fmt(t.M)} MB): the memory guard releases and "
+                     f"re-opens sessions, so the loads ({_fmt(t.load_total)} ms) are in every question")
 
 
 def _stage_budgets(t: _Terms) -> dict[str, StageBudget]:
@@ -430,14 +506,24 @@ def _cost_notes(prof: Profile, bhash: str | None, notes: list[str]) -> dict[str,
     return cost_status
 
 
+def _loads_line(t: _Terms) -> str:
+    """The arithmetic's first line: the model loads inside the question (none for resident warm sessions)."""
+    if not t.loads:
+        return "fixed = no model loads"
+    each = " + ".join(f"{r} {_fmt(v)}" for r, v in t.loads.items()) + f" = {_fmt(t.load_total)} ms"
+    if t.c.start == "cold":
+        return f"fixed = loads {each}"
+    if t.fixed["model_loads"] == 0:
+        return f"fixed = loads 0 ms (warm start: {each} once, at the app's start)"
+    return f"fixed = loads {each} (warm start, but re-opened in every question: the sessions cannot stay resident)"
+
+
 def _arithmetic(t: _Terms, cand_how: str, K: int, S: int, s_max_fit: int, iters: int, batch: int, policy: str,
                 models_mb: float, why: str, mem: dict[str, float]) -> list[str]:
     """The plan's arithmetic, as the user reads it (`mosaic plan`)."""
     c, cost, _f = t.c, t.cost, _fmt
     arith = [f"candidates = {cand_how} = {t.n_c}"]
-    arith.append("fixed = loads " + " + ".join(f"{r} {_f(v)}" for r, v in t.loads.items())
-                 + f" = {_f(t.fixed['model_loads'])} ms"
-                 if t.loads else "fixed = no model loads")
+    arith.append(_loads_line(t))
     arith.append(f"      + video pass (decode + dedup) {t.total_frames} frames x {_f(t.per_frame_ms)} ms = "
                  f"{_f(t.video_ms)} ms" if c.video_pass == "question"
                  else f"      + video pass 0 ms (online, during capture: {_f(t.per_frame_ms)} ms per frame = "
@@ -479,7 +565,8 @@ def plan(profile: Profile | str | os.PathLike, duration_s: float, fps: float, bu
     input sizes come from its preprocessing. candidates: frames kept by dedup if known (else estimated).
     models: "shared" (the shared mobile models' costs) or "paper" (the paper's models at real size).
     """
-    prof = (profile if isinstance(profile, Profile) else load_profile(profile)).with_models(models)
+    shared = profile if isinstance(profile, Profile) else load_profile(profile)
+    prof = shared.with_models(models)
     c = conf if isinstance(conf, PlanConf) else PlanConf.merged(conf)
     _check_clip(duration_s, fps, candidates)
     notes: list[str] = []
@@ -497,7 +584,8 @@ def plan(profile: Profile | str | os.PathLike, duration_s: float, fps: float, bu
         b, broles = _bundle_roles(bundle)
         bhash = bundle_hash(b)
     used = _roles_used(prof, broles, c, notes)
-    t = _terms(prof, c, used, fps, total_frames, n_c, notes)
+    g = shared.cost("grounding")
+    t = _terms(prof, c, used, fps, total_frames, n_c, notes, g.get("ms_per_call") if g is not None else 0.0)
     K, policy, models_mb, why = _choose_k(t, notes)
     # the search gets what the key frames leave, at least its floor, at most its target
     slack = t.L - t.F - K * t.c_k
@@ -521,7 +609,7 @@ def plan(profile: Profile | str | os.PathLike, duration_s: float, fps: float, bu
                 per_keyframe_ms=t.per_kf, memory_mb=mem, keyframe_mb=t.kf_mb, session_policy=policy,
                 limited_by=why, providers=providers, resolutions=resolutions, cost_status=cost_status,
                 arithmetic=arith, notes=notes, conf=c, bundle=str(b.root) if b is not None else None,
-                bundle_hash=bhash)
+                bundle_hash=bhash, cold_start_ms=t.load_total, resident_mb=sum(t.res.values()))
 
 
 def clip_of(source: Any, fps: float | None = None) -> tuple[float, float]:

@@ -14,7 +14,12 @@ Profile file (schema ``mosaicthinker.profile/1``), every key carries its unit::
     [costs.<item>]   ms_per_call / ms_per_prompt / ms_per_pair / ms_per_image / ms_per_token / load_ms /
                      resident_mb / mb_per_call (what the item has, see COST_ITEMS), and its provenance:
                      status = "measured" (+ date, bundle_hash: written by `mosaic profile --update-profile`)
-                     or "estimated" (+ source: where the figure comes from). Optional: provider, note.
+                     or "estimated" (+ source: where the figure comes from). Optional: provider, note,
+                     variant (the bundle variant the figures are for, e.g. "fp32").
+    [paper_costs.<item>]  the same for the paper's models; a model item may add
+                     [paper_costs.<item>.variants.<variant>] (the same numeric fields + note, the parent's
+                     provenance) measured at another precision: the profile's [roles.<item>] precision picks one
+                     (`nearest_variant`, the rule the model loading follows), so plan and run cost the same model.
 """
 from __future__ import annotations
 
@@ -78,6 +83,7 @@ REQUIRED_COSTS = ("process", "video_decode", "dedup", "grounding", "detector", "
 OPTIONAL_ROLE_COSTS = ("segmenter", "embedder", "vlm")
 MODEL_COSTS = ("detector", "segmenter", "depth", "embedder", "matcher", "vlm")
 PROVENANCE_KEYS = ("status", "date", "bundle_hash", "source", "provider", "note")
+VARIANT_KEYS = ("variant", "variants")  # a [paper_costs] model item measured at more than one precision
 
 _SECTIONS: dict[str, dict[str, type | tuple[type, ...]]] = {
     "device": {"name": str, "description": str, "soc": str, "os": str, "ram_mb": (int, float),
@@ -117,18 +123,34 @@ class CostEntry:
     source: str | None = None
     provider: str | None = None
     note: str | None = None
+    variant: str | None = None   # the bundle variant these figures are for (None: not said)
+    variants: dict[str, "CostEntry"] = field(default_factory=dict)  # the same item at other precisions
 
     def get(self, key: str) -> float:
         v = getattr(self, key)
         return 0.0 if v is None else float(v)
 
     def provenance(self) -> str:
+        of = f" [{self.variant}]" if self.variant else ""
         if self.status == "measured":
-            return f"measured {self.date} bundle {self.bundle_hash}"
-        return f"estimated ({self.source})"
+            return f"measured {self.date} bundle {self.bundle_hash}{of}"
+        return f"estimated ({self.source}){of}"
+
+    def for_variant(self, want: str) -> "CostEntry":
+        """The figures of the variant nearest `want` (`nearest_variant`: the model loading's rule) among this
+        entry's own and its `variants`; itself when it has no variants or none matches."""
+        if not self.variants:
+            return self
+        own = {self.variant: self} if self.variant else {}
+        options = {**own, **self.variants}
+        got = nearest_variant(want, {name: {} for name in options})
+        return options[got] if got else self
 
     def to_dict(self) -> dict[str, Any]:
-        return {k: v for k, v in asdict(self).items() if v is not None and k != "name"}
+        d = {k: v for k, v in asdict(self).items() if v is not None and k not in ("name", "variants")}
+        if self.variants:
+            d["variants"] = {n: e.to_dict() for n, e in self.variants.items()}
+        return d
 
 
 # When a bundle lacks the profile's precision for a role, the closest one it has, in this order: an accelerator's
@@ -205,7 +227,8 @@ class Profile:
         if not self.paper_costs:
             raise ProfileError(f"{self.path or self.name}: no [paper_costs.*] tables; measure them with "
                                f"benchmarks/paper_models.py or plan with `models=shared`", fields=("models",))
-        return replace(self, costs={**self.costs, **self.paper_costs})
+        picked = {k: e.for_variant(self.role(k).bundle_variant) for k, e in self.paper_costs.items()}
+        return replace(self, costs={**self.costs, **picked})
 
     def providers_for(self, role: str) -> list[str]:
         """Ordered provider chain for a role (role override, else the device chain); always ends on CPU."""
@@ -359,7 +382,7 @@ def _parse_costs(raw_costs: Mapping[str, Any], w: str, table: str) -> dict[str, 
         if not isinstance(ct, Mapping):
             raise ProfileError(f"{cw}: expected a table")
         nums, _ = COST_ITEMS[name]
-        _check_keys(ct, nums + PROVENANCE_KEYS, cw)
+        _check_keys(ct, nums + PROVENANCE_KEYS + (VARIANT_KEYS if table == "paper_costs" else ()), cw)
         vals: dict[str, Any] = {}
         for k in nums:
             if k not in ct:
@@ -385,7 +408,36 @@ def _parse_costs(raw_costs: Mapping[str, Any], w: str, table: str) -> dict[str, 
             raise ProfileError(f"{cw}: status 'estimated' needs 'source' (where the figure comes from)")
         costs[name] = CostEntry(name, status, **vals, **{k: ct.get(k) for k in
                                                          ("date", "bundle_hash", "source", "provider", "note")})
+        _parse_variants(costs[name], ct, cw)
     return costs
+
+
+def _parse_variants(entry: CostEntry, ct: Mapping[str, Any], cw: str) -> None:
+    """`variant` (str) and [<table>.<item>.variants.<name>] of a cost entry: each variant has the item's numeric
+    fields (+ an optional note) and takes the parent's provenance."""
+    if "variant" in ct and not (isinstance(ct["variant"], str) and ct["variant"]):
+        raise ProfileError(f"{cw}.variant: expected a bundle variant name such as 'fp32', got {ct['variant']!r}")
+    entry.variant = ct.get("variant")
+    raw = ct.get("variants", {})
+    if not isinstance(raw, Mapping):
+        raise ProfileError(f"{cw}.variants: expected tables [..variants.<name>] (e.g. variants.int8-dynamic)")
+    if raw and (entry.name not in MODEL_COSTS or not entry.variant):
+        raise ProfileError(f"{cw}.variants: only a model item that names its own `variant` may list others")
+    nums = COST_ITEMS[entry.name][0]
+    for vname, vt in raw.items():
+        vw = f"{cw}.variants.{vname}"
+        if vname == entry.variant or not isinstance(vt, Mapping):
+            raise ProfileError(f"{vw}: expected a table for a variant other than the entry's own "
+                               f"({entry.variant!r})")
+        _check_keys(vt, nums + ("note",), vw)
+        missing = [k for k in nums if k not in vt]
+        if missing:
+            raise ProfileError(f"{vw}: missing field(s) {', '.join(missing)} ({COST_ITEMS[entry.name][1]})")
+        if "note" in vt and not isinstance(vt["note"], str):
+            raise ProfileError(f"{vw}.note: expected a string, got {vt['note']!r}")
+        vals = {k: _check_number(vt[k], f"{vw}.{k}") for k in nums}
+        entry.variants[vname] = replace(entry, **vals, note=vt.get("note", entry.note), variant=vname,
+                                        variants={})
 
 
 def _check_sections(data: Mapping[str, Any], w: str) -> None:
