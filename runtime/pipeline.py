@@ -837,8 +837,8 @@ def ask(source: Any, question: str, options: list[str] | None = None, *, percept
     conf = conf if isinstance(conf, PipelineConfig) else PipelineConfig.merged(conf)
     if method not in ("mosaic", "direct"):
         raise InputError(f"`method` must be mosaic or direct, got {method!r}", fields=("method",))
-    if vlm is None and bundle is not None:
-        vlm = load_vlm(bundle, trace, profile)
+    if vlm is None and bundle is not None and answerer != "map":  # the map answerer neither grounds nor answers
+        vlm = load_vlm(bundle, trace, profile)                     # with a VLM: not loaded, not run
     src = _open(source)
     if method == "direct":
         return _ask_direct(src, question, options, vlm, trace, direct_frames)

@@ -109,3 +109,18 @@ def test_bundle_show_states_the_token_agreement_a_low_precision_vlm_shipped_at()
     assert "token agreement 0.54" in t and "ships at >= 0.5" in t and "not full agreement" in t
     assert "not full" not in task_text({"ok": True, "accepted_at": 1.0, "token_agreement": 1.0, "tokens": 24})
     assert task_text(None) is None
+
+
+@pytest.mark.slow
+def test_the_map_answerer_never_loads_or_runs_the_bundled_vlm(vlm_bundle, tmp_path):
+    from mosaicthinker.runtime.pipeline import ask
+
+    from test_grounding_nl import room_map
+
+    m = tmp_path / "map.json"
+    room_map().save(m)
+    q = "How many office chairs are there?"
+    by_map = ask(str(m), q, bundle=str(vlm_bundle[0]), answerer="map")
+    assert by_map.answer.text == "2" and "grounding.vlm" not in by_map.trace.stages
+    auto = ask(str(m), q, bundle=str(vlm_bundle[0]), answerer="auto")  # the paper's VLM grounding still runs
+    assert "grounding.vlm" in auto.trace.stages
