@@ -82,6 +82,9 @@ class DedupConf(StageConf):
     min_tracked: float = 0.35        # tracked ORB fraction above which a frame is a candidate duplicate ...
     max_motion: float = 0.04         # ... when the median keypoint displacement is below this x width
     ssim_threshold: float = 0.80     # candidates with SSIM above this are dropped as near-duplicates
+    # a small gray copy of each kept frame (`DedupResult.thumbs`): later per-candidate signals (the key-frame
+    # search's content prior) read it instead of decoding every candidate of the video a second time
+    thumb_width: int = 64
 
 
 
@@ -94,6 +97,7 @@ class DedupResult:
     dropped: dict[int, str]
     counts: dict[str, int]
     scores: dict[int, dict[str, float]] = field(default_factory=dict)
+    thumbs: dict[int, np.ndarray] = field(default_factory=dict)  # kept frame -> gray [h, thumb_width] uint8
 
     def to_dict(self) -> dict[str, Any]:
         return {"kept": self.kept, "dropped": {str(k): v for k, v in self.dropped.items()}, "counts": self.counts,
@@ -162,6 +166,7 @@ class OnlineDedup:
         self.kept: list[int] = []       # frame indices
         self.dropped: dict[int, str] = {}
         self.scores: dict[int, dict[str, float]] = {}
+        self.thumbs: dict[int, np.ndarray] = {}
         self.n_cand = self.n_dup = 0
         self._pos = -1
         self._next_t = -np.inf
@@ -185,9 +190,7 @@ class OnlineDedup:
         c = self.conf
         feats = orb_features(g, c.orb_features)
         if self._last is None:
-            self._last = (index, g, feats)
-            self.kept.append(index)
-            return True
+            return self._keep(index, g, feats)
         i0, g0, f0 = self._last
         if g.shape != g0.shape:
             raise InputError(f"frame {index}: size {g.shape} differs from the previous frame {g0.shape}")
@@ -203,7 +206,11 @@ class OnlineDedup:
                 self.dropped[index] = (f"near-duplicate of frame {i0} (SSIM {s:.3f} >= {c.ssim_threshold}; ORB "
                                        f"tracked {tracked:.0%}, motion {motion:.1f} px)")
                 return False
+        return self._keep(index, g, feats)
+
+    def _keep(self, index: int, g: np.ndarray, feats: Any) -> bool:
         self.kept.append(index)
+        self.thumbs[index] = _small_gray(g, self.conf.thumb_width)
         self._last = (index, g, feats)
         return True
 
@@ -218,7 +225,49 @@ class OnlineDedup:
                 dropped[index_at(p)] = why
         counts = {"input": n, "after_downsampling": len(self.sampled), "downsampled_away": n - len(self.sampled),
                   "candidates": self.n_cand, "near_duplicates": self.n_dup, "kept": len(self.kept)}
-        return DedupResult(list(self.kept), dict(sorted(dropped.items())), counts, dict(self.scores))
+        return DedupResult(list(self.kept), dict(sorted(dropped.items())), counts, dict(self.scores),
+                           dict(self.thumbs))
+
+
+class BackgroundDedup:
+    """An `OnlineDedup` whose comparisons (ORB, matching, SSIM: ~2/3 of a scan's CPU) run on one worker thread
+    while the caller decodes the next frames (OpenCV releases the GIL), so a scan uses two cores. The sampled
+    frames reach the worker in order, so the result is the one `OnlineDedup` alone gives. `wants` runs in the
+    caller; an error of the worker is raised by the next `push` or by `finish`."""
+
+    def __init__(self, od: OnlineDedup, depth: int = 8):
+        import queue
+        import threading
+
+        self.od, self.conf = od, od.conf
+        self._q: Any = queue.Queue(maxsize=depth)  # bounded: decoding never runs far ahead (memory)
+        self._error: BaseException | None = None
+        self._thread = threading.Thread(target=self._run, name="dedup", daemon=True)
+        self._thread.start()
+
+    def wants(self, t: float) -> bool:
+        return self.od.wants(t)
+
+    def push(self, index: int, g: np.ndarray) -> None:
+        if self._error is not None:
+            raise self._error
+        self._q.put((index, g))
+
+    def _run(self) -> None:
+        while (item := self._q.get()) is not None:
+            if self._error is None:
+                try:
+                    self.od.push(*item)
+                except BaseException as e:  # noqa: BLE001 - handed to the caller's thread
+                    self._error = e
+
+    def finish(self) -> OnlineDedup:
+        """Wait for the frames pushed so far; the `OnlineDedup` (or the worker's error, raised)."""
+        self._q.put(None)
+        self._thread.join()
+        if self._error is not None:
+            raise self._error
+        return self.od
 
 
 def small_gray(rgb: np.ndarray, width: int, bgr: bool = False) -> np.ndarray:
@@ -258,11 +307,14 @@ def remove_redundant(source_or_frames: Any, conf: DedupConf | Mapping[str, Any] 
     # reading in increasing order decodes a video exactly once, forward (no prefetch into an evicting cache);
     # sources with a `gray(position, width)` read skip the colour conversion and the frame cache
     gray = getattr(src, "gray", None) if is_source else None
-    od = OnlineDedup(conf)
-    for p, t in enumerate(ts):
-        if od.wants(float(t)):
-            g = gray(p, conf.work_width) if gray is not None else _small_gray(src[p].rgb, conf.work_width)
-            od.push(index_at(p), g)
-    res = od.result(n, index_at)
+    od = BackgroundDedup(OnlineDedup(conf))
+    try:
+        for p, t in enumerate(ts):
+            if od.wants(float(t)):
+                g = gray(p, conf.work_width) if gray is not None else _small_gray(src[p].rgb, conf.work_width)
+                od.push(index_at(p), g)
+    finally:
+        done = od.finish()
+    res = done.result(n, index_at)
     trace.decide("dedup.counts", res.counts)
     return res

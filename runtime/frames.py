@@ -721,17 +721,21 @@ class VideoSource(FrameSource):
         self.container_frames = int(cap.get(self._cv2.CAP_PROP_FRAME_COUNT) or 0)
         ts: list[float] = []
         od = self._start_online_dedup(dedup)
-        while max_frames is None or len(ts) < max_frames:
-            if not cap.grab():
-                break
-            ms = cap.get(self._cv2.CAP_PROP_POS_MSEC)
-            ts.append(ms / 1000.0 if ms > 0 or not ts else (len(ts) / fps if fps > 0 else float(len(ts))))
-            if od is not None and od.wants(ts[-1]):  # online redundant-frame removal: this frame is sampled
-                ok, bgr = cap.retrieve()
-                if not ok or bgr is None or min(bgr.shape[:2]) < MIN_FRAME_SIDE:  # _set_size says why below
-                    od = None
-                else:
-                    od.push(len(ts) - 1, _small_gray_bgr(bgr, od.conf.work_width))
+        try:
+            while max_frames is None or len(ts) < max_frames:
+                if not cap.grab():
+                    break
+                ms = cap.get(self._cv2.CAP_PROP_POS_MSEC)
+                ts.append(ms / 1000.0 if ms > 0 or not ts else (len(ts) / fps if fps > 0 else float(len(ts))))
+                if od is not None and od.wants(ts[-1]):  # online redundant-frame removal: this frame is sampled
+                    ok, bgr = cap.retrieve()
+                    if not ok or bgr is None or min(bgr.shape[:2]) < MIN_FRAME_SIDE:  # _set_size says why below
+                        od.finish()
+                        od = None
+                    else:
+                        od.push(len(ts) - 1, _small_gray_bgr(bgr, od.conf.work_width))
+        finally:
+            od = od.finish() if od is not None else None
         cap.release()
         if not ts:
             raise InputError(f"{_show(self.path)}: no decodable video frames (corrupt file or unsupported codec)")
@@ -768,9 +772,9 @@ class VideoSource(FrameSource):
         """dedup: "default" (DedupConf defaults), a DedupConf / mapping, or None (no removal while scanning)."""
         if dedup is None:
             return None
-        from .dedup import OnlineDedup
+        from .dedup import BackgroundDedup, OnlineDedup
 
-        return OnlineDedup(None if isinstance(dedup, str) and dedup == "default" else dedup)
+        return BackgroundDedup(OnlineDedup(None if isinstance(dedup, str) and dedup == "default" else dedup))
 
     def online_dedup(self, conf: Any) -> Any:
         """The redundant-frame removal made while the opening scan decoded the video (`dedup.OnlineDedup`), as

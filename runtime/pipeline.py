@@ -29,8 +29,8 @@ from .progress import phase, start, ticking
 from .trace import Trace, as_trace
 # the stages, in the paper's order
 from .grounding import ParsedQuestion, ground
-from .dedup import DedupConf, remove_redundant
-from .keyframes import KeyFrameConf, select_keyframes, uniform_keyframes
+from .dedup import DedupConf, DedupResult, remove_redundant
+from .keyframes import KeyFrameConf, edge_density, select_keyframes, uniform_keyframes
 from .matching import MatchConf, make_matcher
 from .alignment import AlignConf, align_keyframes, worker_threads
 from .semantic_map import (FusionConfig, ObjectInstance, Observation, SemanticMap, box_depth_mask,
@@ -196,15 +196,21 @@ def _stage(budget: Any, trace: Trace, name: str) -> Any:
     return budget.stage(name) if budget is not None else trace.stage(name)
 
 
-def _candidates(source: FrameSource, conf: PipelineConfig, trace: Trace, budget: Any = None) -> list[int]:
+def _candidates(source: FrameSource, conf: PipelineConfig, trace: Trace, budget: Any = None) -> DedupResult:
     with _stage(budget, trace, "dedup"), phase("dedup", len(source), "frame") as bar:
-        res = remove_redundant(ticking(source, bar), conf.dedup)
+        res = remove_redundant(ticking(source, bar), conf.dedup, trace)
         bar.to(len(source))
         bar.note(candidates=len(res.kept))
     kept = [int(i) for i in res.kept]
     trace.decide("dedup", {"frames": len(source), "kept": len(kept), "dropped": len(source) - len(kept),
                            "reasons": _count_reasons(res.dropped)})
-    return kept
+    return res
+
+
+def _densities(thumbs: dict[int, np.ndarray], kconf: KeyFrameConf) -> dict[int, float]:
+    """The content prior's edge density of each candidate from dedup's thumbnail (as wide as the search's
+    `hist_size` or wider); a candidate without one is read from the video by the search itself."""
+    return {int(f): edge_density(g, kconf.hist_size) for f, g in thumbs.items() if g.shape[1] >= kconf.hist_size}
 
 
 def _count_reasons(dropped: Any) -> dict[str, int]:
@@ -244,7 +250,8 @@ def select(source: FrameSource, targets: Sequence[str], cues: Sequence[str], per
     """Dedup + key-frame search. Returns (key frame indices in time order, the cached detector, the search
     result, the candidate frames kept by dedup). Under a budget the search spends the plan's scored frames as
     they stand after dedup (its candidate count, or a re-plan after a slow dedup)."""
-    cands = _candidates(source, conf, trace, budget)
+    dedup = _candidates(source, conf, trace, budget)
+    cands = [int(i) for i in dedup.kept]
     det = detector or _CachedDetector(source, perception.detect, trace)
     K = int(keyframes or conf.keyframes)
     if budget is not None:  # the plan as it stands after dedup (its candidate count, or a re-plan)
@@ -273,7 +280,8 @@ def select(source: FrameSource, targets: Sequence[str], cues: Sequence[str], per
         det.on_call = bar.update  # one tick per frame scored
         res = select_keyframes(conf.keyframe_method, cands, list(targets), list(cues), det,
                                lambda i: _colour(source, int(i)).rgb, kconf, trace,
-                               prefetch=getattr(source, "prefetch", None), image_size=tuple(source.size))
+                               prefetch=getattr(source, "prefetch", None), image_size=tuple(source.size),
+                               densities=_densities(dedup.thumbs, kconf))
         det.on_call = None
         bar.note(keyframes=len(res.chosen))
     chosen = [int(i) for i in res.chosen]

@@ -78,3 +78,57 @@ def test_remove_redundant_errors():
         remove_redundant([])
     with pytest.raises(InputError, match="unknown"):
         DedupConf.merged({"ssim_treshold": 0.5})
+
+
+def test_background_scan_gives_the_serial_result_and_raises_the_workers_error(redkitchen):
+    from mosaicthinker.runtime.dedup import BackgroundDedup, OnlineDedup, small_gray
+
+    src = open_source(redkitchen)
+    serial, background = OnlineDedup(), BackgroundDedup(OnlineDedup())
+    for p, t in enumerate(src.timestamps[:120]):
+        want = serial.wants(float(t))
+        assert background.wants(float(t)) == want
+        if want:
+            g = small_gray(src.colour(p).rgb, serial.conf.work_width)
+            serial.push(p, g)
+            background.push(p, g)
+    a, b = serial.result(120, int), background.finish().result(120, int)
+    b_conf_w = DedupConf().thumb_width
+    assert a.kept == b.kept and a.dropped == b.dropped and a.scores == b.scores and len(a.kept) > 5
+    assert set(b.thumbs) == set(b.kept) and all(g.shape[1] == b_conf_w for g in b.thumbs.values())
+    bad = BackgroundDedup(OnlineDedup())
+    bad.wants(0.0)
+    bad.push(0, np.zeros((48, 64), np.uint8))
+    bad.wants(1.0)
+    bad.push(1, np.zeros((40, 64), np.uint8))  # a frame of another size: the worker's InputError reaches us
+    with pytest.raises(InputError, match="differs"):
+        bad.finish()
+
+
+def test_the_key_frame_search_reads_candidates_thumbnails_not_the_video(redkitchen):
+    """The content prior's densities come from dedup's thumbnails: the search decodes only the frames it
+    scores (and their histogram neighbours), not every candidate a second time."""
+    from mosaicthinker.runtime.perception import Detections
+    from mosaicthinker.runtime.pipeline import Perception, PipelineConfig, select
+    from mosaicthinker.runtime.trace import Trace
+
+    class Counting:
+        def __init__(self, src):
+            self.src, self.read = src, set()
+
+        def __getattr__(self, name):
+            return getattr(self.src, name)
+
+        def __len__(self):
+            return len(self.src)
+
+        def colour(self, i):
+            self.read.add(int(i))
+            return self.src.colour(i)
+
+    src = Counting(open_source(redkitchen))
+    nothing = lambda frame, names: Detections.empty()  # noqa: E731 - no object anywhere: scores are all 0
+    conf = PipelineConfig.merged({"keyframe": {"budget": 6}})
+    chosen, _, res, cands = select(src, ["chair"], [], Perception(detect=nothing), conf, Trace(), keyframes=4)
+    assert len(cands) > 30 and res.frames_scored <= 6
+    assert len(src.read & set(cands)) < len(cands) // 2, sorted(src.read)
