@@ -590,6 +590,7 @@ def components(points: np.ndarray, link_m: float) -> np.ndarray:
     ps = points[order]
     grid = _Cells(fs[first], span, np.hstack([np.minimum.reduceat(ps, first, 0), np.maximum.reduceat(ps, first, 0)]),
                   ps[first], link_m * link_m)
+    grid.index(n)
     a, b, sure = grid.pairs(np.arange(nc), _TOUCHING)
     lab = _graph_labels(nc, a[sure], b[sure])
     if lab.max() > 0:
@@ -620,15 +621,33 @@ class _Cells:
     box: np.ndarray
     rep: np.ndarray
     r2: float
+    lut: np.ndarray | None = None  # cell number by flat key (-1 = empty), when the grid is small enough
+
+    # a dense key -> cell table replaces the binary search when it has at most this many entries per point (an
+    # object's grid of 2.9 cm cells holds ~10-50 entries per point; a stray point metres away makes it sparse)
+    LUT_PER_POINT: ClassVar[int] = 64
+
+    def index(self, n_points: int) -> None:
+        """Build the dense table (`lut`) when the grid span is small next to the point count."""
+        size = int(np.prod(self.span.astype(np.float64)))
+        if size <= self.LUT_PER_POINT * max(n_points, 1024):
+            self.lut = np.full(size, -1, np.int32 if len(self.keys) < 2**31 else np.int64)
+            self.lut[self.keys] = np.arange(len(self.keys))
+
+    def find(self, nb: np.ndarray) -> np.ndarray:
+        """Cell number of each flat key in `nb` (any shape; keys inside the grid span), -1 where no cell."""
+        if self.lut is not None:
+            return self.lut[nb]
+        j = np.searchsorted(self.keys, nb).clip(0, len(self.keys) - 1)
+        return np.where(self.keys[j] == nb, j, -1)
 
     def pairs(self, src: np.ndarray, offsets: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Cell pairs (a from `src`, b = a + offset) whose boxes are within link distance, and which of them
         link for sure -> (a [P], b [P], sure [P])."""
         step = (offsets[:, 0] * self.span[1] + offsets[:, 1]) * self.span[2] + offsets[:, 2]
-        nb = self.keys[src][None, :] + step[:, None]
-        j = np.searchsorted(self.keys, nb).clip(0, len(self.keys) - 1)
-        hit = self.keys[j] == nb
-        a, b = np.broadcast_to(src, nb.shape)[hit], j[hit]
+        j = self.find(self.keys[src][None, :] + step[:, None])
+        hit = j >= 0
+        a, b = np.broadcast_to(src, j.shape)[hit], j[hit]
         ba, bb = self.box[a], self.box[b]
         gap = np.maximum(0, np.maximum(bb[:, :3] - ba[:, 3:], ba[:, :3] - bb[:, 3:]))
         near = np.einsum("ij,ij->i", gap, gap) <= self.r2
@@ -669,7 +688,10 @@ def _graph_labels(n: int, a: np.ndarray, b: np.ndarray) -> np.ndarray:
             if np.array_equal(nxt, lab):
                 break
             lab = nxt
-    return np.unique(lab, return_inverse=True)[1].reshape(-1)
+    # every label is now a root (lab[r] == r, the smallest node of its component): number the roots in order,
+    # as np.unique(lab, return_inverse=True) would, without its sort
+    root = lab == np.arange(n)
+    return (np.cumsum(root) - 1)[lab]
 
 
 def largest_components(points: np.ndarray, link_m: float = 0.05, min_share: float = 0.2) -> np.ndarray:

@@ -113,6 +113,26 @@ def test_components_equal_reference_on_hard_layouts(seed):
     assert len(sm.components(np.zeros((0, 3)), 0.05)) == 0
 
 
+@pytest.mark.parametrize("seed", range(3))
+def test_components_cell_lookup_paths_agree(seed, monkeypatch):
+    """The dense key -> cell table and the binary search (a sparse grid: stray points metres away) give the same
+    cells, so the same labels; both equal the reference, with a few stray points and without."""
+    rng = np.random.default_rng(seed)
+    pts = rng.random((800, 3)) * 0.6
+    pts[rng.random(800) < 0.3] += [0.5, 0, 0]  # two blobs
+    stray = np.r_[pts, [[40.0, 3.0, 1.0]]]
+    built = []
+    orig = sm._Cells.index
+    monkeypatch.setattr(sm._Cells, "index", lambda self, n: (orig(self, n), built.append(self.lut is not None)))
+    for cloud in (pts, stray):
+        dense = sm.components(cloud, 0.05)
+        monkeypatch.setattr(sm._Cells, "LUT_PER_POINT", 0)  # every grid searched
+        searched = sm.components(cloud, 0.05)
+        monkeypatch.setattr(sm._Cells, "LUT_PER_POINT", 64)
+        assert np.array_equal(dense, searched) and np.array_equal(dense, ref_components(cloud, 0.05))
+    assert built == [True, False, False, False]  # the compact cloud used the table, the stray one searched
+
+
 def test_remove_outliers_equals_ball_count(kitchen_masks):
     from scipy.spatial import cKDTree
 
