@@ -423,9 +423,11 @@ def lift_observations(rgb_shape: tuple[int, int], depth: np.ndarray, K: np.ndarr
 
     from .geometry import transform
 
-    rng = np.random.default_rng(conf.seed + frame)
+    rng = None  # the frame's subsampling stream, made on first use (most masks need none: ~50 us a frame)
     out: list[Observation] = []
-    d = np.where(depth < conf.max_depth_m, depth, 0).astype(np.float32)
+    # with segmenter masks only the masks' windows are read: the depth cut-off is applied there
+    # (`_backproject_window`), not to the whole image; box-prompted masks need the cut depth image itself
+    d = _depth_upto(depth, conf.max_depth_m) if masks is None else depth
     kernel = np.ones((2 * conf.erode_px + 1,) * 2, np.uint8) if conf.erode_px > 0 else None
     keep = duplicate_names(boxes, names, scores, conf.duplicate_iou) if conf.duplicate_iou > 0 else None
     for j, (box, name) in enumerate(zip(boxes, names)):
@@ -439,10 +441,11 @@ def lift_observations(rgb_shape: tuple[int, int], depth: np.ndarray, K: np.ndarr
         if masks is not None and kernel is not None:
             eroded = cv2.erode(m, kernel)
             m = eroded if eroded.sum() >= conf.min_points else m
-        pts = _backproject_window(d, K, m.astype(bool), win, conf.stride)
+        pts = _backproject_window(d, K, m.astype(bool), win, conf.stride, conf.max_depth_m)
         if len(pts) < conf.min_points:
             continue
         if len(pts) > conf.max_points:
+            rng = rng or np.random.default_rng(conf.seed + frame)
             pts = pts[rng.choice(len(pts), conf.max_points, replace=False)]
         if conf.component_link_m > 0:  # a mask that bled across a depth edge (onto the table, the next chair)
             pts = largest_components(pts, conf.component_link_m, conf.component_share)
@@ -465,13 +468,18 @@ def _mask_window(mask: np.ndarray, margin: int, stride: int) -> tuple[slice, sli
     return slice(y0, min(H, rows[-1] + 1 + margin)), slice(x0, min(W, cols[-1] + 1 + margin))
 
 
+def _depth_upto(depth: np.ndarray, max_depth_m: float) -> np.ndarray:
+    """float32 depth with everything at or beyond `max_depth_m` (and NaN) set to 0 (invalid)."""
+    return np.where(depth < max_depth_m, depth, 0).astype(np.float32)
+
+
 def _backproject_window(depth: np.ndarray, K: np.ndarray, mask: np.ndarray, win: tuple[slice, slice],
-                        stride: int) -> np.ndarray:
-    """`geometry.backproject(depth, K, full_mask, stride)` points for a mask given on `win` (its window, starting
-    on the stride grid): the same points in the same order. -> [N, 3]"""
+                        stride: int, max_depth_m: float = np.inf) -> np.ndarray:
+    """`geometry.backproject(_depth_upto(depth, max_depth_m), K, full_mask, stride)` points for a mask given on
+    `win` (its window, starting on the stride grid): the same points in the same order. -> [N, 3]"""
     from .geometry import backproject_pixels
 
-    d = depth[win][::stride, ::stride]
+    d = _depth_upto(depth[win][::stride, ::stride], max_depth_m)
     ok = np.isfinite(d) & (d > 0) & mask[::stride, ::stride]
     v, u = np.nonzero(ok)
     uv = np.stack([u * stride + win[1].start, v * stride + win[0].start], 1).astype(np.float64)

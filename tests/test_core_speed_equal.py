@@ -149,7 +149,7 @@ def test_remove_outliers_equals_ball_count(kitchen_masks):
 
 
 @pytest.mark.parametrize("conf", [sm.FusionConfig(), sm.FusionConfig(stride=3, erode_px=3, max_points=1500),
-                                  sm.FusionConfig(stride=1, erode_px=0)])
+                                  sm.FusionConfig(stride=1, erode_px=0), sm.FusionConfig(max_depth_m=2.2)])
 def test_lift_observations_equal_reference(kitchen_masks, conf):
     T = G.make_pose(G.rotation_about([0, 0, 1], 0.3), [0.5, -1.0, 1.2])
     n = 0
@@ -162,6 +162,22 @@ def test_lift_observations_equal_reference(kitchen_masks, conf):
             assert all(np.array_equal(o.points, p) for o, (_, p) in zip(got, ref))
             n += len(got)
     assert n >= 40
+
+
+def test_lift_observations_depth_cut_inside_windows(kitchen_masks):
+    """The depth cut-off applied inside each mask's window equals the whole-image cut of the reference, with
+    invalid values (NaN, inf, negative, beyond the cut) inside the masks."""
+    conf = sm.FusionConfig(max_depth_m=2.5)
+    rng = np.random.default_rng(3)
+    for f, boxes, masks in kitchen_masks[:4]:
+        depth = f.depth.astype(np.float32).copy()
+        bad = rng.random(depth.shape) < 0.05
+        depth[bad] = rng.choice(np.array([np.nan, np.inf, -1.0, 9.0], np.float32), int(bad.sum()))
+        names, scores = [f"o{k}" for k in range(len(boxes))], np.linspace(0.9, 0.5, len(boxes))
+        got = sm.lift_observations(depth.shape, depth, f.K, np.eye(4), boxes, names, scores, masks, f.index, f.t, conf)
+        ref = ref_lift(depth, f.K, np.eye(4), boxes, names, scores, masks, f.index, f.t, conf)
+        assert len(got) == len(ref) > 0 and all(np.array_equal(o.points, p) for o, (_, p) in zip(got, ref))
+        assert all(np.isfinite(o.points).all() and (o.points[:, 2] < 2.5).all() for o in got)
 
 
 def test_fusion_instances_equal_reference(monkeypatch):
