@@ -516,24 +516,30 @@ def depth_smooth(depth: np.ndarray, uv: np.ndarray, radius: int = 3, rel: float 
 # ----------------------------------------------------------------------------- similarity, root, spanning tree
 
 
-def color_histograms(rgbs: Sequence[np.ndarray], bins: tuple[int, int, int] = (16, 8, 4)) -> np.ndarray:
-    """HSV histograms of images [H, W, 3] uint8 RGB -> [K, prod(bins)] float64 (each sums to 1)."""
+def color_histograms(rgbs: Sequence[np.ndarray], bins: tuple[int, int, int] = (16, 8, 4),
+                     threads: int = 1) -> np.ndarray:
+    """HSV histograms of images [H, W, 3] uint8 RGB -> [K, prod(bins)] float64 (each sums to 1); the images on
+    `threads` threads (OpenCV releases the GIL; the same histograms in the same order)."""
     import cv2
 
-    out = []
-    for rgb in rgbs:
+    def one(rgb: np.ndarray) -> np.ndarray:
         small = cv2.resize(rgb, (160, max(1, round(160 * rgb.shape[0] / rgb.shape[1]))),
                            interpolation=cv2.INTER_AREA)
         hsv = cv2.cvtColor(small, cv2.COLOR_RGB2HSV)
         h = cv2.calcHist([hsv], [0, 1, 2], None, list(bins), [0, 180, 0, 256, 0, 256]).ravel()
-        out.append(h / max(h.sum(), 1e-12))
-    return np.array(out, dtype=np.float64)
+        return h / max(h.sum(), 1e-12)
+
+    if threads <= 1 or len(rgbs) < 2:
+        return np.array([one(rgb) for rgb in rgbs], dtype=np.float64)
+    with ThreadPoolExecutor(min(threads, len(rgbs))) as ex:
+        return np.array(list(ex.map(one, rgbs)), dtype=np.float64)
 
 
 def similarity_matrix(rgbs: Sequence[np.ndarray] | None = None, embeddings: np.ndarray | None = None,
-                      bins: tuple[int, int, int] = (16, 8, 4)) -> tuple[np.ndarray, str]:
+                      bins: tuple[int, int, int] = (16, 8, 4), threads: int = 1) -> tuple[np.ndarray, str]:
     """Frame similarity S [K, K] (diagonal 0) and what it is: 'embedding_cosine' for embeddings [K, D],
-    else 'color_hist_correlation' (Pearson correlation of HSV histograms, as cv2.HISTCMP_CORREL)."""
+    else 'color_hist_correlation' (Pearson correlation of HSV histograms, as cv2.HISTCMP_CORREL; histograms on
+    `threads` threads)."""
     if embeddings is not None:
         E = np.asarray(embeddings, dtype=np.float64)
         E = E / np.maximum(np.linalg.norm(E, axis=1, keepdims=True), 1e-12)
@@ -541,7 +547,7 @@ def similarity_matrix(rgbs: Sequence[np.ndarray] | None = None, embeddings: np.n
     else:
         if rgbs is None:
             raise AlignmentError("similarity_matrix needs images or embeddings")
-        H = color_histograms(rgbs, bins)
+        H = color_histograms(rgbs, bins, threads)
         H = H - H.mean(1, keepdims=True)
         H = H / np.maximum(np.linalg.norm(H, axis=1, keepdims=True), 1e-12)
         S, kind = H @ H.T, "color_hist_correlation"
@@ -915,7 +921,8 @@ def _align_mst(frames: list[Any], pv: _PairVerifier, embeddings: np.ndarray | No
     Returns (root position, poses by frame index, tree edges by frame index, S, similarity kind)."""
     conf, idx = pv.conf, [int(f.index) for f in frames]
     t0 = time.perf_counter()
-    S, kind = similarity_matrix([f.rgb for f in frames] if embeddings is None else None, embeddings, conf.hist_bins)
+    S, kind = similarity_matrix([f.rgb for f in frames] if embeddings is None else None, embeddings, conf.hist_bins,
+                                pv.threads)
     pv.secs["similarity"] = time.perf_counter() - t0
     root = choose_root(S)
     t0 = time.perf_counter()

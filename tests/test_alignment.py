@@ -320,6 +320,8 @@ def test_similarity_matrix_histograms():
     c[..., 2] = 200
     S, kind = similarity_matrix([a, b, c])
     assert kind == "color_hist_correlation" and S[0, 0] == 0 and S[0, 1] > S[0, 2] and np.allclose(S, S.T)
+    imgs = [np.roll(a, k, axis=k % 2) for k in range(7)] + [b, c]  # on threads: the same matrix, same order
+    assert np.array_equal(similarity_matrix(imgs, threads=3)[0], similarity_matrix(imgs)[0])
 
 
 # ----------------------------------------------------------------------------- real data
