@@ -259,7 +259,7 @@ def test_threads_give_identical_alignment_and_map_7scenes(redkitchen, with_scale
     frames = [src[i] for i in pick_frames(len(src), 12, "uniform")]
     fm = FeatureMatcher("sift", cache_size=64)
     runs = [align_frames(frames, fm, "mst", conf=AlignConf(threads=t), with_scale=with_scale) for t in (1, 2, 3, 3)]
-    assert len(runs[0].aligned) >= 10 and len(runs[0].edge_stats) >= 20
+    assert len(runs[0].aligned) >= 10 and len(runs[0].edge_stats) >= 15  # rgbd: 18 pairs (narrow candidates)
     for r in runs[1:]:
         _same_alignment(runs[0], r)
     maps = [_fused(frames, r.poses, t, monkeypatch) for r, t in ((runs[0], 1), (runs[1], 3), (runs[2], 3))]
