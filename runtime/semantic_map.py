@@ -632,14 +632,16 @@ class _Cells:
     lut: np.ndarray | None = None  # cell number by flat key (-1 = empty), when the grid is small enough
 
     # a dense key -> cell table replaces the binary search when it has at most this many entries per point (an
-    # object's grid of 2.9 cm cells holds ~10-50 entries per point; a stray point metres away makes it sparse)
+    # object's grid of 2.9 cm cells holds ~10-50 entries per point; a stray point metres away makes it sparse),
+    # and never more than LUT_MAX entries (16 MB: a room-sized cloud searches)
     LUT_PER_POINT: ClassVar[int] = 64
+    LUT_MAX: ClassVar[int] = 1 << 22
 
     def index(self, n_points: int) -> None:
         """Build the dense table (`lut`) when the grid span is small next to the point count."""
         size = int(np.prod(self.span.astype(np.float64)))
-        if size <= self.LUT_PER_POINT * max(n_points, 1024):
-            self.lut = np.full(size, -1, np.int32 if len(self.keys) < 2**31 else np.int64)
+        if size <= min(self.LUT_PER_POINT * max(n_points, 1024), self.LUT_MAX):
+            self.lut = np.full(size, -1, np.int32)  # (fewer cells than entries: int32 holds them)
             self.lut[self.keys] = np.arange(len(self.keys))
 
     def find(self, nb: np.ndarray) -> np.ndarray:

@@ -131,6 +131,8 @@ def test_components_cell_lookup_paths_agree(seed, monkeypatch):
         monkeypatch.setattr(sm._Cells, "LUT_PER_POINT", 64)
         assert np.array_equal(dense, searched) and np.array_equal(dense, ref_components(cloud, 0.05))
     assert built == [True, False, False, False]  # the compact cloud used the table, the stray one searched
+    monkeypatch.setattr(sm._Cells, "LUT_MAX", 1000)  # a table never exceeds LUT_MAX entries (room-sized clouds)
+    assert np.array_equal(sm.components(pts, 0.05), ref_components(pts, 0.05)) and built[-1] is False
 
 
 def test_remove_outliers_equals_ball_count(kitchen_masks):
