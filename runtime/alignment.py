@@ -15,9 +15,11 @@ Multi-frame (strategy "mst"):
 1. frame-similarity matrix S [K, K]: cosine similarity of per-frame embeddings when given, otherwise the
    correlation of colour histograms (HSV, 16 hue x 8 saturation x 4 value bins, OpenCV's HISTCMP_CORREL);
 2. root = frame with the largest total similarity;
-3. geometric refinement of S (`verify_top`, default 4): each frame's 4 most similar frames are aligned
-   pairwise (plus time neighbours for essential edges); a verified pair weighs 1 + its RANSAC inlier count, a
-   failed pair is removed, untried pairs keep their similarity (< 1, so they rank after every verified pair).
+3. geometric refinement of S (`verify_top`, default 4): each frame's most similar frames are aligned pairwise
+   (plus its time neighbour): for rgbd edges the 2 most similar first, widened by one per round up to 4 only
+   while the verified pairs leave a frame unconnected (`verify_top_first`); essential edges all 4 at once. A
+   verified pair weighs 1 + its RANSAC inlier count, a failed pair is removed, untried pairs keep their
+   similarity (< 1, so they rank after every verified pair).
    Measured on 7-Scenes: colour histograms alone pick wide-baseline pairs whose few inliers give 10-25 cm
    errors (ATE 0.11 m at K=32 instead of 0.05);
 4. maximum spanning tree by Kruskal over these weights. An edge that would join two components and has not
@@ -80,8 +82,14 @@ class AlignConf(StageConf):
                                        # and essential edges get worse (0.13 vs 0.08 m)
     verify_neighbours: int | None = None  # ... plus each frame's n time neighbours; None = 1 for essential edges
                                        # (their inlier counts favour short, ill-conditioned baselines: measured
-                                       # ATE 0.12 -> 0.08 m at K=32) and 0 for rgbd edges (the paper's
-                                       # similarity alone; SIFT + sensor depth meets its targets without)
+                                       # ATE 0.12 -> 0.08 m at K=32) and 1 for rgbd edges when they start
+                                       # narrow (`verify_top_first`), else 0
+    verify_top_first: int | None = None  # candidates start at each frame's top-k (+ time neighbours) and widen by
+                                       # one frame per round up to `verify_top` only while the verified pairs
+                                       # leave some frame unconnected; None = 2 for rgbd edges (a failed pair
+                                       # costs a full RANSAC: 49 instead of 80 pairs at K=32, see
+                                       # docs/performance.md), `verify_top` for essential edges (their ATE
+                                       # needs every candidate: 0.12 vs 0.075 m with 2)
     verify_rank: str = "inliers"       # how the candidates are ranked: "inliers" = each is verified first and
                                        # weighs 1 + its inlier count; "matches" = weighs 1 + its count of matches
                                        # with depth in both frames (RANSAC's input) and is verified only when
@@ -508,24 +516,30 @@ def depth_smooth(depth: np.ndarray, uv: np.ndarray, radius: int = 3, rel: float 
 # ----------------------------------------------------------------------------- similarity, root, spanning tree
 
 
-def color_histograms(rgbs: Sequence[np.ndarray], bins: tuple[int, int, int] = (16, 8, 4)) -> np.ndarray:
-    """HSV histograms of images [H, W, 3] uint8 RGB -> [K, prod(bins)] float64 (each sums to 1)."""
+def color_histograms(rgbs: Sequence[np.ndarray], bins: tuple[int, int, int] = (16, 8, 4),
+                     threads: int = 1) -> np.ndarray:
+    """HSV histograms of images [H, W, 3] uint8 RGB -> [K, prod(bins)] float64 (each sums to 1); the images on
+    `threads` threads (OpenCV releases the GIL; the same histograms in the same order)."""
     import cv2
 
-    out = []
-    for rgb in rgbs:
+    def one(rgb: np.ndarray) -> np.ndarray:
         small = cv2.resize(rgb, (160, max(1, round(160 * rgb.shape[0] / rgb.shape[1]))),
                            interpolation=cv2.INTER_AREA)
         hsv = cv2.cvtColor(small, cv2.COLOR_RGB2HSV)
         h = cv2.calcHist([hsv], [0, 1, 2], None, list(bins), [0, 180, 0, 256, 0, 256]).ravel()
-        out.append(h / max(h.sum(), 1e-12))
-    return np.array(out, dtype=np.float64)
+        return h / max(h.sum(), 1e-12)
+
+    if threads <= 1 or len(rgbs) < 2:
+        return np.array([one(rgb) for rgb in rgbs], dtype=np.float64)
+    with ThreadPoolExecutor(min(threads, len(rgbs))) as ex:
+        return np.array(list(ex.map(one, rgbs)), dtype=np.float64)
 
 
 def similarity_matrix(rgbs: Sequence[np.ndarray] | None = None, embeddings: np.ndarray | None = None,
-                      bins: tuple[int, int, int] = (16, 8, 4)) -> tuple[np.ndarray, str]:
+                      bins: tuple[int, int, int] = (16, 8, 4), threads: int = 1) -> tuple[np.ndarray, str]:
     """Frame similarity S [K, K] (diagonal 0) and what it is: 'embedding_cosine' for embeddings [K, D],
-    else 'color_hist_correlation' (Pearson correlation of HSV histograms, as cv2.HISTCMP_CORREL)."""
+    else 'color_hist_correlation' (Pearson correlation of HSV histograms, as cv2.HISTCMP_CORREL; histograms on
+    `threads` threads)."""
     if embeddings is not None:
         E = np.asarray(embeddings, dtype=np.float64)
         E = E / np.maximum(np.linalg.norm(E, axis=1, keepdims=True), 1e-12)
@@ -533,7 +547,7 @@ def similarity_matrix(rgbs: Sequence[np.ndarray] | None = None, embeddings: np.n
     else:
         if rgbs is None:
             raise AlignmentError("similarity_matrix needs images or embeddings")
-        H = color_histograms(rgbs, bins)
+        H = color_histograms(rgbs, bins, threads)
         H = H - H.mean(1, keepdims=True)
         H = H / np.maximum(np.linalg.norm(H, axis=1, keepdims=True), 1e-12)
         S, kind = H @ H.T, "color_hist_correlation"
@@ -869,26 +883,58 @@ def _time_order(frames: list[Any]) -> list[int]:
     return sorted(range(len(frames)), key=lambda k: (frames[k].t, int(frames[k].index)))
 
 
+def _candidate_widths(conf: AlignConf, edge: str) -> tuple[int, int]:
+    """(first round's top-k, time neighbours) of the candidate pairs for this edge type (AlignConf defaults)."""
+    narrow = edge == "rgbd" and conf.verify_rank == "inliers"  # (the lazy ranking verifies ~K pairs anyway)
+    top = conf.verify_top_first if conf.verify_top_first is not None else (
+        min(2, conf.verify_top) if narrow else conf.verify_top)
+    top = max(1, min(top, conf.verify_top))
+    n_nb = conf.verify_neighbours if conf.verify_neighbours is not None else int(
+        edge == "essential" or top < conf.verify_top)
+    return top, n_nb
+
+
+def _widening_weights(S: np.ndarray, pv: _PairVerifier, top: int, max_top: int,
+                      extra: Sequence[tuple[int, int]]) -> np.ndarray:
+    """`refine_with_inliers` over each frame's `top` most similar frames (+ `extra`), widened by one frame per
+    round up to `max_top` while the verified pairs do not connect every frame: a frame whose first candidates
+    all failed gets more before the tree falls back to unverified similarity edges."""
+    while True:
+        pv.prefetch(candidate_pairs(S, top, extra))
+        W = refine_with_inliers(S, pv.verify_cached, pv.inliers, top, extra)
+        if top >= max_top or _connected(len(S), [e for e, ok in pv.ok_cache.items() if ok]):
+            return W
+        top += 1
+
+
+def _connected(n: int, edges: Sequence[tuple[int, int]]) -> bool:
+    """Whether the undirected graph on n nodes with these edges is connected."""
+    dsu, parts = _DSU(n), n
+    for a, b in edges:
+        parts -= dsu.union(a, b)
+    return parts <= 1
+
+
 def _align_mst(frames: list[Any], pv: _PairVerifier, embeddings: np.ndarray | None
                ) -> tuple[int, dict[int, np.ndarray], list[tuple[int, int]], np.ndarray, str]:
     """Similarity matrix, root, geometric refinement, Kruskal, composition (module docstring, steps 1-5).
     Returns (root position, poses by frame index, tree edges by frame index, S, similarity kind)."""
     conf, idx = pv.conf, [int(f.index) for f in frames]
     t0 = time.perf_counter()
-    S, kind = similarity_matrix([f.rgb for f in frames] if embeddings is None else None, embeddings, conf.hist_bins)
+    S, kind = similarity_matrix([f.rgb for f in frames] if embeddings is None else None, embeddings, conf.hist_bins,
+                                pv.threads)
     pv.secs["similarity"] = time.perf_counter() - t0
     root = choose_root(S)
     t0 = time.perf_counter()
     W = S
     if conf.verify_top > 0:
+        top, n_nb = _candidate_widths(conf, pv.edge)
         order = _time_order(frames)
-        n_nb = conf.verify_neighbours if conf.verify_neighbours is not None else int(pv.edge == "essential")
         nb = [(order[p], order[p + d]) for d in range(1, n_nb + 1) for p in range(len(order) - d)]
         if conf.verify_rank == "inliers":
             # ranking and the scale graph need every candidate's inliers and scales, not its refined pose
             pv.defer_refine = pv.edge == "essential"
-            pv.prefetch(candidate_pairs(S, conf.verify_top, nb))
-            W = refine_with_inliers(S, pv.verify_cached, pv.inliers, conf.verify_top, nb)
+            W = _widening_weights(S, pv, top, conf.verify_top, nb)
         else:  # lazy: ranked by match count, verified by Kruskal only when it takes the edge
             W = refine_with_inliers(S, lambda i, j: True, pv.n_depth_matches, conf.verify_top, nb)
     tree, _failed = maximum_spanning_tree(W, pv.verify_cached, conf.max_attempts)

@@ -423,9 +423,11 @@ def lift_observations(rgb_shape: tuple[int, int], depth: np.ndarray, K: np.ndarr
 
     from .geometry import transform
 
-    rng = np.random.default_rng(conf.seed + frame)
+    rng = None  # the frame's subsampling stream, made on first use (most masks need none: ~50 us a frame)
     out: list[Observation] = []
-    d = np.where(depth < conf.max_depth_m, depth, 0).astype(np.float32)
+    # with segmenter masks only the masks' windows are read: the depth cut-off is applied there
+    # (`_backproject_window`), not to the whole image; box-prompted masks need the cut depth image itself
+    d = _depth_upto(depth, conf.max_depth_m) if masks is None else depth
     kernel = np.ones((2 * conf.erode_px + 1,) * 2, np.uint8) if conf.erode_px > 0 else None
     keep = duplicate_names(boxes, names, scores, conf.duplicate_iou) if conf.duplicate_iou > 0 else None
     for j, (box, name) in enumerate(zip(boxes, names)):
@@ -439,10 +441,11 @@ def lift_observations(rgb_shape: tuple[int, int], depth: np.ndarray, K: np.ndarr
         if masks is not None and kernel is not None:
             eroded = cv2.erode(m, kernel)
             m = eroded if eroded.sum() >= conf.min_points else m
-        pts = _backproject_window(d, K, m.astype(bool), win, conf.stride)
+        pts = _backproject_window(d, K, m.astype(bool), win, conf.stride, conf.max_depth_m)
         if len(pts) < conf.min_points:
             continue
         if len(pts) > conf.max_points:
+            rng = rng or np.random.default_rng(conf.seed + frame)
             pts = pts[rng.choice(len(pts), conf.max_points, replace=False)]
         if conf.component_link_m > 0:  # a mask that bled across a depth edge (onto the table, the next chair)
             pts = largest_components(pts, conf.component_link_m, conf.component_share)
@@ -465,13 +468,18 @@ def _mask_window(mask: np.ndarray, margin: int, stride: int) -> tuple[slice, sli
     return slice(y0, min(H, rows[-1] + 1 + margin)), slice(x0, min(W, cols[-1] + 1 + margin))
 
 
+def _depth_upto(depth: np.ndarray, max_depth_m: float) -> np.ndarray:
+    """float32 depth with everything at or beyond `max_depth_m` (and NaN) set to 0 (invalid)."""
+    return np.where(depth < max_depth_m, depth, 0).astype(np.float32)
+
+
 def _backproject_window(depth: np.ndarray, K: np.ndarray, mask: np.ndarray, win: tuple[slice, slice],
-                        stride: int) -> np.ndarray:
-    """`geometry.backproject(depth, K, full_mask, stride)` points for a mask given on `win` (its window, starting
-    on the stride grid): the same points in the same order. -> [N, 3]"""
+                        stride: int, max_depth_m: float = np.inf) -> np.ndarray:
+    """`geometry.backproject(_depth_upto(depth, max_depth_m), K, full_mask, stride)` points for a mask given on
+    `win` (its window, starting on the stride grid): the same points in the same order. -> [N, 3]"""
     from .geometry import backproject_pixels
 
-    d = depth[win][::stride, ::stride]
+    d = _depth_upto(depth[win][::stride, ::stride], max_depth_m)
     ok = np.isfinite(d) & (d > 0) & mask[::stride, ::stride]
     v, u = np.nonzero(ok)
     uv = np.stack([u * stride + win[1].start, v * stride + win[0].start], 1).astype(np.float64)
@@ -590,6 +598,7 @@ def components(points: np.ndarray, link_m: float) -> np.ndarray:
     ps = points[order]
     grid = _Cells(fs[first], span, np.hstack([np.minimum.reduceat(ps, first, 0), np.maximum.reduceat(ps, first, 0)]),
                   ps[first], link_m * link_m)
+    grid.index(n)
     a, b, sure = grid.pairs(np.arange(nc), _TOUCHING)
     lab = _graph_labels(nc, a[sure], b[sure])
     if lab.max() > 0:
@@ -620,15 +629,35 @@ class _Cells:
     box: np.ndarray
     rep: np.ndarray
     r2: float
+    lut: np.ndarray | None = None  # cell number by flat key (-1 = empty), when the grid is small enough
+
+    # a dense key -> cell table replaces the binary search when it has at most this many entries per point (an
+    # object's grid of 2.9 cm cells holds ~10-50 entries per point; a stray point metres away makes it sparse),
+    # and never more than LUT_MAX entries (16 MB: a room-sized cloud searches)
+    LUT_PER_POINT: ClassVar[int] = 64
+    LUT_MAX: ClassVar[int] = 1 << 22
+
+    def index(self, n_points: int) -> None:
+        """Build the dense table (`lut`) when the grid span is small next to the point count."""
+        size = int(np.prod(self.span.astype(np.float64)))
+        if size <= min(self.LUT_PER_POINT * max(n_points, 1024), self.LUT_MAX):
+            self.lut = np.full(size, -1, np.int32)  # (fewer cells than entries: int32 holds them)
+            self.lut[self.keys] = np.arange(len(self.keys))
+
+    def find(self, nb: np.ndarray) -> np.ndarray:
+        """Cell number of each flat key in `nb` (any shape; keys inside the grid span), -1 where no cell."""
+        if self.lut is not None:
+            return self.lut[nb]
+        j = np.searchsorted(self.keys, nb).clip(0, len(self.keys) - 1)
+        return np.where(self.keys[j] == nb, j, -1)
 
     def pairs(self, src: np.ndarray, offsets: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Cell pairs (a from `src`, b = a + offset) whose boxes are within link distance, and which of them
         link for sure -> (a [P], b [P], sure [P])."""
         step = (offsets[:, 0] * self.span[1] + offsets[:, 1]) * self.span[2] + offsets[:, 2]
-        nb = self.keys[src][None, :] + step[:, None]
-        j = np.searchsorted(self.keys, nb).clip(0, len(self.keys) - 1)
-        hit = self.keys[j] == nb
-        a, b = np.broadcast_to(src, nb.shape)[hit], j[hit]
+        j = self.find(self.keys[src][None, :] + step[:, None])
+        hit = j >= 0
+        a, b = np.broadcast_to(src, j.shape)[hit], j[hit]
         ba, bb = self.box[a], self.box[b]
         gap = np.maximum(0, np.maximum(bb[:, :3] - ba[:, 3:], ba[:, :3] - bb[:, 3:]))
         near = np.einsum("ij,ij->i", gap, gap) <= self.r2
@@ -669,7 +698,10 @@ def _graph_labels(n: int, a: np.ndarray, b: np.ndarray) -> np.ndarray:
             if np.array_equal(nxt, lab):
                 break
             lab = nxt
-    return np.unique(lab, return_inverse=True)[1].reshape(-1)
+    # every label is now a root (lab[r] == r, the smallest node of its component): number the roots in order,
+    # as np.unique(lab, return_inverse=True) would, without its sort
+    root = lab == np.arange(n)
+    return (np.cumsum(root) - 1)[lab]
 
 
 def largest_components(points: np.ndarray, link_m: float = 0.05, min_share: float = 0.2) -> np.ndarray:
@@ -894,7 +926,7 @@ def view_estimates(box: OrientedBox, views: list[tuple[int, float, np.ndarray]],
                              "centre": None, "size": None}
         if len(p) >= 4:
             local = (p - c0) @ ax.T
-            a, b = np.percentile(local, lo, axis=0), np.percentile(local, hi, axis=0)
+            a, b = np.percentile(local, [lo, hi], axis=0)  # one partition for both (same values)
             v["centre"] = np.round(c0 + ((a + b) / 2) @ ax, 4).tolist()
             v["size"] = np.round(np.maximum(b - a, 0.0), 4).tolist()
         out.append(v)

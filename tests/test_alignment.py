@@ -173,6 +173,62 @@ def test_each_pair_matched_and_verified_once():
         assert set(res.edge_stats) <= set(pairs) and (rank == "matches" or len(pairs) == len(res.edge_stats))
 
 
+class _FailingPairs(_OracleMatcher):
+    """Oracle matches, except random ones (a failed edge) for the listed frame pairs."""
+
+    def __init__(self, scene, bad=()):
+        super().__init__(scene)
+        self.bad = {frozenset(p) for p in bad}
+
+    def match(self, rgb0, rgb1, boxes0=None, boxes1=None):
+        if frozenset((int(rgb0[0, 0, 0]), int(rgb1[0, 0, 0]))) in self.bad:
+            n = 80
+            return Matches(self.rng.uniform(5, 300, (n, 2)), self.rng.uniform(5, 230, (n, 2)), np.ones(n))
+        return super().match(rgb0, rgb1, boxes0, boxes1)
+
+
+def _tried(res):
+    return {(a - 10, b - 10) for a, b in res.edge_stats}  # frame index = 10 + position
+
+
+def test_rgbd_candidates_start_narrow():
+    """rgbd edges verify each frame's 2 most similar frames + its time neighbour first (here: the chain i, i+1
+    and the end frames' second neighbours), not the 4 most similar: 9 pairs for 8 frames, all aligned."""
+    frames, scene, poses = _synthetic(8)
+    res = align_frames(frames, _FailingPairs(scene), "mst", embeddings=_emb(8))
+    assert _tried(res) == {(i, i + 1) for i in range(7)} | {(0, 2), (5, 7)} and not res.unaligned
+    wide = align_frames(frames, _FailingPairs(scene), "mst", embeddings=_emb(8), conf={"verify_top_first": 4})
+    assert len(wide.edge_stats) > 7 and not wide.unaligned  # the old candidate set: every frame's top 4
+
+
+def test_rgbd_candidates_widen_only_while_disconnected():
+    """A failed chain link (3, 4) splits the verified graph: the candidates widen to each frame's top 3, whose
+    2-apart pairs reconnect it with verified edges (not an unverified similarity fallback); the tree is exact."""
+    frames, scene, poses = _synthetic(8)
+    res = align_frames(frames, _FailingPairs(scene, bad=[(3, 4)]), "mst", embeddings=_emb(8))
+    tried = _tried(res)
+    assert {(i, i + 1) for i in range(7)} <= tried and {(2, 4), (3, 5)} & tried
+    assert not res.edge_stats[(13, 14)].ok and not res.unaligned and (13, 14) not in res.edges
+    root = res.root - 10
+    for f in frames:
+        assert np.abs(res.poses[f.index] - G.relative_pose(poses[root], f.pose_gt)).max() < 1e-6
+    assert max(b - a for a, b in tried) <= 3  # widened by one frame (top 3), not to every frame's top 4
+    narrow = align_frames(frames, _FailingPairs(scene, bad=[(3, 4)]), "mst", embeddings=_emb(8),
+                          conf={"verify_top": 2})  # no room to widen: the tree falls back to an unverified edge
+    assert len(narrow.edge_stats) < len(res.edge_stats)
+
+
+def test_candidate_widths_per_edge_type():
+    from mosaicthinker.runtime.alignment import AlignConf, _candidate_widths
+
+    assert _candidate_widths(AlignConf(), "rgbd") == (2, 1)  # narrow start + time neighbour
+    assert _candidate_widths(AlignConf(), "essential") == (4, 1)  # every candidate (the scale graph needs them)
+    assert _candidate_widths(AlignConf(verify_top_first=4), "rgbd") == (4, 0)  # the former candidate set
+    assert _candidate_widths(AlignConf(verify_rank="matches"), "rgbd") == (4, 0)  # lazy ranking: unchanged
+    assert _candidate_widths(AlignConf(verify_top=1), "rgbd") == (1, 0)
+    assert _candidate_widths(AlignConf(verify_neighbours=0), "rgbd") == (2, 0)
+
+
 def test_sequential_baseline_keeps_previous_pose():
     frames, scene, poses = _synthetic(6)
     res = align_frames(frames, _OracleMatcher(scene, isolated=2), "sequential")
@@ -264,6 +320,8 @@ def test_similarity_matrix_histograms():
     c[..., 2] = 200
     S, kind = similarity_matrix([a, b, c])
     assert kind == "color_hist_correlation" and S[0, 0] == 0 and S[0, 1] > S[0, 2] and np.allclose(S, S.T)
+    imgs = [np.roll(a, k, axis=k % 2) for k in range(7)] + [b, c]  # on threads: the same matrix, same order
+    assert np.array_equal(similarity_matrix(imgs, threads=3)[0], similarity_matrix(imgs)[0])
 
 
 # ----------------------------------------------------------------------------- real data

@@ -113,6 +113,28 @@ def test_components_equal_reference_on_hard_layouts(seed):
     assert len(sm.components(np.zeros((0, 3)), 0.05)) == 0
 
 
+@pytest.mark.parametrize("seed", range(3))
+def test_components_cell_lookup_paths_agree(seed, monkeypatch):
+    """The dense key -> cell table and the binary search (a sparse grid: stray points metres away) give the same
+    cells, so the same labels; both equal the reference, with a few stray points and without."""
+    rng = np.random.default_rng(seed)
+    pts = rng.random((800, 3)) * 0.6
+    pts[rng.random(800) < 0.3] += [0.5, 0, 0]  # two blobs
+    stray = np.r_[pts, [[40.0, 3.0, 1.0]]]
+    built = []
+    orig = sm._Cells.index
+    monkeypatch.setattr(sm._Cells, "index", lambda self, n: (orig(self, n), built.append(self.lut is not None)))
+    for cloud in (pts, stray):
+        dense = sm.components(cloud, 0.05)
+        monkeypatch.setattr(sm._Cells, "LUT_PER_POINT", 0)  # every grid searched
+        searched = sm.components(cloud, 0.05)
+        monkeypatch.setattr(sm._Cells, "LUT_PER_POINT", 64)
+        assert np.array_equal(dense, searched) and np.array_equal(dense, ref_components(cloud, 0.05))
+    assert built == [True, False, False, False]  # the compact cloud used the table, the stray one searched
+    monkeypatch.setattr(sm._Cells, "LUT_MAX", 1000)  # a table never exceeds LUT_MAX entries (room-sized clouds)
+    assert np.array_equal(sm.components(pts, 0.05), ref_components(pts, 0.05)) and built[-1] is False
+
+
 def test_remove_outliers_equals_ball_count(kitchen_masks):
     from scipy.spatial import cKDTree
 
@@ -129,7 +151,7 @@ def test_remove_outliers_equals_ball_count(kitchen_masks):
 
 
 @pytest.mark.parametrize("conf", [sm.FusionConfig(), sm.FusionConfig(stride=3, erode_px=3, max_points=1500),
-                                  sm.FusionConfig(stride=1, erode_px=0)])
+                                  sm.FusionConfig(stride=1, erode_px=0), sm.FusionConfig(max_depth_m=2.2)])
 def test_lift_observations_equal_reference(kitchen_masks, conf):
     T = G.make_pose(G.rotation_about([0, 0, 1], 0.3), [0.5, -1.0, 1.2])
     n = 0
@@ -142,6 +164,22 @@ def test_lift_observations_equal_reference(kitchen_masks, conf):
             assert all(np.array_equal(o.points, p) for o, (_, p) in zip(got, ref))
             n += len(got)
     assert n >= 40
+
+
+def test_lift_observations_depth_cut_inside_windows(kitchen_masks):
+    """The depth cut-off applied inside each mask's window equals the whole-image cut of the reference, with
+    invalid values (NaN, inf, negative, beyond the cut) inside the masks."""
+    conf = sm.FusionConfig(max_depth_m=2.5)
+    rng = np.random.default_rng(3)
+    for f, boxes, masks in kitchen_masks[:4]:
+        depth = f.depth.astype(np.float32).copy()
+        bad = rng.random(depth.shape) < 0.05
+        depth[bad] = rng.choice(np.array([np.nan, np.inf, -1.0, 9.0], np.float32), int(bad.sum()))
+        names, scores = [f"o{k}" for k in range(len(boxes))], np.linspace(0.9, 0.5, len(boxes))
+        got = sm.lift_observations(depth.shape, depth, f.K, np.eye(4), boxes, names, scores, masks, f.index, f.t, conf)
+        ref = ref_lift(depth, f.K, np.eye(4), boxes, names, scores, masks, f.index, f.t, conf)
+        assert len(got) == len(ref) > 0 and all(np.array_equal(o.points, p) for o, (_, p) in zip(got, ref))
+        assert all(np.isfinite(o.points).all() and (o.points[:, 2] < 2.5).all() for o in got)
 
 
 def test_fusion_instances_equal_reference(monkeypatch):
@@ -223,7 +261,7 @@ def test_threads_give_identical_alignment_and_map_7scenes(redkitchen, with_scale
     frames = [src[i] for i in pick_frames(len(src), 12, "uniform")]
     fm = FeatureMatcher("sift", cache_size=64)
     runs = [align_frames(frames, fm, "mst", conf=AlignConf(threads=t), with_scale=with_scale) for t in (1, 2, 3, 3)]
-    assert len(runs[0].aligned) >= 10 and len(runs[0].edge_stats) >= 20
+    assert len(runs[0].aligned) >= 10 and len(runs[0].edge_stats) >= 15  # rgbd: 18 pairs (narrow candidates)
     for r in runs[1:]:
         _same_alignment(runs[0], r)
     maps = [_fused(frames, r.poses, t, monkeypatch) for r, t in ((runs[0], 1), (runs[1], 3), (runs[2], 3))]
