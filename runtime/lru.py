@@ -40,3 +40,6 @@ class LRU:
 
     def pop(self, key: Hashable, default: Any = None) -> Any:
         return self._d.pop(key, default)
+
+    def clear(self) -> None:
+        self._d.clear()
