@@ -91,6 +91,8 @@ COMPARATIVES = {"bigger": "biggest", "larger": "largest", "smaller": "smallest",
 _SUPERLATIVE = SUPERLATIVES
 _CMP_RX = r"\b(?:" + "|".join(COMPARATIVES) + r")\b"
 _SUP_RX = r"\b(?:" + "|".join(SUPERLATIVES) + r")\b"
+# "the longest side of the bed", "the biggest dimension of the tv": a size question, not a comparison
+_SUP_DIM_RX = _SUP_RX + r" (?:sides?|dimensions?|edges?|extents?|length|measurements?|axis)\b"
 _NEAR_CUES = {"nearest", "closest", "next", "beside", "near", "by", "nearer", "closer"}
 _DIR_PHRASES = [  # (regex over the joined tokens, canonical direction)
     (r"front-left|front left|left front|forward left|ahead (?:and )?(?:to the )?left", "front-left"),
@@ -288,7 +290,8 @@ def _intent(j: str, n_obj: int, has_opts: bool) -> str | None:
     if _has(j, r"\b(?:what|what's|which)\b(?: \w+){0,3} (?:next to|beside|near|by)\b"):
         return "rel_distance"  # "what's next to the desk?": the nearest other object
     if not _has(j, r"\bhow\b") and (_has(j, _CMP_RX) and _has(j, r"\b(?:which|whichever|what|or|than)\b")
-                                     or _has(j, _SUP_RX) and _has(j, r"^(?:which|what|what's)\b")):
+                                     or _has(j, _SUP_RX) and _has(j, r"^(?:which|what|what's)\b")
+                                     and not _has(j, _SUP_DIM_RX)):
         return "size_compare"  # "which is bigger, the table or the sofa?", "what's the tallest thing here?"
     for intent, rx in _SIMPLE_INTENTS:
         if rx.search(j):

@@ -364,6 +364,8 @@ def test_size_comparison_with_options_and_what_it_cannot_compare():
     assert ask("Which is taller, the desk or the piano?").status == "not_found"
     # questions that only look alike keep their types
     assert ask("How big is the biggest chair?").qtype == "object_size_estimation"
+    for q in ("What's the biggest dimension of the couch?", "what's the longest side of the desk in centimeters?"):
+        assert ask(q).qtype == "object_size_estimation", q
     assert ask("Which is closer to the desk, the laptop or the couch?").qtype == "object_rel_distance"
     assert not parse_question("how many chairs are there?").whole_map
     assert parse_question("how many objects are there?").whole_map
