@@ -154,18 +154,28 @@ class _SceneFrames:
         return self.src[scene_index(k, len(self.src))]
 
 
-def with_oracle_detector(perception: Any, scene: Path) -> Any:
-    """The perception with its detector replaced by the scene's oracle (`synth.oracle.OracleDetector`: rendered
-    instance masks, 10% misses, score noise 0.1), read through the ping-pong mapping, so the 60 s and 600 s runs
-    see the same detections of the same content; depth, matcher and segmenter stay the real models. This
-    separates what the longer video does to the search, alignment and fusion from the SSD's misses on rendered
-    objects (which find 1-2 of 5 instances either way)."""
+def scene_targets(scene: Path, detector: str) -> list[str]:
+    """The objects a run maps: every category of the scene for the oracle; for the model, those the scene has
+    and the COCO detector can name."""
+    have = set(json.loads((scene / "scene.json").read_text()).get("object_counts", {}))
+    return sorted(have) if detector == "oracle" else sorted(have & set(DETECTABLE)) or ["chair"]
+
+
+def with_oracle_perception(perception: Any, scene: Path) -> Any:
+    """The perception with its detector and depth replaced by the scene's rendering, read through the ping-pong
+    mapping (`scene_index`): detections from the instance masks (`synth.oracle.OracleDetector`, 10% misses,
+    score noise 0.1) and the rendered metric depth; matcher and segmenter stay the real models. The 60 s and
+    600 s runs then differ only in what the longer video does to the search, alignment and fusion, not in the
+    SSD's misses on rendered objects or PyDNet++'s scale on them (which decide the model runs' recall)."""
     from mosaicthinker.host.synth.oracle import OracleDetector
 
     det = OracleDetector(scene, miss_rate=0.1, score_noise=0.1, seed=0)
+    frames = _SceneFrames(scene)
     return dataclasses.replace(
         perception, detect=lambda frame, names: det.detect(scene_index(frame.index, det.n_frames), names),
-        describe={**perception.describe, "detector": "oracle (miss_rate=0.1, score_noise=0.1, seed=0)"})
+        depth=lambda frame: frames[frame.index].depth, depth_relative=False,
+        describe={**perception.describe, "detector": "oracle (miss_rate=0.1, score_noise=0.1, seed=0)",
+                  "depth": "oracle (rendered metric depth)"})
 
 
 def map_scores(mb: Any, job: dict[str, Any]) -> dict[str, Any]:
@@ -207,7 +217,7 @@ def one_run(job: dict[str, Any]) -> dict[str, Any]:
     with trace.stage("load_models"):
         perception = perception_from_bundle(job["bundle"], conf, trace, prof)
     if job.get("detector") == "oracle":
-        perception = with_oracle_detector(perception, Path(job["scene"]))
+        perception = with_oracle_perception(perception, Path(job["scene"]))
     source = open_source(job["video"])
     mb = build_map(source, job["targets"], [], perception, conf, trace, keyframes=job["keyframes"])
     wall = time.perf_counter() - t0
@@ -295,8 +305,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--profile", default="cpu-generic", help="device profile: providers, threads, variants")
     ap.add_argument("--seeds", default="7", help="scenes of the mp4 growth runs (one rendered 60 s scene each; "
                     "7 = the default scene): the growth and quality verdicts pool them")
-    ap.add_argument("--detectors", default="model", help="detectors of the mp4 growth runs: model (the bundle's "
-                    "SSD) and/or oracle (rendered masks, `with_oracle_detector`), e.g. model,oracle")
+    ap.add_argument("--detectors", default="model", help="perception of the mp4 growth runs: model (the bundle's "
+                    "SSD and PyDNet++) and/or oracle (rendered masks and depth, `with_oracle_perception`), e.g. "
+                    "model,oracle")
     ap.add_argument("--no-video", dest="video", action="store_false",
                     help="skip the mp4 run and the mp4 random-access probe")
     ap.add_argument("--out", default=str(REPO / "benchmarks" / "results" / "pipeline.json"))
@@ -305,8 +316,7 @@ def main(argv: list[str] | None = None) -> int:
     work.mkdir(parents=True, exist_ok=True)
     scene = ensure_scene(work)
     bundle = Path(args.bundle) if args.bundle else ensure_bundle(work)
-    meta = json.loads((scene / "scene.json").read_text())
-    names = sorted(set(meta.get("object_counts", {})) & set(DETECTABLE)) or ["chair"]
+    names = scene_targets(scene, "model")
     from mosaicthinker.runtime.bundle import bundle_hash
 
     result: dict[str, Any] = {"schema": "mosaicthinker.bench.pipeline/1", "date": time.strftime("%Y-%m-%d"),
@@ -324,8 +334,9 @@ def main(argv: list[str] | None = None) -> int:
 
     def job(src: Path, k: int, on: Path = scene, detector: str = "model") -> dict[str, Any]:
         b = search_budget(k)
-        return {"bundle": str(bundle), "video": str(src), "targets": names, "keyframes": k, "profile": args.profile,
-                "scene": str(on), "detector": detector, "conf": {"keyframe": {"budget": b}} if b else {}}
+        return {"bundle": str(bundle), "video": str(src), "targets": scene_targets(on, detector), "keyframes": k,
+                "profile": args.profile, "scene": str(on), "detector": detector,
+                "conf": {"keyframe": {"budget": b}} if b else {}}
 
     durations = [int(x) for x in args.durations.split(",") if x]
     for d in durations:
