@@ -445,7 +445,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--data", required=True, metavar="DIR",
                    help="RGB-D frame folder with ground-truth poses (7-Scenes layout)")
     p.add_argument("--annotations", required=True, help="scene annotation JSON (scene_annotate)")
-    p.add_argument("--video", default=None, metavar="FILE", help="run the pipeline on this video of the --data "
+    p.add_argument("--video", default=None, metavar="V", help="run the pipeline on this video of the --data "
                    "frames (same frames, in order; no sensor depth: --depth model); ground truth from --data")
     add_keyframes(p)
     p.add_argument("--ask", type=int, default=0, metavar="N", help="also ask N of the questions on the video")
