@@ -267,6 +267,7 @@ def evaluate_scene(scene_dir: Path, level: str, args: argparse.Namespace,
     vis = visibility_table(meta)
     cands, how = _candidates(scene_dir, not args.no_dedup)
     image = _image_reader(scene_dir)
+    h, w = image(int(cands[0])).shape[:2]  # as the pipeline: the search knows the image size (top-up, climbing)
     names_by_id = {int(o["id"]): str(o["name"]) for o in meta["instances"]}
     qpath = scene_dir / "questions.jsonl"
     questions = [json.loads(line) for line in qpath.read_text().splitlines() if line.strip()]
@@ -292,7 +293,7 @@ def evaluate_scene(scene_dir: Path, level: str, args: argparse.Namespace,
         for label, (m, conf) in methods.items():
             t0 = time.perf_counter()
             res = select_keyframes(m, cands, pq.targets, pq.cues, detect, image, conf, histograms=histograms,
-                                   densities=densities)
+                                   densities=densities, image_size=(w, h))
             sc = score_selection([int(f) for f in res.chosen], eligible, vis, args.min_visible)
             records.append({
                 "scene": meta["scene_name"], "level": level, "question": int(q.get("id", -1)),
