@@ -24,7 +24,8 @@ the paper's rule alone, and with it), iterations 11 / 14 / 20 / 33 / 100 (fixed 
 the fraction scored grows with the iterations as in the paper's table). Every long / oracle row is also reported
 per declared seed group (`GROUPS`: settings are chosen on the design seeds 0-15 only; 16-47 were held out
 in earlier rounds; 100-147 are the fresh held-out group, reported once, by the final run, `--seeds 0-47,100-147`).
-`--diagnose`: where the default's recall goes at 10% and the grid recall along other cheap signals.
+`--diagnose`: where the default's recall goes at 10% (and without the climb steps, over every `--repeats`) and
+the grid recall along other cheap signals.
 """
 from __future__ import annotations
 
@@ -58,6 +59,7 @@ PAPER = {"sampling": "paper", "draw": "iid"}
 PREVIOUS = {"draw": "sequential", "novelty": 2.0, "stretch_first": False, "climb": False}
 # the second round's default: the same search without the climb steps (`keyframes.climb_steps`)
 NO_CLIMB = {"climb": False}
+DIAGNOSED = ("iterative@10%", "climb off (round-2 default)@10%")  # `--diagnose`: miss classes of these rows
 
 
 def _video(seed: int, cache: Path) -> Any:
@@ -211,19 +213,19 @@ def _instance_ids(det: Any) -> set[int]:
     return set() if det.instance_ids is None else {int(i) for i in det.instance_ids}
 
 
-def diagnose(video: Any, questions: list[dict[str, Any]], detect: Any, conf: Any, min_visible: float = 0.2,
-             offsets: int = 16) -> dict[str, Any]:
-    """Where the default search's recall goes, per instance (chosen / detected but not chosen / scored where the
-    detector missed it / detected only below `min_visible` / only glimpsed / never scored), and the recall of a
-    grid even along each cheap signal's axis that hits a frame with visibility >= `min_visible` directly."""
+def miss_kinds(video: Any, questions: list[dict[str, Any]], detect: Any, conf: Any, repeats: int = 1,
+               min_visible: float = 0.2) -> dict[str, int]:
+    """Where a search's recall goes, per instance and repeat (chosen / detected but not chosen / scored where the
+    detector missed it / detected only below `min_visible` / only glimpsed / never scored)."""
     import dataclasses
-    from mosaicthinker.runtime.keyframes import colour_histogram, content_axis, histogram_similarity, iterative_search
+    from mosaicthinker.host.evaluation.keyframes import search_seed
+    from mosaicthinker.runtime.keyframes import iterative_search
 
     vis = video.visibility()
     kinds: dict[str, int] = {}
     dens: dict[int, float] = {}
-    for q in questions:
-        qc = dataclasses.replace(conf, seed=1000 * int(video.conf.seed) + int(q["id"]))
+    for q, rep in ((q, r) for q in questions for r in range(repeats)):
+        qc = dataclasses.replace(conf, seed=search_seed(video.conf.seed, q["id"], rep))
         res = iterative_search(list(range(len(video))), q["targets"], q["cues"], detect, lambda f: video.rgb[f], qc,
                                image_size=video.size, densities=dens)
         ids = {f: _instance_ids(detect(f, q["targets"])) for f in res.order}
@@ -234,6 +236,17 @@ def diagnose(video: Any, questions: list[dict[str, Any]], detect: Any, conf: Any
                  "detected below the visibility" if any(i in ids[f] for f in res.order) else
                  "glimpsed only" if any(vis[f].get(i, 0) > 0 for f in res.order) else "never scored")
             kinds[k] = kinds.get(k, 0) + 1
+    return kinds
+
+
+def diagnose(video: Any, questions: list[dict[str, Any]], detect: Any, conf: Any, min_visible: float = 0.2,
+             offsets: int = 16) -> dict[str, Any]:
+    """The default search's `miss_kinds` (one repeat) and the recall of a grid even along each cheap signal's
+    axis that hits a frame with visibility >= `min_visible` directly."""
+    from mosaicthinker.runtime.keyframes import colour_histogram, content_axis, histogram_similarity
+
+    vis = video.visibility()
+    kinds = miss_kinds(video, questions, detect, conf, 1, min_visible)
     sig = [_signals(video.rgb[f]) for f in range(len(video))]
     hist = [colour_histogram(video.rgb[f]) for f in range(len(video))]
     change = np.array([1 - histogram_similarity(hist[max(f - 1, 0)], hist[f]) for f in range(len(video))])
@@ -271,7 +284,7 @@ def run_long(args: argparse.Namespace) -> dict[str, Any]:
     bound: dict[str, list[float]] = {"5%": [], "10%": [], "25%": []}
     cbound: dict[str, list[float]] = {"5%": [], "10%": [], "25%": []}
     density_s: list[float] = []
-    diag: dict[str, Any] = {"instances": 0, "kinds": {}, "grid_hits": {}}
+    diag: dict[str, Any] = {"instances": 0, "kinds": {}, "grid_hits": {}, "repeated": {}}
     model = _ssd(Path(args.cache) / "bundle-ssd") if args.ssd_videos else None
     for i, seed in enumerate(seeds):
         v = _video(seed, cache)  # one video in memory at a time (~60 MB each)
@@ -282,8 +295,14 @@ def run_long(args: argparse.Namespace) -> dict[str, Any]:
             cb, sec = content_bound(v, qs, 1 / g, KeyFrameConf.content_floor)
             cbound[lab] += cb
             density_s.append(sec)
-        rec_o += evaluate_long_video(v, qs, orc.detect, {**main, **sweeps}, name=f"long-{seed}", seed=seed)
+        for rep in range(args.repeats):  # repeats: the same questions with other search draws (design spread)
+            rec_o += evaluate_long_video(v, qs, orc.detect, {**main, **sweeps}, name=f"long-{seed}", seed=seed,
+                                         repeat=rep)
         if args.diagnose:
+            for lab in DIAGNOSED:  # miss classes over every repeat, with and without the climb steps
+                kinds = diag["repeated"].setdefault(lab, {})
+                for k, c in miss_kinds(v, qs, orc.detect, main[lab][1], args.repeats).items():
+                    kinds[k] = kinds.get(k, 0) + c
             d = diagnose(v, qs, orc.detect, main["iterative@10%"][1])
             diag["instances"] += d["instances"]
             for k, c in d["kinds"].items():
@@ -312,6 +331,7 @@ def run_long(args: argparse.Namespace) -> dict[str, Any]:
             "content_bound": {k: round(float(np.mean(b)), 4) for k, b in cbound.items()},
             "edge_density_ms_per_frame": round(1000 * float(np.median(density_s)), 3),
             "diagnosis": ({"instances": diag["instances"], "kinds": diag["kinds"],
+                           f"kinds over {args.repeats} repeat(s)": diag["repeated"],
                            "grid_recall": {k: round(c / diag["instances"], 4) for k, c in diag["grid_hits"].items()}}
                           if args.diagnose and diag["instances"] else None),
             "split": {g: summarise(rs, list(main) + list(sweeps)) for g, rs in sorted(groups.items())},
@@ -416,6 +436,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--videos", type=int, default=48)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--keyframes", type=int, default=8)
+    p.add_argument("--repeats", type=int, default=1, help="long / oracle: run every search this many times with "
+                   "other draws (search seed + 10**6 * repeat); n counts question-runs (design comparisons)")
     p.add_argument("--ssd-videos", type=int, default=4)
     p.add_argument("--variant", action="append", default=[], metavar="LABEL=JSON",
                    help="an extra iterative row on the long videos: 10%% scored, top-up to K, these overrides")

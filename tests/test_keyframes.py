@@ -526,6 +526,13 @@ def test_evaluate_long_video_records(tiny_long_video):
     assert s["exhaustive"]["all"]["found"] == 1.0 and s["exhaustive"]["all"]["scored_candidates"] == 1.0
     assert s["iterative"]["all"]["scored_candidates"] == pytest.approx(0.25, abs=0.02)
     assert s["uniform"]["all"]["scored_candidates"] == 0.0
+    # a repeat runs the same questions with other search seeds (the design spread), repeat 0 is the plain run
+    from mosaicthinker.host.evaluation.keyframes import search_seed
+
+    assert search_seed(3, 7) == 3007 and search_seed(3, 7, 2) == 2_003_007
+    rep = evaluate_long_video(v, qs, LongVideoOracle(v, miss_rate=0.0, false_positive_rate=0.0).detect,
+                              {"random": ("random", conf)}, repeat=1)
+    assert {r["repeat"] for r in rep} == {1} and {r["repeat"] for r in recs} == {0}
 
 
 # ------------------------------------------------------------------------------ content prior (issue 17)
