@@ -267,6 +267,7 @@ def evaluate_scene(scene_dir: Path, level: str, args: argparse.Namespace,
     vis = visibility_table(meta)
     cands, how = _candidates(scene_dir, not args.no_dedup)
     image = _image_reader(scene_dir)
+    h, w = image(int(cands[0])).shape[:2]  # as the pipeline: the search knows the image size (top-up, climbing)
     names_by_id = {int(o["id"]): str(o["name"]) for o in meta["instances"]}
     qpath = scene_dir / "questions.jsonl"
     questions = [json.loads(line) for line in qpath.read_text().splitlines() if line.strip()]
@@ -292,7 +293,7 @@ def evaluate_scene(scene_dir: Path, level: str, args: argparse.Namespace,
         for label, (m, conf) in methods.items():
             t0 = time.perf_counter()
             res = select_keyframes(m, cands, pq.targets, pq.cues, detect, image, conf, histograms=histograms,
-                                   densities=densities)
+                                   densities=densities, image_size=(w, h))
             sc = score_selection([int(f) for f in res.chosen], eligible, vis, args.min_visible)
             records.append({
                 "scene": meta["scene_name"], "level": level, "question": int(q.get("id", -1)),
@@ -313,12 +314,18 @@ def evaluate_scene(scene_dir: Path, level: str, args: argparse.Namespace,
 # ------------------------------------------------------------------------------------------------ long videos
 
 
+def search_seed(video_seed: int, question: int, repeat: int = 0) -> int:
+    """The search's own seed for one question of one long video (and one repeat of the run)."""
+    return 1000 * int(video_seed) + int(question) + 10 ** 6 * int(repeat)
+
+
 def evaluate_long_video(video: Any, questions: list[dict[str, Any]], detect: Callable[[int, list[str]], Detections],
                         methods: dict[str, tuple[str, KeyFrameConf]], min_visible: float = 0.2,
-                        name: str = "long", seed: int = 0) -> list[dict[str, Any]]:
+                        name: str = "long", seed: int = 0, repeat: int = 0) -> list[dict[str, Any]]:
     """Every question of a `synth.longvideo.LongVideo` x every method (label -> (method, config)) -> records
     as `evaluate_scene`'s (level = `name`). Every frame is a candidate; each question's search gets its own seed
-    (1000 * seed + question id), so the random draws are not shared by the questions of one video."""
+    (`search_seed`: 1000 * seed + question id, + 10**6 * `repeat` for a repeat of the whole run with other
+    draws), so the random draws are not shared by the questions of one video."""
     import dataclasses
 
     vis = video.visibility()
@@ -329,7 +336,7 @@ def evaluate_long_video(video: Any, questions: list[dict[str, Any]], detect: Cal
     for q in questions:
         memo = _Memo(detect)  # every method sees identical detections
         for label, (m, conf) in methods.items():
-            qc = dataclasses.replace(conf, seed=1000 * int(seed) + int(q["id"]))
+            qc = dataclasses.replace(conf, seed=search_seed(seed, q["id"], repeat))
             t0 = time.perf_counter()
             res = select_keyframes(m, cands, q["targets"], q["cues"], memo, lambda f: video.rgb[f], qc,
                                    histograms=histograms, image_size=video.size, densities=densities)
@@ -340,7 +347,7 @@ def evaluate_long_video(video: Any, questions: list[dict[str, Any]], detect: Cal
                 "scene": name, "level": name, "question": int(q["id"]), "qtype": q["qtype"], "method": label,
                 "targets": q["targets"], "cues": q["cues"], "instances": q["instances"], "share": q["share"],
                 "precision": sc.precision, "recall": sc.recall, "f1": sc.f1, "chosen": sc.chosen,
-                "found": found, "scored_candidates": res.frames_scored / len(cands),
+                "found": found, "scored_candidates": res.frames_scored / len(cands), "repeat": repeat,
                 "scored_frames": res.frames_scored / len(cands), "notes": res.notes,
                 "seconds": round(time.perf_counter() - t0, 4)})
     return records
