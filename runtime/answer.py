@@ -61,6 +61,10 @@ class ReasonerConfig(StageConf):
     option_rel_tol: float = 0.5  # a number picks the nearest option only within this relative difference
     n_landmarks: int = 2  # "where is X": the nearest other objects named
     n_hints: int = 3  # "not in the map": this many similar map names offered
+    # "A on B": A's bottom within this of B's top, A's centre over B's footprint; "A near B": closest points within
+    # near_m; "A in B": A's centre inside B's box (`relation_holds`)
+    on_gap_m: float = 0.15
+    near_m: float = 0.5
 
 
 @dataclass
@@ -161,6 +165,20 @@ def _measure(o: ObjectInstance, what: str) -> float:
 _SUPERLATIVES = SUPERLATIVES  # selector word -> (measure, pick)
 _MEASURE_WORDS = {"volume": "box volume", "height": "height", "top": "top height", "length": "length",
                   "width": "width"}
+
+
+def relation_holds(a: ObjectInstance, b: ObjectInstance, relation: str, conf: ReasonerConfig) -> bool:
+    """Whether instance a is `relation` ("on", "near", "in") instance b, from their boxes (z up)."""
+    if relation == "near":
+        return box_distance(a.box, b.box) <= conf.near_m
+    if relation == "in":
+        return bool(b.box.contains(a.center[None])[0])
+    bottom = float(a.box.corners()[:, 2].min())
+    over = b.box.contains(np.array([[a.center[0], a.center[1], b.center[2]]]))[0]  # above b's footprint
+    return bool(over) and abs(bottom - _measure(b, "top")) <= conf.on_gap_m
+
+
+_RELATION_TEXT = {"on": "on", "near": "near", "in": "in"}
 
 
 def describe_direction(theta_deg: float, back_deg: float = 135.0) -> dict[str, Any]:
@@ -435,7 +453,27 @@ class MapReasoner:
         return self._pq.phrase(name) if self._pq is not None else name
 
     # ------------------------------------------------------------------ question types
+    def _located(self, name: str, where: dict[str, Any]) -> tuple[list[ObjectInstance], list[ObjectInstance], str]:
+        """(instances of `name` (every object but the reference's category for "*") that are `where["relation"]`
+        an instance of `where["object"]`, the candidates, the rule in words)."""
+        refs = self._instances(where["object"])
+        rel = where["relation"]
+        if name == "*":
+            own = {id(o) for o in self._find(where["object"])}
+            cands = [o for o in self.map.instances if id(o) not in own]
+        else:
+            cands = self._instances(name)
+        keep = [o for o in cands if any(relation_holds(o, r, rel, self.conf) for r in refs if r is not o)]
+        rule = {"on": f"bottom within {self.conf.on_gap_m * 100:.0f} cm of its top, centre over it",
+                "near": f"closest points within {self.conf.near_m:.2f} m", "in": "centre inside its box"}[rel]
+        ids = " ".join(f"#{o.id}" for o in keep)
+        return keep, cands, f"{rel} the {self._ph(where['object'])} ({rule}){': ' + ids if ids else ''}"
+
     def _object_counting(self, pq: ParsedQuestion) -> tuple[Any, str]:
+        if pq.params.get("where"):
+            keep, cands, how = self._located(pq.params["object"], pq.params["where"])
+            what = "object(s)" if pq.params["object"] == "*" else self._ph(pq.params["object"])
+            return len(keep), f"{len(keep)} of {len(cands)} {what} {how}"
         if self._sel(pq.params["object"]):
             sel = self._sel(pq.params["object"])
             raise _Unsupported(f"counting only some {self._ph(pq.params['object'])} "
@@ -450,6 +488,13 @@ class MapReasoner:
 
     def _object_existence(self, pq: ParsedQuestion) -> tuple[Any, str]:
         names = pq.params["objects"]
+        if pq.params.get("where"):  # "is there a cup on the table?": a missing cup is "no", a missing table not found
+            self._missing([pq.params["where"]["object"]])
+            found = {self._ph(n): len(self._located(n, pq.params["where"])[0]) if self._find(n) else 0 for n in names}
+            yes = any(found.values())
+            return ({"text": "yes" if yes else "no", "exists": yes, "counts": found},
+                    "; ".join(f"{k}: {v} {self._located(n, pq.params['where'])[2] if self._find(n) else 'in the map'}"
+                              for n, (k, v) in zip(names, found.items())))
         for n in names:
             if self._sel(n):
                 raise _Unsupported(f"'is there a {self._ph(n)} ...' with a condition is not supported; ask whether "

@@ -14,6 +14,9 @@ units and free-text options of an English question, in one pass over its tokens 
   open vocabulary: the map's own category names resolve them, `answer.MapReasoner`);
 - selectors that pick one instance: size superlatives ("the biggest table"), "the X nearest/closest to/next to
   the Y"; colours, materials and ordinals cannot be resolved from a map and are reported as such;
+- locations in counts and is-there questions: on (top of), near / next to / by / beside, in ("how many cups are on
+  the table?", "is there a laptop on the desk?"; params["where"], `answer.relation_holds`); others (behind,
+  under, between ...) are refused, never dropped;
 - units: "in cm / meters / mm / feet / inches" (params["unit"]); options in free text ("..., the lamp, the sofa
   or the tv?") become the candidates.
 
@@ -105,8 +108,10 @@ _DIR_RX = [(re.compile(rx), lab) for rx, lab in _DIR_PHRASES]
 QUADRANTS = ("front-left", "front-right", "back-left", "back-right")
 
 EXAMPLES: dict[str, list[str]] = {
-    "object_counting": ["How many chairs are there?", "Count the cushions in the room."],
-    "object_existence": ["Is there a fridge in this kitchen?", "Do you see any trash cans?"],
+    "object_counting": ["How many chairs are there?", "Count the cushions in the room.",
+                        "How many cups are on the table?", "How many chairs are near the desk?"],
+    "object_existence": ["Is there a fridge in this kitchen?", "Do you see any trash cans?",
+                         "Is there a laptop on the desk?"],
     "object_size_estimation": ["How big is the sofa?", "How tall is the lamp in inches?",
                                "What is the longest side of the bed, in cm?"],
     "object_abs_distance": ["How far is the table from the tv?", "What's the distance between the sofa and the "
@@ -416,20 +421,65 @@ _LOCATION = {"on", "in", "at", "near", "by", "under", "behind", "beside", "above
              "around", "next", "between", "over", "beneath", "underneath", "along", "across", "close"}
 
 
-def _conditions(toks: list[str], nps: list[dict[str, Any]]) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
-    """Split phrases into the objects asked about and the ones after a location word ("on the desk")."""
+# location words the map reasoner can apply to a count or an is-there question (`answer.relation_holds`)
+_RELATION_WORDS = {"on": "on", "atop": "on", "onto": "on", "upon": "on", "near": "near", "by": "near",
+                   "beside": "near", "around": "near", "in": "in", "inside": "in", "within": "in"}
+
+
+def _relation(toks: list[str], p: dict[str, Any]) -> str | None:
+    """The relation the words before a phrase name ("on (top of)", "near / next to / close to / by", "in"),
+    or None."""
+    b = _before(toks, p, 3)
+    if b[-2:] == ["top", "of"]:
+        return "on"
+    if b[-2:] in (["next", "to"], ["close", "to"]):
+        return "near"
+    return _RELATION_WORDS.get(b[-1]) if b else None
+
+
+def _conditions(toks: list[str], nps: list[dict[str, Any]], every: bool = False
+                ) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
+    """Split phrases into the objects asked about and the ones after a location word ("on the desk"); every:
+    the question asks about every object ("things on the desk"), so a first phrase can be a location too."""
     objs, conds = [], []
     for p in nps:
+        if p["words"] == ["top"] and toks[p["end"]:p["end"] + 1] == ["of"]:
+            continue  # "on top of the desk": part of the location words, not an object
         b = _before(toks, p, 1)
-        (conds if objs and b and b[-1] in _LOCATION else objs).append(p)
+        located = bool(b) and (b[-1] in _LOCATION or _relation(toks, p) is not None)
+        (conds if (objs or every) and located else objs).append(p)
     return objs, conds
 
 
+def _location(pq: ParsedQuestion, toks: list[str], objs: list[dict[str, Any]], conds: list[dict[str, Any]]
+              ) -> dict[str, Any] | None:
+    """{"relation", "object"} of a single supported location ("cups on the table"); None when it is not one."""
+    rel = _relation(toks, conds[0]) if len(conds) == 1 and len(objs) <= 1 else None
+    return None if rel is None else {"relation": rel, "object": _refs(pq, conds)[0]}
+
+
+def _attached_near(pq: ParsedQuestion, joined: str, objs: list[dict[str, Any]]) -> dict[str, Any] | None:
+    """"chairs near / by / next to the door" read as a selector by `_attachments`: for a count it is a location
+    (a superlative, "the chair nearest the door", stays a selector: one instance)."""
+    if len(objs) != 1 or objs[0].get("attach") is None or _has(joined, _CLOSE + "|" + _FAR):
+        return None
+    ref = objs[0].pop("attach")
+    pq.phrases.setdefault(ref, objs[0].pop("attach_phrase"))
+    return {"relation": "near", "object": ref}
+
+
 def _count(pq, toks, joined, nps, extra) -> None:
-    if not nps and _has(joined, r"\b(?:objects|things|items|pieces of furniture)\b"):
+    every = _has(joined, r"\b(?:objects|things|items|pieces of furniture)\b")
+    if not nps and every:
         pq.qtype, pq.params = "object_counting", {"object": "*"}  # every object in the map
         return
-    objs, conds = _conditions(toks, nps)
+    objs, conds = _conditions(toks, nps, every)
+    where = _location(pq, toks, objs, conds) if conds else _attached_near(pq, joined, objs)
+    if where is not None:  # "how many cups are on the table?", "how many things are near the door?"
+        target = _refs(pq, objs)[0] if objs else "*"
+        pq.qtype, pq.targets, pq.cues = "object_counting", [target] if objs else [], [where["object"]]
+        pq.params = {"object": target, "where": where}
+        return
     if len(objs) > 1:
         return _fail(pq, "a count of " + " and ".join(f"'{' '.join(p['words'])}'" for p in objs),
                      "one count for several objects; ask about one object at a time")
@@ -442,6 +492,12 @@ def _existence(pq, toks, joined, nps, extra) -> None:
     if not nps:
         return _fail(pq, "an is-there question", "which object it is about")
     objs, conds = _conditions(toks, nps)
+    rel = _location(pq, toks, objs, conds) if conds and objs else None
+    if rel is not None:  # "is there a cup on the table?"
+        names = _refs(pq, objs)
+        pq.qtype, pq.targets, pq.cues = "object_existence", names, [rel["object"]]
+        pq.params = {"objects": names, "all": False, "where": rel}
+        return
     if conds:
         where = ", ".join(" ".join(p["words"]) for p in conds)
         return _fail(pq, "an is-there question about " + ", ".join(f"'{' '.join(p['words'])}'" for p in objs),

@@ -813,19 +813,20 @@ def _render_prompt(smap: SemanticMap, build: MapBuild | None, mode: str, render:
 
 
 def _whole_map_targets(pq: ParsedQuestion, bundle: Any, trace: Trace) -> list[str]:
-    """The question's targets; for a question about everything ("what's in the room?", "the biggest object")
-    every name the bundle's closed-set detector knows, so the map holds what the video shows."""
-    if pq.objects or not pq.whole_map or pq.qtype == "room_size_estimation" or bundle is None:
+    """The question's targets; for a question about everything ("what's in the room?", "the biggest object",
+    "how many things are on the desk?") every name the bundle's closed-set detector knows as well, so the map
+    holds what the video shows."""
+    if not pq.whole_map or pq.qtype == "room_size_estimation" or bundle is None:
         return pq.targets
     from .stages.detector import detectable_names
 
     try:
-        names = detectable_names(bundle)
+        names = detectable_names(bundle, pq.objects)  # the question's own names for what the detector sees
     except InputError as e:  # an open-vocabulary detector finds only what it is asked for
         trace.event("degraded", f"a question about every object, but {e}", stage="grounding")
         return pq.targets
     trace.decide("targets", {"whole_map": True, "names": names})
-    return names
+    return list(dict.fromkeys(pq.targets + [n for n in names if n not in pq.cues]))
 
 
 def ask(source: Any, question: str, options: list[str] | None = None, *, perception: Perception | None = None,

@@ -60,7 +60,7 @@ def test_floor_fit_with_a_large_table_and_little_floor_keeps_the_level_normal_an
 
 
 def test_eval_scene_maps_one_name_per_detector_label_set():
-    from mosaicthinker.host.evaluation.scene import one_name_per_label
+    from mosaicthinker.runtime.stages.detector import one_name_per_label
     from mosaicthinker.runtime.stages.detector import map_names
 
     labels = ["person", "chair", "dining table", "tv", "cup"]

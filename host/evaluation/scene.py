@@ -277,33 +277,13 @@ def visible_meta(scene: dict[str, Any], visible: dict[str, list[bool]]) -> dict[
 
 
 def map_names_for(bundle: Any, annotated: list[str]) -> list[str]:
-    """Every vocabulary name the bundle's closed-set detector can detect, plus the annotated categories; one
-    name per set of detector labels (`one_name_per_label`)."""
-    from mosaicthinker.runtime.bundle import load_bundle
-    from mosaicthinker.runtime.grounding import VOCABULARY, canonical_name
-    from mosaicthinker.runtime.stages.detector import map_names
+    """Every vocabulary name the bundle's closed-set detector can detect, one per set of detector labels (the
+    annotated name where it is one of them: `stages.detector.detectable_names`), plus the annotated categories."""
+    from mosaicthinker.runtime.grounding import canonical_name
+    from mosaicthinker.runtime.stages.detector import detectable_names
 
-    labels = load_bundle(bundle).spec("detector", verify=False).semantics.get("labels") or []
     want = [canonical_name(c) or c for c in annotated]
-    mapping, _ = map_names(sorted(VOCABULARY), labels)
-    return sorted(one_name_per_label(mapping, labels, want) | set(want))
-
-
-def one_name_per_label(mapping: dict[str, list[int]], labels: list[str], preferred: list[str]) -> set[str]:
-    """Names that reach the same detector labels are aliases of one detection (desk / table -> "dining table",
-    monitor / tv -> "tv"): keep one per label set — a `preferred` (annotated) name, else the one that is the
-    label itself, else the alphabetically first — so a map of every category names each detection once."""
-    from mosaicthinker.runtime.stages.detector import normalize_name
-
-    groups: dict[tuple[int, ...], list[str]] = {}
-    for n, ids in mapping.items():
-        groups.setdefault(tuple(sorted(ids)), []).append(n)
-    keep = set()
-    for ids, names in groups.items():
-        exact = [n for n in names if any(normalize_name(labels[i]) == normalize_name(n) for i in ids)]
-        pref = [n for n in names if n in preferred]
-        keep.add(sorted(pref)[0] if pref else sorted(exact)[0] if exact else sorted(names)[0])
-    return keep
+    return sorted(set(detectable_names(bundle, want)) | set(want))
 
 
 def evaluate_scene(data: str | Path, annotations: str | Path, bundle: str | Path, depth: str = "sensor",

@@ -70,8 +70,9 @@ def normalize_name(name: str) -> str:
     return " ".join(name.lower().replace("_", " ").replace("-", " ").split())
 
 
-def detectable_names(bundle: Any) -> list[str]:
-    """Every vocabulary name the bundle's closed-set detector can detect (what a map of "everything" holds).
+def detectable_names(bundle: Any, preferred: Sequence[str] = ()) -> list[str]:
+    """Every vocabulary name the bundle's closed-set detector can detect, one per set of detector labels
+    (`one_name_per_label`; `preferred` names first, e.g. the question's): what a map of "everything" holds.
     bundle: a bundle folder or a loaded `Bundle`. InputError when it has no detector or an open-vocabulary one
     (which detects only what it is asked for)."""
     from ..bundle import load_bundle
@@ -86,7 +87,22 @@ def detectable_names(bundle: Any) -> list[str]:
         raise InputError("the bundle's detector is open-vocabulary: name the objects (`mosaic map --objects "
                          "a,b,c`, or a question that names them)")
     mapping, _ = map_names(sorted(VOCABULARY), labels)
-    return sorted(mapping)
+    return sorted(one_name_per_label(mapping, labels, list(preferred)))
+
+
+def one_name_per_label(mapping: dict[str, list[int]], labels: Sequence[str], preferred: Sequence[str]) -> set[str]:
+    """Names that reach the same detector labels are aliases of one detection (desk / table -> "dining table",
+    monitor / tv -> "tv"): keep one per label set — a `preferred` name, else the one that is the label itself,
+    else the alphabetically first — so a map of every category names each detection once."""
+    groups: dict[tuple[int, ...], list[str]] = {}
+    for n, ids in mapping.items():
+        groups.setdefault(tuple(sorted(ids)), []).append(n)
+    keep = set()
+    for ids, names in groups.items():
+        exact = [n for n in names if any(normalize_name(labels[i]) == normalize_name(n) for i in ids)]
+        pref = [n for n in names if n in preferred]
+        keep.add(sorted(pref)[0] if pref else sorted(exact)[0] if exact else sorted(names)[0])
+    return keep
 
 
 def map_names(names: Sequence[str], labels: Sequence[str]) -> tuple[dict[str, list[int]], list[str]]:
