@@ -490,11 +490,13 @@ class MapReasoner:
         names = pq.params["objects"]
         if pq.params.get("where"):  # "is there a cup on the table?": a missing cup is "no", a missing table not found
             self._missing([pq.params["where"]["object"]])
-            found = {self._ph(n): len(self._located(n, pq.params["where"])[0]) if self._find(n) else 0 for n in names}
+            found, parts = {}, []
+            for n in names:
+                keep, _, how = self._located(n, pq.params["where"]) if self._find(n) else ([], [], "in the map")
+                found[self._ph(n)] = len(keep)
+                parts.append(f"{self._ph(n)}: {len(keep)} {how}")
             yes = any(found.values())
-            return ({"text": "yes" if yes else "no", "exists": yes, "counts": found},
-                    "; ".join(f"{k}: {v} {self._located(n, pq.params['where'])[2] if self._find(n) else 'in the map'}"
-                              for n, (k, v) in zip(names, found.items())))
+            return {"text": "yes" if yes else "no", "exists": yes, "counts": found}, "; ".join(parts)
         for n in names:
             if self._sel(n):
                 raise _Unsupported(f"'is there a {self._ph(n)} ...' with a condition is not supported; ask whether "
