@@ -162,7 +162,6 @@ def _measure(o: ObjectInstance, what: str) -> float:
     return horiz[1] if what == "depth" else horiz[0]  # length / width: the longer horizontal side (W x D x H)
 
 
-_SUPERLATIVES = SUPERLATIVES  # selector word -> (measure, pick)
 _MEASURE_WORDS = {"volume": "box volume", "height": "height", "top": "top height", "length": "length",
                   "width": "width"}
 
@@ -177,8 +176,6 @@ def relation_holds(a: ObjectInstance, b: ObjectInstance, relation: str, conf: Re
     over = b.box.contains(np.array([[a.center[0], a.center[1], b.center[2]]]))[0]  # above b's footprint
     return bool(over) and abs(bottom - _measure(b, "top")) <= conf.on_gap_m
 
-
-_RELATION_TEXT = {"on": "on", "near": "near", "in": "in"}
 
 
 def describe_direction(theta_deg: float, back_deg: float = 135.0) -> dict[str, Any]:
@@ -350,15 +347,15 @@ class MapReasoner:
         sel = self._sel(name)
         if not sel:
             return inst
-        words = [w for w in sel.get("words", []) if w not in _SUPERLATIVES]
+        words = [w for w in sel.get("words", []) if w not in SUPERLATIVES]
         if words and name_key(sel.get("phrase", "")) not in self._idx:
             raise _Unsupported(f"'{sel['phrase']}': the map has no colours, materials or order of instances, so "
                                f"it cannot tell which {self._pq.phrase(name)} that is; ask about the "
                                f"{self._pq.phrase(name)} without '{' '.join(words)}'")
         out = inst
         for w in sel.get("words", []):
-            if w in _SUPERLATIVES:
-                key, pick = _SUPERLATIVES[w]
+            if w in SUPERLATIVES:
+                key, pick = SUPERLATIVES[w]
                 out = [pick(out, key=lambda o: _measure(o, key))]
         if sel.get("near"):
             ref = self._find(sel["near"])

@@ -91,7 +91,6 @@ SUPERLATIVES = {"biggest": ("volume", max), "largest": ("volume", max), "smalles
 COMPARATIVES = {"bigger": "biggest", "larger": "largest", "smaller": "smallest", "taller": "tallest",
                 "shorter": "shortest", "higher": "highest", "lower": "lowest", "longer": "longest",
                 "wider": "widest", "narrower": "narrowest"}
-_SUPERLATIVE = SUPERLATIVES
 _CMP_RX = r"\b(?:" + "|".join(COMPARATIVES) + r")\b"
 _SUP_RX = r"\b(?:" + "|".join(SUPERLATIVES) + r")\b"
 # "the longest side of the bed", "the biggest dimension of the tv": a size question, not a comparison
@@ -175,18 +174,18 @@ def noun_phrases(toks: list[str]) -> list[dict[str, Any]]:
     nps: list[dict[str, Any]] = []
     i = 0
     while i < len(toks):
-        if not _is_content(toks, i, False) and not (toks[i] in _SUPERLATIVE and i + 1 < len(toks)
+        if not _is_content(toks, i, False) and not (toks[i] in SUPERLATIVES and i + 1 < len(toks)
                                                      and _is_content(toks, i + 1, False)):
             i += 1
             continue
         j, words = i, []
-        while j < len(toks) and (_is_content(toks, j, bool(words)) or (not words and toks[j] in _SUPERLATIVE)):
+        while j < len(toks) and (_is_content(toks, j, bool(words)) or (not words and toks[j] in SUPERLATIVES)):
             words.append(toks[j])
             j += 1
             if j + 1 < len(toks) and toks[j] == "'s" and _is_content(toks, j + 1, False):
                 words, j = [], j + 1  # "the kitchen's sink": the owner only qualifies the object
         sel = []
-        while len(words) > 1 and (words[0] in _SUPERLATIVE or words[0] in _COLOURS or words[0] in _ORDINALS):
+        while len(words) > 1 and (words[0] in SUPERLATIVES or words[0] in _COLOURS or words[0] in _ORDINALS):
             if name_key(" ".join(words)) in NAME_SYNONYMS:  # "white board" is a name, not a white board
                 break
             sel.append(words.pop(0))
