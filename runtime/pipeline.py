@@ -512,7 +512,8 @@ def _refine(instances: list[ObjectInstance], clouds: list[np.ndarray], obs: list
     return instances, clouds, 0
 
 
-def _record_instances(instances: list[ObjectInstance], names: list[str], recovered: int, trace: Trace) -> None:
+def _record_instances(instances: list[ObjectInstance], names: list[str], recovered: int, trace: Trace,
+                      dets: dict[int, Detections], unaligned: Sequence[int]) -> None:
     trace.decide("instances", {"count": len(instances), "recovered_by_refinement": recovered,
                                "by_name": {n: sum(o.name == n for o in instances) for n in names},
                                "list": [{"id": o.id, "name": o.name, "centre": np.round(o.center, 3).tolist(),
@@ -521,7 +522,22 @@ def _record_instances(instances: list[ObjectInstance], names: list[str], recover
                                         for o in instances]})
     missing = [n for n in names if not any(o.name == n for o in instances)]
     if missing:
-        trace.event("not_in_map", f"not found in the key frames: {', '.join(missing)}", names=missing)
+        trace.event("not_in_map", "not in the map: " + missing_reasons(missing, dets, unaligned), names=missing)
+
+
+def missing_reasons(missing: list[str], dets: dict[int, Detections], unaligned: Sequence[int]) -> str:
+    """Why each name is not in the map: never detected in a key frame, detected only in key frames that stayed
+    unaligned (so out of the map), or detected in aligned ones whose points fusion did not keep."""
+    seen = {n: sorted(i for i, d in dets.items() if n in d.names) for n in missing}
+    never = [n for n in missing if not seen[n]]
+    parts = [f"not detected in any key frame: {', '.join(never)}"] if never else []
+    for n in (n for n in missing if seen[n]):
+        out = [i for i in seen[n] if i in set(unaligned)]
+        kept = [i for i in seen[n] if i not in set(unaligned)]
+        parts.append(f"{n}: detected in key frame(s) {seen[n]}" + (f"; {out} stayed unaligned, out of the map"
+                                                                    if out else "")
+                     + (f"; in {kept} too few consistent 3D points for an instance" if kept else ""))
+    return "; ".join(parts)
 
 
 def _map_extras(instances: list[ObjectInstance], frames: list[Frame], poses: dict[int, np.ndarray],
@@ -600,7 +616,7 @@ def build_map(source: FrameSource, targets: Sequence[str], cues: Sequence[str] =
                                            conf, trace, budget)
     if budget is not None:
         budget.end_stage("alignment")
-    _record_instances(instances, names, recovered, trace)
+    _record_instances(instances, names, recovered, trace, dets, al.unaligned)
     room, cams = _map_extras(instances, frames, poses, det, names, source, perception, conf, fconf, trace)
     _book_counters(trace, source, loaded0, matcher)
     smap = SemanticMap(instances, room, cams,
