@@ -459,8 +459,10 @@ class MapReasoner:
             own = {id(o) for o in self._find(where["object"])}
             cands = [o for o in self.map.instances if id(o) not in own]
         else:
-            cands = self._instances(name)
+            self._missing([name])
+            cands = self._select(name, self._find(name))
         keep = [o for o in cands if any(relation_holds(o, r, rel, self.conf) for r in refs if r is not o)]
+        self._used += keep  # the evidence: the reference and what was counted, not every candidate
         rule = {"on": f"bottom within {self.conf.on_gap_m * 100:.0f} cm of its top, centre over it",
                 "near": f"closest points within {self.conf.near_m:.2f} m", "in": "centre inside its box"}[rel]
         ids = " ".join(f"#{o.id}" for o in keep)

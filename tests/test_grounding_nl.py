@@ -395,6 +395,7 @@ def test_counts_and_is_there_with_on_near_and_in():
     for q in ("How many chairs are near the desk?", "how many chairs next to the desk?", "count the chairs by the desk"):
         a = ask(q)
         assert a.ok and a.value == len(near), (q, a.explanation)
+        assert {i["id"] for i in a.evidence["instances"]} == set(near) | {i for i, (n, _, _) in enumerate(ROOM) if n == "desk"}
     assert ask("How many chairs are in the room?").value == 3  # a room is not a location to test
     assert ask("is there a phone on the piano?").status == "not_found"  # the reference must exist
     assert ask("is there a piano on the desk?").text == "no"  # the object may be missing: then there is none
