@@ -68,6 +68,31 @@ def test_segmenter_class_maps_are_kept_for_several_frames(det_seg_bundle, kitche
     assert t.stages["segmenter.overhead"].calls == 2 * len(kitchen_rgbs) * 2
 
 
+def test_class_maps_and_boxes_outlast_a_k32_run(det_seg_bundle, kitchen_rgbs):
+    """Perception segments every key frame, then refinement asks class masks in every key frame again: at K = 32
+    the segmenter ran 57 times for 32 frames when it kept 16 maps. Likewise the detector keeps every frame the
+    search scored (<= 6 K) for perception. 40 distinct frames (one pixel apart), each model once per frame."""
+    from mosaicthinker.runtime.stages import load_role
+
+    t = Trace()
+    seg = load_role(det_seg_bundle, "segmenter", trace=t)
+    det = load_role(det_seg_bundle, "detector", trace=t)
+    frames = []
+    for k in range(40):
+        f = kitchen_rgbs[k % len(kitchen_rgbs)].copy()
+        f[0, 0, 0] = k
+        frames.append(f)
+    first = [seg.class_mask(f, "chair") for f in frames]
+    boxes = [det.detect(f, ["chair"]) for f in frames]
+    for f, m, b in zip(frames, first, boxes):  # refinement's pass, perception's detections
+        assert np.array_equal(seg.class_mask(f, "chair"), m)
+        assert _same_detections(det.detect(f, ["chair"]), b)
+    assert t.stages["segmenter"].calls == 40 and t.stages["detector"].calls == 40
+    fresh = load_role(det_seg_bundle, "segmenter", trace=Trace())
+    assert np.array_equal(fresh.class_mask(frames[0], "chair"), first[0])  # the kept map is the model's
+    assert first[0].shape == frames[0].shape[:2]
+
+
 def test_prefetched_features_are_the_features_extracted_in_turn(kitchen_rgbs):
     from mosaicthinker.runtime.matching import FeatureMatcher
 

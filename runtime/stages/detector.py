@@ -146,8 +146,9 @@ class ClosedSetDetector(RoleModel):
         self.labels: list[str] = list(spec.semantics["labels"])
         self.vocabulary = "closed"
         self._input = self.session().input_names[0]
-        # the search detects a frame with the question's names, alignment again with every label: one graph run
-        self._raw = ImageLRU(32)
+        # the search detects a frame with the question's names, perception and alignment again with every label:
+        # one graph run. Every scored frame is kept (the planner scores <= 6 K; a frame's boxes are a few kB)
+        self._raw = ImageLRU(512)
 
     def raw(self, rgb: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """All detections above the threshold: boxes [N, 4] pixels x0 y0 x1 y1, class ids [N], scores [N]

@@ -1,7 +1,8 @@
 """Segmenter adapters: boxes (and, for promptable models, points) -> masks.
 
 `SemanticSegmenter` wraps a per-pixel classifier (DeepLabv3 on PASCAL VOC here). It runs once per frame
-(class maps of the last 16 images cached: refinement asks one class mask per object and frame) and answers
+(class maps of the last 64 images cached at the model's resolution: refinement asks one class mask per object and
+key frame after perception segmented every key frame, so the cache must outlast K) and answers
 `segment(rgb, boxes, names)` with, for each box, the pixels inside the box whose class is the name's class (through the same synonym table as the detector). It IGNORES point prompts
 (a `points` argument is accepted for interface compatibility and recorded once in the trace as "degraded"):
 refinement with it can only intersect boxes with class pixels; it cannot split two touching instances of one
@@ -30,25 +31,26 @@ class SemanticSegmenter(RoleModel):
         self.kind = "semantic"
         self.logits_layout = spec.config.get("logits_layout", "NHWC")
         self._input = self.session().input_names[0]
-        # refinement visits objects, then their frames: a one-image cache re-ran the graph on every switch
-        self._cache = ImageLRU(16)
+        # refinement revisits every key frame after perception: with 16 maps a K = 32 run segmented 27 key
+        # frames twice. The maps are kept at the model's output size (257 x 257 uint8: 66 kB, 4 MB for 64)
+        self._cache = ImageLRU(64)
         self.undetectable: list[str] = []
 
     def classes(self, rgb: np.ndarray) -> np.ndarray:
-        """rgb [H, W, 3] uint8 -> class id per pixel [H, W] int32 (logits resized to the image, then argmax;
-        read-only, shared by every call on the same image)."""
-        return self._cache.cached(rgb, self._run)
-
-    def _run(self, rgb: np.ndarray) -> np.ndarray:
+        """rgb [H, W, 3] uint8 -> class id per pixel [H, W] (the model's argmax, nearest-resized to the image)."""
         import cv2
 
+        lab = self._cache.cached(rgb, self._run)
+        return cv2.resize(lab, (rgb.shape[1], rgb.shape[0]), interpolation=cv2.INTER_NEAREST)
+
+    def _run(self, rgb: np.ndarray) -> np.ndarray:
+        """The class map at the model's output size [h, w] (uint8 below 256 labels, else int32)."""
         x = preprocess_image(rgb, self.spec.preprocessing)
         with self._stage("segmenter"):
             logits = self.session().run({self._input: x})[0][0]
         if self.logits_layout == "NCHW":
             logits = logits.transpose(1, 2, 0)
-        lab = logits.argmax(-1).astype(np.uint8)
-        return cv2.resize(lab, (rgb.shape[1], rgb.shape[0]), interpolation=cv2.INTER_NEAREST).astype(np.int32)
+        return logits.argmax(-1).astype(np.uint8 if logits.shape[-1] <= 256 else np.int32)
 
     def class_mask(self, rgb: np.ndarray, name: str) -> np.ndarray | None:
         """[H, W] bool pixels of `name`'s class (None when the label list has no such class)."""
