@@ -242,9 +242,10 @@ class ParsedQuestion:
 
     @property
     def whole_map(self) -> bool:
-        """About everything in the map (room size, a list, "how many objects", "the biggest object"): the map is
-        built for every category the detector names, not for named objects."""
-        return (self.qtype == "room_size_estimation" or (self.qtype == "object_list" and not self.params.get("objects"))
+        """About everything in the map (room size, a list, "how many objects", "the biggest object", "the nearest
+        object to the cup"): the map is built for every category the detector names, not for named objects."""
+        return (self.qtype in ("room_size_estimation", "object_nearest")
+                or (self.qtype == "object_list" and not self.params.get("objects"))
                 or "*" in (self.params.get("object"), self.params.get("candidates")))
 
     def phrase(self, name: str) -> str:

@@ -369,6 +369,10 @@ def test_size_comparison_with_options_and_what_it_cannot_compare():
     assert ask("Which is closer to the desk, the laptop or the couch?").qtype == "object_rel_distance"
     assert not parse_question("how many chairs are there?").whole_map
     assert parse_question("how many objects are there?").whole_map
+    # the nearest object to X is chosen among everything: a map of X alone answered "the map holds nothing but cup"
+    for q in ("what's the closest object to the cup?", "What is next to the sofa?", "what's farthest from the bed?"):
+        assert parse_question(q).whole_map, q
+    assert not parse_question("where is the cup?").whole_map
 
 
 # ----------------------------------------------------------------------------- counts and is-there with a location

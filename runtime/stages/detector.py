@@ -93,15 +93,17 @@ def detectable_names(bundle: Any, preferred: Sequence[str] = ()) -> list[str]:
 def one_name_per_label(mapping: dict[str, list[int]], labels: Sequence[str], preferred: Sequence[str]) -> set[str]:
     """Names that reach the same detector labels are aliases of one detection (desk / table -> "dining table",
     monitor / tv -> "tv"): keep one per label set — a `preferred` name, else the one that is the label itself,
-    else the alphabetically first — so a map of every category names each detection once."""
+    else the label's head noun ("table" for "dining table", not the alphabetically first alias "desk"), else the
+    alphabetically first — so a map of every category names each detection once."""
     groups: dict[tuple[int, ...], list[str]] = {}
     for n, ids in mapping.items():
         groups.setdefault(tuple(sorted(ids)), []).append(n)
     keep = set()
     for ids, names in groups.items():
         exact = [n for n in names if any(normalize_name(labels[i]) == normalize_name(n) for i in ids)]
+        head = [n for n in names if any(normalize_name(labels[i]).split(" ")[-1] == normalize_name(n) for i in ids)]
         pref = [n for n in names if n in preferred]
-        keep.add(sorted(pref)[0] if pref else sorted(exact)[0] if exact else sorted(names)[0])
+        keep.add(sorted(pref or exact or head or names)[0])
     return keep
 
 
