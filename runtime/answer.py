@@ -485,6 +485,27 @@ class MapReasoner:
         self._spread = ("per-view count", ev.count_values(inst), None)
         return n, f"{n} instance(s) of {self._ph(pq.params['object'])} in the map"
 
+    def _object_count_compare(self, pq: ParsedQuestion) -> tuple[Any, str]:
+        """More (fewer) of A than of B: instance counts in the map (a name the map lacks counts 0, said so, as
+        an is-there question says "no"); yes/no, the name with more (fewer), or the difference."""
+        a, b = pq.params["objects"]
+        inst = {n: self._find(n) for n in (a, b)}
+        self._used += inst[a] + inst[b]
+        na, nb = len(inst[a]), len(inst[b])
+        expl = "; ".join(f"{self._ph(n)}: {len(inst[n])} in the map" for n in (a, b))
+        more = pq.params["compare"] == "more"
+        if pq.params["form"] == "difference":
+            d = (na - nb) if more else (nb - na)
+            word = "more" if more else "fewer"
+            text = str(d) if d >= 0 else f"none: {-d} {'fewer' if more else 'more'}, not {word}"
+            return {"text": text, "difference": d, "counts": {self._ph(a): na, self._ph(b): nb}}, expl
+        if pq.params["form"] == "which":
+            if na == nb:
+                return {"text": f"neither: {na} each", "counts": {self._ph(a): na, self._ph(b): nb}}, expl
+            return (a if (na > nb) == more else b), expl
+        yes = na > nb if more else na < nb
+        return {"text": "yes" if yes else "no", "counts": {self._ph(a): na, self._ph(b): nb}}, expl
+
     def _object_existence(self, pq: ParsedQuestion) -> tuple[Any, str]:
         names = pq.params["objects"]
         if pq.params.get("where"):  # "is there a cup on the table?": a missing cup is "no", a missing table not found
@@ -500,6 +521,7 @@ class MapReasoner:
             if self._sel(n):
                 raise _Unsupported(f"'is there a {self._ph(n)} ...' with a condition is not supported; ask whether "
                                    f"there is a {self._ph(n)} at all")
+        self._used += [o for n in names for o in self._find(n)]  # the evidence: what was found
         found = {self._ph(n): len(self._find(n)) for n in names}
         yes = all(found.values()) if pq.params.get("all") else any(found.values())
         hints = {self._ph(n): self._hints(n) for n in names if not found[self._ph(n)]}

@@ -48,7 +48,7 @@ back-right left-hand right-hand front-right-hand straight directly direction dir
 situated placed sits sit sitting stand standing stood stands face facing faced faces look looking looked looks
 turn turned turning walk walking go going see seen saw spot notice find found show tell give list name named
 closest nearest farthest furthest closer nearer farther further close far apart away distance distances gap
-many much more most less least number count total quantity amount
+many much more most less least number count total quantity amount fewer fewest common numerous plentiful
 big bigger biggest large larger largest small smaller smallest tall taller tallest short shorter shortest long
 longer longest wide wider widest high higher highest low lower lowest deep size sizes dimension dimensions length
 width height depth measure measures measured measuring measurement measurements area footprint square
@@ -118,6 +118,7 @@ EXAMPLES: dict[str, list[str]] = {
     "object_rel_distance": ["Which is closest to the tv: the chair, the stool or the sofa?",
                             "Is the bed or the sofa farther from the door?"],
     "object_nearest": ["What is the nearest object to the fridge?", "What's farthest from the bed?"],
+    "object_count_compare": ["Are there more chairs than tables?", "Which are there fewer of, cups or bottles?"],
     "object_size_compare": ["Which is bigger, the table or the sofa?", "Is the fridge taller than the door?",
                             "What's the biggest object in the room?"],
     "object_rel_direction": ["Standing by the sofa facing the tv, is the lamp to my left?",
@@ -293,6 +294,9 @@ def _intent(j: str, n_obj: int, has_opts: bool) -> str | None:
         return "rel_distance"
     if _has(j, r"\b(?:what|what's|which)\b(?: \w+){0,3} (?:next to|beside|near|by)\b"):
         return "rel_distance"  # "what's next to the desk?": the nearest other object
+    if _has(j, r"\b(?:more|fewer|less)\b") and _has(j, r"\b(?:than|or)\b") and not _has(j, r"\d|\bmore or less\b") \
+            and n_obj >= 2:
+        return "count_compare"  # "are there more chairs than cups?", "which are there fewer of, cups or chairs?"
     if not _has(j, r"\bhow\b") and (_has(j, _CMP_RX) and _has(j, r"\b(?:which|whichever|what|or|than)\b")
                                      or _has(j, _SUP_RX) and _has(j, r"^(?:which|what|what's)\b")
                                      and not _has(j, _SUP_DIM_RX)):
@@ -365,11 +369,11 @@ def parse_natural(question: str, options: list[str] | None = None) -> ParsedQues
     nps_all = [p for p in noun_phrases(toks) if not p["scene"]]
     intent = _intent(joined, len(nps_all), bool(options))
     if intent is None:
-        pq.notes.append("no question type recognised (counting, existence, size, size comparison, distance, "
+        pq.notes.append("no question type recognised (counting, count comparison, existence, size, size comparison, distance, "
                         "nearest, direction, where, list, room size, appearance order)")
         pq.how = "none"
         return pq
-    handler = {"count": _count, "existence": _existence, "size": _size, "size_compare": _size_compare,
+    handler = {"count": _count, "count_compare": _count_compare, "existence": _existence, "size": _size, "size_compare": _size_compare,
                "room_size": _room_size,
                "abs_distance": _abs_distance, "rel_distance": _rel_distance, "direction": _direction,
                "where": _where, "list": _list, "obj_appearance_order": _order}[intent]
@@ -485,6 +489,20 @@ def _count(pq, toks, joined, nps, extra) -> None:
     n = _single(pq, objs + conds, "count", "object_counting")
     if n is not None:
         pq.targets, pq.params = [n], {"object": n}
+
+
+def _count_compare(pq, toks, joined, nps, extra) -> None:
+    """"Are there more chairs than cups?" (yes or no), "which are there fewer of, cups or chairs?" (a name), "how
+    many more chairs than cups are there?" (the difference): params objects [2 names], compare more|fewer, form
+    yesno|which|difference."""
+    names = _option_names(pq) or _refs(pq, nps)
+    if len(names) != 2:
+        return _fail(pq, "a more-or-fewer question", "exactly two objects to count against each other, without a "
+                                                     "location (e.g. 'are there more chairs than tables?')")
+    form = "difference" if _has(joined, r"\bhow many (?:more|fewer|less)\b") else \
+        "yesno" if "than" in toks and not _has(joined, r"^(?:which|what|whichever)\b") else "which"
+    pq.qtype, pq.targets = "object_count_compare", names
+    pq.params = {"objects": names, "compare": "more" if _has(joined, r"\bmore\b") else "fewer", "form": form}
 
 
 def _existence(pq, toks, joined, nps, extra) -> None:

@@ -12,7 +12,8 @@ import pytest
 from mosaicthinker.runtime.answer import MapReasoner
 from mosaicthinker.runtime.errors import InputError
 from mosaicthinker.runtime.geometry import OrientedBox
-from mosaicthinker.runtime.grounding import MAX_QUESTION_CHARS, parse_question, safe_text, split_inline_options
+from mosaicthinker.runtime.grounding import (MAX_QUESTION_CHARS, canonical_name, parse_question, safe_text,
+                                             split_inline_options)
 from mosaicthinker.runtime.grounding_nl import direction_words, examples, noun_phrases, tokens
 from mosaicthinker.runtime.semantic_map import ObjectInstance, SemanticMap
 
@@ -405,3 +406,30 @@ def test_counts_and_is_there_with_on_near_and_in():
     assert ask("is there a piano on the desk?").text == "no"  # the object may be missing: then there is none
     assert ask("how many chairs are behind the desk?").status == "unsupported"
     assert ask("How big is the chair next to the desk?").qtype == "object_size_estimation"  # a selector elsewhere
+
+
+# ----------------------------------------------------------------------------- count comparisons
+
+
+def test_more_or_fewer_compares_counts_and_is_not_an_is_there_question():
+    """"Are there more chairs than cups?" was read as "is there a chair or a cup?" and answered yes whatever the
+    counts. Counts from ROOM: chairs (chair + 2 office chairs) 3, desks 1, laptops 1, couches 1."""
+    n = {k: sum(canonical_name(x) == k for x, _, _ in ROOM) for k in ("chair", "desk", "laptop", "sofa")}
+    assert n["chair"] > n["desk"] == n["laptop"]
+    a = ask("are there more chairs than desks?")
+    assert a.qtype == "object_count_compare" and a.text == "yes" and a.value["counts"] == {"chairs": 3, "desks": 1}
+    assert ask("Are there fewer chairs than desks in here?").text == "no"
+    assert ask("are there more desks than laptops?").text == "no"          # equal is not more
+    assert ask("which are there more of, desks or chairs?").text == "chairs"
+    assert ask("which is less common, chairs or couches?").text == "couches"
+    assert ask("do we have more laptops or desks?").text.startswith("neither")
+    assert ask("how many more chairs than desks are there?").text == str(n["chair"] - n["desk"])
+    assert ask("how many more desks than chairs are there?").text == f"none: {n['chair'] - n['desk']} fewer, not more"
+    a = ask("are there more chairs than pianos?")  # a name the map lacks counts 0, as "is there a piano?" says no
+    assert a.text == "yes" and "piano" in a.explanation and ask("is there a piano?").text == "no"
+    assert {r["name"] for r in a.evidence["instances"]} == {"chair", "office chair"}  # what was counted
+    assert [r["name"] for r in ask("is there a laptop?").evidence["instances"]] == ["laptop"]
+    for q in ("Are there more books on the desk than cups?", "is the couch more comfortable than the chair?"):
+        assert ask(q).status == "unsupported", q
+    assert parse_question("is there more than one chair?").qtype == "object_existence"  # a number: not a comparison
+    assert parse_question("is the desk more than 2 m from the couch?").qtype != "object_count_compare"
