@@ -526,9 +526,8 @@ class MapReasoner:
         yes = all(found.values()) if pq.params.get("all") else any(found.values())
         hints = {self._ph(n): self._hints(n) for n in names if not found[self._ph(n)]}
         expl = "; ".join(f"{k}: {v} in the map" for k, v in found.items())
-        if hints:
-            expl += "; not in the map (similar names: " + "; ".join(f"{k} -> {', '.join(v) or 'none'}"
-                                                                    for k, v in hints.items()) + ")"
+        if any(hints.values()):  # a name the map may hold in other words ("desk lamp": the map's lamp)
+            expl += "; similar names in the map: " + "; ".join(f"{k} -> {', '.join(v)}" for k, v in hints.items() if v)
         return {"text": "yes" if yes else "no", "exists": yes, "counts": found}, expl
 
     def _object_size_estimation(self, pq: ParsedQuestion) -> tuple[Any, str]:
