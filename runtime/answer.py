@@ -512,9 +512,11 @@ class MapReasoner:
             self._missing([pq.params["where"]["object"]])
             found, parts = {}, []
             for n in names:
-                keep, _, how = self._located(n, pq.params["where"]) if self._find(n) else ([], [], "in the map")
-                found[self._ph(n)] = len(keep)
-                parts.append(f"{self._ph(n)}: {len(keep)} {how}")
+                keep, _, how = self._located(n, pq.params["where"]) if n == "*" or self._find(n) else \
+                    ([], [], "in the map")
+                what = "object(s)" if n == "*" else self._ph(n)
+                found[what] = len(keep)
+                parts.append(f"{what}: {len(keep)} {how}")
             yes = any(found.values())
             return {"text": "yes" if yes else "no", "exists": yes, "counts": found}, "; ".join(parts)
         for n in names:
@@ -744,7 +746,10 @@ class MapReasoner:
 
     def _object_list(self, pq: ParsedQuestion) -> tuple[Any, str]:
         names = pq.params.get("objects") or []
-        if names:
+        how = ""
+        if pq.params.get("where"):  # "what's on the table?": every object there
+            inst, _, how = self._located("*", pq.params["where"])
+        elif names:
             self._missing(names)
             inst = [o for n in names for o in self._find(n)]
         else:
@@ -756,7 +761,7 @@ class MapReasoner:
         value = {"text": text, "counts": counts,
                  "instances": [{"object": o.name, "instance": int(o.id), "centre": np.round(o.center, 3).tolist()}
                                for o in inst]}
-        return value, f"{len(inst)} object(s) in the map: {text}"
+        return value, f"{len(inst)} object(s) {how or 'in the map'}: {text}"
 
     def _route_planning(self, pq: ParsedQuestion) -> tuple[Any, str]:
         p = pq.params

@@ -246,7 +246,8 @@ class ParsedQuestion:
         object to the cup"): the map is built for every category the detector names, not for named objects."""
         return (self.qtype in ("room_size_estimation", "object_nearest")
                 or (self.qtype == "object_list" and not self.params.get("objects"))
-                or "*" in (self.params.get("object"), self.params.get("candidates")))
+                or "*" in (self.params.get("object"), self.params.get("candidates"))
+                or "*" in (self.params.get("objects") or []))
 
     def phrase(self, name: str) -> str:
         """The question's own words for the object called `name` (the name itself when none was recorded)."""

@@ -292,7 +292,8 @@ def _intent(j: str, n_obj: int, has_opts: bool) -> str | None:
         return "abs_distance"  # "what is the distance from the laptop to the nearest chair": instances' minimum  # "how far is the chair nearest the door from the tv": a selector, not the question
     if _has(j, _CLOSE + "|" + _FAR) and _has(j, _WHICH):
         return "rel_distance"
-    if _has(j, r"\b(?:what|what's|which)\b(?: \w+){0,3} (?:next to|beside|near|by)\b"):
+    if _has(j, r"\b(?:what|what's|which)\b(?: \w+){0,3} (?:next to|beside|near|by)\b") and \
+            not _has(j, r"\b(?:objects|things|items)\b"):
         return "rel_distance"  # "what's next to the desk?": the nearest other object
     if _has(j, r"\b(?:more|fewer|less)\b") and _has(j, r"\b(?:than|or)\b") and not _has(j, r"\d|\bmore or less\b") \
             and n_obj >= 2:
@@ -301,12 +302,17 @@ def _intent(j: str, n_obj: int, has_opts: bool) -> str | None:
                                      or _has(j, _SUP_RX) and _has(j, r"^(?:which|what|what's)\b")
                                      and not _has(j, _SUP_DIM_RX)):
         return "size_compare"  # "which is bigger, the table or the sofa?", "what's the tallest thing here?"
+    if _has(j, r"^(?:is|are|was|were) (?!there\b)") and _has(j, _LOCATED_RX) and n_obj >= 2:
+        return "relation"  # "is the cup on the table?": an is-there question with a location
+    if _has(j, r"^(?:what|what's|which (?:objects|things|items))(?: is| are| was| were|'s)? (?:there )?" + _LOCATED_RX[2:]):
+        return "list"  # "what's on the table?", "what is near the door?"
     for intent, rx in _SIMPLE_INTENTS:
         if rx.search(j):
             return intent
     if _has(j, r"\b(?:where|whereabouts|locate|location of|position of)\b"):
         return "direction" if _has(j, r"\b(?:if i|standing|when i)\b") and stance else "where"
     if _has(j, r"\b(?:list|enumerate|inventory)\b|\b(?:what|which) (?:objects|things|items|furniture)\b|"
+               r"\bwhat (?:are|is) the (?:objects|things|items|furniture)\b|"
                r"\bwhat(?:'s| is| are) (?:in|there)\b|\bwhat do you see\b|\bwhat can you see\b"):
         return "list"
     if _has(j, r"\bon my (?:left|right)\b|\bto my (?:left|right|back|front)\b|\bbehind me\b|\bin front of me\b"):
@@ -373,7 +379,7 @@ def parse_natural(question: str, options: list[str] | None = None) -> ParsedQues
                         "nearest, direction, where, list, room size, appearance order)")
         pq.how = "none"
         return pq
-    handler = {"count": _count, "count_compare": _count_compare, "existence": _existence, "size": _size, "size_compare": _size_compare,
+    handler = {"count": _count, "count_compare": _count_compare, "existence": _existence, "relation": _existence, "size": _size, "size_compare": _size_compare,
                "room_size": _room_size,
                "abs_distance": _abs_distance, "rel_distance": _rel_distance, "direction": _direction,
                "where": _where, "list": _list, "obj_appearance_order": _order}[intent]
@@ -425,6 +431,9 @@ _LOCATION = {"on", "in", "at", "near", "by", "under", "behind", "beside", "above
 
 
 # location words the map reasoner can apply to a count or an is-there question (`answer.relation_holds`)
+# a location word the map can test ("on", "near", "in": `answer.relation_holds`) or refuse clearly
+_LOCATED_RX = r"\b(?:on|on top of|atop|near|next to|close to|by|beside|around|in|inside|within|under|underneath|" \
+              r"beneath|below|above|behind|against|over)\b"
 _RELATION_WORDS = {"on": "on", "atop": "on", "onto": "on", "upon": "on", "near": "near", "by": "near",
                    "beside": "near", "around": "near", "in": "in", "inside": "in", "within": "in"}
 
@@ -506,12 +515,16 @@ def _count_compare(pq, toks, joined, nps, extra) -> None:
 
 
 def _existence(pq, toks, joined, nps, extra) -> None:
+    """"Is there a fridge?", "is there a cup on the table?", "is the cup on the table?" (the same question),
+    "is there anything on the chair?" (every object: "*")."""
     if not nps:
         return _fail(pq, "an is-there question", "which object it is about")
-    objs, conds = _conditions(toks, nps)
-    rel = _location(pq, toks, objs, conds) if conds and objs else None
+    every = _has(joined, r"\b(?:anything|something|any ?things?|objects|things|items|stuff)\b")
+    objs, conds = _conditions(toks, nps, every)
+    rel = _location(pq, toks, objs, conds) if conds and (objs or every) else None
+    rel = rel or _attached_near(pq, joined, objs)  # "is there a chair near the table?" (read as a selector)
     if rel is not None:  # "is there a cup on the table?"
-        names = _refs(pq, objs)
+        names = _refs(pq, objs) if objs else ["*"]
         pq.qtype, pq.targets, pq.cues = "object_existence", names, [rel["object"]]
         pq.params = {"objects": names, "all": False, "where": rel}
         return
@@ -709,6 +722,18 @@ def _where(pq, toks, joined, nps, extra) -> None:
 
 
 def _list(pq, toks, joined, nps, extra) -> None:
+    """"What objects are in the room?", "list the chairs", "what's on the table?" (every object on it)."""
+    if nps and _has(joined, r"^(?:what|what's|which)\b"):
+        objs, conds = _conditions(toks, nps, every=True)
+        if conds and not objs:
+            where = _location(pq, toks, objs, conds)
+            if where is None:
+                words = " ".join(_before(toks, conds[0], 1) + conds[0]["words"])
+                return _fail(pq, "a what-is-there question", f"the location '{words}' (the map tests on, near "
+                                                             f"and in)")
+            pq.qtype, pq.cues = "object_list", [where["object"]]
+            pq.params = {"objects": [], "where": where}
+            return
     names = _refs(pq, nps)
     pq.qtype = "object_list"
     pq.targets = names

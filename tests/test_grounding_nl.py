@@ -408,6 +408,35 @@ def test_counts_and_is_there_with_on_near_and_in():
     assert ask("How big is the chair next to the desk?").qtype == "object_size_estimation"  # a selector elsewhere
 
 
+def test_is_a_on_b_what_is_on_b_and_anything_on_b():
+    """"Is the cup on the table?" and "what's on the table?" were not understood; "is there anything on the
+    chair?" was read as "is there a chair?" (yes whatever was on it); "are the chairs near the desk?" as "are
+    there chairs?"."""
+    names = sorted({n for n, _, _ in ROOM} - {"desk"})
+    on_desk = {n for n in names if _on(n, "desk")}
+    assert {"telephone", "monitor"} <= on_desk and "couch" not in on_desk
+    for n in ("telephone", "couch", "laptop"):
+        for q in (f"is the {n} on the desk?", f"Is the {n} on top of the desk?"):
+            a = ask(q)
+            assert a.qtype == "object_existence" and a.text == ("yes" if n in on_desk else "no"), (q, a.explanation)
+    for q in ("what's on the desk?", "What objects are on top of the desk?", "what is there on the desk?"):
+        a = ask(q)
+        assert a.ok and {o["object"] for o in a.value["instances"]} == on_desk, (q, a.explanation)
+    assert ask("is there anything on the desk?").text == "yes"
+    assert ask("is there anything on the couch?").text == ("yes" if any(_on(n, "couch") for n in names) else "no")
+    assert ask("is there something on the whiteboard?").text == "no"
+    near = any(n in ("chair", "office chair") and gap((np.array(c) - np.array(s) / 2, np.array(c) + np.array(s) / 2),
+                                                      boxes("desk")[0]) <= 0.5 for n, c, s in ROOM)
+    assert ask("are the chairs near the desk?").text == ("yes" if near else "no")
+    far = ask("is the whiteboard near the couch?")
+    assert far.text == ("yes" if min_gap("whiteboard", "couch") <= 0.5 else "no") == "no"
+    assert ask("what is under the desk?").status == "unsupported"  # a location the map does not test, said
+    assert ask("is the tv on the piano?").status == "not_found"
+    assert parse_question("what's in the room?").params == {"objects": []}  # a room is not a location to test
+    assert parse_question("which things are near the couch?").qtype == "object_list"
+    assert parse_question("what's next to the couch?").qtype == "object_nearest"  # one object: the nearest
+
+
 # ----------------------------------------------------------------------------- count comparisons
 
 
