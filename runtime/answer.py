@@ -506,6 +506,17 @@ class MapReasoner:
         yes = na > nb if more else na < nb
         return {"text": "yes" if yes else "no", "counts": {self._ph(a): na, self._ph(b): nb}}, expl
 
+    @staticmethod
+    def _count_holds(pq: ParsedQuestion, found: dict[str, int]) -> tuple[bool, str]:
+        """Is-there with a number ("are there two chairs?": exactly 2; "more than one"): (holds, the rule in
+        words); without one, whether any was found."""
+        c = pq.params.get("count")
+        if not c:
+            return any(found.values()), ""
+        n = sum(found.values())
+        holds = {"==": n == c["n"], ">": n > c["n"], ">=": n >= c["n"], "<": n < c["n"], "<=": n <= c["n"]}[c["op"]]
+        return holds, f" (asked: {c['op']} {c['n']})"
+
     def _object_existence(self, pq: ParsedQuestion) -> tuple[Any, str]:
         names = pq.params["objects"]
         if pq.params.get("where"):  # "is there a cup on the table?": a missing cup is "no", a missing table not found
@@ -517,8 +528,8 @@ class MapReasoner:
                 what = "object(s)" if n == "*" else self._ph(n)
                 found[what] = len(keep)
                 parts.append(f"{what}: {len(keep)} {how}")
-            yes = any(found.values())
-            return {"text": "yes" if yes else "no", "exists": yes, "counts": found}, "; ".join(parts)
+            yes, asked = self._count_holds(pq, found)
+            return {"text": "yes" if yes else "no", "exists": yes, "counts": found}, "; ".join(parts) + asked
         for n in names:
             if self._sel(n):
                 raise _Unsupported(f"'is there a {self._ph(n)} ...' with a condition is not supported; ask whether "
@@ -526,6 +537,10 @@ class MapReasoner:
         self._used += [o for n in names for o in self._find(n)]  # the evidence: what was found
         found = {self._ph(n): len(self._find(n)) for n in names}
         yes = all(found.values()) if pq.params.get("all") else any(found.values())
+        if pq.params.get("count"):
+            yes, asked = self._count_holds(pq, found)
+            return {"text": "yes" if yes else "no", "exists": yes, "counts": found}, "; ".join(
+                f"{k}: {v} in the map" for k, v in found.items()) + asked
         hints = {self._ph(n): self._hints(n) for n in names if not found[self._ph(n)]}
         expl = "; ".join(f"{k}: {v} in the map" for k, v in found.items())
         if any(hints.values()):  # a name the map may hold in other words ("desk lamp": the map's lamp)

@@ -514,6 +514,21 @@ def _count_compare(pq, toks, joined, nps, extra) -> None:
     pq.params = {"objects": names, "compare": "more" if _has(joined, r"\bmore\b") else "fewer", "form": form}
 
 
+_NUMBERS = {w: i for i, w in enumerate("zero one two three four five six seven eight nine ten eleven twelve".split())}
+_COUNT_OPS = {"more than": ">", "over": ">", "at least": ">=", "fewer than": "<", "less than": "<", "under": "<",
+              "at most": "<=", "exactly": "==", "only": "==", "just": "=="}
+_COUNT_RX = re.compile(r"^(?:is|are) there (?:(" + "|".join(_COUNT_OPS) + r") )?(\d+|" + "|".join(_NUMBERS) + r")\b")
+
+
+def _count_condition(joined: str) -> dict[str, Any] | None:
+    """"are there two chairs?" -> {"op": "==", "n": 2}; "is there more than one cup?" -> {">", 1}; else None."""
+    m = _COUNT_RX.search(joined)
+    if m is None:
+        return None
+    n = int(m.group(2)) if m.group(2).isdigit() else _NUMBERS[m.group(2)]
+    return {"op": _COUNT_OPS.get(m.group(1) or "exactly"), "n": n}
+
+
 def _existence(pq, toks, joined, nps, extra) -> None:
     """"Is there a fridge?", "is there a cup on the table?", "is the cup on the table?" (the same question),
     "is there anything on the chair?" (every object: "*")."""
@@ -523,10 +538,15 @@ def _existence(pq, toks, joined, nps, extra) -> None:
     objs, conds = _conditions(toks, nps, every)
     rel = _location(pq, toks, objs, conds) if conds and (objs or every) else None
     rel = rel or _attached_near(pq, joined, objs)  # "is there a chair near the table?" (read as a selector)
+    count = _count_condition(joined)  # "are there two chairs?": a count, not "is there a chair?"
+    if count is not None and len(objs) > 1:
+        return _fail(pq, "an are-there-N question", "one object to count (e.g. 'are there two chairs?')")
+    if count is not None and objs and len(objs[0]["words"]) > 1 and objs[0]["words"][0] in _NUMBERS:
+        objs[0] = {**objs[0], "words": objs[0]["words"][1:]}  # "two chairs": the object is "chairs"
     if rel is not None:  # "is there a cup on the table?"
         names = _refs(pq, objs) if objs else ["*"]
         pq.qtype, pq.targets, pq.cues = "object_existence", names, [rel["object"]]
-        pq.params = {"objects": names, "all": False, "where": rel}
+        pq.params = {"objects": names, "all": False, "where": rel, **({"count": count} if count else {})}
         return
     if conds:
         where = ", ".join(" ".join(p["words"]) for p in conds)
@@ -536,6 +556,8 @@ def _existence(pq, toks, joined, nps, extra) -> None:
     names = _refs(pq, objs)
     pq.qtype = "object_existence"
     pq.targets, pq.params = names, {"objects": names, "all": " and " in f" {joined} "}
+    if count is not None:
+        pq.params["count"] = count
 
 
 def _size(pq, toks, joined, nps, extra) -> None:

@@ -462,3 +462,18 @@ def test_more_or_fewer_compares_counts_and_is_not_an_is_there_question():
         assert ask(q).status == "unsupported", q
     assert parse_question("is there more than one chair?").qtype == "object_existence"  # a number: not a comparison
     assert parse_question("is the desk more than 2 m from the couch?").qtype != "object_count_compare"
+
+
+def test_is_there_with_a_number_is_a_count():
+    """"Are there two chairs?" answered "yes" for any number of chairs (an is-there question)."""
+    chairs = sum(canonical_name(n) == "chair" for n, _, _ in ROOM)
+    assert chairs == 3
+    assert ask("are there two chairs?").text == "no" and ask("Are there three chairs?").text == "yes"
+    assert ask("is there more than one chair?").text == "yes" and ask("are there at least 4 chairs?").text == "no"
+    assert ask("are there fewer than 5 chairs in the room?").text == "yes"
+    assert ask("is there only one desk?").text == "yes"
+    a = ask("are there two chairs?")
+    assert a.value["counts"] == {"chairs": 3} and "== 2" in a.explanation
+    assert ask("are there two telephones on the desk?").text == "no"  # a location and a number
+    assert ask("are there 2 chairs and 1 desk?").status == "unsupported"
+    assert ask("is there a chair?").text == "yes"
