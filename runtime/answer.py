@@ -598,8 +598,13 @@ class MapReasoner:
                     if [r for r in inst[ref] if r is not o]}, "m")
         self._spread = (f"per-view-pair distance of {self._ph(pick)}",
                         ev.distance_values(pairs[pick][1], pairs[pick][2]), "m")
-        return pick, f"closest-point distances to {self._ph(ref)}: " + ", ".join(
+        expl = f"closest-point distances to {self._ph(ref)}: " + ", ".join(
             f"{self._ph(c)} {d:.2f} m" for c, d in dists.items())
+        if pq.params.get("yesno"):  # "is the tv closer to the table than the cup?": the first candidate wins?
+            yes = pick == cands[0] and len(set(dists.values())) > 1
+            return {"text": "yes" if yes else "no", "object": pick, "distances_m": {
+                self._ph(c): round(d, 3) for c, d in dists.items()}}, expl
+        return pick, expl
 
     def _object_nearest(self, pq: ParsedQuestion) -> tuple[Any, str]:
         """Nearest (farthest) object among everything in the map, other than the reference's own category."""

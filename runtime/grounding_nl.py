@@ -668,9 +668,12 @@ def _rel_distance(pq, toks, joined, nps, extra) -> None:
         pq.targets, pq.cues = [], [ref]
         pq.params = {"reference": ref, "extreme": extreme}
         return
+    yesno = toks[0] in _COPULA | {"does", "do", "did"} and "than" in toks and len(names) == 3 and not pq.options
+    if yesno and _has(joined, r"\bthan (?:to|from)\b"):  # "is the cup closer to the table than to the tv?"
+        ref, cands = names[0], names[1:]  # distances from the cup: to the table vs to the tv
     pq.qtype = "object_rel_distance"
     pq.targets = cands
-    pq.params = {"reference": ref, "candidates": cands, "extreme": extreme}
+    pq.params = {"reference": ref, "candidates": cands, "extreme": extreme, **({"yesno": True} if yesno else {})}
 
 
 _FACE1 = {"facing", "face", "faces", "towards", "toward"}

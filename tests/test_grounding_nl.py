@@ -477,3 +477,19 @@ def test_is_there_with_a_number_is_a_count():
     assert ask("are there two telephones on the desk?").text == "no"  # a location and a number
     assert ask("are there 2 chairs and 1 desk?").status == "unsupported"
     assert ask("is there a chair?").text == "yes"
+
+
+def test_is_a_closer_to_b_than_c_is_a_yes_no_with_the_right_reference():
+    """"Is the cup closer to the table than to the tv?" measured the table's distances to the cup and to the tv
+    and answered with a name; the distances are the cup's, and the answer is yes or no."""
+    d = {(a, b): min_gap(a, b) for a, b in [("laptop", "desk"), ("laptop", "couch"), ("telephone", "desk"),
+                                             ("couch", "desk"), ("whiteboard", "desk"), ("radiator", "desk")]}
+    yn = lambda c: "yes" if c else "no"  # noqa: E731
+    assert ask("is the laptop closer to the desk than to the couch?").text == yn(d["laptop", "desk"] < d["laptop", "couch"])
+    assert ask("is the laptop closer to the couch than to the desk?").text == yn(d["laptop", "couch"] < d["laptop", "desk"])
+    assert ask("is the telephone closer to the desk than the couch?").text == yn(d["telephone", "desk"] < d["couch", "desk"])
+    assert ask("is the couch closer to the desk than the telephone?").text == yn(d["couch", "desk"] < d["telephone", "desk"])
+    assert ask("is the whiteboard farther from the desk than the radiator?").text == \
+        yn(d["whiteboard", "desk"] > d["radiator", "desk"])
+    assert ask("which is closer to the desk, the couch or the laptop?").text == \
+        ("couch" if d["couch", "desk"] < d["laptop", "desk"] else "laptop")  # a choice stays a name
