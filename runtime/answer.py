@@ -40,7 +40,7 @@ from .config import StageConf
 from .errors import InputError
 from .geometry import box_distance
 from .grounding import ParsedQuestion, canonical_name, name_key, parse_question, safe_text, split_options
-from .grounding_nl import SUPERLATIVES
+from .grounding_nl import COMPARATIVES, SUPERLATIVES
 from .semantic_map import ObjectInstance, SemanticMap
 from .trace import as_trace
 
@@ -162,6 +162,8 @@ def _measure(o: ObjectInstance, what: str) -> float:
     return horiz[1] if what == "depth" else horiz[0]  # length / width: the longer horizontal side (W x D x H)
 
 
+_OPPOSITES = {"bigger": "smaller", "larger": "smaller", "taller": "shorter", "higher": "lower", "longer": "shorter",
+              "wider": "narrower"}
 _MEASURE_WORDS = {"volume": "box volume", "height": "height", "top": "top height", "length": "length",
                   "width": "width"}
 
@@ -656,6 +658,8 @@ class MapReasoner:
         ranked = sorted(vals, key=vals.get, reverse=pick is max)[:6]
         expl = f"{_MEASURE_WORDS[key]}: " + ", ".join(f"{self._ph(n)} #{best[n].id} {vals[n]:.2f} {unit}"
                                                       for n in ranked)
+        if pq.params.get("difference"):
+            return self._size_difference(pq, vals, key), expl
         if pq.params.get("yesno"):
             a = cands[0]
             yes = win == a and vals[cands[0]] != vals[cands[1]]
@@ -664,6 +668,19 @@ class MapReasoner:
             o = best[win]
             return {"text": o.name, "object": o.name, "instance": int(o.id), "value": round(vals[win], 3)}, expl
         return win, expl
+
+    def _size_difference(self, pq: ParsedQuestion, vals: dict[str, float], key: str) -> dict[str, Any]:
+        """"How much taller is A than B?": A's measure minus B's (m^3 for volume, else the asked length unit);
+        a negative difference is said as the opposite comparison."""
+        a, b = pq.params["candidates"]
+        word = next(w for w, sup in COMPARATIVES.items() if sup == pq.params["measure"])
+        d = vals[a] - vals[b]
+        unit = "m3" if key == "volume" else pq.params.get("unit", "cm")
+        v = d if key == "volume" else d / UNIT_M[unit]
+        shown = f"{abs(v):.2f} m^3" if key == "volume" else f"{abs(v):.{0 if unit in ('cm', 'mm') else 2}f} {UNIT_WORDS[unit]}"
+        opposite = {v: k for k, v in _OPPOSITES.items()} | _OPPOSITES
+        text = shown if d >= 0 else f"none: the {self._ph(a)} is {shown} {opposite.get(word, 'less ' + word)}"
+        return {"text": text, "difference": round(v, 4), "unit": unit}
 
     def _pick_unique(self, name: str, near: list[np.ndarray]) -> tuple[ObjectInstance, str]:
         """The instance of `name` to use as a position: the only one, or the one nearest the other objects."""

@@ -298,6 +298,8 @@ def _intent(j: str, n_obj: int, has_opts: bool) -> str | None:
     if _has(j, r"\b(?:more|fewer|less)\b") and _has(j, r"\b(?:than|or)\b") and not _has(j, r"\d|\bmore or less\b") \
             and n_obj >= 2:
         return "count_compare"  # "are there more chairs than cups?", "which are there fewer of, cups or chairs?"
+    if _has(j, r"\bhow much " + _CMP_RX[2:] + r" (?:is|are|was|were)\b") and _has(j, r"\bthan\b"):
+        return "size_compare"  # "how much taller is the fridge than the table?": the difference
     if not _has(j, r"\bhow\b") and (_has(j, _CMP_RX) and _has(j, r"\b(?:which|whichever|what|or|than)\b")
                                      or _has(j, _SUP_RX) and _has(j, r"^(?:which|what|what's)\b")
                                      and not _has(j, _SUP_DIM_RX)):
@@ -589,13 +591,18 @@ def _size_compare(pq, toks, joined, nps, extra) -> None:
     sup = COMPARATIVES.get(word, word)
     names = _option_names(pq) or _refs(pq, nps)
     yesno = word in COMPARATIVES and "than" in toks and toks[0] in _COPULA | {"does", "do", "did"}
-    if (yesno and len(names) != 2) or (word in COMPARATIVES and len(names) < 2):
+    diff = word in COMPARATIVES and _has(joined, r"\bhow much\b")
+    if ((yesno or diff) and len(names) != 2) or (word in COMPARATIVES and len(names) < 2):
         about = f" about '{pq.phrase(names[0])}'" if names else ""
         return _fail(pq, f"a '{word}' question{about}", "the two objects to compare (e.g. 'is the tv bigger than "
                                                         "the lamp?', 'which is taller, the fridge or the door?')")
     pq.qtype = "object_size_compare"
     pq.targets = names
     pq.params = {"measure": sup, "candidates": names or "*", "yesno": yesno}
+    if diff:  # "how much taller is A than B?": A's measure minus B's, in the asked unit
+        pq.params["difference"] = True
+        if SUPERLATIVES[sup][0] != "volume":
+            pq.params["unit"] = _unit(joined, "cm")
 
 
 def _room_size(pq, toks, joined, nps, extra) -> None:

@@ -493,3 +493,17 @@ def test_is_a_closer_to_b_than_c_is_a_yes_no_with_the_right_reference():
         yn(d["whiteboard", "desk"] > d["radiator", "desk"])
     assert ask("which is closer to the desk, the couch or the laptop?").text == \
         ("couch" if d["couch", "desk"] < d["laptop", "desk"] else "laptop")  # a choice stays a name
+
+
+def test_how_much_taller_is_the_difference_in_the_asked_unit():
+    """"How much taller is A than B?" was not understood."""
+    h = {n: s[2] for n, _, s in ROOM}
+    a = ask("how much taller is the whiteboard than the desk?")
+    assert a.ok and a.value["difference"] == pytest.approx((h["whiteboard"] - h["desk"]) * 100, abs=1e-6)
+    assert a.text == f"{(h['whiteboard'] - h['desk']) * 100:.0f} cm"
+    assert ask("how much taller is the desk than the whiteboard?").text.startswith("none: the desk is")
+    w = ask("how much wider is the couch than the desk in inches?")
+    assert w.value["unit"] == "in" and w.value["difference"] == pytest.approx((2.0 - 1.4) / 0.0254, abs=1e-3)
+    v = ask("how much bigger is the couch than the desk?")
+    assert v.value["difference"] == pytest.approx(2.0 * 0.9 * 0.8 - 1.4 * 0.7 * 0.76, abs=1e-3)
+    assert ask("how much taller is the chair?").status == "unsupported"
