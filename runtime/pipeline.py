@@ -35,7 +35,7 @@ from .matching import MatchConf, make_matcher
 from .alignment import AlignConf, align_keyframes, worker_threads
 from .semantic_map import (FusionConfig, ObjectInstance, Observation, SemanticMap, box_depth_mask,
                            extend_to_floor, first_seen_from_detections, fuse_observations, gravity_from_frames,
-                           lift_observations, refine, room_extent)
+                           lift_camera, place, refine, room_extent)
 from . import prompt as vprompt
 from .answer import MapReasoner, answer_question, answer_with_vlm
 # moved to their stage modules; importable from here as before
@@ -395,15 +395,24 @@ def _with_depth(conf: PipelineConfig, perception: Perception, trace: Trace) -> C
     return lambda f: dataclasses.replace(f, depth=_depth_for(f, conf, perception, trace))
 
 
+def _lift(f: Frame, d: Detections, fconf: FusionConfig) -> list[Observation]:
+    """A key frame's detections as camera-frame point clouds (`semantic_map.lift_camera`)."""
+    return lift_camera(f.rgb.shape[:2], f.depth, f.K, d.boxes, d.names, d.scores, d.masks, f.index, f.t, fconf,
+                       d.instance_ids)
+
+
 def _perceive(source: FrameSource, chosen: list[int], det: _CachedDetector, names: list[str],
-              perception: Perception, conf: PipelineConfig, trace: Trace, budget: Any
-              ) -> tuple[list[Frame], dict[int, Detections]]:
-    """Perception per key frame: depth, detections (cached from the search), masks. The memory guard may stop
-    adding key frames (recorded). Needs 2 frames at least."""
+              perception: Perception, conf: PipelineConfig, fconf: FusionConfig, trace: Trace, budget: Any
+              ) -> tuple[list[Frame], dict[int, Detections], dict[int, list[Observation]]]:
+    """Perception per key frame: depth, detections (cached from the search), masks, and the detections' point
+    clouds in the camera frame (`lift_camera`, on a worker thread while the next key frame's models run). The
+    memory guard may stop adding key frames (recorded). Needs 2 frames at least. -> (frames, detections,
+    camera-frame observations per key frame)"""
     frames: list[Frame] = []
     dets: dict[int, Detections] = {}
+    lifting: dict[int, Any] = {}
     bar = start("perception", len(chosen), "key frame")
-    with _stage(budget, trace, "perception"):
+    with _stage(budget, trace, "perception"), ThreadPoolExecutor(1) as lifter:
         for i in chosen:
             if budget is not None and not budget.check_headroom(conf.memory_headroom_mb):
                 trace.event("reduced_plan", f"memory guard: stopped adding key frames at {len(frames)}",
@@ -417,11 +426,13 @@ def _perceive(source: FrameSource, chosen: list[int], det: _CachedDetector, name
                                                                 conf.box_prompt_min_share))
             dets[i] = d
             frames.append(f)
+            lifting[i] = lifter.submit(_lift, f, d, fconf)
             bar.update()
+        lifted = {i: fut.result() for i, fut in lifting.items()}
     bar.done()
     if len(frames) < 2:
         raise MosaicError(f"only {len(frames)} key frame(s) available: need at least 2 to build a map")
-    return frames, dets
+    return frames, dets, lifted
 
 
 def _over_budget(budget: Any, trace: Trace, unaligned: Sequence[int]) -> bool:
@@ -480,16 +491,20 @@ def _gravity(frames: list[Frame], poses_root: dict[int, np.ndarray], source: Fra
 
 
 def fuse_frames(frames: list[Frame], dets: dict[int, Detections], poses: dict[int, np.ndarray], fconf: FusionConfig,
-                trace: Trace | None = None) -> tuple[list[Observation], list[ObjectInstance], list[np.ndarray]]:
-    """Lift every posed key frame's detections into the world and fuse them into instances."""
+                trace: Trace | None = None, lifted: dict[int, list[Observation]] | None = None
+                ) -> tuple[list[Observation], list[ObjectInstance], list[np.ndarray]]:
+    """Place every posed key frame's camera-frame observations in the world (`lifted`: perception's; a frame
+    without them is lifted here) and fuse them into instances."""
     obs: list[Observation] = []
-    def lift(f: Frame) -> list[Observation]:
-        d = dets[f.index]
-        return lift_observations(f.rgb.shape[:2], f.depth, f.K, poses[f.index], d.boxes, d.names, d.scores,
-                                 d.masks, f.index, f.t, fconf, d.instance_ids)
+    lifted = lifted or {}
 
-    with phase("fusion", len(frames), "key frame") as bar, ThreadPoolExecutor(worker_threads()) as ex:
-        for got in ex.map(lift, [f for f in frames if f.index in poses]):  # frames lift independently; in order
+    def lift(f: Frame) -> list[Observation]:
+        return place(lifted[f.index] if f.index in lifted else _lift(f, dets[f.index], fconf), poses[f.index])
+
+    posed = [f for f in frames if f.index in poses]
+    threads = 1 if all(f.index in lifted for f in posed) else worker_threads()  # placing is a matrix product
+    with phase("fusion", len(frames), "key frame") as bar, ThreadPoolExecutor(threads) as ex:
+        for got in ex.map(lift, posed):  # frames lift independently; in order
             obs += got
             bar.update()
         instances, clouds = fuse_observations(obs, fconf, trace)
@@ -604,14 +619,14 @@ def build_map(source: FrameSource, targets: Sequence[str], cues: Sequence[str] =
     loaded0 = (getattr(source, "load_seconds", 0.0), getattr(source, "loads", 0))
     names, perception, K = _start_build(source, targets, cues, perception, conf, trace, keyframes, budget)
     chosen, det, _, _cands = select(source, targets, cues, perception, conf, trace, keyframes=K, budget=budget)
-    frames, dets = _perceive(source, chosen, det, names, perception, conf, trace, budget)
+    fconf = FusionConfig.merged(conf.fusion)
+    frames, dets, lifted = _perceive(source, chosen, det, names, perception, conf, fconf, trace, budget)
     al, matcher = _align(frames, dets, source, perception, conf, trace, budget)
     with trace.stage("gravity"):
         W = _gravity(frames, al.poses, source, al.root, conf, trace)
     poses = {i: W @ T for i, T in al.poses.items()}
-    fconf = FusionConfig.merged(conf.fusion)
     with trace.stage("fusion"):
-        obs, instances, clouds = fuse_frames(frames, dets, poses, fconf, trace)
+        obs, instances, clouds = fuse_frames(frames, dets, poses, fconf, trace, lifted)
     instances, clouds, recovered = _refine(instances, clouds, obs, frames, poses, dets, perception, fconf, matcher,
                                            conf, trace, budget)
     if budget is not None:

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import json
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, ClassVar, Iterable, Sequence
 
 import numpy as np
@@ -413,15 +413,30 @@ def lift_observations(rgb_shape: tuple[int, int], depth: np.ndarray, K: np.ndarr
                       boxes: np.ndarray, names: list[str], scores: np.ndarray, masks: np.ndarray | None,
                       frame: int, t: float, conf: FusionConfig = default_fusion_conf,
                       instance_ids: np.ndarray | None = None) -> list[Observation]:
-    """Masked depth -> world points for each detection of one frame.
+    """Masked depth -> world points for each detection of one frame: `place(lift_camera(...), T_wc)`.
 
     depth: [H, W] float32 metres (0 invalid); K: [3, 3]; T_wc: [4, 4] camera-to-world (gravity-aligned world);
     boxes: [N, 4] pixels; masks: [N, H, W] bool or None (then the box interior is used, with a tighter depth
     filter: the median-depth band, since boxes also cover background).
     """
-    import cv2
+    return place(lift_camera(rgb_shape, depth, K, boxes, names, scores, masks, frame, t, conf, instance_ids), T_wc)
 
+
+def place(observations: list[Observation], T_wc: np.ndarray) -> list[Observation]:
+    """Camera-frame observations (`lift_camera`) -> the same in the world: points [N, 3] through T_wc [4, 4]."""
     from .geometry import transform
+
+    return [replace(o, points=transform(T_wc, o.points)) for o in observations]
+
+
+def lift_camera(rgb_shape: tuple[int, int], depth: np.ndarray, K: np.ndarray, boxes: np.ndarray, names: list[str],
+                scores: np.ndarray, masks: np.ndarray | None, frame: int, t: float,
+                conf: FusionConfig = default_fusion_conf, instance_ids: np.ndarray | None = None
+                ) -> list[Observation]:
+    """Masked depth -> camera-frame points for each detection of one frame (arguments as `lift_observations`).
+    Needs no pose (a rigid move keeps the component split's distances), so a key frame is lifted when it is
+    perceived (paper: per key frame, segmentation + depth -> object point clouds) and fusion only places it."""
+    import cv2
 
     rng = None  # the frame's subsampling stream, made on first use (most masks need none: ~50 us a frame)
     out: list[Observation] = []
@@ -451,7 +466,7 @@ def lift_observations(rgb_shape: tuple[int, int], depth: np.ndarray, K: np.ndarr
             pts = largest_components(pts, conf.component_link_m, conf.component_share)
             if len(pts) < conf.min_points:
                 continue
-        out.append(Observation(name, float(scores[j]), frame, t, transform(T_wc, pts), np.asarray(box, np.float32),
+        out.append(Observation(name, float(scores[j]), frame, t, pts, np.asarray(box, np.float32),
                                None if instance_ids is None else int(instance_ids[j])))
     return out
 

@@ -265,14 +265,16 @@ def test_threads_give_identical_alignment_and_map_7scenes(redkitchen, with_scale
     for r in runs[1:]:
         _same_alignment(runs[0], r)
     maps = [_fused(frames, r.poses, t, monkeypatch) for r, t in ((runs[0], 1), (runs[1], 3), (runs[2], 3))]
+    maps.append(_fused(frames, runs[0].poses, 1, monkeypatch, prelift=True))  # lifted at perception, then placed
     for m in maps[1:]:  # the map on 1 thread vs 3 (alignment and the pipeline's per-frame lifting), repeated
         assert len(m) == len(maps[0]) > 0
         assert all(x.name == y.name and np.array_equal(x.center, y.center)
                    and np.array_equal(x.box.axes_lengths, y.box.axes_lengths) for x, y in zip(maps[0], m))
 
 
-def _fused(frames, poses, threads, monkeypatch):
-    """The pipeline's fusion step (lifting per frame on `threads` threads) with two box detections per frame."""
+def _fused(frames, poses, threads, monkeypatch, prelift=False):
+    """The pipeline's fusion step (lifting per frame on `threads` threads) with two box detections per frame;
+    prelift: the key frames lifted in the camera frame first, as perception does, and only placed by fusion."""
     from mosaicthinker.runtime import pipeline
     from mosaicthinker.runtime.perception import Detections
 
@@ -280,7 +282,16 @@ def _fused(frames, poses, threads, monkeypatch):
     H, W = frames[0].depth.shape
     boxes = np.array([[0, 0, W // 2, H // 2], [W // 3, H // 3, W, H]], np.float32)
     dets = {f.index: Detections(boxes, np.array([0.9, 0.8], np.float32), ["a", "b"]) for f in frames}
-    return pipeline.fuse_frames(frames, dets, poses, sm.FusionConfig())[1]
+    fconf = sm.FusionConfig()
+    lifted = {f.index: pipeline._lift(f, dets[f.index], fconf) for f in frames} if prelift else None
+    if prelift:
+        for f in frames:  # the same points as lifting with the pose
+            want = sm.lift_observations(f.depth.shape, f.depth, f.K, poses.get(f.index, np.eye(4)), boxes,
+                                        ["a", "b"], np.array([0.9, 0.8]), None, f.index, f.t, fconf)
+            got = sm.place(lifted[f.index], poses.get(f.index, np.eye(4)))
+            assert [o.name for o in got] == [o.name for o in want]
+            assert all(np.allclose(a.points, b.points, atol=1e-9) for a, b in zip(got, want))
+    return pipeline.fuse_frames(frames, dets, poses, fconf, None, lifted)[1]
 
 
 def test_threads_config_checked():
