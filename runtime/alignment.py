@@ -1444,9 +1444,9 @@ def bridge_attach(al: AlignmentResult, frames: list[Any], source: Any, matcher: 
     apart, `bridge_frames` in all) walked from its nearest aligned key frame in time towards it (`bridge_chain`),
     one `attach_frames` edge per step, loading a frame only when the chain reaches it and stopping as soon as the
     key frame itself attaches: no re-alignment of the whole set, so a round that cannot buy an aligned frame costs
-    only its failed steps. Gaps over `bridge_max_gap_s` are not bridged (long chains drift). Key frames still
-    out then get bridges found by appearance (`revisit_attach`, with `thumbs`: small gray images of the video's
-    frames, e.g. dedup's) from what is left of the same `bridge_frames` budget. Returns the bridge frames used
+    only its failed steps. Gaps over `bridge_max_gap_s` are not bridged (long chains drift): key frames that far
+    from every aligned one then get bridges found by appearance (`revisit_attach`, with `thumbs`: small gray
+    images of the video's frames, e.g. dedup's) from what is left of the same `bridge_frames` budget. Returns the bridge frames used
     (poses only, never detected); recorded."""
     pool = {f.index: f for f in frames}
     keys = set(pool)
@@ -1489,7 +1489,7 @@ def bridge_attach(al: AlignmentResult, frames: list[Any], source: Any, matcher: 
     if thumbs and conf.revisit_tries > 0 and al.unaligned and budget > 0:
         if fates is not None:
             fates.after(al, "through bridge frames")
-        budget, more = revisit_attach(al, pool, source, matcher, with_depth, conf, thumbs, budget, trace)
+        budget, more = revisit_attach(al, pool, keys, source, matcher, with_depth, conf, thumbs, budget, trace)
         used += more
         if fates is not None:
             fates.after(al, "through bridges found by appearance")
@@ -1529,12 +1529,14 @@ def revisit_pairs(u: int, aligned: Sequence[int], hist: Mapping[int, np.ndarray]
     return [(c, a) for _, _, c, a in sorted(best)[:n]]
 
 
-def revisit_attach(al: AlignmentResult, pool: dict[int, Any], source: Any, matcher: KeyedMatcher,
+def revisit_attach(al: AlignmentResult, pool: dict[int, Any], keys: set[int], source: Any, matcher: KeyedMatcher,
                    with_depth: WithDepth, conf: AlignPolicy, thumbs: Mapping[int, np.ndarray], budget: int,
                    trace: Any = None) -> tuple[int, list[Any]]:
     """Bridges found by appearance, metric depth: a long video comes back to places (people walk back), so a
-    key frame with no aligned key frame within `bridge_max_gap_s` in time may still be near (in time) a view of
-    an aligned frame's place. For each unaligned key frame u, its `revisit_tries` (c, a) pairs
+    key frame with no aligned key frame within `bridge_max_gap_s` in time (out of the time chains' reach) may
+    still be near (in time) a view of an aligned frame's place. Key frames with an aligned key frame that near
+    are left to the time chains (where those failed, a chain from a revisit must cross the same frames near the
+    key frame). For each unaligned key frame u out of reach, its `revisit_tries` (c, a) pairs
     (`revisit_pairs`: c near u in time, a aligned far from it, alike by thumbnail histogram) are tried as
     whole-image edges a -> c (RANSAC + the depth check both ways); an attached c is chained to u in time
     (`bridge_chain`). Once u is aligned, the unaligned key frames it has verified pairs with come along
@@ -1542,20 +1544,23 @@ def revisit_attach(al: AlignmentResult, pool: dict[int, Any], source: Any, match
     frames. Mutates al and pool; returns (budget left, the bridge frames used); recorded."""
     aconf = AlignConf.merged(conf.alignment)
     rng = np.random.default_rng(aconf.seed)
+    ts, gap = source.timestamps, conf.bridge_max_gap_s
+    todo = [u for u in sorted(al.unaligned) if u not in al.poses and not any(
+        a in al.poses and abs(float(ts[a]) - float(ts[u])) <= gap for a in keys)]
+    if not todo:
+        return budget, []
     hist = thumb_histograms(thumbs)
-    keys = {i for i in pool if i in set(al.unaligned) | set(al.poses)}
     n0, tried, used, gained = len(al.unaligned), 0, [], []
 
     def ok(a: int, b: int, T_ab: np.ndarray) -> bool:
         return a in pool and b in pool and _edge_ok(pool[a], pool[b], T_ab, conf.max_free_space_violation)
 
-    for u in sorted(al.unaligned):
+    for u in todo:
         if budget <= 0:
             break
         if u in al.poses:
             continue
-        for c, a in revisit_pairs(u, list(al.poses), hist, source.timestamps, conf.bridge_max_gap_s,
-                                  al.whole_tried, conf.revisit_tries):
+        for c, a in revisit_pairs(u, list(al.poses), hist, ts, gap, al.whole_tried, conf.revisit_tries):
             if u in al.poses:
                 break
             if c not in pool:
@@ -1574,9 +1579,10 @@ def revisit_attach(al: AlignmentResult, pool: dict[int, Any], source: Any, match
             gained.append(u)
             gained += _reattach(al, al.poses, [i for i in al.unaligned if i in keys and i not in al.poses], ok)
     al.unaligned = [i for i in al.unaligned if i not in al.poses]
-    as_trace(trace).event("alignment", f"bridges found by appearance: {tried} pair(s) tried, {len(used)} frame(s) "
-                          f"attached as bridges, {n0 - len(al.unaligned)} of {n0} key frame(s) aligned through "
-                          f"them; {len(al.unaligned)} left unaligned", stage="alignment",
+    as_trace(trace).event("alignment", f"bridges found by appearance: {len(todo)} key frame(s) more than {gap:g} s "
+                          f"from every aligned one, {tried} pair(s) tried, {len(used)} frame(s) attached as "
+                          f"bridges, {n0 - len(al.unaligned)} of {n0} key frame(s) aligned through them; "
+                          f"{len(al.unaligned)} left unaligned", stage="alignment", out_of_reach=todo,
                           bridges=[f.index for f in used], aligned=gained, unaligned=list(al.unaligned))
     return budget, used
 

@@ -90,10 +90,10 @@ class PipelineConfig(StageConf):
     bridge_gap_s: float = 0.25           # bridge frames are placed at most this far apart in time
     bridge_rounds: int = 2               # bridge, check, bridge again around edges the check rejected
     bridge_max_gap_s: float = 10.0       # ... and only across gaps up to this long (long chains drift)
-    revisit_tries: int = 4               # metric depth, key frames still unaligned after that: this many (frame
-                                         # near it in time, aligned frame far away) pairs most alike by dedup's
-                                         # thumbnails tried each, a place the video shows twice (0 = off; the
-                                         # frames loaded count in `bridge_frames`)
+    revisit_tries: int = 4               # metric depth, unaligned key frames beyond that gap from every aligned
+                                         # one: this many (frame near it in time, aligned frame far away) pairs
+                                         # most alike by dedup's thumbnails tried each, a place the video shows
+                                         # twice (0 = off; the frames loaded count in `bridge_frames`)
     # floor-standing furniture seen from above (a table top, a chair back) reaches down to the floor when the key
     # frames saw its support (points under the footprint in >= `floor_band_share` of the 10 cm height bands, the
     # lowest included) or saw no open space under it (hidden bands are unknown) (`extend_to_floor`); () = off

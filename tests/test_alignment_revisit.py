@@ -8,8 +8,8 @@ import dataclasses
 import cv2
 import numpy as np
 
-from mosaicthinker.runtime.alignment import (AlignmentResult, BlockPairs, bridge_attach, revisit_pairs,
-                                             thumb_histograms)
+from mosaicthinker.runtime.alignment import (AlignmentResult, BlockPairs, bridge_attach, revisit_attach,
+                                             revisit_pairs, thumb_histograms)
 from mosaicthinker.runtime.geometry import invert
 from mosaicthinker.runtime.matching import make_matcher
 from mosaicthinker.runtime.pipeline import PipelineConfig
@@ -101,3 +101,13 @@ def test_revisit_bridges_align_a_key_frame_far_in_time_from_every_aligned_one(re
     pp.loaded.clear()
     al, used, _ = run(PipelineConfig.merged(bridge_max_gap_s=3.0, bridge_frames=12, revisit_tries=0), [(20, 192)])
     assert al.unaligned == [192] and used == [] and pp.loaded == []
+
+    # a key frame with an aligned key frame within `bridge_max_gap_s` is the time chains' (which failed here):
+    # no revisit is tried for it, nothing is loaded
+    pp.loaded.clear()
+    al = AlignmentResult({20: np.eye(4), 185: np.eye(4)}, 20, [], [192], "mst")
+    pool = {20: k20, 185: pp[185], 192: k192}
+    pp.loaded.clear()
+    left, used = revisit_attach(al, pool, {20, 185, 192}, pp, BlockPairs(make_matcher("sift"), [(20, 192)]),
+                                lambda f: f, conf, thumbs, 12)
+    assert (left, used, pp.loaded, al.unaligned) == (12, [], [], [192])
