@@ -1446,8 +1446,8 @@ def bridge_attach(al: AlignmentResult, frames: list[Any], source: Any, matcher: 
     key frame itself attaches: no re-alignment of the whole set, so a round that cannot buy an aligned frame costs
     only its failed steps. Gaps over `bridge_max_gap_s` are not bridged (long chains drift): key frames that far
     from every aligned one then get bridges found by appearance (`revisit_attach`, with `thumbs`: small gray
-    images of the video's frames, e.g. dedup's) from what is left of the same `bridge_frames` budget. Returns the bridge frames used
-    (poses only, never detected); recorded."""
+    images of the video's frames, e.g. dedup's) from what is left of the same `bridge_frames` budget. Returns
+    the bridge frames used (poses only, never detected); recorded."""
     pool = {f.index: f for f in frames}
     keys = set(pool)
     used: list[Any] = []
@@ -1563,6 +1563,8 @@ def revisit_attach(al: AlignmentResult, pool: dict[int, Any], keys: set[int], so
         for c, a in revisit_pairs(u, list(al.poses), hist, ts, gap, al.whole_tried, conf.revisit_tries):
             if u in al.poses:
                 break
+            if c in al.poses:
+                continue  # attached by an earlier chain of this loop
             if c not in pool:
                 if budget <= 0:
                     break
