@@ -1075,6 +1075,7 @@ class AlignPolicy(Protocol):
     bridge_gap_s: float
     bridge_rounds: int
     bridge_max_gap_s: float
+    revisit_tries: int
     verify_depth: bool
     max_free_space_violation: float
     attach_tries: int
@@ -1226,21 +1227,29 @@ def attach_frames(al: AlignmentResult, frames: dict[int, Any], todo: Sequence[in
                           key=lambda a: (abs(float(frames[a].t) - float(fu.t)), a))[:tries]
             for a in near:
                 tried.add(frozenset((a, u)))
-                al.whole_tried.add(frozenset((a, u)))
-                fa = frames[a]
-                mt = matcher.match_keys(a, fa.rgb, u, fu.rgb, None, None)
-                r = align_pair(mt, fa.depth, fa.K, fu.depth, fu.K, aconf, False, rng, getattr(fa, "dist", None),
-                               getattr(fu, "dist", None))
-                al.edge_stats[(a, u)] = r
-                if not r.ok or not _edge_ok(fa, fu, r.T_ab, conf.max_free_space_violation):
-                    continue
-                al.poses[u] = al.poses[a] @ r.T_ab
-                al.edges.append((a, u))
-                attached.append(u)
-                changed = True
-                break
+                if _try_edge(al, frames, a, u, matcher, conf, aconf, rng):
+                    attached.append(u)
+                    changed = True
+                    break
     al.unaligned = [i for i in al.unaligned if i not in al.poses]
     return attached
+
+
+def _try_edge(al: AlignmentResult, frames: Mapping[int, Any], a: int, u: int, matcher: KeyedMatcher,
+              conf: AlignPolicy, aconf: AlignConf, rng: np.random.Generator) -> bool:
+    """One whole-image edge from aligned frame a to frame u: RANSAC, then the depth check both ways; on success
+    u gets its pose through a. Recorded in al (whole_tried, edge_stats, and poses + edges on success)."""
+    al.whole_tried.add(frozenset((a, u)))
+    fa, fu = frames[a], frames[u]
+    mt = matcher.match_keys(a, fa.rgb, u, fu.rgb, None, None)
+    r = align_pair(mt, fa.depth, fa.K, fu.depth, fu.K, aconf, False, rng, getattr(fa, "dist", None),
+                   getattr(fu, "dist", None))
+    al.edge_stats[(a, u)] = r
+    if not r.ok or not _edge_ok(fa, fu, r.T_ab, conf.max_free_space_violation):
+        return False
+    al.poses[u] = al.poses[a] @ r.T_ab
+    al.edges.append((a, u))
+    return True
 
 
 class BlockPairs:
@@ -1400,9 +1409,11 @@ def align_rest_relative(al: AlignmentResult, frames: list[Any], boxes: dict[int,
 
 def align_rest_metric(al: AlignmentResult, frames: list[Any], matcher: KeyedMatcher, source: Any,
                       with_depth: WithDepth, conf: AlignPolicy, trace: Any,
-                      over_budget: Callable[[list[int]], bool], fates: Fates | None = None) -> list[Any]:
+                      over_budget: Callable[[list[int]], bool], fates: Fates | None = None,
+                      thumbs: Mapping[int, np.ndarray] | None = None) -> list[Any]:
     """Metric depth after the box-matched tree: depth-check its edges, attach what it left out by whole-image
-    edges, then bridge what is still out. Returns the bridge frames used."""
+    edges, then bridge what is still out (in time, then by appearance with `thumbs`: `bridge_attach`). Returns
+    the bridge frames used."""
     trace = as_trace(trace)
     fates = fates or Fates([f.index for f in frames])
     with trace.stage("alignment.verify"):
@@ -1421,19 +1432,22 @@ def align_rest_metric(al: AlignmentResult, frames: list[Any], matcher: KeyedMatc
     if not al.unaligned or conf.bridge_frames <= 0 or conf.bridge_rounds <= 0 or over_budget(al.unaligned):
         return []
     with trace.stage("alignment"):
-        used = bridge_attach(al, frames, source, matcher, with_depth, conf, trace)
+        used = bridge_attach(al, frames, source, matcher, with_depth, conf, trace, thumbs, fates)
     fates.after(al, "through bridge frames")
     return used
 
 
 def bridge_attach(al: AlignmentResult, frames: list[Any], source: Any, matcher: KeyedMatcher, with_depth: WithDepth,
-                  conf: AlignPolicy, trace: Any = None) -> list[Any]:
+                  conf: AlignPolicy, trace: Any = None, thumbs: Mapping[int, np.ndarray] | None = None,
+                  fates: Fates | None = None) -> list[Any]:
     """Metric depth: connect each unaligned key frame through a chain of video frames (at least `bridge_gap_s`
     apart, `bridge_frames` in all) walked from its nearest aligned key frame in time towards it (`bridge_chain`),
     one `attach_frames` edge per step, loading a frame only when the chain reaches it and stopping as soon as the
     key frame itself attaches: no re-alignment of the whole set, so a round that cannot buy an aligned frame costs
-    only its failed steps. Gaps over `bridge_max_gap_s` are not bridged (long chains drift). Returns the bridge
-    frames used (poses only, never detected); recorded."""
+    only its failed steps. Gaps over `bridge_max_gap_s` are not bridged (long chains drift): key frames that far
+    from every aligned one then get bridges found by appearance (`revisit_attach`, with `thumbs`: small gray
+    images of the video's frames, e.g. dedup's) from what is left of the same `bridge_frames` budget. Returns
+    the bridge frames used (poses only, never detected); recorded."""
     pool = {f.index: f for f in frames}
     keys = set(pool)
     used: list[Any] = []
@@ -1472,7 +1486,107 @@ def bridge_attach(al: AlignmentResult, frames: list[Any], source: Any, matcher: 
                           + (f" ({len(set(skipped))} not tried: behind a gap a chain did not cross)" if skipped
                              else ""), stage="alignment", bridges=[f.index for f in used],
                           unaligned=list(al.unaligned), skipped=sorted(set(skipped)))
+    if thumbs and conf.revisit_tries > 0 and al.unaligned and budget > 0:
+        if fates is not None:
+            fates.after(al, "through bridge frames")
+        budget, more = revisit_attach(al, pool, keys, source, matcher, with_depth, conf, thumbs, budget, trace)
+        used += more
+        if fates is not None:
+            fates.after(al, "through bridges found by appearance")
     return used
+
+
+def thumb_histograms(thumbs: Mapping[int, np.ndarray], bins: int = 32) -> dict[int, np.ndarray]:
+    """Gray-level histograms of small gray images, zero-mean and unit-norm, so that a dot product is their
+    Pearson correlation (like `similarity_matrix`'s colour histograms; dedup's thumbnails are gray). Pure.
+    Chosen over zero-mean NCC of blurred thumbnails and gradient-orientation grids by how often the most alike
+    frame far away in time overlaps (synthetic seeds 7 and 8, docs/performance.md)."""
+    out = {}
+    for i, g in thumbs.items():
+        h = np.histogram(np.asarray(g), bins, (0, 256))[0].astype(np.float64)
+        h -= h.mean()
+        out[int(i)] = h / max(float(np.linalg.norm(h)), 1e-12)
+    return out
+
+
+def revisit_pairs(u: int, aligned: Sequence[int], hist: Mapping[int, np.ndarray], times: Any, max_gap_s: float,
+                  skip: set[frozenset[int]], n: int) -> list[tuple[int, int]]:
+    """Up to n (c, a) pairs to connect unaligned frame u through a place the video shows twice: c a frame
+    with a histogram (u itself included) within `max_gap_s` of u in time and not in `aligned`, a an aligned
+    frame more than `max_gap_s` away from u (nearer ones are the time chains' work); each c with the a it is
+    most alike, the most alike pairs first, pairs in `skip` (tried) left out. Pure."""
+    tu = float(times[u])
+    far = [a for a in aligned if a in hist and abs(float(times[a]) - tu) > max_gap_s]
+    near = [c for c in hist if c not in aligned and abs(float(times[c]) - tu) <= max_gap_s]
+    if not far or not near:
+        return []
+    sim = np.array([hist[c] for c in near]) @ np.array([hist[a] for a in far]).T
+    best = []
+    for i, c in enumerate(near):
+        order = [j for j in np.argsort(-sim[i], kind="stable") if frozenset((far[j], c)) not in skip]
+        if order:
+            best.append((-float(sim[i, order[0]]), abs(float(times[c]) - tu), c, far[order[0]]))
+    return [(c, a) for _, _, c, a in sorted(best)[:n]]
+
+
+def revisit_attach(al: AlignmentResult, pool: dict[int, Any], keys: set[int], source: Any, matcher: KeyedMatcher,
+                   with_depth: WithDepth, conf: AlignPolicy, thumbs: Mapping[int, np.ndarray], budget: int,
+                   trace: Any = None) -> tuple[int, list[Any]]:
+    """Bridges found by appearance, metric depth: a long video comes back to places (people walk back), so a
+    key frame with no aligned key frame within `bridge_max_gap_s` in time (out of the time chains' reach) may
+    still be near (in time) a view of an aligned frame's place. Key frames with an aligned key frame that near
+    are left to the time chains (where those failed, a chain from a revisit must cross the same frames near the
+    key frame). For each unaligned key frame u out of reach, its `revisit_tries` (c, a) pairs
+    (`revisit_pairs`: c near u in time, a aligned far from it, alike by thumbnail histogram) are tried as
+    whole-image edges a -> c (RANSAC + the depth check both ways); an attached c is chained to u in time
+    (`bridge_chain`). Once u is aligned, the unaligned key frames it has verified pairs with come along
+    (`_reattach`, depth-checked), e.g. the rest of a part the depth check cut off. Loads at most `budget`
+    frames. Mutates al and pool; returns (budget left, the bridge frames used); recorded."""
+    aconf = AlignConf.merged(conf.alignment)
+    rng = np.random.default_rng(aconf.seed)
+    ts, gap = source.timestamps, conf.bridge_max_gap_s
+    todo = [u for u in sorted(al.unaligned) if u not in al.poses and not any(
+        a in al.poses and abs(float(ts[a]) - float(ts[u])) <= gap for a in keys)]
+    if not todo:
+        return budget, []
+    hist = thumb_histograms(thumbs)
+    n0, tried, used, gained = len(al.unaligned), 0, [], []
+
+    def ok(a: int, b: int, T_ab: np.ndarray) -> bool:
+        return a in pool and b in pool and _edge_ok(pool[a], pool[b], T_ab, conf.max_free_space_violation)
+
+    for u in todo:
+        if budget <= 0:
+            break
+        if u in al.poses:
+            continue
+        for c, a in revisit_pairs(u, list(al.poses), hist, ts, gap, al.whole_tried, conf.revisit_tries):
+            if u in al.poses:
+                break
+            if c in al.poses:
+                continue  # attached by an earlier chain of this loop
+            if c not in pool:
+                if budget <= 0:
+                    break
+                pool[c] = with_depth(source[c])
+                budget -= 1
+            tried += 1
+            if not _try_edge(al, pool, a, c, matcher, conf, aconf, rng):
+                continue
+            if c != u:
+                used.append(pool[c])
+                budget, chain = bridge_chain(al, pool, c, u, source, matcher, with_depth, conf, budget)
+                used += chain
+        if u in al.poses:
+            gained.append(u)
+            gained += _reattach(al, al.poses, [i for i in al.unaligned if i in keys and i not in al.poses], ok)
+    al.unaligned = [i for i in al.unaligned if i not in al.poses]
+    as_trace(trace).event("alignment", f"bridges found by appearance: {len(todo)} key frame(s) more than {gap:g} s "
+                          f"from every aligned one, {tried} pair(s) tried, {len(used)} frame(s) attached as "
+                          f"bridges, {n0 - len(al.unaligned)} of {n0} key frame(s) aligned through them; "
+                          f"{len(al.unaligned)} left unaligned", stage="alignment", out_of_reach=todo,
+                          bridges=[f.index for f in used], aligned=gained, unaligned=list(al.unaligned))
+    return budget, used
 
 
 def chain_jumps(gap: float, min_gap: float) -> list[float]:
@@ -1517,12 +1631,13 @@ def bridge_chain(al: AlignmentResult, pool: dict[int, Any], a: int, u: int, sour
 
 def align_keyframes(frames: list[Any], matcher: KeyedMatcher, boxes: dict[int, Any], emb: np.ndarray | None,
                     source: Any, with_depth: WithDepth, with_scale: bool, conf: AlignPolicy, trace: Any,
-                    over_budget: Callable[[list[int]], bool] = lambda unaligned: False
-                    ) -> tuple[AlignmentResult, list[Any]]:
+                    over_budget: Callable[[list[int]], bool] = lambda unaligned: False,
+                    thumbs: Mapping[int, np.ndarray] | None = None) -> tuple[AlignmentResult, list[Any]]:
     """The key frames' alignment: matches restricted to object boxes (the paper's trick), MST over frame
     similarity; then, with metric depth and `verify_depth`, every tree edge depth-checked and the frames left
     out attached one edge at a time (`align_rest_metric`), else a whole-image re-alignment and bridge rounds
     (`align_rest_relative`). `over_budget(unaligned)` says (and records) when bridge rounds are skipped.
+    `thumbs` (frame -> small gray image, e.g. dedup's) lets metric bridging look for places the video revisits.
     Returns (alignment over the key frames only, the bridge frames used)."""
     trace = as_trace(trace)
     with trace.stage("alignment"):
@@ -1532,7 +1647,7 @@ def align_keyframes(frames: list[Any], matcher: KeyedMatcher, boxes: dict[int, A
     fates = Fates(keys)
     fates.after(al, "box-matched tree")
     if conf.verify_depth and not with_scale:  # metric depth: one edge at a time onto the verified tree (cheap)
-        used = align_rest_metric(al, frames, matcher, source, with_depth, conf, trace, over_budget, fates)
+        used = align_rest_metric(al, frames, matcher, source, with_depth, conf, trace, over_budget, fates, thumbs)
     else:
         al, used = align_rest_relative(al, frames, boxes, emb, matcher, source, with_depth, with_scale, conf, trace,
                                        over_budget, fates)

@@ -90,6 +90,10 @@ class PipelineConfig(StageConf):
     bridge_gap_s: float = 0.25           # bridge frames are placed at most this far apart in time
     bridge_rounds: int = 2               # bridge, check, bridge again around edges the check rejected
     bridge_max_gap_s: float = 10.0       # ... and only across gaps up to this long (long chains drift)
+    revisit_tries: int = 4               # metric depth, unaligned key frames beyond that gap from every aligned
+                                         # one: this many (frame near it in time, aligned frame far away) pairs
+                                         # most alike by dedup's thumbnails tried each, a place the video shows
+                                         # twice (0 = off; the frames loaded count in `bridge_frames`)
     # floor-standing furniture seen from above (a table top, a chair back) reaches down to the floor when the key
     # frames saw its support (points under the footprint in >= `floor_band_share` of the 10 cm height bands, the
     # lowest included) or saw no open space under it (hidden bands are unknown) (`extend_to_floor`); () = off
@@ -132,6 +136,8 @@ class PipelineConfig(StageConf):
             raise InputError("pipeline config: min_keyframes, min_scored_per_keyframe and bridge_frames must be >= 0")
         if not 0 <= self.cover_min_area <= 1 or not 0 <= self.max_free_space_violation <= 1:
             raise InputError("pipeline config: cover_min_area and max_free_space_violation must be in [0, 1]")
+        if self.revisit_tries < 0:
+            raise InputError("pipeline config: revisit_tries must be >= 0")
         if self.attach_tries < 1 or self.topup_spacing < 1 or self.grounding_frames < 1:
             raise InputError("pipeline config: attach_tries, topup_spacing and grounding_frames must be >= 1")
 
@@ -246,11 +252,12 @@ class _CachedDetector:
 
 def select(source: FrameSource, targets: Sequence[str], cues: Sequence[str], perception: Perception,
            conf: PipelineConfig, trace: Trace, detector: _CachedDetector | None = None,
-           keyframes: int | None = None, budget: Any = None) -> tuple[list[int], _CachedDetector, Any, list[int]]:
-    """Dedup + key-frame search. Returns (key frame indices in time order, the cached detector, the search
-    result, the candidate frames kept by dedup). Under a budget the search spends the plan's scored frames as
-    they stand after dedup (its candidate count, or a re-plan after a slow dedup)."""
-    dedup = _candidates(source, conf, trace, budget)
+           keyframes: int | None = None, budget: Any = None, dedup: DedupResult | None = None
+           ) -> tuple[list[int], _CachedDetector, Any, list[int]]:
+    """Dedup (unless its result is given) + key-frame search. Returns (key frame indices in time order, the cached
+    detector, the search result, the candidate frames kept by dedup). Under a budget the search spends the plan's
+    scored frames as they stand after dedup (its candidate count, or a re-plan after a slow dedup)."""
+    dedup = dedup if dedup is not None else _candidates(source, conf, trace, budget)
     cands = [int(i) for i in dedup.kept]
     det = detector or _CachedDetector(source, perception.detect, trace)
     K = int(keyframes or conf.keyframes)
@@ -445,9 +452,10 @@ def _over_budget(budget: Any, trace: Trace, unaligned: Sequence[int]) -> bool:
 
 
 def _align(frames: list[Frame], dets: dict[int, Detections], source: FrameSource, perception: Perception,
-           conf: PipelineConfig, trace: Trace, budget: Any) -> tuple[Any, Any]:
-    """Alignment of the key frames (`alignment.align_keyframes`). Returns (alignment, the matcher: its feature
-    cache serves refinement too)."""
+           conf: PipelineConfig, trace: Trace, budget: Any, thumbs: Mapping[int, np.ndarray] | None = None
+           ) -> tuple[Any, Any]:
+    """Alignment of the key frames (`alignment.align_keyframes`; `thumbs`: dedup's, for bridges found by
+    appearance). Returns (alignment, the matcher: its feature cache serves refinement too)."""
     matcher = make_matcher(perception.matcher, conf.match)  # one matcher: features cached across the rounds
     if hasattr(matcher, "prefetch"):  # every key frame is matched: extract on worker threads while embedding
         matcher.prefetch([(f.index, f.rgb) for f in frames])
@@ -461,7 +469,7 @@ def _align(frames: list[Frame], dets: dict[int, Detections], source: FrameSource
     bar = start("alignment", unit="round")
     al, _used = align_keyframes(frames, matcher, boxes, emb, source, _with_depth(conf, perception, trace),
                                 perception.depth_relative, conf, trace,
-                                lambda unaligned: _over_budget(budget, trace, unaligned))
+                                lambda unaligned: _over_budget(budget, trace, unaligned), thumbs)
     bar.done(aligned=f"{sum(f.index in al.poses for f in frames)}/{len(frames)} key frames")
     return al, matcher
 
@@ -618,10 +626,12 @@ def build_map(source: FrameSource, targets: Sequence[str], cues: Sequence[str] =
     trace = trace if trace is not None else Trace()
     loaded0 = (getattr(source, "load_seconds", 0.0), getattr(source, "loads", 0))
     names, perception, K = _start_build(source, targets, cues, perception, conf, trace, keyframes, budget)
-    chosen, det, _, _cands = select(source, targets, cues, perception, conf, trace, keyframes=K, budget=budget)
+    dedup = _candidates(source, conf, trace, budget)  # its thumbnails serve the search and the bridges
+    chosen, det, _, _cands = select(source, targets, cues, perception, conf, trace, keyframes=K, budget=budget,
+                                    dedup=dedup)
     fconf = FusionConfig.merged(conf.fusion)
     frames, dets, lifted = _perceive(source, chosen, det, names, perception, conf, fconf, trace, budget)
-    al, matcher = _align(frames, dets, source, perception, conf, trace, budget)
+    al, matcher = _align(frames, dets, source, perception, conf, trace, budget, dedup.thumbs)
     with trace.stage("gravity"):
         W = _gravity(frames, al.poses, source, al.root, conf, trace)
     poses = {i: W @ T for i, T in al.poses.items()}
