@@ -757,6 +757,31 @@ class MapReasoner:
         text = " and ".join(self._ph(c) for c in hits) if hits else "none of them"
         return {"text": text, "matches": hits, "asked": asked[0], "directions": where}, "; ".join(expls)
 
+    def _object_view_direction(self, pq: ParsedQuestion) -> tuple[Any, str]:
+        """"Is A to the left of B?" as the viewer sees them: from the last camera, looking at B, A's bearing left
+        or right of B's, and in front of / behind B by its distance along that line."""
+        if not self.map.cameras:
+            raise _Unsupported("'left of' and 'behind' need a viewpoint: this map has no camera track; ask "
+                               "'standing by the X facing the Y, is the Z on my left?'")
+        a, b, asked = pq.params["object"], pq.params["reference"], pq.params["asked"]
+        T = np.asarray(self.map.cameras[-1][1], float)
+        cam = T[:2, 3]
+        inst = self._require([a, b])
+        B, nb = self._pick_unique(b, [o.center for o in inst[a]])
+        A, na = self._pick_unique(a, [B.center])
+        vb, va = B.center[:2] - cam, A.center[:2] - cam
+        if np.linalg.norm(vb) < 1e-6:
+            raise _Unsupported(f"the last camera stands at the {self._ph(b)}")
+        th = signed_angle_deg(vb, va)  # counter-clockwise: left of B as seen from the camera
+        along = float(va @ vb / np.linalg.norm(vb) - np.linalg.norm(vb))  # > 0: beyond B (behind it)
+        side = "left" if th > 0 else "right"
+        fb = "back" if along > 0 else "front"
+        yes = asked == side if asked in ("left", "right") else asked == fb
+        words = (f"seen from the last camera view: the {self._ph(a)} is {abs(th):.0f} deg to the {side} of the "
+                 f"{self._ph(b)} and {abs(along):.1f} m {'behind' if fb == 'back' else 'in front of'} it{na}{nb}")
+        return {"text": "yes" if yes else "no", "answer": yes, "side": side, "front_back": fb,
+                "angle_deg": round(th, 1), "behind_m": round(along, 3)}, words
+
     def _object_where(self, pq: ParsedQuestion) -> tuple[Any, str]:
         """Where an object is: its nearest other objects (closest points, side by box centres) and, when the map
         has a camera track, its direction from the last camera."""

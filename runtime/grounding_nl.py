@@ -125,6 +125,7 @@ EXAMPLES: dict[str, list[str]] = {
                              "If I stand at the stove and look at the fridge, is the table front-left, front-right, "
                              "back-left or back-right of me?"],
     "object_where": ["Where is the printer?", "Where's the trash can?"],
+    "object_view_direction": ["Is the lamp to the left of the sofa?", "Is the cup behind the tv?"],
     "object_list": ["What objects are in the room?", "List the chairs."],
     "room_size_estimation": ["How big is this room?", "What is the floor area of the room in square meters?"],
     "obj_appearance_order": ["Which did I see first, the tv or the sofa?"],
@@ -304,6 +305,8 @@ def _intent(j: str, n_obj: int, has_opts: bool) -> str | None:
                                      or _has(j, _SUP_RX) and _has(j, r"^(?:which|what|what's)\b")
                                      and not _has(j, _SUP_DIM_RX)):
         return "size_compare"  # "which is bigger, the table or the sofa?", "what's the tallest thing here?"
+    if _has(j, r"^(?:is|are|was|were) (?!there\b)") and _has(j, _VIEW_RX) and n_obj >= 2:
+        return "view_direction"  # "is the chair to the left of the table?": as seen from the camera
     if _has(j, r"^(?:is|are|was|were) (?!there\b)") and _has(j, _LOCATED_RX) and n_obj >= 2:
         return "relation"  # "is the cup on the table?": an is-there question with a location
     if _has(j, r"^(?:what|what's|which (?:objects|things|items))(?: is| are| was| were|'s)? (?:there )?" + _LOCATED_RX[2:]):
@@ -378,10 +381,11 @@ def parse_natural(question: str, options: list[str] | None = None) -> ParsedQues
     intent = _intent(joined, len(nps_all), bool(options))
     if intent is None:
         pq.notes.append("no question type recognised (counting, count comparison, existence, size, size comparison, distance, "
-                        "nearest, direction, where, list, room size, appearance order)")
+                        "nearest, direction, left-of / behind, where, list, room size, appearance order)")
         pq.how = "none"
         return pq
-    handler = {"count": _count, "count_compare": _count_compare, "existence": _existence, "relation": _existence, "size": _size, "size_compare": _size_compare,
+    handler = {"count": _count, "count_compare": _count_compare, "existence": _existence, "relation": _existence,
+               "view_direction": _view_direction, "size": _size, "size_compare": _size_compare,
                "room_size": _room_size,
                "abs_distance": _abs_distance, "rel_distance": _rel_distance, "direction": _direction,
                "where": _where, "list": _list, "obj_appearance_order": _order}[intent]
@@ -433,6 +437,9 @@ _LOCATION = {"on", "in", "at", "near", "by", "under", "behind", "beside", "above
 
 
 # location words the map reasoner can apply to a count or an is-there question (`answer.relation_holds`)
+# "A is left of / in front of / behind B" without a stance: as the viewer (the last camera) sees them
+_VIEW_RX = r"\b(?:(?:to|on|at) the (?:left|right)(?: hand side| side)? of|left of|right of|in front of|behind)\b"
+_VIEW_WORDS = {"left": "left", "right": "right", "front": "front", "behind": "back"}
 # a location word the map can test ("on", "near", "in": `answer.relation_holds`) or refuse clearly
 _LOCATED_RX = r"\b(?:on|on top of|atop|near|next to|close to|by|beside|around|in|inside|within|under|underneath|" \
               r"beneath|below|above|behind|against|over)\b"
@@ -500,6 +507,19 @@ def _count(pq, toks, joined, nps, extra) -> None:
     n = _single(pq, objs + conds, "count", "object_counting")
     if n is not None:
         pq.targets, pq.params = [n], {"object": n}
+
+
+def _view_direction(pq, toks, joined, nps, extra) -> None:
+    """"Is the chair to the left of the table?", "is the cup behind the tv?": no stance named, so as the viewer
+    sees them (from the last camera, looking at the second object): params object, reference, asked
+    (left|right|front|back)."""
+    names = _refs(pq, nps)
+    if len(names) != 2:
+        return _fail(pq, "a left-of / in-front-of question", "exactly two objects (e.g. 'is the chair to the left "
+                                                             "of the table?')")
+    word = re.search(r"\b(left|right|front|behind)\b", joined).group(1)
+    pq.qtype, pq.targets = "object_view_direction", names
+    pq.params = {"object": names[0], "reference": names[1], "asked": _VIEW_WORDS[word]}
 
 
 def _count_compare(pq, toks, joined, nps, extra) -> None:

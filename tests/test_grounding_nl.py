@@ -507,3 +507,25 @@ def test_how_much_taller_is_the_difference_in_the_asked_unit():
     v = ask("how much bigger is the couch than the desk?")
     assert v.value["difference"] == pytest.approx(2.0 * 0.9 * 0.8 - 1.4 * 0.7 * 0.76, abs=1e-3)
     assert ask("how much taller is the chair?").status == "unsupported"
+
+
+def test_left_of_and_behind_as_the_last_camera_sees_them():
+    """"Is the chair to the left of the table?" was not understood: with no stance named it is the viewer's
+    left, from the last camera looking at the second object."""
+    R = np.array([[1.0, 0, 0], [0, 0, 1], [0, -1, 0]])  # camera x right = +x, z forward = +y (world z up)
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = R, [0.0, -3.0, 1.5]
+    smap = room_map(cameras=[(0, T)])
+    facing = centre("desk")[:2] - T[:2, 3]
+    for obj, side in (("couch", "left"), ("radiator", "right"), ("laptop", "right")):
+        v = centre(obj)[:2] - T[:2, 3]
+        want = "left" if facing[0] * v[1] - facing[1] * v[0] > 0 else "right"
+        assert want == side
+        a = ask(f"is the {obj} to the left of the desk?", smap=smap)
+        assert a.qtype == "object_view_direction" and a.text == ("yes" if side == "left" else "no"), a.explanation
+        assert ask(f"Is the {obj} on the right of the desk?", smap=smap).text == ("yes" if side == "right" else "no")
+    assert ask("is the whiteboard behind the desk?", smap=smap).text == "yes"
+    assert ask("is the whiteboard in front of the desk?", smap=smap).text == "no"
+    assert ask("is the couch to the left of the desk?").status == "unsupported"  # no camera track: no viewpoint
+    assert parse_question("standing by the desk facing the whiteboard, is the couch to my left?").qtype != \
+        "object_view_direction"  # a stance: the stance's direction question
