@@ -200,6 +200,13 @@ def describe_direction(theta_deg: float, back_deg: float = 135.0) -> dict[str, A
             "angle_deg": round(float(theta_deg), 1)}
 
 
+def _point_box_distance(p: np.ndarray, box: Any) -> float:
+    """Distance (m) from a point [3] to a solid oriented box (0 inside)."""
+    local = (np.asarray(p, float) - np.asarray(box.centroid, float)) @ np.asarray(box.axes, float).T
+    out = np.maximum(np.abs(local) - np.asarray(box.axes_lengths, float) / 2, 0.0)
+    return float(np.linalg.norm(out))
+
+
 def describe_from_camera(T_wc: np.ndarray, point: np.ndarray, back_deg: float = 135.0) -> dict[str, Any]:
     """Direction of a world point `[3]` from a camera `T_wc [4, 4]` (OpenCV axes: x right, z forward), on the
     floor plane: `describe_direction` of the angle plus the horizontal distance (m)."""
@@ -571,7 +578,25 @@ class MapReasoner:
             area = area / 0.3048 ** 2
         return area, f"floor area of the map's room extent ({src}): {area:.2f} {pq.params.get('unit', 'm2')}"
 
+    def _camera_distance(self, pq: ParsedQuestion) -> tuple[Any, str]:
+        """"How far am I from the tv?": the last camera's centre to the object's box (closest point; the nearest
+        instance), the viewer being where the video ended."""
+        if not self.map.cameras:
+            raise _Unsupported("'how far am I' needs a viewpoint: this map has no camera track; ask how far two "
+                               "objects are apart")
+        a, unit = pq.params["a"], pq.params.get("unit", "m")
+        cam = np.asarray(self.map.cameras[-1][1], float)[:3, 3]
+        inst = self._instances(a)
+        dist = {o.id: _point_box_distance(cam, o.box) for o in inst}
+        o = min(inst, key=lambda x: dist[x.id])
+        self._choice(a, inst, o, "the nearest to the camera", {i: d / UNIT_M[unit] for i, d in dist.items()}, unit)
+        v = dist[o.id] / UNIT_M[unit]
+        return v, f"from the last camera position (where the video ended) to the closest point of {self._ph(a)} " \
+                  f"#{o.id}: {v:.3f} {unit}"
+
     def _object_abs_distance(self, pq: ParsedQuestion) -> tuple[Any, str]:
+        if pq.params.get("from") == "camera":
+            return self._camera_distance(pq)
         a, b = pq.params["a"], pq.params["b"]
         inst = self._require([a, b])
         d, x, y = self._min_distance(inst[a], inst[b])

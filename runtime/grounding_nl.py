@@ -632,7 +632,13 @@ def _room_size(pq, toks, joined, nps, extra) -> None:
 
 
 def _abs_distance(pq, toks, joined, nps, extra) -> None:
+    """"How far is the table from the tv?"; with one object and the asker ("how far am I from the tv?", "how
+    far away is the fridge?"): from the viewer, the last camera (params from="camera")."""
     names = _refs(pq, nps)
+    if len(names) == 1 and _has(joined, r"\b(?:me|i|i'm|im|myself|us|we|here|the camera)\b|^how far away (?:is|are)\b"):
+        pq.qtype, pq.targets = "object_abs_distance", names
+        pq.params = {"a": names[0], "b": None, "from": "camera", "unit": _unit(joined, "m")}
+        return
     if len(names) != 2:
         got = ", ".join(f"'{pq.phrase(n)}'" for n in names) or "no object"
         return _fail(pq, f"a distance question naming {got}", "exactly two objects to measure between")

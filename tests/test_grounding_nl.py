@@ -529,3 +529,23 @@ def test_left_of_and_behind_as_the_last_camera_sees_them():
     assert ask("is the couch to the left of the desk?").status == "unsupported"  # no camera track: no viewpoint
     assert parse_question("standing by the desk facing the whiteboard, is the couch to my left?").qtype != \
         "object_view_direction"  # a stance: the stance's direction question
+
+
+def test_how_far_am_i_is_from_the_last_camera():
+    """"How far am I from the tv?" was refused ("exactly two objects"): the asker is where the video ended."""
+    T = np.eye(4)
+    T[:3, 3] = [0.0, -3.0, 1.5]
+    smap = room_map(cameras=[(0, np.eye(4)), (1, T)])
+    lo, hi = boxes("desk")[0]
+    want = float(np.linalg.norm(np.maximum(np.maximum(lo - T[:3, 3], T[:3, 3] - hi), 0)))
+    for q in ("how far am I from the desk?", "How far is the desk from me?", "how far away is the desk?"):
+        a = ask(q, smap=smap)
+        assert a.ok and a.value == pytest.approx(want, abs=1e-9), (q, a.explanation)
+    assert ask("how far is the desk from here in feet?", smap=smap).value == pytest.approx(want / 0.3048, abs=1e-9)
+    chairs = [(n, c, s) for n, c, s in ROOM if canonical_name(n) == "chair"]  # the nearest instance
+    near = min(float(np.linalg.norm(np.maximum(np.maximum(np.array(c) - np.array(s) / 2 - T[:3, 3],
+                                                          T[:3, 3] - np.array(c) - np.array(s) / 2), 0)))
+               for _, c, s in chairs)
+    assert ask("how far am I from the chair?", smap=smap).value == pytest.approx(near, abs=1e-9)
+    assert ask("how far am I from the desk?").status == "unsupported"  # no camera track
+    assert ask("how far is the desk from the couch?", smap=smap).value == pytest.approx(min_gap("desk", "couch"))
