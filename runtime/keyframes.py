@@ -845,7 +845,7 @@ def _content_axis(c: np.ndarray, image: ImageFn | None, conf: KeyFrameConf, note
     """The content axis of the candidates (`content_prior`): one edge density per candidate (`store`: frame
     index -> density, may be shared between searches over the same video) and, with `change_power` > 0, the
     `view_change` between neighbouring candidates (`thumbs`: frame index -> grey image, e.g. dedup's thumbnails;
-    missing ones are made from `image` and stored). Without images the search runs on the candidate index, said
+    missing ones are made from `image`; every one is stored back as its `grey_thumbnail`). Without images the search runs on the candidate index, said
     in the notes and the trace. Only with `sampling="expected"` (the paper's rule has no distances but its
     kernels')."""
     if not conf.content_prior or conf.sampling != "expected":
@@ -862,10 +862,11 @@ def _content_axis(c: np.ndarray, image: ImageFn | None, conf: KeyFrameConf, note
     change = None
     if conf.change_power > 0:
         thumbs = {} if thumbs is None else thumbs
-        for f in c:
-            if int(f) not in thumbs:
-                thumbs[int(f)] = grey_thumbnail(image(int(f)), conf.change_size)
-        change = view_change([_as_thumbnail(thumbs[int(f)], conf.change_size) for f in c])
+        for f in c:  # stored back as compared, so the next search over these candidates only reads them
+            g = thumbs.get(int(f))
+            thumbs[int(f)] = (grey_thumbnail(image(int(f)), conf.change_size) if g is None
+                              else _as_thumbnail(g, conf.change_size))
+        change = view_change([thumbs[int(f)] for f in c])
     return content_axis(np.array([store[int(f)] for f in c]), conf.content_floor, change, conf.change_power)
 
 
