@@ -574,6 +574,22 @@ def test_view_change_and_the_change_weighted_axis_exact():
     flat = kf.content_axis(np.array([0.2, 0.0, 0.0, 0.2]), 0.1)  # no change anywhere / power 0: density alone
     np.testing.assert_allclose(kf.content_axis(np.array([0.2, 0.0, 0.0, 0.2]), 0.1, np.zeros(4)), flat)
     np.testing.assert_allclose(kf.content_axis(np.array([0.2, 0.0, 0.0, 0.2]), 0.1, np.arange(4.0), 0.0), flat)
+    # given edge densities and grey images (the pipeline: dedup's 64-px uint8 thumbnails) no frame is read; the
+    # store keeps them as compared, so a second search gets the same axis
+    def no_read(f):
+        raise AssertionError(f"frame {f} read")
+
+    rng = np.random.default_rng(3)
+    dedup = {f: rng.integers(0, 256, (48, 64), dtype=np.uint8) for f in range(6)}
+    store = dict(dedup)
+    conf = kf.KeyFrameConf()
+    x1 = kf._content_axis(np.arange(6), no_read, conf, [], None, {f: 0.1 for f in range(6)}, store)
+    assert all(g.dtype == np.float32 and g.shape == (24, 32) for g in store.values())
+    x2 = kf._content_axis(np.arange(6), no_read, conf, [], None, {f: 0.1 for f in range(6)}, store)
+    want = kf.content_axis(np.full(6, 0.1), conf.content_floor,
+                           kf.view_change([kf.grey_thumbnail(dedup[f]) for f in range(6)]))
+    np.testing.assert_allclose(x1, want)
+    np.testing.assert_allclose(x2, want)
     for bad in ({"change_power": -1}, {"change_size": 1}):
         with pytest.raises(InputError, match="change_"):
             kf.KeyFrameConf.merged(bad)
