@@ -19,7 +19,10 @@ the search decides *which* frames to score:
    Distances (kernels, gaps) are measured along the **content axis** (`content_prior`, default on): every
    candidate's edge density (`edge_density`, a cheap signal computed on every candidate, no detector call)
    sets its step (`content_axis`), so empty views (bare walls, corridors) take almost no room and the
-   exploration spends the detector where the views can show something. Without images: the candidate index
+   exploration spends the detector where the views can show something; the step also grows with the
+   `view_change` to the neighbouring candidates (`change_power`, default 1: 32-px grey copies, e.g. dedup's
+   thumbnails): where the camera pans every view is new and an object stays in view for a few frames only,
+   where it lingers one view stands for its neighbours. Without images: the candidate index
    (said in the notes and the trace). `grid_share` > 0 scores that share of the budget first as an even grid
    along the axis (measured, off by default).
    `sampling`:
@@ -116,6 +119,8 @@ class KeyFrameConf(StageConf):
     novelty: float = 3.0            # "expected": prior weighted by (gap to the nearest scored frame) ** novelty
     content_prior: bool = True      # distances along the content axis (edge density of every candidate)
     content_floor: float = 0.01     # content axis: an empty view's step (the mean view's is 1 + floor)
+    change_power: float = 1.0       # content axis: step ~ edge density x (view change / its mean) ** power
+    change_size: int = 32           # view change: width of the grey copies compared (px)
     grid_share: float = 0.0         # share of the budget scored first as an even grid along the axis
     stretch_first: bool = True      # selection: the best frame of each detected stretch first (`stretches`)
     climb: bool = True              # "expected" draws: each batch first takes the climb steps (`climb_steps`)
@@ -156,6 +161,9 @@ class KeyFrameConf(StageConf):
             raise InputError(f"key-frame config: grid_share must be in [0, 1] (got {self.grid_share})")
         if self.content_floor <= 0:
             raise InputError(f"key-frame config: content_floor must be > 0 (got {self.content_floor})")
+        if self.change_power < 0 or self.change_size < 2:
+            raise InputError(f"key-frame config: need change_power >= 0 and change_size >= 2 "
+                             f"(got {self.change_power}, {self.change_size})")
         for name, val in (("cut_margin", self.cut_margin), ("climb_share", self.climb_share)):
             if not 0 <= val <= 1:
                 raise InputError(f"key-frame config: {name} must be in [0, 1] (got {val})")
@@ -362,15 +370,47 @@ def edge_density(rgb: np.ndarray, size: int = 64) -> float:
     return float((cv2.Canny(g, 50, 150) > 0).mean())
 
 
-def content_axis(density: np.ndarray, floor: float = 0.1) -> np.ndarray:
+def grey_thumbnail(rgb: np.ndarray, size: int = 32) -> np.ndarray:
+    """A `size`-wide grey float32 copy of `rgb` [H, W, 3] uint8 (or of a grey [H, W] image) minus its mean (an
+    exposure change is not a view change): what `view_change` compares."""
+    h, w = rgb.shape[:2]
+    g = cv2.cvtColor(np.ascontiguousarray(rgb), cv2.COLOR_RGB2GRAY) if rgb.ndim == 3 else np.asarray(rgb)
+    g = cv2.resize(g, (size, max(1, round(h * size / w))), interpolation=cv2.INTER_AREA).astype(np.float32)
+    return g - g.mean()
+
+
+def view_change(thumbs: Sequence[np.ndarray]) -> np.ndarray:
+    """[M] how fast the view changes at each candidate: the mean absolute difference of its `grey_thumbnail`
+    to the previous and to the next candidate's, averaged (an end: its one neighbour). Where the camera pans
+    every frame shows something new and an object stays in view for a few frames only; where it lingers one
+    frame stands for its neighbours. Thumbnails of different shapes are resized to the first one's."""
+    m = len(thumbs)
+    if m < 2:
+        return np.zeros(m)
+    shape = thumbs[0].shape
+    t = np.stack([g if g.shape == shape else cv2.resize(g, (shape[1], shape[0]), interpolation=cv2.INTER_AREA)
+                  for g in thumbs]).astype(np.float32)
+    step = np.abs(t[1:] - t[:-1]).reshape(m - 1, -1).mean(1).astype(np.float64)  # [M-1] between neighbours
+    out = np.empty(m)
+    out[0], out[-1] = step[0], step[-1]
+    out[1:-1] = 0.5 * (step[1:] + step[:-1])
+    return out
+
+
+def content_axis(density: np.ndarray, floor: float = 0.1, change: np.ndarray | None = None,
+                 power: float = 1.0) -> np.ndarray:
     """Candidate coordinates [M] for the search: cumulative content, each candidate's step = its edge density
-    / the mean density + `floor` (so an empty view still takes a little room), rescaled to a mean step of 1
-    (x[0] = 0, x[-1] = M - 1; all equal densities give the candidate index). Exploration that is even along
-    this axis spends the detector where the views show something, instead of evenly in time."""
+    (times (`change` / its mean) ** `power` when a `view_change` is given: how much *new* content the view
+    brings) / the mean of that + `floor` (so an empty view still takes a little room), rescaled to a mean step
+    of 1 (x[0] = 0, x[-1] = M - 1; all equal steps give the candidate index). Exploration that is even along
+    this axis spends the detector where the views show something new, instead of evenly in time."""
     d = np.asarray(density, np.float64)
     m = d.size
     if m < 2:
         return np.zeros(m)
+    if change is not None and power > 0:
+        c = np.asarray(change, np.float64)
+        d = d * (c / c.mean()) ** power if c.mean() > 0 else d
     mean = d.mean()
     step = (d / mean if mean > 0 else np.ones(m)) + floor
     mid = 0.5 * (step[1:] + step[:-1])  # the distance between neighbours: half of each one's share
@@ -717,7 +757,8 @@ def iterative_search(candidates: Sequence[int], targets: Sequence[str], cues: Se
                      histograms: MutableMapping[int, np.ndarray] | None = None,
                      prefetch: Callable[[Sequence[int]], None] | None = None,
                      image_size: tuple[int, int] | None = None,
-                     densities: MutableMapping[int, float] | None = None) -> KeyFrameResult:
+                     densities: MutableMapping[int, float] | None = None,
+                     thumbs: MutableMapping[int, np.ndarray] | None = None) -> KeyFrameResult:
     """The paper's iterative temporal search over `candidates` [M] frame indices.
 
     detect(frame_index, names) -> Detections scores one frame; image(frame_index) -> [H, W, 3] uint8 RGB feeds
@@ -734,7 +775,9 @@ def iterative_search(candidates: Sequence[int], targets: Sequence[str], cues: Se
     per scored frame; see `_fill`); without it the top-up goes by score only.
     `content_prior` (default on) reads every candidate's image once for its edge density (`edge_density`, a
     Canny on a 64-px copy, ~0.1 ms; `densities` caches them per frame index) and measures every distance of
-    the search along `content_axis`: a cheap signal on every candidate, no detector call.
+    the search along `content_axis`: a cheap signal on every candidate, no detector call. With `change_power`
+    > 0 (default 1) each step also grows with the `view_change` to the neighbouring candidates, from 32-px grey
+    copies (`thumbs` caches them per frame index; the pipeline passes dedup's thumbnails, ~10 us a candidate).
     """
     trace = as_trace(trace)
     conf = conf or KeyFrameConf()
@@ -755,7 +798,7 @@ def iterative_search(candidates: Sequence[int], targets: Sequence[str], cues: Se
     area = float(image_size[0] * image_size[1]) if image_size else None
     seen: dict[int, dict[str, float]] = {}     # frame -> name -> largest box area share (top-up coverage)
     notes = _budget_note(m, conf, trace)
-    axis = _content_axis(c, image, conf, notes, trace, densities)
+    axis = _content_axis(c, image, conf, notes, trace, densities, thumbs)
     st = _Search(m, conf, sum(weights.values()), axis)
     order: list[int] = []
     dists: list[np.ndarray] = []
@@ -797,11 +840,14 @@ def _schedule(budget: int, conf: KeyFrameConf) -> list[int]:
 
 
 def _content_axis(c: np.ndarray, image: ImageFn | None, conf: KeyFrameConf, notes: list[str], trace: Any,
-                  store: MutableMapping[int, float] | None) -> np.ndarray | None:
+                  store: MutableMapping[int, float] | None,
+                  thumbs: MutableMapping[int, np.ndarray] | None = None) -> np.ndarray | None:
     """The content axis of the candidates (`content_prior`): one edge density per candidate (`store`: frame
-    index -> density, may be shared between searches over the same video). Without images the search runs on
-    the candidate index, said in the notes and the trace. Only with `sampling="expected"` (the paper's rule
-    has no distances but its kernels')."""
+    index -> density, may be shared between searches over the same video) and, with `change_power` > 0, the
+    `view_change` between neighbouring candidates (`thumbs`: frame index -> grey image, e.g. dedup's thumbnails;
+    missing ones are made from `image`; every one is stored back as its `grey_thumbnail`). Without images the search runs on the candidate index, said
+    in the notes and the trace. Only with `sampling="expected"` (the paper's rule has no distances but its
+    kernels')."""
     if not conf.content_prior or conf.sampling != "expected":
         return None
     if image is None:
@@ -813,7 +859,21 @@ def _content_axis(c: np.ndarray, image: ImageFn | None, conf: KeyFrameConf, note
     for f in c:
         if int(f) not in store:
             store[int(f)] = edge_density(image(int(f)), conf.hist_size)
-    return content_axis(np.array([store[int(f)] for f in c]), conf.content_floor)
+    change = None
+    if conf.change_power > 0:
+        thumbs = {} if thumbs is None else thumbs
+        for f in c:  # stored back as compared, so the next search over these candidates only reads them
+            g = thumbs.get(int(f))
+            thumbs[int(f)] = (grey_thumbnail(image(int(f)), conf.change_size) if g is None
+                              else _as_thumbnail(g, conf.change_size))
+        change = view_change([thumbs[int(f)] for f in c])
+    return content_axis(np.array([store[int(f)] for f in c]), conf.content_floor, change, conf.change_power)
+
+
+def _as_thumbnail(g: np.ndarray, size: int) -> np.ndarray:
+    """A stored grey image as `view_change` compares it: as stored when it is already a `grey_thumbnail` of
+    this width (the search's own), else made one (e.g. dedup's 64-px uint8 thumbnails)."""
+    return g if g.dtype == np.float32 and g.shape[-1] == size else grey_thumbnail(g, size)
 
 
 def _kernel_sigma(pos: int, score: float, hist: _HistogramCache | None, conf: KeyFrameConf) -> float:
@@ -866,12 +926,13 @@ def select_keyframes(method: str, candidates: Sequence[int], targets: Sequence[s
                      histograms: MutableMapping[int, np.ndarray] | None = None,
                      prefetch: Callable[[Sequence[int]], None] | None = None,
                      image_size: tuple[int, int] | None = None,
-                     densities: MutableMapping[int, float] | None = None) -> KeyFrameResult:
+                     densities: MutableMapping[int, float] | None = None,
+                     thumbs: MutableMapping[int, np.ndarray] | None = None) -> KeyFrameResult:
     """Run one of `METHODS` ("iterative", "uniform", "random", "exhaustive") with the same inputs (`prefetch`,
-    `image_size`, `densities`: see `iterative_search`)."""
+    `image_size`, `densities`, `thumbs`: see `iterative_search`)."""
     if method == "iterative":
         return iterative_search(candidates, targets, cues, detect, image, conf, trace, histograms, prefetch,
-                                image_size, densities)
+                                image_size, densities, thumbs)
     if method == "uniform":
         return uniform_keyframes(candidates, conf)
     if method == "random":

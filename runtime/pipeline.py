@@ -288,7 +288,7 @@ def select(source: FrameSource, targets: Sequence[str], cues: Sequence[str], per
         res = select_keyframes(conf.keyframe_method, cands, list(targets), list(cues), det,
                                lambda i: _colour(source, int(i)).rgb, kconf, trace,
                                prefetch=getattr(source, "prefetch", None), image_size=tuple(source.size),
-                               densities=_densities(dedup.thumbs, kconf))
+                               densities=_densities(dedup.thumbs, kconf), thumbs=dict(dedup.thumbs))
         det.on_call = None
         bar.note(keyframes=len(res.chosen))
     chosen = [int(i) for i in res.chosen]

@@ -556,6 +556,78 @@ def test_edge_density_and_content_axis_exact():
         kf.KeyFrameConf.merged(content_floor=0)
 
 
+def test_view_change_and_the_change_weighted_axis_exact():
+    """view_change: mean |difference| of mean-free grey copies to each neighbour, averaged (ends: one); an
+    exposure change alone is no change. content_axis with it: steps density x change / their mean + floor."""
+    a = np.zeros((24, 32), np.float32)
+    b = a.copy()
+    b[:, :16] = 2.0  # minus its mean (1): +-1 everywhere, |a - b| = 1
+    np.testing.assert_allclose(kf.view_change([kf.grey_thumbnail(g, 32) for g in (a, a, b, b)]),
+                               [0.0, 0.5, 0.5, 0.0])
+    bright = np.full((48, 64, 3), 200, np.uint8)
+    dark = np.full((48, 64, 3), 50, np.uint8)
+    assert kf.view_change([kf.grey_thumbnail(x) for x in (dark, bright, dark)]).tolist() == [0.0, 0.0, 0.0]
+    assert kf.grey_thumbnail(bright).shape == (24, 32) and abs(float(kf.grey_thumbnail(bright).mean())) < 1e-6
+    # equal densities, change [1, 1, 0, 0] -> steps [2, 2, 0, 0] + 0.1; distances [2.1, 1.1, 0.1] -> span 3
+    np.testing.assert_allclose(kf.content_axis(np.full(4, 0.3), 0.1, np.array([1.0, 1.0, 0.0, 0.0])),
+                               np.array([0.0, 2.1, 3.2, 3.3]) * 3 / 3.3)
+    flat = kf.content_axis(np.array([0.2, 0.0, 0.0, 0.2]), 0.1)  # no change anywhere / power 0: density alone
+    np.testing.assert_allclose(kf.content_axis(np.array([0.2, 0.0, 0.0, 0.2]), 0.1, np.zeros(4)), flat)
+    np.testing.assert_allclose(kf.content_axis(np.array([0.2, 0.0, 0.0, 0.2]), 0.1, np.arange(4.0), 0.0), flat)
+    # given edge densities and grey images (the pipeline: dedup's 64-px uint8 thumbnails) no frame is read; the
+    # store keeps them as compared, so a second search gets the same axis
+    def no_read(f):
+        raise AssertionError(f"frame {f} read")
+
+    rng = np.random.default_rng(3)
+    dedup = {f: rng.integers(0, 256, (48, 64), dtype=np.uint8) for f in range(6)}
+    store = dict(dedup)
+    conf = kf.KeyFrameConf()
+    x1 = kf._content_axis(np.arange(6), no_read, conf, [], None, {f: 0.1 for f in range(6)}, store)
+    assert all(g.dtype == np.float32 and g.shape == (24, 32) for g in store.values())
+    x2 = kf._content_axis(np.arange(6), no_read, conf, [], None, {f: 0.1 for f in range(6)}, store)
+    want = kf.content_axis(np.full(6, 0.1), conf.content_floor,
+                           kf.view_change([kf.grey_thumbnail(dedup[f]) for f in range(6)]))
+    np.testing.assert_allclose(x1, want)
+    np.testing.assert_allclose(x2, want)
+    for bad in ({"change_power": -1}, {"change_size": 1}):
+        with pytest.raises(InputError, match="change_"):
+            kf.KeyFrameConf.merged(bad)
+
+
+def _pan_and_linger(m: int = 600):
+    """Every view equally busy (the same random texture, shifted): the first half pans (each candidate a new
+    shift), the second lingers (one shift for 30 candidates at a time). Two-candidate object stretches every 25
+    candidates of the panning half only. Returns (images, table, stretch starts)."""
+    tex = np.random.default_rng(5).integers(0, 256, (48, 200, 3), dtype=np.uint8)
+    imgs = {f: np.ascontiguousarray(tex[:, (f % 130) if f < m // 2 else 3 * (f // 30):][:, :64]) for f in range(m)}
+    starts = list(range(7, m // 2, 25))
+    return imgs, _peaks_table(m, {f: 0.9 for s in starts for f in (s, s + 1)}), starts
+
+
+def test_view_change_spends_the_detector_where_the_views_change():
+    """Edge density is the same everywhere, so only the view change tells the panning half (every candidate
+    new, objects in view for 2 candidates) from the lingering half (one view for 30 candidates): with it the
+    search scores more of the panning half and finds more of its short stretches at 10% scored, averaged over
+    seeds; the thumbnails are made once and reused by the next search; the budget is spent exactly."""
+    imgs, table, starts = _pan_and_linger()
+
+    def run(power: float) -> tuple[float, float]:
+        hits, share, thumbs = [], [], {}
+        for seed in range(6):
+            conf = kf.KeyFrameConf.merged(keyframes=6, budget=60, seed=seed, change_power=power)
+            res = kf.iterative_search(range(600), ["tv"], [], table_detector(table), imgs.__getitem__, conf,
+                                      thumbs=thumbs)
+            assert res.frames_scored == 60 == len(set(res.order))
+            hits.append(sum(any(f in (s, s + 1) for f in res.order) for s in starts))
+            share.append(np.mean(np.array(res.order) < 300))
+        assert len(thumbs) == (600 if power > 0 else 0)
+        return float(np.mean(hits)), float(np.mean(share))
+
+    (on, on_share), (off, off_share) = run(1.0), run(0.0)
+    assert on_share >= off_share + 0.2 and on >= off + 1.5  # 12 stretches; a 1-in-10 grid in time expects 2.4
+
+
 def _walk(m: int = 600, seg: int = 50):
     """Rooms (textured images) and empty corridors (flat grey), `seg` candidates each; a 4-candidate object
     stretch in every room at a seeded place. Returns (images, table, stretches)."""

@@ -275,6 +275,7 @@ def evaluate_scene(scene_dir: Path, level: str, args: argparse.Namespace,
     det_fn, det_desc = _detector(scene_dir, args, image, vocab)
     histograms: dict[int, np.ndarray] = {}
     densities: dict[int, float] = {}
+    thumbs: dict[int, np.ndarray] = {}  # the view change's grey copies, once per frame
     records: list[dict[str, Any]] = []
     skipped: dict[str, int] = {}
     for q in questions:
@@ -293,7 +294,7 @@ def evaluate_scene(scene_dir: Path, level: str, args: argparse.Namespace,
         for label, (m, conf) in methods.items():
             t0 = time.perf_counter()
             res = select_keyframes(m, cands, pq.targets, pq.cues, detect, image, conf, histograms=histograms,
-                                   densities=densities, image_size=(w, h))
+                                   densities=densities, image_size=(w, h), thumbs=thumbs)
             sc = score_selection([int(f) for f in res.chosen], eligible, vis, args.min_visible)
             records.append({
                 "scene": meta["scene_name"], "level": level, "question": int(q.get("id", -1)),
@@ -332,6 +333,7 @@ def evaluate_long_video(video: Any, questions: list[dict[str, Any]], detect: Cal
     cands = list(range(len(video)))
     histograms: dict[int, np.ndarray] = {}
     densities: dict[int, float] = {}  # the content prior's edge densities, once per frame for every question
+    thumbs: dict[int, np.ndarray] = {}  # and its view change's grey copies
     records = []
     for q in questions:
         memo = _Memo(detect)  # every method sees identical detections
@@ -339,7 +341,8 @@ def evaluate_long_video(video: Any, questions: list[dict[str, Any]], detect: Cal
             qc = dataclasses.replace(conf, seed=search_seed(seed, q["id"], repeat))
             t0 = time.perf_counter()
             res = select_keyframes(m, cands, q["targets"], q["cues"], memo, lambda f: video.rgb[f], qc,
-                                   histograms=histograms, image_size=video.size, densities=densities)
+                                   histograms=histograms, image_size=video.size, densities=densities,
+                                   thumbs=thumbs)
             sc = score_selection([int(f) for f in res.chosen], set(q["instances"]), vis, min_visible)
             found = score_selection(res.order, set(q["instances"]), vis, min_visible).recall if res.order \
                 else sc.recall
