@@ -83,10 +83,12 @@ class DedupConf(StageConf):
     stride: int = 1                  # keep every stride-th frame when sample_fps is None
     work_width: int = 320            # frames are resized to this width for ORB and SSIM
     # ORB keypoints per frame (the matching cost grows with their square) over `orb_levels` pyramid levels
-    # (scale 1.2 each: 4 span 1.7x, enough between near-duplicates). 300 / 4 instead of 500 / 8 halves the
-    # comparisons' CPU with the same kept frames on the design clips (docs/performance.md, "the scan's CPU")
-    orb_features: int = 300
-    orb_levels: int = 4
+    # (scale 1.2 each). 300 over 4 levels costs ~2/3 of the comparisons' CPU, keeps the same frames on the
+    # 60 s clips and the kitchen but flips one borderline frame (x5, ping-pong) of seed 8's 600 s clip, which
+    # moved that run's key frames and cost it 3 aligned key frames: kept at 500 / 8 (docs/performance.md,
+    # "the scan's CPU")
+    orb_features: int = 500
+    orb_levels: int = 8
     min_tracked: float = 0.35        # tracked ORB fraction above which a frame is a candidate duplicate ...
     max_motion: float = 0.04         # ... when the median keypoint displacement is below this x width
     ssim_threshold: float = 0.80     # candidates with SSIM above this are dropped as near-duplicates
