@@ -23,13 +23,14 @@ from .trace import as_trace
 # ----------------------------------------------------------------------------- SSIM
 
 
-def _ssim_map(x: np.ndarray, y: np.ndarray, data_range: float, sigma: float = 1.5) -> tuple[np.ndarray, int]:
+def _ssim_map(x: np.ndarray, y: np.ndarray, data_range: float, sigma: float = 1.5, dtype: Any = np.float64
+              ) -> tuple[np.ndarray, int]:
     import cv2
 
     r = int(3.5 * sigma + 0.5)  # scipy.ndimage's truncate=3.5 radius, as scikit-image uses
     k = 2 * r + 1
-    x = x.astype(np.float64)
-    y = y.astype(np.float64)
+    x = x.astype(dtype)
+    y = y.astype(dtype)
 
     def blur(a: np.ndarray) -> np.ndarray:
         # BORDER_REFLECT (abc|cba) is scipy's mode='reflect'
@@ -43,10 +44,13 @@ def _ssim_map(x: np.ndarray, y: np.ndarray, data_range: float, sigma: float = 1.
     return S, r
 
 
-def ssim(a: np.ndarray, b: np.ndarray, data_range: float | None = None, sigma: float = 1.5) -> float:
+def ssim(a: np.ndarray, b: np.ndarray, data_range: float | None = None, sigma: float = 1.5,
+         dtype: Any = np.float64) -> float:
     """Mean structural similarity of two images [H, W] or [H, W, C] (channels averaged), Gaussian window
     (sigma 1.5, radius 5), population covariance, borders of the window radius excluded — as scikit-image.
-    data_range defaults to 255 for uint8 and 65535 for uint16; float images must give it."""
+    data_range defaults to 255 for uint8 and 65535 for uint16; float images must give it. dtype: the working
+    precision (float64: scikit-image's figure to 1e-12; float32: ~3x faster, within 1e-5 on 8-bit images, which
+    is what the redundant-frame removal uses against a threshold given to two decimals)."""
     a = np.asarray(a)
     b = np.asarray(b)
     if a.shape != b.shape:
@@ -59,8 +63,8 @@ def ssim(a: np.ndarray, b: np.ndarray, data_range: float | None = None, sigma: f
         else:
             raise ValueError("ssim: give data_range for non-integer images")
     if a.ndim == 3:
-        return float(np.mean([ssim(a[..., c], b[..., c], data_range, sigma) for c in range(a.shape[2])]))
-    S, r = _ssim_map(a, b, float(data_range), sigma)
+        return float(np.mean([ssim(a[..., c], b[..., c], data_range, sigma, dtype) for c in range(a.shape[2])]))
+    S, r = _ssim_map(a, b, float(data_range), sigma, dtype)
     if min(S.shape) <= 2 * r:
         raise ValueError(f"ssim: image {S.shape} smaller than the {2 * r + 1}x{2 * r + 1} window")
     return float(S[r:-r, r:-r].mean(dtype=np.float64))
@@ -78,7 +82,13 @@ class DedupConf(StageConf):
     sample_fps: float | None = 3.0   # uniform down-sampling rate (None: use `stride`)
     stride: int = 1                  # keep every stride-th frame when sample_fps is None
     work_width: int = 320            # frames are resized to this width for ORB and SSIM
+    # ORB keypoints per frame (the matching cost grows with their square) over `orb_levels` pyramid levels
+    # (scale 1.2 each). 300 over 4 levels costs ~2/3 of the comparisons' CPU, keeps the same frames on the
+    # 60 s clips and the kitchen but flips one borderline frame (x5, ping-pong) of seed 8's 600 s clip, which
+    # moved that run's key frames and cost it 3 aligned key frames: kept at 500 / 8 (docs/performance.md,
+    # "the scan's CPU")
     orb_features: int = 500
+    orb_levels: int = 8
     min_tracked: float = 0.35        # tracked ORB fraction above which a frame is a candidate duplicate ...
     max_motion: float = 0.04         # ... when the median keypoint displacement is below this x width
     ssim_threshold: float = 0.80     # candidates with SSIM above this are dropped as near-duplicates
@@ -113,38 +123,43 @@ def _small_gray(rgb: np.ndarray, width: int) -> np.ndarray:
     return g
 
 
-def orb_features(g: np.ndarray, n_features: int = 500) -> tuple[Any, Any]:
+def orb_features(g: np.ndarray, n_features: int | None = None, n_levels: int | None = None) -> tuple[Any, Any]:
     """ORB keypoints and descriptors of a gray image [H, W] uint8 (computed once per frame: a kept frame's
-    features are reused as the reference of the next comparisons)."""
+    features are reused as the reference of the next comparisons). n_features / n_levels: DedupConf's
+    orb_features / orb_levels unless given."""
     import cv2
 
-    return cv2.ORB_create(nfeatures=n_features, fastThreshold=12).detectAndCompute(g, None)
+    n_features = DedupConf.orb_features if n_features is None else n_features
+    n_levels = DedupConf.orb_levels if n_levels is None else n_levels
+    return cv2.ORB_create(nfeatures=n_features, nlevels=n_levels, fastThreshold=12).detectAndCompute(g, None)
 
 
-def orb_track(g0: np.ndarray, g1: np.ndarray, n_features: int = 500, f0: Any = None, f1: Any = None
-              ) -> tuple[float, float]:
+def orb_track(g0: np.ndarray, g1: np.ndarray, n_features: int | None = None, f0: Any = None, f1: Any = None,
+              n_levels: int | None = None) -> tuple[float, float]:
     """Track ORB keypoints from gray image g0 to g1 ([H, W] uint8): (fraction of g0's keypoints with a mutual,
     ratio-tested match, median displacement in pixels). (0, inf) when nothing can be tracked. f0/f1: their
-    `orb_features` when already computed."""
+    `orb_features` when already computed (else computed with n_features / n_levels)."""
     import cv2
 
-    k0, d0 = f0 if f0 is not None else orb_features(g0, n_features)
-    k1, d1 = f1 if f1 is not None else orb_features(g1, n_features)
+    k0, d0 = f0 if f0 is not None else orb_features(g0, n_features, n_levels)
+    k1, d1 = f1 if f1 is not None else orb_features(g1, n_features, n_levels)
     if d0 is None or d1 is None or len(k0) < 8 or len(k1) < 2:
         return 0.0, float("inf")
-    bf = cv2.BFMatcher(cv2.NORM_HAMMING)
-    m10 = bf.match(d1, d0)
-    back_q = np.array([m.queryIdx for m in m10], int)
-    back_t = np.array([m.trainIdx for m in m10], int)
-    best_back = np.full(len(k1), -1)
-    best_back[back_q] = back_t  # k1 -> its best k0
-    rows = [(m.queryIdx, m.trainIdx, m.distance, n.distance) for m, n in
-            (ms for ms in bf.knnMatch(d0, d1, k=2) if len(ms) >= 2)]
-    if not rows:
+    # brute-force Hamming matching as arrays (cv2.batchDistance is what cv2.BFMatcher runs, without a Python
+    # DMatch object per match): each g0 keypoint's two nearest in g1 (the ratio test) ...
+    dist, nn = cv2.batchDistance(d0, d1, cv2.CV_32S, normType=cv2.NORM_HAMMING, K=2)
+    q = np.arange(len(k0))
+    t = nn[:, 0]
+    good = dist[:, 0] < 0.8 * dist[:, 1]
+    if not good.any():
         return 0.0, float("inf")
-    q, t, dm, dn = (np.array(c) for c in zip(*rows))
-    q, t = q.astype(int), t.astype(int)
-    good = (dm < 0.8 * dn) & (best_back[t] == q)  # ratio test + mutual best match
+    # ... and, for the g1 keypoints those pass to, their nearest in g0 (the mutual check: the backward pass
+    # only for the targets it can change, the same answer as matching all of g1 back)
+    targets = np.unique(t[good])
+    _, back = cv2.batchDistance(d1[targets], d0, cv2.CV_32S, normType=cv2.NORM_HAMMING, K=1)
+    best_back = np.full(len(k1), -1)
+    best_back[targets] = back[:, 0]  # k1 -> its best k0
+    good &= best_back[t] == q
     if not good.any():
         return 0.0, float("inf")
     p0, p1 = cv2.KeyPoint_convert(k0), cv2.KeyPoint_convert(k1)
@@ -188,18 +203,18 @@ class OnlineDedup:
     def push(self, index: int, g: np.ndarray) -> bool:
         """The sampled frame's gray image [h, w] uint8 (width <= work_width) -> True when it is kept."""
         c = self.conf
-        feats = orb_features(g, c.orb_features)
+        feats = orb_features(g, c.orb_features, c.orb_levels)
         if self._last is None:
             return self._keep(index, g, feats)
         i0, g0, f0 = self._last
         if g.shape != g0.shape:
             raise InputError(f"frame {index}: size {g.shape} differs from the previous frame {g0.shape}")
-        tracked, motion = orb_track(g0, g, c.orb_features, f0, feats)
+        tracked, motion = orb_track(g0, g, f0=f0, f1=feats)
         sc = {"tracked": round(tracked, 4), "motion_px": round(motion, 2) if np.isfinite(motion) else None}
         self.scores[index] = sc
         if tracked >= c.min_tracked and motion <= c.max_motion * g.shape[1]:
             self.n_cand += 1
-            s = ssim(g0, g)
+            s = ssim(g0, g, dtype=np.float32)  # see ssim: 1e-5 against a threshold of two decimals
             sc["ssim"] = round(s, 4)
             if s >= c.ssim_threshold:
                 self.n_dup += 1

@@ -703,6 +703,10 @@ class VideoSource(FrameSource):
     """
 
     seek_min: int = 48  # forward jumps longer than this seek instead of decoding every frame in between
+    # FFmpeg decoder threads of the opening scan (None: FFmpeg's choice, one per core). 1 saves ~10% of the
+    # scan's CPU on two cores, but on a shared, loaded machine it nearly doubled the scan's wall time (the
+    # decode then competes with one thread instead of several): docs/performance.md, "the scan's CPU"
+    scan_decoder_threads: int | None = None
 
     def __init__(self, path: Path, hfov_deg: float = 60.0, K: np.ndarray | None = None,
                  dist: np.ndarray | None = None, cache_size: int = 64, max_frames: int | None = None,
@@ -715,7 +719,7 @@ class VideoSource(FrameSource):
         if self.path.stat().st_size == 0:
             raise InputError(f"{_show(self.path)}: video file is empty")
         self._cv_path = self._opencv_path(self.path)
-        cap = self._open()
+        cap = self._open(self.scan_decoder_threads)
         self.rotation_deg = int(cap.get(self._cv2.CAP_PROP_ORIENTATION_META) or 0)
         fps = cap.get(self._cv2.CAP_PROP_FPS) or 0.0
         self.container_frames = int(cap.get(self._cv2.CAP_PROP_FRAME_COUNT) or 0)
@@ -815,9 +819,11 @@ class VideoSource(FrameSource):
 
         return cv2
 
-    def _open(self):
+    def _open(self, threads: int | None = None):
         cv2 = self._cv2
-        cap = cv2.VideoCapture(self._cv_path)
+        cap = cv2.VideoCapture(self._cv_path, cv2.CAP_ANY, [cv2.CAP_PROP_N_THREADS, threads]) if threads else None
+        if cap is None or not cap.isOpened():  # no thread count asked, or a backend that does not take one:
+            cap = cv2.VideoCapture(self._cv_path)  # the same frames, decoded with the backend's own threads
         if not cap.isOpened():
             raise InputError(f"{_show(self.path)}: OpenCV cannot open this video (corrupt file or unsupported "
                              f"format)")

@@ -132,3 +132,70 @@ def test_the_key_frame_search_reads_candidates_thumbnails_not_the_video(redkitch
     chosen, _, res, cands = select(src, ["chair"], [], Perception(detect=nothing), conf, Trace(), keyframes=4)
     assert len(cands) > 30 and res.frames_scored <= 6
     assert len(src.read & set(cands)) < len(cands) // 2, sorted(src.read)
+
+
+def _orb_track_two_matchers(k0, d0, k1, d1):
+    """The former orb_track body (two cv2.BFMatcher passes over DMatch lists), as the reference."""
+    import cv2
+
+    bf = cv2.BFMatcher(cv2.NORM_HAMMING)
+    best_back = np.full(len(k1), -1)
+    for m in bf.match(d1, d0):
+        best_back[m.queryIdx] = m.trainIdx
+    rows = [(m.queryIdx, m.trainIdx, m.distance, n.distance) for m, n in bf.knnMatch(d0, d1, k=2)]
+    q, t, dm, dn = (np.array(c) for c in zip(*rows))
+    q, t = q.astype(int), t.astype(int)
+    good = (dm < 0.8 * dn) & (best_back[t] == q)
+    if not good.any():
+        return 0.0, float("inf")
+    p0, p1 = cv2.KeyPoint_convert(k0), cv2.KeyPoint_convert(k1)
+    disp = np.hypot(*(p1[t[good]] - p0[q[good]]).T.astype(np.float64))
+    return int(good.sum()) / len(k0), float(np.median(disp))
+
+
+def test_orb_track_equals_two_brute_force_matchers(redkitchen):
+    """One forward pass as arrays plus a backward pass over the ratio test's targets only: the same tracked
+    fraction and motion as matching both ways in full, for near and far pairs, at both feature settings."""
+    from mosaicthinker.runtime.dedup import orb_features, small_gray
+
+    src = open_source(redkitchen)
+    gs = [small_gray(src.colour(i).rgb, 320) for i in range(0, 240, 12)]
+    for n, levels in ((300, 4), (500, 8)):
+        fs = [orb_features(g, n, levels) for g in gs]
+        checked = 0
+        for i in range(len(gs)):
+            for j in (i + 1, i + 4, len(gs) - 1 - i):
+                if j < len(gs) and j != i:
+                    got = orb_track(gs[i], gs[j], f0=fs[i], f1=fs[j])
+                    assert got == _orb_track_two_matchers(*fs[i], *fs[j]), (n, i, j)
+                    checked += got[0] > 0
+        assert checked > 20  # most pairs track something: the comparison is not of empty results
+
+
+def test_ssim_float32_within_1e5_of_skimage(redkitchen):
+    src = open_source(redkitchen)
+    rng = np.random.default_rng(3)
+    g = [src[i].rgb[::2, ::2, 1].copy() for i in (0, 2, 30, 120)]
+    noisy = np.clip(g[0].astype(int) + rng.integers(-20, 21, g[0].shape), 0, 255).astype(np.uint8)
+    for x, y in ((g[0], g[1]), (g[0], g[2]), (g[0], g[3]), (g[0], noisy), (g[0], np.zeros_like(g[0]))):
+        f32 = ssim(x, y, dtype=np.float32)
+        assert abs(f32 - _ref(x, y)) < 1e-5 and abs(f32 - ssim(x, y)) < 1e-5
+
+
+def test_fewer_orb_features_and_levels_keep_the_kitchens_decisions(redkitchen):
+    """`orb_features` / `orb_levels` reach ORB (the tracked fractions change) and 300 over 4 levels, the cheaper
+    setting docs/performance.md weighs, keeps exactly the frames the defaults keep on every frame of the real
+    kitchen (15 fps, no down-sampling: ~all are candidates)."""
+    from mosaicthinker.runtime.dedup import OnlineDedup, small_gray
+
+    src = open_source(redkitchen)
+    default, fewer = OnlineDedup({"sample_fps": None}), OnlineDedup({"sample_fps": None, "orb_features": 300,
+                                                                     "orb_levels": 4})
+    for p, t in enumerate(src.timestamps):
+        assert default.wants(float(t)) and fewer.wants(float(t))
+        g = small_gray(src.colour(p).rgb, default.conf.work_width)
+        default.push(p, g)
+        fewer.push(p, g)
+    tracked = [(default.scores[i]["tracked"], fewer.scores[i]["tracked"]) for i in default.scores]
+    assert sum(a != b for a, b in tracked) > len(tracked) // 2  # the settings were used
+    assert default.n_dup > 5 and fewer.kept == default.kept and fewer.dropped.keys() == default.dropped.keys()

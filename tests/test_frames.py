@@ -188,3 +188,23 @@ def test_mp4_random_access_equals_sequential(tmp_path):
     src.prefetch([70, 10, 40, 11])  # one sorted pass, then served from the cache
     for i in (10, 11, 40, 70):
         assert i in src._cache and np.array_equal(src[i].rgb, seq[i])
+
+
+def test_scan_decoder_threads_change_no_frame(tmp_path, monkeypatch):
+    """VideoSource.scan_decoder_threads sets FFmpeg's decoder threads of the opening scan: a speed setting,
+    the same timestamps, frames and online redundant-frame removal whatever its value."""
+    from mosaicthinker.runtime.dedup import DedupConf
+
+    p = tmp_path / "clip.mp4"
+    if not _write_mp4(p, 60):
+        pytest.skip("this OpenCV build cannot write mp4v video")
+    runs = []
+    for threads in (None, 1, 2):
+        monkeypatch.setattr(VideoSource, "scan_decoder_threads", threads)
+        src = open_source(p)
+        if threads:
+            assert src._open(threads).get(cv2.CAP_PROP_N_THREADS) == threads  # the backend took the setting
+        runs.append((src.timestamps, src[37].rgb, src.online_dedup(DedupConf()).to_dict()))
+    for ts, rgb, dd in runs[1:]:
+        assert np.array_equal(ts, runs[0][0]) and np.array_equal(rgb, runs[0][1]) and dd == runs[0][2]
+    assert len(runs[0][0]) == 60 and len(runs[0][2]["kept"]) > 5
