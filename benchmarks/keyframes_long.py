@@ -63,8 +63,8 @@ PREVIOUS = {"draw": "sequential", "novelty": 2.0, "stretch_first": False, "climb
 # the second round's default: the same search without the climb steps (`keyframes.climb_steps`) and the view
 # change on the content axis
 NO_CLIMB = {"climb": False, "change_power": 0.0}
-# the third round's default: the content axis from edge density alone (no `keyframes.view_change`)
-NO_CHANGE = {"change_power": 0.0}
+# the fourth round's candidate, not adopted: the content axis also weighs the view change (`keyframes.view_change`)
+VIEW_CHANGE = {"change_power": 1.0}
 DIAGNOSED = ("iterative@10%", "climb off (round-2 default)@10%")  # `--diagnose`: miss classes of these rows
 
 
@@ -95,7 +95,7 @@ def _methods(K: int) -> dict[str, tuple[str, dict[str, Any]]]:
     base = {"budget_fraction": 0.10, "min_keyframes": K}
     out["stretch selection off@10%"] = ("iterative", {**base, "stretch_first": False})
     out["random draws (sequential)@10%"] = ("iterative", {**base, "draw": "sequential"})
-    out["view change off (round-3 default)@10%"] = ("iterative", {**base, **NO_CHANGE})
+    out["view change on (round 4, not adopted)@10%"] = ("iterative", {**base, **VIEW_CHANGE})
     return out
 
 
@@ -418,7 +418,7 @@ def markdown(r: dict[str, Any]) -> str:
         for lab, s in (summ or {}).items():
             if lab in ("uniform", "exhaustive") or lab.split("@")[0] in (
                     "iterative", "iterative kernels off", "climb off (round-2 default)", "previous default",
-                    "view change off (round-3 default)"):
+                    "view change on (round 4, not adopted)"):
                 lines.append(_row(f"long / oracle, {split}", lab, s))
     lines += ["", f"Upper bound on found/recall at 5 / 10 / 25% scored (perfect grid + local search, no misses): "
                   f"blind to the unscored frames (even in time) {r['long']['coverage_bound']}; even along the "

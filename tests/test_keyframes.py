@@ -582,7 +582,7 @@ def test_view_change_and_the_change_weighted_axis_exact():
     rng = np.random.default_rng(3)
     dedup = {f: rng.integers(0, 256, (48, 64), dtype=np.uint8) for f in range(6)}
     store = dict(dedup)
-    conf = kf.KeyFrameConf()
+    conf = kf.KeyFrameConf.merged(change_power=1.0)  # measured, off by default
     x1 = kf._content_axis(np.arange(6), no_read, conf, [], None, {f: 0.1 for f in range(6)}, store)
     assert all(g.dtype == np.float32 and g.shape == (24, 32) for g in store.values())
     x2 = kf._content_axis(np.arange(6), no_read, conf, [], None, {f: 0.1 for f in range(6)}, store)
