@@ -362,13 +362,17 @@ class MapReasoner:
                                f"it cannot tell which {self._pq.phrase(name)} that is; ask about the "
                                f"{self._pq.phrase(name)} without '{' '.join(words)}'")
         out = inst
+        if not out:
+            return out  # nothing to pick from: the caller says the name is missing
         for w in sel.get("words", []):
             if w in SUPERLATIVES:
                 key, pick = SUPERLATIVES[w]
                 out = [pick(out, key=lambda o: _measure(o, key))]
         if sel.get("near"):
+            self._missing([sel["near"]])  # "the chair nearest the door" needs a door in the map
             ref = self._find(sel["near"])
-            out = [min(out, key=lambda o: min(box_distance(o.box, r.box) for r in ref if r is not o))]
+            out = [min(out, key=lambda o: min((box_distance(o.box, r.box) for r in ref if r is not o),
+                                              default=np.inf))]
         return out
 
     # ------------------------------------------------------------------ helpers

@@ -571,10 +571,12 @@ def _existence(pq, toks, joined, nps, extra) -> None:
         pq.params = {"objects": names, "all": False, "where": rel, **({"count": count} if count else {})}
         return
     if conds:
-        where = ", ".join(" ".join(p["words"]) for p in conds)
-        return _fail(pq, "an is-there question about " + ", ".join(f"'{' '.join(p['words'])}'" for p in objs),
-                     f"the location ('{where}'): the map answers whether there is one at all; ask 'is there a "
-                     f"{' '.join(objs[0]['words'])}?' or 'where is the {' '.join(objs[0]['words'])}?'")
+        where = ", ".join(" ".join(_before(toks, p, 1) + p["words"]) for p in conds)
+        about = ", ".join(f"'{' '.join(p['words'])}'" for p in objs) or "anything"
+        ask = (f"'is there a {' '.join(objs[0]['words'])} on the ...?' or 'where is the "
+               f"{' '.join(objs[0]['words'])}?'") if objs else f"'what is on / near the {' '.join(conds[0]['words'])}?'"
+        return _fail(pq, f"an is-there question about {about}", f"the location ('{where}'): the map tests on, near "
+                                                                f"and in; ask {ask}")
     names = _refs(pq, objs)
     pq.qtype = "object_existence"
     pq.targets, pq.params = names, {"objects": names, "all": " and " in f" {joined} "}
