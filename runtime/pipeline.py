@@ -301,7 +301,7 @@ def select(source: FrameSource, targets: Sequence[str], cues: Sequence[str], per
                     f"{min(need, len(extra))} evenly spaced frames", stage="keyframes")
     if reserve:
         spread = spread_keyframes(chosen, cands, res.scores, reserve)
-        trace.event("keyframes", f"{len(set(targets) | set(cues))} object names: {reserve} of {K + reserve} key "
+        trace.event("keyframes", f"{len(set(targets) | set(cues))} object names: {reserve} of {K} key "
                     f"frames reserved for temporal coverage (largest gaps between the search's frames): {spread}",
                     stage="keyframes", coverage=spread)
         chosen = sorted(chosen + spread)
@@ -309,6 +309,7 @@ def select(source: FrameSource, targets: Sequence[str], cues: Sequence[str], per
         chosen = _reduce_keyframes(sorted(chosen), int(budget.keyframes), budget, trace)
     trace.decide("keyframes", {**res.to_dict(), "chosen": chosen, "scores": None, "order": None,
                                "coverage_reserve": reserve})
+    bar.note(keyframes=len(chosen))  # the summary line: the key frames perception gets (top-up and reserve in)
     return sorted(chosen), det, res, cands
 
 
