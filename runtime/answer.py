@@ -828,7 +828,8 @@ class MapReasoner:
         if self.map.cameras:
             cam = describe_from_camera(self.map.cameras[-1][1], o.center, self.conf.back_deg)
             value["camera"] = cam
-            words.insert(0, f"{cam['words']} of the last camera view, {cam['distance_m']:.1f} m away")
+            of = "" if cam["words"] == "behind" else " of"  # "behind the last camera view", not "behind of"
+            words.insert(0, f"{cam['words']}{of} the last camera view, {cam['distance_m']:.1f} m away")
         verb = "are" if name_key(self._ph(name)) != self._ph(name).lower() else "is"  # "the office chairs are"
         value["text"] = f"the {self._ph(name)} {verb} " + (", ".join(words) if words else "the only object in the map")
         if len(inst) > 1:

@@ -314,7 +314,7 @@ def _intent(j: str, n_obj: int, has_opts: bool) -> str | None:
     for intent, rx in _SIMPLE_INTENTS:
         if rx.search(j):
             return intent
-    if _has(j, r"\b(?:where|whereabouts|locate|location of|position of)\b"):
+    if _has(j, r"\b(?:where|whereabouts|locate|location of|position of)\b|^(?:show me|find|point (?:me )?to)\b"):
         return "direction" if _has(j, r"\b(?:if i|standing|when i)\b") and stance else "where"
     if _has(j, r"\b(?:list|enumerate|inventory)\b|\b(?:what|which) (?:objects|things|items|furniture)\b|"
                r"\bwhat (?:are|is) the (?:objects|things|items|furniture)\b|"

@@ -563,3 +563,15 @@ def test_selectors_and_locations_with_missing_references_never_crash():
         a = ask(q)
         assert a.status in ("not_found", "unsupported"), (q, a.text)
     assert ask("how big is the chair nearest the door?").text.startswith("not found: door")
+
+
+def test_show_me_and_find_are_where_questions_and_behind_reads_right():
+    R = np.array([[1.0, 0, 0], [0, 0, 1], [0, -1, 0]])  # looking along +y, z up
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = R, [0.0, 3.5, 1.5]  # beyond the whiteboard, looking away from the room
+    smap = room_map(cameras=[(0, T)])
+    for q in ("show me the laptop", "find the couch", "where is the desk?"):
+        a = ask(q, smap=smap)
+        assert a.qtype == "object_where" and a.ok, q
+    a = ask("where is the desk?", smap=smap)
+    assert "behind the last camera view" in a.text and "behind of" not in a.text, a.text
