@@ -575,3 +575,13 @@ def test_show_me_and_find_are_where_questions_and_behind_reads_right():
         assert a.qtype == "object_where" and a.ok, q
     a = ask("where is the desk?", smap=smap)
     assert "behind the last camera view" in a.text and "behind of" not in a.text, a.text
+
+
+def test_every_listed_example_parses_to_its_own_type():
+    """`mosaic ask --examples` promises these wordings: each must be read as the type it is listed under."""
+    from mosaicthinker.runtime.grounding_nl import EXAMPLES
+
+    for qtype, qs in EXAMPLES.items():
+        for q in qs:
+            got = parse_question(q).qtype
+            assert got == qtype or (qtype == "object_rel_direction" and got.startswith("object_")), (q, got)
