@@ -162,8 +162,6 @@ def _measure(o: ObjectInstance, what: str) -> float:
     return horiz[1] if what == "depth" else horiz[0]  # length / width: the longer horizontal side (W x D x H)
 
 
-_OPPOSITES = {"bigger": "smaller", "larger": "smaller", "taller": "shorter", "higher": "lower", "longer": "shorter",
-              "wider": "narrower"}
 _MEASURE_WORDS = {"volume": "box volume", "height": "height", "top": "top height", "length": "length",
                   "width": "width"}
 
@@ -699,16 +697,20 @@ class MapReasoner:
         return win, expl
 
     def _size_difference(self, pq: ParsedQuestion, vals: dict[str, float], key: str) -> dict[str, Any]:
-        """"How much taller is A than B?": A's measure minus B's (m^3 for volume, else the asked length unit);
-        a negative difference is said as the opposite comparison."""
+        """"How much taller (shorter) is A than B?": how far A's measure exceeds (falls short of) B's (m^3 for
+        volume, else the asked length unit); a negative difference is said with the opposite comparative, or,
+        where the vocabulary has none (longer), with B as the subject."""
         a, b = pq.params["candidates"]
+        _, pick = SUPERLATIVES[pq.params["measure"]]
         word = next(w for w, sup in COMPARATIVES.items() if sup == pq.params["measure"])
-        d = vals[a] - vals[b]
+        d = (vals[a] - vals[b]) * (1 if pick is max else -1)
         unit = "m3" if key == "volume" else pq.params.get("unit", "cm")
         v = d if key == "volume" else d / UNIT_M[unit]
         shown = f"{abs(v):.2f} m^3" if key == "volume" else f"{abs(v):.{0 if unit in ('cm', 'mm') else 2}f} {UNIT_WORDS[unit]}"
-        opposite = {v: k for k, v in _OPPOSITES.items()} | _OPPOSITES
-        text = shown if d >= 0 else f"none: the {self._ph(a)} is {shown} {opposite.get(word, 'less ' + word)}"
+        other = next((c for c, sup in COMPARATIVES.items() if SUPERLATIVES[sup] == (key, min if pick is max else max)),
+                     None)
+        text = shown if d >= 0 else f"none: the {self._ph(a)} is {shown} {other}" if other else \
+            f"none: the {self._ph(b)} is {shown} {word}"
         return {"text": text, "difference": round(v, 4), "unit": unit}
 
     def _pick_unique(self, name: str, near: list[np.ndarray]) -> tuple[ObjectInstance, str]:

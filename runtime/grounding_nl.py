@@ -50,7 +50,7 @@ turn turned turning walk walking go going see seen saw spot notice find found sh
 closest nearest farthest furthest closer nearer farther further close far apart away distance distances gap
 many much more most less least number count total quantity amount fewer fewest common numerous plentiful
 big bigger biggest large larger largest small smaller smallest tall taller tallest short shorter shortest long
-longer longest wide wider widest high higher highest low lower lowest deep size sizes dimension dimensions length
+longer longest wide wider widest narrow narrower narrowest high higher highest low lower lowest deep size sizes dimension dimensions length
 width height depth measure measures measured measuring measurement measurements area footprint square
 point points object objects thing things item items stuff furniture piece pieces kind kinds type types
 please thanks roughly approximately approx around exactly just only really actually about estimate guess

@@ -585,3 +585,16 @@ def test_every_listed_example_parses_to_its_own_type():
         for q in qs:
             got = parse_question(q).qtype
             assert got == qtype or (qtype == "object_rel_direction" and got.startswith("object_")), (q, got)
+
+
+def test_how_much_shorter_is_how_far_a_falls_short():
+    """"How much shorter is the desk than the whiteboard?" answered "none: the desk is 44 cm longer" (the
+    difference was taken as for taller, and the opposite word came from a hand-made table)."""
+    h = {n: s[2] for n, _, s in ROOM}
+    assert ask("how much shorter is the desk than the whiteboard?").text == f"{(h['whiteboard'] - h['desk']) * 100:.0f} cm"
+    assert ask("how much taller is the desk than the whiteboard?").text == \
+        f"none: the desk is {(h['whiteboard'] - h['desk']) * 100:.0f} cm shorter"
+    assert ask("how much smaller is the desk than the couch?").value["difference"] == pytest.approx(
+        2.0 * 0.9 * 0.8 - 1.4 * 0.7 * 0.76, abs=1e-3)
+    assert ask("how much longer is the laptop than the desk?").text == "none: the desk is 105 cm longer"
+    assert ask("how much narrower is the desk than the couch?").text == "60 cm"  # 'narrower' is no object
