@@ -38,7 +38,7 @@ import numpy as np
 from . import evidence as ev
 from .config import StageConf
 from .errors import InputError
-from .geometry import box_distance
+from .geometry import box_distance, point_box_distance
 from .grounding import ParsedQuestion, canonical_name, name_key, parse_question, safe_text, split_options
 from .grounding_nl import COMPARATIVES, SUPERLATIVES
 from .semantic_map import ObjectInstance, SemanticMap
@@ -196,13 +196,6 @@ def describe_direction(theta_deg: float, back_deg: float = 135.0) -> dict[str, A
         words = f"{'ahead' if fb == 'front' else 'behind'} and to the {side}"
     return {"side": side, "front_back": fb, "quadrant": quad, "medium": med, "words": words,
             "angle_deg": round(float(theta_deg), 1)}
-
-
-def _point_box_distance(p: np.ndarray, box: Any) -> float:
-    """Distance (m) from a point [3] to a solid oriented box (0 inside)."""
-    local = (np.asarray(p, float) - np.asarray(box.centroid, float)) @ np.asarray(box.axes, float).T
-    out = np.maximum(np.abs(local) - np.asarray(box.axes_lengths, float) / 2, 0.0)
-    return float(np.linalg.norm(out))
 
 
 def describe_from_camera(T_wc: np.ndarray, point: np.ndarray, back_deg: float = 135.0) -> dict[str, Any]:
@@ -589,7 +582,7 @@ class MapReasoner:
         a, unit = pq.params["a"], pq.params.get("unit", "m")
         cam = np.asarray(self.map.cameras[-1][1], float)[:3, 3]
         inst = self._instances(a)
-        dist = {o.id: _point_box_distance(cam, o.box) for o in inst}
+        dist = {o.id: point_box_distance(cam, o.box) for o in inst}
         o = min(inst, key=lambda x: dist[x.id])
         self._choice(a, inst, o, "the nearest to the camera", {i: d / UNIT_M[unit] for i, d in dist.items()}, unit)
         v = dist[o.id] / UNIT_M[unit]

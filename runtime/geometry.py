@@ -432,6 +432,13 @@ def box_closest_points(a: "OrientedBox", b: "OrientedBox") -> tuple[float, np.nd
     return float(d[k]), P[k], Q[k]
 
 
+def point_box_distance(p: np.ndarray, box: "OrientedBox") -> float:
+    """Distance (m) from a point [3] to a solid oriented box (0 inside)."""
+    c, ax = np.asarray(box.centroid, np.float64), np.asarray(box.axes, np.float64)
+    p = np.asarray(p, np.float64).reshape(1, 3)
+    return float(np.linalg.norm(p - _clamp_into_box(p, c, ax, np.asarray(box.axes_lengths, np.float64) / 2)))
+
+
 def box_distance(a: "OrientedBox", b: "OrientedBox") -> float:
     """Shortest distance (m) between two solid oriented boxes (0 when they overlap)."""
     return box_closest_points(a, b)[0]
