@@ -91,7 +91,8 @@ SUPERLATIVES = {"biggest": ("volume", max), "largest": ("volume", max), "smalles
 COMPARATIVES = {"bigger": "biggest", "larger": "largest", "smaller": "smallest", "taller": "tallest",
                 "shorter": "shortest", "higher": "highest", "lower": "lowest", "longer": "longest",
                 "wider": "widest", "narrower": "narrowest"}
-_CMP_RX = r"\b(?:" + "|".join(COMPARATIVES) + r")\b"
+_CMP = "(?:" + "|".join(COMPARATIVES) + ")"
+_CMP_RX = rf"\b{_CMP}\b"
 _SUP_RX = r"\b(?:" + "|".join(SUPERLATIVES) + r")\b"
 # "the longest side of the bed", "the biggest dimension of the tv": a size question, not a comparison
 _SUP_DIM_RX = _SUP_RX + r" (?:sides?|dimensions?|edges?|extents?|length|measurements?|axis)\b"
@@ -300,7 +301,7 @@ def _intent(j: str, n_obj: int, has_opts: bool) -> str | None:
     if _has(j, r"\b(?:more|fewer|less)\b") and _has(j, r"\b(?:than|or)\b") and not _has(j, r"\d|\bmore or less\b") \
             and n_obj >= 2:
         return "count_compare"  # "are there more chairs than cups?", "which are there fewer of, cups or chairs?"
-    if _has(j, r"\bhow much " + _CMP_RX[2:] + r" (?:is|are|was|were)\b") and _has(j, r"\bthan\b"):
+    if _has(j, rf"\bhow much {_CMP} (?:is|are|was|were)\b") and _has(j, r"\bthan\b"):
         return "size_compare"  # "how much taller is the fridge than the table?": the difference
     if not _has(j, r"\bhow\b") and (_has(j, _CMP_RX) and _has(j, r"\b(?:which|whichever|what|or|than)\b")
                                      or _has(j, _SUP_RX) and _has(j, r"^(?:which|what|what's)\b")
@@ -308,9 +309,9 @@ def _intent(j: str, n_obj: int, has_opts: bool) -> str | None:
         return "size_compare"  # "which is bigger, the table or the sofa?", "what's the tallest thing here?"
     if _has(j, r"^(?:is|are|was|were) (?!there\b)") and _has(j, _VIEW_RX) and n_obj >= 2:
         return "view_direction"  # "is the chair to the left of the table?": as seen from the camera
-    if _has(j, r"^(?:is|are|was|were) (?!there\b)") and _has(j, _LOCATED_RX) and n_obj >= 2:
+    if _has(j, r"^(?:is|are|was|were) (?!there\b)") and _has(j, rf"\b{_LOCATED}\b") and n_obj >= 2:
         return "relation"  # "is the cup on the table?": an is-there question with a location
-    if _has(j, r"^(?:what|what's|which (?:objects|things|items))(?: is| are| was| were|'s)? (?:there )?" + _LOCATED_RX[2:]):
+    if _has(j, _WHAT_AT_RX):
         return "list"  # "what's on the table?", "what is near the door?"
     for intent, rx in _SIMPLE_INTENTS:
         if rx.search(j):
@@ -437,15 +438,15 @@ _LOCATION = {"on", "in", "at", "near", "by", "under", "behind", "beside", "above
              "around", "next", "between", "over", "beneath", "underneath", "along", "across", "close"}
 
 
-# location words the map reasoner can apply to a count or an is-there question (`answer.relation_holds`)
 # "A is left of / in front of / behind B" without a stance: as the viewer (the last camera) sees them
 _VIEW_RX = r"\b(?:(?:to|on|at) the (?:left|right)(?: hand side| side)? of|left of|right of|in front of|behind)\b"
 _VIEW_WORDS = {"left": "left", "right": "right", "front": "front", "behind": "back"}
-# a location word the map can test ("on", "near", "in": `answer.relation_holds`) or refuse clearly
-_LOCATED_RX = r"\b(?:on|on top of|atop|near|next to|close to|by|beside|around|in|inside|within|under|underneath|" \
-              r"beneath|below|above|behind|against|over)\b"
+# location words the map reasoner can apply to a count or an is-there question (`answer.relation_holds`)
 _RELATION_WORDS = {"on": "on", "atop": "on", "onto": "on", "upon": "on", "near": "near", "by": "near",
                    "beside": "near", "around": "near", "in": "in", "inside": "in", "within": "in"}
+# any location word, as a regex alternation for the intents: tested by the map, or refused naming it
+_LOCATED = "(?:" + "|".join(sorted(_LOCATION | set(_RELATION_WORDS))) + ")"
+_WHAT_AT_RX = rf"^(?:what|what's|which (?:objects|things|items))(?: is| are| was| were|'s)? (?:there )?{_LOCATED}\b"
 
 
 def _relation(toks: list[str], p: dict[str, Any]) -> str | None:
@@ -786,12 +787,12 @@ def _list(pq, toks, joined, nps, extra) -> None:
     """"What objects are in the room?", "list the chairs", "what's on the table?" (every object on it)."""
     if nps and _has(joined, r"^(?:what|what's|which)\b"):
         objs, conds = _conditions(toks, nps, every=True)
-        if conds and not objs:
-            where = _location(pq, toks, objs, conds)
-            if where is None:
+        if conds and (not objs or _has(joined, _WHAT_AT_RX)):  # what is there at one place: nothing else named
+            where = _location(pq, toks, objs, conds) if not objs else None
+            if where is None:  # "under the desk", "between the desk and the couch"
                 words = " ".join(_before(toks, conds[0], 1) + conds[0]["words"])
                 return _fail(pq, "a what-is-there question", f"the location '{words}' (the map tests on, near "
-                                                             f"and in)")
+                                                             f"and in, at one object)")
             pq.qtype, pq.cues = "object_list", [where["object"]]
             pq.params = {"objects": [], "where": where}
             return

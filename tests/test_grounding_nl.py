@@ -598,3 +598,12 @@ def test_how_much_shorter_is_how_far_a_falls_short():
         2.0 * 0.9 * 0.8 - 1.4 * 0.7 * 0.76, abs=1e-3)
     assert ask("how much longer is the laptop than the desk?").text == "none: the desk is 105 cm longer"
     assert ask("how much narrower is the desk than the couch?").text == "60 cm"  # 'narrower' is no object
+
+
+def test_what_is_at_two_places_is_refused_not_listed():
+    """"What is on the desk and the couch?" listed the desks and couches; one place is what the map tests."""
+    for q in ("what is on the desk and the couch?", "what is between the desk and the couch?",
+              "what is under the desk and the chair?"):
+        a = ask(q)
+        assert a.status == "unsupported" and "at one object" in a.explanation, (q, a.text)
+    assert ask("what's on the desk?").ok
