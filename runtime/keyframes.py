@@ -776,11 +776,12 @@ def iterative_search(candidates: Sequence[int], targets: Sequence[str], cues: Se
     candidates, and the decisions `keyframes.method`, `keyframes.frames_scored`.
     `image_size` (W, H) lets the `min_keyframes` top-up cover objects first (the largest box per name is kept
     per scored frame; see `_fill`); without it the top-up goes by score only.
-    `content_prior` (default on) reads every candidate's image once for its edge density (`edge_density`, a
-    Canny on a 64-px copy, ~0.1 ms; `densities` caches them per frame index) and measures every distance of
-    the search along `content_axis`: a cheap signal on every candidate, no detector call. With `change_power`
-    > 0 (default 1) each step also grows with the `view_change` to the neighbouring candidates, from 32-px grey
-    copies (`thumbs` caches them per frame index; the pipeline passes dedup's thumbnails, ~10 us a candidate).
+    `content_prior` (default on) takes every candidate's edge density (`edge_density`, a Canny on a 64-px copy,
+    ~0.1 ms; `densities` caches them per frame index) from its small gray copy in `thumbs` (uint8, at least
+    `hist_size` wide: the pipeline passes dedup's thumbnails, so no candidate is decoded again), else from its
+    image, and measures every distance of the search along `content_axis`: a cheap signal on every candidate,
+    no detector call. With `change_power` > 0 (measured, off by default) each step also grows with the
+    `view_change` to the neighbouring candidates, from 32-px grey copies (stored back into `thumbs`).
     """
     trace = as_trace(trace)
     conf = conf or KeyFrameConf()
@@ -860,8 +861,10 @@ def _content_axis(c: np.ndarray, image: ImageFn | None, conf: KeyFrameConf, note
         return None
     store = {} if store is None else store
     for f in c:
-        if int(f) not in store:
-            store[int(f)] = edge_density(image(int(f)), conf.hist_size)
+        if int(f) not in store:  # from the frame's small gray copy when one is given wide enough (dedup's), else read
+            g = thumbs.get(int(f)) if thumbs is not None else None
+            usable = g is not None and g.dtype == np.uint8 and g.ndim == 2 and g.shape[1] >= conf.hist_size
+            store[int(f)] = edge_density(g if usable else image(int(f)), conf.hist_size)
     change = None
     if conf.change_power > 0:
         thumbs = {} if thumbs is None else thumbs

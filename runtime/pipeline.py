@@ -30,7 +30,7 @@ from .trace import Trace, as_trace
 # the stages, in the paper's order
 from .grounding import ParsedQuestion, ground
 from .dedup import DedupConf, DedupResult, remove_redundant
-from .keyframes import KeyFrameConf, edge_density, select_keyframes, uniform_keyframes
+from .keyframes import KeyFrameConf, select_keyframes, uniform_keyframes
 from .matching import MatchConf, make_matcher
 from .alignment import AlignConf, align_keyframes, worker_threads
 from .semantic_map import (FusionConfig, ObjectInstance, Observation, SemanticMap, box_depth_mask,
@@ -213,12 +213,6 @@ def _candidates(source: FrameSource, conf: PipelineConfig, trace: Trace, budget:
     return res
 
 
-def _densities(thumbs: dict[int, np.ndarray], kconf: KeyFrameConf) -> dict[int, float]:
-    """The content prior's edge density of each candidate from dedup's thumbnail (as wide as the search's
-    `hist_size` or wider); a candidate without one is read from the video by the search itself."""
-    return {int(f): edge_density(g, kconf.hist_size) for f, g in thumbs.items() if g.shape[1] >= kconf.hist_size}
-
-
 def _count_reasons(dropped: Any) -> dict[str, int]:
     out: dict[str, int] = {}
     for r in (dropped.values() if isinstance(dropped, dict) else []):
@@ -288,7 +282,7 @@ def select(source: FrameSource, targets: Sequence[str], cues: Sequence[str], per
         res = select_keyframes(conf.keyframe_method, cands, list(targets), list(cues), det,
                                lambda i: _colour(source, int(i)).rgb, kconf, trace,
                                prefetch=getattr(source, "prefetch", None), image_size=tuple(source.size),
-                               densities=_densities(dedup.thumbs, kconf), thumbs=dict(dedup.thumbs))
+                               thumbs=dict(dedup.thumbs))  # small gray copies: no candidate read again
         det.on_call = None
         bar.note(keyframes=len(res.chosen))
     chosen = [int(i) for i in res.chosen]

@@ -590,6 +590,14 @@ def test_view_change_and_the_change_weighted_axis_exact():
                            kf.view_change([kf.grey_thumbnail(dedup[f]) for f in range(6)]))
     np.testing.assert_allclose(x1, want)
     np.testing.assert_allclose(x2, want)
+    # the densities themselves come from the thumbnails when none are given (the pipeline passes none): no read
+    dens: dict[int, float] = {}
+    x3 = kf._content_axis(np.arange(6), no_read, kf.KeyFrameConf(), [], None, dens, dict(dedup))
+    assert dens == {f: kf.edge_density(dedup[f], 64) for f in range(6)} and x3 is not None
+    reads = []
+    kf._content_axis(np.arange(2), lambda f: reads.append(f) or dedup[f], kf.KeyFrameConf(), [], None, {},
+                     {0: dedup[0][:, :32]})  # too narrow a copy, and none for frame 1: both read
+    assert reads == [0, 1]
     for bad in ({"change_power": -1}, {"change_size": 1}):
         with pytest.raises(InputError, match="change_"):
             kf.KeyFrameConf.merged(bad)
