@@ -2,8 +2,14 @@
 
 1. uniform down-sampling to `sample_fps` (or every `stride`-th frame);
 2. ORB keypoint tracking between consecutive KEPT frames: a frame whose keypoints are mostly tracked with a
-   small displacement is a candidate near-duplicate of the last kept frame (cheap: no per-pixel work);
-3. SSIM only on those candidates: above `ssim_threshold` the frame is dropped as a near-duplicate.
+   small displacement tracks the last kept frame;
+3. SSIM against the last kept frame: a frame that tracks it AND has SSIM above `ssim_threshold` is dropped as
+   a near-duplicate.
+
+The rule is the paper's conjunction; the code tests it cheapest first. SSIM at the work width costs ~2 ms, ORB
+features and tracking ~8 ms, and at the sampling rate most frames of a moving camera fall below the SSIM
+threshold, so ORB runs only on the frames SSIM leaves as candidates (the reference's features once, lazily).
+The kept frames are the ones the tracking-first order keeps (tested).
 
 Every dropped frame gets a reason. `ssim` reproduces scikit-image's
 `structural_similarity(gaussian_weights=True, sigma=1.5, use_sample_covariance=False)` (tested to 1e-3).
@@ -89,9 +95,12 @@ class DedupConf(StageConf):
     # "the scan's CPU")
     orb_features: int = 500
     orb_levels: int = 8
-    min_tracked: float = 0.35        # tracked ORB fraction above which a frame is a candidate duplicate ...
-    max_motion: float = 0.04         # ... when the median keypoint displacement is below this x width
-    ssim_threshold: float = 0.80     # candidates with SSIM above this are dropped as near-duplicates
+    # a frame is dropped as a near-duplicate of the last kept one when all three hold: SSIM >= ssim_threshold
+    # (tested first: it makes the frame a "candidate"), >= min_tracked of the ORB keypoints tracked, and their
+    # median displacement <= max_motion x width
+    min_tracked: float = 0.35
+    max_motion: float = 0.04
+    ssim_threshold: float = 0.80
     # a small gray copy of each kept frame (`DedupResult.thumbs`): later per-candidate signals (the key-frame
     # search's content prior) read it instead of decoding every candidate of the video a second time
     thumb_width: int = 64
@@ -101,7 +110,8 @@ class DedupConf(StageConf):
 @dataclass
 class DedupResult:
     """kept: frame indices kept (time order); dropped: {frame index: reason}; counts: how many per stage;
-    scores: {frame index: {"tracked", "motion", "ssim"}} for frames that were compared."""
+    scores: {frame index: {"ssim"} (+ "tracked", "motion_px" where SSIM made it a candidate)} for frames that
+    were compared."""
 
     kept: list[int]
     dropped: dict[int, str]
@@ -185,7 +195,8 @@ class OnlineDedup:
         self.n_cand = self.n_dup = 0
         self._pos = -1
         self._next_t = -np.inf
-        self._last: tuple[int, np.ndarray, Any] | None = None  # (index, gray, ORB features) of the last kept
+        # (index, gray, ORB features or None until a comparison needs them) of the last kept frame
+        self._last: tuple[int, np.ndarray, Any] | None = None
 
     def wants(self, t: float) -> bool:
         self._pos += 1
@@ -203,24 +214,28 @@ class OnlineDedup:
     def push(self, index: int, g: np.ndarray) -> bool:
         """The sampled frame's gray image [h, w] uint8 (width <= work_width) -> True when it is kept."""
         c = self.conf
-        feats = orb_features(g, c.orb_features, c.orb_levels)
         if self._last is None:
-            return self._keep(index, g, feats)
+            return self._keep(index, g, None)
         i0, g0, f0 = self._last
         if g.shape != g0.shape:
             raise InputError(f"frame {index}: size {g.shape} differs from the previous frame {g0.shape}")
-        tracked, motion = orb_track(g0, g, f0=f0, f1=feats)
-        sc = {"tracked": round(tracked, 4), "motion_px": round(motion, 2) if np.isfinite(motion) else None}
+        s = ssim(g0, g, dtype=np.float32)  # see ssim: 1e-5 against a threshold of two decimals
+        sc: dict[str, Any] = {"ssim": round(s, 4)}
         self.scores[index] = sc
+        if s < c.ssim_threshold:
+            return self._keep(index, g, None)
+        self.n_cand += 1
+        if f0 is None:  # the reference's features, computed once when a frame first needs them
+            f0 = orb_features(g0, c.orb_features, c.orb_levels)
+            self._last = (i0, g0, f0)
+        feats = orb_features(g, c.orb_features, c.orb_levels)
+        tracked, motion = orb_track(g0, g, f0=f0, f1=feats)
+        sc.update(tracked=round(tracked, 4), motion_px=round(motion, 2) if np.isfinite(motion) else None)
         if tracked >= c.min_tracked and motion <= c.max_motion * g.shape[1]:
-            self.n_cand += 1
-            s = ssim(g0, g, dtype=np.float32)  # see ssim: 1e-5 against a threshold of two decimals
-            sc["ssim"] = round(s, 4)
-            if s >= c.ssim_threshold:
-                self.n_dup += 1
-                self.dropped[index] = (f"near-duplicate of frame {i0} (SSIM {s:.3f} >= {c.ssim_threshold}; ORB "
-                                       f"tracked {tracked:.0%}, motion {motion:.1f} px)")
-                return False
+            self.n_dup += 1
+            self.dropped[index] = (f"near-duplicate of frame {i0} (SSIM {s:.3f} >= {c.ssim_threshold}; ORB "
+                                   f"tracked {tracked:.0%}, motion {motion:.1f} px)")
+            return False
         return self._keep(index, g, feats)
 
     def _keep(self, index: int, g: np.ndarray, feats: Any) -> bool:
