@@ -29,25 +29,55 @@ from .trace import as_trace
 # ----------------------------------------------------------------------------- SSIM
 
 
-def _ssim_map(x: np.ndarray, y: np.ndarray, data_range: float, sigma: float = 1.5, dtype: Any = np.float64
-              ) -> tuple[np.ndarray, int]:
+@dataclass
+class SsimMoments:
+    """One image's Gaussian-window moments for SSIM (each [H, W] in the working dtype): the image, its local
+    mean, squared mean and variance. A video's frame is compared twice (as the new frame, then as the reference
+    of the next ones), so its moments are computed once: 3 blurs per comparison instead of 5."""
+
+    x: np.ndarray
+    mu: np.ndarray
+    mu2: np.ndarray
+    var: np.ndarray
+    sigma: float
+
+
+def _blur(a: np.ndarray, sigma: float) -> np.ndarray:
     import cv2
 
-    r = int(3.5 * sigma + 0.5)  # scipy.ndimage's truncate=3.5 radius, as scikit-image uses
-    k = 2 * r + 1
-    x = x.astype(dtype)
-    y = y.astype(dtype)
+    r = _ssim_radius(sigma)
+    # BORDER_REFLECT (abc|cba) is scipy's mode='reflect'
+    return cv2.GaussianBlur(a, (2 * r + 1, 2 * r + 1), sigma, sigmaY=sigma, borderType=cv2.BORDER_REFLECT)
 
-    def blur(a: np.ndarray) -> np.ndarray:
-        # BORDER_REFLECT (abc|cba) is scipy's mode='reflect'
-        return cv2.GaussianBlur(a, (k, k), sigma, sigmaY=sigma, borderType=cv2.BORDER_REFLECT)
 
-    ux, uy = blur(x), blur(y)
-    uxx, uyy, uxy = blur(x * x), blur(y * y), blur(x * y)
-    vx, vy, vxy = uxx - ux * ux, uyy - uy * uy, uxy - ux * uy  # population covariance (Wang et al. 2004)
+def _ssim_radius(sigma: float) -> int:
+    return int(3.5 * sigma + 0.5)  # scipy.ndimage's truncate=3.5 radius, as scikit-image uses
+
+
+def ssim_moments(img: np.ndarray, sigma: float = 1.5, dtype: Any = np.float32) -> SsimMoments:
+    """`SsimMoments` of a single-channel image [H, W]."""
+    x = np.asarray(img).astype(dtype)
+    mu = _blur(x, sigma)
+    mu2 = mu * mu
+    return SsimMoments(x, mu, mu2, _blur(x * x, sigma) - mu2, sigma)  # population variance (Wang et al. 2004)
+
+
+def ssim_from_moments(a: SsimMoments, b: SsimMoments, data_range: float) -> float:
+    """Mean SSIM of two images from their moments (the same figure as `ssim` in the same dtype)."""
+    S, r = _ssim_map(a, b, data_range)
+    if min(S.shape) <= 2 * r:
+        raise ValueError(f"ssim: image {S.shape} smaller than the {2 * r + 1}x{2 * r + 1} window")
+    return float(S[r:-r, r:-r].mean(dtype=np.float64))
+
+
+def _ssim_map(a: SsimMoments, b: SsimMoments, data_range: float) -> tuple[np.ndarray, int]:
+    if a.x.shape != b.x.shape or a.sigma != b.sigma:
+        raise ValueError(f"ssim: shapes {a.x.shape} vs {b.x.shape} or windows {a.sigma} vs {b.sigma} differ")
+    p = a.mu * b.mu
+    cov = _blur(a.x * b.x, a.sigma) - p
     c1, c2 = (0.01 * data_range) ** 2, (0.03 * data_range) ** 2
-    S = ((2 * ux * uy + c1) * (2 * vxy + c2)) / ((ux * ux + uy * uy + c1) * (vx + vy + c2))
-    return S, r
+    S = ((2 * p + c1) * (2 * cov + c2)) / ((a.mu2 + b.mu2 + c1) * (a.var + b.var + c2))
+    return S, _ssim_radius(a.sigma)
 
 
 def ssim(a: np.ndarray, b: np.ndarray, data_range: float | None = None, sigma: float = 1.5,
@@ -70,10 +100,7 @@ def ssim(a: np.ndarray, b: np.ndarray, data_range: float | None = None, sigma: f
             raise ValueError("ssim: give data_range for non-integer images")
     if a.ndim == 3:
         return float(np.mean([ssim(a[..., c], b[..., c], data_range, sigma, dtype) for c in range(a.shape[2])]))
-    S, r = _ssim_map(a, b, float(data_range), sigma, dtype)
-    if min(S.shape) <= 2 * r:
-        raise ValueError(f"ssim: image {S.shape} smaller than the {2 * r + 1}x{2 * r + 1} window")
-    return float(S[r:-r, r:-r].mean(dtype=np.float64))
+    return ssim_from_moments(ssim_moments(a, sigma, dtype), ssim_moments(b, sigma, dtype), float(data_range))
 
 
 # ----------------------------------------------------------------------------- redundant-frame removal
@@ -195,8 +222,8 @@ class OnlineDedup:
         self.n_cand = self.n_dup = 0
         self._pos = -1
         self._next_t = -np.inf
-        # (index, gray, ORB features or None until a comparison needs them) of the last kept frame
-        self._last: tuple[int, np.ndarray, Any] | None = None
+        # (index, gray, SSIM moments, ORB features or None until a comparison needs them) of the last kept frame
+        self._last: tuple[int, np.ndarray, SsimMoments, Any] | None = None
 
     def wants(self, t: float) -> bool:
         self._pos += 1
@@ -214,20 +241,21 @@ class OnlineDedup:
     def push(self, index: int, g: np.ndarray) -> bool:
         """The sampled frame's gray image [h, w] uint8 (width <= work_width) -> True when it is kept."""
         c = self.conf
+        mom = ssim_moments(g, dtype=np.float32)  # see ssim: 1e-5 against a threshold of two decimals
         if self._last is None:
-            return self._keep(index, g, None)
-        i0, g0, f0 = self._last
+            return self._keep(index, g, mom, None)
+        i0, g0, m0, f0 = self._last
         if g.shape != g0.shape:
             raise InputError(f"frame {index}: size {g.shape} differs from the previous frame {g0.shape}")
-        s = ssim(g0, g, dtype=np.float32)  # see ssim: 1e-5 against a threshold of two decimals
+        s = ssim_from_moments(m0, mom, 255.0)
         sc: dict[str, Any] = {"ssim": round(s, 4)}
         self.scores[index] = sc
         if s < c.ssim_threshold:
-            return self._keep(index, g, None)
+            return self._keep(index, g, mom, None)
         self.n_cand += 1
         if f0 is None:  # the reference's features, computed once when a frame first needs them
             f0 = orb_features(g0, c.orb_features, c.orb_levels)
-            self._last = (i0, g0, f0)
+            self._last = (i0, g0, m0, f0)
         feats = orb_features(g, c.orb_features, c.orb_levels)
         tracked, motion = orb_track(g0, g, f0=f0, f1=feats)
         sc.update(tracked=round(tracked, 4), motion_px=round(motion, 2) if np.isfinite(motion) else None)
@@ -236,12 +264,12 @@ class OnlineDedup:
             self.dropped[index] = (f"near-duplicate of frame {i0} (SSIM {s:.3f} >= {c.ssim_threshold}; ORB "
                                    f"tracked {tracked:.0%}, motion {motion:.1f} px)")
             return False
-        return self._keep(index, g, feats)
+        return self._keep(index, g, mom, feats)
 
-    def _keep(self, index: int, g: np.ndarray, feats: Any) -> bool:
+    def _keep(self, index: int, g: np.ndarray, mom: SsimMoments, feats: Any) -> bool:
         self.kept.append(index)
         self.thumbs[index] = _small_gray(g, self.conf.thumb_width)
-        self._last = (index, g, feats)
+        self._last = (index, g, mom, feats)
         return True
 
     def result(self, n: int, index_at: Any) -> DedupResult:
