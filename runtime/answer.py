@@ -312,7 +312,7 @@ class MapReasoner:
     def _missing(self, names: list[str]) -> None:
         missing = [n for n in dict.fromkeys(names) if not self._find(n)]
         if missing:
-            shown = [name_key(self._ph(n)) or n for n in missing]  # the question's words, singular
+            shown = [self._one(n) for n in missing]
             raise _NotFound(shown, [h for n in missing for h in self._hints(n)])
 
     def _instances(self, name: str) -> list[ObjectInstance]:
@@ -333,7 +333,7 @@ class MapReasoner:
         how it was picked; `values`: the asked quantity with each instance instead, by id)."""
         if len(inst) < 2:
             return
-        self._ambiguous.append({"name": self._ph(name), "instances": [int(o.id) for o in inst], "used": int(used.id),
+        self._ambiguous.append({"name": self._one(name), "instances": [int(o.id) for o in inst], "used": int(used.id),
                                 "rule": rule, "unit": unit,
                                 "alternatives": None if values is None else
                                 {int(k): round(float(v), 3) for k, v in values.items()}})
@@ -453,6 +453,11 @@ class MapReasoner:
     def _ph(self, name: str) -> str:
         return self._pq.phrase(name) if self._pq is not None else name
 
+    def _one(self, name: str) -> str:
+        """The question's words for one instance of `name`, singular ("the office chairs" -> "office chair"): a
+        plural phrase labels "chair #3", and the ambiguity text pluralises it by count (`evidence.ambiguity_text`)."""
+        return name_key(self._ph(name)) or name
+
     # ------------------------------------------------------------------ question types
     def _located(self, name: str, where: dict[str, Any]) -> tuple[list[ObjectInstance], list[ObjectInstance], str]:
         """(instances of `name` (every object but the reference's category for "*") that are `where["relation"]`
@@ -562,7 +567,7 @@ class MapReasoner:
         note = "" if len(inst) == 1 else f" (largest of {len(inst)} instances)"
         self._choice(pq.params["object"], inst, inst[i], "the largest", {o.id: v for o, v in zip(inst, sizes)}, unit)
         what = "longest box dimension" if dim == "longest" else f"box {dim}"
-        return sizes[i], f"{what} of {self._ph(pq.params['object'])} #{inst[i].id}: {sizes[i]:.1f} {unit}{note}"
+        return sizes[i], f"{what} of {self._one(pq.params['object'])} #{inst[i].id}: {sizes[i]:.1f} {unit}{note}"
 
     def _room_size_estimation(self, pq: ParsedQuestion) -> tuple[Any, str]:
         area = self.map.room_area()
@@ -601,7 +606,7 @@ class MapReasoner:
         for n, own, other, used in ((a, inst[a], inst[b], x), (b, inst[b], inst[a], y)):
             self._choice(n, own, used, "the nearest", {o.id: self._min_distance([o], other)[0] / UNIT_M[unit]
                                                        for o in own if [p for p in other if p is not o]}, unit)
-        return v, f"closest points of {self._ph(a)} #{x.id} and {self._ph(b)} #{y.id}: {v:.3f} {unit}"
+        return v, f"closest points of {self._one(a)} #{x.id} and {self._one(b)} #{y.id}: {v:.3f} {unit}"
 
     def _object_rel_distance(self, pq: ParsedQuestion) -> tuple[Any, str]:
         ref, cands = pq.params["reference"], pq.params["candidates"]
@@ -660,7 +665,7 @@ class MapReasoner:
             inst = self._instances(cands[0])
             o = pick(inst, key=lambda x: _measure(x, key))
             ranked = sorted(inst, key=lambda x: _measure(x, key), reverse=pick is max)[:6]
-            return ({"text": f"{self._ph(cands[0])} #{o.id}", "object": o.name, "instance": int(o.id),
+            return ({"text": f"{self._one(cands[0])} #{o.id}", "object": o.name, "instance": int(o.id),
                      "value": round(_measure(o, key), 3)},
                     f"{_MEASURE_WORDS[key]}: " + ", ".join(f"#{x.id} {_measure(x, key):.2f} {unit}" for x in ranked))
         groups = dict(self._idx) if cands == "*" else self._require(cands)
@@ -676,7 +681,7 @@ class MapReasoner:
                 self._choice(n, inst, best[n], f"the {pq.params['measure']}", {o.id: _measure(o, key) for o in inst},
                              unit)
         ranked = sorted(vals, key=vals.get, reverse=pick is max)[:6]
-        expl = f"{_MEASURE_WORDS[key]}: " + ", ".join(f"{self._ph(n)} #{best[n].id} {vals[n]:.2f} {unit}"
+        expl = f"{_MEASURE_WORDS[key]}: " + ", ".join(f"{self._one(n)} #{best[n].id} {vals[n]:.2f} {unit}"
                                                       for n in ranked)
         if pq.params.get("difference"):
             return self._size_difference(pq, vals, key), expl

@@ -23,6 +23,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from .geometry import OrientedBox, box_distance
+from .grounding import plural
 
 
 def _centres(o: Any, max_views: int) -> list[np.ndarray]:
@@ -122,12 +123,14 @@ def build(instances: Sequence[Any], quantity: str | None = None, values: Sequenc
 
 
 def ambiguity_text(a: dict[str, Any]) -> str:
-    """`2 tv(s) in the map (#0 #2); used #0, the nearest (tv #2: 0.84 m)`."""
+    """`2 tvs in the map (#0 #2); used #0, the nearest (tv #2: 0.84 m)` (`a["name"]`: singular, one instance's)."""
     alt = {int(k): v for k, v in (a.get("alternatives") or {}).items() if int(k) != a["used"]}
     u = f" {a['unit']}" if a.get("unit") else ""
     others = ", ".join(f"{a['name']} #{k}: {_fmt(v)}{u}" for k, v in alt.items())
-    return (f"{len(a['instances'])} {a['name']}(s) in the map ({' '.join('#' + str(i) for i in a['instances'])}); "
-            f"used #{a['used']}, {a['rule']}" + (f" ({others})" if others else ""))
+    n = len(a["instances"])
+    return (f"{n} {a['name'] if n == 1 else plural(a['name'])} in the map "
+            f"({' '.join('#' + str(i) for i in a['instances'])}); used #{a['used']}, {a['rule']}"
+            + (f" ({others})" if others else ""))
 
 
 def line(ev: dict[str, Any] | None, max_ids: int = 8) -> str:

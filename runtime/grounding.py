@@ -148,6 +148,26 @@ def singular(w: str) -> str:
 
 _singular = singular  # the old private name, used by other modules
 
+# singular -> plural where `singular`'s table is irregular ("person" -> "people"); "tv's" is a possessive, not one
+_PLURAL = {one: many for many, one in _IRREGULAR.items() if "'" not in many}
+
+
+def plural(name: str) -> str:
+    """English plural of a name, the inverse of `singular` on its last word ("office chair" -> "office chairs",
+    "shelf" -> "shelves", "bench" -> "benches", "person" -> "people"); a word already plural stays."""
+    head, _, w = name.rpartition(" ")
+    if w in _PLURAL:
+        many = _PLURAL[w]
+    elif singular(w) != w or w.endswith(("is", "ics")):  # drawers, chassis, electronics: already plural
+        many = w
+    elif len(w) > 1 and w.endswith("y") and w[-2] not in "aeiou":
+        many = w[:-1] + "ies"
+    elif w.endswith(("ch", "sh", "s", "x", "z")):
+        many = w + "es"
+    else:
+        many = w + "s"
+    return f"{head} {many}" if head else many
+
 
 def _words(s: str) -> list[str]:
     s = s.lower().replace("(s)", "").replace("(es)", "").replace("_", " ").replace("\u2019", "'")

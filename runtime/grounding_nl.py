@@ -17,6 +17,8 @@ units and free-text options of an English question, in one pass over its tokens 
 - locations in counts and is-there questions: on (top of), near / next to / by / beside, in ("how many cups are on
   the table?", "is there a laptop on the desk?"; params["where"], `answer.relation_holds`); others (behind,
   under, between ...) are refused, never dropped;
+- a pronoun after a location ("the chairs next to it", "on top of it") is the one object named before it, read as
+  that phrase ("the chairs next to the desk"); with none or several such objects the question is refused;
 - units: "in cm / meters / mm / feet / inches" (params["unit"]); options in free text ("..., the lamp, the sofa
   or the tv?") become the candidates.
 
@@ -378,7 +380,11 @@ def parse_natural(question: str, options: list[str] | None = None) -> ParsedQues
                         how="natural")
     toks = tokens(question)
     joined, extra = _strip_preamble(" ".join(toks))
-    toks = joined.split()
+    toks = _resolve_pronouns(pq, joined.split())
+    if toks is None:
+        pq.how = "none"
+        return pq
+    joined = " ".join(toks)
     nps_all = [p for p in noun_phrases(toks) if not p["scene"]]
     intent = _intent(joined, len(nps_all), bool(options))
     if intent is None:
@@ -447,6 +453,53 @@ _RELATION_WORDS = {"on": "on", "atop": "on", "onto": "on", "upon": "on", "near":
 # any location word, as a regex alternation for the intents: tested by the map, or refused naming it
 _LOCATED = "(?:" + "|".join(sorted(_LOCATION | set(_RELATION_WORDS))) + ")"
 _WHAT_AT_RX = rf"^(?:what|what's|which (?:objects|things|items))(?: is| are| was| were|'s)? (?:there )?{_LOCATED}\b"
+
+
+# a pronoun after a location ("the chairs next to it") stands for an object named earlier: resolved or refused
+_PRONOUNS = {"it", "them", "that", "this", "those", "these"}
+# the words a located pronoun may follow: every location word the parser tests or refuses, and the selectors'
+# closeness words ("nearest (to) it"); left / right / front of a stance question are `_stance`'s
+_PRONOUN_CUES = _LOCATION | set(_RELATION_WORDS) | _NEAR_CUES | {"top"}
+
+
+def _location_start(toks: list[str], i: int) -> int | None:
+    """Where the location words before token i begin ("next to it", "on top of it", "near it"), or None when
+    token i does not follow a location word."""
+    k = i - 1
+    if k >= 1 and toks[k] in ("to", "of"):
+        k -= 1
+    if k < 0 or toks[k] not in _PRONOUN_CUES:
+        return None
+    return k - 1 if toks[k] == "top" and k >= 1 and toks[k - 1] == "on" else k
+
+
+def _antecedents(toks: list[str], i: int, loc: int) -> list[dict[str, Any]]:
+    """The object phrases before the located pronoun at token i that it can stand for: not a room word, and not
+    the phrase the location describes ("the chairs (are) next to it": the chairs are not next to themselves)."""
+    before = [p for p in noun_phrases(toks[:loc]) if not p["scene"]]
+    if before and all(t in _COPULA | _DET for t in toks[before[-1]["end"]:loc]):
+        before.pop()
+    return before
+
+
+def _resolve_pronouns(pq: ParsedQuestion, toks: list[str]) -> list[str] | None:
+    """The tokens with each located pronoun replaced by the one object named before it ("the chairs next to it"
+    -> "the chairs next to the desk"), so the explicit phrase's reading applies; None (the question refused,
+    `pq.notes` say why) when no single object is named before it: a location is never dropped silently."""
+    for i, t in enumerate(toks):
+        loc = _location_start(toks, i) if t in _PRONOUNS else None
+        if loc is None or (i + 1 < len(toks) and _is_content(toks, i + 1, False)):  # "next to that desk"
+            continue
+        cands = _antecedents(toks, i, loc)
+        if len(cands) != 1:
+            named = [" ".join(toks[p["start"]:p["end"]]) for p in cands]
+            why = f"it could be the {' or the '.join(named)}; say e.g. '{' '.join(toks[loc:i])} the {named[-1]}'" \
+                if named else "no object is named before it; name the object instead"
+            _fail(pq, f"the location '{' '.join(toks[loc:i + 1])}'", f"which object '{t}' is ({why})")
+            return None
+        p = cands[0]
+        return _resolve_pronouns(pq, toks[:i] + ["the"] + toks[p["start"]:p["end"]] + toks[i + 1:])
+    return toks
 
 
 def _relation(toks: list[str], p: dict[str, Any]) -> str | None:

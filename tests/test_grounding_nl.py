@@ -607,3 +607,36 @@ def test_what_is_at_two_places_is_refused_not_listed():
         a = ask(q)
         assert a.status == "unsupported" and "at one object" in a.explanation, (q, a.text)
     assert ask("what's on the desk?").ok
+
+
+def test_a_pronoun_after_a_location_is_the_object_named_before_it():
+    """"How much shorter is the desk than the chairs next to it?" dropped "next to it": the answer used the
+    shortest chair of the room (the 90 cm chair: 14 cm) and did not say so. "It" is the desk, the one object
+    named before the chairs, so the question is read as "... the chairs next to the desk"."""
+    chairs = [(n, c, s) for n, c, s in ROOM if canonical_name(n) == "chair"]
+    desk = boxes("desk")[0]
+    _, _, s = min(chairs, key=lambda r: gap((np.array(r[1]) - np.array(r[2]) / 2,
+                                             np.array(r[1]) + np.array(r[2]) / 2), desk))
+    want = f"{(s[2] - 0.76) * 100:.0f} cm"  # the chair beside the desk, 1.00 m tall
+    q, explicit = "how much shorter is the desk than the chairs next to it?", \
+        "how much shorter is the desk than the chairs next to the desk?"
+    assert ask(q).text == want == ask(explicit).text != "14 cm"
+    assert parse_question(q).selectors == parse_question(explicit).selectors == {"chair": {"near": "desk"}}
+    a, b = parse_question("the desk: how many chairs are next to it?"), parse_question("how many chairs are near "
+                                                                                        "the desk?")
+    assert a.params == b.params and a.params["where"] == {"relation": "near", "object": "desk"}
+    assert parse_question("how many cups are near that desk?").params["where"]["object"] == "desk"  # a determiner
+
+
+@pytest.mark.parametrize("q, where, named", [
+    ("how many chairs are next to it?", "next to it", ()),
+    ("is there anything on top of it?", "on top of it", ()),
+    ("is the monitor on the desk taller than the chairs near it?", "near it", ("monitor", "desk")),
+    ("standing by the couch facing the desk, is the laptop behind it?", "behind it", ("couch", "desk"))])
+def test_a_pronoun_that_names_no_single_object_is_refused_never_dropped(q, where, named):
+    """No object, or several, named before the pronoun: the question is refused, saying which location was not
+    used and what "it" could be (before, "how many chairs are next to it?" counted every chair)."""
+    a = ask(q)
+    assert a.status == "unsupported" and a.value is None, (q, a.text)
+    assert f"the location '{where}'" in a.text and "which object 'it' is" in a.text, a.text
+    assert all(f"the {n}" in a.text for n in named), a.text
