@@ -24,7 +24,7 @@ from typing import Any, Iterator, Sequence
 import numpy as np
 
 from .errors import InputError
-from .geometry import intrinsics_from_fov, make_pose
+from .geometry import intrinsics_from_fov, make_pose, worker_threads
 from .lru import LRU
 
 IMAGE_EXTS = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp")
@@ -703,9 +703,10 @@ class VideoSource(FrameSource):
     """
 
     seek_min: int = 48  # forward jumps longer than this seek instead of decoding every frame in between
-    # FFmpeg decoder threads of the opening scan (None: FFmpeg's choice, one per core). 1 saves ~10% of the
-    # scan's CPU on two cores, but on a shared, loaded machine it nearly doubled the scan's wall time (the
-    # decode then competes with one thread instead of several): docs/performance.md, "the scan's CPU"
+    # FFmpeg decoder threads of the opening scan (None: `worker_threads()` less one, at least 1: the
+    # redundant-frame removal's worker has a core of its own). On two cores FFmpeg's own choice (one thread
+    # per core, competing with that worker) cost ~1 s more wall and ~1.5 s more CPU on the 600 s clip than one
+    # decoder thread: docs/performance.md, "the scan's CPU" and "round 4"
     scan_decoder_threads: int | None = None
 
     def __init__(self, path: Path, hfov_deg: float = 60.0, K: np.ndarray | None = None,
@@ -719,7 +720,7 @@ class VideoSource(FrameSource):
         if self.path.stat().st_size == 0:
             raise InputError(f"{_show(self.path)}: video file is empty")
         self._cv_path = self._opencv_path(self.path)
-        cap = self._open(self.scan_decoder_threads)
+        cap = self._open(self.scan_decoder_threads or max(1, worker_threads() - 1))
         self.rotation_deg = int(cap.get(self._cv2.CAP_PROP_ORIENTATION_META) or 0)
         fps = cap.get(self._cv2.CAP_PROP_FPS) or 0.0
         self.container_frames = int(cap.get(self._cv2.CAP_PROP_FRAME_COUNT) or 0)
