@@ -1071,6 +1071,7 @@ class AlignPolicy(Protocol):
 
     alignment: AlignConf
     whole_image_fallback: bool
+    relative_box_matching: bool
     bridge_frames: int
     bridge_gap_s: float
     bridge_rounds: int
@@ -1381,7 +1382,7 @@ def align_rest_relative(al: AlignmentResult, frames: list[Any], boxes: dict[int,
     used)."""
     trace = as_trace(trace)
     fates = fates or Fates([f.index for f in frames])
-    if al.unaligned and conf.whole_image_fallback:
+    if al.unaligned and conf.whole_image_fallback and any(b is not None for b in boxes.values()):
         al, boxes = _whole_image_realign(al, frames, boxes, emb, matcher, with_scale, conf, trace)
         fates.after(al, "whole-image tree")
     used: list[Any] = []
@@ -1633,19 +1634,21 @@ def align_keyframes(frames: list[Any], matcher: KeyedMatcher, boxes: dict[int, A
                     source: Any, with_depth: WithDepth, with_scale: bool, conf: AlignPolicy, trace: Any,
                     over_budget: Callable[[list[int]], bool] = lambda unaligned: False,
                     thumbs: Mapping[int, np.ndarray] | None = None) -> tuple[AlignmentResult, list[Any]]:
-    """The key frames' alignment: matches restricted to object boxes (the paper's trick), MST over frame
-    similarity; then, with metric depth and `verify_depth`, every tree edge depth-checked and the frames left
+    """The key frames' alignment: matches restricted to object boxes (the paper's trick; with relative depth
+    only when `relative_box_matching`), MST over frame similarity; then, with metric depth and `verify_depth`, every tree edge depth-checked and the frames left
     out attached one edge at a time (`align_rest_metric`), else a whole-image re-alignment and bridge rounds
     (`align_rest_relative`). `over_budget(unaligned)` says (and records) when bridge rounds are skipped.
     `thumbs` (frame -> small gray image, e.g. dedup's) lets metric bridging look for places the video revisits.
     Returns (alignment over the key frames only, the bridge frames used)."""
     trace = as_trace(trace)
+    if with_scale and not conf.relative_box_matching:  # essential edges: whole images from the first tree
+        boxes = {i: None for i in boxes}
     with trace.stage("alignment"):
         al = align_frames(frames, matcher, "mst", conf.alignment, emb, boxes, with_scale=with_scale, trace=trace,
                           step=True)
     keys = {f.index for f in frames}
     fates = Fates(keys)
-    fates.after(al, "box-matched tree")
+    fates.after(al, "box-matched tree" if any(b is not None for b in boxes.values()) else "whole-image tree")
     if conf.verify_depth and not with_scale:  # metric depth: one edge at a time onto the verified tree (cheap)
         used = align_rest_metric(al, frames, matcher, source, with_depth, conf, trace, over_budget, fates, thumbs)
     else:

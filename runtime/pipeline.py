@@ -85,6 +85,11 @@ class PipelineConfig(StageConf):
     box_prompt_min_share: float = 0.02   # a mask under this share of its box is replaced by a box-prompted one
     grounding_frames: int = 4            # frames (evenly spaced) shown to a VLM that grounds the question
     whole_image_fallback: bool = True    # key frames unaligned with matches inside boxes: retry on whole images
+    # relative depth (essential edges): match inside the boxes in the first tree too. Off: an essential matrix
+    # from matches on a few objects is ill-conditioned; on the kitchen (PyDNet++ + XFeat) the box-matched tree
+    # (+ whole-image edges for the frames it left out) had ATE 0.41-0.50 m against 0.06-0.16 m for the
+    # whole-image tree, which is what the runs then used anyway (docs/performance.md, "round 4")
+    relative_box_matching: bool = False
     attach_tries: int = 4                # ... metric depth: each tries its this many nearest aligned frames in time
     bridge_frames: int = 48              # at most this many extra frames to connect unaligned key frames (0 = off)
     bridge_gap_s: float = 0.25           # bridge frames are placed at most this far apart in time

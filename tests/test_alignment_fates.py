@@ -9,7 +9,7 @@ import numpy as np
 from mosaicthinker.runtime.commands.ask import WARNING_KINDS
 
 
-def _align(src, idx, boxes, **conf):
+def _align(src, idx, boxes, relative=False, **conf):
     from mosaicthinker.runtime.alignment import align_keyframes
     from mosaicthinker.runtime.matching import make_matcher
     from mosaicthinker.runtime.pipeline import PipelineConfig
@@ -17,7 +17,7 @@ def _align(src, idx, boxes, **conf):
 
     frames = [src[i] for i in idx]
     t = Trace()
-    al, _ = align_keyframes(frames, make_matcher("sift"), boxes, None, src, lambda f: f, False,
+    al, _ = align_keyframes(frames, make_matcher("sift"), boxes, None, src, lambda f: f, relative,
                             PipelineConfig.merged(conf), t)
     return al, t
 
@@ -115,3 +115,21 @@ def test_root_in_largest_moves_the_root_to_the_largest_component():
     assert root_in_largest(S, [(0, 1), (2, 3), (3, 4)], 0) == 3  # {2, 3, 4} beats {0, 1}; 3 the most similar
     assert root_in_largest(S, [(0, 1), (3, 4)], 0) == 0           # a tie keeps the root
     assert root_in_largest(S, [(0, 1), (1, 2), (2, 3), (3, 4)], 1) == 1
+
+
+def test_relative_depth_matches_whole_images_from_the_first_tree(redkitchen):
+    """Essential edges from matches inside a few boxes are ill-conditioned (docs/performance.md): with relative
+    depth the first tree matches whole images unless `relative_box_matching` asks for boxes. The same boxes
+    that leave two frames out of a box-matched first round do not matter then."""
+    from mosaicthinker.runtime.frames import open_source
+
+    src = open_source(redkitchen)
+    empty = np.zeros((0, 4), np.float32)
+    boxes = {50: None, 53: empty, 56: empty}
+    al, t = _align(src, [50, 53, 56], boxes, relative=True, bridge_frames=0)
+    assert al.unaligned == [] and set(al.fates.values()) == {"whole-image tree"}
+    assert not any("first round" in e["message"] for e in t.events)
+    al, t = _align(src, [50, 53, 56], boxes, relative=True, bridge_frames=0, whole_image_fallback=False,
+                   relative_box_matching=True)
+    assert any("first round: 2 of 3 frames could not be aligned" in e["message"] for e in t.events)
+    assert len(al.unaligned) == 2
