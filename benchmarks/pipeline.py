@@ -297,9 +297,11 @@ def main(argv: list[str] | None = None) -> int:
                     "600 = ping-pong)")
     ap.add_argument("--mp4-durations", default="60,600", help="mp4 runs (decoded in full; 600 = the ping-pong "
                     "clip): the growth target compares these")
-    ap.add_argument("--search-budget", default="auto", help="frames the key-frame search scores, the same at "
-                    "every duration: auto = PipelineConfig.min_scored_per_keyframe x K (what the 60 s run "
-                    "scores), N, or 'paper' (25%% of the candidates: grows with the duration)")
+    ap.add_argument("--search-budget", default="default", help="frames the key-frame search scores: default = "
+                    "what `mosaic ask` scores without a plan (25%% of the candidates, at least "
+                    "PipelineConfig.min_scored_per_keyframe x K, at most max_scored_per_keyframe x K: "
+                    "keyframes.scored_budget), auto = min_scored_per_keyframe x K at every duration (what the 60 s "
+                    "run scores), N, or 'paper' (25%% of the candidates: grows with the duration)")
     ap.add_argument("--bundle", default=None, help="an existing bundle with depth/detector/segmenter/embedder + "
                     "matcher (default: build one in --work)")
     ap.add_argument("--keyframes", type=int, default=16)
@@ -329,16 +331,18 @@ def main(argv: list[str] | None = None) -> int:
 
     from mosaicthinker.runtime.pipeline import PipelineConfig
 
-    def search_budget(k: int) -> int | None:
-        if args.search_budget == "paper":
-            return None
-        return PipelineConfig().min_scored_per_keyframe * k if args.search_budget == "auto" else int(args.search_budget)
+    def search_conf(k: int) -> dict[str, Any]:
+        """The pipeline config overrides of --search-budget ({} = the pipeline's own rule)."""
+        if args.search_budget == "default":
+            return {}
+        if args.search_budget == "paper":  # 25% of the candidates, uncapped
+            return {"max_scored_per_keyframe": None}
+        n = PipelineConfig().min_scored_per_keyframe * k if args.search_budget == "auto" else int(args.search_budget)
+        return {"keyframe": {"budget": n}}
 
     def job(src: Path, k: int, on: Path = scene, detector: str = "model") -> dict[str, Any]:
-        b = search_budget(k)
         return {"bundle": str(bundle), "video": str(src), "targets": scene_targets(on, detector), "keyframes": k,
-                "profile": args.profile, "scene": str(on), "detector": detector,
-                "conf": {"keyframe": {"budget": b}} if b else {}}
+                "profile": args.profile, "scene": str(on), "detector": detector, "conf": search_conf(k)}
 
     durations = [int(x) for x in args.durations.split(",") if x]
     for d in durations:

@@ -926,6 +926,18 @@ def _finish(c: np.ndarray, st: _Search, order: list[int], conf: KeyFrameConf, no
                           zscores={int(c[q]): z for q, z in st.passed.items()}, distributions=dists, notes=notes)
 
 
+def scored_budget(n_candidates: int, keyframes: int, fraction: float, min_per_keyframe: float = 0.0,
+                  max_per_keyframe: float | None = None) -> int:
+    """Frames the search scores for K key frames: `fraction` of the candidates (the paper's 25%), at least
+    min_per_keyframe x K (short videos), at most max_per_keyframe x K (None: no cap) whatever the candidates, so
+    a 600 s video's search costs what a 60 s one's does (issue 14). Not capped at the candidates (the search says
+    when they run out). The planner's target (`budget.planner`) and the pipeline's default without a plan."""
+    b = math.ceil(fraction * n_candidates)
+    if max_per_keyframe is not None:
+        b = min(b, math.ceil(max_per_keyframe * keyframes))
+    return int(max(b, math.ceil(min_per_keyframe * keyframes)))
+
+
 def select_keyframes(method: str, candidates: Sequence[int], targets: Sequence[str], cues: Sequence[str],
                      detect: DetectFn, image: ImageFn | None = None, conf: KeyFrameConf | None = None,
                      trace: Any | None = None,

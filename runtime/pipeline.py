@@ -30,7 +30,8 @@ from .trace import Trace, as_trace
 # the stages, in the paper's order
 from .grounding import ParsedQuestion, ground
 from .dedup import DedupConf, DedupResult, remove_redundant
-from .keyframes import KeyFrameConf, select_keyframes, uniform_keyframes
+from .keyframes import KeyFrameConf, scored_budget, select_keyframes, uniform_keyframes
+from .budget.planner import PlanConf
 from .matching import MatchConf, make_matcher
 from .alignment import AlignConf, align_keyframes, worker_threads
 from .semantic_map import (FusionConfig, ObjectInstance, Observation, SemanticMap, box_depth_mask,
@@ -76,6 +77,9 @@ class PipelineConfig(StageConf):
     first_seen_from_search: bool = True  # first-seen times also from the frames the search scored
     min_keyframes: int = 3               # fallback: fewer key frames even after the top-up -> evenly spaced ones
     min_scored_per_keyframe: int = 3     # search budget >= this x K (capped at the candidates), recorded
+    # ... and <= this x K without a plan, whatever the candidates (the planner's cap, one value): 25% of a 600 s
+    # video's candidates was 449 scored frames, 26 s of detector here (`keyframes.scored_budget`)
+    max_scored_per_keyframe: float | None = PlanConf.max_scored_per_keyframe
     cover_min_area: float = 0.02         # top-up coverage: an object counts as seen from this box area share on
     coverage_min_names: int = 4          # a map of this many object names or more (e.g. "everything") ...
     coverage_share: float = 0.5          # ... reserves this share of K for temporal coverage (`spread_keyframes`):
@@ -139,6 +143,9 @@ class PipelineConfig(StageConf):
                                  f"(got {getattr(self, name)!r})")
         if self.min_keyframes < 0 or self.min_scored_per_keyframe < 0 or self.bridge_frames < 0:
             raise InputError("pipeline config: min_keyframes, min_scored_per_keyframe and bridge_frames must be >= 0")
+        if self.max_scored_per_keyframe is not None and not self.max_scored_per_keyframe >= self.min_scored_per_keyframe:
+            raise InputError(f"pipeline config: max_scored_per_keyframe must be >= min_scored_per_keyframe "
+                             f"({self.min_scored_per_keyframe}; got {self.max_scored_per_keyframe}) or null")
         if not 0 <= self.cover_min_area <= 1 or not 0 <= self.max_free_space_violation <= 1:
             raise InputError("pipeline config: cover_min_area and max_free_space_violation must be in [0, 1]")
         if self.revisit_tries < 0:
@@ -271,8 +278,10 @@ def select(source: FrameSource, targets: Sequence[str], cues: Sequence[str], per
         # the paper's 25% of the candidates, but at least a few frames per key frame (short videos; the full K:
         # the reserve's frames are chosen by the same scores)
         frac = float(kc.get("budget_fraction", KeyFrameConf.budget_fraction))
-        # not capped at the candidates: the search says when they run out before the budget
-        kc["budget"] = int(max(np.ceil(frac * len(cands)), conf.min_scored_per_keyframe * K))
+        kc["budget"] = scored_budget(len(cands), K, frac, conf.min_scored_per_keyframe, conf.max_scored_per_keyframe)
+        if kc["budget"] < np.ceil(frac * len(cands)):
+            trace.decide("keyframes.budget_capped", {"scored": kc["budget"], "fraction_would_score":
+                         int(np.ceil(frac * len(cands))), "max_per_keyframe": conf.max_scored_per_keyframe})
     K = K - reserve
     if conf.topup and conf.keyframe_method == "iterative":
         # fewer than K passing: the search tops up from the frames it scored (coverage first, then by score),

@@ -231,3 +231,32 @@ def test_fewer_orb_features_and_levels_keep_the_kitchens_decisions(redkitchen):
                if "tracked" in default.scores[i]]  # (ORB runs on SSIM's candidates only)
     assert sum(a != b for a, b in tracked) > len(tracked) // 2  # the settings were used
     assert default.n_dup > 5 and fewer.kept == default.kept and fewer.dropped.keys() == default.dropped.keys()
+
+
+def test_without_a_plan_the_search_budget_is_capped_per_key_frame(redkitchen):
+    """Issue 14: without a device plan the search scored 25% of the candidates, 449 frames (26 s of detector) on
+    a 600 s clip; it is now capped at `max_scored_per_keyframe` x K like the planner's target (one rule,
+    `keyframes.scored_budget`), and the trace says so."""
+    from mosaicthinker.runtime.budget.planner import PlanConf
+    from mosaicthinker.runtime.keyframes import scored_budget
+    from mosaicthinker.runtime.perception import Detections
+    from mosaicthinker.runtime.pipeline import Perception, PipelineConfig, select
+    from mosaicthinker.runtime.trace import Trace
+
+    assert scored_budget(1795, 16, 0.25, 3, 6.0) == 96 and scored_budget(1795, 16, 0.25, 3, None) == 449
+    assert scored_budget(180, 16, 0.25, 3, 6.0) == 48 and scored_budget(10, 4, 0.25, 0, 6.0) == 3
+    assert PipelineConfig().max_scored_per_keyframe == PlanConf().max_scored_per_keyframe
+    src = open_source(redkitchen)
+    nothing = lambda frame, names: Detections.empty()  # noqa: E731
+    runs = {}
+    for cap in (1.5, None):
+        t = Trace()
+        conf = PipelineConfig.merged({"max_scored_per_keyframe": cap, "min_scored_per_keyframe": 1})
+        _, _, res, cands = select(src, ["chair"], [], Perception(detect=nothing), conf, t, keyframes=4)
+        runs[cap] = (res.frames_scored, t.decisions.get("keyframes.budget_capped"), len(cands))
+    n = runs[None][2]
+    assert runs[1.5][0] <= 6 < runs[None][0] <= int(np.ceil(0.25 * n))
+    assert runs[1.5][1] == {"scored": 6, "fraction_would_score": int(np.ceil(0.25 * n)), "max_per_keyframe": 1.5}
+    assert runs[None][1] is None
+    with pytest.raises(InputError, match="max_scored_per_keyframe"):
+        PipelineConfig.merged({"max_scored_per_keyframe": 2, "min_scored_per_keyframe": 3})

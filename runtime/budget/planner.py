@@ -21,6 +21,7 @@ from typing import Any, ClassVar, Mapping
 from ..answer import VLMConfig
 from ..config import StageConf
 from ..errors import BudgetError, InputError
+from ..keyframes import scored_budget
 from .profile import MODEL_COSTS, Profile, load_profile, nearest_variant
 
 PLAN_SCHEMA = "mosaicthinker.plan/1"
@@ -264,11 +265,9 @@ class _Terms:
 
     def s_target(self, k: int) -> int:
         c = self.c
-        t = max(int(math.ceil(c.scored_fraction * self.n_c)), self.s_floor(k))
+        t = scored_budget(self.n_c, k, c.scored_fraction, c.min_scored_per_keyframe, c.max_scored_per_keyframe)
         if c.max_scored_frames is not None:
             t = max(min(t, c.max_scored_frames), self.s_floor(k))
-        if c.max_scored_per_keyframe is not None:
-            t = max(min(t, int(math.ceil(c.max_scored_per_keyframe * k))), self.s_floor(k))
         return min(self.n_c, t)
 
     def lat(self, k: int, s: int) -> float:
