@@ -31,7 +31,6 @@ from .trace import Trace, as_trace
 from .grounding import ParsedQuestion, ground
 from .dedup import DedupConf, DedupResult, remove_redundant
 from .keyframes import KeyFrameConf, scored_budget, select_keyframes, uniform_keyframes
-from .budget.planner import PlanConf
 from .matching import MatchConf, make_matcher
 from .alignment import AlignConf, align_keyframes, worker_threads
 from .semantic_map import (FusionConfig, ObjectInstance, Observation, SemanticMap, box_depth_mask,
@@ -77,9 +76,11 @@ class PipelineConfig(StageConf):
     first_seen_from_search: bool = True  # first-seen times also from the frames the search scored
     min_keyframes: int = 3               # fallback: fewer key frames even after the top-up -> evenly spaced ones
     min_scored_per_keyframe: int = 3     # search budget >= this x K (capped at the candidates), recorded
-    # ... and <= this x K without a plan, whatever the candidates (the planner's cap, one value): 25% of a 600 s
-    # video's candidates was 449 scored frames, 26 s of detector here (`keyframes.scored_budget`)
-    max_scored_per_keyframe: float | None = PlanConf.max_scored_per_keyframe
+    # ... and <= this x K without a plan, whatever the candidates (`keyframes.scored_budget`): 25% of a 600 s
+    # video's candidates was 449 scored frames, 26 s of detector here. 3 (= the floor: the same budget at every
+    # duration) is what the 600 s maps were measured good at; 6 (the planner's cap, `PlanConf`) scored 96 frames
+    # at 600 s and its maps lost recall 1.00 -> 0.82, answers 0.93 -> 0.60 (docs/performance.md, "round 4")
+    max_scored_per_keyframe: float | None = 3.0
     cover_min_area: float = 0.02         # top-up coverage: an object counts as seen from this box area share on
     coverage_min_names: int = 4          # a map of this many object names or more (e.g. "everything") ...
     coverage_share: float = 0.5          # ... reserves this share of K for temporal coverage (`spread_keyframes`):

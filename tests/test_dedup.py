@@ -235,9 +235,8 @@ def test_fewer_orb_features_and_levels_keep_the_kitchens_decisions(redkitchen):
 
 def test_without_a_plan_the_search_budget_is_capped_per_key_frame(redkitchen):
     """Issue 14: without a device plan the search scored 25% of the candidates, 449 frames (26 s of detector) on
-    a 600 s clip; it is now capped at `max_scored_per_keyframe` x K like the planner's target (one rule,
+    a 600 s clip; it is now capped at `max_scored_per_keyframe` x K (the rule the planner's target uses too,
     `keyframes.scored_budget`), and the trace says so."""
-    from mosaicthinker.runtime.budget.planner import PlanConf
     from mosaicthinker.runtime.keyframes import scored_budget
     from mosaicthinker.runtime.perception import Detections
     from mosaicthinker.runtime.pipeline import Perception, PipelineConfig, select
@@ -245,7 +244,7 @@ def test_without_a_plan_the_search_budget_is_capped_per_key_frame(redkitchen):
 
     assert scored_budget(1795, 16, 0.25, 3, 6.0) == 96 and scored_budget(1795, 16, 0.25, 3, None) == 449
     assert scored_budget(180, 16, 0.25, 3, 6.0) == 48 and scored_budget(10, 4, 0.25, 0, 6.0) == 3
-    assert PipelineConfig().max_scored_per_keyframe == PlanConf().max_scored_per_keyframe
+    assert PipelineConfig().max_scored_per_keyframe == PipelineConfig().min_scored_per_keyframe  # no growth
     src = open_source(redkitchen)
     nothing = lambda frame, names: Detections.empty()  # noqa: E731
     runs = {}
