@@ -738,7 +738,7 @@ class VideoSource(FrameSource):
                         od.finish()
                         od = None
                     else:
-                        od.push(len(ts) - 1, _small_gray_bgr(bgr, od.conf.work_width))
+                        od.push(len(ts) - 1, _small_gray_bgr(bgr, od.conf.work_width), bgr)
         finally:
             od = od.finish() if od is not None else None
         cap.release()

@@ -297,7 +297,9 @@ def select(source: FrameSource, targets: Sequence[str], cues: Sequence[str], per
         res = select_keyframes(conf.keyframe_method, cands, list(targets), list(cues), det,
                                lambda i: _colour(source, int(i)).rgb, kconf, trace,
                                prefetch=getattr(source, "prefetch", None), image_size=tuple(source.size),
-                               thumbs=dict(dedup.thumbs))  # small gray copies: no candidate read again
+                               thumbs=dict(dedup.thumbs),  # small gray copies: no candidate read again
+                               histograms=(dict(dedup.histograms)  # the scan's: no neighbour decoded again
+                                           if dedup.hist_params == (kconf.hist_bins, kconf.hist_size) else None))
         det.on_call = None
         bar.note(keyframes=len(res.chosen))
     chosen = [int(i) for i in res.chosen]

@@ -208,3 +208,38 @@ def test_scan_decoder_threads_change_no_frame(tmp_path, monkeypatch):
     for ts, rgb, dd in runs[1:]:
         assert np.array_equal(ts, runs[0][0]) and np.array_equal(rgb, runs[0][1]) and dd == runs[0][2]
     assert len(runs[0][0]) == 60 and len(runs[0][2]["kept"]) > 5
+
+
+def test_the_scan_keeps_the_searchs_colour_histograms_and_the_search_reads_them(tmp_path):
+    """A video's opening scan stores each kept frame's colour histogram (`DedupConf.histograms`): exactly the
+    search's `colour_histogram` of the frame the source gives, so the search's kernel widths read them instead
+    of decoding every scored frame's +-r neighbours: the same key frames, only the scored frames decoded."""
+    from mosaicthinker.runtime.dedup import DedupConf
+    from mosaicthinker.runtime.keyframes import colour_histogram
+    from mosaicthinker.runtime.perception import Detections
+    from mosaicthinker.runtime.pipeline import Perception, PipelineConfig, select
+    from mosaicthinker.runtime.trace import Trace
+
+    p = tmp_path / "clip.mp4"
+    if not _write_mp4(p, 150):
+        pytest.skip("this OpenCV build cannot write mp4v video")
+    dd = open_source(p).online_dedup(DedupConf())
+    assert len(dd.histograms) == len(dd.kept) > 20
+    src = open_source(p)
+    assert all(np.array_equal(dd.histograms[f], colour_histogram(src.colour(f).rgb)) for f in dd.kept)
+
+    def chair(frame, names):  # every frame shows a chair, its score varying with the frame
+        s = 0.3 + 0.6 * ((int(frame.index) * 7) % 10) / 10
+        return Detections(np.array([[10, 10, 60, 50]], np.float32), np.array([s], np.float32), ["chair"])
+
+    runs = []
+    for conf in ({}, {"dedup": {"histograms": False}}):
+        src = open_source(p)
+        read: set[int] = set()
+        colour = src.colour
+        src.colour = lambda i, _c=colour: (read.add(int(i)), _c(i))[1]
+        _, _, res, _ = select(src, ["chair"], [], Perception(detect=chair), PipelineConfig.merged(
+            {**conf, "keyframe": {"budget": 8}}), Trace(), keyframes=3)
+        runs.append((res.chosen.tolist(), set(res.order), read))
+    (chosen, scored, read), (chosen_b, _, read_b) = runs
+    assert chosen == chosen_b and read <= scored < read_b
