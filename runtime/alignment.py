@@ -1635,10 +1635,10 @@ def align_keyframes(frames: list[Any], matcher: KeyedMatcher, boxes: dict[int, A
                     over_budget: Callable[[list[int]], bool] = lambda unaligned: False,
                     thumbs: Mapping[int, np.ndarray] | None = None) -> tuple[AlignmentResult, list[Any]]:
     """The key frames' alignment: matches restricted to object boxes (the paper's trick; with relative depth
-    only when `relative_box_matching`), MST over frame similarity; then, with metric depth and `verify_depth`, every tree edge depth-checked and the frames left
-    out attached one edge at a time (`align_rest_metric`), else a whole-image re-alignment and bridge rounds
-    (`align_rest_relative`). `over_budget(unaligned)` says (and records) when bridge rounds are skipped.
-    `thumbs` (frame -> small gray image, e.g. dedup's) lets metric bridging look for places the video revisits.
+    only when `relative_box_matching`), MST over frame similarity; then, with metric depth and `verify_depth`,
+    every tree edge depth-checked and the frames left out attached one edge at a time (`align_rest_metric`),
+    else a whole-image re-alignment and bridge rounds (`align_rest_relative`). `over_budget(unaligned)` says
+    (and records) when bridge rounds are skipped. `thumbs` (frame -> small gray image, e.g. dedup's) lets metric bridging look for places the video revisits.
     Returns (alignment over the key frames only, the bridge frames used)."""
     trace = as_trace(trace)
     if with_scale and not conf.relative_box_matching:  # essential edges: whole images from the first tree
