@@ -1638,8 +1638,8 @@ def align_keyframes(frames: list[Any], matcher: KeyedMatcher, boxes: dict[int, A
     only when `relative_box_matching`), MST over frame similarity; then, with metric depth and `verify_depth`,
     every tree edge depth-checked and the frames left out attached one edge at a time (`align_rest_metric`),
     else a whole-image re-alignment and bridge rounds (`align_rest_relative`). `over_budget(unaligned)` says
-    (and records) when bridge rounds are skipped. `thumbs` (frame -> small gray image, e.g. dedup's) lets metric bridging look for places the video revisits.
-    Returns (alignment over the key frames only, the bridge frames used)."""
+    (and records) when bridge rounds are skipped. `thumbs` (frame -> small gray image, e.g. dedup's) lets
+    metric bridging look for places the video revisits. Returns (alignment over the key frames only, the bridge frames used)."""
     trace = as_trace(trace)
     if with_scale and not conf.relative_box_matching:  # essential edges: whole images from the first tree
         boxes = {i: None for i in boxes}
