@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import math
 import re
+from collections import Counter
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
@@ -39,7 +40,8 @@ from . import evidence as ev
 from .config import StageConf
 from .errors import InputError
 from .geometry import box_distance, point_box_distance
-from .grounding import ParsedQuestion, canonical_name, name_key, parse_question, safe_text, split_options
+from .grounding import (ParsedQuestion, canonical_name, name_key, parse_question, plural, safe_text,
+                        split_options)
 from .grounding_nl import COMPARATIVES, SUPERLATIVES
 from .semantic_map import ObjectInstance, SemanticMap
 from .trace import as_trace
@@ -488,7 +490,11 @@ class MapReasoner:
                                f"('{sel.get('phrase') or 'near the ' + sel['near']}') is not supported; ask how many "
                                f"{self._ph(pq.params['object'])} there are")
         if pq.params["object"] == "*" or name_key(pq.params["object"]) in ("thing", "object", "item"):
-            return len(self.map.instances), f"{len(self.map.instances)} object(s) in the map"
+            everything = list(self.map.instances)
+            self._used += everything  # the evidence: every instance counted
+            by = Counter(o.name for o in everything)
+            parts = ", ".join(f"{k} {name if k == 1 else plural(name)}" for name, k in by.most_common())
+            return len(everything), f"{len(everything)} object(s) in the map" + (f": {parts}" if parts else "")
         inst = self._instances(pq.params["object"])
         n = len(inst)
         self._spread = ("per-view count", ev.count_values(inst), None)

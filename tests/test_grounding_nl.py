@@ -640,3 +640,12 @@ def test_a_pronoun_that_names_no_single_object_is_refused_never_dropped(q, where
     assert a.status == "unsupported" and a.value is None, (q, a.text)
     assert f"the location '{where}'" in a.text and "which object 'it' is" in a.text, a.text
     assert all(f"the {n}" in a.text for n in named), a.text
+
+
+def test_counting_everything_names_what_it_counted_and_shows_it_as_evidence():
+    """"how many objects are in the room?" counted every instance but its evidence line said "no instances"
+    and its explanation named nothing."""
+    a = ask("how many objects are in the room?")
+    assert a.ok and a.value == len(ROOM)
+    assert sorted(i["id"] for i in a.evidence["instances"]) == list(range(len(ROOM)))
+    assert "2 office chairs" in a.explanation and "1 desk" in a.explanation
