@@ -781,6 +781,11 @@ class VideoSource(FrameSource):
 
         return BackgroundDedup(OnlineDedup(None if isinstance(dedup, str) and dedup == "default" else dedup))
 
+    @property
+    def deduped_while_decoding(self) -> bool:
+        """Whether the opening scan removed redundant frames as it decoded (`online_dedup` has the result)."""
+        return getattr(self, "_online", None) is not None
+
     def online_dedup(self, conf: Any) -> Any:
         """The redundant-frame removal made while the opening scan decoded the video (`dedup.OnlineDedup`), as
         a DedupResult, when it ran with the same config `conf` (a DedupConf); else None (remove_redundant then

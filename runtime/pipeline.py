@@ -819,7 +819,7 @@ class AskResult:
                 "unaligned": None if self.build is None else sorted(self.build.unaligned)}
 
 
-def _open(source: Any) -> FrameSource | SemanticMap:
+def _open(source: Any, trace: Trace | None = None) -> FrameSource | SemanticMap:
     from pathlib import Path
 
     if isinstance(source, (FrameSource, SemanticMap)):
@@ -830,9 +830,20 @@ def _open(source: Any) -> FrameSource | SemanticMap:
     if p.is_dir() and (p / "map.json").is_file() and not any(p.glob("frame-*")) and not any(
             q.suffix.lower() in (".jpg", ".png", ".mp4") for q in p.iterdir()):
         return SemanticMap.load(p / "map.json")
+    return open_frames(p, trace)
+
+
+def open_frames(path: Any, trace: Trace | None = None) -> FrameSource:
+    """`frames.open_source` as a stage ("open": trace and progress summary): a video's opening scan decodes
+    every frame and removes redundant ones on the way, seconds the "dedup" stage then does not spend."""
     from .frames import open_source
 
-    return open_source(p)
+    with as_trace(trace).stage("open"), phase("open", None, "frame") as bar:
+        src = open_source(path)
+        bar.to(len(src))
+        if getattr(src, "deduped_while_decoding", False):
+            bar.note(redundant_frames="removed while decoding")
+    return src
 
 
 def _ask_direct(src: Any, question: str, options: list[str] | None, vlm: Any, trace: Trace,
@@ -901,7 +912,7 @@ def ask(source: Any, question: str, options: list[str] | None = None, *, percept
         raise InputError(f"`method` must be mosaic or direct, got {method!r}", fields=("method",))
     if vlm is None and bundle is not None and answerer != "map":  # the map answerer neither grounds nor answers
         vlm = load_vlm(bundle, trace, profile)                     # with a VLM: not loaded, not run
-    src = _open(source)
+    src = _open(source, trace)
     if method == "direct":
         return _ask_direct(src, question, options, vlm, trace, direct_frames)
     frames_for_grounding = None

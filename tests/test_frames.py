@@ -1,6 +1,7 @@
 """Frame sources: 7-Scenes (real and written), TUM, image folders, video; clear errors on bad input."""
 from __future__ import annotations
 
+import io
 from pathlib import Path
 
 import cv2
@@ -243,3 +244,22 @@ def test_the_scan_keeps_the_searchs_colour_histograms_and_the_search_reads_them(
         runs.append((res.chosen.tolist(), set(res.order), read))
     (chosen, scored, read), (chosen_b, _, read_b) = runs
     assert chosen == chosen_b and read <= scored < read_b
+
+
+def test_opening_a_video_is_a_stage_of_its_own(tmp_path):
+    """A video's opening scan decodes every frame and removes redundant ones on the way: `pipeline.open_frames`
+    times it as the "open" stage (trace and summary line), which `ask` and `map` print before "dedup" (whose
+    own time is then ~0): the summary accounts for the scan."""
+    from mosaicthinker.runtime import progress
+    from mosaicthinker.runtime.pipeline import open_frames
+    from mosaicthinker.runtime.trace import Trace
+
+    p = tmp_path / "clip.mp4"
+    if not _write_mp4(p, 60):
+        pytest.skip("this OpenCV build cannot write mp4v video")
+    t = Trace()
+    with progress.session(quiet=False, draw=False, file=io.StringIO()) as s:
+        src = open_frames(p, t)
+    assert src.deduped_while_decoding and len(src) == 60 and "open" in t.to_dict()["stages"]
+    line = [ln for ln in s.lines() if ln.split()[0] == "open"]
+    assert line and "60 frames" in line[0] and "removed while decoding" in line[0]

@@ -106,16 +106,17 @@ def test_map_on_a_terminal_shows_bars_then_one_line_per_stage(scene, tmp_path):
     assert rc == 0, err
     assert err.startswith("mosaic map: build a semantic map")
     assert "\r" in err and re.search(r"(dedup|keyframes)\S*:\s+\d+%", err)  # tqdm bars, redrawn in place
-    tail = [ln.strip() for ln in err.replace("\r", "\n").splitlines() if ln.strip()][-5:]
-    assert [ln.split()[0] for ln in tail] == ["dedup", "keyframes", "perception", "alignment", "fusion"], tail
-    assert "candidates" in tail[0] and "keyframes 5" in tail[1] and "aligned" in tail[3] and "instances" in tail[4]
+    tail = [ln.strip() for ln in err.replace("\r", "\n").splitlines() if ln.strip()][-6:]
+    assert [ln.split()[0] for ln in tail] == ["open", "dedup", "keyframes", "perception", "alignment", "fusion"], tail
+    assert "frames" in tail[0] and "candidates" in tail[1] and "keyframes 5" in tail[2] and "aligned" in tail[4]
+    assert "instances" in tail[5]
     assert (tmp_path / "m" / "prompt.txt").read_text().startswith("Objects in the map")
     # --json on a terminal: only the JSON on stdout, nothing on stderr
     rc, out, chunks = _run_on_terminal(args + ["--json"])
     assert rc == 0 and out.decode().count("\n") == 1 and b"".join(c for _, c in chunks).strip() == b""
     # stderr not a terminal: no bars, the summary lines only
     r = subprocess.run([sys.executable, "-m", "mosaicthinker.runtime.cli", *args], capture_output=True, text=True)
-    assert r.returncode == 0 and "\r" not in r.stderr and r.stderr.split()[0] == "dedup"
+    assert r.returncode == 0 and "\r" not in r.stderr and r.stderr.split()[0] == "open"
 
 
 @pytest.mark.slow

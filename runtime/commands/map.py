@@ -102,9 +102,7 @@ def _run(args: argparse.Namespace, src: Path, outs: RunOutputs, paths: tuple[Pat
         trace.decide("perception", perception.describe)
     else:
         perception = pipeline.perception_from_bundle(args.bundle, conf, trace, profile)
-    from ..frames import open_source
-
-    build = pipeline.build_map(open_source(src), names, [], perception, conf, trace, args.keyframes)
+    build = pipeline.build_map(pipeline.open_frames(src, trace), names, [], perception, conf, trace, args.keyframes)
     pts = ids = None
     if args.prompt == "points":
         import numpy as np
