@@ -19,7 +19,7 @@ import re
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterator, Sequence
+from typing import Any, Callable, Iterator, Sequence
 
 import numpy as np
 
@@ -699,7 +699,7 @@ class VideoSource(FrameSource):
     for good: reopen and decode forward from frame 0 (recorded in `seek_mode`, "verified" or "sequential").
     Decoded frames stay in an LRU cache (`cache_size` frames); `prefetch(indices)` decodes a set of frames in one
     forward pass. Rotation metadata is applied by OpenCV (CAP_PROP_ORIENTATION_AUTO) and recorded in
-    `rotation_deg`.
+    `rotation_deg`. `progress(n)` is called with the frames the scan has decoded so far, every 32 (a bar).
     """
 
     seek_min: int = 48  # forward jumps longer than this seek instead of decoding every frame in between
@@ -711,7 +711,8 @@ class VideoSource(FrameSource):
 
     def __init__(self, path: Path, hfov_deg: float = 60.0, K: np.ndarray | None = None,
                  dist: np.ndarray | None = None, cache_size: int = 64, max_frames: int | None = None,
-                 max_side: int = MAX_DECODE_SIDE, dedup: Any = "default"):
+                 max_side: int = MAX_DECODE_SIDE, dedup: Any = "default",
+                 progress: Callable[[int], None] | None = None):
         super().__init__(cache_size)
         self.path = Path(path)
         self.name = self.path.stem
@@ -732,6 +733,8 @@ class VideoSource(FrameSource):
                     break
                 ms = cap.get(self._cv2.CAP_PROP_POS_MSEC)
                 ts.append(ms / 1000.0 if ms > 0 or not ts else (len(ts) / fps if fps > 0 else float(len(ts))))
+                if progress is not None and len(ts) % 32 == 0:  # frames decoded so far (a progress bar)
+                    progress(len(ts))
                 if od is not None and od.wants(ts[-1]):  # online redundant-frame removal: this frame is sampled
                     ok, bgr = cap.retrieve()
                     if not ok or bgr is None or min(bgr.shape[:2]) < MIN_FRAME_SIDE:  # _set_size says why below

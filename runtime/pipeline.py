@@ -839,7 +839,7 @@ def open_frames(path: Any, trace: Trace | None = None) -> FrameSource:
     from .frames import open_source
 
     with as_trace(trace).stage("open"), phase("open", None, "frame") as bar:
-        src = open_source(path)
+        src = open_source(path, progress=bar.to)  # a video's scan moves the bar as it decodes
         bar.to(len(src))
         if getattr(src, "deduped_while_decoding", False):
             bar.note(redundant_frames="removed while decoding")

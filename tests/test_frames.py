@@ -263,3 +263,6 @@ def test_opening_a_video_is_a_stage_of_its_own(tmp_path):
     assert src.deduped_while_decoding and len(src) == 60 and "open" in t.to_dict()["stages"]
     line = [ln for ln in s.lines() if ln.split()[0] == "open"]
     assert line and "60 frames" in line[0] and "removed while decoding" in line[0]
+    seen: list[int] = []
+    open_source(p, progress=seen.append)  # the scan reports how far it decoded (the bar's ticks)
+    assert seen == [32]
