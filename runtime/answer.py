@@ -617,6 +617,8 @@ class MapReasoner:
     def _object_rel_distance(self, pq: ParsedQuestion) -> tuple[Any, str]:
         ref, cands = pq.params["reference"], pq.params["candidates"]
         inst = self._require([ref] + cands)
+        if len(cands) == 1 and cands[0] != ref and not pq.options and not pq.params.get("yesno"):
+            return self._which_instance(cands[0], ref, inst, pq.params.get("extreme") == "farthest")
         pairs = {c: self._min_distance(inst[c], inst[ref]) for c in cands if c != ref}
         dists = {c: p[0] for c, p in pairs.items()}
         if not dists:
@@ -638,6 +640,26 @@ class MapReasoner:
             return {"text": "yes" if yes else "no", "object": pick, "distances_m": {
                 self._ph(c): round(d, 3) for c, d in dists.items()}}, expl
         return pick, expl
+
+    def _which_instance(self, name: str, ref: str, inst: dict[str, list[ObjectInstance]], far: bool
+                        ) -> tuple[Any, str]:
+        """"Which chair is closest to (farthest from) the tv?": the chair instance by its closest-point distance
+        to the tv (the nearest tv to it), not the category name."""
+        per = {o.id: self._min_distance([o], inst[ref]) for o in inst[name]
+               if [r for r in inst[ref] if r is not o]}
+        if not per:
+            raise _Unsupported("no candidate other than the reference object itself")
+        oid = (max if far else min)(per, key=lambda k: per[k][0])
+        d, o, r = per[oid]
+        self._choice(name, inst[name], o, "the farthest" if far else "the nearest",
+                     {k: v[0] for k, v in per.items()}, "m")
+        self._choice(ref, inst[ref], r, f"the one nearest {self._one(name)} #{o.id}")
+        self._spread = (f"per-view-pair distance of {self._one(name)} #{o.id}", ev.distance_values(o, r), "m")
+        ranked = sorted(per, key=lambda k: per[k][0], reverse=far)[:6]
+        expl = f"closest-point distances to {self._ph(ref)}: " + ", ".join(
+            f"{self._one(name)} #{k} {per[k][0]:.2f} m" for k in ranked)
+        return {"text": f"{self._one(name)} #{o.id}", "object": o.name, "instance": int(o.id),
+                "distance_m": round(d, 3)}, expl
 
     def _object_nearest(self, pq: ParsedQuestion) -> tuple[Any, str]:
         """Nearest (farthest) object among everything in the map, other than the reference's own category."""

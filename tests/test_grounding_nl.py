@@ -649,3 +649,13 @@ def test_counting_everything_names_what_it_counted_and_shows_it_as_evidence():
     assert a.ok and a.value == len(ROOM)
     assert sorted(i["id"] for i in a.evidence["instances"]) == list(range(len(ROOM)))
     assert "2 office chairs" in a.explanation and "1 desk" in a.explanation
+
+
+def test_which_instance_of_one_category_is_closest_or_farthest():
+    """"which chair is closest to the tv?" answered the category ("chair"); it names the instance now, and
+    "farthest" picks the farthest instance (it took the category's nearest distance before)."""
+    near = ask("which office chair is closest to the desk?")
+    far = ask("which office chair is farthest from the desk?")
+    assert near.ok and near.value["text"] == "office chair #1" and near.value["distance_m"] == pytest.approx(0.15)
+    assert far.ok and far.value["text"] == "office chair #2" and far.value["distance_m"] > 1.0
+    assert "used #2, the farthest" in far.explanation
