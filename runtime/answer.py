@@ -650,9 +650,7 @@ class MapReasoner:
         if not per:
             raise _Unsupported("no candidate other than the reference object itself")
         oid = (max if far else min)(per, key=lambda k: per[k][0])
-        d, o, r = per[oid]
-        self._choice(name, inst[name], o, "the farthest" if far else "the nearest",
-                     {k: v[0] for k, v in per.items()}, "m")
+        d, o, r = per[oid]  # which instance is the question, not an ambiguity: only the reference's is one
         self._choice(ref, inst[ref], r, f"the one nearest {self._one(name)} #{o.id}")
         self._spread = (f"per-view-pair distance of {self._one(name)} #{o.id}", ev.distance_values(o, r), "m")
         ranked = sorted(per, key=lambda k: per[k][0], reverse=far)[:6]

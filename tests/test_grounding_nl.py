@@ -658,4 +658,5 @@ def test_which_instance_of_one_category_is_closest_or_farthest():
     far = ask("which office chair is farthest from the desk?")
     assert near.ok and near.value["text"] == "office chair #1" and near.value["distance_m"] == pytest.approx(0.15)
     assert far.ok and far.value["text"] == "office chair #2" and far.value["distance_m"] > 1.0
-    assert "used #2, the farthest" in far.explanation
+    assert "office chair #2 1.51 m, office chair #1 0.15 m" in far.explanation
+    assert not far.evidence["ambiguous"]  # which chair is the question, not an ambiguity
