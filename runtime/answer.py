@@ -862,10 +862,26 @@ class MapReasoner:
             value["text"] += f" (one of {len(inst)}; #{o.id})"
         return value, value["text"]
 
+    def _on_my_side(self, side: str) -> tuple[list[ObjectInstance], str]:
+        """Every object on that side (left | right | front | back) of the viewer: the last camera (where the video
+        ended), as `describe_from_camera` reads their centres; left/right exclude straight ahead and behind."""
+        words = {"left": "to the left of", "right": "to the right of", "front": "in front of", "back": "behind"}[side]
+        if not self.map.cameras:
+            raise _Unsupported(f"'{words} me' needs a viewpoint: this map has no camera track; ask 'standing by the "
+                               f"X facing the Y, is the Z on my left?'")
+        T = self.map.cameras[-1][1]
+        where = {id(o): describe_from_camera(T, o.center, self.conf.back_deg) for o in self.map.instances}
+        key = "front_back" if side in ("front", "back") else "side"
+        inst = [o for o in self.map.instances if where[id(o)][key] == side
+                and (key == "front_back" or where[id(o)]["words"] not in ("straight ahead", "behind"))]
+        return inst, f"{words} the last camera view (where the video ended)"
+
     def _object_list(self, pq: ParsedQuestion) -> tuple[Any, str]:
         names = pq.params.get("objects") or []
         how = ""
-        if pq.params.get("where"):  # "what's on the table?": every object there
+        if pq.params.get("from_viewer"):  # "what is to my left?"
+            inst, how = self._on_my_side(pq.params["from_viewer"])
+        elif pq.params.get("where"):  # "what's on the table?": every object there
             inst, _, how = self._located("*", pq.params["where"])
         elif names:
             self._missing(names)

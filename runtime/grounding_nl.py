@@ -130,7 +130,7 @@ EXAMPLES: dict[str, list[str]] = {
                              "back-left or back-right of me?"],
     "object_where": ["Where is the printer?", "Where's the trash can?"],
     "object_view_direction": ["Is the lamp to the left of the sofa?", "Is the cup behind the tv?"],
-    "object_list": ["What objects are in the room?", "List the chairs.", "What's on the table?"],
+    "object_list": ["What objects are in the room?", "List the chairs.", "What's on the table?", "What is to my left?"],
     "room_size_estimation": ["How big is this room?", "What is the floor area of the room in square meters?"],
     "obj_appearance_order": ["Which did I see first, the tv or the sofa?"],
 }
@@ -324,9 +324,24 @@ def _intent(j: str, n_obj: int, has_opts: bool) -> str | None:
                r"\bwhat (?:are|is) the (?:objects|things|items|furniture)\b|"
                r"\bwhat(?:'s| is| are) (?:in|there)\b|\bwhat do you see\b|\bwhat can you see\b"):
         return "list"
-    if _has(j, r"\bon my (?:left|right)\b|\bto my (?:left|right|back|front)\b|\bbehind me\b|\bin front of me\b"):
+    if _has(j, _MY_SIDE_RX):
+        if _has(j, r"^(?:what|what's|which (?:objects|things|items))\b") and n_obj == 0:
+            return "list"  # "what is to my left?": every object on that side of the viewer (the last camera)
         return "direction"
     return None
+
+
+# "on my left", "to my right", "behind me", "in front of me" -> the side asked (`_my_side`)
+_MY_SIDE_RX = r"\b(?:on|to) my (left|right|back|front)\b|\b(behind) me\b|\b(in front of|ahead of) me\b"
+
+
+def _my_side(joined: str) -> str | None:
+    """The side of the viewer a question asks about: left | right | back | front (None: none named)."""
+    m = re.search(_MY_SIDE_RX, joined)
+    if m is None:
+        return None
+    w = next(g for g in m.groups() if g)
+    return {"behind": "back", "in front of": "front", "ahead of": "front"}.get(w, w)
 
 
 def _refs(pq: ParsedQuestion, nps: list[dict[str, Any]]) -> list[str]:
@@ -837,7 +852,12 @@ def _where(pq, toks, joined, nps, extra) -> None:
 
 
 def _list(pq, toks, joined, nps, extra) -> None:
-    """"What objects are in the room?", "list the chairs", "what's on the table?" (every object on it)."""
+    """"What objects are in the room?", "list the chairs", "what's on the table?" (every object on it), "what
+    is to my left?" (every object on that side of the viewer)."""
+    side = _my_side(joined)
+    if side is not None and not nps:
+        pq.qtype, pq.params = "object_list", {"objects": [], "from_viewer": side}
+        return
     if nps and _has(joined, r"^(?:what|what's|which)\b"):
         objs, conds = _conditions(toks, nps, every=True)
         if conds and (not objs or _has(joined, _WHAT_AT_RX)):  # what is there at one place: nothing else named

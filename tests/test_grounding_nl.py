@@ -660,3 +660,21 @@ def test_which_instance_of_one_category_is_closest_or_farthest():
     assert far.ok and far.value["text"] == "office chair #2" and far.value["distance_m"] > 1.0
     assert "office chair #2 1.51 m, office chair #1 0.15 m" in far.explanation
     assert not far.evidence["ambiguous"]  # which chair is the question, not an ambiguity
+
+
+def test_what_is_on_my_side_lists_the_objects_there_from_the_last_camera():
+    """"What is to my left?" was refused (no stance); the viewer is the last camera (as in "is the chair to the
+    left of the table?"): every object on that side of it, straight ahead and behind excluded from left/right."""
+    T = np.eye(4)  # at the origin looking along +y: x right = +x (OpenCV: z forward = +y, y down = -z)
+    T[:3, 0], T[:3, 1], T[:3, 2] = [1, 0, 0], [0, 0, -1], [0, 1, 0]
+    smap = room_map(cameras=[(0.0, T)])
+    ang = {i: math.degrees(math.atan2(-c[0], c[1])) for i, (_, c, _) in enumerate(ROOM)}  # ccw from +y
+    want = {"left": {i for i, a in ang.items() if 22.5 < a < 157.5},
+            "right": {i for i, a in ang.items() if -157.5 < a < -22.5},
+            "behind": {i for i, a in ang.items() if abs(a) > 90}}
+    for side, q in (("left", "what is to my left?"), ("right", "what's on my right?"), ("behind", "what is behind me?")):
+        a = ask(q, smap=smap)
+        assert a.ok and a.qtype == "object_list", a.explanation
+        assert {i["instance"] for i in a.value["instances"]} == want[side] != set(), (side, a.value)
+        assert "last camera view" in a.explanation
+    assert ask("what is to my left?").status == "unsupported"  # no camera track: said, not guessed
