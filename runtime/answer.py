@@ -888,6 +888,8 @@ class MapReasoner:
             inst = [o for n in names for o in self._find(n)]
         else:
             inst = list(self.map.instances)
+        if not pq.params.get("where"):  # the evidence: what was listed (`_located` records its own)
+            self._used += inst
         counts: dict[str, int] = {}
         for o in inst:
             counts[o.name] = counts.get(o.name, 0) + 1

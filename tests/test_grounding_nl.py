@@ -677,4 +677,5 @@ def test_what_is_on_my_side_lists_the_objects_there_from_the_last_camera():
         assert a.ok and a.qtype == "object_list", a.explanation
         assert {i["instance"] for i in a.value["instances"]} == want[side] != set(), (side, a.value)
         assert "last camera view" in a.explanation
+        assert {i["id"] for i in a.evidence["instances"]} == want[side]  # the evidence is what was listed
     assert ask("what is to my left?").status == "unsupported"  # no camera track: said, not guessed
