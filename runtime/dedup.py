@@ -352,17 +352,10 @@ def hist_params() -> tuple[int, int]:
 
 
 def bgr_histogram(bgr: np.ndarray) -> np.ndarray:
-    """`keyframes.colour_histogram` of the RGB frame a BGR frame [H, W, 3] uint8 converts to, with `hist_params`:
-    the same figures (the downscale works per channel, so it runs before the channel swap, on 64 px)."""
-    import cv2
-
+    """`keyframes.colour_histogram` of the RGB frame a BGR frame [H, W, 3] uint8 converts to, with `hist_params`."""
     from .keyframes import colour_histogram
 
-    bins, size = hist_params()
-    h, w = bgr.shape[:2]
-    if w > size:
-        bgr = cv2.resize(bgr, (size, max(1, round(h * size / w))), interpolation=cv2.INTER_AREA)
-    return colour_histogram(bgr[..., ::-1], bins, size)
+    return colour_histogram(bgr, *hist_params(), bgr=True)
 
 
 def small_gray(rgb: np.ndarray, width: int, bgr: bool = False) -> np.ndarray:

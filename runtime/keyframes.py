@@ -424,13 +424,17 @@ def content_axis(density: np.ndarray, floor: float = 0.1, change: np.ndarray | N
 # ------------------------------------------------------------------------------------------- histograms
 
 
-def colour_histogram(rgb: np.ndarray, bins: int = 8, size: int = 64) -> np.ndarray:
-    """L1-normalised 3-D RGB histogram [bins**3] float32 of `rgb` [H, W, 3] uint8 (downscaled to `size` wide)."""
+def colour_histogram(rgb: np.ndarray, bins: int = 8, size: int = 64, bgr: bool = False) -> np.ndarray:
+    """L1-normalised 3-D RGB histogram [bins**3] float32 of `rgb` [H, W, 3] uint8 (downscaled to `size` wide).
+    `bgr`: the image is BGR (a decoder's), swapped after the downscale, which works per channel: the same
+    figures as the RGB image's, without a full-size RGB copy."""
     if rgb.ndim != 3 or rgb.shape[2] != 3:
         raise InputError(f"colour_histogram: expected [H, W, 3] RGB, got shape {rgb.shape}")
     h, w = rgb.shape[:2]
     if w > size:
         rgb = cv2.resize(rgb, (size, max(1, round(h * size / w))), interpolation=cv2.INTER_AREA)
+    if bgr:
+        rgb = rgb[..., ::-1]
     hist = cv2.calcHist([np.ascontiguousarray(rgb)], [0, 1, 2], None, [bins] * 3, [0, 256] * 3).reshape(-1)
     return (hist / max(hist.sum(), 1.0)).astype(np.float32)
 
