@@ -890,9 +890,7 @@ class MapReasoner:
             inst = list(self.map.instances)
         if not pq.params.get("where"):  # the evidence: what was listed (`_located` records its own)
             self._used += inst
-        counts: dict[str, int] = {}
-        for o in inst:
-            counts[o.name] = counts.get(o.name, 0) + 1
+        counts = dict(Counter(o.name for o in inst))  # in order of first appearance, as the JSON lists them
         text = ", ".join(f"{c} {n}" for n, c in sorted(counts.items())) or "nothing"
         value = {"text": text, "counts": counts,
                  "instances": [{"object": o.name, "instance": int(o.id), "centre": np.round(o.center, 3).tolist()}

@@ -280,9 +280,10 @@ def select(source: FrameSource, targets: Sequence[str], cues: Sequence[str], per
         # the reserve's frames are chosen by the same scores)
         frac = float(kc.get("budget_fraction", KeyFrameConf.budget_fraction))
         kc["budget"] = scored_budget(len(cands), K, frac, conf.min_scored_per_keyframe, conf.max_scored_per_keyframe)
-        if kc["budget"] < np.ceil(frac * len(cands)):
-            trace.decide("keyframes.budget_capped", {"scored": kc["budget"], "fraction_would_score":
-                         int(np.ceil(frac * len(cands))), "max_per_keyframe": conf.max_scored_per_keyframe})
+        uncapped = scored_budget(len(cands), K, frac, conf.min_scored_per_keyframe)
+        if kc["budget"] < uncapped:
+            trace.decide("keyframes.budget_capped", {"scored": kc["budget"], "fraction_would_score": uncapped,
+                                                     "max_per_keyframe": conf.max_scored_per_keyframe})
     K = K - reserve
     if conf.topup and conf.keyframe_method == "iterative":
         # fewer than K passing: the search tops up from the frames it scored (coverage first, then by score),
