@@ -32,7 +32,7 @@ import math
 import re
 from collections import Counter
 from dataclasses import dataclass, field
-from typing import Any, ClassVar
+from typing import Any, ClassVar, Sequence
 
 import numpy as np
 
@@ -95,6 +95,17 @@ class Answer:
         return {"text": self.text, "value": self.value, "status": self.status, "explanation": self.explanation,
                 "missing": list(self.missing), "qtype": self.qtype, "unit": self.unit, "hints": list(self.hints),
                 "evidence": self.evidence, "parsed": None if self.parsed is None else self.parsed.to_dict()}
+
+
+def cannot_detect(pq: ParsedQuestion, names: Sequence[str], n_labels: int = 0) -> Answer:
+    """The answer to a question that needs objects the detector cannot detect: "unsupported", never "not found"
+    (no frame was searched for them, so "no" or "not found" would be a guess)."""
+    what, it = ", ".join(names), "it" if len(names) == 1 else "them"
+    classes = f"the {n_labels} classes" if n_labels else "the classes"
+    return Answer(f"unsupported: the detector cannot recognise {what}", None, "unsupported",
+                  f"{what}: not among {classes} of this bundle's closed-set detector, so no frame was searched for "
+                  f"{it}; a bundle with an open-vocabulary detector (OWLv2, docs/export-hf.md) looks for any name",
+                  list(names), pq.qtype, pq)
 
 
 class _NotFound(Exception):
@@ -264,10 +275,10 @@ class MapReasoner:
         except _Unsupported as e:
             return Answer(f"unsupported: {e}", None, "unsupported", str(e), [], pq.qtype, pq)
         unit = pq.params.get("unit") if pq.qtype in NUMERIC_QTYPES else None
+        if not options and isinstance(value, dict) and "text" in value:  # e.g. a count per object
+            return Answer(value["text"], value, "ok", expl, [], pq.qtype, pq)
         if pq.qtype in NUMERIC_QTYPES and not options:
             return Answer(self._format_number(pq.qtype, value, unit), value, "ok", expl, [], pq.qtype, pq, unit)
-        if not options and isinstance(value, dict) and "text" in value:
-            return Answer(value["text"], value, "ok", expl, [], pq.qtype, pq)
         if not options and isinstance(value, str):  # an object or a direction, in the question's own words
             return Answer(pq.phrase(value), value, "ok", expl, [], pq.qtype, pq)
         letter, text = self._choose(value, options)
@@ -484,6 +495,12 @@ class MapReasoner:
             keep, cands, how = self._located(pq.params["object"], pq.params["where"])
             what = "object(s)" if pq.params["object"] == "*" else self._ph(pq.params["object"])
             return len(keep), f"{len(keep)} of {len(cands)} {what} {how}"
+        if len(pq.params.get("objects", ())) > 1:  # one count per object; a name the map lacks counts 0
+            inst = {n: self._find(n) for n in pq.params["objects"]}
+            self._used += [o for v in inst.values() for o in v]
+            counts = {self._ph(n): len(v) for n, v in inst.items()}
+            text = ", ".join(f"{k} {n if k == 1 else plural(n)}" for n, k in counts.items())
+            return {"text": text, "counts": counts}, "; ".join(f"{n}: {k} in the map" for n, k in counts.items())
         if self._sel(pq.params["object"]):
             sel = self._sel(pq.params["object"])
             raise _Unsupported(f"counting only some {self._ph(pq.params['object'])} "

@@ -402,6 +402,8 @@ def parse_question(question: str, options: list[str] | None = None) -> ParsedQue
         m = rx.search(q[:_TEMPLATE_WINDOW])  # the benchmark's questions are < 600 characters
         if not m:
             continue
+        if qtype in ("object_counting", "object_size_estimation") and re.search(r",| and | or ", m.group(1)):
+            continue  # "how many chairs and tables are in the room?": several objects, not one named "tables"
         pq.qtype = qtype
         if qtype in ("object_counting", "object_size_estimation"):
             r = _ref(m.group(1))

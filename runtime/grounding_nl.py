@@ -78,6 +78,10 @@ _SOFT_BEFORE_NOUN = {"side", "end", "top", "back", "front", "corner", "coffee", 
 _SCENE = {"room", "rooms", "kitchen", "bedroom", "bathroom", "living", "dining", "space", "scene", "video", "house",
           "apartment", "flat", "office", "place", "area", "home", "floor", "hall", "hallway", "corridor", "here",
           "interior", "map", "image", "picture"}
+# a part of the room as a location ("in the middle of the room", "in the corner"): no object of that name
+_ROOM_REGION_RX = (r"\b(?:in|at|into|near|by|from|to|toward|towards) the (?:middle|center|centre|corner|corners)"
+                   r"(?: of (?:the |this |my )?(?:" + "|".join(sorted(_SCENE)) + r"))?"
+                   r"(?=$| ?[?,.;:!]| (?:of|and|or|is|are|was|were|facing|looking)\b)")  # not "the corner table"
 _COLOURS = {"red", "blue", "green", "yellow", "black", "white", "grey", "gray", "brown", "orange", "pink", "purple",
             "beige", "silver", "gold", "golden", "dark", "light-coloured", "wooden", "wood", "metal", "metallic",
             "leather", "plastic", "glass", "fabric", "striped", "old", "new", "modern", "broken", "open", "closed"}
@@ -145,6 +149,12 @@ def examples() -> list[str]:
 
 _TOK = re.compile(r"[a-z0-9]+(?:[-'][a-z0-9]+)*|[?,.;:!()/&]")
 _KEEP_S = {"what's", "where's", "it's", "that's", "there's", "here's", "who's", "how's", "let's"}
+# contractions typed without the apostrophe ("whats the distance ..."): read as the contraction, not as a name
+# ("its" stays the possessive; "wont", "cant" are words too but not object names)
+_NO_APOSTROPHE = {w.replace("'", ""): w for w in (
+    "what's", "where's", "that's", "there's", "here's", "who's", "how's", "let's", "i'm", "don't", "doesn't",
+    "didn't", "isn't", "aren't", "wasn't", "weren't", "can't", "won't", "couldn't", "wouldn't", "shouldn't",
+    "haven't", "hasn't", "i've", "you're", "they're")}  # not "we're": "were" is a word
 
 
 def tokens(text: str) -> list[str]:
@@ -152,6 +162,7 @@ def tokens(text: str) -> list[str]:
     s = text.lower().replace("\u2019", "'").replace("(s)", "").replace("(es)", "").replace("_", " ")
     out: list[str] = []
     for t in _TOK.findall(s):
+        t = _NO_APOSTROPHE.get(t, t)
         if t.endswith("'s") and len(t) > 2 and t not in _KEEP_S:
             out += [t[:-2], "'s"]
         else:
@@ -400,6 +411,12 @@ def parse_natural(question: str, options: list[str] | None = None) -> ParsedQues
         pq.how = "none"
         return pq
     joined = " ".join(toks)
+    region = re.search(_ROOM_REGION_RX, joined)
+    if region:  # "is the table in the middle of the room?": not an object called "middle"; never guessed
+        _fail(pq, "a position in the room", f"'{region.group(0)}' (the map reasoner places objects relative to "
+                                            f"other objects or to you, not to parts of the room)")
+        pq.how = "none"
+        return pq
     nps_all = [p for p in noun_phrases(toks) if not p["scene"]]
     intent = _intent(joined, len(nps_all), bool(options))
     if intent is None:
@@ -571,9 +588,13 @@ def _count(pq, toks, joined, nps, extra) -> None:
         pq.qtype, pq.targets, pq.cues = "object_counting", [target] if objs else [], [where["object"]]
         pq.params = {"object": target, "where": where}
         return
-    if len(objs) > 1:
+    if len(objs) > 1 and conds:  # "how many chairs are on the desk and the couch?": never drop the location
         return _fail(pq, "a count of " + " and ".join(f"'{' '.join(p['words'])}'" for p in objs),
-                     "one count for several objects; ask about one object at a time")
+                     "several objects with a location; ask about one object at a time")
+    if len(objs) > 1:  # "how many chairs and (how many) cups are there?": one count per object
+        names = list(dict.fromkeys(_refs(pq, objs)))
+        pq.qtype, pq.targets, pq.params = "object_counting", names, {"object": names[0], "objects": names}
+        return
     n = _single(pq, objs + conds, "count", "object_counting")
     if n is not None:
         pq.targets, pq.params = [n], {"object": n}

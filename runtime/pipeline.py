@@ -17,7 +17,7 @@ from __future__ import annotations
 import dataclasses
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import Any, Callable, ClassVar, Mapping, Sequence
+from typing import Any, Callable, ClassVar, Collection, Mapping, Sequence
 
 import numpy as np
 
@@ -37,7 +37,7 @@ from .semantic_map import (FusionConfig, ObjectInstance, Observation, SemanticMa
                            extend_to_floor, first_seen_from_detections, fuse_observations, gravity_from_frames,
                            lift_camera, place, refine, room_extent)
 from . import prompt as vprompt
-from .answer import MapReasoner, answer_question, answer_with_vlm
+from .answer import MapReasoner, answer_question, answer_with_vlm, cannot_detect
 # moved to their stage modules; importable from here as before
 from .alignment import attach_frames, bridge_attach, depth_consistency, verify_tree  # noqa: F401
 from .semantic_map import floor_support, hull_candidates as _hull_candidates  # noqa: F401
@@ -255,6 +255,13 @@ class _CachedDetector:
             if self.on_call is not None:
                 self.on_call()
         return self.cache[key]
+
+    def scored(self) -> dict[int, set[str]]:
+        """Every frame the detector ran on -> the names it detected there (of those it was asked for)."""
+        out: dict[int, set[str]] = {}
+        for (i, _names), d in self.cache.items():
+            out.setdefault(i, set()).update(d.names)
+        return out
 
 
 def select(source: FrameSource, targets: Sequence[str], cues: Sequence[str], perception: Perception,
@@ -549,7 +556,8 @@ def _refine(instances: list[ObjectInstance], clouds: list[np.ndarray], obs: list
 
 
 def _record_instances(instances: list[ObjectInstance], names: list[str], recovered: int, trace: Trace,
-                      dets: dict[int, Detections], unaligned: Sequence[int]) -> None:
+                      dets: dict[int, Detections], unaligned: Sequence[int],
+                      scored: Mapping[int, Collection[str]] | None = None) -> None:
     trace.decide("instances", {"count": len(instances), "recovered_by_refinement": recovered,
                                "by_name": {n: sum(o.name == n for o in instances) for n in names},
                                "list": [{"id": o.id, "name": o.name, "centre": np.round(o.center, 3).tolist(),
@@ -558,15 +566,25 @@ def _record_instances(instances: list[ObjectInstance], names: list[str], recover
                                         for o in instances]})
     missing = [n for n in names if not any(o.name == n for o in instances)]
     if missing:
-        trace.event("not_in_map", "not in the map: " + missing_reasons(missing, dets, unaligned), names=missing)
+        trace.event("not_in_map", "not in the map: " + missing_reasons(missing, dets, unaligned, scored),
+                    names=missing)
 
 
-def missing_reasons(missing: list[str], dets: dict[int, Detections], unaligned: Sequence[int]) -> str:
+def missing_reasons(missing: list[str], dets: dict[int, Detections], unaligned: Sequence[int],
+                    scored: Mapping[int, Collection[str]] | None = None) -> str:
     """Why each name is not in the map: never detected in a key frame, detected only in key frames that stayed
-    unaligned (so out of the map), or detected in aligned ones whose points fusion did not keep."""
+    unaligned (so out of the map), or detected in aligned ones whose points fusion did not keep. `scored`: the
+    detections of every frame the key-frame search scored: a name no key frame shows is then said to be seen in
+    none of them (how far a "no" was looked for) or only in frames the search did not choose."""
     seen = {n: sorted(i for i, d in dets.items() if n in d.names) for n in missing}
     never = [n for n in missing if not seen[n]]
-    parts = [f"not detected in any key frame: {', '.join(never)}"] if never else []
+    parts = [f"not detected in any key frame: {', '.join(never)}"] if never and scored is None else []
+    if never and scored is not None:
+        elsewhere = {n: sorted(i for i, seen_there in scored.items() if n in seen_there) for n in never}
+        if none := [n for n in never if not elsewhere[n]]:
+            parts.append(f"not detected in any of the {len(scored)} frames the detector ran on: {', '.join(none)}")
+        parts += [f"{n}: detected only in scored frame(s) the search did not choose as key frames: {elsewhere[n]}"
+                  for n in never if elsewhere[n]]
     for n in (n for n in missing if seen[n]):
         out = [i for i in seen[n] if i in set(unaligned)]
         kept = [i for i in seen[n] if i not in set(unaligned)]
@@ -654,7 +672,7 @@ def build_map(source: FrameSource, targets: Sequence[str], cues: Sequence[str] =
                                            conf, trace, budget)
     if budget is not None:
         budget.end_stage("alignment")
-    _record_instances(instances, names, recovered, trace, dets, al.unaligned)
+    _record_instances(instances, names, recovered, trace, dets, al.unaligned, det.scored())
     room, cams = _map_extras(instances, frames, poses, det, names, source, perception, conf, fconf, trace)
     _book_counters(trace, source, loaded0, matcher)
     smap = SemanticMap(instances, room, cams,
@@ -894,6 +912,24 @@ def _whole_map_targets(pq: ParsedQuestion, bundle: Any, trace: Trace) -> list[st
     return list(dict.fromkeys(pq.targets + [n for n in names if n not in pq.cues]))
 
 
+def _cannot_detect_first(pq: ParsedQuestion, options: list[str] | None, bundle: Any, trace: Trace) -> Any:
+    """The "cannot recognise" answer (`answer.cannot_detect`) before any frame is read, when an object the
+    question names is outside the bundle's closed-set detector ("where's the kettle?" with the COCO SSD):
+    searching the video could only end in a misleading "not found". None otherwise, and for multiple choice
+    (an option the detector cannot see may still lose to one it can)."""
+    if bundle is None or options:
+        return None
+    from .stages.detector import undetectable_names
+
+    cannot, n_labels = undetectable_names(bundle, pq.objects)
+    if not cannot:
+        return None
+    ans = cannot_detect(pq, cannot, n_labels)
+    trace.event("undetectable", ans.explanation, names=cannot, stage="grounding")
+    trace.decide("answer", {k: v for k, v in ans.to_dict().items() if k != "parsed"})
+    return ans
+
+
 def ask(source: Any, question: str, options: list[str] | None = None, *, perception: Perception | None = None,
         bundle: Any = None, profile: Any = None, conf: PipelineConfig | dict | None = None,
         answerer: str = "auto", method: str = "mosaic", prompt_mode: str = "grid", vlm: Any = None,
@@ -938,6 +974,9 @@ def ask(source: Any, question: str, options: list[str] | None = None, *, percept
             trace.event("degraded", f"{why}: {ans.explanation}", stage="grounding")
             trace.decide("answer", {k: v for k, v in ans.to_dict().items() if k != "parsed"})
             return AskResult(ans, None, trace, None, None, pq, "mosaic")
+        cannot = _cannot_detect_first(pq, options, bundle if perception is None else None, trace)
+        if cannot is not None:
+            return AskResult(cannot, None, trace, None, None, pq, "mosaic")
         if perception is None:
             perception = perception_from_bundle(bundle, conf, trace, profile)
         build = build_map(src, _whole_map_targets(pq, bundle, trace), pq.cues, perception, conf, trace, keyframes,
@@ -947,5 +986,9 @@ def ask(source: Any, question: str, options: list[str] | None = None, *, percept
         vp = _render_prompt(smap, build, prompt_mode, render_image or vlm is not None)
     with trace.stage("answer"):
         ans = answer_question(smap, question, options, answerer, vlm, vp, trace, pq)
+        if ans.status == "not_found":  # missing because the detector could not look for them: say so
+            und = {n for e in trace.events if e["kind"] == "undetectable" for n in e.get("names", [])}
+            if [n for n in ans.missing if n in und]:
+                ans = cannot_detect(pq, [n for n in ans.missing if n in und])
     trace.decide("answer", {k: v for k, v in ans.to_dict().items() if k != "parsed"})
     return AskResult(ans, smap, trace, vp, build, pq, "mosaic")

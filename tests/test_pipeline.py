@@ -318,3 +318,9 @@ def test_a_name_missing_from_the_map_says_why():
     assert "sink: detected in key frame(s) [5]; [5] stayed unaligned, out of the map" in text
     assert "cup: detected in key frame(s) [9, 12]; in [9, 12] too few consistent 3D points" in text
     assert "sink" not in text.split(";")[0]
+    # with what the search's detector saw: how far a name that no key frame shows was looked for
+    scored = {0: {"chair"}, 3: {"keyboard"}, 5: {"sink"}, 9: {"cup"}, 12: {"cup"}, 20: set()}
+    text = missing_reasons(["sink", "keyboard", "fridge"], dets, unaligned=[5], scored=scored)
+    assert "not detected in any of the 6 frames the detector ran on: fridge" in text
+    assert "keyboard: detected only in scored frame(s) the search did not choose as key frames: [3]" in text
+    assert "not detected in any key frame" not in text

@@ -140,3 +140,20 @@ def test_camera_height_prior_uses_the_floor_fit():
     assert camera_height_prior(np.r_[floor, wall] * 0.5, 1.5) == pytest.approx(2.0, rel=0.02)
     with pytest.raises(InputError, match="no floor"):
         camera_height_prior(wall * 0.5, 1.5)
+
+
+def test_a_question_about_what_the_detector_cannot_see_says_so_before_reading_frames(shared_bundle: Path,
+                                                                                      redkitchen: Path):
+    """'where's the kettle?' with the COCO SSD: "unsupported: cannot recognise", never a searched-looking
+    "not found"/"no" (no frame could show it), and no map built; a detectable name is unaffected."""
+    from mosaicthinker.runtime.pipeline import ask
+    from mosaicthinker.runtime.stages.detector import undetectable_names
+
+    assert undetectable_names(shared_bundle, ["kettle", "chair", "fridge", "counter"]) == (["kettle", "counter"], 80)
+    for q, name in (("where's the kettle?", "kettle"), ("how many cups are on the counter?", "counter"),
+                    ("is there a kettle in here?", "kettle")):
+        res = ask(redkitchen, q, bundle=shared_bundle, answerer="map")
+        assert res.answer.status == "unsupported" and res.build is None, q
+        assert res.answer.text == f"unsupported: the detector cannot recognise {name}"
+        assert "80 classes" in res.answer.explanation and res.answer.missing == [name]
+        assert any(e["kind"] == "undetectable" and e["names"] == [name] for e in res.trace.events)

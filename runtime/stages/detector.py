@@ -90,6 +90,19 @@ def detectable_names(bundle: Any, preferred: Sequence[str] = ()) -> list[str]:
     return sorted(one_name_per_label(mapping, labels, list(preferred)))
 
 
+def undetectable_names(bundle: Any, names: Sequence[str]) -> tuple[list[str], int]:
+    """(the `names` the bundle's closed-set detector cannot detect, its number of labels): what a question may
+    name that no frame can show. ([], 0) when the bundle has no detector or an open-vocabulary one (it looks
+    for any name)."""
+    from ..bundle import load_bundle
+
+    b = load_bundle(bundle) if isinstance(bundle, (str, os.PathLike)) else bundle
+    labels = b.spec("detector", verify=False).semantics.get("labels") if b.has_role("detector") else None
+    if not labels:
+        return [], 0
+    return map_names(list(names), labels)[1], len({normalize_name(x) for x in labels} - {"n/a"})
+
+
 def one_name_per_label(mapping: dict[str, list[int]], labels: Sequence[str], preferred: Sequence[str]) -> set[str]:
     """Names that reach the same detector labels are aliases of one detection (desk / table -> "dining table",
     monitor / tv -> "tv"): keep one per label set — a `preferred` name, else the one that is the label itself,
