@@ -622,14 +622,29 @@ class MapReasoner:
             return self._camera_distance(pq)
         a, b = pq.params["a"], pq.params["b"]
         inst = self._require([a, b])
-        d, x, y = self._min_distance(inst[a], inst[b])
         unit = pq.params.get("unit", "m")
+        if a == b:
+            return self._pair_distance(a, inst[a], unit)
+        d, x, y = self._min_distance(inst[a], inst[b])
         v = d / UNIT_M[unit]
         self._spread = ("per-view-pair distance", ev.distance_values(x, y, UNIT_M[unit]), unit)
         for n, own, other, used in ((a, inst[a], inst[b], x), (b, inst[b], inst[a], y)):
             self._choice(n, own, used, "the nearest", {o.id: self._min_distance([o], other)[0] / UNIT_M[unit]
                                                        for o in own if [p for p in other if p is not o]}, unit)
         return v, f"closest points of {self._one(a)} #{x.id} and {self._one(b)} #{y.id}: {v:.3f} {unit}"
+
+    def _pair_distance(self, name: str, inst: list[ObjectInstance], unit: str) -> tuple[Any, str]:
+        """"The distance between the two chairs": two instances of one name; with more, the nearest two (said
+        as ambiguous); with fewer, unsupported."""
+        if len(inst) < 2:  # (the map's name: the phrase may say "two")
+            raise _Unsupported(f"the map holds {len(inst)} {name if len(inst) == 1 else plural(name)}: no two to "
+                               f"measure between")
+        d, x, y = self._min_distance(inst, inst)
+        v = d / UNIT_M[unit]
+        self._used = [x, y]
+        if len(inst) > 2:
+            self._choice(name, inst, x, f"the nearest two (#{x.id} and #{y.id})")
+        return v, f"closest points of {name} #{x.id} and #{y.id}: {v:.3f} {unit}"
 
     def _object_rel_distance(self, pq: ParsedQuestion) -> tuple[Any, str]:
         ref, cands = pq.params["reference"], pq.params["candidates"]

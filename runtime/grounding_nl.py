@@ -50,7 +50,7 @@ back-right left-hand right-hand front-right-hand straight directly direction dir
 situated placed sits sit sitting stand standing stood stands face facing faced faces look looking looked looks
 turn turned turning walk walking go going see seen saw spot notice find found show tell give list name named
 closest nearest farthest furthest closer nearer farther further close far apart away distance distances gap
-many much more most less least number count total quantity amount fewer fewest common numerous plentiful
+many much more most less least number count total quantity amount fewer fewest common numerous plentiful greater
 big bigger biggest large larger largest small smaller smallest tall taller tallest short shorter shortest long
 longer longest wide wider widest narrow narrower narrowest high higher highest low lower lowest deep size sizes dimension dimensions length
 width height depth measure measures measured measuring measurement measurements area footprint square
@@ -280,13 +280,19 @@ _ROOMS = r"(?:room|space|kitchen|bedroom|bathroom|apartment|flat|office|house|li
 _UNITS_RX = r"(?:cm|centimet\w+|mm|millimet\w+|m|meters?|metres?|feet|foot|ft|inch(?:es)?)"
 _SIMPLE_INTENTS = [(name, re.compile(rx)) for name, rx in (  # tried in this order, after the choice questions
     ("room_size", rf"\bhow (?:big|large) is (?:the |this |our )?{_ROOMS}\b|floor (?:area|space|size)|square "
-                  rf"(?:meters?|metres?|feet)|\bsq\b|(?:size|area|footprint) of (?:the |this )?{_ROOMS}\b"),
+                  rf"(?:meters?|metres?|feet)|\bsq\b|(?:size|area|footprint) of (?:the |this )?{_ROOMS}\b|"
+                  rf"\b{_ROOMS} 's (?:floor )?(?:size|area|footprint)\b"),
     ("size", rf"\bhow (?:big|large|long|tall|wide|high|deep)\b|\b(?:size|dimensions?|length|height|width|depth|"
              rf"measure|measures|measurements?|longest side|longest edge)\b|how many {_UNITS_RX}\b"),
     ("count", r"\bhow many\b|\bcount\b|\bnumber of\b|\bquantity of\b|\btotal of\b|^(?:the )?total\b"),
     ("existence", r"^(?:is|are) there\b|\b(?:do|can|did|could) (?:you|i|we) (?:see|spot|find|notice)\b|"
                   r"\b(?:does|do) (?:the|this|our|your) \w+(?: \w+)? (?:have|contain|include|hold)\b|\bexists?\b|"
                   r"^(?:any|got any)\b|\bis (?:a|an) [^?]{1,80}? (?:in|here)\b"))]
+
+
+# "the number of chairs greater than (the number of) cups": a count comparison in other words
+_COUNT_CMP_RX = (r"\b(?:number|count|amount|quantity) of \w+(?: \w+)? (?:is |are )?(?:greater|larger|bigger|higher|"
+                 r"smaller|lower)\b")
 
 
 def _intent(j: str, n_obj: int, has_opts: bool) -> str | None:
@@ -314,6 +320,8 @@ def _intent(j: str, n_obj: int, has_opts: bool) -> str | None:
     if _has(j, r"\b(?:more|fewer|less)\b") and _has(j, r"\b(?:than|or)\b") and not _has(j, r"\d|\bmore or less\b") \
             and n_obj >= 2:
         return "count_compare"  # "are there more chairs than cups?", "which are there fewer of, cups or chairs?"
+    if _has(j, _COUNT_CMP_RX) and _has(j, r"\b(?:than|or)\b") and n_obj >= 2:
+        return "count_compare"  # "is the number of chairs greater than the number of cups?"
     if _has(j, rf"\bhow much {_CMP} (?:is|are|was|were)\b") and _has(j, r"\bthan\b"):
         return "size_compare"  # "how much taller is the fridge than the table?": the difference
     if not _has(j, r"\bhow\b") and (_has(j, _CMP_RX) and _has(j, r"\b(?:which|whichever|what|or|than)\b")
@@ -327,8 +335,8 @@ def _intent(j: str, n_obj: int, has_opts: bool) -> str | None:
     if _has(j, _WHAT_AT_RX):
         return "list"  # "what's on the table?", "what is near the door?"
     for intent, rx in _SIMPLE_INTENTS:
-        if rx.search(j):
-            return intent
+        if rx.search(j) and not (intent == "existence" and _has(j, r"^(?:where|where's)\b")):
+            return intent  # "where can I find the bin?" asks where, not whether
     if _has(j, r"\b(?:where|whereabouts|locate|location of|position of)\b|^(?:show me|find|point (?:me )?to)\b"):
         return "direction" if _has(j, r"\b(?:if i|standing|when i)\b") and stance else "where"
     if _has(j, r"\b(?:list|enumerate|inventory)\b|\b(?:what|which) (?:objects|things|items|furniture)\b|"
@@ -624,7 +632,8 @@ def _count_compare(pq, toks, joined, nps, extra) -> None:
     form = "difference" if _has(joined, r"\bhow many (?:more|fewer|less)\b") else \
         "yesno" if "than" in toks and not _has(joined, r"^(?:which|what|whichever)\b") else "which"
     pq.qtype, pq.targets = "object_count_compare", names
-    pq.params = {"objects": names, "compare": "more" if _has(joined, r"\bmore\b") else "fewer", "form": form}
+    more = _has(joined, r"\bmore\b|\b(?:greater|larger|bigger|higher)\b")
+    pq.params = {"objects": names, "compare": "more" if more else "fewer", "form": form}
 
 
 _NUMBERS = {w: i for i, w in enumerate("zero one two three four five six seven eight nine ten eleven twelve".split())}
@@ -731,6 +740,11 @@ def _abs_distance(pq, toks, joined, nps, extra) -> None:
     if len(names) == 1 and _has(joined, r"\b(?:me|i|i'm|im|myself|us|we|here|the camera)\b|^how far away (?:is|are)\b"):
         pq.qtype, pq.targets = "object_abs_distance", names
         pq.params = {"a": names[0], "b": None, "from": "camera", "unit": _unit(joined, "m")}
+        return
+    if len(names) == 1 and _has(joined, r"\b(?:two|both)\b|\bapart\b|\b(?:between|from each other|from one "
+                                          r"another)\b"):  # "the distance between the two chairs": one pair
+        pq.qtype, pq.targets = "object_abs_distance", names
+        pq.params = {"a": names[0], "b": names[0], "unit": _unit(joined, "m")}
         return
     if len(names) != 2:
         got = ", ".join(f"'{pq.phrase(n)}'" for n in names) or "no object"

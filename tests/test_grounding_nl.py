@@ -722,3 +722,28 @@ def test_a_count_of_several_objects_counts_each(q):
         assert a.value["counts"]["sofas"] == 1  # the couch
     no_tv = ask("how many chairs and tvs are there?")
     assert no_tv.ok and no_tv.value["counts"] == {"chairs": 3, "tvs": 0} and no_tv.text == "3 chairs, 0 tvs"
+
+
+def test_more_wordings_people_use():
+    """Found trying wordings beside the examples: each was refused or misread before."""
+    # "where can I find X" asks where (was an existence "yes")
+    a = ask("where can I find the trash can?")
+    assert a.ok and a.qtype == "object_where" and a.text.startswith("the trash can is")
+    # a count comparison in other words (was "0 chairs greaters, 1 laptops")
+    a = ask("is the number of chairs greater than the number of laptops?")
+    assert a.ok and a.qtype == "object_count_compare" and a.text == "yes"
+    assert ask("is the number of chairs smaller than the number of couches?").text == "no"
+    # a possessive room size
+    a = ask("what is the room's area?")
+    assert a.ok and a.qtype == "room_size_estimation"
+    # the distance between two instances of one name
+    pair = gap(*boxes("office chair"))
+    for q in ("what's the distance between the two office chairs?", "how far apart are the office chairs?"):
+        a = ask(q)
+        assert a.ok and a.value == pytest.approx(pair) and sorted(i["id"] for i in a.evidence["instances"]) == [1, 2]
+    a = ask("how far apart are the chairs?")  # three chairs: the nearest two, said as ambiguous
+    chairs = boxes("office chair") + boxes("chair")
+    assert a.value == pytest.approx(min(gap(x, y) for i, x in enumerate(chairs) for y in chairs[i + 1:]))
+    assert "3 chairs in the map" in a.explanation
+    a = ask("what is the distance between the two desks?")
+    assert a.status == "unsupported" and "1 desk" in a.text
