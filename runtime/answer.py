@@ -97,15 +97,18 @@ class Answer:
                 "evidence": self.evidence, "parsed": None if self.parsed is None else self.parsed.to_dict()}
 
 
-def cannot_detect(pq: ParsedQuestion, names: Sequence[str], n_labels: int = 0) -> Answer:
+def cannot_detect(pq: ParsedQuestion, names: Sequence[str], n_labels: int = 0,
+                  close: dict[str, str] | None = None) -> Answer:
     """The answer to a question that needs objects the detector cannot detect: "unsupported", never "not found"
-    (no frame was searched for them, so "no" or "not found" would be a guess)."""
+    (no frame was searched for them, so "no" or "not found" would be a guess). close: {name: a name it can
+    detect spelled alike} ("chiars": "chair"), offered as "did you mean"."""
     what, it = ", ".join(names), "it" if len(names) == 1 else "them"
     classes = f"the {n_labels} classes" if n_labels else "the classes"
-    return Answer(f"unsupported: the detector cannot recognise {what}", None, "unsupported",
-                  f"{what}: not among {classes} of this bundle's closed-set detector, so no frame was searched for "
-                  f"{it}; a bundle with an open-vocabulary detector (OWLv2, docs/export-hf.md) looks for any name",
-                  list(names), pq.qtype, pq)
+    mean = "; ".join(f"'{n}': did you mean {c}?" for n, c in (close or {}).items())
+    return Answer(f"unsupported: the detector cannot recognise {what}" + (f" ({mean})" if mean else ""), None,
+                  "unsupported", f"{what}: not among {classes} of this bundle's closed-set detector, so no frame was "
+                  f"searched for {it}; a bundle with an open-vocabulary detector (OWLv2, docs/export-hf.md) looks "
+                  f"for any name", list(names), pq.qtype, pq, hints=sorted(set((close or {}).values())))
 
 
 class _NotFound(Exception):

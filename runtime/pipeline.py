@@ -921,10 +921,10 @@ def _cannot_detect_first(pq: ParsedQuestion, options: list[str] | None, bundle: 
         return None
     from .stages.detector import undetectable_names
 
-    cannot, n_labels = undetectable_names(bundle, pq.objects)
+    cannot, n_labels, close = undetectable_names(bundle, pq.objects)
     if not cannot:
         return None
-    ans = cannot_detect(pq, cannot, n_labels)
+    ans = cannot_detect(pq, cannot, n_labels, close)
     trace.event("undetectable", ans.explanation, names=cannot, stage="grounding")
     trace.decide("answer", {k: v for k, v in ans.to_dict().items() if k != "parsed"})
     return ans

@@ -149,7 +149,11 @@ def test_a_question_about_what_the_detector_cannot_see_says_so_before_reading_fr
     from mosaicthinker.runtime.pipeline import ask
     from mosaicthinker.runtime.stages.detector import undetectable_names
 
-    assert undetectable_names(shared_bundle, ["kettle", "chair", "fridge", "counter"]) == (["kettle", "counter"], 80)
+    assert undetectable_names(shared_bundle, ["kettle", "chair", "fridge", "counter"]) == (["kettle", "counter"], 80,
+                                                                                              {})
+    res = ask(redkitchen, "how many chiars are there?", bundle=shared_bundle, answerer="map")  # a typo
+    assert res.answer.text == "unsupported: the detector cannot recognise chiar ('chiar': did you mean chair?)"
+    assert res.answer.hints == ["chair"]
     for q, name in (("where's the kettle?", "kettle"), ("how many cups are on the counter?", "counter"),
                     ("is there a kettle in here?", "kettle")):
         res = ask(redkitchen, q, bundle=shared_bundle, answerer="map")

@@ -90,17 +90,23 @@ def detectable_names(bundle: Any, preferred: Sequence[str] = ()) -> list[str]:
     return sorted(one_name_per_label(mapping, labels, list(preferred)))
 
 
-def undetectable_names(bundle: Any, names: Sequence[str]) -> tuple[list[str], int]:
-    """(the `names` the bundle's closed-set detector cannot detect, its number of labels): what a question may
-    name that no frame can show. ([], 0) when the bundle has no detector or an open-vocabulary one (it looks
-    for any name)."""
+def undetectable_names(bundle: Any, names: Sequence[str]) -> tuple[list[str], int, dict[str, str]]:
+    """(the `names` the bundle's closed-set detector cannot detect, its number of labels, {such a name: a close
+    spelling it can detect} for typos like "chiars"): what a question may name that no frame can show. ([], 0,
+    {}) when the bundle has no detector or an open-vocabulary one (it looks for any name)."""
+    import difflib
+
     from ..bundle import load_bundle
+    from ..grounding import VOCABULARY
 
     b = load_bundle(bundle) if isinstance(bundle, (str, os.PathLike)) else bundle
     labels = b.spec("detector", verify=False).semantics.get("labels") if b.has_role("detector") else None
     if not labels:
-        return [], 0
-    return map_names(list(names), labels)[1], len({normalize_name(x) for x in labels} - {"n/a"})
+        return [], 0, {}
+    missing = map_names(list(names), labels)[1]
+    known = sorted(map_names(sorted(VOCABULARY), labels)[0])
+    close = {n: m[0] for n in missing if (m := difflib.get_close_matches(normalize_name(n), known, 1, 0.8))}
+    return missing, len({normalize_name(x) for x in labels} - {"n/a"}), close
 
 
 def one_name_per_label(mapping: dict[str, list[int]], labels: Sequence[str], preferred: Sequence[str]) -> set[str]:
