@@ -487,11 +487,14 @@ class MapReasoner:
             self._missing([name])
             cands = self._select(name, self._find(name))
         keep = [o for o in cands if any(relation_holds(o, r, rel, self.conf) for r in refs if r is not o)]
+        if where.get("negate"):  # "cups not on the table": the candidates the relation does not hold for
+            keep = [o for o in cands if not any(o is k for k in keep)]
         self._used += keep  # the evidence: the reference and what was counted, not every candidate
         rule = {"on": f"bottom within {self.conf.on_gap_m * 100:.0f} cm of its top, centre over it",
                 "near": f"closest points within {self.conf.near_m:.2f} m", "in": "centre inside its box"}[rel]
         ids = " ".join(f"#{o.id}" for o in keep)
-        return keep, cands, f"{rel} the {self._ph(where['object'])} ({rule}){': ' + ids if ids else ''}"
+        neg = "not " if where.get("negate") else ""
+        return keep, cands, f"{neg}{rel} the {self._ph(where['object'])} ({rule}){': ' + ids if ids else ''}"
 
     def _object_counting(self, pq: ParsedQuestion) -> tuple[Any, str]:
         if pq.params.get("where"):
@@ -722,6 +725,8 @@ class MapReasoner:
         map ("*"); a category with several instances counts by its extreme one (recorded as ambiguity)."""
         key, pick = SUPERLATIVES[pq.params["measure"]]
         cands, unit = pq.params["candidates"], "m3" if key == "volume" else "m"
+        if "threshold_m" in pq.params:  # "is the couch longer than 2 m?"
+            return self._size_against(pq, cands[0], key, pick)
         if cands != "*" and len(cands) == 1:  # "which chair is the tallest?": one of its instances
             inst = self._instances(cands[0])
             o = pick(inst, key=lambda x: _measure(x, key))
@@ -754,6 +759,19 @@ class MapReasoner:
             o = best[win]
             return {"text": o.name, "object": o.name, "instance": int(o.id), "value": round(vals[win], 3)}, expl
         return win, expl
+
+    def _size_against(self, pq: ParsedQuestion, name: str, key: str, pick: Any) -> tuple[Any, str]:
+        """Yes / no: the object's box measure beyond (`pick` max: above, min: below) a length; with several
+        instances the one most in that direction (said as ambiguous)."""
+        inst = self._require([name])[name]
+        o = pick(inst, key=lambda x: _measure(x, key))
+        v, thr = _measure(o, key), pq.params["threshold_m"]
+        self._choice(name, inst, o, f"the {pq.params['measure']}", {x.id: _measure(x, key) for x in inst}, "m")
+        self._used = [o]
+        yes = v > thr if pick is max else v < thr
+        return ({"text": "yes" if yes else "no", "answer": yes, "value_m": round(v, 3)},
+                f"{_MEASURE_WORDS[key]} of {self._one(name)} #{o.id}: {v:.2f} m against {pq.params['threshold_text']}"
+                f" ({thr:.2f} m)")
 
     def _size_difference(self, pq: ParsedQuestion, vals: dict[str, float], key: str) -> dict[str, Any]:
         """"How much taller (shorter) is A than B?": how far A's measure exceeds (falls short of) B's (m^3 for

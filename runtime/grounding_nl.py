@@ -285,7 +285,7 @@ _SIMPLE_INTENTS = [(name, re.compile(rx)) for name, rx in (  # tried in this ord
     ("size", rf"\bhow (?:big|large|long|tall|wide|high|deep)\b|\b(?:size|dimensions?|length|height|width|depth|"
              rf"measure|measures|measurements?|longest side|longest edge)\b|how many {_UNITS_RX}\b"),
     ("count", r"\bhow many\b|\bcount\b|\bnumber of\b|\bquantity of\b|\btotal of\b|^(?:the )?total\b"),
-    ("existence", r"^(?:is|are) there\b|\b(?:do|can|did|could) (?:you|i|we) (?:see|spot|find|notice)\b|"
+    ("existence", r"^(?:is|are|isn't|aren't) there\b|\b(?:do|can|did|could) (?:you|i|we) (?:see|spot|find|notice)\b|"
                   r"\b(?:does|do) (?:the|this|our|your) \w+(?: \w+)? (?:have|contain|include|hold)\b|\bexists?\b|"
                   r"^(?:any|got any)\b|\bis (?:a|an) [^?]{1,80}? (?:in|here)\b"))]
 
@@ -450,6 +450,13 @@ def parse_natural(question: str, options: list[str] | None = None) -> ParsedQues
         pq.how = "none"
         return pq
     handler(pq, toks, joined, nps, extra)
+    negation = _unread_negation(pq, toks)
+    if negation and pq.qtype is not None:  # never answer the question without its "not"
+        kind = intent.replace("_", " ")
+        _fail(pq, f"{'an' if kind[0] in 'aeiou' else 'a'} {kind} question", f"the negation '{negation}' (ask it without: e.g. "
+                                                            f"'is there a ...?', 'how many ... are on the ...?')")
+        pq.how = "none"
+        return pq
     pq.targets = list(dict.fromkeys(pq.targets))
     pq.cues = [c for c in dict.fromkeys(pq.cues) if c not in pq.targets]
     for sel in pq.selectors.values():  # attached objects are needed to resolve the selector
@@ -459,6 +466,26 @@ def parse_natural(question: str, options: list[str] | None = None) -> ParsedQues
     if pq.qtype is None:
         pq.how = "none"
     return pq
+
+
+_NEGATIONS = {"not", "no", "none", "never", "without", "nothing", "nobody", "neither", "nor"}
+# a negative question asks the same as the positive one ("isn't there a chair?" = "is there a chair?")
+_NEGATIVE_QUESTION = {"isn't", "aren't", "doesn't", "don't", "didn't", "wasn't", "weren't", "can't", "won't"}
+
+
+def _unread_negation(pq: ParsedQuestion, toks: list[str]) -> str | None:
+    """A negation the parse did not use ("is there no laptop?", "which chair is not near the desk?"), or None.
+    Read: "not" before a location the parse negated ("cups not on the table"); "yes or no"; "whether or not";
+    a negative question form at the start ("isn't there a chair?")."""
+    where = pq.params.get("where") if isinstance(pq.params, dict) else None
+    used = 1 if isinstance(where, dict) and where.get("negate") else 0
+    words = " ".join(toks)
+    words = re.sub(r"\byes or no\b|\bor not\b|\bnot only\b|\bno more than\b|\bnot more than\b", " ", words)
+    found = [t for t in words.split() if t in _NEGATIONS or (t.endswith("n't") and t not in _NEGATIVE_QUESTION)]
+    found += [t for t in words.split()[1:] if t in _NEGATIVE_QUESTION]  # "how many aren't ...": not a question form
+    if found.count("not") and used:
+        found.remove("not")
+    return found[0] if found else None
 
 
 def _fail(pq: ParsedQuestion, understood: str, missing: str) -> None:
@@ -571,7 +598,12 @@ def _location(pq: ParsedQuestion, toks: list[str], objs: list[dict[str, Any]], c
               ) -> dict[str, Any] | None:
     """{"relation", "object"} of a single supported location ("cups on the table"); None when it is not one."""
     rel = _relation(toks, conds[0]) if len(conds) == 1 and len(objs) <= 1 else None
-    return None if rel is None else {"relation": rel, "object": _refs(pq, conds)[0]}
+    if rel is None:
+        return None
+    where = {"relation": rel, "object": _refs(pq, conds)[0]}
+    if "not" in _before(toks, conds[0], 5)[:-1]:  # "cups not on the table": the others
+        where["negate"] = True
+    return where
 
 
 def _attached_near(pq: ParsedQuestion, joined: str, objs: list[dict[str, Any]]) -> dict[str, Any] | None:
@@ -714,6 +746,17 @@ def _size_compare(pq, toks, joined, nps, extra) -> None:
     names = _option_names(pq) or _refs(pq, nps)
     yesno = word in COMPARATIVES and "than" in toks and toks[0] in _COPULA | {"does", "do", "did"}
     diff = word in COMPARATIVES and _has(joined, r"\bhow much\b")
+    m = re.search(rf"\b{word} than (?:about |around |roughly )?(\d+(?:\.\d+)?) ?([a-z]+)", pq.question.lower())
+    if yesno and len(names) == 1 and m:  # "is the couch longer than 2 m?": against a length
+        unit = _UNIT_WORDS.get(m.group(2))
+        if unit is None or SUPERLATIVES[sup][0] == "volume":
+            return _fail(pq, f"a '{word}' question about '{pq.phrase(names[0])}' and {m.group(1)} {m.group(2)}",
+                         "a length to compare with: height, length or width in m, cm, mm, ft or in (e.g. 'is the "
+                         "sofa longer than 2 m?')")
+        pq.qtype, pq.targets = "object_size_compare", names
+        pq.params = {"measure": sup, "candidates": names, "yesno": True,
+                     "threshold_m": float(m.group(1)) * UNIT_M[unit], "threshold_text": f"{m.group(1)} {unit}"}
+        return
     if ((yesno or diff) and len(names) != 2) or (word in COMPARATIVES and len(names) < 2):
         about = f" about '{pq.phrase(names[0])}'" if names else ""
         return _fail(pq, f"a '{word}' question{about}", "the two objects to compare (e.g. 'is the tv bigger than "
@@ -757,14 +800,13 @@ def _abs_distance(pq, toks, joined, nps, extra) -> None:
 def _reference_index(toks: list[str], nps: list[dict[str, Any]]) -> int | None:
     """The phrase the distances are measured to: right after a closeness word ("nearest the tv"), or after
     "to/from" following one ("closest to the tv", "farthest away from the bed")."""
-    for k, p in enumerate(nps):
-        before = _before(toks, p, 4)
-        if not before:
-            continue
-        if before[-1] in ("to", "from") and any(re.fullmatch(_CLOSE + "|" + _FAR + r"|\baway\b|\bfar\b|\bapart\b",
-                                                             w) for w in before[:-1]):
+    befores = [_before(toks, p, 4) for p in nps]
+    for k, before in enumerate(befores):  # first: "the nearest chair to the tv" measures to the tv, not the chair
+        if before and before[-1] in ("to", "from") and any(
+                re.fullmatch(_CLOSE + "|" + _FAR + r"|\baway\b|\bfar\b|\bapart\b", w) for w in before[:-1]):
             return k
-        if re.fullmatch(_CLOSE + "|" + _FAR, before[-1]):
+    for k, before in enumerate(befores):
+        if before and re.fullmatch(_CLOSE + "|" + _FAR, before[-1]):
             return k
     if re.search(r"\b(?:closest|nearest|closer|nearer|farthest|furthest|farther|further)\b(?: \w+)? (?:to |from )?"
                  r"(?:me|myself|i am|i'm|where i am)\b", " ".join(toks)):

@@ -747,3 +747,49 @@ def test_more_wordings_people_use():
     assert "3 chairs in the map" in a.explanation
     a = ask("what is the distance between the two desks?")
     assert a.status == "unsupported" and "1 desk" in a.text
+
+
+def test_a_negation_is_applied_or_refused_never_dropped():
+    """"how many laptops are not on the desk?" answered 0 (the laptops ON it) and "is there no laptop?" "yes":
+    the "not" was dropped. A negated location now takes the other candidates; any other negation is refused."""
+    def on_desk(name):
+        (d0, d1), = boxes("desk")
+        return [c for n, c, s in ROOM if n == name and abs((c[2] - s[2] / 2) - d1[2]) < 0.05
+                and d0[0] <= c[0] <= d1[0] and d0[1] <= c[1] <= d1[1]]
+    assert on_desk("laptop") == [] and len(on_desk("telephone")) == 1
+    assert ask("how many laptops are not on the desk?").value == 1
+    assert ask("how many telephones are not on the desk?").value == 0
+    near = [gap(b, boxes("desk")[0]) <= 0.5 for b in boxes("office chair") + boxes("chair")]
+    assert ask("how many chairs are not near the desk?").value == near.count(False) == 2
+    assert ask("is the laptop not on the desk?").text == "yes"
+    for q in ("is there no laptop?", "are there no chairs?", "which chair is not near the desk?",
+              "is there nothing on the desk?"):
+        a = ask(q)
+        assert a.status == "unsupported" and "negation" in a.text, q
+    # a negative question asks the positive one; "yes or no" is no negation
+    assert ask("isn't there a laptop?").text == "yes" and ask("is there a laptop, yes or no?").text == "yes"
+
+
+def test_the_nearest_x_to_y_measures_to_y():
+    """"which is the nearest chair to the whiteboard?" answered "whiteboard #7" (the chair read as the
+    reference)."""
+    a = ask("which is the nearest chair to the whiteboard?")
+    chairs = [(i, gap(((np.array(c) - np.array(s) / 2), (np.array(c) + np.array(s) / 2)), boxes("whiteboard")[0]))
+              for i, (n, c, s) in enumerate(ROOM) if n in ("chair", "office chair")]
+    assert a.ok and a.text == f"chair #{min(chairs, key=lambda x: x[1])[0]}"
+
+
+@pytest.mark.parametrize("q, size, measure_m, yes", [
+    ("is the couch longer than 1.5 m?", ("couch", 0), 1.5, True),
+    ("is the couch longer than 2 meters?", ("couch", 0), 2.0, False),
+    ("is the desk taller than 1 m?", ("desk", 2), 1.0, False),
+    ("is the desk shorter than 80 cm?", ("desk", 2), 0.8, True),
+    ("is the whiteboard wider than 6 feet?", ("whiteboard", 0), 6 * 0.3048, True),
+])
+def test_a_size_against_a_length(q, size, measure_m, yes):
+    """"is the couch longer than 2 m?" (was refused: no second object): the box measure against the length."""
+    v = [s for n, _, s in ROOM if n == size[0]][0][size[1]]
+    assert (v > measure_m if "shorter" not in q else v < measure_m) == yes
+    a = ask(q)
+    assert a.ok and a.text == ("yes" if yes else "no") and a.value["value_m"] == pytest.approx(v)
+    assert ask("is the couch bigger than 2 m?").status == "unsupported"  # a volume against a length
