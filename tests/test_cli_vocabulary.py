@@ -154,3 +154,13 @@ def test_version_from_the_installed_command():
     r = subprocess.run([sys.executable, "-m", "mosaicthinker.runtime.cli", "--version"], capture_output=True,
                        text=True)
     assert r.returncode == 0 and r.stdout.startswith("mosaic ")
+
+
+@pytest.mark.parametrize("argv", [["ask", "map.json", "how many chairs?", "--keyframes", "0"],
+                                  ["map", "frames", "--keyframes", "-3"], ["ask", "map.json", "   "]])
+def test_a_keyframe_count_below_one_or_a_blank_question_is_bad_input(argv, capsys):
+    """--keyframes 0 silently meant the default K; a question of spaces was read as one: both exit 2, naming
+    what to give."""
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert "error:" in err and ("--keyframes must be at least 1" in err or "give SOURCE and QUESTION" in err)

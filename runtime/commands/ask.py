@@ -57,7 +57,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         from ..grounding_nl import EXAMPLES
 
         return {"schema": "mosaicthinker.ask.examples/1", "examples": EXAMPLES}
-    if not args.source or not args.question:
+    if not args.source or not args.question or not args.question.strip():
         raise InputError("ask: give SOURCE and QUESTION (`mosaic ask map.json \"How many chairs are there?\"`), "
                          "or --examples")
     from ..grounding import check_question

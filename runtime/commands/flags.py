@@ -101,6 +101,17 @@ def add_clip(p: argparse.ArgumentParser, duration: float | None, fps: float | No
                    help="frames per second" + (f" (default {fps:g})" if fps is not None else ""))
 
 
+def parse_keyframes(text: str) -> int:
+    """'16' -> 16 key frames, >= 1 (argparse type: 0 used to mean the default, silently)."""
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--keyframes: a whole number of key frames, got {text!r}") from None
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"--keyframes must be at least 1, got {text!r}")
+    return v
+
+
 def pipeline_keyframes() -> int:
     """The pipeline's key-frame budget K: the one owner of the default (`PipelineConfig.keyframes`)."""
     from ..pipeline import default_conf
@@ -114,7 +125,7 @@ def add_keyframes(p: argparse.ArgumentParser, default: int | None = None, why: s
         help_ = f"key-frame budget K (default {pipeline_keyframes()}, the pipeline's; the budget may lower it)"
     else:
         help_ = f"key-frame budget K (default {default}: {why})"
-    p.add_argument("--keyframes", type=int, default=default, metavar="K", help=help_)
+    p.add_argument("--keyframes", type=parse_keyframes, default=default, metavar="K", help=help_)
 
 
 def add_answerer(p: argparse.ArgumentParser, help_: str | None = None) -> None:
