@@ -326,7 +326,8 @@ def _intent(j: str, n_obj: int, has_opts: bool) -> str | None:
         return "size_compare"  # "how much taller is the fridge than the table?": the difference
     if not _has(j, r"\bhow\b") and (_has(j, _CMP_RX) and _has(j, r"\b(?:which|whichever|what|or|than)\b")
                                      or _has(j, _SUP_RX) and _has(j, r"^(?:which|what|what's)\b")
-                                     and not _has(j, _SUP_DIM_RX)):
+                                     and not _has(j, _SUP_DIM_RX)
+                                     and not _has(j, r"\b(?:height|length|width|size|depth|dimensions?) of\b")):
         return "size_compare"  # "which is bigger, the table or the sofa?", "what's the tallest thing here?"
     if _has(j, r"^(?:is|are|was|were) (?!there\b)") and _has(j, _VIEW_RX) and n_obj >= 2:
         return "view_direction"  # "is the chair to the left of the table?": as seen from the camera
@@ -853,6 +854,9 @@ def _rel_distance(pq, toks, joined, nps, extra) -> None:
     yesno = toks[0] in _COPULA | {"does", "do", "did"} and "than" in toks and len(names) == 3 and not pq.options
     if yesno and _has(joined, r"\bthan (?:to|from)\b"):  # "is the cup closer to the table than to the tv?"
         ref, cands = names[0], names[1:]  # distances from the cup: to the table vs to the tv
+    elif toks[0] in _COPULA and len(names) == 3 and "or" in toks and not pq.options and \
+            _before(toks, nps[1], 4)[-2:-1] and re.fullmatch(_CLOSE + "|" + _FAR, _before(toks, nps[1], 4)[-2]):
+        ref, cands = names[0], names[1:]  # "is the bin closer to the desk or the couch?": from the bin
     pq.qtype = "object_rel_distance"
     pq.targets = cands
     pq.params = {"reference": ref, "candidates": cands, "extreme": extreme, **({"yesno": True} if yesno else {})}

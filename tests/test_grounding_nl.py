@@ -793,3 +793,15 @@ def test_a_size_against_a_length(q, size, measure_m, yes):
     a = ask(q)
     assert a.ok and a.text == ("yes" if yes else "no") and a.value["value_m"] == pytest.approx(v)
     assert ask("is the couch bigger than 2 m?").status == "unsupported"  # a volume against a length
+
+
+def test_is_x_closer_to_a_or_b_measures_from_x_and_the_size_of_the_tallest_one():
+    """"is the trash can closer to the desk or the couch?" answered "trash can" (the desk read as the reference);
+    "what is the height of the tallest chair?" answered the instance, not its height."""
+    d = {n: min_gap("trash can", n) for n in ("desk", "couch")}
+    assert ask("is the trash can closer to the desk or the couch?").text == min(d, key=d.get)
+    d = {n: min_gap("laptop", n) for n in ("desk", "couch")}
+    assert ask("is the laptop farther from the desk or the couch?").text == max(d, key=d.get)
+    a = ask("what is the height of the tallest chair?")
+    tallest = max(s[2] for n, _, s in ROOM if n in ("chair", "office chair"))
+    assert a.ok and a.value == pytest.approx(tallest * 100) and a.unit == "cm"
