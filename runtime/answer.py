@@ -505,7 +505,7 @@ class MapReasoner:
             inst = {n: self._find(n) for n in pq.params["objects"]}
             self._used += [o for v in inst.values() for o in v]
             counts = {self._ph(n): len(v) for n, v in inst.items()}
-            text = ", ".join(f"{k} {n if k == 1 else plural(n)}" for n, k in counts.items())
+            text = ", ".join(f"{len(v)} {n if len(v) == 1 else plural(n)}" for n, v in inst.items())
             return {"text": text, "counts": counts}, "; ".join(f"{n}: {k} in the map" for n, k in counts.items())
         if self._sel(pq.params["object"]):
             sel = self._sel(pq.params["object"])
@@ -771,7 +771,7 @@ class MapReasoner:
         yes = v > thr if pick is max else v < thr
         return ({"text": "yes" if yes else "no", "answer": yes, "value_m": round(v, 3)},
                 f"{_MEASURE_WORDS[key]} of {self._one(name)} #{o.id}: {v:.2f} m against {pq.params['threshold_text']}"
-                f" ({thr:.2f} m)")
+                + ("" if pq.params["threshold_text"].endswith(" m") else f" ({thr:.2f} m)"))
 
     def _size_difference(self, pq: ParsedQuestion, vals: dict[str, float], key: str) -> dict[str, Any]:
         """"How much taller (shorter) is A than B?": how far A's measure exceeds (falls short of) B's (m^3 for
