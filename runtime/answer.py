@@ -589,6 +589,16 @@ class MapReasoner:
         inst = self._instances(pq.params["object"])
         dim = pq.params.get("dimension", "longest")
         unit = pq.params.get("unit", "cm")
+        if dim == "all":  # width x depth x height of the largest instance (as furniture is sold)
+            o = max(inst, key=lambda x: _measure(x, "longest"))
+            if len(inst) > 1:
+                self._choice(pq.params["object"], inst, o, "the largest",
+                             {x.id: _measure(x, "longest") / UNIT_M[unit] for x in inst}, unit)
+            self._used = [o]
+            d = {k: round(_measure(o, k) / UNIT_M[unit], 1) for k in ("width", "depth", "height")}
+            text = f"{d['width']:g} x {d['depth']:g} x {d['height']:g} {unit}"
+            return ({"text": text, **d, "unit": unit},
+                    f"box width x depth x height of {self._one(pq.params['object'])} #{o.id}: {text}")
         sizes = [_measure(o, dim) / UNIT_M[unit] for o in inst]
         i = int(np.argmax(sizes))
         self._spread = (f"per-view {'longest side' if dim == 'longest' else dim}",

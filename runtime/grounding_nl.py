@@ -287,6 +287,7 @@ _SIMPLE_INTENTS = [(name, re.compile(rx)) for name, rx in (  # tried in this ord
     ("count", r"\bhow many\b|\bcount\b|\bnumber of\b|\bquantity of\b|\btotal of\b|^(?:the )?total\b"),
     ("existence", r"^(?:is|are|isn't|aren't) there\b|\b(?:do|can|did|could) (?:you|i|we) (?:see|spot|find|notice)\b|"
                   r"\b(?:does|do) (?:the|this|our|your) \w+(?: \w+)? (?:have|contain|include|hold)\b|\bexists?\b|"
+                  r"^(?:do|does) (?:we|you|i|they|it) (?:have|got)\b|"
                   r"^(?:any|got any)\b|\bis (?:a|an) [^?]{1,80}? (?:in|here)\b"))]
 
 
@@ -721,8 +722,11 @@ def _size(pq, toks, joined, nps, extra) -> None:
     n = _single(pq, nps, "size question", "object_size_estimation")
     if n is None:
         return
-    if _has(joined, r"\b(?:longest|biggest|largest|maximum|max|greatest)\b(?: \w+)? (?:side|dimension|edge|extent|"
-                    r"length)|\bsize\b|\bhow (?:big|large)\b|\bdimensions?\b"):
+    if (_has(joined, r"\bdimensions\b|\bmeasurements\b|\bhow (?:long|wide|tall|high|deep) and (?:wide|long|tall|high|"
+                     r"deep)\b") and not _has(joined, _SUP_RX + r"|\b(?:maximum|max|greatest)\b")):
+        dim = "all"  # "what are the dimensions of the desk?": width x depth x height
+    elif _has(joined, r"\b(?:longest|biggest|largest|maximum|max|greatest)\b(?: \w+)? (?:side|dimension|edge|extent|"
+                      r"length)|\bsize\b|\bhow (?:big|large)\b|\bdimensions?\b"):
         dim = "longest"
     elif _has(joined, r"\bhow (?:tall|high)\b|\bheight\b|\btall\b"):
         dim = "height"

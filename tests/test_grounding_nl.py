@@ -805,3 +805,14 @@ def test_is_x_closer_to_a_or_b_measures_from_x_and_the_size_of_the_tallest_one()
     a = ask("what is the height of the tallest chair?")
     tallest = max(s[2] for n, _, s in ROOM if n in ("chair", "office chair"))
     assert a.ok and a.value == pytest.approx(tallest * 100) and a.unit == "cm"
+
+
+def test_the_dimensions_of_an_object_and_do_we_have():
+    """"what are the dimensions of the desk?" gave its longest side only; "do we have a whiteboard?" was not
+    understood."""
+    w, d, h = [s for n, _, s in ROOM if n == "desk"][0]
+    for q in ("What are the dimensions of the desk?", "how long and wide is the desk?"):
+        a = ask(q)
+        assert a.ok and a.text == f"{max(w, d) * 100:g} x {min(w, d) * 100:g} x {h * 100:g} cm", q
+    assert ask("what is the longest dimension of the desk?").value == pytest.approx(max(w, d, h) * 100)
+    assert ask("Do we have a whiteboard?").text == "yes"
