@@ -455,8 +455,8 @@ def parse_natural(question: str, options: list[str] | None = None) -> ParsedQues
     negation = _unread_negation(pq, toks)
     if negation and pq.qtype is not None:  # never answer the question without its "not"
         kind = intent.replace("_", " ")
-        _fail(pq, f"{'an' if kind[0] in 'aeiou' else 'a'} {kind} question", f"the negation '{negation}' (ask it without: e.g. "
-                                                            f"'is there a ...?', 'how many ... are on the ...?')")
+        _fail(pq, f"{'an' if kind[0] in 'aeiou' else 'a'} {kind} question",
+              f"the negation '{negation}' (ask it without: e.g. 'is there a ...?', 'how many ... are on the ...?')")
         pq.how = "none"
         return pq
     pq.targets = list(dict.fromkeys(pq.targets))
@@ -480,12 +480,11 @@ def _unread_negation(pq: ParsedQuestion, toks: list[str]) -> str | None:
     Read: "not" before a location the parse negated ("cups not on the table"); "yes or no"; "whether or not";
     a negative question form at the start ("isn't there a chair?")."""
     where = pq.params.get("where") if isinstance(pq.params, dict) else None
-    used = 1 if isinstance(where, dict) and where.get("negate") else 0
-    words = " ".join(toks)
-    words = re.sub(r"\byes or no\b|\bor not\b|\bnot only\b|\bno more than\b|\bnot more than\b", " ", words)
-    found = [t for t in words.split() if t in _NEGATIONS or (t.endswith("n't") and t not in _NEGATIVE_QUESTION)]
-    found += [t for t in words.split()[1:] if t in _NEGATIVE_QUESTION]  # "how many aren't ...": not a question form
-    if found.count("not") and used:
+    words = re.sub(r"\byes or no\b|\bor not\b|\bnot only\b|\bno more than\b|\bnot more than\b", " ",
+                   " ".join(toks)).split()
+    found = [t for t in words if t in _NEGATIONS or (t.endswith("n't") and t not in _NEGATIVE_QUESTION)]
+    found += [t for t in words[1:] if t in _NEGATIVE_QUESTION]  # "how many aren't ...": not a question form
+    if "not" in found and isinstance(where, dict) and where.get("negate"):
         found.remove("not")
     return found[0] if found else None
 
@@ -859,7 +858,7 @@ def _rel_distance(pq, toks, joined, nps, extra) -> None:
     if yesno and _has(joined, r"\bthan (?:to|from)\b"):  # "is the cup closer to the table than to the tv?"
         ref, cands = names[0], names[1:]  # distances from the cup: to the table vs to the tv
     elif toks[0] in _COPULA and len(names) == 3 and "or" in toks and not pq.options and \
-            _before(toks, nps[1], 4)[-2:-1] and re.fullmatch(_CLOSE + "|" + _FAR, _before(toks, nps[1], 4)[-2]):
+            re.fullmatch(_CLOSE + "|" + _FAR, (_before(toks, nps[1], 4)[-2:-1] or [""])[0]):
         ref, cands = names[0], names[1:]  # "is the bin closer to the desk or the couch?": from the bin
     pq.qtype = "object_rel_distance"
     pq.targets = cands

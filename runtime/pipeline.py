@@ -988,7 +988,7 @@ def ask(source: Any, question: str, options: list[str] | None = None, *, percept
         ans = answer_question(smap, question, options, answerer, vlm, vp, trace, pq)
         if ans.status == "not_found":  # missing because the detector could not look for them: say so
             und = {n for e in trace.events if e["kind"] == "undetectable" for n in e.get("names", [])}
-            if [n for n in ans.missing if n in und]:
-                ans = cannot_detect(pq, [n for n in ans.missing if n in und])
+            if cannot_see := [n for n in ans.missing if n in und]:
+                ans = cannot_detect(pq, cannot_see)
     trace.decide("answer", {k: v for k, v in ans.to_dict().items() if k != "parsed"})
     return AskResult(ans, smap, trace, vp, build, pq, "mosaic")

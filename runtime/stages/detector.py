@@ -82,12 +82,21 @@ def detectable_names(bundle: Any, preferred: Sequence[str] = ()) -> list[str]:
     b = load_bundle(bundle) if isinstance(bundle, (str, os.PathLike)) else bundle
     if not b.has_role("detector"):
         raise InputError(f"{b.root}: the bundle has no `detector` role")
-    labels = b.spec("detector", verify=False).semantics.get("labels")
+    labels = closed_labels(b)
     if not labels:
         raise InputError("the bundle's detector is open-vocabulary: name the objects (`mosaic map --objects "
                          "a,b,c`, or a question that names them)")
     mapping, _ = map_names(sorted(VOCABULARY), labels)
     return sorted(one_name_per_label(mapping, labels, list(preferred)))
+
+
+def closed_labels(bundle: Any) -> list[str] | None:
+    """The label list of the bundle's closed-set detector; None without a detector or with an open-vocabulary
+    one. bundle: a bundle folder or a loaded `Bundle`."""
+    from ..bundle import load_bundle
+
+    b = load_bundle(bundle) if isinstance(bundle, (str, os.PathLike)) else bundle
+    return (b.spec("detector", verify=False).semantics.get("labels") or None) if b.has_role("detector") else None
 
 
 def undetectable_names(bundle: Any, names: Sequence[str]) -> tuple[list[str], int, dict[str, str]]:
@@ -96,11 +105,9 @@ def undetectable_names(bundle: Any, names: Sequence[str]) -> tuple[list[str], in
     {}) when the bundle has no detector or an open-vocabulary one (it looks for any name)."""
     import difflib
 
-    from ..bundle import load_bundle
     from ..grounding import VOCABULARY
 
-    b = load_bundle(bundle) if isinstance(bundle, (str, os.PathLike)) else bundle
-    labels = b.spec("detector", verify=False).semantics.get("labels") if b.has_role("detector") else None
+    labels = closed_labels(bundle)
     if not labels:
         return [], 0, {}
     missing = map_names(list(names), labels)[1]
