@@ -246,10 +246,12 @@ class OnlineDedup:
         self.sampled.append(self._pos)
         return True
 
-    def push(self, index: int, g: np.ndarray, bgr: np.ndarray | None = None) -> bool:
-        """The sampled frame's gray image [h, w] uint8 (width <= work_width) -> True when it is kept. `bgr`: the
-        colour frame [H, W, 3] uint8 (BGR, as the frame source gives RGB after its own conversion), for the kept
-        frame's colour histogram (`DedupConf.histograms`)."""
+    def push(self, index: int, g: np.ndarray | None, bgr: np.ndarray | None = None) -> bool:
+        """The sampled frame's gray image [h, w] uint8 (width <= work_width; None: made here from `bgr`) -> True
+        when it is kept. `bgr`: the colour frame [H, W, 3] uint8 (BGR, as the frame source gives RGB after its
+        own conversion), for the kept frame's colour histogram (`DedupConf.histograms`)."""
+        if g is None:
+            g = small_gray(bgr, self.conf.work_width, bgr=True)
         kept = self._push(index, g)
         if kept and bgr is not None and self.conf.histograms:
             self.histograms[index] = bgr_histogram(bgr)
@@ -322,7 +324,7 @@ class BackgroundDedup:
     def wants(self, t: float) -> bool:
         return self.od.wants(t)
 
-    def push(self, index: int, g: np.ndarray, bgr: np.ndarray | None = None) -> None:
+    def push(self, index: int, g: np.ndarray | None, bgr: np.ndarray | None = None) -> None:
         if self._error is not None:
             raise self._error
         self._q.put((index, g, bgr))

@@ -741,7 +741,8 @@ class VideoSource(FrameSource):
                         od.finish()
                         od = None
                     else:
-                        od.push(len(ts) - 1, _small_gray_bgr(bgr, od.conf.work_width), bgr)
+                        # the gray copy is made by the removal's worker: this thread is the scan's bottleneck
+                        od.push(len(ts) - 1, None, bgr)
         finally:
             od = od.finish() if od is not None else None
         cap.release()

@@ -119,13 +119,15 @@ def test_background_scan_gives_the_serial_result_and_raises_the_workers_error(re
     for p, t in enumerate(src.timestamps[:120]):
         want = serial.wants(float(t))
         assert background.wants(float(t)) == want
-        if want:
-            g = small_gray(src.colour(p).rgb, serial.conf.work_width)
-            serial.push(p, g)
-            background.push(p, g)
+        if want:  # the scan hands the worker the colour frame only: its gray copy is made there
+            bgr = np.ascontiguousarray(src.colour(p).rgb[:, :, ::-1])
+            serial.push(p, small_gray(bgr, serial.conf.work_width, bgr=True), bgr)
+            background.push(p, None, bgr)
     a, b = serial.result(120, int), background.finish().result(120, int)
     b_conf_w = DedupConf().thumb_width
     assert a.kept == b.kept and a.dropped == b.dropped and a.scores == b.scores and len(a.kept) > 5
+    assert set(a.histograms) == set(a.kept) and all(np.array_equal(a.histograms[i], b.histograms[i]) for i in a.kept)
+    assert all(np.array_equal(a.thumbs[i], b.thumbs[i]) for i in a.kept)
     assert set(b.thumbs) == set(b.kept) and all(g.shape[1] == b_conf_w for g in b.thumbs.values())
     bad = BackgroundDedup(OnlineDedup())
     bad.wants(0.0)
