@@ -182,15 +182,35 @@ _MEASURE_WORDS = {"volume": "box volume", "height": "height", "top": "top height
                   "width": "width"}
 
 
-def relation_holds(a: ObjectInstance, b: ObjectInstance, relation: str, conf: ReasonerConfig) -> bool:
-    """Whether instance a is `relation` ("on", "near", "in") instance b, from their boxes (z up)."""
+def relation_holds(a: ObjectInstance, b: ObjectInstance, relation: str, conf: ReasonerConfig,
+                   c: ObjectInstance | None = None) -> bool:
+    """Whether instance a is `relation` ("on", "near", "in", "under", "above"; "between" b and c) instance b,
+    from their boxes (z up)."""
     if relation == "near":
         return box_distance(a.box, b.box) <= conf.near_m
     if relation == "in":
         return bool(b.box.contains(a.center[None])[0])
+    if relation == "between":
+        return c is not None and _between(a, b, c)
     bottom = float(a.box.corners()[:, 2].min())
-    over = b.box.contains(np.array([[a.center[0], a.center[1], b.center[2]]]))[0]  # above b's footprint
+    over = b.box.contains(np.array([[a.center[0], a.center[1], b.center[2]]]))[0]  # within b's footprint
+    if relation == "under":  # centre within b's footprint and below b's top ("the bin under the desk")
+        return bool(over) and float(a.center[2]) < _measure(b, "top") - conf.on_gap_m
+    if relation == "above":  # over b's footprint, bottom at or above b's top ("the lamp above the table")
+        return bool(over) and bottom >= _measure(b, "top") - conf.on_gap_m
     return bool(over) and abs(bottom - _measure(b, "top")) <= conf.on_gap_m
+
+
+def _between(a: ObjectInstance, b: ObjectInstance, c: ObjectInstance) -> bool:
+    """a's centre inside the top-view convex hull of b's and c's footprints, and in neither footprint."""
+    import cv2
+
+    pts = np.concatenate([b.box.corners()[:, :2], c.box.corners()[:, :2]]).astype(np.float32)
+    hull = cv2.convexHull(pts)
+    p = (float(a.center[0]), float(a.center[1]))
+    inside = cv2.pointPolygonTest(hull, p, False) >= 0
+    own = any(o.box.contains(np.array([[p[0], p[1], o.center[2]]]))[0] for o in (b, c))
+    return bool(inside) and not own
 
 
 
@@ -480,21 +500,30 @@ class MapReasoner:
         an instance of `where["object"]`, the candidates, the rule in words)."""
         refs = self._instances(where["object"])
         rel = where["relation"]
+        pairs = [(r, None) for r in refs]
+        if rel == "between":  # "between the desk and the couch": any instance of each
+            pairs = [(r, q) for r in refs for q in self._instances(where["object2"]) if q is not r]
         if name == "*":
-            own = {id(o) for o in self._find(where["object"])}
+            own = {id(o) for k in ("object", "object2") if where.get(k) for o in self._find(where[k])}
             cands = [o for o in self.map.instances if id(o) not in own]
         else:
             self._missing([name])
             cands = self._select(name, self._find(name))
-        keep = [o for o in cands if any(relation_holds(o, r, rel, self.conf) for r in refs if r is not o)]
+        keep = [o for o in cands if any(relation_holds(o, r, rel, self.conf, q) for r, q in pairs
+                                        if r is not o and q is not o)]
         if where.get("negate"):  # "cups not on the table": the candidates the relation does not hold for
             keep = [o for o in cands if not any(o is k for k in keep)]
         self._used += keep  # the evidence: the reference and what was counted, not every candidate
         rule = {"on": f"bottom within {self.conf.on_gap_m * 100:.0f} cm of its top, centre over it",
-                "near": f"closest points within {self.conf.near_m:.2f} m", "in": "centre inside its box"}[rel]
+                "near": f"closest points within {self.conf.near_m:.2f} m", "in": "centre inside its box",
+                "under": "centre within its footprint, below its top",
+                "above": "over its footprint, bottom at or above its top",
+                "between": "centre inside the top-view hull of their footprints"}[rel]
         ids = " ".join(f"#{o.id}" for o in keep)
         neg = "not " if where.get("negate") else ""
-        return keep, cands, f"{neg}{rel} the {self._ph(where['object'])} ({rule}){': ' + ids if ids else ''}"
+        ref = f"the {self._ph(where['object'])}" + (f" and the {self._ph(where['object2'])}" if rel == "between"
+                                                    else "")
+        return keep, cands, f"{neg}{rel} {ref} ({rule}){': ' + ids if ids else ''}"
 
     def _object_counting(self, pq: ParsedQuestion) -> tuple[Any, str]:
         if pq.params.get("where"):
@@ -599,14 +628,30 @@ class MapReasoner:
             text = f"{d['width']:g} x {d['depth']:g} x {d['height']:g} {unit}"
             return ({"text": text, **d, "unit": unit},
                     f"box width x depth x height of {self._one(pq.params['object'])} #{o.id}: {text}")
-        sizes = [_measure(o, dim) / UNIT_M[unit] for o in inst]
+        if dim == "elevation":
+            return self._elevation(pq, inst, unit)
+        scale = 1.0 if dim == "volume" else UNIT_M[unit]  # volume: m^3
+        sizes = [_measure(o, dim) / scale for o in inst]
         i = int(np.argmax(sizes))
         self._spread = (f"per-view {'longest side' if dim == 'longest' else dim}",
-                        ev.size_values(inst[i], lambda o: _measure(o, dim), UNIT_M[unit]), unit)
+                        ev.size_values(inst[i], lambda o: _measure(o, dim), scale), unit)
         note = "" if len(inst) == 1 else f" (largest of {len(inst)} instances)"
         self._choice(pq.params["object"], inst, inst[i], "the largest", {o.id: v for o, v in zip(inst, sizes)}, unit)
         what = "longest box dimension" if dim == "longest" else f"box {dim}"
-        return sizes[i], f"{what} of {self._one(pq.params['object'])} #{inst[i].id}: {sizes[i]:.1f} {unit}{note}"
+        shown = f"{sizes[i]:.2f} m^3" if dim == "volume" else f"{sizes[i]:.1f} {unit}"
+        return sizes[i], f"{what} of {self._one(pq.params['object'])} #{inst[i].id}: {shown}{note}"
+
+    def _elevation(self, pq: ParsedQuestion, inst: list[ObjectInstance], unit: str) -> tuple[Any, str]:
+        """"How high above the floor is the lamp?": its box bottom over the map's floor (the room's floor height,
+        else the lowest box bottom); several instances: the highest, the others listed."""
+        floor, source = self.map.floor_z()
+        lift = {o.id: (float(o.box.corners()[:, 2].min()) - floor) / UNIT_M[unit] for o in inst}
+        o = max(inst, key=lambda x: lift[x.id])
+        self._choice(pq.params["object"], inst, o, "the highest", lift, unit)
+        self._used = [o]
+        d = {"m": 2, "ft": 2, "in": 1}.get(unit, 0)
+        return round(lift[o.id], 2), (f"bottom of {self._one(pq.params['object'])} #{o.id} above the floor "
+                                      f"({source}): {lift[o.id]:.{d}f} {unit}")
 
     def _room_size_estimation(self, pq: ParsedQuestion) -> tuple[Any, str]:
         area = self.map.room_area()
@@ -851,7 +896,10 @@ class MapReasoner:
         if len(asked) == 1:
             hit = asked[0] in (d["quadrant"], d["front_back"]) or (asked[0] == d["side"] and
                                                                  d["words"] not in ("straight ahead", "behind"))
-            d["text"] = ("yes" if hit else "no") + f" ({d['words']})"
+            shown = d["words"]
+            if asked[0] in ("front", "back") and shown in ("to the left", "to the right"):  # 67-113 deg: say the
+                shown = f"{'ahead' if d['front_back'] == 'front' else 'behind'} and {shown}"  # half it is in
+            d["text"] = ("yes" if hit else "no") + f" ({shown})"
             d["asked"], d["answer"] = asked[0], hit
         else:
             d["text"] = d["words"]
@@ -908,7 +956,14 @@ class MapReasoner:
         o = inst[0]
         own = {id(x) for x in inst}
         near = sorted(((box_distance(o.box, x.box), x) for v in self._idx.values() for x in v if id(x) not in own),
-                      key=lambda t: t[0])[:self.conf.n_landmarks]
+                      key=lambda t: t[0])
+        ref = pq.params.get("relative_to")
+        if ref:  # "where is X relative to Y?": Y's nearest instance first, then the nearest other object
+            refs = {id(x) for x in self._instances(ref)} - own
+            if not refs:
+                raise _Unsupported(f"'{self._ph(name)}' relative to itself")
+            near = [next(t for t in near if id(t[1]) in refs)] + [t for t in near if id(t[1]) not in refs]
+        near = near[:self.conf.n_landmarks]
         marks = [{"object": x.name, "instance": int(x.id), "distance_m": round(float(d), 3)} for d, x in near]
         value: dict[str, Any] = {"object": o.name, "instance": int(o.id), "n_instances": len(inst),
                                  "centre": np.round(o.center, 3).tolist(), "landmarks": marks}
@@ -939,11 +994,32 @@ class MapReasoner:
                 and (key == "front_back" or where[id(o)]["words"] not in ("straight ahead", "behind"))]
         return inst, f"{words} the last camera view (where the video ended)"
 
+    def _on_side_of(self, position: str, facing: str, side: str) -> tuple[list[ObjectInstance], str]:
+        """Every other object on that side of someone standing at `position` facing `facing` (box centres, the
+        same readings as a direction question: left / right exclude straight ahead and behind)."""
+        A, na = self._pick_unique(position, [o.center for o in self._instances(facing)])
+        B, nb = self._pick_unique(facing, [A.center])
+        f = B.center[:2] - A.center[:2]
+        if np.linalg.norm(f) < 1e-9:
+            raise _Unsupported(f"standing by {self._ph(position)} and facing {self._ph(facing)}: same position")
+        key = "front_back" if side in ("front", "back") else "side"
+        inst = []
+        for o in self.map.instances:
+            if o is A or o is B:
+                continue
+            d = describe_direction(signed_angle_deg(f, o.center[:2] - A.center[:2]), self.conf.back_deg)
+            if d[key] == side and (key == "front_back" or d["words"] not in ("straight ahead", "behind")):
+                inst.append(o)
+        words = {"left": "to the left of", "right": "to the right of", "front": "in front of", "back": "behind"}[side]
+        return inst, f"{words} someone at the {self._ph(position)} facing the {self._ph(facing)}{na}{nb}"
+
     def _object_list(self, pq: ParsedQuestion) -> tuple[Any, str]:
         names = pq.params.get("objects") or []
         how = ""
         if pq.params.get("from_viewer"):  # "what is to my left?"
             inst, how = self._on_my_side(pq.params["from_viewer"])
+        elif pq.params.get("from_stance"):  # "standing at the desk facing the door, what is on my left?"
+            inst, how = self._on_side_of(**pq.params["from_stance"])
         elif pq.params.get("where"):  # "what's on the table?": every object there
             inst, _, how = self._located("*", pq.params["where"])
         elif names:

@@ -67,7 +67,7 @@ VOCABULARY: dict[str, tuple[str, ...]] = {
     "oven": ("oven",),
     "microwave": ("microwave", "microwave oven"),
     "trash bin": ("trash bin", "trash can", "garbage bin", "garbage can", "waste bin", "wastebasket",
-                  "waste basket", "dustbin", "rubbish bin", "trashcan"),
+                  "waste basket", "dustbin", "rubbish bin", "trashcan", "bin", "recycling bin", "litter bin"),
     "heater": ("heater", "space heater"),
     "laptop": ("laptop", "notebook computer", "laptop computer"),
     "picture": ("picture", "painting", "photo", "photograph"),

@@ -14,9 +14,12 @@ units and free-text options of an English question, in one pass over its tokens 
   open vocabulary: the map's own category names resolve them, `answer.MapReasoner`);
 - selectors that pick one instance: size superlatives ("the biggest table"), "the X nearest/closest to/next to
   the Y"; colours, materials and ordinals cannot be resolved from a map and are reported as such;
-- locations in counts and is-there questions: on (top of), near / next to / by / beside, in ("how many cups are on
-  the table?", "is there a laptop on the desk?"; params["where"], `answer.relation_holds`); others (behind,
-  under, between ...) are refused, never dropped;
+- locations in counts, lists and is-there questions: on (top of), near / next to / by / beside, in, under /
+  below / beneath, above / over, between A and B ("how many cups are on the table?", "what's under the desk?";
+  params["where"], `answer.relation_holds`); others (behind, against, along ...) are refused, never dropped;
+- heights above the floor ("how high above the floor is the shelf?": dimension "elevation") and box volumes;
+  a count of an object's parts ("how many legs does the chair have?") and several questions of different kinds
+  in one text are refused with the reason;
 - a pronoun after a location ("the chairs next to it", "on top of it") is the one object named before it, read as
   that phrase ("the chairs next to the desk"); with none or several such objects the question is refused;
 - units: "in cm / meters / mm / feet / inches" (params["unit"]); options in free text ("..., the lamp, the sofa
@@ -54,6 +57,7 @@ many much more most less least number count total quantity amount fewer fewest c
 big bigger biggest large larger largest small smaller smallest tall taller tallest short shorter shortest long
 longer longest wide wider widest narrow narrower narrowest high higher highest low lower lowest deep size sizes dimension dimensions length
 width height depth measure measures measured measuring measurement measurements area footprint square
+volume elevation hung installed fixed relative relation respect regard
 point points object objects thing things item items stuff furniture piece pieces kind kinds type types
 please thanks roughly approximately approx around exactly just only really actually about estimate guess
 first second third fourth fifth last order appear appears appeared appearance came come comes seen
@@ -77,7 +81,7 @@ _SOFT_BEFORE_NOUN = {"side", "end", "top", "back", "front", "corner", "coffee", 
                      "long", "high", "low", "light", "square", "first", "second"}
 _SCENE = {"room", "rooms", "kitchen", "bedroom", "bathroom", "living", "dining", "space", "scene", "video", "house",
           "apartment", "flat", "office", "place", "area", "home", "floor", "hall", "hallway", "corridor", "here",
-          "interior", "map", "image", "picture"}
+          "interior", "map", "image", "picture", "ground"}
 # a part of the room as a location ("in the middle of the room", "in the corner"): no object of that name
 _ROOM_REGION_RX = (r"\b(?:in|at|into|near|by|from|to|toward|towards) the (?:middle|center|centre|corner|corners)"
                    r"(?: of (?:the |this |my )?(?:" + "|".join(sorted(_SCENE)) + r"))?"
@@ -282,7 +286,7 @@ _SIMPLE_INTENTS = [(name, re.compile(rx)) for name, rx in (  # tried in this ord
     ("room_size", rf"\bhow (?:big|large) is (?:the |this |our )?{_ROOMS}\b|floor (?:area|space|size)|square "
                   rf"(?:meters?|metres?|feet)|\bsq\b|(?:size|area|footprint) of (?:the |this )?{_ROOMS}\b|"
                   rf"\b{_ROOMS} 's (?:floor )?(?:size|area|footprint)\b"),
-    ("size", rf"\bhow (?:big|large|long|tall|wide|high|deep)\b|\b(?:size|dimensions?|length|height|width|depth|"
+    ("size", rf"\bhow (?:big|large|long|tall|wide|high|deep)\b|\b(?:size|dimensions?|length|height|width|depth|volume|"
              rf"measure|measures|measurements?|longest side|longest edge)\b|how many {_UNITS_RX}\b"),
     ("count", r"\bhow many\b|\bcount\b|\bnumber of\b|\bquantity of\b|\btotal of\b|^(?:the )?total\b"),
     ("existence", r"^(?:is|are|isn't|aren't) there\b|\b(?:do|can|did|could) (?:you|i|we) (?:see|spot|find|notice)\b|"
@@ -296,8 +300,16 @@ _COUNT_CMP_RX = (r"\b(?:number|count|amount|quantity) of \w+(?: \w+)? (?:is |are
                  r"smaller|lower)\b")
 
 
+# "how high above the floor is the lamp?", "how far off the ground is the shelf?": the bottom's height over the floor
+_ELEVATION_RX = (r"\bhow (?:high|far)\b[^?]{0,60}? (?:above|off|from|over) the (?:floor|ground)\b|\b(?:height|elevation) "
+                 r"(?:above|off|from) the (?:floor|ground)\b|\bhow high up\b|\bat what height\b|\belevation\b|"
+                 r"\bhow high (?:is|are) [^?]{1,60}? (?:mounted|hung|hanging|placed|fixed|installed)\b")
+
+
 def _intent(j: str, n_obj: int, has_opts: bool) -> str | None:
     """The intent from cue words (order matters: the more specific first)."""
+    if _has(j, _ELEVATION_RX):
+        return "size"
     stance = _has(j, r"\b(?:facing|face|faces|looking at|look at|looking towards?|look towards?|turned towards?|"
                      r"looking in the direction of)\b")
     if _has(j, r"\b(?:appear|appears|appeared|appearance|show up|showed up|came into view)\b|"
@@ -307,8 +319,8 @@ def _intent(j: str, n_obj: int, has_opts: bool) -> str | None:
     if stance and _has(j, r"\b(?:standing|stand|stood|sitting|sit|i am|i'm|im|i was|you are|from|at|by|next to|"
                           r"beside|near|positioned|located)\b"):
         return "direction"
-    if _has(j, r"\b(?:distance|how far|far apart|far away|how close|gap (?:between|from)|separat\w*|how much (?:space|room|"
-               r"gap)|how many (?:m|meters?|"
+    if _has(j, r"\b(?:distance|how far|far apart|far away|far from|how close|gap (?:between|from)|separat\w*|"
+               r"how much (?:space|room|gap)|how many (?:m|meters?|"
                r"metres?|cm|centimet\w+|feet|foot|ft|inch(?:es)?|mm)\b.*\b(?:between|from|apart|away|to)\b)"):
         if _has(j, _CLOSE + "|" + _FAR) and _has(j, r"\b(?:which|whichever|or|than)\b"):
             return "rel_distance"
@@ -323,7 +335,8 @@ def _intent(j: str, n_obj: int, has_opts: bool) -> str | None:
         return "count_compare"  # "are there more chairs than cups?", "which are there fewer of, cups or chairs?"
     if _has(j, _COUNT_CMP_RX) and _has(j, r"\b(?:than|or)\b") and n_obj >= 2:
         return "count_compare"  # "is the number of chairs greater than the number of cups?"
-    if _has(j, rf"\bhow much {_CMP} (?:is|are|was|were)\b") and _has(j, r"\bthan\b"):
+    if _has(j, rf"\bhow much {_CMP} (?:is|are|was|were)\b|\bby how much (?:is|are|was|were)\b.*{_CMP_RX}|"
+               rf"\bhow much (?:is|are|was|were)\b.*{_CMP_RX}") and _has(j, r"\bthan\b"):
         return "size_compare"  # "how much taller is the fridge than the table?": the difference
     if not _has(j, r"\bhow\b") and (_has(j, _CMP_RX) and _has(j, r"\b(?:which|whichever|what|or|than)\b")
                                      or _has(j, _SUP_RX) and _has(j, r"^(?:which|what|what's)\b")
@@ -334,8 +347,8 @@ def _intent(j: str, n_obj: int, has_opts: bool) -> str | None:
         return "view_direction"  # "is the chair to the left of the table?": as seen from the camera
     if _has(j, r"^(?:is|are|was|were) (?!there\b)") and _has(j, rf"\b{_LOCATED}\b") and n_obj >= 2:
         return "relation"  # "is the cup on the table?": an is-there question with a location
-    if _has(j, _WHAT_AT_RX):
-        return "list"  # "what's on the table?", "what is near the door?"
+    if _has(j, _WHAT_AT_RX) or _has(j, r"^(?:what|which \w+) (?:do|can|did|could) (?:you|i|we) (?:see|spot|notice)\b"):
+        return "list"  # "what's on the table?", "what is near the door?", "what do you see?"
     for intent, rx in _SIMPLE_INTENTS:
         if rx.search(j) and not (intent == "existence" and _has(j, r"^(?:where|where's)\b")):
             return intent  # "where can I find the bin?" asks where, not whether
@@ -427,6 +440,11 @@ def parse_natural(question: str, options: list[str] | None = None) -> ParsedQues
                                             f"other objects or to you, not to parts of the room)")
         pq.how = "none"
         return pq
+    several = _several_questions(joined, bool(options))
+    if several:  # "how many chairs and how far is the sofa?": never one answer for two questions
+        _fail(pq, f"several questions in one ({several})", "which one to answer: ask them one at a time")
+        pq.how = "none"
+        return pq
     nps_all = [p for p in noun_phrases(toks) if not p["scene"]]
     intent = _intent(joined, len(nps_all), bool(options))
     if intent is None:
@@ -468,6 +486,17 @@ def parse_natural(question: str, options: list[str] | None = None) -> ParsedQues
     if pq.qtype is None:
         pq.how = "none"
     return pq
+
+
+def _several_questions(joined: str, has_opts: bool) -> str | None:
+    """The kinds of question asked when a text asks several of different kinds ("how many chairs? where is the
+    sofa?", "how many chairs and how far is the sofa?"), else None (one question, or several counts)."""
+    kinds = []
+    for c in re.split(r"\?|\band (?=(?:how|what|what's|where|where's|which)\b)", joined):
+        n = len([p for p in noun_phrases(c.split()) if not p["scene"]])
+        k = _intent(c.strip(), n, has_opts) if n else None  # "..., how many exactly?" names nothing: a follow-up
+        kinds += [k] if k else []
+    return " and ".join(dict.fromkeys(k.replace("_", " ") for k in kinds)) if len(set(kinds)) > 1 else None
 
 
 _NEGATIONS = {"not", "no", "none", "never", "without", "nothing", "nobody", "neither", "nor"}
@@ -517,7 +546,10 @@ _VIEW_RX = r"\b(?:(?:to|on|at) the (?:left|right)(?: hand side| side)? of|left o
 _VIEW_WORDS = {"left": "left", "right": "right", "front": "front", "behind": "back"}
 # location words the map reasoner can apply to a count or an is-there question (`answer.relation_holds`)
 _RELATION_WORDS = {"on": "on", "atop": "on", "onto": "on", "upon": "on", "near": "near", "by": "near",
-                   "beside": "near", "around": "near", "in": "in", "inside": "in", "within": "in"}
+                   "beside": "near", "around": "near", "in": "in", "inside": "in", "within": "in",
+                   "under": "under", "below": "under", "beneath": "under", "underneath": "under",
+                   "above": "above", "over": "above", "between": "between"}
+_TESTED = "on, near, in, under and above one object, or between two"  # the relations, in words
 # any location word, as a regex alternation for the intents: tested by the map, or refused naming it
 _LOCATED = "(?:" + "|".join(sorted(_LOCATION | set(_RELATION_WORDS))) + ")"
 _WHAT_AT_RX = rf"^(?:what|what's|which (?:objects|things|items))(?: is| are| was| were|'s)? (?:there )?{_LOCATED}\b"
@@ -591,20 +623,30 @@ def _conditions(toks: list[str], nps: list[dict[str, Any]], every: bool = False
             continue  # "on top of the desk": part of the location words, not an object
         b = _before(toks, p, 1)
         located = bool(b) and (b[-1] in _LOCATION or _relation(toks, p) is not None)
+        if conds and b == ["and"] and _relation(toks, conds[-1]) == "between":
+            located = True  # "between the desk and the couch": both phrases are the location
         (conds if (objs or every) and located else objs).append(p)
     return objs, conds
 
 
 def _location(pq: ParsedQuestion, toks: list[str], objs: list[dict[str, Any]], conds: list[dict[str, Any]]
               ) -> dict[str, Any] | None:
-    """{"relation", "object"} of a single supported location ("cups on the table"); None when it is not one."""
-    rel = _relation(toks, conds[0]) if len(conds) == 1 and len(objs) <= 1 else None
-    if rel is None:
+    """{"relation", "object"} of a single supported location ("cups on the table"; "between" also names
+    "object2"); None when it is not one."""
+    two = len(conds) == 2 and _relation(toks, conds[0]) == "between"
+    rel = _relation(toks, conds[0]) if (len(conds) == 1 or two) and len(objs) <= 1 else None
+    if rel is None or (rel == "between") != two:
         return None
-    where = {"relation": rel, "object": _refs(pq, conds)[0]}
+    refs = _refs(pq, conds)
+    where = {"relation": rel, "object": refs[0], **({"object2": refs[1]} if two else {})}
     if "not" in _before(toks, conds[0], 5)[:-1]:  # "cups not on the table": the others
         where["negate"] = True
     return where
+
+
+def where_objects(where: dict[str, Any]) -> list[str]:
+    """The reference objects of a location: one, or two for "between"."""
+    return [where[k] for k in ("object", "object2") if where.get(k)]
 
 
 def _attached_near(pq: ParsedQuestion, joined: str, objs: list[dict[str, Any]]) -> dict[str, Any] | None:
@@ -617,7 +659,16 @@ def _attached_near(pq: ParsedQuestion, joined: str, objs: list[dict[str, Any]]) 
     return {"relation": "near", "object": ref}
 
 
+# "how many legs does the chair have?": parts of an object, which the map does not hold
+_PARTS_RX = re.compile(r"^how many ([a-z' -]+?) (?:does|do|did) (?:the|this|that|a|an|each|every|your|my|our) "
+                       r"([a-z' -]+?) (?:have|has|got)\b")
+
+
 def _count(pq, toks, joined, nps, extra) -> None:
+    m = _PARTS_RX.search(joined)
+    if m and not set(m.group(2).split()) & _SCENE:  # "how many chairs does the kitchen have?" is a count
+        return _fail(pq, f"a count of the {m.group(1)} of the {m.group(2)}", "parts of an object: the map holds "
+                                                                          "whole objects, not their parts")
     every = _has(joined, r"\b(?:objects|things|items|pieces of furniture)\b")
     if not nps and every:
         pq.qtype, pq.params = "object_counting", {"object": "*"}  # every object in the map
@@ -626,7 +677,7 @@ def _count(pq, toks, joined, nps, extra) -> None:
     where = _location(pq, toks, objs, conds) if conds else _attached_near(pq, joined, objs)
     if where is not None:  # "how many cups are on the table?", "how many things are near the door?"
         target = _refs(pq, objs)[0] if objs else "*"
-        pq.qtype, pq.targets, pq.cues = "object_counting", [target] if objs else [], [where["object"]]
+        pq.qtype, pq.targets, pq.cues = "object_counting", [target] if objs else [], where_objects(where)
         pq.params = {"object": target, "where": where}
         return
     if len(objs) > 1 and conds:  # "how many chairs are on the desk and the couch?": never drop the location
@@ -700,7 +751,7 @@ def _existence(pq, toks, joined, nps, extra) -> None:
         objs[0] = {**objs[0], "words": objs[0]["words"][1:]}  # "two chairs": the object is "chairs"
     if rel is not None:  # "is there a cup on the table?"
         names = _refs(pq, objs) if objs else ["*"]
-        pq.qtype, pq.targets, pq.cues = "object_existence", names, [rel["object"]]
+        pq.qtype, pq.targets, pq.cues = "object_existence", names, where_objects(rel)
         pq.params = {"objects": names, "all": False, "where": rel, **({"count": count} if count else {})}
         return
     if conds:
@@ -708,8 +759,8 @@ def _existence(pq, toks, joined, nps, extra) -> None:
         about = ", ".join(f"'{' '.join(p['words'])}'" for p in objs) or "anything"
         ask = (f"'is there a {' '.join(objs[0]['words'])} on the ...?' or 'where is the "
                f"{' '.join(objs[0]['words'])}?'") if objs else f"'what is on / near the {' '.join(conds[0]['words'])}?'"
-        return _fail(pq, f"an is-there question about {about}", f"the location ('{where}'): the map tests on, near "
-                                                                f"and in; ask {ask}")
+        return _fail(pq, f"an is-there question about {about}", f"the location ('{where}'): the map tests {_TESTED}; "
+                                                                f"ask {ask}")
     names = _refs(pq, objs)
     pq.qtype = "object_existence"
     pq.targets, pq.params = names, {"objects": names, "all": " and " in f" {joined} "}
@@ -721,7 +772,11 @@ def _size(pq, toks, joined, nps, extra) -> None:
     n = _single(pq, nps, "size question", "object_size_estimation")
     if n is None:
         return
-    if (_has(joined, r"\bdimensions\b|\bmeasurements\b|\bhow (?:long|wide|tall|high|deep) and (?:wide|long|tall|high|"
+    if _has(joined, _ELEVATION_RX):
+        dim = "elevation"  # "how high above the floor is the lamp?": its bottom over the floor
+    elif _has(joined, r"\bvolume\b"):
+        dim = "volume"
+    elif (_has(joined, r"\bdimensions\b|\bmeasurements\b|\bhow (?:long|wide|tall|high|deep) and (?:wide|long|tall|high|"
                      r"deep)\b") and not _has(joined, _SUP_RX + r"|\b(?:maximum|max|greatest)\b")):
         dim = "all"  # "what are the dimensions of the desk?": width x depth x height
     elif _has(joined, r"\b(?:longest|biggest|largest|maximum|max|greatest)\b(?: \w+)? (?:side|dimension|edge|extent|"
@@ -738,7 +793,8 @@ def _size(pq, toks, joined, nps, extra) -> None:
     else:
         dim = "longest"
     pq.targets = [n]
-    pq.params = {"object": n, "dimension": dim, "unit": _unit(joined, "cm")}
+    pq.params = {"object": n, "dimension": dim, "unit": "m3" if dim == "volume" else
+                 _unit(joined, "m" if dim == "elevation" else "cm")}
 
 
 def _size_compare(pq, toks, joined, nps, extra) -> None:
@@ -894,6 +950,11 @@ def _direction(pq, toks, joined, nps, extra) -> None:
     pos, face, rel = _stance(toks, nps)
     names = _refs(pq, nps)
     rest = [k for k in range(len(nps)) if k not in (pos, face, rel)]
+    side = _my_side(joined)
+    if pos is not None and face is not None and not rest and side and _has(joined, r"\b(?:what|what's|which)\b"):
+        pq.qtype, pq.cues = "object_list", [names[pos], names[face]]  # "..., what is on my left?": every object
+        pq.params = {"objects": [], "from_stance": {"position": names[pos], "facing": names[face], "side": side}}
+        return
     if pos is None or face is None or not rest:
         have = {"where I stand": pos, "what I face": face, "the object asked about": rest[0] if rest else None}
         got = [f"{k} = '{pq.phrase(names[v])}'" for k, v in have.items() if v is not None]
@@ -930,6 +991,14 @@ def _direction(pq, toks, joined, nps, extra) -> None:
 
 
 def _where(pq, toks, joined, nps, extra) -> None:
+    """"Where is the printer?"; "where is the printer relative to / in relation to the desk?" (params
+    relative_to: that object first among the landmarks)."""
+    if len(nps) == 2 and _before(toks, nps[1], 2) in (["relative", "to"], ["relation", "to"], ["respect", "to"],
+                                                      ["regard", "to"], ["compared", "to"]):
+        names = _refs(pq, nps)
+        pq.qtype, pq.targets, pq.cues = "object_where", names[:1], names[1:]
+        pq.params = {"object": names[0], "relative_to": names[1]}
+        return
     n = _single(pq, nps, "where-is question", "object_where")
     if n is not None:
         pq.targets, pq.params = [n], {"object": n}
@@ -948,9 +1017,8 @@ def _list(pq, toks, joined, nps, extra) -> None:
             where = _location(pq, toks, objs, conds) if not objs else None
             if where is None:  # "under the desk", "between the desk and the couch"
                 words = " ".join(_before(toks, conds[0], 1) + conds[0]["words"])
-                return _fail(pq, "a what-is-there question", f"the location '{words}' (the map tests on, near "
-                                                             f"and in, at one object)")
-            pq.qtype, pq.cues = "object_list", [where["object"]]
+                return _fail(pq, "a what-is-there question", f"the location '{words}' (the map tests {_TESTED})")
+            pq.qtype, pq.cues = "object_list", where_objects(where)
             pq.params = {"objects": [], "where": where}
             return
     names = _refs(pq, nps)

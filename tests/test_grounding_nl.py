@@ -432,11 +432,9 @@ def test_is_a_on_b_what_is_on_b_and_anything_on_b():
     assert ask("are the chairs near the desk?").text == ("yes" if near else "no")
     far = ask("is the whiteboard near the couch?")
     assert far.text == ("yes" if min_gap("whiteboard", "couch") <= 0.5 else "no") == "no"
-    assert ask("what is under the desk?").status == "unsupported"  # a location the map does not test, said
-    for q in ("is there anything under the desk?", "is there something behind the couch?", "is there a phone under "
-                                                                                             "the desk?"):
+    for q in ("is there something behind the couch?", "is there something against the wall?"):
         a = ask(q)  # an IndexError (exit 1) before
-        assert a.status == "unsupported" and "on, near and in" in a.explanation, q
+        assert a.status == "unsupported" and "on, near, in, under" in a.explanation, q
     assert ask("is the tv on the piano?").status == "not_found"
     assert parse_question("what's in the room?").params == {"objects": []}  # a room is not a location to test
     assert parse_question("which things are near the couch?").qtype == "object_list"
@@ -604,10 +602,10 @@ def test_how_much_shorter_is_how_far_a_falls_short():
 
 def test_what_is_at_two_places_is_refused_not_listed():
     """"What is on the desk and the couch?" listed the desks and couches; one place is what the map tests."""
-    for q in ("what is on the desk and the couch?", "what is between the desk and the couch?",
-              "what is under the desk and the chair?"):
+    for q in ("what is on the desk and the couch?", "what is under the desk and the chair?",
+              "what is between the desk?"):
         a = ask(q)
-        assert a.status == "unsupported" and "at one object" in a.explanation, (q, a.text)
+        assert a.status == "unsupported" and "one object, or between two" in a.explanation, (q, a.text)
     assert ask("what's on the desk?").ok
 
 
@@ -816,3 +814,74 @@ def test_the_dimensions_of_an_object_and_do_we_have():
         assert a.ok and a.text == f"{max(w, d) * 100:g} x {min(w, d) * 100:g} x {h * 100:g} cm", q
     assert ask("what is the longest dimension of the desk?").value == pytest.approx(max(w, d, h) * 100)
     assert ask("Do we have a whiteboard?").text == "yes"
+
+
+def _footprint_has(name: str, ref: str) -> bool:
+    """The test room's own geometry (axis-aligned boxes): name's centre inside ref's floor footprint."""
+    (c, _), (rc, rs) = [(np.array(c), np.array(sz)) for n, c, sz in ROOM if n == name][0], \
+        [(np.array(c), np.array(sz)) for n, c, sz in ROOM if n == ref][0]
+    return bool(np.all(np.abs(c[:2] - rc[:2]) <= rs[:2] / 2))
+
+
+def test_under_above_and_between_are_tested_not_refused():
+    """"What is under the desk?", "is there anything above the desk?", "what's between the couch and the desk?"
+    were refused; they are now relations of the map (centres against footprints and tops)."""
+    top = {n: c[2] + s[2] / 2 for n, c, s in ROOM}
+    under = {n for n, c, _ in ROOM if n != "desk" and _footprint_has(n, "desk") and c[2] < top["desk"] - 0.15}
+    assert under == {"power strip"}
+    a = ask("what is under the desk?")
+    assert a.ok and {o["object"] for o in a.value["instances"]} == under
+    assert ask("is the power strip beneath the desk?").text == "yes"
+    assert ask("is there a phone under the desk?").text == "no"  # the telephone is on it
+    assert ask("how many things are below the desk?").value == len(under)
+    above = {n for n, c, s in ROOM if n != "desk" and _footprint_has(n, "desk") and c[2] - s[2] / 2 >= top["desk"] - 0.15}
+    assert ask("is there anything above the desk?").text == ("yes" if above else "no")
+    assert ask("is the ceiling light above the desk?").text == ("yes" if "ceiling light" in above else "no")
+    # between: the trash can (-0.9, -0.2) lies in the strip joining the desk and the couch; the whiteboard does not
+    assert ask("is the trash can between the desk and the couch?").text == "yes"
+    assert ask("is the whiteboard between the desk and the couch?").text == "no"
+    got = ask("what's between the couch and the desk?")
+    assert got.ok and "trash can" in {o["object"] for o in got.value["instances"]}
+    assert not {"couch", "desk"} & {o["object"] for o in got.value["instances"]}
+    assert ask("what's between the desk and the piano?").status == "not_found"
+
+
+def test_heights_above_the_floor_volumes_and_differences_in_other_words():
+    """"How high above the floor is the ceiling light?" answered its box height (10 cm); "what's the volume of
+    the couch?" and "by how much is the desk taller than the trash can?" were not understood."""
+    light = [(c, s) for n, c, s in ROOM if n == "ceiling light"][0]
+    floor = min(c[2] - s[2] / 2 for _, c, s in ROOM)
+    for q in ("how high above the floor is the ceiling light?", "how far is the ceiling light from the floor?",
+              "How high off the ground is the ceiling light?", "at what height is the ceiling light mounted?"):
+        a = ask(q)
+        assert a.ok and a.value == pytest.approx(light[0][2] - light[1][2] / 2 - floor), (q, a.explanation)
+    assert ask("what is the elevation of the ceiling light in cm?").text == "255"
+    assert ask("how high is the desk?").value == pytest.approx(76.0)  # furniture: its height, as before
+    v = ask("what's the volume of the couch?")
+    assert v.ok and v.value == pytest.approx(2.0 * 0.9 * 0.8)
+    d = ask("by how much is the desk taller than the trash can?")
+    assert d.ok and d.text == "36 cm"
+    assert ask("is the couch far from the desk?").value == pytest.approx(min_gap("couch", "desk"), abs=1e-3)
+
+
+def test_a_stance_lists_a_side_and_front_back_answers_say_which_half():
+    a = ask("from the desk facing the radiator, what's on my left?")
+    left = {n for n, c, _ in ROOM if n not in ("desk", "radiator") and 0 < ccw_deg("desk", "radiator", n) < 180
+            and abs(ccw_deg("desk", "radiator", n)) > 22.5 and abs(ccw_deg("desk", "radiator", n)) < 157.5}
+    assert a.ok and {o["object"] for o in a.value["instances"]} == left
+    b = ask("facing the whiteboard from the desk, is the laptop behind me?")
+    assert abs(ccw_deg("desk", "whiteboard", "laptop")) > 90 and b.text == "yes (behind and to the right)"
+    w = ask("where is the whiteboard relative to the desk?")
+    assert w.ok and w.text.startswith(f"the whiteboard is {min_gap('whiteboard', 'desk'):.1f} m from the desk")
+
+
+def test_parts_and_several_questions_are_refused_and_bins_are_trash_cans():
+    for q in ("how many legs does the chair have?", "how many drawers does the desk have?"):
+        a = ask(q)
+        assert a.status == "unsupported" and "parts" in a.explanation, q
+    assert ask("how many chairs does the room have?").value == 3
+    for q in ("how many chairs and how far is the couch?", "how many chairs? where is the couch?"):
+        a = ask(q)
+        assert a.status == "unsupported" and "one at a time" in a.explanation, q
+    assert ask("How many chairs? How many desks?").text == "3 chairs, 1 desk"
+    assert ask("is there a bin?").text == "yes" and ask("what do you see?").ok
