@@ -43,7 +43,7 @@ from .geometry import box_distance, point_box_distance
 from .grounding import (ParsedQuestion, canonical_name, name_key, parse_question, plural, safe_text,
                         split_options)
 from .grounding_nl import COMPARATIVES, SUPERLATIVES
-from .semantic_map import ObjectInstance, SemanticMap
+from .semantic_map import ObjectInstance, SemanticMap, room_from_boxes
 from .trace import as_trace
 
 NUMERIC_QTYPES = ("object_counting", "object_size_estimation", "room_size_estimation", "object_abs_distance")
@@ -658,9 +658,35 @@ class MapReasoner:
         if area is None:
             raise _Unsupported("the map has no room extent and no objects")
         src = self.map.room.source if self.map.room is not None else "object_boxes_hull"
-        if pq.params.get("unit") == "ft2":
+        if pq.params.get("dimension"):
+            return self._room_sides(pq, src)
+        unit = pq.params.get("unit", "m2")
+        if unit == "ft2":
             area = area / 0.3048 ** 2
-        return area, f"floor area of the map's room extent ({src}): {area:.2f} {pq.params.get('unit', 'm2')}"
+        expl = f"floor area of the map's room extent ({src}): {area:.2f} {unit}"
+        than = pq.params.get("than")
+        if than:  # "is the room bigger than 20 square meters?"
+            yes = area > than["value"] if than["op"] == ">" else area < than["value"]
+            return {"text": f"{'yes' if yes else 'no'} ({area:.1f} {unit})", "answer": yes, "area": round(area, 2),
+                    "unit": unit}, f"{expl} (asked: {than['op']} {than['value']:g} {unit})"
+        return area, expl
+
+    def _room_sides(self, pq: ParsedQuestion, src: str) -> tuple[Any, str]:
+        """"How long / wide is the room?": the sides of the smallest rectangle around the room's floor outline
+        (length the longer)."""
+        import cv2
+
+        room = self.map.room if self.map.room is not None else room_from_boxes([o.box for o in self.map.instances])
+        (_, _), (w, h), _ = cv2.minAreaRect(np.asarray(room.polygon, np.float32))
+        unit = pq.params.get("unit", "m")
+        length, width = max(w, h) / UNIT_M[unit], min(w, h) / UNIT_M[unit]
+        dim = pq.params["dimension"]
+        how = f"sides of the smallest rectangle around the map's room extent ({src})"
+        if dim == "all":
+            text = f"{length:.1f} x {width:.1f} {unit}"
+            return {"text": text, "length": round(length, 2), "width": round(width, 2), "unit": unit}, f"{how}: {text}"
+        v = length if dim == "length" else width
+        return {"text": f"{v:.1f} {unit}", dim: round(v, 2), "unit": unit}, f"{how}: {length:.2f} x {width:.2f} {unit}"
 
     def _camera_distance(self, pq: ParsedQuestion) -> tuple[Any, str]:
         """"How far am I from the tv?": the last camera's centre to the object's box (closest point; the nearest
@@ -692,7 +718,14 @@ class MapReasoner:
         for n, own, other, used in ((a, inst[a], inst[b], x), (b, inst[b], inst[a], y)):
             self._choice(n, own, used, "the nearest", {o.id: self._min_distance([o], other)[0] / UNIT_M[unit]
                                                        for o in own if [p for p in other if p is not o]}, unit)
-        return v, f"closest points of {self._one(a)} #{x.id} and {self._one(b)} #{y.id}: {v:.3f} {unit}"
+        expl = f"closest points of {self._one(a)} #{x.id} and {self._one(b)} #{y.id}: {v:.3f} {unit}"
+        cond = pq.params.get("within")
+        if cond:  # "is the sofa within 2 m of the tv?": yes or no, the distance said
+            t = cond["threshold_m"]
+            yes = {"<": d < t, "<=": d <= t, ">": d > t, ">=": d >= t}[cond["op"]]
+            return ({"text": f"{'yes' if yes else 'no'} ({v:.{2 if unit in ('m', 'ft') else 0}f} {unit})",
+                     "answer": yes, "distance": round(v, 3), "unit": unit}, f"{expl} (asked: {cond['text']})")
+        return v, expl
 
     def _pair_distance(self, name: str, inst: list[ObjectInstance], unit: str) -> tuple[Any, str]:
         """"The distance between the two chairs": two instances of one name; with more, the nearest two (said
@@ -758,6 +791,7 @@ class MapReasoner:
         rinst = self._instances(ref)
         own = {id(o) for o in self._find(ref)}
         dist: dict[str, tuple[float, ObjectInstance]] = {}
+        own |= {id(o) for n in pq.params.get("exclude", []) for o in self._find(n)}  # "..., apart from the bin"
         for key, inst in self._idx.items():
             others = [o for o in inst if id(o) not in own]
             if others:

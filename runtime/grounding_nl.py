@@ -57,7 +57,7 @@ many much more most less least number count total quantity amount fewer fewest c
 big bigger biggest large larger largest small smaller smallest tall taller tallest short shorter shortest long
 longer longest wide wider widest narrow narrower narrowest high higher highest low lower lowest deep size sizes dimension dimensions length
 width height depth measure measures measured measuring measurement measurements area footprint square
-volume elevation hung installed fixed relative relation respect regard
+volume elevation hung installed fixed relative relation respect regard half counting excluding including
 point points object objects thing things item items stuff furniture piece pieces kind kinds type types
 please thanks roughly approximately approx around exactly just only really actually about estimate guess
 first second third fourth fifth last order appear appears appeared appearance came come comes seen
@@ -283,7 +283,9 @@ _WHICH = r"\b(?:which|whichever|what|what's|or|than)\b"  # a choice is asked (el
 _ROOMS = r"(?:room|space|kitchen|bedroom|bathroom|apartment|flat|office|house|living room|area|whole space)"
 _UNITS_RX = r"(?:cm|centimet\w+|mm|millimet\w+|m|meters?|metres?|feet|foot|ft|inch(?:es)?)"
 _SIMPLE_INTENTS = [(name, re.compile(rx)) for name, rx in (  # tried in this order, after the choice questions
-    ("room_size", rf"\bhow (?:big|large) is (?:the |this |our )?{_ROOMS}\b|floor (?:area|space|size)|square "
+    ("room_size", rf"\bhow (?:big|large|long|wide) is (?:the |this |our )?{_ROOMS}\b|\b(?:length|width|dimensions?|"
+                  rf"measurements?) of (?:the |this |our )?{_ROOMS}\b|^(?:is|are) (?:the |this |our )?{_ROOMS} "
+                  rf"(?:bigger|larger|smaller) than [\d.]+|floor (?:area|space|size)|square "
                   rf"(?:meters?|metres?|feet)|\bsq\b|(?:size|area|footprint) of (?:the |this )?{_ROOMS}\b|"
                   rf"\b{_ROOMS} 's (?:floor )?(?:size|area|footprint)\b"),
     ("size", rf"\bhow (?:big|large|long|tall|wide|high|deep)\b|\b(?:size|dimensions?|length|height|width|depth|volume|"
@@ -306,10 +308,36 @@ _ELEVATION_RX = (r"\bhow (?:high|far)\b[^?]{0,60}? (?:above|off|from|over) the (
                  r"\bhow high (?:is|are) [^?]{1,60}? (?:mounted|hung|hanging|placed|fixed|installed)\b")
 
 
+# "is the sofa within 2 m of the tv?", "is the bin more than half a metre from the desk?": a distance against a length
+_DIST_OPS = {"within": "<=", "less than": "<", "closer than": "<", "nearer than": "<", "under": "<", "at most": "<=",
+             "no more than": "<=", "more than": ">", "further than": ">", "farther than": ">", "over": ">",
+             "at least": ">=", "no less than": ">="}
+_DIST_CMP_RX = (r"\b(" + "|".join(sorted(_DIST_OPS, key=len, reverse=True)) + r") (?:about |around |roughly )?"
+                r"(\d+(?:\.\d+)?|half an?|an?|one|two|three|four|five|six|seven|eight|nine|ten) ?" + r"(cm|centimet\w+|mm|"
+                r"millimet\w+|m|meters?|metres?|feet|foot|ft|inch(?:es)?)\b (?:away )?(?:of|from|to)\b")
+
+
+def _distance_condition(text: str) -> dict[str, Any] | None:
+    """{"op", "threshold_m", "text"} of "within 2 m of" / "more than half a metre from" in the raw question text
+    (decimals intact), else None."""
+    m = re.search(_DIST_CMP_RX, text.lower())
+    if m is None:
+        return None
+    n = m.group(2)
+    v = float(n) if n[0].isdigit() else 0.5 if n.startswith("half") else 1.0 if n in ("a", "an") else \
+        float(_NUMBERS[n])
+    unit = _UNIT_WORDS.get(m.group(3)) or _unit(m.group(3), "m")
+    return {"op": _DIST_OPS[m.group(1)], "threshold_m": v * UNIT_M[unit], "text": f"{m.group(1)} {n} {m.group(3)}"}
+
+
 def _intent(j: str, n_obj: int, has_opts: bool) -> str | None:
     """The intent from cue words (order matters: the more specific first)."""
     if _has(j, _ELEVATION_RX):
         return "size"
+    if _has(j, rf"^(?:is|are) (?:the |this |our )?{_ROOMS} (?:bigger|larger|smaller) than (?:about |around )?\d"):
+        return "room_size"  # "is the room bigger than 20 square meters?": its floor area against a number
+    if _has(j, r"^(?:is|are|was|were)\b") and _has(j.replace(" . ", "."), _DIST_CMP_RX):
+        return "abs_distance"  # "is the sofa within 2 m of the tv?": yes or no, with the distance
     stance = _has(j, r"\b(?:facing|face|faces|looking at|look at|looking towards?|look towards?|turned towards?|"
                      r"looking in the direction of)\b")
     if _has(j, r"\b(?:appear|appears|appeared|appearance|show up|showed up|came into view)\b|"
@@ -469,7 +497,19 @@ def parse_natural(question: str, options: list[str] | None = None) -> ParsedQues
                                                             f"or one object at a time)")
         pq.how = "none"
         return pq
+    cut = re.search(_EXCEPT_RX, joined)
+    exclude = [p for p in nps if cut and p["start"] >= len(joined[:cut.start()].split())]
+    if exclude:  # "which object is closest to the sofa, apart from the bin?": those objects leave the candidates
+        nps = [p for p in nps if p not in exclude]
     handler(pq, toks, joined, nps, extra)
+    if exclude and pq.qtype is not None:
+        if pq.qtype != "object_nearest":  # never answered as if the exception had not been said
+            _fail(pq, f"{'an' if intent[0] in 'aeiou' else 'a'} {intent.replace('_', ' ')} question",
+                  f"the exception '{cut.group(0)} {' '.join(exclude[0]['words'])}' (only 'what is nearest to X, "
+                  f"apart from Y?' takes one)")
+            pq.how = "none"
+            return pq
+        pq.params["exclude"] = _refs(pq, exclude)
     negation = _unread_negation(pq, toks)
     if negation and pq.qtype is not None:  # never answer the question without its "not"
         kind = intent.replace("_", " ")
@@ -486,6 +526,9 @@ def parse_natural(question: str, options: list[str] | None = None) -> ParsedQues
     if pq.qtype is None:
         pq.how = "none"
     return pq
+
+
+_EXCEPT_RX = r"\b(?:apart from|aside from|except(?: for)?|other than|besides|excluding|not counting|but not)\b"
 
 
 def _several_questions(joined: str, has_opts: bool) -> str | None:
@@ -552,7 +595,8 @@ _RELATION_WORDS = {"on": "on", "atop": "on", "onto": "on", "upon": "on", "near":
 _TESTED = "on, near, in, under and above one object, or between two"  # the relations, in words
 # any location word, as a regex alternation for the intents: tested by the map, or refused naming it
 _LOCATED = "(?:" + "|".join(sorted(_LOCATION | set(_RELATION_WORDS))) + ")"
-_WHAT_AT_RX = rf"^(?:what|what's|which (?:objects|things|items))(?: is| are| was| were|'s)? (?:there )?{_LOCATED}\b"
+_WHAT_AT_RX = (rf"^(?:what|what's|which (?:objects|things|items))(?: is| are| was| were|'s)? (?:there )?(?:sitting |"
+               rf"lying |standing |placed |kept |stored |located |hanging |resting )?{_LOCATED}\b")
 
 
 # a pronoun after a location ("the chairs next to it") stands for an object named earlier: resolved or refused
@@ -831,9 +875,19 @@ def _size_compare(pq, toks, joined, nps, extra) -> None:
 
 
 def _room_size(pq, toks, joined, nps, extra) -> None:
+    """Floor area; "how long / wide is the room?", "the room's dimensions" (params dimension: the sides of the
+    extent's smallest enclosing rectangle); "is the room bigger than 20 square meters?" (params than_m2)."""
     pq.qtype = "room_size_estimation"
     unit = "ft2" if _has(joined, r"square (?:feet|foot)|sq ?ft") else "m2"
     pq.params = {"unit": unit}
+    dim = re.search(r"\bhow (long|wide) is\b|\b(length|width|dimensions?|measurements?) of\b", joined)
+    if dim:
+        word = dim.group(1) or dim.group(2)
+        pq.params = {"dimension": {"long": "length", "wide": "width"}.get(word, word if word in ("length", "width")
+                                                                           else "all"), "unit": _unit(joined, "m")}
+    m = re.search(r"\b(bigger|larger|smaller) than (?:about |around )?(\d+(?:\.\d+)?)", pq.question.lower())
+    if m and toks[0] in _COPULA:
+        pq.params["than"] = {"op": "<" if m.group(1) == "smaller" else ">", "value": float(m.group(2))}
 
 
 def _abs_distance(pq, toks, joined, nps, extra) -> None:
@@ -855,6 +909,9 @@ def _abs_distance(pq, toks, joined, nps, extra) -> None:
     pq.qtype = "object_abs_distance"
     pq.targets = names
     pq.params = {"a": names[0], "b": names[1], "unit": _unit(joined, "m")}
+    cond = _distance_condition(pq.question)
+    if cond is not None and toks[0] in _COPULA:  # "is the sofa within 2 m of the tv?": yes or no
+        pq.params["within"] = cond
 
 
 def _reference_index(toks: list[str], nps: list[dict[str, Any]]) -> int | None:
@@ -940,8 +997,10 @@ def _stance(toks: list[str], nps: list[dict[str, Any]]) -> tuple[int | None, int
                                                                      "side"):
             rel = k
             continue
-        if pos is None and (last in ("by", "at", "beside", "near", "from") or two in ("next to", "close to",
-                                                                                    "front of", "from where")):
+        seated = last in ("on", "in") and len(b) >= 2 and b[-2] in ("sitting", "sit", "sat", "lying", "standing",
+                                                                    "seated")  # "sitting on the couch"
+        if pos is None and (last in ("by", "at", "beside", "near", "from") or seated or
+                            two in ("next to", "close to", "front of", "from where")):
             pos = k
     return pos, face, rel
 

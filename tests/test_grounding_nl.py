@@ -885,3 +885,48 @@ def test_parts_and_several_questions_are_refused_and_bins_are_trash_cans():
         assert a.status == "unsupported" and "one at a time" in a.explanation, q
     assert ask("How many chairs? How many desks?").text == "3 chairs, 1 desk"
     assert ask("is there a bin?").text == "yes" and ask("what do you see?").ok
+
+
+def test_distances_against_a_length_are_yes_or_no_with_the_distance():
+    """"Is the couch within 1 meter of the desk?" answered "yes" because both objects exist; "is the desk more
+    than 2 meters from the whiteboard?" was not understood."""
+    g = min_gap("couch", "desk")
+    for q, limit, within in (("is the couch within 1 meter of the desk?", 1.0, True),
+                             ("is the couch within 1.5 m of the desk?", 1.5, True),
+                             ("is the couch closer than 50 cm to the desk?", 0.5, True),
+                             ("is the couch more than 2 meters from the desk?", 2.0, False),
+                             ("is the couch at least 3 feet away from the desk?", 3 * 0.3048, False)):
+        a = ask(q)
+        assert a.ok and a.value["answer"] == ((g <= limit) if within else (g >= limit)), (q, a.explanation)
+        assert a.text.startswith("yes" if a.value["answer"] else "no")
+    t = ask("is the trash can less than half a meter from the desk?")
+    assert t.value["answer"] == (min_gap("trash can", "desk") < 0.5)
+
+
+def test_exceptions_are_applied_or_refused():
+    """"Which object is closest to the couch, apart from the trash can?" answered the trash can."""
+    a = ask("which object is closest to the couch, apart from the trash can?")
+    others = {n: min_gap(n, "couch") for n, _, _ in ROOM if n not in ("couch", "trash can")}
+    assert a.ok and a.value["object"] == min(others, key=others.get) and a.value["object"] != "trash can"
+    b = ask("how many chairs are there, not counting the office chairs?")
+    assert b.status == "unsupported" and "not counting" in b.explanation
+
+
+def test_room_sides_and_the_room_against_an_area():
+    import cv2
+
+    from mosaicthinker.runtime.semantic_map import room_from_boxes
+
+    smap = room_map()
+    poly = room_from_boxes([o.box for o in smap.instances]).polygon
+    (_, _), (w, h), _ = cv2.minAreaRect(np.asarray(poly, np.float32))
+    assert ask("how long is the room?").value["length"] == pytest.approx(max(w, h), abs=0.01)
+    assert ask("how wide is this room?").value["width"] == pytest.approx(min(w, h), abs=0.01)
+    assert ask("what are the dimensions of the room?").text == f"{max(w, h):.1f} x {min(w, h):.1f} m"
+    area = smap.room_area()
+    assert ask("is the room bigger than 20 square meters?").value["answer"] == (area > 20)
+    assert ask("is the room smaller than 20 square meters?").value["answer"] == (area < 20)
+    assert ask("is the room larger than 300 square feet?").value["answer"] == (area / 0.3048 ** 2 > 300)
+    s = ask("if I'm sitting on the couch facing the whiteboard, where's the desk?")
+    assert s.ok and s.value["side"] == ("left" if ccw_deg("couch", "whiteboard", "desk") > 0 else "right")
+    assert ask("what's sitting on the desk?").ok
