@@ -1064,7 +1064,7 @@ class MapReasoner:
         if not pq.params.get("where"):  # the evidence: what was listed (`_located` records its own)
             self._used += inst
         counts = dict(Counter(o.name for o in inst))  # in order of first appearance, as the JSON lists them
-        text = ", ".join(f"{c} {n}" for n, c in sorted(counts.items())) or "nothing"
+        text = ", ".join(f"{c} {n if c == 1 else plural(n)}" for n, c in sorted(counts.items())) or "nothing"
         value = {"text": text, "counts": counts,
                  "instances": [{"object": o.name, "instance": int(o.id), "centre": np.round(o.center, 3).tolist()}
                                for o in inst]}

@@ -885,6 +885,7 @@ def test_parts_and_several_questions_are_refused_and_bins_are_trash_cans():
         assert a.status == "unsupported" and "one at a time" in a.explanation, q
     assert ask("How many chairs? How many desks?").text == "3 chairs, 1 desk"
     assert ask("is there a bin?").text == "yes" and ask("what do you see?").ok
+    assert "2 office chairs" in ask("list all objects").text  # plural counts read as English
 
 
 def test_distances_against_a_length_are_yes_or_no_with_the_distance():
