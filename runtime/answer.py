@@ -699,10 +699,18 @@ class MapReasoner:
         inst = self._instances(a)
         dist = {o.id: point_box_distance(cam, o.box) for o in inst}
         o = min(inst, key=lambda x: dist[x.id])
-        self._choice(a, inst, o, "the nearest to the camera", {i: d / UNIT_M[unit] for i, d in dist.items()}, unit)
+        far = pq.params.get("which") == "farthest"
+        if far:
+            o = max(inst, key=lambda x: dist[x.id])
+        self._choice(a, inst, o, f"the {'farthest from' if far else 'nearest to'} the camera",
+                     {i: d / UNIT_M[unit] for i, d in dist.items()}, unit)
         v = dist[o.id] / UNIT_M[unit]
-        return v, f"from the last camera position (where the video ended) to the closest point of {self._ph(a)} " \
-                  f"#{o.id}: {v:.3f} {unit}"
+        expl = (f"from the last camera position (where the video ended) to the closest point of {self._ph(a)} "
+                f"#{o.id}: {v:.3f} {unit}")
+        if pq.params.get("which"):  # "what's the closest chair to me?": that chair, and how far
+            return {"text": f"{self._ph(a)} #{o.id}, {v:.1f} {unit} away", "object": o.name, "instance": int(o.id),
+                    "distance": round(v, 3), "unit": unit}, expl
+        return v, expl
 
     def _object_abs_distance(self, pq: ParsedQuestion) -> tuple[Any, str]:
         if pq.params.get("from") == "camera":
@@ -741,6 +749,8 @@ class MapReasoner:
         return v, f"closest points of {name} #{x.id} and #{y.id}: {v:.3f} {unit}"
 
     def _object_rel_distance(self, pq: ParsedQuestion) -> tuple[Any, str]:
+        if pq.params.get("from") == "camera":
+            return self._viewer_rel_distance(pq)
         ref, cands = pq.params["reference"], pq.params["candidates"]
         inst = self._require([ref] + cands)
         if len(cands) == 1 and cands[0] != ref and not pq.options and not pq.params.get("yesno"):
@@ -766,6 +776,19 @@ class MapReasoner:
             return {"text": "yes" if yes else "no", "object": pick, "distances_m": {
                 self._ph(c): round(d, 3) for c, d in dists.items()}}, expl
         return pick, expl
+
+    def _viewer_rel_distance(self, pq: ParsedQuestion) -> tuple[Any, str]:
+        """"Am I closer to the desk or the sofa?": the candidates' distances from the last camera (where the video
+        ended; the nearest instance of each)."""
+        if not self.map.cameras:
+            raise _Unsupported("'closer to me' needs a viewpoint: this map has no camera track; ask which object is "
+                               "closer to another object")
+        cam = np.asarray(self.map.cameras[-1][1], float)[:3, 3]
+        inst = self._require(pq.params["candidates"])
+        dists = {c: min(point_box_distance(cam, o.box) for o in v) for c, v in inst.items()}
+        pick = (max if pq.params.get("extreme") == "farthest" else min)(dists, key=dists.get)
+        return pick, "from the last camera position (where the video ended): " + ", ".join(
+            f"{self._ph(c)} {d:.2f} m" for c, d in dists.items())
 
     def _which_instance(self, name: str, ref: str, inst: dict[str, list[ObjectInstance]], far: bool
                         ) -> tuple[Any, str]:
@@ -964,18 +987,10 @@ class MapReasoner:
             raise _Unsupported("'left of' and 'behind' need a viewpoint: this map has no camera track; ask "
                                "'standing by the X facing the Y, is the Z on my left?'")
         a, b, asked = pq.params["object"], pq.params["reference"], pq.params["asked"]
-        T = np.asarray(self.map.cameras[-1][1], float)
-        cam = T[:2, 3]
         inst = self._require([a, b])
         B, nb = self._pick_unique(b, [o.center for o in inst[a]])
         A, na = self._pick_unique(a, [B.center])
-        vb, va = B.center[:2] - cam, A.center[:2] - cam
-        if np.linalg.norm(vb) < 1e-6:
-            raise _Unsupported(f"the last camera stands at the {self._ph(b)}")
-        th = signed_angle_deg(vb, va)  # counter-clockwise: left of B as seen from the camera
-        along = float(va @ vb / np.linalg.norm(vb) - np.linalg.norm(vb))  # > 0: beyond B (behind it)
-        side = "left" if th > 0 else "right"
-        fb = "back" if along > 0 else "front"
+        side, fb, th, along = self._view_relation(A, B)
         yes = asked == side if asked in ("left", "right") else asked == fb
         words = (f"seen from the last camera view: the {self._ph(a)} is {abs(th):.0f} deg to the {side} of the "
                  f"{self._ph(b)} and {abs(along):.1f} m {'behind' if fb == 'back' else 'in front of'} it{na}{nb}")
@@ -983,24 +998,38 @@ class MapReasoner:
                 "angle_deg": round(th, 1), "behind_m": round(along, 3)}, words
 
     def _object_where(self, pq: ParsedQuestion) -> tuple[Any, str]:
-        """Where an object is: its nearest other objects (closest points, side by box centres) and, when the map
-        has a camera track, its direction from the last camera."""
+        """Where an object is: its nearest other objects (closest points) and, when the map has a camera track,
+        its direction from the last camera; several instances: each of them (the first four by id)."""
         name = pq.params["object"]
         inst = self._instances(name)
-        o = inst[0]
-        own = {id(x) for x in inst}
-        near = sorted(((box_distance(o.box, x.box), x) for v in self._idx.values() for x in v if id(x) not in own),
-                      key=lambda t: t[0])
         ref = pq.params.get("relative_to")
-        if ref:  # "where is X relative to Y?": Y's nearest instance first, then the nearest other object
-            refs = {id(x) for x in self._instances(ref)} - own
-            if not refs:
-                raise _Unsupported(f"'{self._ph(name)}' relative to itself")
-            near = [next(t for t in near if id(t[1]) in refs)] + [t for t in near if id(t[1]) not in refs]
-        near = near[:self.conf.n_landmarks]
-        marks = [{"object": x.name, "instance": int(x.id), "distance_m": round(float(d), 3)} for d, x in near]
-        value: dict[str, Any] = {"object": o.name, "instance": int(o.id), "n_instances": len(inst),
-                                 "centre": np.round(o.center, 3).tolist(), "landmarks": marks}
+        refs = {id(x) for x in self._instances(ref)} - {id(x) for x in inst} if ref else set()
+        if ref and not refs:
+            raise _Unsupported(f"'{self._ph(name)}' relative to itself")
+        each = [self._where_one(o, inst, refs) for o in sorted(inst, key=lambda x: x.id)[:4]]
+        if len(inst) == 1:
+            verb = "are" if name_key(self._ph(name)) != self._ph(name).lower() else "is"  # "the office chairs are"
+            words = each[0].pop("words")
+            text = f"the {self._ph(name)} {verb} " + (", ".join(words) if words else "the only object in the map")
+            return {**each[0], "text": text}, text
+        many = self._ph(name) if name_key(self._ph(name)) != self._ph(name).lower() else plural(self._ph(name))
+        text = f"{len(inst)} {many}: " + "; ".join(f"#{v['instance']} " + ", ".join(v.pop("words")) for v in each)
+        if len(inst) > len(each):
+            text += f"; and {len(inst) - len(each)} more"
+        return {"text": text, "object": inst[0].name, "n_instances": len(inst), "instances": each}, text
+
+    def _where_one(self, o: ObjectInstance, own: list[ObjectInstance], refs: set[int]) -> dict[str, Any]:
+        """One instance's place: its `n_landmarks` nearest other objects (those in `refs` first: "relative to
+        the desk") and its direction from the last camera; "words" is the text of each."""
+        skip = {id(x) for x in own}
+        near = sorted(((box_distance(o.box, x.box), x) for v in self._idx.values() for x in v if id(x) not in skip),
+                      key=lambda t: (id(t[1]) not in refs, t[0]))
+        if refs:  # the reference's nearest instance, then the nearest others
+            near = near[:1] + sorted((t for t in near[1:] if id(t[1]) not in refs), key=lambda t: t[0])
+        marks = [{"object": x.name, "instance": int(x.id), "distance_m": round(float(d), 3)}
+                 for d, x in near[:self.conf.n_landmarks]]
+        value: dict[str, Any] = {"object": o.name, "instance": int(o.id), "centre": np.round(o.center, 3).tolist(),
+                                 "landmarks": marks}
         words = [f"touching the {m['object']}" if m["distance_m"] < 0.05 else
                  f"{m['distance_m']:.1f} m from the {m['object']}" for m in marks]
         if self.map.cameras:
@@ -1008,11 +1037,8 @@ class MapReasoner:
             value["camera"] = cam
             of = "" if cam["words"] == "behind" else " of"  # "behind the last camera view", not "behind of"
             words.insert(0, f"{cam['words']}{of} the last camera view, {cam['distance_m']:.1f} m away")
-        verb = "are" if name_key(self._ph(name)) != self._ph(name).lower() else "is"  # "the office chairs are"
-        value["text"] = f"the {self._ph(name)} {verb} " + (", ".join(words) if words else "the only object in the map")
-        if len(inst) > 1:
-            value["text"] += f" (one of {len(inst)}; #{o.id})"
-        return value, value["text"]
+        value["words"] = words
+        return value
 
     def _on_my_side(self, side: str) -> tuple[list[ObjectInstance], str]:
         """Every object on that side (left | right | front | back) of the viewer: the last camera (where the video
@@ -1027,6 +1053,35 @@ class MapReasoner:
         inst = [o for o in self.map.instances if where[id(o)][key] == side
                 and (key == "front_back" or where[id(o)]["words"] not in ("straight ahead", "behind"))]
         return inst, f"{words} the last camera view (where the video ended)"
+
+    def _seen_beside(self, reference: str, asked: str) -> tuple[list[ObjectInstance], str]:
+        """Every other object to the left / right of, in front of / behind `reference` as seen from the last
+        camera (`_view_relation`)."""
+        if not self.map.cameras:
+            raise _Unsupported("'left of' and 'behind' need a viewpoint: this map has no camera track; ask "
+                               "'standing by the X facing the Y, what is on my left?'")
+        refs = self._instances(reference)
+        B, nb = self._pick_unique(reference, [])
+        inst = []
+        for o in self.map.instances:
+            if any(o is r for r in refs):
+                continue
+            side, fb, _, _ = self._view_relation(o, B)
+            if (side if asked in ("left", "right") else fb) == asked:
+                inst.append(o)
+        words = {"left": "to the left of", "right": "to the right of", "front": "in front of", "back": "behind"}[asked]
+        return inst, f"{words} the {self._ph(reference)} #{B.id} seen from the last camera view{nb}"
+
+    def _view_relation(self, A: ObjectInstance, B: ObjectInstance) -> tuple[str, str, float, float]:
+        """(left | right, front | back, angle deg, metres beyond B) of A against B as seen from the last camera,
+        looking at B: A's bearing left or right of B's, and in front of / behind B along that line."""
+        cam = np.asarray(self.map.cameras[-1][1], float)[:2, 3]
+        vb, va = B.center[:2] - cam, A.center[:2] - cam
+        if np.linalg.norm(vb) < 1e-6:
+            raise _Unsupported(f"the last camera stands at the {B.name}")
+        th = signed_angle_deg(vb, va)  # counter-clockwise: left of B as seen from the camera
+        along = float(va @ vb / np.linalg.norm(vb) - np.linalg.norm(vb))  # > 0: beyond B (behind it)
+        return ("left" if th > 0 else "right"), ("back" if along > 0 else "front"), th, along
 
     def _on_side_of(self, position: str, facing: str, side: str) -> tuple[list[ObjectInstance], str]:
         """Every other object on that side of someone standing at `position` facing `facing` (box centres, the
@@ -1052,6 +1107,8 @@ class MapReasoner:
         how = ""
         if pq.params.get("from_viewer"):  # "what is to my left?"
             inst, how = self._on_my_side(pq.params["from_viewer"])
+        elif pq.params.get("view"):  # "what is to the left of the couch?", as the viewer sees it
+            inst, how = self._seen_beside(**pq.params["view"])
         elif pq.params.get("from_stance"):  # "standing at the desk facing the door, what is on my left?"
             inst, how = self._on_side_of(**pq.params["from_stance"])
         elif pq.params.get("where"):  # "what's on the table?": every object there

@@ -58,6 +58,7 @@ big bigger biggest large larger largest small smaller smallest tall taller talle
 longer longest wide wider widest narrow narrower narrowest high higher highest low lower lowest deep size sizes dimension dimensions length
 width height depth measure measures measured measuring measurement measurements area footprint square
 volume elevation hung installed fixed relative relation respect regard half counting excluding including
+leave leaving forgot forget forgotten drop dropped lost
 point points object objects thing things item items stuff furniture piece pieces kind kinds type types
 please thanks roughly approximately approx around exactly just only really actually about estimate guess
 first second third fourth fifth last order appear appears appeared appearance came come comes seen
@@ -375,12 +376,18 @@ def _intent(j: str, n_obj: int, has_opts: bool) -> str | None:
         return "view_direction"  # "is the chair to the left of the table?": as seen from the camera
     if _has(j, r"^(?:is|are|was|were) (?!there\b)") and _has(j, rf"\b{_LOCATED}\b") and n_obj >= 2:
         return "relation"  # "is the cup on the table?": an is-there question with a location
+    if _has(j, r"^(?:what|what's|which (?:objects|things|items))(?: is| are|'s)? (?:to the |on the )?(?:left|right)"
+               r"(?: hand side| side)? of\b|^(?:what|what's|which (?:objects|things|items))(?: is| are|'s)? "
+               r"(?:behind|in front of)\b(?! me\b)"):
+        return "view_list"  # as the viewer (the last camera) sees them
     if _has(j, _WHAT_AT_RX) or _has(j, r"^(?:what|which \w+) (?:do|can|did|could) (?:you|i|we) (?:see|spot|notice)\b"):
         return "list"  # "what's on the table?", "what is near the door?", "what do you see?"
     for intent, rx in _SIMPLE_INTENTS:
         if rx.search(j) and not (intent == "existence" and _has(j, r"^(?:where|where's)\b")):
             return intent  # "where can I find the bin?" asks where, not whether
-    if _has(j, r"\b(?:where|whereabouts|locate|location of|position of)\b|^(?:show me|find|point (?:me )?to)\b"):
+    if _has(j, r"\b(?:where|whereabouts|locate|location of|position of)\b|^(?:show me|find|point (?:me )?to)\b|"
+               r"\bwhich way (?:is|to)\b|\bhow (?:do|can|could) (?:i|we) (?:get|go|walk) to\b|\bhow to get to\b|"
+               r"\b(?:guide|take|lead) me to\b|\bdirections? to\b"):
         return "direction" if _has(j, r"\b(?:if i|standing|when i)\b") and stance else "where"
     if _has(j, r"\b(?:list|enumerate|inventory)\b|\b(?:what|which) (?:objects|things|items|furniture)\b|"
                r"\bwhat (?:are|is) the (?:objects|things|items|furniture)\b|"
@@ -481,7 +488,7 @@ def parse_natural(question: str, options: list[str] | None = None) -> ParsedQues
         pq.how = "none"
         return pq
     handler = {"count": _count, "count_compare": _count_compare, "existence": _existence, "relation": _existence,
-               "view_direction": _view_direction, "size": _size, "size_compare": _size_compare,
+               "view_direction": _view_direction, "view_list": _view_list, "size": _size, "size_compare": _size_compare,
                "room_size": _room_size,
                "abs_distance": _abs_distance, "rel_distance": _rel_distance, "direction": _direction,
                "where": _where, "list": _list, "obj_appearance_order": _order}[intent]
@@ -709,6 +716,9 @@ _PARTS_RX = re.compile(r"^how many ([a-z' -]+?) (?:does|do|did) (?:the|this|that
 
 
 def _count(pq, toks, joined, nps, extra) -> None:
+    if _has(joined, r"^how many (?:steps|paces|strides) (?:to|until|till|away|from|is it)\b"):
+        return _fail(pq, "a walking distance in steps", "steps: the map measures in metres; ask 'how far am I "
+                                                        "from the ...?'")
     m = _PARTS_RX.search(joined)
     if m and not set(m.group(2).split()) & _SCENE:  # "how many chairs does the kitchen have?" is a count
         return _fail(pq, f"a count of the {m.group(1)} of the {m.group(2)}", "parts of an object: the map holds "
@@ -747,6 +757,15 @@ def _view_direction(pq, toks, joined, nps, extra) -> None:
     word = re.search(r"\b(left|right|front|behind)\b", joined).group(1)
     pq.qtype, pq.targets = "object_view_direction", names
     pq.params = {"object": names[0], "reference": names[1], "asked": _VIEW_WORDS[word]}
+
+
+def _view_list(pq, toks, joined, nps, extra) -> None:
+    """"What is to the left of the couch?", "what's behind the desk?": every object there as the viewer (the last
+    camera) sees them (params view {reference, asked})."""
+    n = _single(pq, nps, "what-is-there question", "object_list")
+    if n is not None:
+        word = re.search(r"\b(left|right|front|behind)\b", joined).group(1)
+        pq.cues, pq.params = [n], {"objects": [], "view": {"reference": n, "asked": _VIEW_WORDS[word]}}
 
 
 def _count_compare(pq, toks, joined, nps, extra) -> None:
@@ -951,8 +970,24 @@ def _option_names(pq: ParsedQuestion) -> list[str]:
     return cands
 
 
+_VIEWER_REF_RX = (r"\b(?:to|from) (?:me|us|myself|here|the camera)\b|^(?:am|are) (?:i|we)\b|"
+                  r"\b(?:i am|i'm|im|we are) (?:closer|nearer|farther|further)\b")
+
+
 def _rel_distance(pq, toks, joined, nps, extra) -> None:
     far = _has(joined, _FAR + r"|\bfar\b") and not _has(joined, _CLOSE)
+    placed = _has(joined, r"\b(?:if|when) (?:i|i'm|im|we)\b|\b(?:i'm|i am|im|standing|sitting|stand|sit) (?:at|by|next "
+                          r"to|near|beside|on|in front of)\b")  # "if I'm at the stove, ... closest to me": me = there
+    if _has(joined, _VIEWER_REF_RX) and nps and not placed:  # "what's the closest chair to me?", "am I closer to ...?"
+        names = _option_names(pq) or _refs(pq, nps)
+        extreme = "farthest" if far else "closest"
+        if len(names) == 1:  # which instance of one name: the nearest (farthest) one from the viewer
+            pq.qtype, pq.targets = "object_abs_distance", names
+            pq.params = {"a": names[0], "b": None, "from": "camera", "unit": _unit(joined, "m"), "which": extreme}
+        else:
+            pq.qtype, pq.targets = "object_rel_distance", names
+            pq.params = {"reference": None, "from": "camera", "candidates": names, "extreme": extreme}
+        return
     k = _reference_index(toks, nps)
     if k is None:
         return _fail(pq, "a which-is-closest question", "the object the distances are measured to "

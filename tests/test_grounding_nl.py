@@ -931,3 +931,64 @@ def test_room_sides_and_the_room_against_an_area():
     s = ask("if I'm sitting on the couch facing the whiteboard, where's the desk?")
     assert s.ok and s.value["side"] == ("left" if ccw_deg("couch", "whiteboard", "desk") > 0 else "right")
     assert ask("what's sitting on the desk?").ok
+
+
+def _camera_map(xy=(0.0, -3.0)):
+    """The test room seen by a camera at `xy` (eye height 1.5 m) looking along +y."""
+    T = np.eye(4)
+    T[:3, 0], T[:3, 1], T[:3, 2] = [1, 0, 0], [0, 0, -1], [0, 1, 0]
+    T[:3, 3] = [xy[0], xy[1], 1.5]
+    return room_map(cameras=[(0.0, T)]), np.array([xy[0], xy[1], 1.5])
+
+
+def _point_box(p: np.ndarray, name: str) -> float:
+    return min(float(np.linalg.norm(np.maximum(0.0, np.maximum(lo - p, p - hi)))) for lo, hi in boxes(name))
+
+
+def test_the_viewer_as_a_reference_and_as_a_walk_target():
+    """"What's the closest chair to me?" answered the laptop (the nearest object to a chair); "am I closer to the
+    desk or the couch?" measured from the desk; "which way to the couch?" was not understood."""
+    smap, cam = _camera_map()
+    chairs = [(n, c, s) for n, c, s in ROOM if n in ("chair", "office chair")]
+    d = {i: _point_box(cam, "chair" if n == "chair" else "office chair") for i, (n, c, s) in enumerate(chairs)}
+    near = min(_point_box(cam, n) for n in ("chair", "office chair"))
+    a = ask("what's the closest chair to me?", smap=smap)
+    assert a.ok and a.value["distance"] == pytest.approx(near, abs=1e-3) and a.text.startswith("chair #")
+    assert min(d.values()) == pytest.approx(near)
+    b = ask("am I closer to the desk or the couch?", smap=smap)
+    assert b.ok and b.text == ("desk" if _point_box(cam, "desk") < _point_box(cam, "couch") else "couch")
+    assert ask("am I closer to the desk or the couch?").status == "unsupported"  # no camera track: said so
+    for q in ("which way to the couch?", "how do I get to the couch?", "where did I leave my laptop?"):
+        w = ask(q, smap=smap)
+        assert w.ok and w.qtype == "object_where", q
+    assert "camera" in ask("which way to the couch?", smap=smap).value
+    # "me" placed by the question is that object, not the camera (a VSI-Bench paraphrase wording)
+    placed = ask("If I'm at the desk, which of the couch or the radiator is closest to me?", smap=smap)
+    assert placed.ok and placed.text == ("couch" if min_gap("couch", "desk") < min_gap("radiator", "desk") else "radiator")
+    s = ask("how many steps to the desk?")
+    assert s.status == "unsupported" and "metres" in s.explanation
+
+
+def test_what_is_left_of_or_behind_an_object_as_the_viewer_sees_it():
+    smap, cam = _camera_map()
+    ref = centre("desk")
+
+    def seen(n):  # independent of the reasoner: bearing and depth along the camera -> desk line
+        vb, va = ref[:2] - cam[:2], centre(n)[:2] - cam[:2]
+        th = math.degrees(math.atan2(vb[0] * va[1] - vb[1] * va[0], vb @ va))
+        return ("left" if th > 0 else "right"), ("back" if va @ vb / np.linalg.norm(vb) > np.linalg.norm(vb) else "front")
+
+    names = [n for n, _, _ in ROOM if n != "desk" and sum(1 for m, _, _ in ROOM if m == n) == 1]
+    for q, k, want in (("what's to the left of the desk?", 0, "left"), ("what is right of the desk?", 0, "right"),
+                       ("what's behind the desk?", 1, "back"), ("what is in front of the desk?", 1, "front")):
+        a = ask(q, smap=smap)
+        got = {o["object"] for o in a.value["instances"]}
+        assert a.ok and {n for n in names if seen(n)[k] == want} == {n for n in got if n in names}, q
+    assert ask("what's behind the desk?").status == "unsupported"  # no viewpoint without a camera track
+
+
+def test_where_are_several_instances_says_each():
+    a = ask("where are the chairs?")
+    assert a.ok and a.text.startswith("3 chairs: #") and len(a.value["instances"]) == 3
+    one = ask("where is the couch?")
+    assert one.text.startswith("the couch is") and "instances" not in one.value
