@@ -869,7 +869,14 @@ class MapReasoner:
             return {"text": "yes" if yes else "no", "answer": yes, "values_m": vals}, expl
         if cands == "*" and not pq.options:
             o = best[win]
-            return {"text": o.name, "object": o.name, "instance": int(o.id), "value": round(vals[win], 3)}, expl
+            text = o.name
+            if pq.params.get("with_value"):  # "how tall is the tallest object?": which, and how tall
+                text += f", {vals[win]:.2f} m^3" if key == "volume" else f", {vals[win] * 100:.0f} cm"
+            return {"text": text, "object": o.name, "instance": int(o.id), "value": round(vals[win], 3)}, expl
+        tied = [n for n in vals if n != win and abs(vals[n] - vals[win]) <= 0.005 * abs(vals[win])]  # within 0.5%
+        if tied and not pq.options:  # "which is longer, the couch or the whiteboard?" when both are 2.00 m
+            names = " and the ".join(self._ph(n) for n in [win] + tied)
+            return {"text": f"equal: the {names} ({vals[win]:.2f} {unit})", "equal": [win] + tied}, expl
         return win, expl
 
     def _size_against(self, pq: ParsedQuestion, name: str, key: str, pick: Any) -> tuple[Any, str]:

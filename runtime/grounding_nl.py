@@ -58,7 +58,7 @@ big bigger biggest large larger largest small smaller smallest tall taller talle
 longer longest wide wider widest narrow narrower narrowest high higher highest low lower lowest deep size sizes dimension dimensions length
 width height depth measure measures measured measuring measurement measurements area footprint square
 volume elevation hung installed fixed relative relation respect regard half counting excluding including
-leave leaving forgot forget forgotten drop dropped lost
+leave leaving forgot forget forgotten drop dropped lost present visible
 point points object objects thing things item items stuff furniture piece pieces kind kinds type types
 please thanks roughly approximately approx around exactly just only really actually about estimate guess
 first second third fourth fifth last order appear appears appeared appearance came come comes seen
@@ -288,11 +288,14 @@ _SIMPLE_INTENTS = [(name, re.compile(rx)) for name, rx in (  # tried in this ord
                   rf"measurements?) of (?:the |this |our )?{_ROOMS}\b|^(?:is|are) (?:the |this |our )?{_ROOMS} "
                   rf"(?:bigger|larger|smaller) than [\d.]+|floor (?:area|space|size)|square "
                   rf"(?:meters?|metres?|feet)|\bsq\b|(?:size|area|footprint) of (?:the |this )?{_ROOMS}\b|"
-                  rf"\b{_ROOMS} 's (?:floor )?(?:size|area|footprint)\b"),
+                  rf"\b{_ROOMS} 's (?:floor )?(?:size|area|footprint)\b|^(?:the |this )?{_ROOMS} (?:floor )?(?:size|area|"
+                  rf"footprint)\b"),
     ("size", rf"\bhow (?:big|large|long|tall|wide|high|deep)\b|\b(?:size|dimensions?|length|height|width|depth|volume|"
              rf"measure|measures|measurements?|longest side|longest edge)\b|how many {_UNITS_RX}\b"),
     ("count", r"\bhow many\b|\bcount\b|\bnumber of\b|\bquantity of\b|\btotal of\b|^(?:the )?total\b"),
-    ("existence", r"^(?:is|are|isn't|aren't) there\b|\b(?:do|can|did|could) (?:you|i|we) (?:see|spot|find|notice)\b|"
+    ("existence", r"^(?:is|are|isn't|aren't|was|were) there\b|\bis there (?:one|any)\b|\b(?:is|are) (?:a |an |any )?"
+                  r"[^?]{1,60}? (?:present|around|visible)\b|^(?:have|has|did) (?:you|we|i) (?:seen|see|spotted|spot|"
+                  r"noticed|notice|found|find)\b|\b(?:do|can|did|could) (?:you|i|we) (?:see|spot|find|notice)\b|"
                   r"\b(?:does|do) (?:the|this|our|your) \w+(?: \w+)? (?:have|contain|include|hold)\b|\bexists?\b|"
                   r"^(?:do|does) (?:we|you|i|they|it) (?:have|got)\b|"
                   r"^(?:any|got any)\b|\bis (?:a|an) [^?]{1,80}? (?:in|here)\b"))]
@@ -304,8 +307,8 @@ _COUNT_CMP_RX = (r"\b(?:number|count|amount|quantity) of \w+(?: \w+)? (?:is |are
 
 
 # "how high above the floor is the lamp?", "how far off the ground is the shelf?": the bottom's height over the floor
-_ELEVATION_RX = (r"\bhow (?:high|far)\b[^?]{0,60}? (?:above|off|from|over) the (?:floor|ground)\b|\b(?:height|elevation) "
-                 r"(?:above|off|from) the (?:floor|ground)\b|\bhow high up\b|\bat what height\b|\belevation\b|"
+_ELEVATION_RX = (r"\bhow (?:high|far)\b[^?]{0,60}? (?:above|off|from|over) the (?:floor|ground)\b|\b(?:height|elevation)"
+                 r"\b[^?]{0,40}? (?:above|off|from) the (?:floor|ground)\b|\bhow high up\b|\bat what height\b|\belevation\b|"
                  r"\bhow high (?:is|are) [^?]{1,60}? (?:mounted|hung|hanging|placed|fixed|installed)\b")
 
 
@@ -832,6 +835,11 @@ def _existence(pq, toks, joined, nps, extra) -> None:
 
 
 def _size(pq, toks, joined, nps, extra) -> None:
+    sup = next((t for t in toks if t in SUPERLATIVES), None)
+    if not nps and sup and _has(joined, r"\b(?:object|thing|item|furniture|piece)\b"):
+        pq.qtype = "object_size_compare"  # "how tall is the tallest object?": which one, and its measure
+        pq.params = {"measure": sup, "candidates": "*", "yesno": False, "with_value": True}
+        return
     n = _single(pq, nps, "size question", "object_size_estimation")
     if n is None:
         return

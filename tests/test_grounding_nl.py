@@ -992,3 +992,20 @@ def test_where_are_several_instances_says_each():
     assert a.ok and a.text.startswith("3 chairs: #") and len(a.value["instances"]) == 3
     one = ask("where is the couch?")
     assert one.text.startswith("the couch is") and "instances" not in one.value
+
+
+def test_more_wordings_of_is_there_heights_ties_and_the_tallest_object():
+    for q in ("is a couch present?", "have you seen a laptop?", "was there a laptop?",
+              "I'm looking for a trash can, is there one?"):
+        a = ask(q)
+        assert a.ok and a.qtype == "object_existence" and a.text == "yes", (q, a.explanation)
+    wb = [(c, s) for n, c, s in ROOM if n == "whiteboard"][0]
+    floor = min(c[2] - s[2] / 2 for _, c, s in ROOM)
+    h = ask("what's the height of the whiteboard off the floor?")
+    assert h.value == pytest.approx(wb[0][2] - wb[1][2] / 2 - floor)
+    tall = max(ROOM, key=lambda r: r[2][2])
+    t = ask("how tall is the tallest object?")
+    assert t.ok and t.text == f"{tall[0]}, {tall[2][2] * 100:.0f} cm"
+    assert ask("room area?").value == pytest.approx(room_map().room_area())
+    eq = ask("which is longer, the couch or the whiteboard?")  # both 2.00 m: neither is picked
+    assert eq.ok and eq.text.startswith("equal:") and set(eq.value["equal"]) == {"sofa", "whiteboard"}
