@@ -234,6 +234,17 @@ def describe_direction(theta_deg: float, back_deg: float = 135.0) -> dict[str, A
             "angle_deg": round(float(theta_deg), 1)}
 
 
+def in_direction(d: dict[str, Any], asked: str) -> bool:
+    """Whether a `describe_direction` reading is in the asked direction: its quadrant, front / back, or left /
+    right (not straight ahead or behind)."""
+    return asked in (d["quadrant"], d["front_back"]) or (asked == d["side"] and
+                                                         d["words"] not in ("straight ahead", "behind"))
+
+
+# a side of a viewer or of an object, in words ("what is to the left of the desk?")
+_SIDE_WORDS = {"left": "to the left of", "right": "to the right of", "front": "in front of", "back": "behind"}
+
+
 def describe_from_camera(T_wc: np.ndarray, point: np.ndarray, back_deg: float = 135.0) -> dict[str, Any]:
     """Direction of a world point `[3]` from a camera `T_wc [4, 4]` (OpenCV axes: x right, z forward), on the
     floor plane: `describe_direction` of the angle plus the horizontal distance (m)."""
@@ -698,10 +709,8 @@ class MapReasoner:
         cam = np.asarray(self.map.cameras[-1][1], float)[:3, 3]
         inst = self._instances(a)
         dist = {o.id: point_box_distance(cam, o.box) for o in inst}
-        o = min(inst, key=lambda x: dist[x.id])
         far = pq.params.get("which") == "farthest"
-        if far:
-            o = max(inst, key=lambda x: dist[x.id])
+        o = (max if far else min)(inst, key=lambda x: dist[x.id])
         self._choice(a, inst, o, f"the {'farthest from' if far else 'nearest to'} the camera",
                      {i: d / UNIT_M[unit] for i, d in dist.items()}, unit)
         v = dist[o.id] / UNIT_M[unit]
@@ -958,8 +967,7 @@ class MapReasoner:
         back = pq.params.get("back_deg", self.conf.back_deg)
         d = describe_direction(th, back)
         if len(asked) == 1:
-            hit = asked[0] in (d["quadrant"], d["front_back"]) or (asked[0] == d["side"] and
-                                                                 d["words"] not in ("straight ahead", "behind"))
+            hit = in_direction(d, asked[0])
             shown = d["words"]
             if asked[0] in ("front", "back") and shown in ("to the left", "to the right"):  # 67-113 deg: say the
                 shown = f"{'ahead' if d['front_back'] == 'front' else 'behind'} and {shown}"  # half it is in
@@ -982,8 +990,7 @@ class MapReasoner:
             th, e = self._angle(sub)
             where[c] = describe_direction(th, pq.params.get("back_deg", self.conf.back_deg))
             expls.append(e)
-        hits = [c for c, d in where.items() if asked[0] in (d["quadrant"], d["front_back"])
-                or (asked[0] == d["side"] and d["words"] not in ("straight ahead", "behind"))]
+        hits = [c for c, d in where.items() if in_direction(d, asked[0])]
         text = " and ".join(self._ph(c) for c in hits) if hits else "none of them"
         return {"text": text, "matches": hits, "asked": asked[0], "directions": where}, "; ".join(expls)
 
@@ -1050,15 +1057,13 @@ class MapReasoner:
     def _on_my_side(self, side: str) -> tuple[list[ObjectInstance], str]:
         """Every object on that side (left | right | front | back) of the viewer: the last camera (where the video
         ended), as `describe_from_camera` reads their centres; left/right exclude straight ahead and behind."""
-        words = {"left": "to the left of", "right": "to the right of", "front": "in front of", "back": "behind"}[side]
+        words = _SIDE_WORDS[side]
         if not self.map.cameras:
             raise _Unsupported(f"'{words} me' needs a viewpoint: this map has no camera track; ask 'standing by the "
                                f"X facing the Y, is the Z on my left?'")
         T = self.map.cameras[-1][1]
-        where = {id(o): describe_from_camera(T, o.center, self.conf.back_deg) for o in self.map.instances}
-        key = "front_back" if side in ("front", "back") else "side"
-        inst = [o for o in self.map.instances if where[id(o)][key] == side
-                and (key == "front_back" or where[id(o)]["words"] not in ("straight ahead", "behind"))]
+        inst = [o for o in self.map.instances if in_direction(describe_from_camera(T, o.center, self.conf.back_deg),
+                                                              side)]
         return inst, f"{words} the last camera view (where the video ended)"
 
     def _seen_beside(self, reference: str, asked: str) -> tuple[list[ObjectInstance], str]:
@@ -1076,8 +1081,7 @@ class MapReasoner:
             side, fb, _, _ = self._view_relation(o, B)
             if (side if asked in ("left", "right") else fb) == asked:
                 inst.append(o)
-        words = {"left": "to the left of", "right": "to the right of", "front": "in front of", "back": "behind"}[asked]
-        return inst, f"{words} the {self._ph(reference)} #{B.id} seen from the last camera view{nb}"
+        return inst, f"{_SIDE_WORDS[asked]} the {self._ph(reference)} #{B.id} seen from the last camera view{nb}"
 
     def _view_relation(self, A: ObjectInstance, B: ObjectInstance) -> tuple[str, str, float, float]:
         """(left | right, front | back, angle deg, metres beyond B) of A against B as seen from the last camera,
@@ -1098,16 +1102,9 @@ class MapReasoner:
         f = B.center[:2] - A.center[:2]
         if np.linalg.norm(f) < 1e-9:
             raise _Unsupported(f"standing by {self._ph(position)} and facing {self._ph(facing)}: same position")
-        key = "front_back" if side in ("front", "back") else "side"
-        inst = []
-        for o in self.map.instances:
-            if o is A or o is B:
-                continue
-            d = describe_direction(signed_angle_deg(f, o.center[:2] - A.center[:2]), self.conf.back_deg)
-            if d[key] == side and (key == "front_back" or d["words"] not in ("straight ahead", "behind")):
-                inst.append(o)
-        words = {"left": "to the left of", "right": "to the right of", "front": "in front of", "back": "behind"}[side]
-        return inst, f"{words} someone at the {self._ph(position)} facing the {self._ph(facing)}{na}{nb}"
+        inst = [o for o in self.map.instances if o is not A and o is not B and in_direction(
+            describe_direction(signed_angle_deg(f, o.center[:2] - A.center[:2]), self.conf.back_deg), side)]
+        return inst, f"{_SIDE_WORDS[side]} someone at the {self._ph(position)} facing the {self._ph(facing)}{na}{nb}"
 
     def _object_list(self, pq: ParsedQuestion) -> tuple[Any, str]:
         names = pq.params.get("objects") or []
