@@ -16,6 +16,7 @@ Every dropped frame gets a reason. `ssim` reproduces scikit-image's
 """
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from typing import Any, ClassVar, Mapping
 
@@ -114,6 +115,10 @@ class DedupConf(StageConf):
 
     sample_fps: float | None = 3.0   # uniform down-sampling rate (None: use `stride`)
     stride: int = 1                  # keep every stride-th frame when sample_fps is None
+    # a short input (a 1 s clip, ten photos in a folder read at a nominal 30 fps) would keep one or two frames at
+    # sample_fps: below this many sampled frames the input is sampled by stride instead, so that at least
+    # min(this, all frames) are compared (near-duplicates are still dropped by the comparisons)
+    min_sampled: int = 16
     work_width: int = 320            # frames are resized to this width for ORB and SSIM
     # ORB keypoints per frame (the matching cost grows with their square) over `orb_levels` pyramid levels
     # (scale 1.2 each). 300 over 4 levels costs ~2/3 of the comparisons' CPU, keeps the same frames on the
@@ -369,6 +374,21 @@ def small_gray(rgb: np.ndarray, width: int, bgr: bool = False) -> np.ndarray:
     return _small_gray(rgb, width)
 
 
+def _dense_enough(conf: DedupConf, ts: np.ndarray, trace: Any) -> DedupConf:
+    """`conf`, or (when sampling at `sample_fps` leaves fewer than `min_sampled` of the frames at times `ts`)
+    the same config sampling every k-th frame so that at least min(min_sampled, all) are compared."""
+    if not conf.sample_fps or len(ts) <= 1:
+        return conf
+    probe = OnlineDedup(conf)
+    n_time = sum(probe.wants(float(t)) for t in ts)
+    want = min(conf.min_sampled, len(ts))
+    if n_time >= want:
+        return conf
+    stride = max(1, len(ts) // want)
+    trace.decide("dedup.short_input", {"frames": len(ts), "at_sample_fps": n_time, "stride": stride})
+    return dataclasses.replace(conf, sample_fps=None, stride=stride)
+
+
 def remove_redundant(source_or_frames: Any, conf: DedupConf | Mapping[str, Any] | None = None,
                      trace: Any = None) -> DedupResult:
     """Drop redundant frames of a FrameSource (or a sequence of Frames, with .rgb, .t, .index).
@@ -383,13 +403,14 @@ def remove_redundant(source_or_frames: Any, conf: DedupConf | Mapping[str, Any] 
     if n == 0:
         raise InputError("remove_redundant: no frames")
     is_source = hasattr(src, "timestamps")  # a FrameSource (else a plain sequence of Frames)
+    ts = np.asarray(src.timestamps if is_source else [f.t for f in src], dtype=np.float64)
+    conf = _dense_enough(conf, ts, trace)
     online = getattr(src, "online_dedup", None) if is_source else None
-    res = online(conf) if online is not None else None
+    res = online(conf) if online is not None else None  # None when the scan sampled by another rule
     if res is not None:
         trace.decide("dedup.online", True)
         trace.decide("dedup.counts", res.counts)
         return res
-    ts = np.asarray(src.timestamps if is_source else [f.t for f in src], dtype=np.float64)
 
     def index_at(p: int) -> int:
         return src.index_of(p) if is_source else int(src[p].index)

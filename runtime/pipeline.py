@@ -458,7 +458,10 @@ def _perceive(source: FrameSource, chosen: list[int], det: _CachedDetector, name
         lifted = {i: fut.result() for i, fut in lifting.items()}
     bar.done()
     if len(frames) < 2:
-        raise MosaicError(f"only {len(frames)} key frame(s) available: need at least 2 to build a map")
+        c = trace.decisions.get("dedup.counts") or {}
+        why = (f" (redundant-frame removal kept {c['kept']} of the {c['input']} frames: the input shows one view; "
+               f"give a video or images that move around the room)") if c.get("kept", 2) < 2 else ""
+        raise MosaicError(f"only {len(frames)} key frame(s) available: need at least 2 to build a map{why}")
     return frames, dets, lifted
 
 

@@ -699,3 +699,19 @@ def test_kill_concurrency_and_broken_pipe(tmp_path):
                         f"echo \" rc=${{PIPESTATUS[0]}}\"", shell=True, executable="/bin/bash", capture_output=True,
                         text=True, timeout=120)
     assert "rc=0" in sh.stdout and "Traceback" not in sh.stderr and "BrokenPipe" not in sh.stderr, sh
+
+
+def test_one_view_says_why_there_is_no_map(tmp_path, capsys, shared_models, redkitchen):
+    """A video that shows one view (three copies of one frame) cannot be mapped: exit 2, and the error says that
+    redundant-frame removal kept one frame (was "only 1 key frame(s) available", with no reason)."""
+    from mosaicthinker.export.onnx_import import import_shared_models
+
+    b = tmp_path / "bundle"
+    import_shared_models(shared_models, b, ["fp32"], roles=["detector", "depth"])
+    frame = cv2.imread(str(sorted(Path(redkitchen).glob("frame-*.color.jpg"))[0]))
+    vw = cv2.VideoWriter(str(tmp_path / "still.mp4"), cv2.VideoWriter_fourcc(*"mp4v"), 15.0, frame.shape[1::-1])
+    for _ in range(3):
+        vw.write(frame)
+    vw.release()
+    code, _, err = run_cli(capsys, ["ask", str(tmp_path / "still.mp4"), "how many chairs?", "--bundle", str(b)])
+    assert code == 2 and "redundant-frame removal kept 1 of the 3 frames" in err, err

@@ -89,10 +89,25 @@ def test_ssim_first_keeps_the_frames_tracking_first_keeps(redkitchen, stride):
 def test_remove_redundant_downsampling_by_time(redkitchen):
     src = open_source(redkitchen)  # 15 fps
     frames = [src[i] for i in range(0, 30)]
-    res = remove_redundant(FrameList(frames), DedupConf(sample_fps=3.0))
+    res = remove_redundant(FrameList(frames), DedupConf(sample_fps=3.0, min_sampled=1))
     assert res.counts["after_downsampling"] == 6
     assert sum("downsampled" in r for r in res.dropped.values()) == 24
     assert res.kept[0] == 0 and all(k % 5 == 0 for k in res.kept)
+
+
+def test_a_short_input_is_sampled_densely_enough_to_compare(redkitchen):
+    """Ten photos in a folder (a nominal 30 fps) or a 1 s clip kept one frame at 3 fps, and the map then failed
+    with "only 1 key frame"; below `min_sampled` frames the input is sampled by stride instead."""
+    from mosaicthinker.runtime.trace import Trace
+
+    src = open_source(redkitchen)  # 15 fps: 2 s -> 6 frames at 3 fps
+    frames = [src[i] for i in range(0, 30)]
+    tr = Trace()
+    res = remove_redundant(FrameList(frames), DedupConf(sample_fps=3.0, min_sampled=16), trace=tr)
+    assert res.counts["after_downsampling"] == 30 and tr.decisions["dedup.short_input"]["at_sample_fps"] == 6
+    assert len(res.kept) > 6  # the comparisons, not the clock, decide what is redundant
+    long = remove_redundant(src, DedupConf(sample_fps=3.0, min_sampled=16), trace=Trace())
+    assert long.counts["after_downsampling"] == 50  # 250 frames: the clock's 50 are enough
 
 
 def test_orb_track_identity_and_unrelated(redkitchen):
