@@ -234,7 +234,20 @@ def _case_inputs():
         ("video_empty", lambda t: plan + [_write(t / "v.mp4", b"")], 2, "video file is empty"),
         ("video_garbage", lambda t: plan + [_write(t / "v.mp4", b"\x00" * 4096)], 2, "v.mp4"),
         ("folder_missing", lambda t: plan + [t / "nope"], 2, "no such file or folder"),
+        ("vsibench_meta_not_json", lambda t: vsi(t, b"x = [", QLINE), 2, "not a JSON file"),
+        ("vsibench_meta_a_list", lambda t: vsi(t, b"[1, 2]", QLINE), 2, "must map scene names"),
+        ("vsibench_meta_scene_a_list", lambda t: vsi(t, b'{"s": [1]}', QLINE), 2, "scene 's' is not an object"),
+        ("vsibench_question_a_number", lambda t: vsi(t, b'{"s": {"object_bbox": {}}}', b"5\n"), 2,
+         "a question must be a JSON object"),
     ]
+
+
+QLINE = b'{"scene_name": "s", "question_type": "object_counting", "question": "How many chair(s)?", "ground_truth": 1}\n'
+
+
+def vsi(t: Path, meta: bytes, questions: bytes) -> list:
+    """`mosaic eval vsibench` on a meta_info and a questions file written as given (an internal error before)."""
+    return ["eval", "vsibench", "--meta", _write(t / "meta.json", meta), "--questions", _write(t / "q.jsonl", questions)]
 
 
 def _can_write_1x1(t: Path) -> bool:

@@ -68,6 +68,8 @@ def load_questions(path: str | Path) -> list[dict[str, Any]]:
                 q = json.loads(line)
             except json.JSONDecodeError as e:
                 raise InputError(f"{path}:{i}: not a JSON line ({e})") from e
+            if not isinstance(q, dict):
+                raise InputError(f"{path}:{i}: a question must be a JSON object, got {type(q).__name__}")
             for k in ("scene_name", "question_type", "question", "ground_truth"):
                 if k not in q:
                     raise InputError(f"{path}:{i}: field `{k}` is missing")
@@ -79,8 +81,16 @@ def load_meta(path: str | Path) -> dict[str, Any]:
     path = Path(path)
     if not path.exists():
         raise InputError(f"{path}: meta_info file not found (VSI-Bench meta_info.json)")
-    with open(path) as f:
-        return json.load(f)
+    try:
+        with open(path) as f:
+            meta = json.load(f)
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise InputError(f"{path}: not a JSON file ({e}); give VSI-Bench's meta_info.json") from e
+    bad = [k for k, v in meta.items() if not isinstance(v, dict)][:3] if isinstance(meta, dict) else None
+    if bad is None or bad:
+        raise InputError(f"{path}: meta_info must map scene names to objects with `object_bbox`"
+                         + (f" (scene {bad[0]!r} is not an object)" if bad else ""))
+    return meta
 
 
 def evaluate(questions: list[dict[str, Any]], meta: dict[str, Any], types: list[str] | None = None,
