@@ -289,9 +289,9 @@ COMMON_FLAGS = ("bundle", "out")
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     from mosaicthinker.runtime.cli import add_stage_flags
-    from mosaicthinker.runtime.commands.flags import add_clip, add_gravity, add_keyframes, add_size
+    from mosaicthinker.runtime.commands.flags import add_clip, add_gravity, add_keyframes, add_scenes, add_size
 
-    p.add_argument("--scenes", type=int, default=3, help="number of synthetic scenes")
+    add_scenes(p, 3, "number of synthetic scenes")
     p.add_argument("--seed", type=int, default=0, help="first scene seed")
     p.add_argument("--modes", default="gt,oracle", help="comma list of gt, oracle, models (models needs --bundle)")
     p.add_argument("--data", default=None, metavar="DIR", help="folder to generate / reuse scenes in (default: --out/scenes or "

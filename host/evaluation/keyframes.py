@@ -364,9 +364,10 @@ COMMON_FLAGS = ("bundle", "out")
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     from mosaicthinker.runtime.cli import add_stage_flags
-    from mosaicthinker.runtime.commands.flags import add_clip, add_deprecated_size_parts, add_keyframes, add_size
+    from mosaicthinker.runtime.commands.flags import (add_clip, add_deprecated_size_parts, add_keyframes, add_scenes,
+                                                      add_size)
 
-    p.add_argument("--scenes", type=int, default=3, help="number of generated scenes (default 3)")
+    add_scenes(p, 3, "number of generated scenes")
     p.add_argument("--seed", type=int, default=0, help="scene i uses seed 1000*S + i; also the oracle's seed")
     add_keyframes(p, 8, "the key-frame study's budget")
     add_stage_flags(p, detector=True)
@@ -390,8 +391,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
-    if args.scenes < 1:
-        raise InputError("--scenes must be >= 1")
     if not 0 <= args.miss_rate < 1:
         raise InputError(f"--miss-rate must be in [0, 1) (got {args.miss_rate})")
     try:

@@ -19,7 +19,7 @@ COMMON_FLAGS = ("out",)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from mosaicthinker.runtime.commands.flags import add_clip, add_complexity, add_size
+    from mosaicthinker.runtime.commands.flags import add_clip, add_complexity, add_scenes, add_size
 
     p.add_argument("--seed", type=int, default=0, help="random seed (scene k of --scenes uses seed + k)")
     add_complexity(p, "med")
@@ -28,7 +28,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_clip(p, 60.0, 15.0)
     add_size(p, "640x480")
     p.add_argument("--hfov", type=float, default=60.0, help="horizontal field of view (deg)")
-    p.add_argument("--scenes", type=int, default=1, help="number of scenes")
+    add_scenes(p, 1)
     p.add_argument("--workers", type=int, default=1, help="rendering processes")
     p.add_argument("--no-extras", action="store_true", help="only VSI-Bench categories (no door/lamp/plant/...)")
     p.add_argument("--no-video", action="store_true", help="skip the mp4")
@@ -45,8 +45,6 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
 
     if not args.out:
         raise InputError("mosaic synth: --out DIR is required (the folder to write the scene(s) into)")
-    if args.scenes < 1:
-        raise InputError(f"--scenes must be >= 1, got {args.scenes}")
     out = Path(args.out)
     finals = [out if args.scenes == 1 else out / f"scene_{k:03d}" for k in range(args.scenes)]
     for d in finals:  # checked before rendering: a scene is never mixed with an older one's frames

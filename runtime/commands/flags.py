@@ -101,15 +101,28 @@ def add_clip(p: argparse.ArgumentParser, duration: float | None, fps: float | No
                    help="frames per second" + (f" (default {fps:g})" if fps is not None else ""))
 
 
-def parse_keyframes(text: str) -> int:
-    """'16' -> 16 key frames, >= 1 (argparse type: 0 used to mean the default, silently)."""
+def _at_least_one(flag: str, what: str, text: str) -> int:
     try:
         v = int(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"--keyframes: a whole number of key frames, got {text!r}") from None
+        raise argparse.ArgumentTypeError(f"{flag}: a whole number of {what}, got {text!r}") from None
     if v < 1:
-        raise argparse.ArgumentTypeError(f"--keyframes must be at least 1, got {text!r}")
+        raise argparse.ArgumentTypeError(f"{flag} must be at least 1, got {text!r}")
     return v
+
+
+def parse_keyframes(text: str) -> int:
+    """'16' -> 16 key frames, >= 1 (argparse type: 0 used to mean the default, silently)."""
+    return _at_least_one("--keyframes", "key frames", text)
+
+
+def parse_scenes(text: str) -> int:
+    """'3' -> 3 scenes, >= 1 (argparse type: `eval e2e --scenes -1` printed an empty table and exit 0)."""
+    return _at_least_one("--scenes", "scenes", text)
+
+
+def add_scenes(p: argparse.ArgumentParser, default: int, what: str = "number of scenes") -> None:
+    p.add_argument("--scenes", type=parse_scenes, default=default, help=f"{what} (default {default})")
 
 
 def pipeline_keyframes() -> int:
