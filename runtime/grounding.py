@@ -395,7 +395,8 @@ def parse_question(question: str, options: list[str] | None = None) -> ParsedQue
     (`grounding_nl.parse_natural`). qtype None: not understood (`notes` say what was and was not).
     Questions over `MAX_QUESTION_CHARS` are an InputError. Only the text and the options are used."""
     check_question(question, options)
-    q = " ".join(safe_text(question).split())
+    # control characters are spaces to the parser (shown as \xNN they read as words: "chairs\x07" -> "x07s")
+    q = " ".join("".join(c if c.isprintable() else " " for c in _ANSI.sub("", str(question))).split())
     pq = ParsedQuestion(None, question=q, options=list(options) if options is not None else None)
     refs: list[ObjectRef] = []
     for qtype, rx in _TEMPLATES:

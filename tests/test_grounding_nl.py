@@ -1009,3 +1009,8 @@ def test_more_wordings_of_is_there_heights_ties_and_the_tallest_object():
     assert ask("room area?").value == pytest.approx(room_map().room_area())
     eq = ask("which is longer, the couch or the whiteboard?")  # both 2.00 m: neither is picked
     assert eq.ok and eq.text.startswith("equal:") and set(eq.value["equal"]) == {"sofa", "whiteboard"}
+
+
+def test_control_characters_are_not_words():
+    a = ask("how many chairs?\x07\x1b[31m")
+    assert a.ok and a.text == "3" and "x07" not in a.explanation
