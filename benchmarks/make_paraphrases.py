@@ -110,6 +110,35 @@ HOLDOUT = {
              "If I am beside the {A} facing the {B}, which quadrant does the {C} fall in?"],
 }
 
+# a third set (`--pool holdout2`), written in stop 25 after four rounds of natural-wording work on other
+# questions, and scored once before any fix: the honest figure for wording the parser has not seen
+HOLDOUT2 = {
+    "count": ["How many {Ps} can be seen in this video?", "what's the total count of {Ps}?",
+              "{Ps}: how many are there?", "Can you tell me the number of {Ps} in the room?",
+              "How many {Ps} did the camera capture?", "I need to know how many {Ps} are here"],
+    "size": [("What's the length of the {X} at its longest, in cm?", "cm"),
+             ("How big is the {X} (longest side), in meters?", "m"), ("{X} size in centimeters?", "cm"),
+             ("Along its longest dimension, how big is the {X}?", "cm"),
+             ("What would the {X} measure at its longest, in inches?", "in"), ("Tell me the size of the {X}.", "cm")],
+    "abs": [("How many meters is the {A} from the {B}?", "m"),
+            ("What's the distance separating the {A} and the {B}?", "m"), ("{A} to {B}: how far?", "m"),
+            ("Can you tell me how far the {A} is from the {B} in centimeters?", "cm"),
+            ("What is the spacing between the {A} and the {B}?", "m"),
+            ("How far is the {B} from the {A}, roughly?", "m")],
+    "rel": ["Which is the one {sup} the {R}: {L}?", "Looking at {L}, which one is {sup} the {R}?",
+            "Which of {L} would you say is {sup} the {R}?", "Pick the object {sup} the {R}: {L}.",
+            "{sup} the {R} - is it {L}?", "Which thing is {sup} the {R}?"],
+    "easy": ["Standing next to the {A} with the {B} in front of me, is the {C} to the left or the right?",
+             "I'm at the {A} looking at the {B}; is the {C} on its left or right?",
+             "Facing the {B} from the {A}, is the {C} left or right?"],
+    "medium": ["If I stand at the {A} and look toward the {B}, is the {C} on my left, my right, or at my back?",
+               "Facing the {B} from beside the {A}, is the {C} left, right, or behind?",
+               "I'm next to the {A} facing the {B}: is the {C} left, right or behind me?"],
+    "hard": ["Facing the {B} from the {A}, is the {C} front-left, front-right, back-left or back-right?",
+             "I'm standing at the {A} and looking at the {B}. Which quadrant holds the {C}?",
+             "From the {A} facing the {B}, the {C} is front-left, front-right, back-left or back-right?"],
+}
+
 TEMPLATES = {  # the benchmark's own wording, to take the objects out
     "object_counting": r"How many (.+?)\(s\) are in this room",
     "object_size_estimation": r"\(length, width, or height\) of the (.+?), measured in centimeters",
@@ -143,11 +172,11 @@ def _casual(q: str, rng: random.Random) -> str:
     return q
 
 
-def use_holdout() -> None:
-    """Swap the wording pools for the held-out ones."""
+def use_holdout(pool: dict) -> None:
+    """Swap the wording pools for held-out ones (`HOLDOUT`, `HOLDOUT2`)."""
     global COUNT, SIZE, ABS, REL, EASY, MEDIUM, HARD
-    COUNT, SIZE, ABS, REL = HOLDOUT["count"], HOLDOUT["size"], HOLDOUT["abs"], HOLDOUT["rel"]
-    EASY, MEDIUM, HARD = HOLDOUT["easy"], HOLDOUT["medium"], HOLDOUT["hard"]
+    COUNT, SIZE, ABS, REL = pool["count"], pool["size"], pool["abs"], pool["rel"]
+    EASY, MEDIUM, HARD = pool["easy"], pool["medium"], pool["hard"]
 
 
 def rewrite(q: dict, rng: random.Random) -> dict | None:
@@ -199,11 +228,11 @@ def main() -> None:
     ap.add_argument("--per-type", type=int, default=48)
     ap.add_argument("--seed", type=int, default=15)
     ap.add_argument("--out", default=None, help="default benchmarks/data/vsibench_paraphrases[_holdout].jsonl")
-    ap.add_argument("--pool", choices=["main", "holdout"], default="main")
+    ap.add_argument("--pool", choices=["main", "holdout", "holdout2"], default="main")
     a = ap.parse_args()
-    if a.pool == "holdout":
-        use_holdout()
-    a.out = a.out or str(HERE / "data" / f"vsibench_paraphrases{'_holdout' if a.pool == 'holdout' else ''}.jsonl")
+    if a.pool != "main":
+        use_holdout(HOLDOUT if a.pool == "holdout" else HOLDOUT2)
+    a.out = a.out or str(HERE / "data" / f"vsibench_paraphrases{'' if a.pool == 'main' else '_' + a.pool}.jsonl")
     rng = random.Random(a.seed)
     qs = [json.loads(line) for line in open(a.questions) if line.strip()]
     by_type: dict[str, list[dict]] = {}
@@ -215,7 +244,7 @@ def main() -> None:
         pick = rng.sample(by_type[qt], min(a.per_type, len(by_type[qt])))
         rows += [r for r in (rewrite(q, rng) for q in sorted(pick, key=lambda q: q["id"])) if r is not None]
     for i, r in enumerate(rows):
-        r["id"] = (200000 if a.pool == "holdout" else 100000) + i
+        r["id"] = {"main": 100000, "holdout": 200000, "holdout2": 300000}[a.pool] + i
     Path(a.out).parent.mkdir(parents=True, exist_ok=True)
     with open(a.out, "w") as f:
         for r in rows:
