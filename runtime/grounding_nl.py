@@ -58,7 +58,7 @@ big bigger biggest large larger largest small smaller smallest tall taller talle
 longer longest wide wider widest narrow narrower narrowest high higher highest low lower lowest deep size sizes dimension dimensions length
 width height depth measure measures measured measuring measurement measurements area footprint square
 volume elevation hung installed fixed relative relation respect regard half counting excluding including
-leave leaving forgot forget forgotten drop dropped lost present visible
+leave leaving forgot forget forgotten drop dropped lost present visible separating spacing
 point points object objects thing things item items stuff furniture piece pieces kind kinds type types
 please thanks roughly approximately approx around exactly just only really actually about estimate guess
 first second third fourth fifth last order appear appears appeared appearance came come comes seen
@@ -346,15 +346,16 @@ def _intent(j: str, n_obj: int, has_opts: bool) -> str | None:
     if _has(j, r"^(?:is|are|was|were)\b") and _has(j.replace(" . ", "."), _DIST_CMP_RX):
         return "abs_distance"  # "is the sofa within 2 m of the tv?": yes or no, with the distance
     stance = _has(j, r"\b(?:facing|face|faces|looking at|look at|looking towards?|look towards?|turned towards?|"
-                     r"looking in the direction of)\b")
+                     r"looking in the direction of)\b|" + _FACING_AHEAD_RX)
     if _has(j, r"\b(?:appear|appears|appeared|appearance|show up|showed up|came into view)\b|"
                r"\b(?:see|saw|seen|spot|spotted|notice|noticed)\b.*\bfirst\b|\bfirst\b.*\b(?:see|saw|seen)\b|"
                r"\bin (?:what|which) order\b"):
         return "obj_appearance_order"
-    if stance and _has(j, r"\b(?:standing|stand|stood|sitting|sit|i am|i'm|im|i was|you are|from|at|by|next to|"
-                          r"beside|near|positioned|located)\b"):
+    where_i = re.sub(r"\b(?:looking|look|looked|staring) at\b", " ", j)  # "looking at A, B or C, which ...": no place
+    if stance and _has(where_i, r"\b(?:standing|stand|stood|sitting|sit|i am|i'm|im|i was|you are|from|at|by|next "
+                                r"to|beside|near|positioned|located)\b"):
         return "direction"
-    if _has(j, r"\b(?:distance|how far|far apart|far away|far from|how close|gap (?:between|from)|separat\w*|"
+    if _has(j, r"\b(?:distance|how far|far apart|far away|far from|how close|gap (?:between|from)|separat\w*|spacing|"
                r"how much (?:space|room|gap)|how many (?:m|meters?|"
                r"metres?|cm|centimet\w+|feet|foot|ft|inch(?:es)?|mm)\b.*\b(?:between|from|apart|away|to)\b)"):
         if _has(j, _CLOSE + "|" + _FAR) and _has(j, r"\b(?:which|whichever|or|than)\b"):
@@ -376,7 +377,9 @@ def _intent(j: str, n_obj: int, has_opts: bool) -> str | None:
     if not _has(j, r"\bhow\b") and (_has(j, _CMP_RX) and _has(j, r"\b(?:which|whichever|what|or|than)\b")
                                      or _has(j, _SUP_RX) and _has(j, r"^(?:which|what|what's)\b")
                                      and not _has(j, _SUP_DIM_RX)
-                                     and not _has(j, r"\b(?:height|length|width|size|depth|dimensions?) of\b")):
+                                     and not _has(j, r"\b(?:height|length|width|size|depth|dimensions?) of\b|"
+                                                     r"\bat (?:its|their) (?:longest|biggest|largest|widest|"
+                                                     r"tallest|highest)\b")):  # "what would X measure at its longest"
         return "size_compare"  # "which is bigger, the table or the sofa?", "what's the tallest thing here?"
     if _has(j, r"^(?:is|are|was|were) (?!there\b)") and _has(j, _VIEW_RX) and n_obj >= 2:
         return "view_direction"  # "is the chair to the left of the table?": as seen from the camera
@@ -1025,6 +1028,8 @@ def _rel_distance(pq, toks, joined, nps, extra) -> None:
 
 
 _FACE1 = {"facing", "face", "faces", "towards", "toward"}
+# "standing by the bed with the sofa in front of me": facing the sofa
+_FACING_AHEAD_RX = r"\bwith (?:the |a |an )?[^,?]{1,40}? (?:in front of|ahead of|before) me\b"
 _FACE2 = {"looking at", "look at", "looked at", "staring at", "turned to", "direction of", "looking toward",
           "look toward", "looking towards", "look towards"}
 
@@ -1036,7 +1041,9 @@ def _stance(toks: list[str], nps: list[dict[str, Any]]) -> tuple[int | None, int
         b = _before(toks, p, 3)
         last = b[-1] if b else ""
         two = " ".join(b[-2:])
-        if face is None and (last in _FACE1 or two in _FACE2):
+        ahead = " ".join(toks[p["end"]:p["end"] + 4]) in ("in front of me", "ahead of me") or \
+            " ".join(toks[p["end"]:p["end"] + 2]) == "before me"
+        if face is None and (last in _FACE1 or two in _FACE2 or (last == "with" and ahead)):
             face = k
             continue
         if rel is None and last == "of" and len(b) >= 2 and b[-2] in ("left", "right", "front", "behind", "back",

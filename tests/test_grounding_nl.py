@@ -1014,3 +1014,18 @@ def test_more_wordings_of_is_there_heights_ties_and_the_tallest_object():
 def test_control_characters_are_not_words():
     a = ask("how many chairs?\x07\x1b[31m")
     assert a.ok and a.text == "3" and "x07" not in a.explanation
+
+
+def test_the_third_held_out_wordings_failure_classes():
+    """The first run of `--pool holdout2` (0.807): "what would X measure at its longest" answered an instance;
+    "the distance separating A and B" / "the spacing between A and B" and "looking at A, B or C, which one is
+    nearest the D?" (read as a stance) were refused; "standing next to A with B in front of me" had no facing."""
+    assert ask("What would the couch measure at its longest, in inches?").value == pytest.approx(200 / 2.54)
+    for q in ("What's the distance separating the desk and the couch?", "What is the spacing between the desk and "
+                                                                         "the couch?"):
+        assert ask(q).value == pytest.approx(min_gap("desk", "couch"), abs=1e-3), q
+    r = ask("Looking at the couch, the radiator or the whiteboard, which one is nearest the desk?")
+    gaps = {n: min_gap(n, "desk") for n in ("couch", "radiator", "whiteboard")}
+    assert r.ok and r.qtype == "object_rel_distance" and r.value == min(gaps, key=gaps.get).replace("couch", "sofa")
+    d = ask("Standing next to the desk with the whiteboard in front of me, is the couch to the left or the right?")
+    assert d.ok and d.text == ("left" if ccw_deg("desk", "whiteboard", "couch") > 0 else "right")
