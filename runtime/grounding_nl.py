@@ -58,7 +58,8 @@ big bigger biggest large larger largest small smaller smallest tall taller talle
 longer longest wide wider widest narrow narrower narrowest high higher highest low lower lowest deep size sizes dimension dimensions length
 width height depth measure measures measured measuring measurement measurements area footprint square
 volume elevation hung installed fixed relative relation respect regard half counting excluding including
-leave leaving forgot forget forgotten drop dropped lost present visible separating spacing
+leave leaving forgot forget forgotten drop dropped lost present visible separating spacing separation
+option options choice choices following eyes gaze
 point points object objects thing things item items stuff furniture piece pieces kind kinds type types
 please thanks roughly approximately approx around exactly just only really actually about estimate guess
 first second third fourth fifth last order appear appears appeared appearance came come comes seen
@@ -265,6 +266,14 @@ _PREAMBLE = [  # phrases that would be misread as the question's own words
 ]
 
 
+# the viewer addressed as "you" ("picture yourself by the sofa, facing the tv: is the lamp to your left?") is the
+# asker: read as "I am ... my left"
+_IMAGINED_VIEWER = [(re.compile(rx), to) for rx, to in (
+    (r"\b(?:picture|imagine|visuali[sz]e|suppose|pretend) (?:that )?(?:yourself|you're|you are|you)\b", "i am"),
+    (r"\b(to|on|at) your (left|right|back|front)\b", r"\1 my \2"), (r"\bbehind you\b", "behind me"),
+    (r"\b(in front of|ahead of) you\b", r"\1 me"), (r"\b(left|right) of you\b", r"\1 of me"))]
+
+
 def _strip_preamble(joined: str) -> tuple[str, dict[str, Any]]:
     extra: dict[str, Any] = {}
     m = re.search(r"(?:turn|turning) (?:at least |more than |over |by )?(\d+)\s+degrees", joined)
@@ -272,6 +281,8 @@ def _strip_preamble(joined: str) -> tuple[str, dict[str, Any]]:
         extra["back_deg"] = float(m.group(1))
     for rx in _PREAMBLE:
         joined = rx.sub(" ", joined)
+    for rx, to in _IMAGINED_VIEWER:  # "picture yourself by the sofa ... to your left": the asker's own place
+        joined = rx.sub(to, joined)
     return " ".join(joined.split()), extra
 
 
@@ -346,7 +357,8 @@ def _intent(j: str, n_obj: int, has_opts: bool) -> str | None:
     if _has(j, r"^(?:is|are|was|were)\b") and _has(j.replace(" . ", "."), _DIST_CMP_RX):
         return "abs_distance"  # "is the sofa within 2 m of the tv?": yes or no, with the distance
     stance = _has(j, r"\b(?:facing|face|faces|looking at|look at|looking towards?|look towards?|turned towards?|"
-                     r"looking in the direction of)\b|" + _FACING_AHEAD_RX)
+                     r"looking in the direction of|eyes on|gaze on|pointed at|pointing at|oriented towards?)\b|" +
+                  _FACING_AHEAD_RX)
     if _has(j, r"\b(?:appear|appears|appeared|appearance|show up|showed up|came into view)\b|"
                r"\b(?:see|saw|seen|spot|spotted|notice|noticed)\b.*\bfirst\b|\bfirst\b.*\b(?:see|saw|seen)\b|"
                r"\bin (?:what|which) order\b"):
@@ -1031,7 +1043,8 @@ _FACE1 = {"facing", "face", "faces", "towards", "toward"}
 # "standing by the bed with the sofa in front of me": facing the sofa
 _FACING_AHEAD_RX = r"\bwith (?:the |a |an )?[^,?]{1,40}? (?:in front of|ahead of|before) me\b"
 _FACE2 = {"looking at", "look at", "looked at", "staring at", "turned to", "direction of", "looking toward",
-          "look toward", "looking towards", "look towards"}
+          "look toward", "looking towards", "look towards", "eyes on", "gaze on", "looking over", "pointed at",
+          "pointing at", "oriented toward", "oriented towards"}
 
 
 def _stance(toks: list[str], nps: list[dict[str, Any]]) -> tuple[int | None, int | None, int | None]:

@@ -1029,3 +1029,22 @@ def test_the_third_held_out_wordings_failure_classes():
     assert r.ok and r.qtype == "object_rel_distance" and r.value == min(gaps, key=gaps.get).replace("couch", "sofa")
     d = ask("Standing next to the desk with the whiteboard in front of me, is the couch to the left or the right?")
     assert d.ok and d.text == ("left" if ccw_deg("desk", "whiteboard", "couch") > 0 else "right")
+
+
+def test_the_fourth_held_out_wordings_failure_classes():
+    """The first run of `--pool holdout3` (0.673): "picture yourself by A, facing B ... to your left" (an object
+    "picture yourself"), "eyes on the B" (no facing), "the separation between", "Options: ..." and "which of the
+    following" (objects "option", "following")."""
+    left = "left" if ccw_deg("desk", "whiteboard", "couch") > 0 else "right"
+    for q in ("Picture yourself by the desk, facing the whiteboard. Is the couch on the left or on the right?",
+              "standing at the desk, eyes on the whiteboard: is the couch left or right?",
+              "Imagine you are at the desk facing the whiteboard. Is the couch to your left or your right?"):
+        a = ask(q)
+        assert a.ok and a.text == left, (q, a.explanation)
+    assert ask("What's the separation between the desk and the couch?").value == pytest.approx(
+        min_gap("desk", "couch"), abs=1e-3)
+    gaps = {n: min_gap(n, "desk") for n in ("couch", "radiator", "whiteboard")}
+    for q in ("Which is closest to the desk? Options: the couch, the radiator and the whiteboard.",
+              "which of the following is closest to the desk: the couch, the radiator, or the whiteboard?"):
+        r = ask(q)
+        assert r.ok and r.value == min(gaps, key=gaps.get).replace("couch", "sofa"), (q, r.explanation)
