@@ -169,6 +169,8 @@ _NO_APOSTROPHE = {w.replace("'", ""): w for w in (
 def tokens(text: str) -> list[str]:
     """Lower-case word and punctuation tokens; a possessive "'s" is its own token."""
     s = text.lower().replace("\u2019", "'").replace("(s)", "").replace("(es)", "").replace("_", " ")
+    s = re.sub(r"\s[-\u2013\u2014]+\s", " , ", s)  # a dash between words separates phrases ("the toilet - bed, ...")
+    s = re.sub(r"(?<=[a-z0-9])-to-(?=[a-z0-9])", " to ", s)  # "the tv-to-bed distance"
     out: list[str] = []
     for t in _TOK.findall(s):
         t = _NO_APOSTROPHE.get(t, t)
@@ -305,7 +307,8 @@ _SIMPLE_INTENTS = [(name, re.compile(rx)) for name, rx in (  # tried in this ord
                   rf"\b{_ROOMS} 's (?:floor )?(?:size|area|footprint)\b|^(?:the |this )?{_ROOMS} (?:floor )?(?:size|area|"
                   rf"footprint)\b"),
     ("size", rf"\bhow (?:big|large|long|tall|wide|high|deep)\b|\b(?:size|dimensions?|length|height|width|depth|volume|"
-             rf"measure|measures|measurements?|longest side|longest edge)\b|how many {_UNITS_RX}\b"),
+             rf"measure|measures|measurements?)\b|\b(?:longest|biggest|largest|greatest|widest|max|maximum) (?:side|"
+             rf"edge|dimension|extent|length|measurement)\b|how many {_UNITS_RX}\b"),
     ("count", r"\bhow many\b|\bcount\b|\bnumber of\b|\bquantity of\b|\btotal of\b|^(?:the )?total\b"),
     ("existence", r"^(?:is|are|isn't|aren't|was|were) there\b|\bis there (?:one|any)\b|\b(?:is|are) (?:a |an |any )?"
                   r"[^?]{1,60}? (?:present|around|visible)\b|^(?:have|has|did) (?:you|we|i) (?:seen|see|spotted|spot|"

@@ -1048,3 +1048,13 @@ def test_the_fourth_held_out_wordings_failure_classes():
               "which of the following is closest to the desk: the couch, the radiator, or the whiteboard?"):
         r = ask(q)
         assert r.ok and r.value == min(gaps, key=gaps.get).replace("couch", "sofa"), (q, r.explanation)
+
+
+def test_the_fifth_held_out_wordings_failure_classes():
+    """The first run of `--pool holdout4` (0.927): "couch: biggest side, in cm?" (no size cue), "the desk-to-couch
+    distance" (one hyphenated word), and "nearest to the toilet - bed, table ..." (the dash joined two names)."""
+    assert ask("couch: biggest side, in cm?").value == pytest.approx(200.0)
+    assert ask("What's the desk-to-couch distance?").value == pytest.approx(min_gap("desk", "couch"), abs=1e-3)
+    gaps = {n: min_gap(n, "desk") for n in ("couch", "radiator", "whiteboard")}
+    r = ask("Which would be nearest to the desk - couch, radiator or whiteboard?")
+    assert r.ok and r.value == min(gaps, key=gaps.get).replace("couch", "sofa"), r.explanation
