@@ -30,7 +30,7 @@ Nothing here looks at a map: which names exist is the reasoner's business.
 from __future__ import annotations
 
 import re
-from typing import Any
+from typing import Any, Callable
 
 from .grounding import NAME_SYNONYMS, ParsedQuestion, canonical_name, name_key, split_options
 
@@ -480,72 +480,26 @@ _TRIGGERS = {"count": {"many", "count", "number", "quantity", "total"},
              "where": {"where", "where's", "locate", "location", "position", "whereabouts"}}
 
 
+class _Refused(Exception):
+    """Raised by a parse step that refused the question (`_refuse`: its `notes` say why)."""
+
+
+def _refuse(pq: ParsedQuestion, understood: str, missing: str) -> None:
+    _fail(pq, understood, missing)
+    raise _Refused
+
+
 def parse_natural(question: str, options: list[str] | None = None) -> ParsedQuestion:
     """Parse a natural English question (see the module docstring). `question` is already cleaned
-    (`grounding.safe_text`); the result's qtype is None when the intent or its objects are not understood, with
-    `notes` saying what was understood and what was not."""
+    (`grounding.parse_question`); the result's qtype is None when the intent or its objects are not understood,
+    with `notes` saying what was understood and what was not."""
     pq = ParsedQuestion(None, question=question, options=list(options) if options is not None else None,
                         how="natural")
-    toks = tokens(question)
-    joined, extra = _strip_preamble(" ".join(toks))
-    toks = _resolve_pronouns(pq, joined.split())
-    if toks is None:
-        pq.how = "none"
-        return pq
-    joined = " ".join(toks)
-    region = re.search(_ROOM_REGION_RX, joined)
-    if region:  # "is the table in the middle of the room?": not an object called "middle"; never guessed
-        _fail(pq, "a position in the room", f"'{region.group(0)}' (the map reasoner places objects relative to "
-                                            f"other objects or to you, not to parts of the room)")
-        pq.how = "none"
-        return pq
-    several = _several_questions(joined, bool(options))
-    if several:  # "how many chairs and how far is the sofa?": never one answer for two questions
-        _fail(pq, f"several questions in one ({several})", "which one to answer: ask them one at a time")
-        pq.how = "none"
-        return pq
-    nps_all = [p for p in noun_phrases(toks) if not p["scene"]]
-    intent = _intent(joined, len(nps_all), bool(options))
-    if intent is None:
-        pq.notes.append("no question type recognised (counting, count comparison, existence, size, size comparison, distance, "
-                        "nearest, direction, left-of / behind, where, list, room size, appearance order)")
-        pq.how = "none"
-        return pq
-    handler = {"count": _count, "count_compare": _count_compare, "existence": _existence, "relation": _existence,
-               "view_direction": _view_direction, "view_list": _view_list, "size": _size, "size_compare": _size_compare,
-               "room_size": _room_size,
-               "abs_distance": _abs_distance, "rel_distance": _rel_distance, "direction": _direction,
-               "where": _where, "list": _list, "obj_appearance_order": _order}[intent]
-    keep_attach = intent not in ("rel_distance", "direction")
-    nps = _attachments(toks, nps_all) if keep_attach else nps_all
-    first = next((i for i, t in enumerate(toks) if t in _TRIGGERS.get(intent, ())), None)
-    if first is not None:  # "Quick question: how many chairs ...": the object comes after the question's cue
-        nps = [p for p in nps if p["start"] > first] or nps
-    used = {w for sel in (p["sel"] for p in nps_all) for w in sel}
-    ordinal = [w for w in toks if w in _RANKS and w not in used]
-    if ordinal:  # "the second closest object": a rank the reasoner does not compute; never dropped silently
-        _fail(pq, f"a {intent.replace('_', ' ')} question", f"the rank '{ordinal[0]}' (only the nearest / farthest "
-                                                            f"or one object at a time)")
-        pq.how = "none"
-        return pq
-    cut = re.search(_EXCEPT_RX, joined)
-    exclude = [p for p in nps if cut and p["start"] >= len(joined[:cut.start()].split())]
-    if exclude:  # "which object is closest to the sofa, apart from the bin?": those objects leave the candidates
-        nps = [p for p in nps if p not in exclude]
-    handler(pq, toks, joined, nps, extra)
-    if exclude and pq.qtype is not None:
-        if pq.qtype != "object_nearest":  # never answered as if the exception had not been said
-            _fail(pq, f"{'an' if intent[0] in 'aeiou' else 'a'} {intent.replace('_', ' ')} question",
-                  f"the exception '{cut.group(0)} {' '.join(exclude[0]['words'])}' (only 'what is nearest to X, "
-                  f"apart from Y?' takes one)")
-            pq.how = "none"
-            return pq
-        pq.params["exclude"] = _refs(pq, exclude)
-    negation = _unread_negation(pq, toks)
-    if negation and pq.qtype is not None:  # never answer the question without its "not"
-        kind = intent.replace("_", " ")
-        _fail(pq, f"{'an' if kind[0] in 'aeiou' else 'a'} {kind} question",
-              f"the negation '{negation}' (ask it without: e.g. 'is there a ...?', 'how many ... are on the ...?')")
+    try:
+        _parse_into(pq, options)
+    except _Refused:
+        pass
+    if pq.qtype is None:
         pq.how = "none"
         return pq
     pq.targets = list(dict.fromkeys(pq.targets))
@@ -554,9 +508,58 @@ def parse_natural(question: str, options: list[str] | None = None) -> ParsedQues
         if sel.get("near") and sel["near"] not in pq.targets:
             pq.cues.append(sel["near"])
     pq.unknown = list(dict.fromkeys(pq.unknown))
-    if pq.qtype is None:
-        pq.how = "none"
     return pq
+
+
+_HANDLERS: dict[str, Callable[..., None]] = {}  # intent -> handler(pq, toks, joined, nps, extra), filled below
+
+
+def _parse_into(pq: ParsedQuestion, options: list[str] | None) -> None:
+    """The parse steps, each refusing (`_Refused`) rather than dropping a word it cannot apply."""
+    joined, extra = _strip_preamble(" ".join(tokens(pq.question)))
+    toks = _resolve_pronouns(pq, joined.split())
+    if toks is None:
+        raise _Refused
+    joined = " ".join(toks)
+    _refuse_whole_text(pq, joined, bool(options))
+    nps_all = [p for p in noun_phrases(toks) if not p["scene"]]
+    intent = _intent(joined, len(nps_all), bool(options))
+    if intent is None:
+        pq.notes.append("no question type recognised (counting, count comparison, existence, size, size comparison, "
+                        "distance, nearest, direction, left-of / behind, where, list, room size, appearance order)")
+        raise _Refused
+    nps = _attachments(toks, nps_all) if intent not in ("rel_distance", "direction") else nps_all
+    first = next((i for i, t in enumerate(toks) if t in _TRIGGERS.get(intent, ())), None)
+    if first is not None:  # "Quick question: how many chairs ...": the object comes after the question's cue
+        nps = [p for p in nps if p["start"] > first] or nps
+    kind = f"{'an' if intent[0] in 'aeiou' else 'a'} {intent.replace('_', ' ')} question"
+    used = {w for sel in (p["sel"] for p in nps_all) for w in sel}
+    ordinal = [w for w in toks if w in _RANKS and w not in used]
+    if ordinal:  # "the second closest object": a rank the reasoner does not compute; never dropped silently
+        _refuse(pq, kind, f"the rank '{ordinal[0]}' (only the nearest / farthest or one object at a time)")
+    cut = re.search(_EXCEPT_RX, joined)
+    exclude = [p for p in nps if cut and p["start"] >= len(joined[:cut.start()].split())]
+    _HANDLERS[intent](pq, toks, joined, [p for p in nps if p not in exclude], extra)
+    if exclude and pq.qtype is not None:  # "closest to the sofa, apart from the bin": those leave the candidates
+        if pq.qtype != "object_nearest":  # never answered as if the exception had not been said
+            _refuse(pq, kind, f"the exception '{cut.group(0)} {' '.join(exclude[0]['words'])}' (only 'what is "
+                              f"nearest to X, apart from Y?' takes one)")
+        pq.params["exclude"] = _refs(pq, exclude)
+    negation = _unread_negation(pq, toks)
+    if negation and pq.qtype is not None:  # never answer the question without its "not"
+        _refuse(pq, kind, f"the negation '{negation}' (ask it without: e.g. 'is there a ...?', 'how many ... are on "
+                          f"the ...?')")
+
+
+def _refuse_whole_text(pq: ParsedQuestion, joined: str, has_opts: bool) -> None:
+    """Refuse a place in the room as a location, and several questions in one text."""
+    region = re.search(_ROOM_REGION_RX, joined)
+    if region:  # "is the table in the middle of the room?": not an object called "middle"; never guessed
+        _refuse(pq, "a position in the room", f"'{region.group(0)}' (the map reasoner places objects relative to "
+                                              f"other objects or to you, not to parts of the room)")
+    several = _several_questions(joined, has_opts)
+    if several:  # "how many chairs and how far is the sofa?": never one answer for two questions
+        _refuse(pq, f"several questions in one ({several})", "which one to answer: ask them one at a time")
 
 
 _EXCEPT_RX = r"\b(?:apart from|aside from|except(?: for)?|other than|besides|excluding|not counting|but not)\b"
@@ -1166,3 +1169,10 @@ def _order(pq, toks, joined, nps, extra) -> None:
     pq.qtype = "obj_appearance_order"
     pq.targets = names
     pq.params = {"categories": names}
+
+
+_HANDLERS.update({"count": _count, "count_compare": _count_compare, "existence": _existence, "relation": _existence,
+                  "view_direction": _view_direction, "view_list": _view_list, "size": _size,
+                  "size_compare": _size_compare, "room_size": _room_size, "abs_distance": _abs_distance,
+                  "rel_distance": _rel_distance, "direction": _direction, "where": _where, "list": _list,
+                  "obj_appearance_order": _order})
