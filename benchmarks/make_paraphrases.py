@@ -195,6 +195,35 @@ HOLDOUT4 = {
              "back-right?"],
 }
 
+# a sixth set (`--pool holdout5`), written after the fifth set's fixes, scored once before any change
+HOLDOUT5 = {
+    "count": ["How many {Ps} are in the room in total?", "Do you know how many {Ps} there are?",
+              "the room has how many {Ps}?", "Count: {Ps}?", "Number of {Ps}, please.", "how many {Ps} can i see"],
+    "size": [("Approximately what is the {X}'s longest dimension?", "cm"), ("How big is that {X}?", "cm"),
+             ("What's the maximum extent of the {X} in cm?", "cm"), ("Size of the {X} in metres, please.", "m"),
+             ("How big, in centimeters, is the {X}?", "cm"), ("What is the longest measurement of the {X}?", "cm")],
+    "abs": [("What distance is there between the {A} and the {B}?", "m"),
+            ("How far, in meters, is the {A} from the {B}?", "m"), ("Distance {A} {B}?", "m"),
+            ("How much distance separates the {A} from the {B}?", "m"),
+            ("Please measure how far the {A} is from the {B}.", "m"),
+            ("What's the shortest gap between the {A} and the {B}?", "m")],
+    "rel": ["Which object, {L}, is {sup} the {R}?", "{L}: which of them is {sup} the {R}?",
+            "Which of these objects is {sup} the {R}: {L}?", "What object is {sup} the {R}?",
+            "Of the {L}, which is {sup} the {R}?", "Find which of {L} is {sup} the {R}."],
+    "easy": ["My position is the {A} and I'm looking at the {B}. Is the {C} to the left or right?",
+             "Located at the {A}, oriented toward the {B}: is the {C} left or right?",
+             "Is the {C} on the left or the right when standing at the {A} and facing the {B}?"],
+    "medium": ["My position is the {A} and I'm looking at the {B}. Is the {C} left, right or behind?",
+               "Located at the {A}, oriented toward the {B}: is the {C} left, right, or behind me?",
+               "Is the {C} on my left, on my right or behind me when standing at the {A} and facing the {B}?"],
+    "hard": ["My position is the {A} and I'm looking at the {B}. Is the {C} front-left, front-right, back-left or "
+             "back-right?",
+             "Located at the {A}, oriented toward the {B}: the {C} is front-left, front-right, back-left or "
+             "back-right?",
+             "Is the {C} front-left, front-right, back-left or back-right when standing at the {A} and facing the "
+             "{B}?"],
+}
+
 TEMPLATES = {  # the benchmark's own wording, to take the objects out
     "object_counting": r"How many (.+?)\(s\) are in this room",
     "object_size_estimation": r"\(length, width, or height\) of the (.+?), measured in centimeters",
@@ -286,10 +315,11 @@ def main() -> None:
     ap.add_argument("--per-type", type=int, default=48)
     ap.add_argument("--seed", type=int, default=15)
     ap.add_argument("--out", default=None, help="default benchmarks/data/vsibench_paraphrases[_holdout].jsonl")
-    ap.add_argument("--pool", choices=["main", "holdout", "holdout2", "holdout3", "holdout4"], default="main")
+    pools = {"holdout": HOLDOUT, "holdout2": HOLDOUT2, "holdout3": HOLDOUT3, "holdout4": HOLDOUT4, "holdout5": HOLDOUT5}
+    ap.add_argument("--pool", choices=["main", *pools], default="main")
     a = ap.parse_args()
     if a.pool != "main":
-        use_holdout({"holdout": HOLDOUT, "holdout2": HOLDOUT2, "holdout3": HOLDOUT3, "holdout4": HOLDOUT4}[a.pool])
+        use_holdout(pools[a.pool])
     a.out = a.out or str(HERE / "data" / f"vsibench_paraphrases{'' if a.pool == 'main' else '_' + a.pool}.jsonl")
     rng = random.Random(a.seed)
     qs = [json.loads(line) for line in open(a.questions) if line.strip()]
@@ -303,7 +333,7 @@ def main() -> None:
         rows += [r for r in (rewrite(q, rng) for q in sorted(pick, key=lambda q: q["id"])) if r is not None]
     for i, r in enumerate(rows):
         r["id"] = {"main": 100000, "holdout": 200000, "holdout2": 300000, "holdout3": 400000,
-                   "holdout4": 500000}[a.pool] + i
+                   "holdout4": 500000, "holdout5": 600000}[a.pool] + i
     Path(a.out).parent.mkdir(parents=True, exist_ok=True)
     with open(a.out, "w") as f:
         for r in rows:
