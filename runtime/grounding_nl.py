@@ -32,7 +32,7 @@ from __future__ import annotations
 import re
 from typing import Any, Callable
 
-from .grounding import NAME_SYNONYMS, ParsedQuestion, canonical_name, name_key, split_options
+from .grounding import NAME_SYNONYMS, ParsedQuestion, canonical_name, name_key, singular, split_options
 
 UNIT_M = {"m": 1.0, "cm": 0.01, "mm": 0.001, "ft": 0.3048, "in": 0.0254}
 _UNIT_WORDS = {"m": "m", "meter": "m", "meters": "m", "metre": "m", "metres": "m", "cm": "cm", "centimeter": "cm",
@@ -59,7 +59,7 @@ longer longest wide wider widest narrow narrower narrowest high higher highest l
 width height depth measure measures measured measuring measurement measurements area footprint square
 volume elevation hung installed fixed relative relation respect regard half counting excluding including
 leave leaving forgot forget forgotten drop dropped lost present visible separating spacing separation
-option options choice choices following eyes gaze
+option options choice choices following eyes gaze oriented orientated position location
 point points object objects thing things item items stuff furniture piece pieces kind kinds type types
 please thanks roughly approximately approx around exactly just only really actually about estimate guess
 first second third fourth fifth last order appear appears appeared appearance came come comes seen
@@ -954,6 +954,10 @@ def _abs_distance(pq, toks, joined, nps, extra) -> None:
         pq.qtype, pq.targets = "object_abs_distance", names
         pq.params = {"a": names[0], "b": names[0], "unit": _unit(joined, "m")}
         return
+    pair = _two_names(nps[0]["words"]) if len(nps) == 1 else None
+    if pair:  # "distance fireplace sofa?": one phrase that is two names and no name itself
+        pq.unknown = [u for u in pq.unknown if u != " ".join(nps[0]["words"])]
+        names = _refs(pq, [{**nps[0], "words": w.split(), "sel": []} for w in pair])
     if len(names) != 2:
         got = ", ".join(f"'{pq.phrase(n)}'" for n in names) or "no object"
         return _fail(pq, f"a distance question naming {got}", "exactly two objects to measure between")
@@ -963,6 +967,20 @@ def _abs_distance(pq, toks, joined, nps, extra) -> None:
     cond = _distance_condition(pq.question)
     if cond is not None and toks[0] in _COPULA:  # "is the sofa within 2 m of the tv?": yes or no
         pq.params["within"] = cond
+
+
+def _two_names(words: list[str]) -> tuple[str, str] | None:
+    """Two vocabulary names (each exactly a name or a listed synonym) that a phrase which is not itself one
+    splits into ("fireplace sofa"), else None ("coffee table" is one name)."""
+    def exact(ws: list[str]) -> bool:
+        return " ".join(singular(w) for w in ws) in NAME_SYNONYMS or " ".join(ws) in NAME_SYNONYMS
+
+    if len(words) < 2 or exact(words):
+        return None
+    for k in range(1, len(words)):
+        if exact(words[:k]) and exact(words[k:]):
+            return " ".join(words[:k]), " ".join(words[k:])
+    return None
 
 
 def _reference_index(toks: list[str], nps: list[dict[str, Any]]) -> int | None:
@@ -1072,7 +1090,8 @@ def _stance(toks: list[str], nps: list[dict[str, Any]]) -> tuple[int | None, int
         seated = last in ("on", "in") and len(b) >= 2 and b[-2] in ("sitting", "sit", "sat", "lying", "standing",
                                                                     "seated")  # "sitting on the couch"
         if pos is None and (last in ("by", "at", "beside", "near", "from") or seated or
-                            two in ("next to", "close to", "front of", "from where")):
+                            two in ("next to", "close to", "front of", "from where", "position is", "location is",
+                                    "place is", "spot is")):
             pos = k
     return pos, face, rel
 

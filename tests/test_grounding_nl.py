@@ -1058,3 +1058,16 @@ def test_the_fifth_held_out_wordings_failure_classes():
     gaps = {n: min_gap(n, "desk") for n in ("couch", "radiator", "whiteboard")}
     r = ask("Which would be nearest to the desk - couch, radiator or whiteboard?")
     assert r.ok and r.value == min(gaps, key=gaps.get).replace("couch", "sofa"), r.explanation
+
+
+def test_the_sixth_held_out_wordings_failure_classes():
+    """The first run of `--pool holdout5` (0.615): "located at A, oriented toward B" (an object "oriented"), "my
+    position is A and I'm looking at B" (no place), and the telegraphic "distance desk couch?" (one phrase)."""
+    side = "left" if ccw_deg("desk", "whiteboard", "couch") > 0 else "right"
+    for q in ("Located at the desk, oriented toward the whiteboard: is the couch left or right?",
+              "My position is the desk and I'm looking at the whiteboard. Is the couch to the left or right?"):
+        a = ask(q)
+        assert a.ok and a.text == side, (q, a.explanation)
+    assert ask("Distance desk couch?").value == pytest.approx(min_gap("desk", "couch"), abs=1e-3)
+    # a phrase that is one name stays one object: "coffee table" is not "coffee" and "table"
+    assert parse_question("distance coffee table?").qtype is None
