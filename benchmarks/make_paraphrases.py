@@ -224,6 +224,34 @@ HOLDOUT5 = {
              "{B}?"],
 }
 
+# a seventh set (`--pool holdout6`), written after the sixth set's fixes, scored once before any change
+HOLDOUT6 = {
+    "count": ["What's the total number of {Ps} you can see?", "How many {Ps} appear in the room?",
+              "Roughly how many {Ps} are there?", "{Ps}? how many", "Are there many {Ps}? Give the number.",
+              "How many separate {Ps} are in this room?"],
+    "size": [("How big is the {X}, roughly, in cm?", "cm"), ("What's the {X}'s size at its largest?", "cm"),
+             ("Tell me how long the {X} is at its longest.", "cm"), ("The {X} is how big?", "cm"),
+             ("How many cm is the {X} along its longest side?", "cm"), ("What is the size of the {X} (max side)?", "cm")],
+    "abs": [("The {A} and the {B}: how far apart?", "m"), ("How far is the {A} located from the {B}?", "m"),
+            ("What's the closest distance between the {A} and the {B}?", "m"),
+            ("Find the distance from the {A} to the {B} in meters.", "m"),
+            ("Approximately how far from the {B} is the {A}?", "m"), ("How big is the gap between the {A} and the {B}?", "m")],
+    "rel": ["Which is the {sup2} one to the {R}: {L}?", "{L} - which one is {sup} the {R}?",
+            "Which of {L} sits {sup} the {R}?", "Can you find which object is {sup} the {R}?",
+            "What's {sup} the {R}? Is it {L}?", "Which among {L} is {sup} the {R}?"],
+    "easy": ["I am standing at the {A}. The {B} is straight ahead. Is the {C} on my left or right?",
+             "From my spot at the {A}, looking in the direction of the {B}, is the {C} left or right?",
+             "Let's say I'm next to the {A}, looking at the {B}. Is the {C} on the left or the right?"],
+    "medium": ["I am standing at the {A}. The {B} is straight ahead. Is the {C} on my left, my right, or behind me?",
+               "From my spot at the {A}, looking in the direction of the {B}, is the {C} left, right or behind?",
+               "Let's say I'm next to the {A}, looking at the {B}. Is the {C} left, right, or back?"],
+    "hard": ["I am standing at the {A}. The {B} is straight ahead. Is the {C} front-left, front-right, back-left or "
+             "back-right?",
+             "From my spot at the {A}, looking in the direction of the {B}, is the {C} front-left, front-right, "
+             "back-left or back-right?",
+             "Let's say I'm next to the {A}, looking at the {B}. Which quadrant is the {C} in?"],
+}
+
 TEMPLATES = {  # the benchmark's own wording, to take the objects out
     "object_counting": r"How many (.+?)\(s\) are in this room",
     "object_size_estimation": r"\(length, width, or height\) of the (.+?), measured in centimeters",
@@ -315,7 +343,8 @@ def main() -> None:
     ap.add_argument("--per-type", type=int, default=48)
     ap.add_argument("--seed", type=int, default=15)
     ap.add_argument("--out", default=None, help="default benchmarks/data/vsibench_paraphrases[_holdout].jsonl")
-    pools = {"holdout": HOLDOUT, "holdout2": HOLDOUT2, "holdout3": HOLDOUT3, "holdout4": HOLDOUT4, "holdout5": HOLDOUT5}
+    pools = {"holdout": HOLDOUT, "holdout2": HOLDOUT2, "holdout3": HOLDOUT3, "holdout4": HOLDOUT4, "holdout5": HOLDOUT5,
+             "holdout6": HOLDOUT6}
     ap.add_argument("--pool", choices=["main", *pools], default="main")
     a = ap.parse_args()
     if a.pool != "main":
@@ -333,7 +362,7 @@ def main() -> None:
         rows += [r for r in (rewrite(q, rng) for q in sorted(pick, key=lambda q: q["id"])) if r is not None]
     for i, r in enumerate(rows):
         r["id"] = {"main": 100000, "holdout": 200000, "holdout2": 300000, "holdout3": 400000,
-                   "holdout4": 500000, "holdout5": 600000}[a.pool] + i
+                   "holdout4": 500000, "holdout5": 600000, "holdout6": 700000}[a.pool] + i
     Path(a.out).parent.mkdir(parents=True, exist_ok=True)
     with open(a.out, "w") as f:
         for r in rows:
