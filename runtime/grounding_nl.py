@@ -309,7 +309,8 @@ _SIMPLE_INTENTS = [(name, re.compile(rx)) for name, rx in (  # tried in this ord
     ("size", rf"\bhow (?:big|large|long|tall|wide|high|deep)\b|\b(?:size|dimensions?|length|height|width|depth|volume|"
              rf"measure|measures|measurements?)\b|\b(?:longest|biggest|largest|greatest|widest|max|maximum) (?:side|"
              rf"edge|dimension|extent|length|measurement)\b|how many {_UNITS_RX}\b"),
-    ("count", r"\bhow many\b|\bcount\b|\bnumber of\b|\bquantity of\b|\btotal of\b|^(?:the )?total\b"),
+    ("count", r"\bhow many\b|\bcount\b|\bnumber of\b|\bquantity of\b|\btotal of\b|^(?:the )?total\b|"
+              r"\b(?:give|tell) (?:me )?(?:the |a )?(?:number|count|total)\b"),
     ("existence", r"^(?:is|are|isn't|aren't|was|were) there\b|\bis there (?:one|any)\b|\b(?:is|are) (?:a |an |any )?"
                   r"[^?]{1,60}? (?:present|around|visible)\b|^(?:have|has|did) (?:you|we|i) (?:seen|see|spotted|spot|"
                   r"noticed|notice|found|find)\b|\b(?:do|can|did|could) (?:you|i|we) (?:see|spot|find|notice)\b|"
@@ -362,7 +363,8 @@ def _intent(j: str, n_obj: int, has_opts: bool) -> str | None:
     stance = _has(j, r"\b(?:facing|face|faces|looking at|look at|looking towards?|look towards?|turned towards?|"
                      r"looking in the direction of|eyes on|gaze on|pointed at|pointing at|oriented towards?)\b|" +
                   _FACING_AHEAD_RX)
-    if _has(j, r"\b(?:appear|appears|appeared|appearance|show up|showed up|came into view)\b|"
+    if not _has(j, r"^how many\b") and _has(j, r"\b(?:appear|appears|appeared|appearance|show up|showed up|"
+                                              r"came into view)\b|"
                r"\b(?:see|saw|seen|spot|spotted|notice|noticed)\b.*\bfirst\b|\bfirst\b.*\b(?:see|saw|seen)\b|"
                r"\bin (?:what|which) order\b"):
         return "obj_appearance_order"
@@ -1065,7 +1067,8 @@ def _rel_distance(pq, toks, joined, nps, extra) -> None:
 
 _FACE1 = {"facing", "face", "faces", "towards", "toward"}
 # "standing by the bed with the sofa in front of me": facing the sofa
-_FACING_AHEAD_RX = r"\bwith (?:the |a |an )?[^,?]{1,40}? (?:in front of|ahead of|before) me\b"
+_FACING_AHEAD_RX = (r"\bwith (?:the |a |an )?[^,?]{1,40}? (?:in front of|ahead of|before) me\b|"
+                    r"\b(?:is|are) (?:straight |directly |right )?(?:ahead(?: of me)?|in front of me)\b")
 _FACE2 = {"looking at", "look at", "looked at", "staring at", "turned to", "direction of", "looking toward",
           "look toward", "looking towards", "look towards", "eyes on", "gaze on", "looking over", "pointed at",
           "pointing at", "oriented toward", "oriented towards"}
@@ -1078,9 +1081,10 @@ def _stance(toks: list[str], nps: list[dict[str, Any]]) -> tuple[int | None, int
         b = _before(toks, p, 3)
         last = b[-1] if b else ""
         two = " ".join(b[-2:])
-        ahead = " ".join(toks[p["end"]:p["end"] + 4]) in ("in front of me", "ahead of me") or \
-            " ".join(toks[p["end"]:p["end"] + 2]) == "before me"
-        if face is None and (last in _FACE1 or two in _FACE2 or (last == "with" and ahead)):
+        after = " ".join(toks[p["end"]:p["end"] + 5])
+        ahead = re.match(r"(?:in front of me|ahead of me|before me)\b", after) is not None
+        ahead_is = re.match(r"(?:is|are) (?:straight |directly |right )?(?:ahead|in front of me)\b", after) is not None
+        if face is None and (last in _FACE1 or two in _FACE2 or (last == "with" and ahead) or ahead_is):
             face = k
             continue
         if rel is None and last == "of" and len(b) >= 2 and b[-2] in ("left", "right", "front", "behind", "back",

@@ -1071,3 +1071,15 @@ def test_the_sixth_held_out_wordings_failure_classes():
     assert ask("Distance desk couch?").value == pytest.approx(min_gap("desk", "couch"), abs=1e-3)
     # a phrase that is one name stays one object: "coffee table" is not "coffee" and "table"
     assert parse_question("distance coffee table?").qtype is None
+
+
+def test_the_seventh_held_out_wordings_failure_classes():
+    """The first run of `--pool holdout6` (0.794): "how many chairs appear in the room?" (read as an appearance
+    order), "are there many chairs? give the number." (answered "yes"), "the whiteboard is straight ahead" (no
+    facing)."""
+    assert ask("How many chairs appear in the room?").value == 3
+    assert ask("Are there many chairs? Give the number.").value == 3
+    side = "left" if ccw_deg("desk", "whiteboard", "couch") > 0 else "right"
+    a = ask("I am standing at the desk. The whiteboard is straight ahead. Is the couch on my left or right?")
+    assert a.ok and a.text == side, a.explanation
+    assert ask("Which did I see first, the desk or the couch?").qtype == "obj_appearance_order"
