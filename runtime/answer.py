@@ -941,8 +941,10 @@ class MapReasoner:
                                f"same position")
         th = signed_angle_deg(f, C.center[:2] - A.center[:2])
         self._spread = ("per-view angle", ev.angle_values(A, B, C, th), "deg")
+        by_order = (f"; where I stand read as the {self._ph(p['position'])}: the object named before what I face "
+                    f"(no place word such as 'at' or 'by')") if p.get("position_by_order") else ""
         return th, (f"at {self._ph(p['position'])} facing {self._ph(p['facing'])}: {self._ph(p['query'])} at "
-                    f"{th:+.1f} deg (counter-clockwise){na}{nb}{nc}")
+                    f"{th:+.1f} deg (counter-clockwise){na}{nb}{nc}{by_order}")
 
     def _rel_direction(self, pq: ParsedQuestion, level: str) -> tuple[Any, str]:
         th, expl = self._angle(pq)

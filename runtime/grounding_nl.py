@@ -361,7 +361,8 @@ def _intent(j: str, n_obj: int, has_opts: bool) -> str | None:
     if _has(j, r"^(?:is|are|was|were)\b") and _has(j.replace(" . ", "."), _DIST_CMP_RX):
         return "abs_distance"  # "is the sofa within 2 m of the tv?": yes or no, with the distance
     stance = _has(j, r"\b(?:facing|face|faces|looking at|look at|looking towards?|look towards?|turned towards?|"
-                     r"looking in the direction of|eyes on|gaze on|pointed at|pointing at|oriented towards?)\b|" +
+                     r"looking in the direction of|eyes on|gaze on|pointed at|pointing at|oriented towards?|"
+                     r"turn(?:s|ing)? (?:to|towards?))\b|" +
                   _FACING_AHEAD_RX)
     if not _has(j, r"^how many\b") and _has(j, r"\b(?:appear|appears|appeared|appearance|show up|showed up|"
                                               r"came into view)\b|"
@@ -1069,7 +1070,7 @@ _FACE1 = {"facing", "face", "faces", "towards", "toward"}
 # "standing by the bed with the sofa in front of me": facing the sofa
 _FACING_AHEAD_RX = (r"\bwith (?:the |a |an )?[^,?]{1,40}? (?:in front of|ahead of|before) me\b|"
                     r"\b(?:is|are) (?:straight |directly |right )?(?:ahead(?: of me)?|in front of me)\b")
-_FACE2 = {"looking at", "look at", "looked at", "staring at", "turned to", "direction of", "looking toward",
+_FACE2 = {"looking at", "look at", "looked at", "staring at", "turned to", "turn to", "direction of", "looking toward",
           "look toward", "looking towards", "look towards", "eyes on", "gaze on", "looking over", "pointed at",
           "pointing at", "oriented toward", "oriented towards"}
 
@@ -1104,6 +1105,10 @@ def _direction(pq, toks, joined, nps, extra) -> None:
     pos, face, rel = _stance(toks, nps)
     names = _refs(pq, nps)
     rest = [k for k in range(len(nps)) if k not in (pos, face, rel)]
+    by_order = pos is None and face is not None and len(rest) >= 2 and nps[rest[0]]["start"] < nps[face]["start"]
+    if by_order:  # "my spot is the stove and I look at the tv, is the sofa ...": the object named before what I face
+        pos, rest = rest[0], rest[1:]
+        pq.params["position_by_order"] = True
     side = _my_side(joined)
     if pos is not None and face is not None and not rest and side and _has(joined, r"\b(?:what|what's|which)\b"):
         pq.qtype, pq.cues = "object_list", [names[pos], names[face]]  # "..., what is on my left?": every object

@@ -1083,3 +1083,15 @@ def test_the_seventh_held_out_wordings_failure_classes():
     a = ask("I am standing at the desk. The whiteboard is straight ahead. Is the couch on my left or right?")
     assert a.ok and a.text == side, a.explanation
     assert ask("Which did I see first, the desk or the couch?").qtype == "obj_appearance_order"
+
+
+def test_a_place_named_before_what_i_face_without_a_place_word_is_said_as_read():
+    """"The desk is where I am, and I'm looking at the whiteboard: ..." names no place word: the object named
+    before what I face is where I stand, and the explanation says it was read that way."""
+    side = "left" if ccw_deg("desk", "whiteboard", "couch") > 0 else "right"
+    a = ask("The desk is where I am, and I'm looking at the whiteboard: is the couch left or right?")
+    assert a.ok and a.text == side and "named before what I face" in a.explanation
+    b = ask("Near the whiteboard I turn toward the desk; is the couch left or right?")
+    assert b.ok and b.text == ("left" if ccw_deg("whiteboard", "desk", "couch") > 0 else "right")
+    c = ask("standing at the desk facing the whiteboard, is the couch on my left or right?")
+    assert "named before" not in c.explanation  # a place word: nothing inferred
