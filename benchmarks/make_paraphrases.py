@@ -252,6 +252,32 @@ HOLDOUT6 = {
              "Let's say I'm next to the {A}, looking at the {B}. Which quadrant is the {C} in?"],
 }
 
+# an eighth set (`--pool holdout7`), written last in stop 25 and scored once, not fixed: the session's final
+# figure for unseen wording
+HOLDOUT7 = {
+    "count": ["How many {Ps} would you say there are?", "Tell me the {P} count.", "how many {Ps} exist here",
+              "What number of {Ps} does the video show?", "Give me the number of {Ps}.", "{Ps} in the room: how many?"],
+    "size": [("How large is the {X} at its widest or longest?", "cm"), ("What's the size of this {X}?", "cm"),
+             ("How long is the {X}'s longest side, in metres?", "m"), ("Longest side of the {X}?", "cm"),
+             ("Please give the {X}'s biggest dimension in centimeters.", "cm"), ("How big does the {X} look?", "cm")],
+    "abs": [("How far is the {A} to the {B}?", "m"), ("What's the distance from {A} to {B}?", "m"),
+            ("Measure the gap between the {A} and the {B}.", "m"), ("How many metres apart are the {A} and the {B}?", "m"),
+            ("How near is the {A} to the {B}?", "m"), ("From the {A} to the {B}, what's the distance?", "m")],
+    "rel": ["Which one's {sup} the {R}: {L}?", "Which of those - {L} - is {sup} the {R}?",
+            "Of all these ({L}), which is {sup} the {R}?", "Which item is {sup} the {R}, {L}?",
+            "Name the object {sup} the {R}: {L}.", "which is {sup} the {R} out of {L}?"],
+    "easy": ["If my position were the {A} and I faced the {B}, would the {C} be left or right?",
+             "Stand at the {A}, face the {B}. Is the {C} on the left or on the right?",
+             "When facing the {B} from the {A}, which side is the {C} on: left or right?"],
+    "medium": ["If my position were the {A} and I faced the {B}, would the {C} be left, right or behind?",
+               "Stand at the {A}, face the {B}. Is the {C} on the left, on the right, or behind?",
+               "When facing the {B} from the {A}, where is the {C}: left, right or back?"],
+    "hard": ["If my position were the {A} and I faced the {B}, would the {C} be front-left, front-right, back-left or "
+             "back-right?",
+             "Stand at the {A}, face the {B}. Is the {C} front-left, front-right, back-left or back-right?",
+             "When facing the {B} from the {A}, which quadrant is the {C} in?"],
+}
+
 TEMPLATES = {  # the benchmark's own wording, to take the objects out
     "object_counting": r"How many (.+?)\(s\) are in this room",
     "object_size_estimation": r"\(length, width, or height\) of the (.+?), measured in centimeters",
@@ -344,7 +370,7 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=15)
     ap.add_argument("--out", default=None, help="default benchmarks/data/vsibench_paraphrases[_holdout].jsonl")
     pools = {"holdout": HOLDOUT, "holdout2": HOLDOUT2, "holdout3": HOLDOUT3, "holdout4": HOLDOUT4, "holdout5": HOLDOUT5,
-             "holdout6": HOLDOUT6}
+             "holdout6": HOLDOUT6, "holdout7": HOLDOUT7}
     ap.add_argument("--pool", choices=["main", *pools], default="main")
     a = ap.parse_args()
     if a.pool != "main":
@@ -362,7 +388,8 @@ def main() -> None:
         rows += [r for r in (rewrite(q, rng) for q in sorted(pick, key=lambda q: q["id"])) if r is not None]
     for i, r in enumerate(rows):
         r["id"] = {"main": 100000, "holdout": 200000, "holdout2": 300000, "holdout3": 400000,
-                   "holdout4": 500000, "holdout5": 600000, "holdout6": 700000}[a.pool] + i
+                   "holdout4": 500000, "holdout5": 600000, "holdout6": 700000,
+                   "holdout7": 800000}[a.pool] + i
     Path(a.out).parent.mkdir(parents=True, exist_ok=True)
     with open(a.out, "w") as f:
         for r in rows:
