@@ -294,7 +294,8 @@ def _has(joined: str, rx: str) -> bool:
 
 _CLOSE = r"\b(?:closest|nearest|closer|nearer)\b"
 _FAR = r"\b(?:farthest|furthest|farther|further)\b"
-_WHICH = r"\b(?:which|whichever|what|what's|or|than)\b"  # a choice is asked (else a closeness word selects)
+# a choice is asked (else a closeness word selects): "which ...", "... or ...", "name / pick the object closest to"
+_WHICH = r"\b(?:which|whichever|what|what's|or|than)\b|^(?:name|pick|identify|choose|select)\b"
 
 
 _ROOMS = r"(?:room|space|kitchen|bedroom|bathroom|apartment|flat|office|house|living room|area|whole space)"
@@ -360,7 +361,7 @@ def _intent(j: str, n_obj: int, has_opts: bool) -> str | None:
         return "room_size"  # "is the room bigger than 20 square meters?": its floor area against a number
     if _has(j, r"^(?:is|are|was|were)\b") and _has(j.replace(" . ", "."), _DIST_CMP_RX):
         return "abs_distance"  # "is the sofa within 2 m of the tv?": yes or no, with the distance
-    stance = _has(j, r"\b(?:facing|face|faces|looking at|look at|looking towards?|look towards?|turned towards?|"
+    stance = _has(j, r"\b(?:facing|face|faces|faced|looking at|look at|looking towards?|look towards?|turned towards?|"
                      r"looking in the direction of|eyes on|gaze on|pointed at|pointing at|oriented towards?|"
                      r"turn(?:s|ing)? (?:to|towards?))\b|" +
                   _FACING_AHEAD_RX)
@@ -371,9 +372,10 @@ def _intent(j: str, n_obj: int, has_opts: bool) -> str | None:
         return "obj_appearance_order"
     where_i = re.sub(r"\b(?:looking|look|looked|staring) at\b", " ", j)  # "looking at A, B or C, which ...": no place
     if stance and _has(where_i, r"\b(?:standing|stand|stood|sitting|sit|i am|i'm|im|i was|you are|from|at|by|next "
-                                r"to|beside|near|positioned|located)\b"):
+                                r"to|beside|near|positioned|located|my (?:position|location|spot|place))\b"):
         return "direction"
-    if _has(j, r"\b(?:distance|how far|far apart|far away|far from|how close|gap (?:between|from)|separat\w*|spacing|"
+    if _has(j, r"\b(?:distance|how far|far apart|far away|far from|how close|how near|gap (?:between|from)|separat\w*|"
+               r"spacing|"
                r"how much (?:space|room|gap)|how many (?:m|meters?|"
                r"metres?|cm|centimet\w+|feet|foot|ft|inch(?:es)?|mm)\b.*\b(?:between|from|apart|away|to)\b)"):
         if _has(j, _CLOSE + "|" + _FAR) and _has(j, r"\b(?:which|whichever|or|than)\b"):
@@ -1066,7 +1068,7 @@ def _rel_distance(pq, toks, joined, nps, extra) -> None:
     pq.params = {"reference": ref, "candidates": cands, "extreme": extreme, **({"yesno": True} if yesno else {})}
 
 
-_FACE1 = {"facing", "face", "faces", "towards", "toward"}
+_FACE1 = {"facing", "face", "faces", "faced", "towards", "toward"}
 # "standing by the bed with the sofa in front of me": facing the sofa
 _FACING_AHEAD_RX = (r"\bwith (?:the |a |an )?[^,?]{1,40}? (?:in front of|ahead of|before) me\b|"
                     r"\b(?:is|are) (?:straight |directly |right )?(?:ahead(?: of me)?|in front of me)\b")
@@ -1096,7 +1098,7 @@ def _stance(toks: list[str], nps: list[dict[str, Any]]) -> tuple[int | None, int
                                                                     "seated")  # "sitting on the couch"
         if pos is None and (last in ("by", "at", "beside", "near", "from") or seated or
                             two in ("next to", "close to", "front of", "from where", "position is", "location is",
-                                    "place is", "spot is")):
+                                    "place is", "spot is", "position were", "position was", "location were")):
             pos = k
     return pos, face, rel
 

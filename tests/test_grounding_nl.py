@@ -1095,3 +1095,15 @@ def test_a_place_named_before_what_i_face_without_a_place_word_is_said_as_read()
     assert b.ok and b.text == ("left" if ccw_deg("whiteboard", "desk", "couch") > 0 else "right")
     c = ask("standing at the desk facing the whiteboard, is the couch on my left or right?")
     assert "named before" not in c.explanation  # a place word: nothing inferred
+
+
+def test_the_eighth_held_out_wordings_failure_classes():
+    """The first run of `--pool holdout7` (0.798, all refusals): "if my position were A and I faced B", "how near
+    is A to B?", "name the object closest to A: B, C and D"."""
+    side = "left" if ccw_deg("desk", "whiteboard", "couch") > 0 else "right"
+    a = ask("If my position were the desk and I faced the whiteboard, would the couch be left or right?")
+    assert a.ok and a.text == side, a.explanation
+    assert ask("How near is the desk to the couch?").value == pytest.approx(min_gap("desk", "couch"), abs=1e-3)
+    gaps = {n: min_gap(n, "desk") for n in ("couch", "radiator", "whiteboard")}
+    r = ask("Name the object closest to the desk: the couch, the radiator and the whiteboard.")
+    assert r.ok and r.value == min(gaps, key=gaps.get).replace("couch", "sofa"), r.explanation
