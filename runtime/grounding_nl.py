@@ -59,7 +59,8 @@ longer longest wide wider widest narrow narrower narrowest high higher highest l
 width height depth measure measures measured measuring measurement measurements area footprint square
 volume elevation hung installed fixed relative relation respect regard half counting excluding including
 leave leaving forgot forget forgotten drop dropped lost present visible separating spacing separation
-option options choice choices following eyes gaze oriented orientated position location
+option options choice choices following eyes gaze oriented orientated position location pointing gazing
+watching staring
 point points object objects thing things item items stuff furniture piece pieces kind kinds type types
 please thanks roughly approximately approx around exactly just only really actually about estimate guess
 first second third fourth fifth last order appear appears appeared appearance came come comes seen
@@ -363,7 +364,7 @@ def _intent(j: str, n_obj: int, has_opts: bool) -> str | None:
         return "abs_distance"  # "is the sofa within 2 m of the tv?": yes or no, with the distance
     stance = _has(j, r"\b(?:facing|face|faces|faced|looking at|look at|looking towards?|look towards?|turned towards?|"
                      r"looking in the direction of|eyes on|gaze on|pointed at|pointing at|oriented towards?|"
-                     r"turn(?:s|ing)? (?:to|towards?))\b|" +
+                     r"turn(?:s|ing)? (?:to|towards?)|gazing at|gaze at|watching|staring at|my face to)\b|" +
                   _FACING_AHEAD_RX)
     if not _has(j, r"^how many\b") and _has(j, r"\b(?:appear|appears|appeared|appearance|show up|showed up|"
                                               r"came into view)\b|"
@@ -1068,11 +1069,13 @@ def _rel_distance(pq, toks, joined, nps, extra) -> None:
     pq.params = {"reference": ref, "candidates": cands, "extreme": extreme, **({"yesno": True} if yesno else {})}
 
 
-_FACE1 = {"facing", "face", "faces", "faced", "towards", "toward"}
+_FACE1 = {"facing", "face", "faces", "faced", "towards", "toward", "watching"}
+_PLACED_VERBS = {"am", "i'm", "im", "standing", "stand", "sitting", "sit", "be", "was", "were", "stood", "sat"}
 # "standing by the bed with the sofa in front of me": facing the sofa
 _FACING_AHEAD_RX = (r"\bwith (?:the |a |an )?[^,?]{1,40}? (?:in front of|ahead of|before) me\b|"
                     r"\b(?:is|are) (?:straight |directly |right )?(?:ahead(?: of me)?|in front of me)\b")
 _FACE2 = {"looking at", "look at", "looked at", "staring at", "turned to", "turn to", "direction of", "looking toward",
+          "gazing at", "gaze at", "face to", "faced to",
           "look toward", "looking towards", "look towards", "eyes on", "gaze on", "looking over", "pointed at",
           "pointing at", "oriented toward", "oriented towards"}
 
@@ -1084,6 +1087,10 @@ def _stance(toks: list[str], nps: list[dict[str, Any]]) -> tuple[int | None, int
         b = _before(toks, p, 3)
         last = b[-1] if b else ""
         two = " ".join(b[-2:])
+        b4 = _before(toks, p, 4)
+        if pos is None and b4[-3:] == ["in", "front", "of"] and len(b4) == 4 and b4[0] in _PLACED_VERBS:
+            pos = k  # "I am in front of the desk, facing ...": where I stand, not a side of the desk
+            continue
         after = " ".join(toks[p["end"]:p["end"] + 5])
         ahead = re.match(r"(?:in front of me|ahead of me|before me)\b", after) is not None
         ahead_is = re.match(r"(?:is|are) (?:straight |directly |right )?(?:ahead|in front of me)\b", after) is not None

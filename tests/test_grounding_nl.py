@@ -4,6 +4,7 @@ Every expected answer is computed here from the room's axis-aligned boxes (gaps,
 never by the reasoner."""
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
@@ -1107,3 +1108,30 @@ def test_the_eighth_held_out_wordings_failure_classes():
     gaps = {n: min_gap(n, "desk") for n in ("couch", "radiator", "whiteboard")}
     r = ask("Name the object closest to the desk: the couch, the radiator and the whiteboard.")
     assert r.ok and r.value == min(gaps, key=gaps.get).replace("couch", "sofa"), r.explanation
+
+
+# every combination of these stance and question phrasings must read the same stance (a grammar, not a list of
+# sentences: a phrasing that works with one partner must work with all)
+_POS = ["standing by the {A}", "at the {A}", "I'm next to the {A}", "from the {A}", "my position is the {A}",
+        "located at the {A}", "if I were at the {A}", "sitting on the {A}", "beside the {A}", "near the {A}",
+        "I am in front of the {A}", "while I stand at the {A}"]
+_FACE = ["facing the {B}", "looking at the {B}", "with the {B} in front of me", "eyes on the {B}",
+         "turned toward the {B}", "and I face the {B}", "the {B} is straight ahead", "looking toward the {B}",
+         "oriented toward the {B}", "pointing at the {B}", "and I'm looking at the {B}", "gazing at the {B}",
+         "watching the {B}", "with my face to the {B}"]
+_QUERY = ["is the {C} on my left or right?", "is the {C} to the left or the right?", "where is the {C}: left or right?",
+          "would the {C} be left or right?", "which side is the {C} on?", "is the {C} left or right of me?"]
+
+
+@pytest.mark.parametrize("a,b,c", [("desk", "whiteboard", "couch"), ("couch", "radiator", "whiteboard"),
+                                   ("radiator", "couch", "laptop")])
+def test_every_stance_phrasing_with_every_question_phrasing(a, b, c):
+    want = "left" if ccw_deg(a, b, c) > 0 else "right"
+    wrong = []
+    for p, f, q in itertools.product(_POS, _FACE, _QUERY):
+        p1, f1, q1 = p.format(A=a), f.format(B=b), q.format(C=c)
+        for text in (f"{p1} {f1}, {q1}", f"{p1[0].upper() + p1[1:]}, {f1}. {q1[0].upper() + q1[1:]}"):
+            got = ask(text)
+            if not (got.ok and want in str(got.text) and ("right" if want == "left" else "left") not in str(got.text)):
+                wrong.append((text, got.text[:60]))
+    assert not wrong, (len(wrong), wrong[:5])
