@@ -366,7 +366,7 @@ def _intent(j: str, n_obj: int, has_opts: bool) -> str | None:
                      r"looking in the direction of|eyes on|gaze on|pointed at|pointing at|oriented towards?|"
                      r"turn(?:s|ing)? (?:to|towards?)|gazing at|gaze at|watching|staring at|my face to)\b|" +
                   _FACING_AHEAD_RX)
-    if not _has(j, r"^how many\b") and _has(j, r"\b(?:appear|appears|appeared|appearance|show up|showed up|"
+    if not _has(j, r"\bhow many\b") and _has(j, r"\b(?:appear|appears|appeared|appearance|show up|showed up|"
                                               r"came into view)\b|"
                r"\b(?:see|saw|seen|spot|spotted|notice|noticed)\b.*\bfirst\b|\bfirst\b.*\b(?:see|saw|seen)\b|"
                r"\bin (?:what|which) order\b"):

@@ -1135,3 +1135,47 @@ def test_every_stance_phrasing_with_every_question_phrasing(a, b, c):
             if not (got.ok and want in str(got.text) and ("right" if want == "left" else "left") not in str(got.text)):
                 wrong.append((text, got.text[:60]))
     assert not wrong, (len(wrong), wrong[:5])
+
+
+_PRE = ["", "roughly, ", "could you tell me ", "quick question: ", "approximately ", "hey, "]
+_DIST = ["how far is the {A} from the {B}", "what's the distance between the {A} and the {B}",
+         "how far apart are the {A} and the {B}", "distance from the {A} to the {B}",
+         "how much space is there between the {A} and the {B}", "what is the gap between the {A} and the {B}",
+         "how close is the {A} to the {B}", "how many meters from the {A} to the {B}",
+         "the {A} and the {B}: how far apart", "how far away is the {B} from the {A}", "how near is the {A} to the {B}",
+         "what's the separation between the {A} and the {B}", "what is the distance separating the {A} and the {B}",
+         "how far is it from the {A} to the {B}", "give me the distance between the {A} and the {B}"]
+_COUNT = ["how many {P}s are there", "count the {P}s", "number of {P}s", "how many {P}s do you see",
+          "what's the number of {P}s", "tell me how many {P}s there are", "how many {P}s can you find",
+          "how many {P}s are in the room", "{P}s: how many", "give me the number of {P}s", "how many {P}s in total",
+          "what is the total number of {P}s", "how many {P}s appear in the video"]
+_SIZE = ["how big is the {X}", "what's the size of the {X}", "how large is the {X}", "what is the longest side of the {X}",
+         "how long is the {X} at its longest", "what's the {X}'s biggest dimension", "what's the max dimension of the {X}",
+         "how big would you say the {X} is", "size of the {X}", "what is the {X}'s longest measurement",
+         "what would the {X} measure at its longest", "tell me the size of the {X}"]
+
+
+def test_every_distance_count_and_size_phrasing_with_every_opener_and_unit():
+    """Grammars like the stance one: each opener x phrasing x unit, answers from the test room's own boxes."""
+    wrong = []
+    for a, b in (("desk", "couch"), ("radiator", "whiteboard")):
+        for pre, t, (suf, k) in itertools.product(_PRE, _DIST, [("?", 1.0), (" in meters?", 1.0), (", please?", 1.0),
+                                                                 (" in feet?", 1 / 0.3048), (" in cm?", 100.0)]):
+            if "how many meters" in t and k != 1.0:
+                continue  # two units asked
+            r = ask(pre + t.format(A=a, B=b) + suf)
+            if not (r.ok and float(r.value) == pytest.approx(min_gap(a, b) * k, rel=0.01)):
+                wrong.append((pre + t.format(A=a, B=b) + suf, r.text[:50]))
+    for n, c in (("chair", 3), ("desk", 1)):
+        for pre, t in itertools.product(_PRE, _COUNT):
+            r = ask(pre + t.format(P=n) + "?")
+            if not (r.ok and r.value == c):
+                wrong.append((pre + t.format(P=n) + "?", r.text[:50]))
+    for x in ("couch", "desk"):
+        longest = max(max(s) for nn, _, s in ROOM if nn == x)
+        for pre, t, (suf, k) in itertools.product(_PRE, _SIZE, [("?", 100.0), (" in cm?", 100.0), (" in meters?", 1.0),
+                                                                 (" in inches?", 1 / 0.0254)]):
+            r = ask(pre + t.format(X=x) + suf)
+            if not (r.ok and float(r.value) == pytest.approx(longest * k, rel=0.01)):
+                wrong.append((pre + t.format(X=x) + suf, r.text[:50]))
+    assert not wrong, (len(wrong), wrong[:5])
