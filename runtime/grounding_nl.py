@@ -296,7 +296,8 @@ def _has(joined: str, rx: str) -> bool:
 _CLOSE = r"\b(?:closest|nearest|closer|nearer)\b"
 _FAR = r"\b(?:farthest|furthest|farther|further)\b"
 # a choice is asked (else a closeness word selects): "which ...", "... or ...", "name / pick the object closest to"
-_WHICH = r"\b(?:which|whichever|what|what's|or|than)\b|^(?:name|pick|identify|choose|select)\b"
+_WHICH = (r"\b(?:which|whichever|what|what's|or|than)\b|^(?:name|pick|identify|choose|select)\b|"
+          r"\b(?:name|pick|identify|choose|select) the (?:object|thing|item|one)\b")
 
 
 _ROOMS = r"(?:room|space|kitchen|bedroom|bathroom|apartment|flat|office|house|living room|area|whole space)"
@@ -1135,7 +1136,7 @@ def _direction(pq, toks, joined, nps, extra) -> None:
     opts = split_options(pq.options)
     asked = [d for _, t in opts for d in direction_words(t)[:1]] if opts else direction_words(
         " ".join(t for i, t in enumerate(toks) if not any(p["start"] <= i < p["end"] for p in nps)))
-    if any(d in QUADRANTS for d in asked):
+    if any(d in QUADRANTS for d in asked) or "quadrant" in toks:  # "which quadrant is the lamp in?"
         level = "hard"
     elif "back" in asked:
         level = "medium"
@@ -1143,7 +1144,7 @@ def _direction(pq, toks, joined, nps, extra) -> None:
         level = "easy"
     else:
         level = "free"
-    if not opts and len(set(asked)) <= 1:  # "is the lamp on my left?", "where is the lamp?": yes/no or words
+    if not opts and len(set(asked)) <= 1 and "quadrant" not in toks:  # "is the lamp on my left?": yes/no or words
         level = "free"
     pq.params = {"position": names[pos], "facing": names[face], "query": query, **extra, **pq.params}
     if rel is not None:

@@ -1179,3 +1179,50 @@ def test_every_distance_count_and_size_phrasing_with_every_opener_and_unit():
             if not (r.ok and float(r.value) == pytest.approx(longest * k, rel=0.01)):
                 wrong.append((pre + t.format(X=x) + suf, r.text[:50]))
     assert not wrong, (len(wrong), wrong[:5])
+
+
+def test_every_closest_and_quadrant_phrasing():
+    """Which-is-closest in 11 phrasings x 7 closeness words x 3 list forms x 4 openers, and three stances x 5
+    left / right / behind and 4 quadrant phrasings over eight object triples: answers from the room's boxes.
+    The first run found "name the object closest to ..." after an opener and "which quadrant is the X in?"
+    (answered in words, not a quadrant)."""
+    from mosaicthinker.runtime.answer import direction_label
+
+    rel = ["which is {sup} the {R}: {L}", "which of {L} is {sup} the {R}", "out of {L}, which one is {sup} the {R}",
+           "among {L}, what is {sup} the {R}", "{L}: which is {sup} the {R}", "what's {sup} the {R}, {L}",
+           "which one is {sup} the {R} - {L}", "of {L}, which sits {sup} the {R}", "name the object {sup} the {R}: {L}",
+           "which of these is {sup} the {R}: {L}", "which object among {L} is {sup} the {R}"]
+    sups = {"closest": ["closest to", "nearest to", "nearest", "the closest to"],
+            "farthest": ["farthest from", "furthest from", "farthest away from"]}
+    lists = [lambda c: ", ".join("the " + x for x in c[:-1]) + " or the " + c[-1],
+             lambda c: ", ".join(c[:-1]) + ", or " + c[-1], lambda c: ", ".join(c[:-1]) + " and " + c[-1]]
+    wrong = []
+    cands = ["couch", "radiator", "whiteboard"]
+    for ext, words in sups.items():
+        g = {c: min_gap(c, "desk") for c in cands}
+        want = (min if ext == "closest" else max)(g, key=g.get)
+        for pre, t, sup, lst in itertools.product(["", "quick question: ", "hey, ", "tell me, "], rel, words, lists):
+            q = pre + t.format(sup=sup, R="desk", L=lst(cands)) + "?"
+            r = ask(q)
+            if not (r.ok and str(r.value).replace("sofa", "couch") == want):
+                wrong.append((q, r.text[:50]))
+    stances = ["standing by the {A} facing the {B}, ", "if I'm at the {A} looking at the {B}, ",
+               "I'm next to the {A}, facing the {B}. "]
+    medium = ["is the {C} on my left, on my right, or behind me", "is the {C} left, right or behind",
+              "where's the {C}: left, right or back", "would the {C} be to my left, my right or behind me",
+              "is the {C} to the left, to the right, or at my back"]
+    hard = ["is the {C} front-left, front-right, back-left or back-right", "which quadrant is the {C} in",
+            "is the {C} to my front left, front right, back left or back right",
+            "where is the {C}: front-left, front-right, back-left or back-right"]
+    for (a, b), c in itertools.product((("desk", "whiteboard"), ("couch", "radiator")),
+                                       ("couch", "laptop", "radiator", "whiteboard", "computer tower")):
+        if c in (a, b):
+            continue
+        th = ccw_deg(a, b, c)
+        for st, form, level in [(s, m, "medium") for s in stances for m in medium] + \
+                               [(s, h, "hard") for s in stances for h in hard]:
+            q = st.format(A=a, B=b) + form.format(C=c) + "?"
+            r = ask(q)
+            if not (r.ok and str(r.text).split(" ")[0].strip("(),") == direction_label(th, level)):
+                wrong.append((q, r.text[:50]))
+    assert not wrong, (len(wrong), wrong[:5])
