@@ -43,7 +43,7 @@ from .geometry import box_distance, point_box_distance
 from .grounding import (ParsedQuestion, canonical_name, name_key, parse_question, plural, safe_text,
                         split_options)
 from .grounding_nl import COMPARATIVES, SUPERLATIVES
-from .semantic_map import ObjectInstance, SemanticMap, room_from_boxes
+from .semantic_map import ObjectInstance, SemanticMap
 from .trace import as_trace
 
 NUMERIC_QTYPES = ("object_counting", "object_size_estimation", "room_size_estimation", "object_abs_distance")
@@ -161,7 +161,8 @@ def _norm(s: str) -> str:
 
 def _measure(o: ObjectInstance, what: str) -> float:
     """A box measure in metres: longest side, height (vertical extent), length and width (the longer horizontal
-    side, as furniture is sold: W x D x H), depth (the shorter horizontal side), volume (m^3) or top (highest z)."""
+    side, as furniture is sold: W x D x H), depth (the shorter horizontal side), volume (m^3), top (highest z) or
+    bottom (lowest z)."""
     b = o.box
     lengths = np.asarray(b.axes_lengths, float)
     if what == "longest":
@@ -173,6 +174,8 @@ def _measure(o: ObjectInstance, what: str) -> float:
         return float(z.max() - z.min())
     if what == "top":
         return float(z.max())
+    if what == "bottom":
+        return float(z.min())
     up = int(np.argmax(np.abs(np.asarray(b.axes, float)[:, 2])))
     horiz = sorted((float(lengths[i]) for i in range(3) if i != up), reverse=True)
     return horiz[1] if what == "depth" else horiz[0]  # length / width: the longer horizontal side (W x D x H)
@@ -192,7 +195,7 @@ def relation_holds(a: ObjectInstance, b: ObjectInstance, relation: str, conf: Re
         return bool(b.box.contains(a.center[None])[0])
     if relation == "between":
         return c is not None and _between(a, b, c)
-    bottom = float(a.box.corners()[:, 2].min())
+    bottom = _measure(a, "bottom")
     over = b.box.contains(np.array([[a.center[0], a.center[1], b.center[2]]]))[0]  # within b's footprint
     if relation == "under":  # centre within b's footprint and below b's top ("the bin under the desk")
         return bool(over) and float(a.center[2]) < _measure(b, "top") - conf.on_gap_m
@@ -656,7 +659,7 @@ class MapReasoner:
         """"How high above the floor is the lamp?": its box bottom over the map's floor (the room's floor height,
         else the lowest box bottom); several instances: the highest, the others listed."""
         floor, source = self.map.floor_z()
-        lift = {o.id: (float(o.box.corners()[:, 2].min()) - floor) / UNIT_M[unit] for o in inst}
+        lift = {o.id: (_measure(o, "bottom") - floor) / UNIT_M[unit] for o in inst}
         o = max(inst, key=lambda x: lift[x.id])
         self._choice(pq.params["object"], inst, o, "the highest", lift, unit)
         self._used = [o]
@@ -668,7 +671,7 @@ class MapReasoner:
         area = self.map.room_area()
         if area is None:
             raise _Unsupported("the map has no room extent and no objects")
-        src = self.map.room.source if self.map.room is not None else "object_boxes_hull"
+        src = self.map.extent().source
         if pq.params.get("dimension"):
             return self._room_sides(pq, src)
         unit = pq.params.get("unit", "m2")
@@ -687,8 +690,7 @@ class MapReasoner:
         (length the longer)."""
         import cv2
 
-        room = self.map.room if self.map.room is not None else room_from_boxes([o.box for o in self.map.instances])
-        (_, _), (w, h), _ = cv2.minAreaRect(np.asarray(room.polygon, np.float32))
+        (_, _), (w, h), _ = cv2.minAreaRect(np.asarray(self.map.extent().polygon, np.float32))
         unit = pq.params.get("unit", "m")
         length, width = max(w, h) / UNIT_M[unit], min(w, h) / UNIT_M[unit]
         dim = pq.params["dimension"]
@@ -702,11 +704,8 @@ class MapReasoner:
     def _camera_distance(self, pq: ParsedQuestion) -> tuple[Any, str]:
         """"How far am I from the tv?": the last camera's centre to the object's box (closest point; the nearest
         instance), the viewer being where the video ended."""
-        if not self.map.cameras:
-            raise _Unsupported("'how far am I' needs a viewpoint: this map has no camera track; ask how far two "
-                               "objects are apart")
+        cam = self._viewer("'how far am I' needs", "how far two objects are apart")[:3, 3]
         a, unit = pq.params["a"], pq.params.get("unit", "m")
-        cam = np.asarray(self.map.cameras[-1][1], float)[:3, 3]
         inst = self._instances(a)
         dist = {o.id: point_box_distance(cam, o.box) for o in inst}
         far = pq.params.get("which") == "farthest"
@@ -789,10 +788,7 @@ class MapReasoner:
     def _viewer_rel_distance(self, pq: ParsedQuestion) -> tuple[Any, str]:
         """"Am I closer to the desk or the sofa?": the candidates' distances from the last camera (where the video
         ended; the nearest instance of each)."""
-        if not self.map.cameras:
-            raise _Unsupported("'closer to me' needs a viewpoint: this map has no camera track; ask which object is "
-                               "closer to another object")
-        cam = np.asarray(self.map.cameras[-1][1], float)[:3, 3]
+        cam = self._viewer("'closer to me' needs", "which object is closer to another object")[:3, 3]
         inst = self._require(pq.params["candidates"])
         dists = {c: min(point_box_distance(cam, o.box) for o in v) for c, v in inst.items()}
         pick = (max if pq.params.get("extreme") == "farthest" else min)(dists, key=dists.get)
@@ -999,14 +995,12 @@ class MapReasoner:
     def _object_view_direction(self, pq: ParsedQuestion) -> tuple[Any, str]:
         """"Is A to the left of B?" as the viewer sees them: from the last camera, looking at B, A's bearing left
         or right of B's, and in front of / behind B by its distance along that line."""
-        if not self.map.cameras:
-            raise _Unsupported("'left of' and 'behind' need a viewpoint: this map has no camera track; ask "
-                               "'standing by the X facing the Y, is the Z on my left?'")
+        T = self._viewer("'left of' and 'behind' need", "'standing by the X facing the Y, is the Z on my left?'")
         a, b, asked = pq.params["object"], pq.params["reference"], pq.params["asked"]
         inst = self._require([a, b])
         B, nb = self._pick_unique(b, [o.center for o in inst[a]])
         A, na = self._pick_unique(a, [B.center])
-        side, fb, th, along = self._view_relation(A, B)
+        side, fb, th, along = self._view_relation(A, B, T)
         yes = asked == side if asked in ("left", "right") else asked == fb
         words = (f"seen from the last camera view: the {self._ph(a)} is {abs(th):.0f} deg to the {side} of the "
                  f"{self._ph(b)} and {abs(along):.1f} m {'behind' if fb == 'back' else 'in front of'} it{na}{nb}")
@@ -1039,9 +1033,9 @@ class MapReasoner:
         the desk") and its direction from the last camera; "words" is the text of each."""
         skip = {id(x) for x in own}
         near = sorted(((box_distance(o.box, x.box), x) for v in self._idx.values() for x in v if id(x) not in skip),
-                      key=lambda t: (id(t[1]) not in refs, t[0]))
+                      key=lambda t: t[0])
         if refs:  # the reference's nearest instance, then the nearest others
-            near = near[:1] + sorted((t for t in near[1:] if id(t[1]) not in refs), key=lambda t: t[0])
+            near = [next(t for t in near if id(t[1]) in refs)] + [t for t in near if id(t[1]) not in refs]
         marks = [{"object": x.name, "instance": int(x.id), "distance_m": round(float(d), 3)}
                  for d, x in near[:self.conf.n_landmarks]]
         value: dict[str, Any] = {"object": o.name, "instance": int(o.id), "centre": np.round(o.center, 3).tolist(),
@@ -1060,10 +1054,7 @@ class MapReasoner:
         """Every object on that side (left | right | front | back) of the viewer: the last camera (where the video
         ended), as `describe_from_camera` reads their centres; left/right exclude straight ahead and behind."""
         words = _SIDE_WORDS[side]
-        if not self.map.cameras:
-            raise _Unsupported(f"'{words} me' needs a viewpoint: this map has no camera track; ask 'standing by the "
-                               f"X facing the Y, is the Z on my left?'")
-        T = self.map.cameras[-1][1]
+        T = self._viewer(f"'{words} me' needs", "'standing by the X facing the Y, is the Z on my left?'")
         inst = [o for o in self.map.instances if in_direction(describe_from_camera(T, o.center, self.conf.back_deg),
                                                               side)]
         return inst, f"{words} the last camera view (where the video ended)"
@@ -1071,24 +1062,30 @@ class MapReasoner:
     def _seen_beside(self, reference: str, asked: str) -> tuple[list[ObjectInstance], str]:
         """Every other object to the left / right of, in front of / behind `reference` as seen from the last
         camera (`_view_relation`)."""
-        if not self.map.cameras:
-            raise _Unsupported("'left of' and 'behind' need a viewpoint: this map has no camera track; ask "
-                               "'standing by the X facing the Y, what is on my left?'")
+        T = self._viewer("'left of' and 'behind' need", "'standing by the X facing the Y, what is on my left?'")
         refs = self._instances(reference)
         B, nb = self._pick_unique(reference, [])
         inst = []
         for o in self.map.instances:
             if any(o is r for r in refs):
                 continue
-            side, fb, _, _ = self._view_relation(o, B)
+            side, fb, _, _ = self._view_relation(o, B, T)
             if (side if asked in ("left", "right") else fb) == asked:
                 inst.append(o)
         return inst, f"{_SIDE_WORDS[asked]} the {self._ph(reference)} #{B.id} seen from the last camera view{nb}"
 
-    def _view_relation(self, A: ObjectInstance, B: ObjectInstance) -> tuple[str, str, float, float]:
-        """(left | right, front | back, angle deg, metres beyond B) of A against B as seen from the last camera,
+    def _viewer(self, need: str, instead: str) -> np.ndarray:
+        """The viewer's pose T_wc [4, 4]: the last camera (where the video ended). Without a camera track the
+        question is unsupported: "{need} a viewpoint ...; ask {instead}"."""
+        if not self.map.cameras:
+            raise _Unsupported(f"{need} a viewpoint: this map has no camera track; ask {instead}")
+        return np.asarray(self.map.cameras[-1][1], float)
+
+    @staticmethod
+    def _view_relation(A: ObjectInstance, B: ObjectInstance, T: np.ndarray) -> tuple[str, str, float, float]:
+        """(left | right, front | back, angle deg, metres beyond B) of A against B as seen from the camera T_wc,
         looking at B: A's bearing left or right of B's, and in front of / behind B along that line."""
-        cam = np.asarray(self.map.cameras[-1][1], float)[:2, 3]
+        cam = T[:2, 3]
         vb, va = B.center[:2] - cam, A.center[:2] - cam
         if np.linalg.norm(vb) < 1e-6:
             raise _Unsupported(f"the last camera stands at the {B.name}")

@@ -575,8 +575,11 @@ _EXCEPT_RX = r"\b(?:apart from|aside from|except(?: for)?|other than|besides|exc
 def _several_questions(joined: str, has_opts: bool) -> str | None:
     """The kinds of question asked when a text asks several of different kinds ("how many chairs? where is the
     sofa?", "how many chairs and how far is the sofa?"), else None (one question, or several counts)."""
+    parts = [c for c in re.split(r"\?|\band (?=(?:how|what|what's|where|where's|which)\b)", joined) if c.strip()]
+    if len(parts) < 2:  # one clause: one question (its intent is found once, by the caller)
+        return None
     kinds = []
-    for c in re.split(r"\?|\band (?=(?:how|what|what's|where|where's|which)\b)", joined):
+    for c in parts:
         n = len([p for p in noun_phrases(c.split()) if not p["scene"]])
         k = _intent(c.strip(), n, has_opts) if n else None  # "..., how many exactly?" names nothing: a follow-up
         kinds += [k] if k else []
@@ -1073,8 +1076,9 @@ def _rel_distance(pq, toks, joined, nps, extra) -> None:
 _FACE1 = {"facing", "face", "faces", "faced", "towards", "toward", "watching"}
 _PLACED_VERBS = {"am", "i'm", "im", "standing", "stand", "sitting", "sit", "be", "was", "were", "stood", "sat"}
 # "standing by the bed with the sofa in front of me": facing the sofa
-_FACING_AHEAD_RX = (r"\bwith (?:the |a |an )?[^,?]{1,40}? (?:in front of|ahead of|before) me\b|"
-                    r"\b(?:is|are) (?:straight |directly |right )?(?:ahead(?: of me)?|in front of me)\b")
+_AHEAD_OF_ME = r"(?:in front of|ahead of|before) me\b"  # "with the sofa in front of me"
+_IS_AHEAD = r"(?:is|are) (?:straight |directly |right )?(?:ahead|in front of me)\b"  # "the tv is straight ahead"
+_FACING_AHEAD_RX = rf"\bwith (?:the |a |an )?[^,?]{{1,40}}? {_AHEAD_OF_ME}|\b{_IS_AHEAD}"
 _FACE2 = {"looking at", "look at", "looked at", "staring at", "turned to", "turn to", "direction of", "looking toward",
           "gazing at", "gaze at", "face to", "faced to",
           "look toward", "looking towards", "look towards", "eyes on", "gaze on", "looking over", "pointed at",
@@ -1093,8 +1097,8 @@ def _stance(toks: list[str], nps: list[dict[str, Any]]) -> tuple[int | None, int
             pos = k  # "I am in front of the desk, facing ...": where I stand, not a side of the desk
             continue
         after = " ".join(toks[p["end"]:p["end"] + 5])
-        ahead = re.match(r"(?:in front of me|ahead of me|before me)\b", after) is not None
-        ahead_is = re.match(r"(?:is|are) (?:straight |directly |right )?(?:ahead|in front of me)\b", after) is not None
+        ahead = re.match(_AHEAD_OF_ME, after) is not None
+        ahead_is = re.match(_IS_AHEAD, after) is not None
         if face is None and (last in _FACE1 or two in _FACE2 or (last == "with" and ahead) or ahead_is):
             face = k
             continue

@@ -256,17 +256,22 @@ class SemanticMap:
                 return o
         raise KeyError(instance_id)
 
+    def extent(self) -> Room | None:
+        """The map's room extent: its room, else the one its object boxes span (`room_from_boxes`); None when the
+        map has neither."""
+        return self.room if self.room is not None else room_from_boxes([o.box for o in self.instances])
+
     def floor_z(self) -> tuple[float, str]:
         """(floor height in metres, where it comes from): the room's floor, else the lowest object bottom."""
-        if self.room is not None:
-            return float(self.room.floor_z), f"the room's floor, {self.room.source}"
-        if not self.instances:
+        room = self.extent()
+        if room is None:
             raise ValueError("floor_z: the map has neither a room nor objects")
-        return min(float(o.box.corners()[:, 2].min()) for o in self.instances), "the lowest object bottom"
+        return float(room.floor_z), (f"the room's floor, {room.source}" if self.room is not None else
+                                     "the lowest object bottom")
 
     def room_area(self) -> float | None:
         """Floor area (m^2) of the map's room extent; None when the map has neither a room nor objects."""
-        room = self.room if self.room is not None else room_from_boxes([o.box for o in self.instances])
+        room = self.extent()
         return None if room is None else room.area()
 
     # -- serialisation
