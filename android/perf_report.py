@@ -85,8 +85,8 @@ def _device_info(raw: Path) -> dict[str, str]:
 def build_report(bundle: str | Path, raw: str | Path) -> dict[str, Any]:
     """The `mosaic profile` report (mosaicthinker.profile_report/1) for the perf_test outputs in `raw`."""
     from mosaicthinker.runtime.budget import bundle_hash
-    from mosaicthinker.runtime.bundle import load_bundle
-    from mosaicthinker.runtime.profiling import REPORT_SCHEMA
+    from mosaicthinker.runtime.infra.bundle import load_bundle
+    from mosaicthinker.runtime.commands.profile import REPORT_SCHEMA
 
     b = load_bundle(bundle, verify=True)
     raw = Path(raw)

@@ -38,10 +38,10 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 
-from mosaicthinker.runtime import alignment as al  # noqa: E402
+from mosaicthinker.runtime.align import recover as al  # noqa: E402
 from mosaicthinker.host.evaluation.pose import ate_rmse, pick_frames  # noqa: E402
 from mosaicthinker.runtime.frames import open_source  # noqa: E402
-from mosaicthinker.runtime.matching import FeatureMatcher  # noqa: E402
+from mosaicthinker.runtime.align.matching import FeatureMatcher  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 DEFAULT_DATA = HERE.parent.parent / "shared" / "data" / "7scenes-redkitchen"
@@ -74,7 +74,7 @@ class ReplayMatcher:
 
 def load_perception(bundle: Path, with_model_depth: bool) -> Any:
     from mosaicthinker.runtime.pipeline import perception_from_bundle
-    from mosaicthinker.runtime.trace import Trace
+    from mosaicthinker.runtime.infra.trace import Trace
 
     conf = {"depth": "model" if with_model_depth else "sensor", "matcher": "model"}
     return perception_from_bundle(str(bundle), conf, Trace())
@@ -83,7 +83,7 @@ def load_perception(bundle: Path, with_model_depth: bool) -> Any:
 def detections(frames: list, perception: Any) -> dict[int, Any]:
     """Detector + segmenter once per frame (masks box-prompted where the segmenter leaves them empty)."""
     from mosaicthinker.runtime.pipeline import PipelineConfig, _box_prompted
-    from mosaicthinker.runtime.trace import Trace
+    from mosaicthinker.runtime.infra.trace import Trace
 
     out, share = {}, PipelineConfig().box_prompt_min_share
     for f in frames:
@@ -98,7 +98,7 @@ def lift_seconds(frames: list, dets: dict[int, Any]) -> tuple[float, float, dict
     """Perception's per-key-frame lifting (`pipeline._lift`: masks + depth -> camera-frame clouds, no pose, run
     as each key frame is perceived): (wall s, CPU s, the observations per frame). Reported, not in the core."""
     from mosaicthinker.runtime.pipeline import _lift
-    from mosaicthinker.runtime.semantic_map import FusionConfig
+    from mosaicthinker.runtime.map.model import FusionConfig
 
     fconf = FusionConfig()
     t0, c0 = time.perf_counter(), time.process_time()
@@ -111,7 +111,7 @@ def fusion_seconds(frames: list, dets: dict[int, Any], poses: dict[int, np.ndarr
     """The pipeline's fusion stage over the aligned frames (place perception's clouds + fuse): (wall s, CPU s,
     instances as [name, centre, size])."""
     from mosaicthinker.runtime.pipeline import fuse_frames
-    from mosaicthinker.runtime.semantic_map import FusionConfig
+    from mosaicthinker.runtime.map.model import FusionConfig
 
     fconf = FusionConfig()
     t0, c0 = time.perf_counter(), time.process_time()

@@ -117,7 +117,7 @@ def _build_record(source: Any, names: list[str], conf: dict[str, Any], bundle: P
                   ) -> dict[str, Any]:
     from mosaicthinker.runtime.budget import load_profile
     from mosaicthinker.runtime.pipeline import build_map, perception_from_bundle
-    from mosaicthinker.runtime.trace import Trace
+    from mosaicthinker.runtime.infra.trace import Trace
 
     trace = Trace()
     perception = perception_from_bundle(str(bundle), conf, trace, load_profile(profile) if profile else None)

@@ -34,7 +34,7 @@ EXPORTERS = {
 
 
 def _summarise(rep: dict, out: Path, role: str) -> dict:
-    from mosaicthinker.runtime.bundle import load_bundle
+    from mosaicthinker.runtime.infra.bundle import load_bundle
 
     meta = load_bundle(out).role_meta(role)
     res = {}

@@ -133,7 +133,7 @@ def _confs(methods: dict[str, tuple[str, dict[str, Any]]], K: int) -> dict[str, 
 
 
 def _ssd(bundle: Path) -> Any:
-    from mosaicthinker.runtime.stages import load_role
+    from mosaicthinker.runtime.models import load_role
 
     if not (bundle / "manifest.json").exists():
         from mosaicthinker.export.onnx_import import import_shared_models
@@ -275,7 +275,7 @@ def diagnose(video: Any, questions: list[dict[str, Any]], detect: Any, conf: Any
 
 def run_long(args: argparse.Namespace) -> dict[str, Any]:
     from mosaicthinker.host.evaluation.keyframes import evaluate_long_video, summarise, vocabulary_detector
-    from mosaicthinker.runtime.stages.detector import map_names
+    from mosaicthinker.runtime.models.detector import map_names
     from mosaicthinker.host.synth.longvideo import LongVideoOracle, long_questions
 
     from mosaicthinker.host.synth.longvideo import LongVideoConf
@@ -372,7 +372,7 @@ def run_kitchen(args: argparse.Namespace) -> dict[str, Any]:
     from mosaicthinker.runtime.frames import open_source
     from mosaicthinker.runtime.grounding import parse_question
     from mosaicthinker.runtime.pipeline import Perception, PipelineConfig, select
-    from mosaicthinker.runtime.trace import Trace
+    from mosaicthinker.runtime.infra.trace import Trace
 
     src = open_source(SHARED / "data" / "7scenes-redkitchen")
     model = _ssd(Path(args.cache) / "bundle-ssd")

@@ -141,7 +141,7 @@ def step_export(name: str, big: Path, text_chars: int | None = None) -> dict:
         r = subprocess.run(cmd, capture_output=True, text=True)
         if r.returncode != 0:
             raise SystemExit(f"export failed: {r.stderr[-2000:]}")
-    from mosaicthinker.runtime.bundle import load_bundle
+    from mosaicthinker.runtime.infra.bundle import load_bundle
 
     rm = load_bundle(out).role_meta(role)
     sizes = {}
@@ -256,7 +256,7 @@ def step_measure(name: str, big: Path, runs: int, threads: int, text_chars: int 
         return measure_own_vlm(out, runs, threads)
     import onnxruntime as ort
 
-    from mosaicthinker.runtime.bundle import load_bundle
+    from mosaicthinker.runtime.infra.bundle import load_bundle
 
     b = load_bundle(out)
     rm = b.role_meta(role)
@@ -293,7 +293,7 @@ def _rss_mb() -> float:
 def _paper_map(n: int = 14):
     """A fixed 14-object map (the prompt's real length; not dataset data)."""
     from mosaicthinker.runtime.geometry import OrientedBox, rotation_about
-    from mosaicthinker.runtime.semantic_map import ObjectInstance, SemanticMap
+    from mosaicthinker.runtime.map.model import ObjectInstance, SemanticMap
 
     rng = np.random.default_rng(3)
     names = ["sofa", "table", "chair", "tv", "lamp", "bed", "sink", "fridge", "door", "window", "plant", "shelf",
@@ -319,9 +319,9 @@ def _prompt(text_chars: int | None = None):
 
 def measure_own_vlm(out: Path, runs: int, threads: int) -> dict:
     """The project's own loop (SmolVLM: vision + embed + decoder graphs): whole answer, 16 new tokens."""
-    from mosaicthinker.runtime.bundle import load_bundle
-    from mosaicthinker.runtime.stages import load_role, preprocess_image
-    from mosaicthinker.runtime.trace import Trace
+    from mosaicthinker.runtime.infra.bundle import load_bundle
+    from mosaicthinker.runtime.models import load_role, preprocess_image
+    from mosaicthinker.runtime.infra.trace import Trace
 
     vp, prompt = _prompt()
     res = {"threads": threads, "map_image": list(vp.image.shape)}
@@ -351,9 +351,9 @@ def measure_genai_vlm(out: Path, runs: int, threads: int, text_chars: int | None
 
     import onnxruntime as ort
 
-    from mosaicthinker.runtime.bundle import load_bundle
-    from mosaicthinker.runtime.stages import load_role
-    from mosaicthinker.runtime.trace import Trace
+    from mosaicthinker.runtime.infra.bundle import load_bundle
+    from mosaicthinker.runtime.models import load_role
+    from mosaicthinker.runtime.infra.trace import Trace
 
     vp, prompt = _prompt(text_chars)
     rm = load_bundle(out).role_meta("vlm")
@@ -404,8 +404,8 @@ def _qwen3_dir(big: Path) -> Path:
 
 
 def _qwen3_prompt_ids(tok, cfg: dict, text_chars: int | None):
-    from mosaicthinker.runtime.stages import preprocess_image
-    from mosaicthinker.runtime.stages.vlm import build_prompt, qwen_patches
+    from mosaicthinker.runtime.models import preprocess_image
+    from mosaicthinker.runtime.models.vlm import build_prompt, qwen_patches
 
     vp, prompt = _prompt(text_chars)
     pre = {"size": [cfg["image_size"]] * 2, "layout": "NCHW", "channel_order": "RGB", "dtype": "float32",
@@ -430,7 +430,7 @@ def qwen3_export(big: Path, image_size: int = 448, n_new: int = 16, trials: int 
     from mosaicthinker.export.hf_common import needs_external_data, torch_reference
     from mosaicthinker.export.hf_qwen3_vl import IMAGE_TOKEN, graph_specs, hf_vision, load_model, runtime_config
     from mosaicthinker.export.parity import parity_rng
-    from mosaicthinker.runtime.stages.vlm import load_tokenizer
+    from mosaicthinker.runtime.models.vlm import load_tokenizer
 
     ck, work = big / "ckpt" / "qwen3-vl-2b", _qwen3_dir(big)
     import shutil
@@ -533,7 +533,7 @@ def qwen3_measure(big: Path, runs: int, threads: int, n_new: int = 16, precision
 
     from mosaicthinker.export.hf_qwen_vl import kl_next_token
     from mosaicthinker.export.parity import compare_outputs
-    from mosaicthinker.runtime.stages.vlm import MRopeDecoder, OrtRunner
+    from mosaicthinker.runtime.models.vlm import MRopeDecoder, OrtRunner
 
     work = _qwen3_dir(big)
     refs = dict(np.load(work / "refs.npz"))
@@ -858,7 +858,7 @@ def write_variants(profile: Path) -> dict:
 def paper_costs(data: dict, big: Path) -> dict:
     """[paper_costs.*] entries from the measured results (perception fp32 + its other measured precisions as
     variants; VLM: Qwen2.5-VL-3B int4)."""
-    from mosaicthinker.runtime.bundle import bundle_hash, load_bundle
+    from mosaicthinker.runtime.infra.bundle import bundle_hash, load_bundle
 
     date = time.strftime("%Y-%m-%d")
     out = {}

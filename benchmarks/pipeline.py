@@ -119,7 +119,7 @@ def video_random_access(video: Path, n: int = 6, seed: int = 0) -> dict[str, Any
 
 def ensure_bundle(work: Path) -> Path:
     b = work / "bundle"
-    from mosaicthinker.runtime.bundle import load_bundle
+    from mosaicthinker.runtime.infra.bundle import load_bundle
 
     try:
         if set(load_bundle(b, verify=False).roles) >= {"depth", "detector", "segmenter", "embedder", "matcher"}:
@@ -200,10 +200,10 @@ def one_run(job: dict[str, Any]) -> dict[str, Any]:
     import numpy as np  # noqa: F401
 
     from mosaicthinker.runtime.budget import load_profile
-    from mosaicthinker.runtime.trace import peak_rss_mb, reset_peak_rss
+    from mosaicthinker.runtime.infra.trace import peak_rss_mb, reset_peak_rss
     from mosaicthinker.runtime.frames import open_source
     from mosaicthinker.runtime.pipeline import build_map, perception_from_bundle
-    from mosaicthinker.runtime.trace import Trace, rss_mb
+    from mosaicthinker.runtime.infra.trace import Trace, rss_mb
 
     import resource
 
@@ -321,7 +321,7 @@ def main(argv: list[str] | None = None) -> int:
     scene = ensure_scene(work)
     bundle = Path(args.bundle) if args.bundle else ensure_bundle(work)
     names = scene_targets(scene, "model")
-    from mosaicthinker.runtime.bundle import bundle_hash
+    from mosaicthinker.runtime.infra.bundle import bundle_hash
 
     result: dict[str, Any] = {"schema": "mosaicthinker.bench.pipeline/1", "date": time.strftime("%Y-%m-%d"),
                               "machine": {"cpus": os.cpu_count(), "load_average_1min": round(os.getloadavg()[0], 2)},

@@ -23,7 +23,7 @@ import numpy as np  # noqa: E402
 
 from mosaicthinker.host.evaluation.pose import ate_rmse, evaluate_pose, pick_frames  # noqa: E402
 from mosaicthinker.runtime.frames import open_source  # noqa: E402
-from mosaicthinker.runtime.matching import FeatureMatcher  # noqa: E402
+from mosaicthinker.runtime.align.matching import FeatureMatcher  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 DEFAULT_DATA = HERE.parent.parent / "shared" / "data" / "7scenes-redkitchen"

@@ -10,7 +10,7 @@ import platform
 import time
 from pathlib import Path
 
-from mosaicthinker.runtime.errors import InputError
+from mosaicthinker.runtime.infra.errors import InputError
 from mosaicthinker.runtime.grounding import MAX_QUESTION_CHARS, parse_question, split_inline_options
 
 PATTERNS = {

@@ -97,12 +97,12 @@ def probe_detector(bundle: Path, stride: int = 3, threshold: float = 0.2) -> dic
     import numpy as np
 
     from mosaicthinker.host.evaluation.scene import load_annotation
-    from mosaicthinker.runtime.bundle import load_bundle
+    from mosaicthinker.runtime.infra.bundle import load_bundle
     from mosaicthinker.runtime.frames import open_source
     from mosaicthinker.runtime.geometry import OrientedBox, project
-    from mosaicthinker.runtime.stages import load_role
-    from mosaicthinker.runtime.stages.detector import map_names
-    from mosaicthinker.runtime.trace import Trace
+    from mosaicthinker.runtime.models import load_role
+    from mosaicthinker.runtime.models.detector import map_names
+    from mosaicthinker.runtime.infra.trace import Trace
 
     det = load_role(load_bundle(bundle), "detector", trace=Trace())
     keep = det.conf.score_threshold
@@ -182,12 +182,12 @@ def probe_depth(bundle: Path, stride: int = 10) -> dict:
     import numpy as np
 
     from mosaicthinker.host.evaluation.scene import load_annotation
-    from mosaicthinker.runtime.bundle import load_bundle
+    from mosaicthinker.runtime.infra.bundle import load_bundle
     from mosaicthinker.runtime.frames import open_source
     from mosaicthinker.runtime.geometry import OrientedBox, backproject, transform
-    from mosaicthinker.runtime.stages import load_role
-    from mosaicthinker.runtime.stages.depth import _fit, scale_from_prior
-    from mosaicthinker.runtime.trace import Trace
+    from mosaicthinker.runtime.models import load_role
+    from mosaicthinker.runtime.models.depth import _fit, scale_from_prior
+    from mosaicthinker.runtime.infra.trace import Trace
 
     dm = load_role(load_bundle(bundle), "depth", trace=Trace())
     _, scene, T = load_annotation(ANNOT)
@@ -238,11 +238,11 @@ def probe_scales(bundle: Path, run: Path, fps: float = 15.0) -> dict:
     camera time x `fps` (the source's rate)."""
     import numpy as np
 
-    from mosaicthinker.runtime.bundle import load_bundle
+    from mosaicthinker.runtime.infra.bundle import load_bundle
     from mosaicthinker.runtime.frames import open_source
-    from mosaicthinker.runtime.stages import load_role
-    from mosaicthinker.runtime.stages.depth import fit_to_sensor, scale_from_prior
-    from mosaicthinker.runtime.trace import Trace
+    from mosaicthinker.runtime.models import load_role
+    from mosaicthinker.runtime.models.depth import fit_to_sensor, scale_from_prior
+    from mosaicthinker.runtime.infra.trace import Trace
 
     cams = json.loads((run / "map.json").read_text())["cameras"]
     c = json.loads((run / "scene_eval.json").read_text())["registration"]["scale"]

@@ -48,10 +48,10 @@ def build_bundle(out: Path, calib: Path) -> dict:
 
 def matching(bundle: Path, n_pairs: int, threads: int) -> dict:
     from mosaicthinker.export.xfeat import pair_quality
-    from mosaicthinker.runtime.bundle import load_bundle
+    from mosaicthinker.runtime.infra.bundle import load_bundle
     from mosaicthinker.runtime.frames import open_source
-    from mosaicthinker.runtime.matching import FeatureMatcher
-    from mosaicthinker.runtime.stages import load_role
+    from mosaicthinker.runtime.align.matching import FeatureMatcher
+    from mosaicthinker.runtime.models import load_role
 
     src = open_source(DATA)
     variants = sorted(load_bundle(bundle).role_meta("matcher")["variants"])
@@ -88,7 +88,7 @@ class _SensorFittedDepth:
         self._by_bytes = {}
 
     def predict(self, rgb):
-        from mosaicthinker.runtime.stages.depth import fit_to_sensor
+        from mosaicthinker.runtime.models.depth import fit_to_sensor
 
         f = self._by_bytes[rgb[::37, ::41].tobytes()]
         pred = self.depth.predict(rgb)
@@ -98,8 +98,8 @@ class _SensorFittedDepth:
 def pose(bundle: Path, k: int) -> dict:
     from mosaicthinker.host.evaluation.pose import evaluate_pose, pick_frames
     from mosaicthinker.runtime.frames import open_source
-    from mosaicthinker.runtime.stages import load_role
-    from mosaicthinker.runtime.trace import Trace
+    from mosaicthinker.runtime.models import load_role
+    from mosaicthinker.runtime.infra.trace import Trace
 
     src = open_source(DATA)
     idx = pick_frames(len(src), k, "uniform")
@@ -137,8 +137,8 @@ def pose_essential_diagnostic(bundle: Path, k: int) -> dict:
     from mosaicthinker.host.evaluation.pose import ate_rmse, pick_frames
     from mosaicthinker.runtime.frames import open_source
     from mosaicthinker.runtime.geometry import invert, sample_depth
-    from mosaicthinker.runtime.stages import load_role
-    from mosaicthinker.runtime.stages.depth import scale_from_prior
+    from mosaicthinker.runtime.models import load_role
+    from mosaicthinker.runtime.models.depth import scale_from_prior
 
     src = open_source(DATA)
     idx = pick_frames(len(src), k, "uniform")
@@ -219,7 +219,7 @@ def main(argv=None) -> int:
         if not a.skip_pose:
             result["pose"] = pose(bundle, a.keyframes)
             result["pose_essential_diagnostic"] = pose_essential_diagnostic(bundle, a.keyframes)
-    from mosaicthinker.runtime.trace import jsonable
+    from mosaicthinker.runtime.infra.trace import jsonable
 
     Path(a.out).parent.mkdir(parents=True, exist_ok=True)
     Path(a.out).write_text(json.dumps(jsonable(result), indent=2))

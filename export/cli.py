@@ -29,9 +29,9 @@ import warnings
 from pathlib import Path
 from typing import Any, Iterator
 
-from mosaicthinker.runtime.errors import ExportError
+from mosaicthinker.runtime.infra.errors import ExportError
 
-from mosaicthinker.runtime.bundle import parity_text
+from mosaicthinker.runtime.infra.bundle import parity_text
 
 from . import formats
 from .common import parse_precisions
@@ -192,7 +192,7 @@ def _run(args: argparse.Namespace) -> dict[str, Any]:
         raise ExportError("--out BUNDLE is required (the bundle folder to create or extend)")
     out = Path(args.out)
     targets = _target_names(args.target)
-    from mosaicthinker.runtime.bundle import load_bundle
+    from mosaicthinker.runtime.infra.bundle import load_bundle
 
     if args.role is None:  # the target steps alone, on an existing bundle
         if not targets:

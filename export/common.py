@@ -26,7 +26,7 @@ from typing import Any, Callable, Iterable, Sequence
 import numpy as np
 
 from mosaicthinker.host import bundle_write as B
-from mosaicthinker.runtime.errors import ExportError
+from mosaicthinker.runtime.infra.errors import ExportError
 
 from .log import brief, progress  # noqa: F401  (re-exported: every exporter logs through common)
 # the parity checks live in export/parity.py; re-exported for the exporters that call `C.parity_check`

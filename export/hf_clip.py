@@ -11,7 +11,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from mosaicthinker.runtime.errors import ExportError
+from mosaicthinker.runtime.infra.errors import ExportError
 
 from . import common as C
 from .hf_common import CLIP_MEAN, CLIP_STD, GraphSpec, _image_calibration, export_variants, run_exporter

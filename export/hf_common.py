@@ -16,8 +16,8 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from mosaicthinker.runtime.errors import ExportError
-from mosaicthinker.runtime.progress import ticked
+from mosaicthinker.runtime.infra.errors import ExportError
+from mosaicthinker.runtime.infra.progress import ticked
 
 from . import common as C
 from .parity import agreement_check
@@ -348,7 +348,7 @@ def _brief_task(task: dict[str, Any] | None) -> dict[str, Any] | None:
 def _image_calibration(frames: list[np.ndarray] | None, pre: dict[str, Any],
                        name: str) -> Callable[[], list[dict[str, np.ndarray]]] | None:
     """int8-qdq calibration feeds from real frames (None -> the driver's random draws)."""
-    from mosaicthinker.runtime.stages import preprocess_image
+    from mosaicthinker.runtime.models import preprocess_image
 
     if not frames:
         return None

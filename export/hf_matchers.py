@@ -23,7 +23,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from mosaicthinker.runtime.errors import ExportError
+from mosaicthinker.runtime.infra.errors import ExportError
 
 from . import common as C
 from .hf_common import GraphSpec, export_variants, run_exporter
@@ -186,7 +186,7 @@ def _calibration(frames: list[np.ndarray] | None, pre: dict[str, Any]):
     def calib(names):
         if not frames:
             return None
-        from mosaicthinker.runtime.stages import preprocess_image
+        from mosaicthinker.runtime.models import preprocess_image
 
         return lambda: [{n: preprocess_image(frames[(i + j) % len(frames)], pre) for j, n in enumerate(names)}
                         for i in range(len(frames))]

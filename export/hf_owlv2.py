@@ -18,7 +18,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from mosaicthinker.runtime.errors import ExportError
+from mosaicthinker.runtime.infra.errors import ExportError
 
 from . import common as C
 from .hf_common import CLIP_MEAN, CLIP_STD, GraphSpec, export_variants, run_exporter, word_level_tokenizer, write_tokenizer
@@ -120,7 +120,7 @@ def export_detector(source: str, out: str | Path, precisions: Sequence[str], *,
            "keep_aspect": True}
 
     def calib():
-        from mosaicthinker.runtime.stages.owlv2 import owl_preprocess
+        from mosaicthinker.runtime.models.owlv2 import owl_preprocess
 
         return [{"pixel_values": owl_preprocess(f, pre)[0]} for f in calibration_frames]
 
@@ -132,7 +132,7 @@ def export_detector(source: str, out: str | Path, precisions: Sequence[str], *,
                   ["input_ids", "attention_mask"], ["text_embeds"], txt_inputs,
                   dynamic_shapes={"input_ids": {0: Qd}, "attention_mask": {0: Qd}}),
     ]
-    from mosaicthinker.runtime.bundle import sha256_file
+    from mosaicthinker.runtime.infra.bundle import sha256_file
 
     meta = C.role_meta("owlv2", preprocessing=pre, semantics={"vocabulary": "open"}, provenance=prov,
                        licence="Apache-2.0", random_weights=prov["random_weights"],

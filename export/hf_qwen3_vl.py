@@ -32,7 +32,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from mosaicthinker.runtime.errors import ExportError
+from mosaicthinker.runtime.infra.errors import ExportError
 
 from . import common as C
 
@@ -346,8 +346,8 @@ def task_check(model: Any, files: dict[str, Path], cfg: dict[str, Any], tok_path
                variant: str, n_new: int, seed: int = 0) -> dict[str, Any]:
     """The runtime loop (MRopeDecoder over onnxruntime) vs transformers' greedy generate on the same ids and
     pixel values (fp32: every token, and the vision graph vs transformers' own vision forward)."""
-    from mosaicthinker.runtime.stages import preprocess_image
-    from mosaicthinker.runtime.stages.vlm import MRopeDecoder, OrtRunner, build_prompt, load_tokenizer, qwen_patches
+    from mosaicthinker.runtime.models import preprocess_image
+    from mosaicthinker.runtime.models.vlm import MRopeDecoder, OrtRunner, build_prompt, load_tokenizer, qwen_patches
 
     tok = load_tokenizer(str(tok_path))
     core = MRopeDecoder(*(OrtRunner(C.ort_session(files[c])) for c in ("vision", "embed", "decoder")), cfg)
@@ -376,7 +376,7 @@ def task_check(model: Any, files: dict[str, Path], cfg: dict[str, Any], tok_path
 def export_qwen3_vl(source: str, out: str | Path, precisions: Sequence[str], *, image_size: int = 448,
                     check_tokens: int = 8, **_: Any) -> dict[str, Any]:
     """Add the vlm role (vision with DeepStack, embed, M-RoPE decoder graphs + tokenizer) to the bundle."""
-    from mosaicthinker.runtime.bundle import sha256_file
+    from mosaicthinker.runtime.infra.bundle import sha256_file
 
     from .hf_common import export_variants
     from .hf_vlm import LOW_PRECISION_TOKEN_AGREEMENT

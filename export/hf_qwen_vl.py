@@ -48,7 +48,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from mosaicthinker.runtime.errors import ExportError
+from mosaicthinker.runtime.infra.errors import ExportError
 
 from . import common as C
 from .qwen_vl_config import (CLIP_MEAN, CLIP_STD, EOS_IDS, IMAGE_TOKEN, QWEN_VOCAB, REAL_3B, SIZES, TINY,  # noqa: F401
@@ -446,7 +446,7 @@ def _graph_io(path: Path) -> tuple[list[dict], list[dict]]:
 def package_components(out: Path, pkg: Path) -> tuple[dict[str, dict], list[dict[str, str]]]:
     """Manifest components (decoder / embedding / vision, external data as extra_files) and the list of every
     file of the package (hashes filled in by bundle.add_variant / here)."""
-    from mosaicthinker.runtime.bundle import sha256_file
+    from mosaicthinker.runtime.infra.bundle import sha256_file
 
     comps = {}
     for c in ("decoder", "embedding", "vision"):

@@ -107,7 +107,7 @@ def export_segmenter(source: str, out: str | Path, precisions: Sequence[str], *,
            "resize": "longest_side_pad", "keep_aspect": True}
 
     def calib():
-        from mosaicthinker.runtime.stages.sam import sam_preprocess
+        from mosaicthinker.runtime.models.sam import sam_preprocess
 
         return [{"pixel_values": sam_preprocess(f, S)[0]} for f in calibration_frames]
 

@@ -17,7 +17,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from mosaicthinker.runtime.errors import ExportError
+from mosaicthinker.runtime.infra.errors import ExportError
 
 from . import common as C
 from .hf_common import GraphSpec, export_variants, run_exporter, word_level_tokenizer, write_tokenizer
@@ -159,8 +159,8 @@ def token_check(model: Any, family: str, files: dict[str, Path], cfg: dict[str, 
                 pre: dict[str, Any], *, prompts: Sequence[str], max_new_tokens: int, reference_ids=None,
                 seed: int = 0) -> dict[str, Any]:
     """Runtime onnxruntime loop vs transformers generate (and, for fp32, the KV-cache consistency check)."""
-    from mosaicthinker.runtime.stages import preprocess_image
-    from mosaicthinker.runtime.stages.vlm import GreedyDecoder, OrtRunner, build_prompt, load_tokenizer
+    from mosaicthinker.runtime.models import preprocess_image
+    from mosaicthinker.runtime.models.vlm import GreedyDecoder, OrtRunner, build_prompt, load_tokenizer
 
     tok = load_tokenizer(str(tokenizer_path))
     core = GreedyDecoder(*(OrtRunner(C.ort_session(files[c])) for c in ("vision", "embed", "decoder")), cfg)
@@ -276,8 +276,8 @@ def export_vlm(source: str, out: str | Path, precisions: Sequence[str], *, max_n
     import torch
     from transformers import AutoModelForImageTextToText
 
-    from mosaicthinker.runtime.bundle import sha256_file
-    from mosaicthinker.runtime.stages.vlm import TEMPLATES
+    from mosaicthinker.runtime.infra.bundle import sha256_file
+    from mosaicthinker.runtime.models.vlm import TEMPLATES
 
     family = _family_of(source)
     if source.startswith("tiny"):

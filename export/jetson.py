@@ -31,7 +31,7 @@ from pathlib import Path
 from typing import Any, Sequence
 
 from mosaicthinker.host import bundle_write as B
-from mosaicthinker.runtime.errors import ExportError
+from mosaicthinker.runtime.infra.errors import ExportError
 
 from . import common as C
 from .formats import target_format

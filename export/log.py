@@ -16,6 +16,6 @@ def brief(text: str, limit: int = 300) -> str:
 
 def progress(msg: str) -> None:
     """One progress line on stderr (long steps: export, quantisation, calibration, parity)."""
-    from mosaicthinker.runtime.progress import write
+    from mosaicthinker.runtime.infra.progress import write
 
     write(f"[export {time.strftime('%H:%M:%S')}] {msg}")

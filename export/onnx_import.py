@@ -24,8 +24,8 @@ from typing import Any, Callable
 import numpy as np
 
 from mosaicthinker.host import bundle_write as B
-from mosaicthinker.runtime.errors import ExportError, InputError
-from mosaicthinker.runtime.progress import ticked
+from mosaicthinker.runtime.infra.errors import ExportError, InputError
+from mosaicthinker.runtime.infra.progress import ticked
 
 from .common import (Feeds, add_variant_files, calibration_frames, progress, quantize_variant,
                      record_skipped_variant, role_meta)
@@ -133,7 +133,7 @@ def import_onnx(out: str | os.PathLike, role: str, path: str | os.PathLike, meta
 
     Returns {"role", "variants": {name: parity}, "skipped": {name: reason}}.
     """
-    from mosaicthinker.runtime.stages import preprocess_image
+    from mosaicthinker.runtime.models import preprocess_image
 
     path = Path(path)
     if not path.is_file():
@@ -249,7 +249,7 @@ def depth_errors(pred_m: np.ndarray, gt_m: np.ndarray, max_depth_m: float = 10.0
 
 def _depth_row(depth: Any, f: Any) -> dict[str, Any]:
     """PyDNet++ vs sensor depth on one frame: scale+shift fit, scale-only fit, constant baseline."""
-    from mosaicthinker.runtime.stages.depth import fit_to_sensor
+    from mosaicthinker.runtime.models.depth import fit_to_sensor
 
     pred = depth.predict(f.rgb)
     ss = fit_to_sensor(pred, f.depth, depth.semantics, shift=True)
@@ -264,7 +264,7 @@ def _depth_row(depth: Any, f: Any) -> dict[str, Any]:
 def _agreement_row(n: str, dets: Any, lab: np.ndarray, seg: Any, shape: tuple[int, int], agree: dict,
                    min_seg_fraction: float, box_fill: float) -> tuple[float | None, float]:
     """Detector vs segmenter on class `n` in one frame (counts into `agree[n]`); (best box fill, seg fraction)."""
-    from mosaicthinker.runtime.stages.detector import map_names
+    from mosaicthinker.runtime.models.detector import map_names
 
     H, W = shape
     cm = np.isin(lab, map_names([n], seg.labels)[0].get(n, []))
@@ -316,9 +316,9 @@ def shared_model_checks(bundle: str | os.PathLike, frames_dir: str | os.PathLike
     segmenter: >= min_seg_fraction of the image).
     """
     from mosaicthinker.runtime.frames import open_source
-    from mosaicthinker.runtime.stages import load_role
-    from mosaicthinker.runtime.stages.detector import map_names
-    from mosaicthinker.runtime.trace import Trace
+    from mosaicthinker.runtime.models import load_role
+    from mosaicthinker.runtime.models.detector import map_names
+    from mosaicthinker.runtime.infra.trace import Trace
 
     trace = trace if trace is not None else Trace()
     src = open_source(frames_dir)

@@ -20,7 +20,7 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from mosaicthinker.runtime.errors import ExportError
+from mosaicthinker.runtime.infra.errors import ExportError
 
 from .log import progress
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from mosaicthinker.runtime.errors import ExportError
+from mosaicthinker.runtime.infra.errors import ExportError
 
 
 def load_source(source: str, role: str, hf_class: Any, *, tiny_kwargs: dict | None = None) -> tuple[Any, dict]:

@@ -259,7 +259,7 @@ ROLE_DEFAULT_ARCH = {"depth": "depth-anything-v2", "segmenter": "sam", "detector
 
 def resolve(role: str, source: str) -> str:
     """`tiny` -> the role's default arch; `tiny:ARCH` -> ARCH (checked against the role)."""
-    from mosaicthinker.runtime.errors import ExportError
+    from mosaicthinker.runtime.infra.errors import ExportError
 
     arch = source.split(":", 1)[1] if ":" in source else ROLE_DEFAULT_ARCH.get(role, "")
     if arch not in TINY_ARCHS:

@@ -25,8 +25,8 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from mosaicthinker.runtime.errors import ExportError
-from mosaicthinker.runtime.progress import ticked
+from mosaicthinker.runtime.infra.errors import ExportError
+from mosaicthinker.runtime.infra.progress import ticked
 
 from .common import (add_variant_files, calibration_frames, export_torch, progress, quantize_int8_dynamic,
                      quantize_int8_qdq, record_skipped_variant, role_meta, to_fp16)

@@ -13,11 +13,11 @@ import tempfile
 from pathlib import Path, PurePosixPath
 from typing import Any
 
-from mosaicthinker.runtime.bundle import (MANIFEST, ROLES, SCHEMA, SUPPORTED_SCHEMAS, VARIANT_PREFERENCE, Bundle, Component,  # noqa: F401
+from mosaicthinker.runtime.infra.bundle import (MANIFEST, ROLES, SCHEMA, SUPPORTED_SCHEMAS, VARIANT_PREFERENCE, Bundle, Component,  # noqa: F401
                       RoleSpec, _varint, bundle_hash, check_schema, external_data_locations, iter_file_refs,
                       load_bundle, parity_text, read_manifest, safe_path, sha256_file, strict_json_loads,
                       task_text)
-from mosaicthinker.runtime.errors import BundleError
+from mosaicthinker.runtime.infra.errors import BundleError
 
 
 def new_manifest() -> dict[str, Any]:

@@ -11,10 +11,10 @@ from typing import Any
 
 import numpy as np
 
-from mosaicthinker.runtime.errors import OutputError
-from mosaicthinker.runtime.outputs import write_group
-from mosaicthinker.runtime.profiling import render, report_rows
-from mosaicthinker.runtime.trace import Trace, jsonable
+from mosaicthinker.runtime.infra.errors import OutputError
+from mosaicthinker.runtime.infra.outputs import write_group
+from mosaicthinker.runtime.commands.profile import render, report_rows
+from mosaicthinker.runtime.infra.trace import Trace, jsonable
 
 _DEFAULT_LEGEND = "bars: p50, whisker: p90"
 

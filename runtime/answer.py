@@ -37,14 +37,14 @@ from typing import Any, ClassVar, Sequence
 import numpy as np
 
 from . import evidence as ev
-from .config import StageConf
-from .errors import InputError
+from .infra.config import StageConf
+from .infra.errors import InputError
 from .geometry import box_distance, point_box_distance
 from .grounding import (ParsedQuestion, canonical_name, name_key, parse_question, plural, safe_text,
                         split_options)
 from .grounding_nl import COMPARATIVES, SUPERLATIVES
-from .semantic_map import ObjectInstance, SemanticMap
-from .trace import as_trace
+from .map.model import ObjectInstance, SemanticMap
+from .infra.trace import as_trace
 
 NUMERIC_QTYPES = ("object_counting", "object_size_estimation", "room_size_estimation", "object_abs_distance")
 UNIT_M = {"m": 1.0, "cm": 0.01, "mm": 0.001, "ft": 0.3048, "in": 0.0254}
@@ -1313,7 +1313,7 @@ def answer_question(smap: SemanticMap, question: str, options: list[str] | None 
     answerer is used (the VLM is not asked to guess them).
     """
     trace = as_trace(trace)
-    from .errors import InputError
+    from .infra.errors import InputError
 
     if answerer not in ANSWERERS:
         raise InputError(f"`answerer` must be one of {ANSWERERS}, got {answerer!r}", fields=("answerer",))

@@ -17,7 +17,7 @@ import json
 import sys
 from typing import Any, Sequence
 
-from . import progress
+from .infra import progress
 
 # (command words) -> (module, one-line help, extra needed or None)
 COMMANDS: dict[tuple[str, ...], tuple[str, str, str | None]] = {
@@ -30,10 +30,10 @@ COMMANDS: dict[tuple[str, ...], tuple[str, str, str | None]] = {
     ("eval", "keyframes"): ("mosaicthinker.host.evaluation.keyframes", "key-frame selection P/R/F1 on synthetic scenes", None),
     ("eval", "scene"): ("mosaicthinker.host.evaluation.scene", "real pipeline on an annotated real RGB-D room, scored", None),
     ("eval", "e2e"): ("mosaicthinker.host.evaluation.e2e", "end-to-end answer accuracy on synthetic scenes", None),
-    ("bundle", "verify"): ("mosaicthinker.runtime.bundle", "check a bundle's schema and sha256 hashes", None),
-    ("bundle", "show"): ("mosaicthinker.runtime.bundle", "print a readable summary of a bundle", None),
-    ("plan",): ("mosaicthinker.runtime.budget.command", "plan key frames and providers under a device profile", None),
-    ("profile",): ("mosaicthinker.runtime.profiling", "profile a bundle's models and the pipeline on this device", None),
+    ("bundle", "verify"): ("mosaicthinker.runtime.infra.bundle", "check a bundle's schema and sha256 hashes", None),
+    ("bundle", "show"): ("mosaicthinker.runtime.infra.bundle", "print a readable summary of a bundle", None),
+    ("plan",): ("mosaicthinker.runtime.commands.plan", "plan key frames and providers under a device profile", None),
+    ("profile",): ("mosaicthinker.runtime.commands.profile", "profile a bundle's models and the pipeline on this device", None),
     ("export",): ("mosaicthinker.export.cli", "export models to ONNX/ORT/TensorRT artifacts in a bundle", "export"),
 }
 
@@ -104,7 +104,7 @@ def _resolve(argv: Sequence[str]) -> tuple[tuple[str, ...] | None, list[str]]:
 
 
 def _emit(result: dict[str, Any], words: tuple[str, ...], as_json: bool, module: Any) -> None:
-    from .trace import jsonable
+    from .infra.trace import jsonable
 
     result = jsonable(result)
     result.setdefault("schema", f"mosaicthinker.{'.'.join(words)}/1")
@@ -159,7 +159,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     the traceback with --debug). No exception escapes and no signal kills the process silently."""
     argv = list(sys.argv[1:] if argv is None else argv)
     debug = "--debug" in argv
-    from .errors import handle_signals
+    from .infra.errors import handle_signals
 
     try:
         with handle_signals():
@@ -213,7 +213,7 @@ def _main(argv: list[str]) -> int:
 
 def report_exception(e: BaseException, debug: bool = False) -> int:
     """Print one line for an exception and return its exit code (the outcome-class table)."""
-    from .errors import exit_code_for, message_for
+    from .infra.errors import exit_code_for, message_for
 
     if isinstance(e, SystemExit):  # argparse (2 with its own message) or an explicit exit
         return e.code if isinstance(e.code, int) else (0 if e.code is None else 2)

@@ -23,9 +23,9 @@ from typing import Any, Callable, Iterator, Sequence
 
 import numpy as np
 
-from .errors import InputError
+from .infra.errors import InputError
 from .geometry import intrinsics_from_fov, make_pose, worker_threads
-from .lru import LRU
+from .infra.lru import LRU
 
 IMAGE_EXTS = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp")
 VIDEO_EXTS = (".mp4", ".mov", ".avi", ".mkv", ".m4v", ".webm", ".3gp", ".mpg", ".mpeg")
@@ -381,7 +381,7 @@ class FrameSource:
     def gray(self, position: int, width: int) -> np.ndarray:
         """Gray image [h, w] uint8, at most `width` wide, of the frame at `position` (redundant-frame removal;
         sources that can decode it more cheaply than the colour frame override this)."""
-        from .dedup import small_gray
+        from .scan import small_gray
 
         return small_gray(self.colour(position).rgb, width)
 
@@ -681,7 +681,7 @@ def _small_gray_bgr(bgr: np.ndarray, width: int, scale: float = 1.0) -> np.ndarr
     """Gray [h, w] uint8 of a decoded BGR frame, downscaled like the colour frame, then to at most `width`."""
     import cv2
 
-    from .dedup import small_gray
+    from .scan import small_gray
 
     g = cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY)
     return small_gray(_downscale(g, scale) if scale != 1.0 else g, width)
@@ -781,7 +781,7 @@ class VideoSource(FrameSource):
         """dedup: "default" (DedupConf defaults), a DedupConf / mapping, or None (no removal while scanning)."""
         if dedup is None:
             return None
-        from .dedup import BackgroundDedup, OnlineDedup
+        from .scan import BackgroundDedup, OnlineDedup
 
         return BackgroundDedup(OnlineDedup(None if isinstance(dedup, str) and dedup == "default" else dedup))
 

@@ -24,7 +24,7 @@ import re
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
-from .trace import as_trace
+from .infra.trace import as_trace
 
 QTYPES = ("object_counting", "object_size_estimation", "room_size_estimation", "object_abs_distance",
           "object_rel_distance", "object_rel_direction_easy", "object_rel_direction_medium",
@@ -308,7 +308,7 @@ def safe_text(s: Any, limit: int | None = None) -> str:
 
 def check_question(question: Any, options: list[str] | None = None) -> None:
     """Refuse questions over `MAX_QUESTION_CHARS` and option lists that are too long (InputError)."""
-    from .errors import InputError
+    from .infra.errors import InputError
 
     n = len(str(question))
     if n > MAX_QUESTION_CHARS:

@@ -77,10 +77,10 @@ from typing import Any, Callable, ClassVar, Mapping, MutableMapping, Sequence
 import cv2
 import numpy as np
 
-from .config import StageConf
-from .errors import InputError
-from .perception import Detections
-from .trace import as_trace
+from .infra.config import StageConf
+from .infra.errors import InputError
+from .types import Detections
+from .infra.trace import as_trace
 
 DetectFn = Callable[[int, list[str]], Detections]
 ImageFn = Callable[[int], np.ndarray]

@@ -21,26 +21,26 @@ from typing import Any, Callable, ClassVar, Collection, Mapping, Sequence
 
 import numpy as np
 
-from .config import StageConf
-from .errors import InputError, MosaicError
+from .infra.config import StageConf
+from .infra.errors import InputError, MosaicError
 from .frames import Frame, FrameSource
-from .perception import Detections
-from .progress import phase, start, ticking
-from .trace import Trace, as_trace
+from .types import Detections
+from .infra.progress import phase, start, ticking
+from .infra.trace import Trace, as_trace
 # the stages, in the paper's order
 from .grounding import ParsedQuestion, ground
-from .dedup import DedupConf, DedupResult, remove_redundant
+from .scan import DedupConf, DedupResult, remove_redundant
 from .keyframes import KeyFrameConf, scored_budget, select_keyframes, uniform_keyframes
-from .matching import MatchConf, make_matcher
-from .alignment import AlignConf, align_keyframes, worker_threads
-from .semantic_map import (FusionConfig, ObjectInstance, Observation, SemanticMap, box_depth_mask,
+from .align.matching import MatchConf, make_matcher
+from .align.recover import AlignConf, align_keyframes, worker_threads
+from .map.model import (FusionConfig, ObjectInstance, Observation, SemanticMap, box_depth_mask,
                            extend_to_floor, first_seen_from_detections, fuse_observations, gravity_from_frames,
                            lift_camera, place, refine, room_extent)
 from . import prompt as vprompt
 from .answer import MapReasoner, answer_question, answer_with_vlm, cannot_detect
 # moved to their stage modules; importable from here as before
-from .alignment import attach_frames, bridge_attach, depth_consistency, verify_tree  # noqa: F401
-from .semantic_map import floor_support, hull_candidates as _hull_candidates  # noqa: F401
+from .align.recover import attach_frames, bridge_attach, depth_consistency, verify_tree  # noqa: F401
+from .map.model import floor_support, hull_candidates as _hull_candidates  # noqa: F401
 
 DetectFn = Callable[[Frame, list[str]], Detections]
 SegmentFn = Callable[[Frame, Detections], np.ndarray]          # -> masks [N, H, W] bool
@@ -718,8 +718,8 @@ def perception_from_bundle(bundle: Any, conf: PipelineConfig | dict | None = Non
     - embedder (optional): frame embeddings for the alignment tree's similarity (else colour histograms).
     Every choice is recorded in `trace.decisions["perception"]`.
     """
-    from .bundle import load_bundle
-    from .stages import load_role
+    from .infra.bundle import load_bundle
+    from .models import load_role
 
     conf = conf if isinstance(conf, PipelineConfig) else PipelineConfig.merged(conf)
     trace = trace if trace is not None else Trace()
@@ -795,14 +795,14 @@ def _first_mask(masks: Any) -> np.ndarray | None:
 
 def load_vlm(bundle: Any, trace: Trace | None = None, profile: Any = None) -> Any | None:
     """The bundle's VLM adapter (`.generate(images, prompt, max_new_tokens=...) -> str`) or None without one."""
-    from .bundle import load_bundle
+    from .infra.bundle import load_bundle
 
     if bundle is None:
         return None
     b = load_bundle(bundle)
     if not b.has_role("vlm"):
         return None
-    from .stages import load_role
+    from .models import load_role
 
     vlm = load_role(b, "vlm", trace=trace, **_role_kwargs(profile, "vlm", b, trace))
     as_trace(trace).decide("vlm", vlm.describe() if hasattr(vlm, "describe") else "vlm")
@@ -904,7 +904,7 @@ def _whole_map_targets(pq: ParsedQuestion, bundle: Any, trace: Trace) -> list[st
     holds what the video shows."""
     if not pq.whole_map or pq.qtype == "room_size_estimation" or bundle is None:
         return pq.targets
-    from .stages.detector import detectable_names
+    from .models.detector import detectable_names
 
     try:
         names = detectable_names(bundle, pq.objects)  # the question's own names for what the detector sees
@@ -922,7 +922,7 @@ def _cannot_detect_first(pq: ParsedQuestion, options: list[str] | None, bundle: 
     (an option the detector cannot see may still lose to one it can)."""
     if bundle is None or options:
         return None
-    from .stages.detector import undetectable_names
+    from .models.detector import undetectable_names
 
     cannot, n_labels, close = undetectable_names(bundle, pq.objects)
     if not cannot:

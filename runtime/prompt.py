@@ -18,10 +18,10 @@ from typing import Any, ClassVar
 import cv2
 import numpy as np
 
-from .config import StageConf
-from .errors import InputError
+from .infra.config import StageConf
+from .infra.errors import InputError
 from .geometry import box_footprint
-from .semantic_map import SemanticMap
+from .map.model import SemanticMap
 
 MODES = ("grid", "points", "text", "json")
 
@@ -84,7 +84,7 @@ class VisualPrompt:
     def save_png(self, path: str) -> None:
         if self.image is None:
             raise ValueError("text-only prompt has no image")
-        from .outputs import encode_png  # checked encode, path-safe write (never a silent imwrite failure)
+        from .infra.outputs import encode_png  # checked encode, path-safe write (never a silent imwrite failure)
 
         with open(path, "wb") as f:
             f.write(encode_png(self.image))

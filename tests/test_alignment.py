@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 
 from mosaicthinker.runtime import geometry as G
-from mosaicthinker.runtime.alignment import (align_frames, choose_root, compose_tree, maximum_spanning_tree,
+from mosaicthinker.runtime.align.recover import (align_frames, choose_root, compose_tree, maximum_spanning_tree,
                                              similarity_matrix)
-from mosaicthinker.runtime.errors import AlignmentError
+from mosaicthinker.runtime.infra.errors import AlignmentError
 from mosaicthinker.host.evaluation.pose import ate_rmse, evaluate_pose, pick_frames, rpe
 from mosaicthinker.runtime.frames import Frame, open_source
-from mosaicthinker.runtime.matching import Matches, match_features
+from mosaicthinker.runtime.align.matching import Matches, match_features
 
 # ----------------------------------------------------------------------------- spanning tree
 
@@ -219,7 +219,7 @@ def test_rgbd_candidates_widen_only_while_disconnected():
 
 
 def test_candidate_widths_per_edge_type():
-    from mosaicthinker.runtime.alignment import AlignConf, _candidate_widths
+    from mosaicthinker.runtime.align.recover import AlignConf, _candidate_widths
 
     assert _candidate_widths(AlignConf(), "rgbd") == (2, 1)  # narrow start + time neighbour
     assert _candidate_widths(AlignConf(), "essential") == (4, 1)  # every candidate (the scale graph needs them)
@@ -276,7 +276,7 @@ def test_essential_edges_for_relative_depth(scale_mode):
 
 
 def test_essential_pair_and_frame_scales():
-    from mosaicthinker.runtime.alignment import AlignConf, PairResult, align_pair_essential, essential_frame_scales
+    from mosaicthinker.runtime.align.recover import AlignConf, PairResult, align_pair_essential, essential_frame_scales
 
     frames, scene, poses = _synthetic(3, seed=3, depth_scale=[2.5, 1.0, 0.7])
     (uva, va), (uvb, vb) = scene[0], scene[2]
@@ -342,7 +342,7 @@ def test_real_redkitchen_accuracy(redkitchen):
     """8 frames, 1 s apart, with sensor depth and SIFT: sub-5 cm ATE, every frame aligned."""
     src = open_source(redkitchen)
     idx = list(range(0, 120, 15))
-    from mosaicthinker.runtime.matching import FeatureMatcher
+    from mosaicthinker.runtime.align.matching import FeatureMatcher
 
     fm = FeatureMatcher("sift")
     for strategy in ("mst", "sequential"):
@@ -359,7 +359,7 @@ def test_real_essential_edges_with_relative_depth(redkitchen):
     matches -> essential-matrix edges chosen automatically; the trajectory is right up to one Sim(3)."""
     from dataclasses import replace
 
-    from mosaicthinker.runtime.matching import FeatureMatcher
+    from mosaicthinker.runtime.align.matching import FeatureMatcher
 
     src = open_source(redkitchen)
     idx = list(range(0, 120, 15))

@@ -8,12 +8,12 @@ import dataclasses
 import cv2
 import numpy as np
 
-from mosaicthinker.runtime.alignment import (AlignmentResult, BlockPairs, bridge_attach, revisit_attach,
+from mosaicthinker.runtime.align.recover import (AlignmentResult, BlockPairs, bridge_attach, revisit_attach,
                                              revisit_pairs, thumb_histograms)
 from mosaicthinker.runtime.geometry import invert
-from mosaicthinker.runtime.matching import make_matcher
+from mosaicthinker.runtime.align.matching import make_matcher
 from mosaicthinker.runtime.pipeline import PipelineConfig
-from mosaicthinker.runtime.trace import Trace
+from mosaicthinker.runtime.infra.trace import Trace
 
 
 def test_thumb_histograms_are_correlations():

@@ -15,7 +15,7 @@ import pytest
 pytest.importorskip("onnx")
 
 from mosaicthinker.export import android as A  # noqa: E402
-from mosaicthinker.runtime import bundle as B  # noqa: E402
+from mosaicthinker.runtime.infra import bundle as B  # noqa: E402
 
 pytestmark = [pytest.mark.export, pytest.mark.slow]
 
@@ -380,7 +380,7 @@ PERF_FAIL = "Error: NNAPI execution provider is not available in this build\nexi
 def test_perf_report_in_profile_schema(real_bundle, tmp_path):
     import importlib.util
 
-    from mosaicthinker.runtime.profiling import REPORT_SCHEMA
+    from mosaicthinker.runtime.commands.profile import REPORT_SCHEMA
 
     spec = importlib.util.spec_from_file_location("perf_report", REPO / "android" / "perf_report.py")
     pr = importlib.util.module_from_spec(spec)

@@ -21,12 +21,12 @@ import cv2
 import numpy as np
 import pytest
 
-from mosaicthinker.runtime import bundle as B
+from mosaicthinker.runtime.infra import bundle as B
 from mosaicthinker.runtime.cli import main
-from mosaicthinker.runtime.errors import BundleError, InputError
+from mosaicthinker.runtime.infra.errors import BundleError, InputError
 from mosaicthinker.runtime.frames import open_source
 from mosaicthinker.runtime.geometry import OrientedBox
-from mosaicthinker.runtime.semantic_map import ObjectInstance, SemanticMap
+from mosaicthinker.runtime.map.model import ObjectInstance, SemanticMap
 
 REPO = Path(__file__).resolve().parents[1]
 Q_COUNT = "How many chair(s) are in this room?"
@@ -437,7 +437,7 @@ def test_non_utf8_file_names_and_out_path(tmp_path, capsys):
 
 def test_core_affinity_is_applied_or_refused_loudly():
     from mosaicthinker.runtime.budget import load_profile
-    from mosaicthinker.runtime.trace import Trace
+    from mosaicthinker.runtime.infra.trace import Trace
 
     p = load_profile("cpu-generic")
     p.core_affinity = [10_000]  # no such core here
@@ -453,7 +453,7 @@ def test_core_affinity_is_applied_or_refused_loudly():
 
 def test_core_affinity_that_exists_is_applied():
     from mosaicthinker.runtime.budget import load_profile
-    from mosaicthinker.runtime.trace import Trace
+    from mosaicthinker.runtime.infra.trace import Trace
 
     before = os.sched_getaffinity(0)
     p = load_profile("cpu-generic")
@@ -517,7 +517,7 @@ def test_synth_failure_leaves_no_half_scene(tmp_path, capsys, monkeypatch):
 
 
 def test_preprocessing_mismatch_names_the_manifest_field(tmp_path):
-    from mosaicthinker.runtime.stages import load_role
+    from mosaicthinker.runtime.models import load_role
 
     b = tiny_bundle(tmp_path, image=True)
     load_role(b, "embedder")  # consistent: loads
@@ -557,7 +557,7 @@ def test_manifest_is_world_readable_and_import_needs_random_weights_said(tmp_pat
 
 
 def test_map_beyond_the_stated_size_is_refused(tmp_path, capsys, monkeypatch):
-    from mosaicthinker.runtime import semantic_map
+    from mosaicthinker.runtime.map import model as semantic_map
 
     monkeypatch.setattr(semantic_map, "MAX_MAP_OBJECTS", 1)
     code, _, err = run_cli(capsys, ["ask", str(small_map(tmp_path / "m.json")), Q_COUNT])
@@ -618,7 +618,7 @@ def test_live_lock_refuses_and_stale_lock_is_taken_over(tmp_path, capsys):
 def test_late_write_failure_still_prints_the_answer(tmp_path, capsys, monkeypatch):
     import errno
 
-    from mosaicthinker.runtime import outputs
+    from mosaicthinker.runtime.infra import outputs
 
     out = tmp_path / "o"
     m = str(small_map(tmp_path / "m.json"))

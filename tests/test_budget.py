@@ -14,11 +14,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from mosaicthinker.runtime import budget as B
-from mosaicthinker.runtime.errors import InputError
-from mosaicthinker.runtime.bundle import bundle_hash
-from mosaicthinker.runtime.trace import peak_rss_mb, reset_peak_rss
-from mosaicthinker.runtime.errors import BudgetError, ProfileError
-from mosaicthinker.runtime.trace import Trace, rss_mb
+from mosaicthinker.runtime.infra.errors import InputError
+from mosaicthinker.runtime.infra.bundle import bundle_hash
+from mosaicthinker.runtime.infra.trace import peak_rss_mb, reset_peak_rss
+from mosaicthinker.runtime.infra.errors import BudgetError, ProfileError
+from mosaicthinker.runtime.infra.trace import Trace, rss_mb
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -261,7 +261,7 @@ def test_mosaic_plan_video(capsys, redkitchen):
 
 
 def test_profile_provider_chain_falls_back_to_cpu_with_reasons(shared_models):
-    from mosaicthinker.runtime.providers import create_session
+    from mosaicthinker.runtime.infra.providers import create_session
 
     prof = B.load_profile("jetson-orin-nano-8gb")
     trace = Trace()
@@ -464,7 +464,7 @@ def test_plan_with_paper_model_costs(tmp_path):
     import tomllib
 
     from mosaicthinker.runtime.budget import MODEL_SETS, load_profile, plan, resolve_profile_path
-    from mosaicthinker.runtime.errors import ProfileError
+    from mosaicthinker.runtime.infra.errors import ProfileError
 
     src = resolve_profile_path("cpu-generic")
     data = tomllib.loads(src.read_text())

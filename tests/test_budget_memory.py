@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from mosaicthinker.runtime import budget as B
-from mosaicthinker.runtime import providers as P
-from mosaicthinker.runtime.trace import Trace
+from mosaicthinker.runtime.infra import providers as P
+from mosaicthinker.runtime.infra.trace import Trace
 
 from test_pipeline import synthetic_scene
 

@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 from mosaicthinker.host import bundle_write as BW
-from mosaicthinker.runtime import bundle as B
-from mosaicthinker.runtime.errors import BundleError, ExportError
+from mosaicthinker.runtime.infra import bundle as B
+from mosaicthinker.runtime.infra.errors import BundleError, ExportError
 
 onnx = pytest.importorskip("onnx")  # the export extra (CI installs it)
 
@@ -81,7 +81,7 @@ def test_tampered_file_is_refused(tiny_bundle: Path):
     f.write_bytes(bytes(data))
     with pytest.raises(BundleError, match=r"model\.onnx: sha256 mismatch"):
         B.load_bundle(tiny_bundle)
-    from mosaicthinker.runtime.stages import load_role
+    from mosaicthinker.runtime.models import load_role
 
     with pytest.raises(BundleError, match="sha256 mismatch"):
         load_role(tiny_bundle, "embedder")
@@ -162,8 +162,8 @@ def test_cli_verify_and_show(tiny_bundle: Path):
 
 def test_random_weights_warn_loudly(tmp_path: Path):
     from mosaicthinker.export.common import add_variant_files
-    from mosaicthinker.runtime.stages import load_role
-    from mosaicthinker.runtime.trace import Trace
+    from mosaicthinker.runtime.models import load_role
+    from mosaicthinker.runtime.infra.trace import Trace
 
     out = tmp_path / "b"
     add_variant_files(out, "embedder", "fp32", {"model": _tiny_graph(tmp_path / "g.onnx")},

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from mosaicthinker.runtime import geometry as G
-from mosaicthinker.runtime import semantic_map as sm
-from mosaicthinker.runtime.alignment import AlignConf, align_frames
+from mosaicthinker.runtime.map import model as sm
+from mosaicthinker.runtime.align.recover import AlignConf, align_frames
 from mosaicthinker.runtime.frames import open_source
 from test_alignment import _emb, _OracleMatcher, _synthetic
 from test_fusion import box, lift_all, views
@@ -213,7 +213,7 @@ def test_lazy_verification_fewer_pairs_same_poses():
 
 def test_essential_tree_edges_refined_others_not(monkeypatch):
     """Essential edges: every candidate is verified (ranking, scale graph), only the tree's edges are refined."""
-    from mosaicthinker.runtime import alignment as al
+    from mosaicthinker.runtime.align import recover as al
 
     frames, scene, _ = _synthetic(6)
     refined = []
@@ -255,7 +255,7 @@ def test_threads_give_identical_alignment_and_map_7scenes(redkitchen, with_scale
     """Real frames (SIFT, K = 12): 1 thread vs 2 and 3 threads vs a repeat run, rgbd edges on sensor depth and
     essential edges (depth as relative): the same pairs, inliers, transforms, poses; fusion on them the same."""
     from mosaicthinker.host.evaluation.pose import pick_frames
-    from mosaicthinker.runtime.matching import FeatureMatcher
+    from mosaicthinker.runtime.align.matching import FeatureMatcher
 
     src = open_source(redkitchen)
     frames = [src[i] for i in pick_frames(len(src), 12, "uniform")]
@@ -276,7 +276,7 @@ def _fused(frames, poses, threads, monkeypatch, prelift=False):
     """The pipeline's fusion step (lifting per frame on `threads` threads) with two box detections per frame;
     prelift: the key frames lifted in the camera frame first, as perception does, and only placed by fusion."""
     from mosaicthinker.runtime import pipeline
-    from mosaicthinker.runtime.perception import Detections
+    from mosaicthinker.runtime.types import Detections
 
     monkeypatch.setattr(pipeline, "worker_threads", lambda n=0: threads)
     H, W = frames[0].depth.shape

@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 from skimage.metrics import structural_similarity
 
-from mosaicthinker.runtime.dedup import DedupConf, orb_track, remove_redundant, ssim
-from mosaicthinker.runtime.errors import InputError
+from mosaicthinker.runtime.scan import DedupConf, orb_track, remove_redundant, ssim
+from mosaicthinker.runtime.infra.errors import InputError
 from mosaicthinker.runtime.frames import Frame, FrameList, open_source
 
 
@@ -73,7 +73,7 @@ def _tracking_first(grays: list[np.ndarray], conf: DedupConf) -> list[int]:
 def test_ssim_first_keeps_the_frames_tracking_first_keeps(redkitchen, stride):
     """The scan tests SSIM before ORB (cheaper; ORB only on SSIM's candidates): the same frames are kept as by
     the rule in the paper's order, on the real kitchen at 15 fps (many near-duplicates) and every 4th frame."""
-    from mosaicthinker.runtime.dedup import small_gray
+    from mosaicthinker.runtime.scan import small_gray
 
     src = open_source(redkitchen)
     conf = DedupConf(sample_fps=None)
@@ -98,7 +98,7 @@ def test_remove_redundant_downsampling_by_time(redkitchen):
 def test_a_short_input_is_sampled_densely_enough_to_compare(redkitchen):
     """Ten photos in a folder (a nominal 30 fps) or a 1 s clip kept one frame at 3 fps, and the map then failed
     with "only 1 key frame"; below `min_sampled` frames the input is sampled by stride instead."""
-    from mosaicthinker.runtime.trace import Trace
+    from mosaicthinker.runtime.infra.trace import Trace
 
     src = open_source(redkitchen)  # 15 fps: 2 s -> 6 frames at 3 fps
     frames = [src[i] for i in range(0, 30)]
@@ -127,7 +127,7 @@ def test_remove_redundant_errors():
 
 
 def test_background_scan_gives_the_serial_result_and_raises_the_workers_error(redkitchen):
-    from mosaicthinker.runtime.dedup import BackgroundDedup, OnlineDedup, small_gray
+    from mosaicthinker.runtime.scan import BackgroundDedup, OnlineDedup, small_gray
 
     src = open_source(redkitchen)
     serial, background = OnlineDedup(), BackgroundDedup(OnlineDedup())
@@ -156,9 +156,9 @@ def test_background_scan_gives_the_serial_result_and_raises_the_workers_error(re
 def test_the_key_frame_search_reads_candidates_thumbnails_not_the_video(redkitchen):
     """The content prior's densities come from dedup's thumbnails: the search decodes only the frames it
     scores (and their histogram neighbours), not every candidate a second time."""
-    from mosaicthinker.runtime.perception import Detections
+    from mosaicthinker.runtime.types import Detections
     from mosaicthinker.runtime.pipeline import Perception, PipelineConfig, select
-    from mosaicthinker.runtime.trace import Trace
+    from mosaicthinker.runtime.infra.trace import Trace
 
     class Counting:
         def __init__(self, src):
@@ -204,7 +204,7 @@ def _orb_track_two_matchers(k0, d0, k1, d1):
 def test_orb_track_equals_two_brute_force_matchers(redkitchen):
     """One forward pass as arrays plus a backward pass over the ratio test's targets only: the same tracked
     fraction and motion as matching both ways in full, for near and far pairs, at both feature settings."""
-    from mosaicthinker.runtime.dedup import orb_features, small_gray
+    from mosaicthinker.runtime.scan import orb_features, small_gray
 
     src = open_source(redkitchen)
     gs = [small_gray(src.colour(i).rgb, 320) for i in range(0, 240, 12)]
@@ -234,7 +234,7 @@ def test_fewer_orb_features_and_levels_keep_the_kitchens_decisions(redkitchen):
     """`orb_features` / `orb_levels` reach ORB (the tracked fractions change) and 300 over 4 levels, the cheaper
     setting docs/performance.md weighs, keeps exactly the frames the defaults keep on every frame of the real
     kitchen (15 fps, no down-sampling: ~all are candidates)."""
-    from mosaicthinker.runtime.dedup import OnlineDedup, small_gray
+    from mosaicthinker.runtime.scan import OnlineDedup, small_gray
 
     src = open_source(redkitchen)
     default, fewer = OnlineDedup({"sample_fps": None}), OnlineDedup({"sample_fps": None, "orb_features": 300,
@@ -255,9 +255,9 @@ def test_without_a_plan_the_search_budget_is_capped_per_key_frame(redkitchen):
     a 600 s clip; it is now capped at `max_scored_per_keyframe` x K (the rule the planner's target uses too,
     `keyframes.scored_budget`), and the trace says so."""
     from mosaicthinker.runtime.keyframes import scored_budget
-    from mosaicthinker.runtime.perception import Detections
+    from mosaicthinker.runtime.types import Detections
     from mosaicthinker.runtime.pipeline import Perception, PipelineConfig, select
-    from mosaicthinker.runtime.trace import Trace
+    from mosaicthinker.runtime.infra.trace import Trace
 
     assert scored_budget(1795, 16, 0.25, 3, 6.0) == 96 and scored_budget(1795, 16, 0.25, 3, None) == 449
     assert scored_budget(180, 16, 0.25, 3, 6.0) == 48 and scored_budget(10, 4, 0.25, 0, 6.0) == 3

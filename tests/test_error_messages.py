@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from mosaicthinker.runtime.commands.flags import FLAG_FOR_FIELD, cli_message
-from mosaicthinker.runtime.errors import InputError
+from mosaicthinker.runtime.infra.errors import InputError
 
 RUNTIME = Path(__file__).resolve().parents[1] / "runtime"
 # command modules and the command functions of library modules speak the CLI's words
@@ -32,7 +32,7 @@ def test_cli_message_maps_only_the_named_fields():
 def test_api_error_names_the_parameter_and_the_cli_the_flag(tmp_path, capsys):
     from mosaicthinker.runtime.answer import answer_question
     from mosaicthinker.runtime.cli import main
-    from mosaicthinker.runtime.semantic_map import SemanticMap
+    from mosaicthinker.runtime.map.model import SemanticMap
 
     smap = SemanticMap([], None, [], {})
     with pytest.raises(InputError) as e:

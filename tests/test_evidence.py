@@ -13,7 +13,7 @@ from mosaicthinker.runtime import evidence
 from mosaicthinker.runtime.answer import MapReasoner
 from mosaicthinker.runtime.commands import ask as ask_cmd
 from mosaicthinker.runtime.geometry import OrientedBox
-from mosaicthinker.runtime.semantic_map import Observation, SemanticMap, fuse_observations
+from mosaicthinker.runtime.map.model import Observation, SemanticMap, fuse_observations
 
 
 def _box_points(c, size, n=600, seed=0) -> np.ndarray:

@@ -52,7 +52,7 @@ def rgb():
 
 
 def test_every_role_exported_with_fp32_parity_on_fresh_inputs(tiny_bundle):
-    from mosaicthinker.runtime.bundle import load_bundle
+    from mosaicthinker.runtime.infra.bundle import load_bundle
 
     out, loftr, reports = tiny_bundle
     b = load_bundle(out)  # hashes + schema
@@ -75,7 +75,7 @@ def test_every_role_exported_with_fp32_parity_on_fresh_inputs(tiny_bundle):
 
 
 def test_dynamic_axes_are_declared(tiny_bundle):
-    from mosaicthinker.runtime.bundle import load_bundle
+    from mosaicthinker.runtime.infra.bundle import load_bundle
 
     b = load_bundle(tiny_bundle[0])
     sd = b.role_meta("segmenter")["variants"]["fp32"]["components"]["decoder"]
@@ -85,7 +85,7 @@ def test_dynamic_axes_are_declared(tiny_bundle):
 
 
 def test_depth_runtime(tiny_bundle, rgb):
-    from mosaicthinker.runtime.stages import load_role
+    from mosaicthinker.runtime.models import load_role
 
     d = load_role(tiny_bundle[0], "depth")
     assert d.semantics == "relative_inverse"
@@ -94,8 +94,8 @@ def test_depth_runtime(tiny_bundle, rgb):
 
 
 def test_sam_runtime_boxes_and_points(tiny_bundle, rgb):
-    from mosaicthinker.runtime.stages import load_role
-    from mosaicthinker.runtime.trace import Trace
+    from mosaicthinker.runtime.models import load_role
+    from mosaicthinker.runtime.infra.trace import Trace
 
     tr = Trace()
     s = load_role(tiny_bundle[0], "segmenter", trace=tr)
@@ -135,8 +135,8 @@ def test_owlv2_runtime_matches_hf_detection_head(tiny_bundle, rgb):
     import torch
 
     from mosaicthinker.export import tiny
-    from mosaicthinker.runtime.stages import load_role
-    from mosaicthinker.runtime.stages.owlv2 import owl_preprocess
+    from mosaicthinker.runtime.models import load_role
+    from mosaicthinker.runtime.models.owlv2 import owl_preprocess
 
     d = load_role(tiny_bundle[0], "detector")
     names = ["chair", "dining table"]
@@ -161,7 +161,7 @@ def test_owlv2_runtime_matches_hf_detection_head(tiny_bundle, rgb):
 
 
 def test_embedder_runtime_unit_norm(tiny_bundle, rgb):
-    from mosaicthinker.runtime.stages import load_role
+    from mosaicthinker.runtime.models import load_role
 
     e = load_role(tiny_bundle[0], "embedder")
     v = e.embed(rgb)
@@ -174,7 +174,7 @@ def test_superpoint_lightglue_runtime_returns_wellformed_matches(tiny_bundle, rg
     """The adapter runs the two graphs and maps matches back to image pixels. It cannot be asked to find a shift:
     with random weights LightGlue's assignment is arbitrary (one match at dx = 0 for a 4, 8 or 16 px roll), so the
     shift is checked on EfficientLoFTR below, whose correlation stays translation-equivariant with random weights."""
-    from mosaicthinker.runtime.stages import load_role
+    from mosaicthinker.runtime.models import load_role
 
     m = load_role(tiny_bundle[0], "matcher")
     res = m.match(rgb, np.roll(rgb, 4, axis=1))
@@ -187,7 +187,7 @@ def test_superpoint_lightglue_runtime_returns_wellformed_matches(tiny_bundle, rg
 
 
 def test_efficientloftr_runtime(tiny_bundle, rgb):
-    from mosaicthinker.runtime.stages import load_role
+    from mosaicthinker.runtime.models import load_role
 
     m = load_role(tiny_bundle[1], "matcher")
     res = m.match(rgb, np.roll(rgb, 8, axis=1))
@@ -223,7 +223,7 @@ def test_cli_export_tiny_role(tmp_path):
 
 def test_tiny_source_errors():
     from mosaicthinker.export import tiny
-    from mosaicthinker.runtime.errors import ExportError
+    from mosaicthinker.runtime.infra.errors import ExportError
 
     with pytest.raises(ExportError, match="not a depth model"):
         tiny.resolve("depth", "tiny:sam")
@@ -238,7 +238,7 @@ def test_parity_catches_shapes_specialised_at_export(tmp_path):
     import torch
 
     from mosaicthinker.export import hf_common
-    from mosaicthinker.runtime.errors import ExportError
+    from mosaicthinker.runtime.infra.errors import ExportError
 
     class Net(torch.nn.Module):
         def forward(self, x):
@@ -258,7 +258,7 @@ def test_checkpoint_sources_fail_clearly(tmp_path):
     from transformers import DepthAnythingForDepthEstimation
 
     from mosaicthinker.export.sources import load_source
-    from mosaicthinker.runtime.errors import ExportError
+    from mosaicthinker.runtime.infra.errors import ExportError
 
     with pytest.raises(ExportError, match="does not exist"):
         load_source(f"dir:{tmp_path / 'nope'}", "depth", DepthAnythingForDepthEstimation)

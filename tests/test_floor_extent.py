@@ -9,7 +9,7 @@ from types import SimpleNamespace
 import numpy as np
 
 from mosaicthinker.runtime.geometry import OrientedBox
-from mosaicthinker.runtime.semantic_map import ObjectInstance, band_visibility, extend_to_floor
+from mosaicthinker.runtime.map.model import ObjectInstance, band_visibility, extend_to_floor
 
 H, W = 96, 128
 K = np.array([[100.0, 0, W / 2], [0, 100.0, H / 2], [0, 0, 1]])
@@ -96,9 +96,9 @@ def test_legs_seen_under_the_box_extend_it():
 
 
 def test_attach_retries_pairs_that_failed_inside_boxes(redkitchen):
-    from mosaicthinker.runtime.alignment import AlignmentResult, PairResult, attach_frames
+    from mosaicthinker.runtime.align.recover import AlignmentResult, PairResult, attach_frames
     from mosaicthinker.runtime.frames import open_source
-    from mosaicthinker.runtime.matching import make_matcher
+    from mosaicthinker.runtime.align.matching import make_matcher
     from mosaicthinker.runtime.pipeline import PipelineConfig
 
     src = open_source(redkitchen)
@@ -116,15 +116,15 @@ def test_bridging_skips_key_frames_behind_a_gap_a_chain_did_not_cross(redkitchen
     """`bridge_attach`: the chain from frame 0 towards key frame 48 gets stuck in the gap (no edge passes), so the
     key frame 60 behind it on the same side is not chained to (it would cross the same frames): the budget
     goes only to the first chain, and the skip is recorded."""
-    from mosaicthinker.runtime.alignment import AlignmentResult, bridge_attach
+    from mosaicthinker.runtime.align.recover import AlignmentResult, bridge_attach
     from mosaicthinker.runtime.frames import open_source
-    from mosaicthinker.runtime.matching import make_matcher
+    from mosaicthinker.runtime.align.matching import make_matcher
     from mosaicthinker.runtime.pipeline import PipelineConfig
-    from mosaicthinker.runtime.trace import Trace
+    from mosaicthinker.runtime.infra.trace import Trace
 
     class NoMatches:
         def match(self, rgb0, rgb1, boxes0=None, boxes1=None):
-            from mosaicthinker.runtime.matching import Matches
+            from mosaicthinker.runtime.align.matching import Matches
 
             return Matches.empty()
 

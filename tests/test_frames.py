@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
-from mosaicthinker.runtime.errors import InputError
+from mosaicthinker.runtime.infra.errors import InputError
 from mosaicthinker.runtime.frames import (FrameList, ImageFolderSource, SevenScenesSource, TUMSource, VideoSource,
                                           open_source)
 from mosaicthinker.runtime.geometry import make_pose, rotation_about
@@ -194,7 +194,7 @@ def test_mp4_random_access_equals_sequential(tmp_path):
 def test_scan_decoder_threads_change_no_frame(tmp_path, monkeypatch):
     """VideoSource.scan_decoder_threads sets FFmpeg's decoder threads of the opening scan: a speed setting,
     the same timestamps, frames and online redundant-frame removal whatever its value."""
-    from mosaicthinker.runtime.dedup import DedupConf
+    from mosaicthinker.runtime.scan import DedupConf
 
     p = tmp_path / "clip.mp4"
     if not _write_mp4(p, 60):
@@ -215,11 +215,11 @@ def test_the_scan_keeps_the_searchs_colour_histograms_and_the_search_reads_them(
     """A video's opening scan stores each kept frame's colour histogram (`DedupConf.histograms`): exactly the
     search's `colour_histogram` of the frame the source gives, so the search's kernel widths read them instead
     of decoding every scored frame's +-r neighbours: the same key frames, only the scored frames decoded."""
-    from mosaicthinker.runtime.dedup import DedupConf
+    from mosaicthinker.runtime.scan import DedupConf
     from mosaicthinker.runtime.keyframes import colour_histogram
-    from mosaicthinker.runtime.perception import Detections
+    from mosaicthinker.runtime.types import Detections
     from mosaicthinker.runtime.pipeline import Perception, PipelineConfig, select
-    from mosaicthinker.runtime.trace import Trace
+    from mosaicthinker.runtime.infra.trace import Trace
 
     p = tmp_path / "clip.mp4"
     if not _write_mp4(p, 150):
@@ -250,9 +250,9 @@ def test_opening_a_video_is_a_stage_of_its_own(tmp_path):
     """A video's opening scan decodes every frame and removes redundant ones on the way: `pipeline.open_frames`
     times it as the "open" stage (trace and summary line), which `ask` and `map` print before "dedup" (whose
     own time is then ~0): the summary accounts for the scan."""
-    from mosaicthinker.runtime import progress
+    from mosaicthinker.runtime.infra import progress
     from mosaicthinker.runtime.pipeline import open_frames
-    from mosaicthinker.runtime.trace import Trace
+    from mosaicthinker.runtime.infra.trace import Trace
 
     p = tmp_path / "clip.mp4"
     if not _write_mp4(p, 60):

@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from mosaicthinker.runtime.semantic_map import FusionConfig, Observation, fuse_observations, same_frame_redundant
-from mosaicthinker.runtime.trace import Trace
+from mosaicthinker.runtime.map.model import FusionConfig, Observation, fuse_observations, same_frame_redundant
+from mosaicthinker.runtime.infra.trace import Trace
 
 
 def _slab(rng, x0, x1, y, n=600):

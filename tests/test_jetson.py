@@ -21,8 +21,8 @@ from mosaicthinker.export import jetson as J  # noqa: E402
 
 pytestmark = [pytest.mark.export]
 
-from mosaicthinker.runtime import bundle as B  # noqa: E402
-from mosaicthinker.runtime.errors import ExportError  # noqa: E402
+from mosaicthinker.runtime.infra import bundle as B  # noqa: E402
+from mosaicthinker.runtime.infra.errors import ExportError  # noqa: E402
 
 
 def _dynamic_graph(path: Path) -> Path:
@@ -196,8 +196,8 @@ def test_build_script_runs_with_stand_in_trtexec(bundle, tmp_path, shellcheck):
 def test_runtime_takes_the_provider_chain(bundle):
     """runtime/providers.py accepts the manifest's [name, options] chain; here (no GPU) it ends on CPU and
     records why."""
-    from mosaicthinker.runtime.providers import create_session
-    from mosaicthinker.runtime.trace import Trace
+    from mosaicthinker.runtime.infra.providers import create_session
+    from mosaicthinker.runtime.infra.trace import Trace
 
     root, _ = bundle
     m = json.loads((root / "manifest.json").read_text())

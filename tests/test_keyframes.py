@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 
 from mosaicthinker.runtime import keyframes as kf
-from mosaicthinker.runtime.errors import InputError
-from mosaicthinker.runtime.perception import Detections
-from mosaicthinker.runtime.trace import Trace
+from mosaicthinker.runtime.infra.errors import InputError
+from mosaicthinker.runtime.types import Detections
+from mosaicthinker.runtime.infra.trace import Trace
 
 
 def table_detector(table: dict[int, dict[str, float]]):

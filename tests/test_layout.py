@@ -17,13 +17,13 @@ class NoMatches:
     """A matcher that never finds a correspondence (a `matching.Matcher`, no feature cache): every edge fails."""
 
     def match(self, rgb0, rgb1, boxes0=None, boxes1=None):
-        from mosaicthinker.runtime.matching import Matches
+        from mosaicthinker.runtime.align.matching import Matches
 
         return Matches.empty()
 
 
 def test_chain_jumps_halve_then_walk():
-    from mosaicthinker.runtime.alignment import chain_jumps
+    from mosaicthinker.runtime.align.recover import chain_jumps
 
     # halfway first, halving down to bridge_gap_s, then walking at 2, 3, ... x bridge_gap_s: a finite schedule
     assert chain_jumps(4.0, 0.5) == [2.0, 1.0, 0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 3.5]
@@ -32,9 +32,9 @@ def test_chain_jumps_halve_then_walk():
 
 
 def _chain(redkitchen, budget, gap_s=0.4, u=48):
-    from mosaicthinker.runtime.alignment import AlignmentResult, bridge_chain
+    from mosaicthinker.runtime.align.recover import AlignmentResult, bridge_chain
     from mosaicthinker.runtime.frames import open_source
-    from mosaicthinker.runtime.matching import make_matcher
+    from mosaicthinker.runtime.align.matching import make_matcher
     from mosaicthinker.runtime.pipeline import PipelineConfig
 
     src = open_source(redkitchen)
@@ -71,7 +71,7 @@ def test_bridge_chain_stops_at_its_frame_budget(redkitchen):
 
 def test_matcher_protocol_and_make_matcher():
     from mosaicthinker.runtime import InputError
-    from mosaicthinker.runtime.matching import FeatureMatcher, KeyedMatcher, Matcher, make_matcher
+    from mosaicthinker.runtime.align.matching import FeatureMatcher, KeyedMatcher, Matcher, make_matcher
 
     fm = make_matcher("orb")
     assert isinstance(fm, FeatureMatcher) and isinstance(fm, KeyedMatcher) and fm.conf.ratio == 0.8
@@ -88,7 +88,7 @@ def test_matcher_protocol_and_make_matcher():
 
 
 def test_rejected_edges_is_a_declared_field():
-    from mosaicthinker.runtime.alignment import AlignmentResult
+    from mosaicthinker.runtime.align.recover import AlignmentResult
 
     assert "rejected_edges" in {f.name for f in dataclasses.fields(AlignmentResult)}
     assert AlignmentResult({}, 0, [], [], "mst").rejected_edges == []
@@ -96,8 +96,8 @@ def test_rejected_edges_is_a_declared_field():
 
 def test_pipeline_stage_configs_are_typed_and_merge_over_the_pipeline_defaults():
     from mosaicthinker.runtime import InputError, PipelineConfig
-    from mosaicthinker.runtime.alignment import AlignConf
-    from mosaicthinker.runtime.matching import FeatureMatcher, MatchConf
+    from mosaicthinker.runtime.align.recover import AlignConf
+    from mosaicthinker.runtime.align.matching import FeatureMatcher, MatchConf
 
     c = PipelineConfig()
     assert isinstance(c.alignment, AlignConf) and c.alignment.min_inliers == 12  # depth-checked edges: 12
@@ -135,16 +135,16 @@ def _imports(path) -> set[str]:
 
 def test_no_semantic_map_prompt_import_circle():
     rt = REPO / "runtime"
-    assert "prompt" not in _imports(rt / "semantic_map.py")
-    assert "semantic_map" in _imports(rt / "prompt.py")
+    assert not any("prompt" in m for m in _imports(rt / "map" / "model.py"))
+    assert "map.model" in _imports(rt / "prompt.py")
 
 
 def test_pipeline_imports_its_stages_at_module_level_in_the_papers_order():
     tree = ast.parse((REPO / "runtime" / "pipeline.py").read_text())
     top = [n.module for n in tree.body if isinstance(n, ast.ImportFrom) and n.level == 1 and n.module]
-    stages = [m for m in top if m in ("grounding", "dedup", "keyframes", "alignment", "semantic_map", "answer")]
+    stages = [m for m in top if m in ("grounding", "scan", "keyframes", "align.recover", "map.model", "answer")]
     order = list(dict.fromkeys(stages))
-    assert order == ["grounding", "dedup", "keyframes", "alignment", "semantic_map", "answer"]
+    assert order == ["grounding", "scan", "keyframes", "align.recover", "map.model", "answer"]
     # no geometry of its own: back-projection and transforms live in the stage modules
     assert "geometry" not in top
 
@@ -174,7 +174,9 @@ def test_readme_public_api_imports():
 
 
 def test_moved_names_still_import_from_the_pipeline():
-    from mosaicthinker.runtime import alignment, pipeline, semantic_map
+    from mosaicthinker.runtime import pipeline
+    from mosaicthinker.runtime.align import recover as alignment
+    from mosaicthinker.runtime.map import model as semantic_map
 
     assert pipeline.verify_tree is alignment.verify_tree and pipeline.depth_consistency is alignment.depth_consistency
     assert pipeline.refine is semantic_map.refine and pipeline.floor_support is semantic_map.floor_support

@@ -99,11 +99,11 @@ def test_ask_answers_a_generated_question_from_the_video(scene):
 
 
 def test_depth_check_detaches_a_wrong_pose_on_7scenes(redkitchen):
-    from mosaicthinker.runtime.alignment import AlignmentResult
+    from mosaicthinker.runtime.align.recover import AlignmentResult
     from mosaicthinker.runtime.frames import open_source
     from mosaicthinker.runtime.geometry import invert
     from mosaicthinker.runtime.pipeline import PipelineConfig, depth_consistency, verify_tree
-    from mosaicthinker.runtime.trace import Trace
+    from mosaicthinker.runtime.infra.trace import Trace
 
     src = open_source(redkitchen)
     fr = {i: src[i] for i in (0, 5, 10)}
@@ -139,7 +139,7 @@ def test_pipeline_config_rejects_unknown_keys():
         PipelineConfig.merged({"keyframez": 3})
     # the shared StageConf merge: a mapping or an instance, keyword overrides (None = unset), validate()
     from mosaicthinker.runtime.budget import PlanConf
-    from mosaicthinker.runtime.semantic_map import FusionConfig
+    from mosaicthinker.runtime.map.model import FusionConfig
 
     c = PipelineConfig.merged({"keyframes": 8}, depth=None, matcher="orb")
     assert (c.keyframes, c.depth, c.matcher) == (8, "auto", "orb") and c.to_dict()["keyframes"] == 8
@@ -252,7 +252,7 @@ def test_without_overrun_the_plan_is_kept(scene):
 
 def test_reduced_key_frames_stay_spread_over_the_clip():
     from mosaicthinker.runtime.pipeline import _reduce_keyframes
-    from mosaicthinker.runtime.trace import Trace
+    from mosaicthinker.runtime.infra.trace import Trace
 
     class Ctl:
         reasons = ["reduced plan: stage keyframes took 900 ms of its 40 ms share"]
@@ -306,7 +306,7 @@ def test_floor_support_sees_legs_not_open_space():
 def test_a_name_missing_from_the_map_says_why():
     """Never detected, detected only in key frames that stayed unaligned, or detected where fusion kept no
     instance: each said apart (a 'segmenter gave no mask for sink' note beside 'not found' must be explained)."""
-    from mosaicthinker.runtime.perception import Detections
+    from mosaicthinker.runtime.types import Detections
     from mosaicthinker.runtime.pipeline import missing_reasons
 
     def d(*names):

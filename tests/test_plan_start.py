@@ -11,8 +11,8 @@ from pathlib import Path
 import pytest
 
 from mosaicthinker.runtime import budget as B
-from mosaicthinker.runtime.budget import command
-from mosaicthinker.runtime.errors import BudgetError, InputError
+from mosaicthinker.runtime.commands import plan as command
+from mosaicthinker.runtime.infra.errors import BudgetError, InputError
 
 from test_budget import HAND, hand_profile
 
@@ -146,7 +146,7 @@ def test_the_profile_precision_picks_the_paper_variant_the_model_loading_would_r
 def test_cost_variants_are_validated(tmp_path):
     import tomllib
 
-    from mosaicthinker.runtime.errors import ProfileError
+    from mosaicthinker.runtime.infra.errors import ProfileError
 
     data = tomllib.loads(B.resolve_profile_path("cpu-generic").read_text())
     det = {**data["paper_costs"]["detector"], "variants": {"int8-dynamic": {"ms_per_call": 1}}}

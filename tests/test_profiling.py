@@ -10,8 +10,8 @@ import pytest
 from PIL import Image
 
 from mosaicthinker.runtime import budget as B
-from mosaicthinker.runtime.bundle import bundle_hash
-from mosaicthinker.runtime import profiling as P
+from mosaicthinker.runtime.infra.bundle import bundle_hash
+from mosaicthinker.runtime.commands import profile as P
 
 
 @pytest.fixture(scope="module")
@@ -119,7 +119,7 @@ def test_profile_marks_random_weights_and_reports_fallback(shared_bundle, tmp_pa
 
 @pytest.mark.export
 def test_update_profile_needs_a_profile(shared_bundle):
-    from mosaicthinker.runtime.errors import InputError
+    from mosaicthinker.runtime.infra.errors import InputError
 
     with pytest.raises(InputError, match="`update_profile` needs `profile`"):  # API words; the CLI says flags
         P.run_profile(shared_bundle, None, update_profile=True, progress=False)

@@ -17,7 +17,8 @@ from pathlib import Path
 
 import pytest
 
-from mosaicthinker.runtime import cli, progress
+from mosaicthinker.runtime import cli
+from mosaicthinker.runtime.infra import progress
 from test_pipeline import synthetic_scene
 
 

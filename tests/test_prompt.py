@@ -5,13 +5,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mosaicthinker.runtime import errors
+from mosaicthinker.runtime.infra import errors
 from mosaicthinker.runtime.answer import answer_question, answer_with_vlm, parse_choice, parse_number
 from mosaicthinker.runtime.geometry import OrientedBox, rotation_about
 from mosaicthinker.runtime.grounding import ground, parse_grounding_reply
 from mosaicthinker.runtime.prompt import distinct_colours, render, text_block, vlm_prompt
-from mosaicthinker.runtime.semantic_map import ObjectInstance, SemanticMap
-from mosaicthinker.runtime.trace import Trace
+from mosaicthinker.runtime.map.model import ObjectInstance, SemanticMap
+from mosaicthinker.runtime.infra.trace import Trace
 
 
 def _box(c, size, yaw=0.0):
@@ -222,7 +222,7 @@ def test_labels_of_overlapping_boxes_do_not_overlap_and_the_map_has_a_title():
 def test_prompt_reasoner_and_vlm_configs_merge_like_every_stage_config():
     """One merge rule (config.StageConf): overrides by mapping, unknown keys and bad values named."""
     from mosaicthinker.runtime.answer import MapReasoner, VLMConfig
-    from mosaicthinker.runtime.errors import InputError
+    from mosaicthinker.runtime.infra.errors import InputError
     from mosaicthinker.runtime.prompt import PromptConfig, render
 
     smap = _map()

@@ -7,9 +7,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mosaicthinker.runtime import providers as P
-from mosaicthinker.runtime.errors import ProviderError
-from mosaicthinker.runtime.trace import Trace
+from mosaicthinker.runtime.infra import providers as P
+from mosaicthinker.runtime.infra.errors import ProviderError
+from mosaicthinker.runtime.infra.trace import Trace
 
 DATA = Path(__file__).parent / "data"
 

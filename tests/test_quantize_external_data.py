@@ -27,7 +27,7 @@ def _matmul_model(path, w: np.ndarray, external: bool):
 @pytest.mark.parametrize("external", [True, False])
 def test_int8_copy_keeps_external_data_when_the_source_has_it(tmp_path, external):
     from mosaicthinker.export import common as C
-    from mosaicthinker.runtime.bundle import external_data_locations
+    from mosaicthinker.runtime.infra.bundle import external_data_locations
 
     rng = np.random.default_rng(0)
     w = rng.standard_normal((256, 128)).astype(np.float32)

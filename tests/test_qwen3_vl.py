@@ -17,7 +17,7 @@ IMAGE = 128  # 8 x 8 patches of 16 px -> 4 x 4 = 16 image tokens
 
 def test_patches_match_the_qwen_processor_layout():
     """qwen_patches == the Qwen2-VL image processor's reshape/transpose (written out independently here)."""
-    from mosaicthinker.runtime.stages.vlm import qwen_patches
+    from mosaicthinker.runtime.models.vlm import qwen_patches
 
     rng = np.random.default_rng(0)
     img = rng.standard_normal((3, 64, 96)).astype(np.float32)
@@ -33,7 +33,7 @@ def test_mrope_positions_follow_transformers_get_rope_index():
     from transformers import Qwen3VLForConditionalGeneration
 
     from mosaicthinker.export.hf_qwen3_vl import qwen3_config
-    from mosaicthinker.runtime.stages.vlm import mrope_positions
+    from mosaicthinker.runtime.models.vlm import mrope_positions
 
     cfg = qwen3_config("tiny")
     ids = [1, 2, 151652] + [151655] * 12 + [151653, 7, 8, 9]
@@ -49,11 +49,11 @@ def test_mrope_positions_follow_transformers_get_rope_index():
 @pytest.mark.slow
 def test_tiny_export_and_runtime_loop_match_transformers(tmp_path):
     from mosaicthinker.export import cli
-    from mosaicthinker.runtime.bundle import load_bundle
+    from mosaicthinker.runtime.infra.bundle import load_bundle
     from mosaicthinker.runtime.cli import build_parser
-    from mosaicthinker.runtime.stages import load_role
-    from mosaicthinker.runtime.stages.vlm import Qwen3VL
-    from mosaicthinker.runtime.trace import Trace
+    from mosaicthinker.runtime.models import load_role
+    from mosaicthinker.runtime.models.vlm import Qwen3VL
+    from mosaicthinker.runtime.infra.trace import Trace
 
     out = tmp_path / "b"
     args = build_parser(("export",), cli).parse_args(

@@ -92,7 +92,7 @@ def test_vision_quantisers_replace_every_constant_matmul(tmp_path, method, op, b
 
 def test_unknown_vision_quantiser_is_refused(tmp_path):
     from mosaicthinker.export.hf_qwen_vl import quantize_vision
-    from mosaicthinker.runtime.errors import ExportError
+    from mosaicthinker.runtime.infra.errors import ExportError
 
     with pytest.raises(ExportError, match="vision_quant"):
         quantize_vision(tmp_path / "x.onnx", tmp_path / "y.onnx", "int3")

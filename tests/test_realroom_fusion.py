@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mosaicthinker.runtime.semantic_map import box_depth_mask, box_layer, duplicate_names, fit_floor_plane
+from mosaicthinker.runtime.map.model import box_depth_mask, box_layer, duplicate_names, fit_floor_plane
 
 
 def test_box_mask_takes_the_layer_that_stands_out_not_the_wall_or_the_table_edge():
@@ -60,8 +60,8 @@ def test_floor_fit_with_a_large_table_and_little_floor_keeps_the_level_normal_an
 
 
 def test_eval_scene_maps_one_name_per_detector_label_set():
-    from mosaicthinker.runtime.stages.detector import one_name_per_label
-    from mosaicthinker.runtime.stages.detector import map_names
+    from mosaicthinker.runtime.models.detector import one_name_per_label
+    from mosaicthinker.runtime.models.detector import map_names
 
     labels = ["person", "chair", "dining table", "tv", "cup"]
     mapping, _ = map_names(["chair", "stool", "desk", "table", "monitor", "tv", "mug", "cup"], labels)

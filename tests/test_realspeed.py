@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mosaicthinker.runtime.trace import Trace
+from mosaicthinker.runtime.infra.trace import Trace
 
 
 @pytest.fixture(scope="module")
@@ -33,7 +33,7 @@ def _same_detections(a, b) -> bool:
 
 
 def test_the_detector_runs_once_per_image_whatever_names_are_asked(det_seg_bundle, kitchen_rgbs):
-    from mosaicthinker.runtime.stages import load_role
+    from mosaicthinker.runtime.models import load_role
 
     t = Trace()
     det = load_role(det_seg_bundle, "detector", trace=t)
@@ -54,7 +54,7 @@ def test_the_detector_runs_once_per_image_whatever_names_are_asked(det_seg_bundl
 
 
 def test_segmenter_class_maps_are_kept_for_several_frames(det_seg_bundle, kitchen_rgbs):
-    from mosaicthinker.runtime.stages import load_role
+    from mosaicthinker.runtime.models import load_role
 
     t = Trace()
     seg = load_role(det_seg_bundle, "segmenter", trace=t)
@@ -72,7 +72,7 @@ def test_class_maps_and_boxes_outlast_a_k32_run(det_seg_bundle, kitchen_rgbs):
     """Perception segments every key frame, then refinement asks class masks in every key frame again: at K = 32
     the segmenter ran 57 times for 32 frames when it kept 16 maps. Likewise the detector keeps every frame the
     search scored (<= 6 K) for perception. 40 distinct frames (one pixel apart), each model once per frame."""
-    from mosaicthinker.runtime.stages import load_role
+    from mosaicthinker.runtime.models import load_role
 
     t = Trace()
     seg = load_role(det_seg_bundle, "segmenter", trace=t)
@@ -94,7 +94,7 @@ def test_class_maps_and_boxes_outlast_a_k32_run(det_seg_bundle, kitchen_rgbs):
 
 
 def test_prefetched_features_are_the_features_extracted_in_turn(kitchen_rgbs):
-    from mosaicthinker.runtime.matching import FeatureMatcher
+    from mosaicthinker.runtime.align.matching import FeatureMatcher
 
     ref = FeatureMatcher("sift")
     pre = FeatureMatcher("sift")
@@ -108,7 +108,7 @@ def test_prefetched_features_are_the_features_extracted_in_turn(kitchen_rgbs):
 
 
 def test_onnxruntime_sessions_do_not_spin_between_runs():
-    from mosaicthinker.runtime.providers import SessionConfig, _session_options
+    from mosaicthinker.runtime.infra.providers import SessionConfig, _session_options
 
     so = _session_options(SessionConfig())
     assert so.get_session_config_entry("session.intra_op.allow_spinning") == "0"
@@ -137,7 +137,7 @@ def test_sift_nearest_neighbours_are_the_exact_ones(kitchen_rgbs):
     """The one-matmul distances (integer SIFT descriptors) against a float64 brute force computed here: the
     same two nearest distances per row, the same nearest column, the same mutual flags; non-integer
     descriptors take the general path and agree to float32 precision."""
-    from mosaicthinker.runtime.matching import _integer_exact, _knn2_l2, extract_features
+    from mosaicthinker.runtime.align.matching import _integer_exact, _knn2_l2, extract_features
 
     f0, f1 = (extract_features(r) for r in kitchen_rgbs[:2])
     a, b = f0.desc[:700].astype(np.float64), f1.desc[:900].astype(np.float64)
@@ -163,7 +163,7 @@ def test_colour_reads_skip_depth_and_give_the_same_images(redkitchen):
     """`FrameSource.colour`: the colour of the whole frame, no depth or pose decoded; a whole frame read later
     has them, and a cached whole frame serves colour reads too. Redundant-frame removal's gray images are
     those of the whole frames."""
-    from mosaicthinker.runtime.dedup import small_gray
+    from mosaicthinker.runtime.scan import small_gray
     from mosaicthinker.runtime.frames import open_source
 
     src, ref = open_source(redkitchen), open_source(redkitchen)

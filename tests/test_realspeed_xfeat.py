@@ -23,9 +23,9 @@ def xfeat_fp32(tmp_path_factory) -> Path:
 
 def test_one_matcher_run_per_keyed_pair(xfeat_fp32, redkitchen):
     from mosaicthinker.runtime.frames import open_source
-    from mosaicthinker.runtime.matching import in_boxes
-    from mosaicthinker.runtime.stages import load_role
-    from mosaicthinker.runtime.trace import Trace
+    from mosaicthinker.runtime.align.matching import in_boxes
+    from mosaicthinker.runtime.models import load_role
+    from mosaicthinker.runtime.infra.trace import Trace
 
     src = open_source(redkitchen)
     a, b = src[40].rgb, src[44].rgb

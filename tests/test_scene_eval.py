@@ -12,7 +12,7 @@ from mosaicthinker.host.evaluation.scene import (SceneEvalConfig, iou_3d, load_a
                                                     register_box, score_instances)
 from mosaicthinker.host.evaluation.scene_annotate import floor_height, largest_components, up_transform
 from mosaicthinker.runtime.geometry import OrientedBox, rotation_about
-from mosaicthinker.runtime.semantic_map import Observation, box_depth_mask, fuse_observations
+from mosaicthinker.runtime.map.model import Observation, box_depth_mask, fuse_observations
 
 REPO = Path(__file__).resolve().parents[1]
 ANNOT = REPO / "benchmarks" / "data" / "redkitchen_annotation.json"
@@ -122,7 +122,7 @@ def test_the_kitchen_as_a_video_holds_the_same_frames_and_a_wrong_video_is_refus
     import shutil
 
     from mosaicthinker.host.evaluation.scene import evaluate_scene, video_of_frames
-    from mosaicthinker.runtime.errors import InputError
+    from mosaicthinker.runtime.infra.errors import InputError
     from mosaicthinker.runtime.frames import open_source
 
     folder = tmp_path / "k"

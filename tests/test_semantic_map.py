@@ -6,10 +6,10 @@ import json
 import numpy as np
 import pytest
 
-from mosaicthinker.runtime.errors import InputError
+from mosaicthinker.runtime.infra.errors import InputError
 from mosaicthinker.runtime.geometry import (OrientedBox, box_closest_points, box_distance, convex_hull_2d,
                                             polygon_area, rotation_about)
-from mosaicthinker.runtime.semantic_map import MAP_SCHEMA, ObjectInstance, Room, SemanticMap, room_from_boxes
+from mosaicthinker.runtime.map.model import MAP_SCHEMA, ObjectInstance, Room, SemanticMap, room_from_boxes
 
 
 @pytest.fixture(scope="module")

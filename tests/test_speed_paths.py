@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mosaicthinker.runtime.alignment import AlignConf, align_pair_essential, refine_essential
-from mosaicthinker.runtime.dedup import (DedupConf, OnlineDedup, orb_features, orb_track, remove_redundant,
+from mosaicthinker.runtime.align.recover import AlignConf, align_pair_essential, refine_essential
+from mosaicthinker.runtime.scan import (DedupConf, OnlineDedup, orb_features, orb_track, remove_redundant,
                                           small_gray)
-from mosaicthinker.runtime.errors import InputError
+from mosaicthinker.runtime.infra.errors import InputError
 from mosaicthinker.runtime.frames import VideoSource, open_source
 from mosaicthinker.runtime.geometry import rotation_about
 
@@ -122,7 +122,7 @@ def test_refine_essential_reaches_the_scipy_minimum(seed):
 
 
 def test_essential_method_names(redkitchen):
-    from mosaicthinker.runtime.matching import FeatureMatcher
+    from mosaicthinker.runtime.align.matching import FeatureMatcher
 
     src = open_source(redkitchen)
     fm = FeatureMatcher("sift")

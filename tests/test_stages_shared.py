@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mosaicthinker.runtime.bundle import load_bundle
-from mosaicthinker.runtime.trace import Trace
+from mosaicthinker.runtime.infra.bundle import load_bundle
+from mosaicthinker.runtime.infra.trace import Trace
 
 FRAMES = [0, 40, 80, 120, 160, 200, 240]  # 7 of the 250 frames, spread over the sequence
 
@@ -63,8 +63,8 @@ def test_checks_on_a_handful_of_frames(shared_bundle: Path, redkitchen: Path):
 def test_adapters_interfaces(shared_bundle: Path, redkitchen: Path):
     import cv2
 
-    from mosaicthinker.runtime.stages import load_role
-    from mosaicthinker.runtime.stages.depth import fit_to_points, fit_to_sensor, scale_from_prior
+    from mosaicthinker.runtime.models import load_role
+    from mosaicthinker.runtime.models.depth import fit_to_points, fit_to_sensor, scale_from_prior
 
     rgb = cv2.cvtColor(cv2.imread(str(redkitchen / "frame-000100.color.jpg")), cv2.COLOR_BGR2RGB)
     rgb2 = cv2.cvtColor(cv2.imread(str(redkitchen / "frame-000104.color.jpg")), cv2.COLOR_BGR2RGB)
@@ -114,7 +114,7 @@ def test_adapters_interfaces(shared_bundle: Path, redkitchen: Path):
 def test_loading_and_running_an_adapter_imports_no_torch(shared_bundle: Path, redkitchen: Path):
     code = f"""
 import sys, json, numpy as np
-from mosaicthinker.runtime.stages import load_role
+from mosaicthinker.runtime.models import load_role
 import cv2
 d = load_role({str(shared_bundle)!r}, "depth", threads=1)
 z = d.predict(np.zeros((120, 160, 3), np.uint8))
@@ -131,8 +131,8 @@ print(json.dumps({{"heavy": heavy, "shape": list(z.shape)}}))
 def test_camera_height_prior_uses_the_floor_fit():
     """Floor 1.5 m below an OpenCV camera plus a wall, all scaled by 0.5 (relative depth): the prior's scale
     factor is 1.5 / 0.75 = 2 (the one floor RANSAC, `semantic_map.fit_floor_plane`)."""
-    from mosaicthinker.runtime.errors import InputError
-    from mosaicthinker.runtime.stages.depth import camera_height_prior
+    from mosaicthinker.runtime.infra.errors import InputError
+    from mosaicthinker.runtime.models.depth import camera_height_prior
 
     g = np.random.default_rng(0)
     floor = np.c_[g.uniform(-2, 2, 2000), np.full(2000, 1.5), g.uniform(1, 5, 2000)]
@@ -147,7 +147,7 @@ def test_a_question_about_what_the_detector_cannot_see_says_so_before_reading_fr
     """'where's the kettle?' with the COCO SSD: "unsupported: cannot recognise", never a searched-looking
     "not found"/"no" (no frame could show it), and no map built; a detectable name is unaffected."""
     from mosaicthinker.runtime.pipeline import ask
-    from mosaicthinker.runtime.stages.detector import undetectable_names
+    from mosaicthinker.runtime.models.detector import undetectable_names
 
     assert undetectable_names(shared_bundle, ["kettle", "chair", "fridge", "counter"]) == (["kettle", "counter"], 80,
                                                                                               {})

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mosaicthinker.runtime.stages.vlm import TEMPLATES, build_prompt
+from mosaicthinker.runtime.models.vlm import TEMPLATES, build_prompt
 
 pytest.importorskip("torch")
 pytest.importorskip("transformers")
@@ -37,7 +37,7 @@ def test_build_prompt_expands_images():
 
 @pytest.mark.slow
 def test_export_parity_and_token_agreement(vlm_bundle):
-    from mosaicthinker.runtime.bundle import load_bundle
+    from mosaicthinker.runtime.infra.bundle import load_bundle
 
     out, rep = vlm_bundle
     v = load_bundle(out).role_meta("vlm")["variants"]["fp32"]
@@ -52,7 +52,7 @@ def test_export_parity_and_token_agreement(vlm_bundle):
 def test_runtime_generate_matches_transformers(vlm_bundle):
     """load_role -> VLM.generate_ids on a real (random) image == SmolVLMForConditionalGeneration.generate."""
     from mosaicthinker.export import hf_vlm, tiny
-    from mosaicthinker.runtime.stages import load_role, preprocess_image
+    from mosaicthinker.runtime.models import load_role, preprocess_image
 
     out, _ = vlm_bundle
     vlm = load_role(out, "vlm")
@@ -74,7 +74,7 @@ def test_runtime_generate_matches_transformers(vlm_bundle):
 
 @pytest.mark.slow
 def test_kv_cache_decoding_equals_full_recompute(vlm_bundle):
-    from mosaicthinker.runtime.stages import load_role
+    from mosaicthinker.runtime.models import load_role
 
     vlm = load_role(vlm_bundle[0], "vlm")
     rgb = np.random.default_rng(4).integers(0, 256, size=(64, 64, 3), dtype=np.uint8)
@@ -92,8 +92,8 @@ def test_kv_cache_decoding_equals_full_recompute(vlm_bundle):
 
 @pytest.mark.slow
 def test_image_token_count_mismatch_is_an_error(vlm_bundle):
-    from mosaicthinker.runtime.errors import InputError
-    from mosaicthinker.runtime.stages import load_role
+    from mosaicthinker.runtime.infra.errors import InputError
+    from mosaicthinker.runtime.models import load_role
 
     vlm = load_role(vlm_bundle[0], "vlm")
     ids, feats = vlm.encode([], "no image here")
@@ -103,7 +103,7 @@ def test_image_token_count_mismatch_is_an_error(vlm_bundle):
 
 
 def test_bundle_show_states_the_token_agreement_a_low_precision_vlm_shipped_at():
-    from mosaicthinker.runtime.bundle import task_text
+    from mosaicthinker.runtime.infra.bundle import task_text
 
     t = task_text({"ok": True, "accepted_at": 0.5, "token_agreement": 0.54, "tokens": 24})
     assert "token agreement 0.54" in t and "ships at >= 0.5" in t and "not full agreement" in t

@@ -30,7 +30,7 @@ def qwen_bundle(tmp_path_factory):
 
 
 def test_cli_result_and_manifest(qwen_bundle):
-    from mosaicthinker.runtime.bundle import load_bundle, sha256_file
+    from mosaicthinker.runtime.infra.bundle import load_bundle, sha256_file
 
     out, res = qwen_bundle
     assert res["bundle_roles"]["vlm"] == ["fp32", "int4"]
@@ -58,7 +58,7 @@ def test_int4_package_ships_int8_vision_and_embedding(qwen_bundle):
     and the int8 side alone (fp32 decoder) barely moves the next-token distribution."""
     import onnx
 
-    from mosaicthinker.runtime.bundle import load_bundle
+    from mosaicthinker.runtime.infra.bundle import load_bundle
 
     out, _ = qwen_bundle
     rm = load_bundle(out).role_meta("vlm")
@@ -85,8 +85,8 @@ def test_int4_package_ships_int8_vision_and_embedding(qwen_bundle):
 def test_tampered_package_file_is_refused(qwen_bundle, tmp_path):
     import shutil
 
-    from mosaicthinker.runtime.bundle import load_bundle
-    from mosaicthinker.runtime.errors import BundleError
+    from mosaicthinker.runtime.infra.bundle import load_bundle
+    from mosaicthinker.runtime.infra.errors import BundleError
 
     out, _ = qwen_bundle
     copy = tmp_path / "b"
@@ -126,9 +126,9 @@ def test_standard_genai_api_generates_from_image_and_prompt(qwen_bundle, tmp_pat
 def test_runtime_adapter_drives_the_package(qwen_bundle, tmp_path):
     from mosaicthinker.export.hf_qwen_vl import genai_generate
     from mosaicthinker.runtime.answer import answer_with_vlm
-    from mosaicthinker.runtime.stages import load_role
-    from mosaicthinker.runtime.stages.vlm_genai import GenAIVLM
-    from mosaicthinker.runtime.trace import Trace
+    from mosaicthinker.runtime.models import load_role
+    from mosaicthinker.runtime.models.vlm_genai import GenAIVLM
+    from mosaicthinker.runtime.infra.trace import Trace
 
     out, _ = qwen_bundle
     trace = Trace()

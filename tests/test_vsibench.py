@@ -8,7 +8,7 @@ import sys
 import pytest
 
 from mosaicthinker.runtime.cli import main
-from mosaicthinker.runtime.errors import InputError
+from mosaicthinker.runtime.infra.errors import InputError
 from mosaicthinker.host.evaluation.vsibench import (MRA_THRESHOLDS, evaluate, find_disagreements, load_meta,
                                                        load_questions, mean_relative_accuracy, score_answer)
 

@@ -29,7 +29,7 @@ def xfeat_bundle(tmp_path_factory, redkitchen) -> Path:
 
 
 def test_export_manifest(xfeat_bundle: Path):
-    from mosaicthinker.runtime.bundle import load_bundle
+    from mosaicthinker.runtime.infra.bundle import load_bundle
 
     b = load_bundle(xfeat_bundle)
     m = b.role_meta("matcher")
@@ -51,8 +51,8 @@ def test_export_manifest(xfeat_bundle: Path):
 def test_xfeat_matches_a_real_pair_vs_orb_sift(xfeat_bundle: Path, redkitchen: Path):
     from mosaicthinker.export.xfeat import pair_quality
     from mosaicthinker.runtime.frames import open_source
-    from mosaicthinker.runtime.matching import FeatureMatcher, Matches
-    from mosaicthinker.runtime.stages import load_role
+    from mosaicthinker.runtime.align.matching import FeatureMatcher, Matches
+    from mosaicthinker.runtime.models import load_role
 
     src = open_source(redkitchen)
     f0, f1 = src[100], src[115]  # 30 raw frames apart (1 s of video)

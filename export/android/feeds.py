@@ -7,7 +7,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from mosaicthinker.runtime.errors import ExportError
+from mosaicthinker.runtime.infra.errors import ExportError
 
 from ..parity import ort_session
 

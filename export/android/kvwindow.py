@@ -6,7 +6,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from mosaicthinker.runtime.errors import ExportError
+from mosaicthinker.runtime.infra.errors import ExportError
 
 from ..parity import ort_session, parity_rng
 

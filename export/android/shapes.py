@@ -5,7 +5,7 @@ import shutil
 from pathlib import Path
 from typing import Any, Sequence
 
-from mosaicthinker.runtime.errors import ExportError
+from mosaicthinker.runtime.infra.errors import ExportError
 
 from .. import common as C
 from .config import AndroidConfig

@@ -33,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-from mosaicthinker.runtime.errors import InputError
+from mosaicthinker.runtime.infra.errors import InputError
 
 LEVELS = ("low", "med", "high")
 
@@ -152,8 +152,8 @@ def _load_questions(d: Path) -> list[dict[str, Any]]:
 
 def _detectable(bundle: Any, names: list[str]) -> tuple[set[str], list[str]]:
     """Names the bundle's detector label list covers (closed set) — all names for an open-vocabulary one."""
-    from mosaicthinker.runtime.bundle import load_bundle
-    from mosaicthinker.runtime.stages.detector import map_names
+    from mosaicthinker.runtime.infra.bundle import load_bundle
+    from mosaicthinker.runtime.models.detector import map_names
 
     b = load_bundle(bundle)
     if not b.has_role("detector"):
@@ -169,8 +169,8 @@ def _oracle_matcher(conf: dict[str, Any], bundle: Any, trace: Any) -> Any:
     """The oracle mode's matcher: OpenCV by name, or the bundle's matcher model for --matcher model."""
     if conf.get("matcher", "sift") != "model":
         return conf.get("matcher", "sift")
-    from mosaicthinker.runtime.bundle import load_bundle
-    from mosaicthinker.runtime.stages import load_role
+    from mosaicthinker.runtime.infra.bundle import load_bundle
+    from mosaicthinker.runtime.models import load_role
 
     b = load_bundle(bundle)
     if not b.has_role("matcher"):
@@ -187,7 +187,7 @@ def evaluate_scene(d: Path, modes: list[str], conf: dict[str, Any], bundle: Any,
     from mosaicthinker.runtime.pipeline import build_map, perception_from_bundle
     from mosaicthinker.host.synth.generate import load_scene
     from mosaicthinker.host.synth.questions import ground_truth_map
-    from mosaicthinker.runtime.trace import Trace
+    from mosaicthinker.runtime.infra.trace import Trace
     from mosaicthinker.host.evaluation.oracle_perception import oracle_perception
 
     meta = load_scene(d)
@@ -318,7 +318,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                          "export/onnx_import.py)")
     if args.matcher == "model" and not args.bundle:
         raise InputError("--matcher model needs --bundle (a bundle with a `matcher` role)")
-    from mosaicthinker.runtime.outputs import run_group
+    from mosaicthinker.runtime.infra.outputs import run_group
 
     with run_group(args.out) as outs:  # --out checked and locked before generating and evaluating
         return _run(args, modes, outs)
@@ -341,7 +341,7 @@ def _run(args: argparse.Namespace, modes: list[str], outs: Any) -> dict[str, Any
         from mosaicthinker.runtime.commands.flags import pipeline_keyframes
 
         args.keyframes = pipeline_keyframes()  # recorded in the settings as the K used
-    from mosaicthinker.runtime.progress import ticked
+    from mosaicthinker.runtime.infra.progress import ticked
 
     for d in ticked(dirs, "scenes", "scene"):
         r = evaluate_scene(d, modes, conf, args.bundle, args.map_per, args.keyframes, args.miss_rate, args.seed)
@@ -357,7 +357,7 @@ def _run(args: argparse.Namespace, modes: list[str], outs: Any) -> dict[str, Any
                                                                  "total": round(time.perf_counter() - t0, 1)},
            "maps": maps, "records": records}
     if outs is not None:
-        from mosaicthinker.runtime.outputs import finish_group
+        from mosaicthinker.runtime.infra.outputs import finish_group
 
         finish_group(outs, [("e2e_json", "e2e.json", dict(res))], res)
     return res

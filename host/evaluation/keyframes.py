@@ -36,9 +36,9 @@ from typing import Any, Callable
 
 import numpy as np
 
-from mosaicthinker.runtime.errors import InputError
+from mosaicthinker.runtime.infra.errors import InputError
 from mosaicthinker.runtime.keyframes import METHODS, KeyFrameConf, select_keyframes
-from mosaicthinker.runtime.perception import Detections
+from mosaicthinker.runtime.types import Detections
 
 SCHEMA = "mosaicthinker.eval.keyframes/1"
 LEVELS = {"objects": ("low", "med", "high"), "room": ("small", "medium", "large"),
@@ -184,7 +184,7 @@ def _candidates(scene_dir: Path, use_dedup: bool) -> tuple[list[int], str]:
     src = open_source(scene_dir)
     if use_dedup:
         try:
-            from mosaicthinker.runtime.dedup import remove_redundant
+            from mosaicthinker.runtime.scan import remove_redundant
         except ImportError:
             return list(range(len(src))), "all frames (runtime.dedup is not available)"
         res = remove_redundant(src)
@@ -219,7 +219,7 @@ def _detector(scene_dir: Path, args: argparse.Namespace, image: Callable[[int], 
         return det.detect, f"oracle (miss_rate={args.miss_rate}, score_noise={args.score_noise})"
     if not args.bundle:
         raise InputError("--detector model needs --bundle DIR (a bundle with a detector role)")
-    from mosaicthinker.runtime.stages import load_role
+    from mosaicthinker.runtime.models import load_role
 
     model = load_role(args.bundle, "detector")
     return vocabulary_detector(model, image, vocabulary), f"bundle detector ({args.bundle}: " \
@@ -411,7 +411,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     t0 = time.perf_counter()
     tmp = None
     if args.out:
-        from mosaicthinker.runtime.outputs import check_out_dir
+        from mosaicthinker.runtime.infra.outputs import check_out_dir
 
         check_out_dir(Path(args.out))  # before generating and evaluating, not after
     root = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix="mosaic-kf-"))
@@ -419,7 +419,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         tmp = root
     records: list[dict[str, Any]] = []
     scenes: list[dict[str, Any]] = []
-    from mosaicthinker.runtime.progress import ticked
+    from mosaicthinker.runtime.infra.progress import ticked
 
     try:
         for i in ticked(range(args.scenes), "scenes", "scene"):
@@ -446,7 +446,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     if args.records:
         out["records"] = records
     if args.out:  # the result beside the scenes, written atomically (locked, temp file + rename, run.json)
-        from mosaicthinker.runtime.outputs import write_group
+        from mosaicthinker.runtime.infra.outputs import write_group
 
         write_group(args.out, [("keyframes_json", "keyframes.json", dict(out))], out)
     return out

@@ -15,7 +15,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from mosaicthinker.runtime.errors import InputError, MosaicError
+from mosaicthinker.runtime.infra.errors import InputError, MosaicError
 from mosaicthinker.runtime.geometry import invert, rotation_angle_deg, transform, transform_scale, umeyama
 
 SCHEMA = "mosaicthinker.eval.pose/1"
@@ -100,9 +100,9 @@ def _load_role(bundle: str | None, role: str, trace: Any) -> Any:
         raise InputError(f"`{role}=model` needs `bundle` (the bundle holding the {role} model)",
                          fields=(role, "bundle"))
     try:
-        from mosaicthinker.runtime.stages import load_role  # lazy: the stage adapters are another part of the runtime
+        from mosaicthinker.runtime.models import load_role  # lazy: the stage adapters are another part of the runtime
     except ImportError as e:
-        raise MosaicError(f"--{role} model: the model stages (mosaicthinker.runtime.stages.load_role) are not "
+        raise MosaicError(f"--{role} model: the model stages (mosaicthinker.runtime.models.load_role) are not "
                           f"available in this build ({e}); use --{role} "
                           f"{'sensor' if role == 'depth' else 'sift'}") from None
     return load_role(bundle, role, trace=trace)
@@ -113,7 +113,7 @@ def evaluate_pose(source: Any, indices: Sequence[int], matcher: Any = "sift", st
     """Align frames `indices` of a source with ground-truth poses and score them. matcher: 'orb' | 'sift' |
     matcher object (a shared FeatureMatcher keeps its feature cache across calls); depth_model: None (sensor
     depth) or an adapter with .predict(rgb) and .semantics."""
-    from mosaicthinker.runtime.alignment import align_frames
+    from mosaicthinker.runtime.align.recover import align_frames
 
     frames = []
     with_scale = False
@@ -176,7 +176,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
-    from mosaicthinker.runtime.outputs import run_group
+    from mosaicthinker.runtime.infra.outputs import run_group
 
     with run_group(args.out) as outs:  # --out checked and locked before the evaluation runs
         return _run(args, outs)
@@ -184,7 +184,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
 
 def _run(args: argparse.Namespace, outs: Any) -> dict[str, Any]:
     from mosaicthinker.runtime.frames import open_source
-    from mosaicthinker.runtime.trace import Trace
+    from mosaicthinker.runtime.infra.trace import Trace
 
     trace = Trace()
     t0 = time.perf_counter()
@@ -195,7 +195,7 @@ def _run(args: argparse.Namespace, outs: Any) -> dict[str, Any]:
     idx = pick_frames(len(src), args.keyframes, args.sampling, args.seed)
     depth_model = _load_role(args.bundle, "depth", trace) if args.depth == "model" else None
     matcher = _load_role(args.bundle, "matcher", trace) if args.matcher == "model" else args.matcher
-    from mosaicthinker.runtime.progress import phase
+    from mosaicthinker.runtime.infra.progress import phase
 
     with phase("alignment", len(idx), "frame") as bar:  # one call: the bar shows the time it takes
         out = evaluate_pose(src, idx, matcher, args.strategy, depth_model, trace=trace)
@@ -205,7 +205,7 @@ def _run(args: argparse.Namespace, outs: Any) -> dict[str, Any]:
                 "seed": args.seed, "strategy": args.strategy, "depth": args.depth, "matcher": args.matcher,
                 "events": trace.events})
     if outs is not None:
-        from mosaicthinker.runtime.outputs import finish_group
+        from mosaicthinker.runtime.infra.outputs import finish_group
 
         finish_group(outs, [("eval_pose_json", "eval_pose.json", dict(out)),
                             ("trace_json", "trace.json", trace.to_dict())], out, trace)

@@ -32,7 +32,7 @@ from typing import Any
 
 import numpy as np
 
-from mosaicthinker.runtime.errors import InputError
+from mosaicthinker.runtime.infra.errors import InputError
 from mosaicthinker.runtime.geometry import OrientedBox, transform
 
 SCHEMA = "mosaicthinker.eval.scene/1"
@@ -280,7 +280,7 @@ def map_names_for(bundle: Any, annotated: list[str]) -> list[str]:
     """Every vocabulary name the bundle's closed-set detector can detect, one per set of detector labels (the
     annotated name where it is one of them: `stages.detector.detectable_names`), plus the annotated categories."""
     from mosaicthinker.runtime.grounding import canonical_name
-    from mosaicthinker.runtime.stages.detector import detectable_names
+    from mosaicthinker.runtime.models.detector import detectable_names
 
     want = [canonical_name(c) or c for c in annotated]
     return sorted(set(detectable_names(bundle, want)) | set(want))
@@ -297,7 +297,7 @@ def evaluate_scene(data: str | Path, annotations: str | Path, bundle: str | Path
     from mosaicthinker.runtime import pipeline
     from mosaicthinker.runtime.frames import open_source
     from mosaicthinker.runtime.grounding import canonical_name
-    from mosaicthinker.runtime.trace import Trace, peak_rss_mb, reset_peak_rss
+    from mosaicthinker.runtime.infra.trace import Trace, peak_rss_mb, reset_peak_rss
     from mosaicthinker.host.evaluation.pose import align_trajectories
 
     conf = conf or SceneEvalConfig()

@@ -23,9 +23,9 @@ from typing import Any
 import numpy as np
 
 from mosaicthinker.runtime.answer import Answer, MapReasoner, NUMERIC_QTYPES
-from mosaicthinker.runtime.errors import InputError
-from mosaicthinker.runtime.progress import ticked
-from mosaicthinker.runtime.semantic_map import SemanticMap
+from mosaicthinker.runtime.infra.errors import InputError
+from mosaicthinker.runtime.infra.progress import ticked
+from mosaicthinker.runtime.map.model import SemanticMap
 
 SCHEMA = "mosaicthinker.eval.vsibench/1"
 MRA_THRESHOLDS = tuple(float(t) for t in np.linspace(0.50, 0.95, 10))  # as lmms-eval's vsibench utils
@@ -234,14 +234,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
-    from mosaicthinker.runtime.outputs import run_group
+    from mosaicthinker.runtime.infra.outputs import run_group
 
     with run_group(args.out) as outs:  # --out checked and locked before scoring
         return _run(args, outs)
 
 
 def _run(args: argparse.Namespace, outs: Any) -> dict[str, Any]:
-    from mosaicthinker.runtime.outputs import write_file_atomic
+    from mosaicthinker.runtime.infra.outputs import write_file_atomic
 
     questions = load_questions(args.questions)
     meta = load_meta(args.meta)
@@ -268,7 +268,7 @@ def _run(args: argparse.Namespace, outs: Any) -> dict[str, Any]:
     if getattr(args, "result", None):
         write_file_atomic(args.result, json.dumps(result, indent=1, default=str))
     if outs is not None:
-        from mosaicthinker.runtime.outputs import finish_group
+        from mosaicthinker.runtime.infra.outputs import finish_group
 
         finish_group(outs, [("vsibench_json", "vsibench.json", dict(result))], result)
     return result

@@ -11,7 +11,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from mosaicthinker.runtime.errors import InputError
+from mosaicthinker.runtime.infra.errors import InputError
 from mosaicthinker.host.synth.scene import SceneConfig
 
 
@@ -41,7 +41,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     """Every scene is generated into a hidden staging folder of --out (checked and locked first) and moved
     into place only when all of them are complete; run.json names the run and says when it finished. A kill
     leaves the previous contents and no half-written scene."""
-    from mosaicthinker.runtime.outputs import run_group
+    from mosaicthinker.runtime.infra.outputs import run_group
 
     if not args.out:
         raise InputError("mosaic synth: --out DIR is required (the folder to write the scene(s) into)")
@@ -58,7 +58,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def _write_one(args: argparse.Namespace, k: int, final: Path, stage: Path) -> dict[str, Any]:
-    from mosaicthinker.runtime.errors import OutputError
+    from mosaicthinker.runtime.infra.errors import OutputError
     from mosaicthinker.host.synth.generate import write_scene
 
     conf = SceneConfig(seed=args.seed + k, objects=args.complexity, room=args.room, duration=args.duration,

@@ -34,9 +34,9 @@ from typing import Any
 import cv2
 import numpy as np
 
-from mosaicthinker.runtime.errors import InputError
+from mosaicthinker.runtime.infra.errors import InputError
 from mosaicthinker.runtime.geometry import intrinsics_from_fov, project
-from mosaicthinker.runtime.progress import start
+from mosaicthinker.runtime.infra.progress import start
 from mosaicthinker.host.synth.scene import Scene, SceneConfig, config_dict, generate_scene
 
 SCENE_SCHEMA = "mosaicthinker.synth.scene/1"
@@ -241,7 +241,7 @@ def scene_json(scene: Scene, name: str, K: np.ndarray, times: np.ndarray, rows: 
 
 
 def _plain(x: Any) -> Any:
-    from mosaicthinker.runtime.trace import jsonable
+    from mosaicthinker.runtime.infra.trace import jsonable
 
     return jsonable(x)
 

@@ -37,8 +37,8 @@ from typing import Any
 import numpy as np
 from scipy.ndimage import find_objects
 
-from mosaicthinker.runtime.errors import InputError
-from mosaicthinker.runtime.perception import Detections
+from mosaicthinker.runtime.infra.errors import InputError
+from mosaicthinker.runtime.types import Detections
 from mosaicthinker.host.synth.scene import SceneConfig, generate_scene
 
 ROOM_LEVELS = ("small", "medium", "large")

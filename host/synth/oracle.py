@@ -14,8 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from mosaicthinker.runtime.errors import InputError
-from mosaicthinker.runtime.perception import Detections
+from mosaicthinker.runtime.infra.errors import InputError
+from mosaicthinker.runtime.types import Detections
 from mosaicthinker.host.synth.generate import load_scene
 
 

@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from mosaicthinker.runtime.errors import InputError
+from mosaicthinker.runtime.infra.errors import InputError
 from mosaicthinker.runtime.geometry import OrientedBox
 from mosaicthinker.host.synth.stats import load_stats, sample_count, sample_dims, sample_quantiles
 

@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from mosaicthinker.runtime.errors import InputError
+from mosaicthinker.runtime.infra.errors import InputError
 
 STATS_PATH = Path(__file__).with_name("vsibench_stats.json")
 STATS_SCHEMA = "mosaicthinker.synth.vsibench_stats/1"

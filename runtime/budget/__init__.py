@@ -1,18 +1,16 @@
 """Device budgets: profiles (`profiles/*.toml`), the planner that sets key-frame counts, and the run-time
-deadlines and memory guard. Also the `mosaic plan` command module (runtime/cli.py imports this package).
+deadlines and memory guard (`mosaic plan` is `runtime/commands/plan.py`).
 
 - `profile`    the profile schema, its validation (`parse_profile`, `load_profile`) and `update_profile_costs`
 - `planner`    `plan(profile, duration_s, fps, bundle)` -> `Plan` (K, S, stage shares, arithmetic); `clip_of`
 - `controller` `BudgetController(plan, trace)`: stage deadlines with re-planning, the memory guard over every
                model session of the run; `controller_for(profile, source, trace)` (the pipeline's entry point)
-- `command`    `mosaic plan` (add_arguments / run / render)
 
 Every public name is re-exported here, so `from mosaicthinker.runtime.budget import plan` keeps working.
 """
 from __future__ import annotations
 
-from ..bundle import bundle_hash  # noqa: F401  (re-exported: android/perf_report.py imports it from here)
-from .command import COMMON_FLAGS, add_arguments, render, run
+from ..infra.bundle import bundle_hash  # noqa: F401  (re-exported: android/perf_report.py imports it from here)
 from .controller import BudgetController, controller_for
 from .planner import (MAX_CLIP_S, MAX_FPS, MIN_MAP_FRAMES, PLAN_SCHEMA, RUNTIME_STAGES, STAGE_ALIASES, Plan,
                       PlanConf, StageBudget, clip_of, plan)
@@ -23,7 +21,6 @@ from .profile import (COST_ITEMS, CPU_LIKE_PROVIDERS, INT8_KINDS, KNOWN_PROVIDER
                       update_profile_costs)
 
 __all__ = [
-    "COMMON_FLAGS", "add_arguments", "render", "run",
     "BudgetController", "controller_for",
     "MAX_CLIP_S", "MAX_FPS", "MIN_MAP_FRAMES", "PLAN_SCHEMA", "RUNTIME_STAGES", "STAGE_ALIASES", "Plan", "PlanConf",
     "StageBudget", "clip_of", "plan",

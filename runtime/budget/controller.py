@@ -17,7 +17,7 @@ import time
 from dataclasses import dataclass
 from typing import Any, Callable, Mapping, Sequence
 
-from ..trace import Trace, as_trace, peak_rss_mb, reset_peak_rss, rss_mb
+from ..infra.trace import Trace, as_trace, peak_rss_mb, reset_peak_rss, rss_mb
 from .planner import STAGE_ALIASES, Plan, PlanConf, clip_of, plan
 from .profile import Profile
 
@@ -84,7 +84,7 @@ class BudgetController:
                                           "scored_frames": plan.scored_frames, "iterations": plan.iterations,
                                           "latency_budget_ms": plan.latency_budget_ms,
                                           "memory_budget_mb": plan.memory_budget_mb})
-        from .. import providers
+        from ..infra import providers
 
         providers.watch(self)  # the memory guard of every model session opened under this trace
 

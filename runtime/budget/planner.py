@@ -19,8 +19,8 @@ from dataclasses import asdict, dataclass, field
 from typing import Any, ClassVar, Mapping
 
 from ..answer import VLMConfig
-from ..config import StageConf
-from ..errors import BudgetError, InputError
+from ..infra.config import StageConf
+from ..infra.errors import BudgetError, InputError
 from ..keyframes import scored_budget
 from .profile import MODEL_COSTS, Profile, load_profile, nearest_variant
 
@@ -189,7 +189,7 @@ def _fmt(x: float) -> str:
 
 
 def _bundle_roles(bundle: Any) -> tuple[Any, list[str]]:
-    from ..bundle import load_bundle
+    from ..infra.bundle import load_bundle
 
     b = load_bundle(bundle, verify=False)
     return b, b.roles
@@ -578,7 +578,7 @@ def plan(profile: Profile | str | os.PathLike, duration_s: float, fps: float, bu
         cand_how = "given"
     b, broles, bhash = None, None, None
     if bundle is not None:
-        from ..bundle import bundle_hash
+        from ..infra.bundle import bundle_hash
 
         b, broles = _bundle_roles(bundle)
         bhash = bundle_hash(b)

@@ -32,8 +32,8 @@ from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
-from ..errors import ProfileError
-from ..trace import Trace, as_trace
+from ..infra.errors import ProfileError
+from ..infra.trace import Trace, as_trace
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -249,7 +249,7 @@ class Profile:
         None when the profile does not set the role or the bundle lacks it (= the bundle's default variant)."""
         if role not in self.roles:
             return None
-        from ..bundle import load_bundle
+        from ..infra.bundle import load_bundle
 
         b = load_bundle(bundle, verify=False) if not hasattr(bundle, "role_meta") else bundle
         if not b.has_role(role):

@@ -10,8 +10,8 @@ import re
 from pathlib import Path
 from typing import Any
 
-from ..errors import InputError
-from ..outputs import RunOutputs, note_outputs, save_run
+from ..infra.errors import InputError
+from ..infra.outputs import RunOutputs, note_outputs, save_run
 from ..grounding import split_inline_options  # linear; lives with the question parser
 
 
@@ -51,7 +51,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> dict[str, Any]:
     from .. import pipeline
     from ..budget import load_profile
-    from ..trace import Trace
+    from ..infra.trace import Trace
 
     if args.examples:
         from ..grounding_nl import EXAMPLES
@@ -124,7 +124,7 @@ def default_matcher(bundle: Any) -> str:
     """'model' when the bundle has a `matcher` role (its learned matcher is what it was built with), else sift."""
     if not bundle:
         return "sift"
-    from ..bundle import load_bundle
+    from ..infra.bundle import load_bundle
 
     try:
         return "model" if load_bundle(bundle).has_role("matcher") else "sift"

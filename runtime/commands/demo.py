@@ -18,8 +18,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-from ..errors import InputError
-from ..outputs import RunOutputs, note_outputs, save_run
+from ..infra.errors import InputError
+from ..infra.outputs import RunOutputs, note_outputs, save_run
 
 DEMO_TYPES = ("object_counting", "object_size_estimation", "object_abs_distance", "object_rel_distance",
               "object_rel_direction_hard", "object_rel_direction_medium", "route_planning", "obj_appearance_order",
@@ -72,7 +72,7 @@ def _run(args: argparse.Namespace, out: Path, outs: "RunOutputs", size: tuple[in
     from ..prompt import render as render_prompt
     from mosaicthinker.host.synth.generate import write_scene
     from mosaicthinker.host.synth.scene import SceneConfig
-    from ..trace import Trace
+    from ..infra.trace import Trace
 
     w, h = size
     scene_dir = out / "scene"
@@ -101,7 +101,7 @@ def _run(args: argparse.Namespace, out: Path, outs: "RunOutputs", size: tuple[in
         targets = sorted(json.loads((scene_dir / "scene.json").read_text())["object_counts"])
 
     # perception: the bundle's real detector where it has one, else the oracle (no model files)
-    from ..bundle import load_bundle
+    from ..infra.bundle import load_bundle
 
     use_models = bool(args.bundle) and load_bundle(args.bundle).has_role("detector")
     if use_models:

@@ -11,8 +11,8 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from ..errors import InputError
-from ..outputs import RunOutputs, note_outputs, save_run
+from ..infra.errors import InputError
+from ..infra.outputs import RunOutputs, note_outputs, save_run
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -52,7 +52,7 @@ def default_objects(args: argparse.Namespace, source: Path) -> list[str]:
     if not args.bundle:
         raise InputError("mosaic map with --detector model needs --bundle (or give --detector oracle on a "
                          "synthetic scene)")
-    from ..stages.detector import detectable_names
+    from ..models.detector import detectable_names
 
     return detectable_names(args.bundle)
 
@@ -72,7 +72,7 @@ def _run(args: argparse.Namespace, src: Path, outs: RunOutputs, paths: tuple[Pat
     from ..budget import load_profile
     from ..grounding import canonical_name
     from ..prompt import render as render_prompt
-    from ..trace import Trace
+    from ..infra.trace import Trace
 
     map_path, png_path, trace_path = paths
     trace = Trace()

@@ -23,9 +23,9 @@ from typing import Any, ClassVar, Iterable, Sequence
 
 import numpy as np
 
-from .config import StageConf
-from .errors import InputError
-from .geometry import OrientedBox, convex_hull_2d, polygon_area
+from ..infra.config import StageConf
+from ..infra.errors import InputError
+from ..geometry import OrientedBox, convex_hull_2d, polygon_area
 
 MAP_SCHEMA = "mosaicthinker.semantic_map/1"
 # Largest saved map the runtime reads: a room holds hundreds of objects; 100 k leaves room for dense maps and keeps
@@ -217,7 +217,7 @@ class SemanticMap:
     # -- queries
     def by_name(self, name: str) -> list[ObjectInstance]:
         """Instances whose canonical name equals the canonical form of `name` (synonyms resolved)."""
-        from .grounding import canonical_name  # grounding is pure text; imported here to keep this module light
+        from ..grounding import canonical_name  # grounding is pure text; imported here to keep this module light
 
         key = canonical_name(name) or name.strip().lower()
         return list(self._category_index().get(key, ()))
@@ -225,7 +225,7 @@ class SemanticMap:
     def _category_index(self) -> dict[str, list[ObjectInstance]]:
         """canonical name -> instances, rebuilt only when the instance list changed (a question on a 10 k-object
         map asks for names many times; canonicalising every instance name per call took seconds)."""
-        from .grounding import canonical_name
+        from ..grounding import canonical_name
 
         key = tuple(map(id, self.instances))
         cached = self.__dict__.get("_index")
@@ -324,7 +324,7 @@ class SemanticMap:
         """
         if "object_bbox" not in scene_meta:
             raise InputError(f"meta_info scene {scene_name or ''}: field `object_bbox` is missing")
-        from .grounding import canonical_name
+        from ..grounding import canonical_name
 
         inst: list[ObjectInstance] = []
         for cat, boxes in scene_meta["object_bbox"].items():
@@ -354,7 +354,7 @@ def room_from_boxes(boxes: Iterable[OrientedBox], extra_xy: np.ndarray | None = 
 
 
 def _plain(x: Any) -> Any:
-    from .trace import jsonable
+    from ..infra.trace import jsonable
 
     return jsonable(x)
 
@@ -437,7 +437,7 @@ def lift_observations(rgb_shape: tuple[int, int], depth: np.ndarray, K: np.ndarr
 
 def place(observations: list[Observation], T_wc: np.ndarray) -> list[Observation]:
     """Camera-frame observations (`lift_camera`) -> the same in the world: points [N, 3] through T_wc [4, 4]."""
-    from .geometry import transform
+    from ..geometry import transform
 
     return [replace(o, points=transform(T_wc, o.points)) for o in observations]
 
@@ -505,7 +505,7 @@ def _backproject_window(depth: np.ndarray, K: np.ndarray, mask: np.ndarray, win:
                         stride: int, max_depth_m: float = np.inf) -> np.ndarray:
     """`geometry.backproject(_depth_upto(depth, max_depth_m), K, full_mask, stride)` points for a mask given on
     `win` (its window, starting on the stride grid): the same points in the same order. -> [N, 3]"""
-    from .geometry import backproject_pixels
+    from ..geometry import backproject_pixels
 
     d = _depth_upto(depth[win][::stride, ::stride], max_depth_m)
     ok = np.isfinite(d) & (d > 0) & mask[::stride, ::stride]
@@ -878,14 +878,14 @@ def fuse_observations(observations: list[Observation], conf: FusionConfig = defa
     duplicate boxes of one object (`same_frame_redundant`) are left out first (the trace's `fusion` event); every
     other pair of one frame's detections stays two instances.
     """
-    from .geometry import fit_gravity_box
+    from ..geometry import fit_gravity_box
 
     if conf.same_frame_share > 0:
         # one frame, one depth image: a box repeating another holds the very same surface points, so the radius is
         # the voxel size (two small objects a few cm apart do not cover each other)
         drop = same_frame_redundant(observations, conf.voxel_m, conf.same_frame_share)
         if drop:
-            from .trace import as_trace
+            from ..infra.trace import as_trace
 
             as_trace(trace).event("fusion", f"fusion: left out {len(drop)} detection(s) that repeat others of their "
                                   f"frame: " + ", ".join(f"{observations[i].name} in frame {observations[i].frame} "
@@ -965,7 +965,7 @@ def footprint_overlap(a: OrientedBox, b: OrientedBox) -> float:
     """Intersection area of two gravity-aligned boxes' floor footprints over the smaller footprint, in [0, 1]."""
     import cv2
 
-    from .geometry import box_footprint as _footprint
+    from ..geometry import box_footprint as _footprint
 
     fa, fb = _footprint(a).astype(np.float32), _footprint(b).astype(np.float32)
     area, _ = cv2.intersectConvexConvex(fa, fb)
@@ -978,7 +978,7 @@ def _merge_overlapping(items: list[tuple["_Acc", np.ndarray]], conf: FusionConfi
     """Merge same-name instances whose floor footprints overlap (>= 30% of the smaller one): two views of one
     object that shared too few points to fuse (a table seen from either end). Same-category objects do not
     interpenetrate, so overlapping footprints mean one object (objects stacked on each other have other names)."""
-    from .geometry import fit_gravity_box
+    from ..geometry import fit_gravity_box
 
     items = list(items)
     merged = True
@@ -1234,7 +1234,7 @@ def expected_visible(inst: ObjectInstance, K: np.ndarray, T_wc: np.ndarray, size
                      ) -> np.ndarray | None:
     """Projected 2D box [4] of `inst` in a camera, or None when it should not be visible there (behind the
     camera, off-image, too small, or hidden: the observed depth in its projected box is mostly in front of it)."""
-    from .geometry import project
+    from ..geometry import project
 
     W, H = size
     uv, z = project(inst.box.corners(), K, T_wc)
@@ -1245,7 +1245,7 @@ def expected_visible(inst: ObjectInstance, K: np.ndarray, T_wc: np.ndarray, size
     if (x1 - x0) * (y1 - y0) < min_px:
         return None
     if depth is not None:
-        from .geometry import invert, transform
+        from ..geometry import invert, transform
 
         zc = transform(invert(T_wc), inst.center[None])[0, 2]
         patch = depth[int(y0):int(y1) + 1, int(x0):int(x1) + 1]
@@ -1262,7 +1262,7 @@ def expected_visible(inst: ObjectInstance, K: np.ndarray, T_wc: np.ndarray, size
 def _world_points(frames: Iterable[Any], poses: dict[int, np.ndarray], stride: int,
                   keep: Any = None) -> list[np.ndarray]:
     """Depth points of the posed frames in the poses' frame; `keep(p) -> mask` selects camera-frame points."""
-    from .geometry import backproject, transform
+    from ..geometry import backproject, transform
 
     out = []
     for f in frames:
@@ -1291,7 +1291,7 @@ def gravity_from_frames(frames: Sequence[Any], poses_root: dict[int, np.ndarray]
     """World-from-root transform [4, 4] (z up, origin on the floor below the root camera). `source_down`: the
     source's gravity in the root camera (None: the floor fit on the key frames' depth points nearer than
     `floor_fit_max_depth_m` gives it); the floor height from the same fit, else `camera_height_m` (recorded)."""
-    from .trace import as_trace
+    from ..infra.trace import as_trace
 
     trace = as_trace(trace)
     down, offset, how = None, None, ""
@@ -1416,7 +1416,7 @@ def extend_to_floor(instances: list[ObjectInstance], frames: Sequence[Any], pose
     hidden from every camera by something nearer counts as unknown, not as empty; a band without points seen
     empty (depth beyond it along the rays) keeps the box as fused. Mutates the boxes; recorded (extended and
     kept, with why). Returns the ids extended."""
-    from .trace import as_trace
+    from ..infra.trace import as_trace
 
     todo = [o for o in instances if o.name in floor_standing]
     if not todo:
@@ -1516,7 +1516,7 @@ def first_seen_from_detections(instances: list[ObjectInstance], detections: Iter
     (`detections`: (time s, names detected) per scored frame) earlier than any of its instances' key frames was
     first seen then. The earliest instance of the category takes that time (appearance-order questions are
     about categories). Mutates first_seen; returns how many changed (recorded when any)."""
-    from .trace import as_trace
+    from ..infra.trace import as_trace
 
     first: dict[str, float] = {}
     for t, seen in detections:
@@ -1587,8 +1587,8 @@ def refine(instances: list[ObjectInstance], obs: list[Observation], frames: list
     views (promptable segmenter), or the class mask inside the projected box (semantic segmenter) — and add what
     it recovers. `perception`: the pipeline's `Perception` (segment_points, segment_class, matcher). Returns the
     re-fused instances, their clouds and how many instances gained a view."""
-    from .matching import make_matcher
-    from .trace import as_trace
+    from ..align.matching import make_matcher
+    from ..infra.trace import as_trace
 
     matcher = make_matcher(matcher if matcher is not None else perception.matcher)
     by_index = {f.index: f for f in frames}

@@ -22,9 +22,9 @@ from typing import Any, ClassVar, Mapping
 
 import numpy as np
 
-from .config import StageConf
-from .errors import InputError
-from .trace import as_trace
+from .infra.config import StageConf
+from .infra.errors import InputError
+from .infra.trace import as_trace
 
 
 # ----------------------------------------------------------------------------- SSIM

@@ -29,8 +29,8 @@ from typing import Any
 
 import numpy as np
 
-from ..lru import LRU
-from ..matching import Matches, in_boxes
+from ..infra.lru import LRU
+from ..align.matching import Matches, in_boxes
 from . import ImageLRU, RoleModel, preprocess_image
 
 

@@ -32,11 +32,11 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from .budget import Profile, load_profile, update_profile_costs
-from .bundle import bundle_hash
-from .errors import InputError, MosaicError
-from .outputs import check_out_dir
-from .trace import Trace, peak_rss_mb, reset_peak_rss, rss_mb
+from ..budget import Profile, load_profile, update_profile_costs
+from ..infra.bundle import bundle_hash
+from ..infra.errors import InputError, MosaicError
+from ..infra.outputs import check_out_dir
+from ..infra.trace import Trace, peak_rss_mb, reset_peak_rss, rss_mb
 
 REPORT_SCHEMA = "mosaicthinker.profile_report/1"
 _ORT_DTYPES = {"float": np.float32, "float16": np.float16, "double": np.float64, "uint8": np.uint8,
@@ -157,7 +157,7 @@ def _variant_for(bundle: Any, role: str, profile: Profile | None, which: str) ->
 def profile_components(bundle: Any, role: str, variant: str, providers: list[str] | None, threads: int | None,
                        runs: int, warmup: int, trace: Trace, rng: np.random.Generator) -> dict[str, Any]:
     """Per component of one variant: load ms, warm latency, memory, provider used (errors recorded, not raised)."""
-    from .providers import create_session
+    from ..infra.providers import create_session
 
     spec = bundle.spec(role, variant, verify=True)
     out: dict[str, Any] = {}
@@ -236,7 +236,7 @@ def _adapter_call(model: Any, role: str, frames: list[np.ndarray], n: int
 def profile_adapter(bundle: Any, role: str, variant: str, providers: list[str] | None, threads: int | None,
                     runs: int, warmup: int, trace: Trace, frames: list[np.ndarray]) -> dict[str, Any]:
     """The runtime adapter of a role (pre/post-processing included): load ms, warm latency, memory, providers."""
-    from .stages import load_role
+    from ..models import load_role
 
     rec: dict[str, Any] = {}
     try:
@@ -273,8 +273,8 @@ def _role_worker(job: dict[str, Any]) -> dict[str, Any]:
 
     import onnxruntime  # noqa: F401
 
-    from .bundle import load_bundle
-    from .stages import load_role  # noqa: F401 - import cost outside the measurement
+    from ..infra.bundle import load_bundle
+    from ..models import load_role  # noqa: F401 - import cost outside the measurement
 
     trace = Trace()
     base = rss_mb()
@@ -290,7 +290,7 @@ def _role_worker(job: dict[str, Any]) -> dict[str, Any]:
 
 def _question_worker(job: dict[str, Any]) -> dict[str, Any]:
     """One full question through `pipeline.ask` in THIS process: wall time, per-stage times, peak RSS."""
-    from .pipeline import ask
+    from ..pipeline import ask
 
     import resource
 
@@ -330,7 +330,7 @@ def profile_cpu_side(video: str | None, frames: list[np.ndarray], runs: int, max
     """CPU-side pieces that exist: video decode and dedup per frame (needs --video), RANSAC per pair."""
     out: dict[str, Any] = {}
     if video:
-        from .frames import open_source
+        from ..frames import open_source
 
         try:
             src = open_source(video, cache_size=0)
@@ -343,8 +343,8 @@ def profile_cpu_side(video: str | None, frames: list[np.ndarray], runs: int, max
         except Exception as e:  # noqa: BLE001
             out["video_decode"] = {"error": f"{type(e).__name__}: {str(e)[:200]}"}
         try:
-            from .dedup import remove_redundant
-            from .frames import open_source as _open
+            from ..scan import remove_redundant
+            from ..frames import open_source as _open
 
             src = _open(video)
             n = len(src)
@@ -355,7 +355,7 @@ def profile_cpu_side(video: str | None, frames: list[np.ndarray], runs: int, max
                             "note": "whole pass per video frame, including the decoding it does"}
         except Exception as e:  # noqa: BLE001
             out["dedup"] = {"error": f"{type(e).__name__}: {str(e)[:200]}"}
-    from .geometry import make_pose, ransac_transform, rotation_about
+    from ..geometry import make_pose, ransac_transform, rotation_about
 
     rng = np.random.default_rng(0)
     src_pts = rng.uniform(-2, 2, (400, 3))
@@ -377,7 +377,7 @@ def profile_cpu_side(video: str | None, frames: list[np.ndarray], runs: int, max
 def load_frames(video: str | None, n: int = 2) -> tuple[list[np.ndarray], str]:
     """Two real frames from --video (first and a quarter in), else synthetic ones (the second shifted by 8 px)."""
     if video:
-        from .frames import open_source
+        from ..frames import open_source
 
         src = open_source(video)
         idx = [0, max(1, len(src) // 4)] if len(src) > 1 else [0]
@@ -477,7 +477,7 @@ def run_profile(bundle: Any, profile: Profile | str | None = None, *, video: str
     """
     from tqdm import tqdm
 
-    from .bundle import load_bundle
+    from ..infra.bundle import load_bundle
 
     import cv2  # noqa: F401 - counted in the runtime's baseline
 
@@ -706,7 +706,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--question", default="How many chairs are in this room?",
                         help="with --video: one full question through the pipeline, timed per stage")
     parser.add_argument("--no-question", action="store_true", help="skip the full-question run")
-    from .commands.flags import add_keyframes
+    from .flags import add_keyframes
 
     add_keyframes(parser)  # K of the full-question run
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -715,7 +715,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
-    from .progress import stderr_is_terminal
+    from ..infra.progress import stderr_is_terminal
 
     if not args.bundle:
         raise InputError("mosaic profile needs --bundle DIR")

@@ -12,8 +12,8 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from ..errors import BundleError, InputError
-from ..perception import Detections
+from ..infra.errors import BundleError, InputError
+from ..types import Detections
 from . import RoleModel
 
 

@@ -13,7 +13,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from ..perception import Detections
+from ..types import Detections
 from . import ImageLRU, RoleModel, preprocess_image
 
 # question name -> candidate labels (the first one present in the model's label list is used; several may be).
@@ -75,8 +75,8 @@ def detectable_names(bundle: Any, preferred: Sequence[str] = ()) -> list[str]:
     (`one_name_per_label`; `preferred` names first, e.g. the question's): what a map of "everything" holds.
     bundle: a bundle folder or a loaded `Bundle`. InputError when it has no detector or an open-vocabulary one
     (which detects only what it is asked for)."""
-    from ..bundle import load_bundle
-    from ..errors import InputError
+    from ..infra.bundle import load_bundle
+    from ..infra.errors import InputError
     from ..grounding import VOCABULARY
 
     b = load_bundle(bundle) if isinstance(bundle, (str, os.PathLike)) else bundle
@@ -93,7 +93,7 @@ def detectable_names(bundle: Any, preferred: Sequence[str] = ()) -> list[str]:
 def closed_labels(bundle: Any) -> list[str] | None:
     """The label list of the bundle's closed-set detector; None without a detector or with an open-vocabulary
     one. bundle: a bundle folder or a loaded `Bundle`."""
-    from ..bundle import load_bundle
+    from ..infra.bundle import load_bundle
 
     b = load_bundle(bundle) if isinstance(bundle, (str, os.PathLike)) else bundle
     return (b.spec("detector", verify=False).semantics.get("labels") or None) if b.has_role("detector") else None

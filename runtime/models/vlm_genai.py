@@ -21,7 +21,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from ..errors import BundleError
+from ..infra.errors import BundleError
 from . import RoleModel
 
 PINNED_GENAI = "0.18.0"

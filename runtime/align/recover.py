@@ -42,12 +42,12 @@ from typing import Any, Callable, ClassVar, Mapping, Protocol, Sequence
 
 import numpy as np
 
-from .config import StageConf
-from .errors import AlignmentError, InputError
-from .geometry import (backproject_pixels, icp_point_to_plane, ransac_transform, rotation_angle_deg, sample_depth,
+from ..infra.config import StageConf
+from ..infra.errors import AlignmentError, InputError
+from ..geometry import (backproject_pixels, icp_point_to_plane, ransac_transform, rotation_angle_deg, sample_depth,
                        transform, transform_scale, umeyama, worker_threads)
 from .matching import KeyedMatcher, Matches, make_matcher
-from .trace import as_trace
+from ..infra.trace import as_trace
 
 
 @dataclass
@@ -652,7 +652,7 @@ def compose_tree(root: int, edges: Sequence[tuple[int, int]], T: Mapping[tuple[i
                  ) -> tuple[dict[int, np.ndarray], dict[int, int]]:
     """Global poses along tree paths. T[(i, j)] = pose of j in i's camera frame (the reverse direction is
     derived). Returns ({node: pose [4, 4] in root's camera frame}, {node: parent}) for the root's component."""
-    from .geometry import invert
+    from ..geometry import invert
 
     adj: dict[int, list[int]] = {}
     for i, j in edges:
@@ -1091,7 +1091,7 @@ def depth_consistency(fa: Any, fb: Any, T_ab: np.ndarray, stride: int = 8) -> tu
     Returns (overlap: share of b's points that land on valid depth in a, consistent: share of those within
     5 cm + 3% of a's depth, violation: share of those lying clearly in FRONT of a's observed surface, i.e. in
     space a sees as empty). A wrong transform puts points in free space; a right one only at occlusion edges."""
-    from .geometry import backproject
+    from ..geometry import backproject
 
     p, _ = backproject(fb.depth, fb.K, stride=stride)
     if len(p) == 0:
@@ -1111,7 +1111,7 @@ def depth_consistency(fa: Any, fb: Any, T_ab: np.ndarray, stride: int = 8) -> tu
 def _edge_ok(fa: Any, fb: Any, T_ab: np.ndarray, max_violation: float) -> bool:
     """The depth check of one edge, both ways: neither frame puts more than `max_violation` of its points into
     space the other sees as empty."""
-    from .geometry import invert
+    from ..geometry import invert
 
     return max(depth_consistency(fa, fb, T_ab)[2], depth_consistency(fb, fa, invert(T_ab))[2]) <= max_violation
 
@@ -1119,7 +1119,7 @@ def _edge_ok(fa: Any, fb: Any, T_ab: np.ndarray, max_violation: float) -> bool:
 def _reattach(al: AlignmentResult, poses: dict[int, np.ndarray], dropped: list[int], ok: Callable[..., bool]
               ) -> list[int]:
     """Re-attach dropped frames through other pairs alignment verified that pass `ok`; mutates poses."""
-    from .geometry import invert
+    from ..geometry import invert
 
     reattached = []
     changed = True
@@ -1144,7 +1144,7 @@ def verify_tree(al: AlignmentResult, frames: dict[int, Any], conf: AlignPolicy, 
     the poses are re-expressed in it), the other parts are re-attached through other verified pairs (from the
     pairs alignment already tried) that pass the same check, if any; the rest become unaligned. Recorded in the
     trace; the cut edges are kept in `al.rejected_edges` so that a later round does not use them again."""
-    from .geometry import invert
+    from ..geometry import invert
 
     def ok(a: int, b: int, T_ab: np.ndarray) -> bool:
         if a not in frames or b not in frames:

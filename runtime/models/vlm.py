@@ -22,7 +22,7 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from ..errors import BundleError, InputError
+from ..infra.errors import BundleError, InputError
 from . import RoleModel, preprocess_image
 
 # family -> chat template pieces. {content} = images then text; {image_tokens} = the image token repeated.

@@ -28,12 +28,12 @@ from typing import Any, Callable, Iterator, Sequence
 
 import numpy as np
 
-from ..bundle import Bundle, RoleSpec, load_bundle
-from ..errors import BundleError, InputError
-from ..lru import LRU
-from ..trace import Trace
+from ..infra.bundle import Bundle, RoleSpec, load_bundle
+from ..infra.errors import BundleError, InputError
+from ..infra.lru import LRU
+from ..infra.trace import Trace
 
-# arch (manifest roles.<role>.arch) -> "module:Class" inside mosaicthinker.runtime.stages
+# arch (manifest roles.<role>.arch) -> "module:Class" inside mosaicthinker.runtime.models
 ARCHS: dict[str, str] = {
     "pydnet": "depth:DepthModel",            # relative monocular depth, single NHWC graph
     "depth_generic": "depth:DepthModel",     # any single-graph depth model described by its preprocessing
@@ -140,7 +140,7 @@ def load_role(bundle_or_dir: Bundle | str | os.PathLike, role: str, variant: str
     variant: e.g. "fp32", "int8-dynamic" (default: the role's default_variant). The component files are
     sha256-checked before any session is created.
     """
-    from ..providers import create_session, files_mb
+    from ..infra.providers import create_session, files_mb
 
     trace = trace if trace is not None else Trace()
     b = load_bundle(bundle_or_dir, verify=False)

@@ -33,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import InputError
+from ..infra.errors import InputError
 from . import RoleModel, preprocess_image
 
 SEMANTICS = ("metric_m", "relative", "relative_inverse")
@@ -151,7 +151,7 @@ def camera_height_prior(points: np.ndarray, height_m: float, up_hint: np.ndarray
     height_m / distance(camera, plane). up_hint [3] (camera frame, e.g. gravity from an IMU, default -y: OpenCV
     cameras look roughly horizontal) selects planes below the camera, within `max_tilt_deg` of horizontal;
     `threshold` is relative to the points' median range (they have no unit yet). Limit: needs visible floor."""
-    from ..semantic_map import fit_floor_plane
+    from ..map.model import fit_floor_plane
 
     pts = np.asarray(points, np.float64).reshape(-1, 3)
     if len(pts) < 50:

@@ -1,6 +1,6 @@
 """The `mosaic plan` command: the planner's answer for a clip (or every profile) under a device profile.
 
-runtime/cli.py runs it as `mosaicthinker.runtime.budget.command`; the package re-exports add_arguments, run, render.
+runtime/cli.py runs it as `mosaicthinker.runtime.commands.plan`; the package re-exports add_arguments, run, render.
 """
 from __future__ import annotations
 
@@ -9,16 +9,16 @@ import shutil
 import textwrap
 from typing import Any
 
-from ..errors import BudgetError, InputError, MosaicError
-from .planner import STARTS, PlanConf, clip_of, plan
-from .profile import MODEL_SETS, list_profiles
+from ..infra.errors import BudgetError, InputError, MosaicError
+from ..budget.planner import STARTS, PlanConf, clip_of, plan
+from ..budget.profile import MODEL_SETS, list_profiles
 
 
 COMMON_FLAGS = ("bundle", "profile")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from ..commands.flags import add_answerer, add_clip
+    from .flags import add_answerer, add_clip
 
     src = parser.add_argument_group("clip (one of)")
     src.add_argument("--video", metavar="V", help="video, image folder or RGB-D folder: its length and fps")

@@ -17,9 +17,9 @@ from typing import Any, ClassVar, Hashable, Mapping, Protocol, Sequence, runtime
 
 import numpy as np
 
-from .config import StageConf
-from .errors import InputError
-from .lru import LRU
+from ..infra.config import StageConf
+from ..infra.errors import InputError
+from ..infra.lru import LRU
 
 
 @dataclass

@@ -12,7 +12,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from ..errors import InputError
+from ..infra.errors import InputError
 from . import RoleModel
 
 

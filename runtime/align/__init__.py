@@ -1,0 +1,1 @@
+"""Alignment of key frames (paper: cross-frame and multi-frame alignment)."""

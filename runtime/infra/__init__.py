@@ -1,0 +1,1 @@
+"""Infrastructure the stages share: bundle, providers, trace, outputs, errors, progress, caches, config."""

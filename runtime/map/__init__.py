@@ -1,0 +1,1 @@
+"""The sparse global semantic map: model, lifting, fusion, floor, extent, refinement."""
