@@ -38,7 +38,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 
-from mosaicthinker.runtime.align import recover as al  # noqa: E402
+from mosaicthinker.runtime import align as al  # noqa: E402
 from mosaicthinker.host.evaluation.pose import ate_rmse, pick_frames  # noqa: E402
 from mosaicthinker.runtime.frames import open_source  # noqa: E402
 from mosaicthinker.runtime.align.matching import FeatureMatcher  # noqa: E402

@@ -17,7 +17,6 @@ from __future__ import annotations
 import os
 import re
 import time
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Iterator, Sequence
 
@@ -26,6 +25,7 @@ import numpy as np
 from .infra.errors import InputError
 from .geometry import intrinsics_from_fov, make_pose, worker_threads
 from .infra.lru import LRU
+from .types import Frame
 
 IMAGE_EXTS = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp")
 VIDEO_EXTS = (".mp4", ".mov", ".avi", ".mkv", ".m4v", ".webm", ".3gp", ".mpg", ".mpeg")
@@ -38,21 +38,6 @@ TUM_CALIB = {
     "freiburg3": ((535.4, 539.2, 320.1, 247.6), None),
     "default": ((525.0, 525.0, 319.5, 239.5), None),
 }
-
-
-@dataclass
-class Frame:
-    """One frame. rgb: [H, W, 3] uint8; t: seconds; index: position in its source; depth: [H, W] float32 z-depth
-    in metres (0 = invalid) or None; K: [3, 3] float64; pose_gt: [4, 4] float64 camera-to-world or None;
-    dist: [k] OpenCV distortion coefficients or None (images are NOT undistorted)."""
-
-    rgb: np.ndarray
-    t: float
-    index: int
-    K: np.ndarray
-    depth: np.ndarray | None = None
-    pose_gt: np.ndarray | None = None
-    dist: np.ndarray | None = None
 
 
 # ----------------------------------------------------------------------------- readers (errors name the file)

@@ -28,30 +28,23 @@ from .types import Detections
 from .infra.progress import phase, start, ticking
 from .infra.trace import Trace, as_trace
 # the stages, in the paper's order
-from .grounding import ParsedQuestion, ground
 from .scan import DedupConf, DedupResult, remove_redundant
+from .grounding import ParsedQuestion, ground
 from .keyframes import KeyFrameConf, scored_budget, select_keyframes, uniform_keyframes
 from .align.matching import MatchConf, make_matcher
-from .align.recover import AlignConf, align_keyframes, worker_threads
+from .align import AlignConf, align_keyframes
+from .geometry import worker_threads
 from .map.model import (FusionConfig, ObjectInstance, Observation, SemanticMap, box_depth_mask,
                            extend_to_floor, first_seen_from_detections, fuse_observations, gravity_from_frames,
                            lift_camera, place, refine, room_extent)
 from . import prompt as vprompt
 from .answer import MapReasoner, answer_question, answer_with_vlm, cannot_detect
 # moved to their stage modules; importable from here as before
-from .align.recover import attach_frames, bridge_attach, depth_consistency, verify_tree  # noqa: F401
-from .map.model import floor_support, hull_candidates as _hull_candidates  # noqa: F401
 
 DetectFn = Callable[[Frame, list[str]], Detections]
 SegmentFn = Callable[[Frame, Detections], np.ndarray]          # -> masks [N, H, W] bool
 PromptSegmentFn = Callable[[Frame, np.ndarray, str], np.ndarray | None]  # points [P, 2] -> mask [H, W] or None
 DepthFn = Callable[[Frame], np.ndarray]                          # -> metric depth [H, W] float32
-
-
-def _pipeline_alignment() -> AlignConf:
-    # fewer inliers than alignment's default 20 are accepted because every tree edge is then checked against
-    # the two depth maps (`verify_depth`), which catches the wrong ones a low inlier count lets through
-    return AlignConf(min_inliers=12)
 
 
 # typed stage configs of a run: field -> its class (a mapping given for one is merged over the field's default)
@@ -89,38 +82,21 @@ class PipelineConfig(StageConf):
     topup_spacing: int = 4               # ... its frames at least len(video) / (this x K) frames apart
     box_prompt_min_share: float = 0.02   # a mask under this share of its box is replaced by a box-prompted one
     grounding_frames: int = 4            # frames (evenly spaced) shown to a VLM that grounds the question
-    whole_image_fallback: bool = True    # key frames unaligned with matches inside boxes: retry on whole images
-    # relative depth (essential edges): match inside the boxes in the first tree too. Off: an essential matrix
-    # from matches on a few objects is ill-conditioned; on the kitchen (PyDNet++ + XFeat) the box-matched tree
-    # (+ whole-image edges for the frames it left out) had ATE 0.41-0.50 m against 0.06-0.16 m for the
-    # whole-image tree, which is what the runs then used anyway (docs/performance.md, "round 4")
-    relative_box_matching: bool = False
-    attach_tries: int = 4                # ... metric depth: each tries its this many nearest aligned frames in time
-    bridge_frames: int = 48              # at most this many extra frames to connect unaligned key frames (0 = off)
-    bridge_gap_s: float = 0.25           # bridge frames are placed at most this far apart in time
-    bridge_rounds: int = 2               # bridge, check, bridge again around edges the check rejected
-    bridge_max_gap_s: float = 10.0       # ... and only across gaps up to this long (long chains drift)
-    revisit_tries: int = 4               # metric depth, unaligned key frames beyond that gap from every aligned
-                                         # one: this many (frame near it in time, aligned frame far away) pairs
-                                         # most alike by dedup's thumbnails tried each, a place the video shows
-                                         # twice (0 = off; the frames loaded count in `bridge_frames`)
     # floor-standing furniture seen from above (a table top, a chair back) reaches down to the floor when the key
     # frames saw its support (points under the footprint in >= `floor_band_share` of the 10 cm height bands, the
     # lowest included) or saw no open space under it (hidden bands are unknown) (`extend_to_floor`); () = off
     floor_standing: tuple[str, ...] = ("table", "chair", "sofa", "couch", "bed", "bench", "desk", "stool",
                                        "refrigerator", "toilet", "cabinet", "shelf", "bookshelf")
     floor_band_share: float = 0.6
-    verify_depth: bool = True            # reject tree edges whose depth maps contradict each other (metric depth)
-    max_free_space_violation: float = 0.02  # share of a frame's points seen in front of the other's surfaces
     camera_height_m: float = 1.5         # prior when no floor is found
     floor_fit_max_depth_m: float = 6.0   # the floor plane is fitted on key-frame depth nearer than this (the far
                                          # floor is noisy and often a wall's foot); the room extent uses fusion's
-                                         # `max_depth_m`, alignment its own (`AlignConf.max_depth_m`)
+                                         # `max_depth_m`, alignment its own (`AlignConf.max_match_depth_m`)
     room_trim_percent: float = 0.5       # room extent: depth points beyond this percentile in any direction dropped
     memory_headroom_mb: float = 50.0     # budget's memory guard: no more key frames below this free memory
     dedup: DedupConf = field(default_factory=DedupConf)
     keyframe: dict[str, Any] = field(default_factory=dict)
-    alignment: AlignConf = field(default_factory=_pipeline_alignment)
+    alignment: AlignConf = field(default_factory=AlignConf)
     match: MatchConf = field(default_factory=MatchConf)  # OpenCV matchers (ratio per method when unset)
     fusion: FusionConfig = field(default_factory=FusionConfig)
 
@@ -142,17 +118,15 @@ class PipelineConfig(StageConf):
             if getattr(self, name) not in allowed:
                 raise InputError(f"pipeline config: {name} must be one of {', '.join(allowed)} "
                                  f"(got {getattr(self, name)!r})")
-        if self.min_keyframes < 0 or self.min_scored_per_keyframe < 0 or self.bridge_frames < 0:
-            raise InputError("pipeline config: min_keyframes, min_scored_per_keyframe and bridge_frames must be >= 0")
+        if self.min_keyframes < 0 or self.min_scored_per_keyframe < 0:
+            raise InputError("pipeline config: min_keyframes and min_scored_per_keyframe must be >= 0")
         if self.max_scored_per_keyframe is not None and not self.max_scored_per_keyframe >= self.min_scored_per_keyframe:
             raise InputError(f"pipeline config: max_scored_per_keyframe must be >= min_scored_per_keyframe "
                              f"({self.min_scored_per_keyframe}; got {self.max_scored_per_keyframe}) or null")
-        if not 0 <= self.cover_min_area <= 1 or not 0 <= self.max_free_space_violation <= 1:
-            raise InputError("pipeline config: cover_min_area and max_free_space_violation must be in [0, 1]")
-        if self.revisit_tries < 0:
-            raise InputError("pipeline config: revisit_tries must be >= 0")
-        if self.attach_tries < 1 or self.topup_spacing < 1 or self.grounding_frames < 1:
-            raise InputError("pipeline config: attach_tries, topup_spacing and grounding_frames must be >= 1")
+        if not 0 <= self.cover_min_area <= 1:
+            raise InputError("pipeline config: cover_min_area must be in [0, 1]")
+        if self.topup_spacing < 1 or self.grounding_frames < 1:
+            raise InputError("pipeline config: topup_spacing and grounding_frames must be >= 1")
 
 
 def _merge_sub(cls: type, base: Any, upd: Mapping[str, Any]) -> Any:
@@ -491,7 +465,7 @@ def _align(frames: list[Frame], dets: dict[int, Detections], source: FrameSource
         budget.start_stage("alignment")
     bar = start("alignment", unit="round")
     al, _used = align_keyframes(frames, matcher, boxes, emb, source, _with_depth(conf, perception, trace),
-                                perception.depth_relative, conf, trace,
+                                perception.depth_relative, conf.alignment, trace,
                                 lambda unaligned: _over_budget(budget, trace, unaligned), thumbs)
     bar.done(aligned=f"{sum(f.index in al.poses for f in frames)}/{len(frames)} key frames")
     return al, matcher

@@ -1,13 +1,26 @@
-"""Per-frame perception results shared by every detector/segmenter backend (models, oracle, tests).
-
-Kept separate from the adapters so that the pipeline, the key-frame search and the synthetic oracle exchange one
-type without importing each other.
-"""
+"""The types the stages exchange, in one place so signatures name them: `Frame` (a source's frame), `Detections`
+(one frame's objects, from any detector: bundle models, the synthetic oracle, tests) and `Observation` (one
+detection lifted to 3D). No stage imports another for its types."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 
 import numpy as np
+
+
+@dataclass
+class Frame:
+    """One frame. rgb: [H, W, 3] uint8; t: seconds; index: position in its source; depth: [H, W] float32 z-depth
+    in metres (0 = invalid) or None; K: [3, 3] float64; pose_gt: [4, 4] float64 camera-to-world or None;
+    dist: [k] OpenCV distortion coefficients or None (images are NOT undistorted)."""
+
+    rgb: np.ndarray
+    t: float
+    index: int
+    K: np.ndarray
+    depth: np.ndarray | None = None
+    pose_gt: np.ndarray | None = None
+    dist: np.ndarray | None = None
 
 
 @dataclass

@@ -8,8 +8,7 @@ import numpy as np
 import pytest
 
 from mosaicthinker.runtime import geometry as G
-from mosaicthinker.runtime.align.recover import (align_frames, choose_root, compose_tree, maximum_spanning_tree,
-                                             similarity_matrix)
+from mosaicthinker.runtime.align import (align_frames, choose_root, compose_tree, maximum_spanning_tree, similarity_matrix)
 from mosaicthinker.runtime.infra.errors import AlignmentError
 from mosaicthinker.host.evaluation.pose import ate_rmse, evaluate_pose, pick_frames, rpe
 from mosaicthinker.runtime.frames import Frame, open_source
@@ -219,7 +218,8 @@ def test_rgbd_candidates_widen_only_while_disconnected():
 
 
 def test_candidate_widths_per_edge_type():
-    from mosaicthinker.runtime.align.recover import AlignConf, _candidate_widths
+    from mosaicthinker.runtime.align import AlignConf
+    from mosaicthinker.runtime.align.tree import _candidate_widths
 
     assert _candidate_widths(AlignConf(), "rgbd") == (2, 1)  # narrow start + time neighbour
     assert _candidate_widths(AlignConf(), "essential") == (4, 1)  # every candidate (the scale graph needs them)
@@ -276,7 +276,7 @@ def test_essential_edges_for_relative_depth(scale_mode):
 
 
 def test_essential_pair_and_frame_scales():
-    from mosaicthinker.runtime.align.recover import AlignConf, PairResult, align_pair_essential, essential_frame_scales
+    from mosaicthinker.runtime.align import AlignConf, PairResult, align_pair_essential, essential_frame_scales
 
     frames, scene, poses = _synthetic(3, seed=3, depth_scale=[2.5, 1.0, 0.7])
     (uva, va), (uvb, vb) = scene[0], scene[2]

@@ -10,15 +10,14 @@ from mosaicthinker.runtime.commands.ask import WARNING_KINDS
 
 
 def _align(src, idx, boxes, relative=False, **conf):
-    from mosaicthinker.runtime.align.recover import align_keyframes
+    from mosaicthinker.runtime.align import AlignConf, align_keyframes
     from mosaicthinker.runtime.align.matching import make_matcher
-    from mosaicthinker.runtime.pipeline import PipelineConfig
     from mosaicthinker.runtime.infra.trace import Trace
 
     frames = [src[i] for i in idx]
     t = Trace()
     al, _ = align_keyframes(frames, make_matcher("sift"), boxes, None, src, lambda f: f, relative,
-                            PipelineConfig.merged(conf), t)
+                            AlignConf.merged(conf), t)
     return al, t
 
 
@@ -66,7 +65,7 @@ def test_frames_left_out_are_counted_once_with_their_final_state(redkitchen):
 def test_fates_follow_pose_changes_step_by_step():
     """`Fates.after`: a step that gives a frame a (new) pose names it; a step that keeps the pose object keeps
     the name; a frame that loses its pose is unaligned."""
-    from mosaicthinker.runtime.align.recover import AlignmentResult, Fates
+    from mosaicthinker.runtime.align import AlignmentResult, Fates
 
     I = np.eye(4)
     al = AlignmentResult({0: I, 1: I.copy()}, 0, [(0, 1)], [2], "mst")
@@ -87,10 +86,10 @@ def test_depth_check_keeps_the_larger_part_of_a_cut_tree(redkitchen):
     each other): the depth check cuts 50-53, and the map keeps the larger part {53, 56} - rooted at 53, its
     poses re-expressed there, the other part unaligned - instead of the root's single frame. Real 7-Scenes frames
     and sensor depth; the poses are the ground truth with the one wrong edge."""
-    from mosaicthinker.runtime.align.recover import AlignmentResult, verify_tree
+    from mosaicthinker.runtime.align import AlignmentResult, verify_tree
     from mosaicthinker.runtime.frames import open_source
+    from mosaicthinker.runtime.align import AlignConf
     from mosaicthinker.runtime.geometry import invert
-    from mosaicthinker.runtime.pipeline import PipelineConfig
 
     src = open_source(redkitchen)
     fr = {i: src[i] for i in (50, 53, 56)}
@@ -99,7 +98,7 @@ def test_depth_check_keeps_the_larger_part_of_a_cut_tree(redkitchen):
     shift[2, 3] = -0.6  # towards the root camera: 53's and 56's points land in space 50 sees as empty
     poses = {50: rel[50], 53: shift @ rel[53], 56: shift @ rel[56]}
     al = AlignmentResult(poses, 50, [(50, 53), (53, 56)], [], "mst")
-    al = verify_tree(al, fr, PipelineConfig(), None)
+    al = verify_tree(al, fr, AlignConf(), None)
     assert al.root == 53 and sorted(al.poses) == [53, 56] and al.unaligned == [50]
     assert (50, 53) in al.rejected_edges
     np.testing.assert_allclose(al.poses[53], np.eye(4), atol=1e-4)  # the GT rotations are orthonormal to ~1e-5
@@ -108,7 +107,7 @@ def test_depth_check_keeps_the_larger_part_of_a_cut_tree(redkitchen):
 
 
 def test_root_in_largest_moves_the_root_to_the_largest_component():
-    from mosaicthinker.runtime.align.recover import root_in_largest
+    from mosaicthinker.runtime.align import root_in_largest
 
     S = np.ones((5, 5))
     S[4, 3] = S[3, 4] = 5.0

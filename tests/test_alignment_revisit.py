@@ -8,11 +8,10 @@ import dataclasses
 import cv2
 import numpy as np
 
-from mosaicthinker.runtime.align.recover import (AlignmentResult, BlockPairs, bridge_attach, revisit_attach,
-                                             revisit_pairs, thumb_histograms)
+from mosaicthinker.runtime.align import (AlignConf, AlignmentResult, BlockPairs, bridge_attach, revisit_attach,
+                                         revisit_pairs, thumb_histograms)
 from mosaicthinker.runtime.geometry import invert
 from mosaicthinker.runtime.align.matching import make_matcher
-from mosaicthinker.runtime.pipeline import PipelineConfig
 from mosaicthinker.runtime.infra.trace import Trace
 
 
@@ -86,7 +85,7 @@ def test_revisit_bridges_align_a_key_frame_far_in_time_from_every_aligned_one(re
                              trace, thumbs)
         return al, used, trace
 
-    conf = PipelineConfig.merged(bridge_max_gap_s=3.0, bridge_frames=12)
+    conf = AlignConf.merged(bridge_max_gap_s=3.0, bridge_frames=12, min_inliers=AlignConf.keyframe_min_inliers)
     al, used, trace = run(conf, [(20, 192)])
     assert al.unaligned == [] and 192 in al.poses
     assert any(abs(f.index - 179) <= 3 for f in used)                    # the revisit of frame 20's place
@@ -99,7 +98,7 @@ def test_revisit_bridges_align_a_key_frame_far_in_time_from_every_aligned_one(re
 
     # off: the key frame stays unaligned, nothing is loaded
     pp.loaded.clear()
-    al, used, _ = run(PipelineConfig.merged(bridge_max_gap_s=3.0, bridge_frames=12, revisit_tries=0), [(20, 192)])
+    al, used, _ = run(conf.merged(conf, revisit_tries=0), [(20, 192)])
     assert al.unaligned == [192] and used == [] and pp.loaded == []
 
     # a key frame with an aligned key frame within `bridge_max_gap_s` is the time chains' (which failed here):

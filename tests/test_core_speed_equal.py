@@ -10,7 +10,7 @@ import pytest
 
 from mosaicthinker.runtime import geometry as G
 from mosaicthinker.runtime.map import model as sm
-from mosaicthinker.runtime.align.recover import AlignConf, align_frames
+from mosaicthinker.runtime.align import AlignConf, align_frames
 from mosaicthinker.runtime.frames import open_source
 from test_alignment import _emb, _OracleMatcher, _synthetic
 from test_fusion import box, lift_all, views
@@ -213,7 +213,7 @@ def test_lazy_verification_fewer_pairs_same_poses():
 
 def test_essential_tree_edges_refined_others_not(monkeypatch):
     """Essential edges: every candidate is verified (ranking, scale graph), only the tree's edges are refined."""
-    from mosaicthinker.runtime.align import recover as al
+    from mosaicthinker.runtime.align import essential as al
 
     frames, scene, _ = _synthetic(6)
     refined = []

@@ -96,30 +96,31 @@ def test_legs_seen_under_the_box_extend_it():
 
 
 def test_attach_retries_pairs_that_failed_inside_boxes(redkitchen):
-    from mosaicthinker.runtime.align.recover import AlignmentResult, PairResult, attach_frames
+    from mosaicthinker.runtime.align import AlignmentResult, PairResult, attach_frames
     from mosaicthinker.runtime.frames import open_source
+    from mosaicthinker.runtime.align import AlignConf
     from mosaicthinker.runtime.align.matching import make_matcher
-    from mosaicthinker.runtime.pipeline import PipelineConfig
 
+    conf = AlignConf.merged(min_inliers=AlignConf.keyframe_min_inliers)  # as inside `align_keyframes`
     src = open_source(redkitchen)
     frames = {i: src[i] for i in (50, 55)}
     failed = PairResult(np.eye(4), False, 3, 0, 0, float("nan"), 0.0, "only 0 matches with valid depth (need 12)")
     al = AlignmentResult({50: np.eye(4)}, 50, [], [55], "mst", edge_stats={(50, 55): failed})
-    assert attach_frames(al, frames, [55], make_matcher("sift"), PipelineConfig()) == [55]
+    assert attach_frames(al, frames, [55], make_matcher("sift"), conf) == [55]
     assert al.unaligned == [] and (50, 55) in al.edges and al.edge_stats[(50, 55)].ok
     # a pair already tried with whole images is not tried again
     al2 = AlignmentResult({50: np.eye(4)}, 50, [], [55], "mst", whole_tried={frozenset((50, 55))})
-    assert attach_frames(al2, frames, [55], make_matcher("sift"), PipelineConfig()) == []
+    assert attach_frames(al2, frames, [55], make_matcher("sift"), conf) == []
 
 
 def test_bridging_skips_key_frames_behind_a_gap_a_chain_did_not_cross(redkitchen):
     """`bridge_attach`: the chain from frame 0 towards key frame 48 gets stuck in the gap (no edge passes), so the
     key frame 60 behind it on the same side is not chained to (it would cross the same frames): the budget
     goes only to the first chain, and the skip is recorded."""
-    from mosaicthinker.runtime.align.recover import AlignmentResult, bridge_attach
+    from mosaicthinker.runtime.align import AlignmentResult, bridge_attach
     from mosaicthinker.runtime.frames import open_source
+    from mosaicthinker.runtime.align import AlignConf
     from mosaicthinker.runtime.align.matching import make_matcher
-    from mosaicthinker.runtime.pipeline import PipelineConfig
     from mosaicthinker.runtime.infra.trace import Trace
 
     class NoMatches:
@@ -137,7 +138,7 @@ def test_bridging_skips_key_frames_behind_a_gap_a_chain_did_not_cross(redkitchen
         return f
 
     trace = Trace()
-    conf = PipelineConfig.merged(bridge_gap_s=0.4)
+    conf = AlignConf.merged(bridge_gap_s=0.4, min_inliers=AlignConf.keyframe_min_inliers)
     used = bridge_attach(al, [src[0], src[48], src[60]], src, make_matcher(NoMatches()), with_depth, conf, trace)
     assert used == [] and al.unaligned == [48, 60]
     assert loaded == [24, 12, 6, 18, 30, 36, 42]  # the chain to 48 only (test_layout's schedule)

@@ -23,7 +23,7 @@ class NoMatches:
 
 
 def test_chain_jumps_halve_then_walk():
-    from mosaicthinker.runtime.align.recover import chain_jumps
+    from mosaicthinker.runtime.align import chain_jumps
 
     # halfway first, halving down to bridge_gap_s, then walking at 2, 3, ... x bridge_gap_s: a finite schedule
     assert chain_jumps(4.0, 0.5) == [2.0, 1.0, 0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 3.5]
@@ -32,10 +32,10 @@ def test_chain_jumps_halve_then_walk():
 
 
 def _chain(redkitchen, budget, gap_s=0.4, u=48):
-    from mosaicthinker.runtime.align.recover import AlignmentResult, bridge_chain
+    from mosaicthinker.runtime.align import AlignmentResult, bridge_chain
     from mosaicthinker.runtime.frames import open_source
     from mosaicthinker.runtime.align.matching import make_matcher
-    from mosaicthinker.runtime.pipeline import PipelineConfig
+    from mosaicthinker.runtime.align import AlignConf
 
     src = open_source(redkitchen)
     al = AlignmentResult({0: np.eye(4)}, 0, [], [u], "mst")
@@ -46,7 +46,7 @@ def _chain(redkitchen, budget, gap_s=0.4, u=48):
         loaded.append(f.index)
         return f  # sensor depth: the frame as it comes
 
-    conf = PipelineConfig.merged(bridge_gap_s=gap_s)
+    conf = AlignConf.merged(bridge_gap_s=gap_s)
     left, used = bridge_chain(al, pool, 0, u, src, make_matcher(NoMatches()), with_depth, conf, budget)
     return src, al, loaded, left, used
 
@@ -88,7 +88,7 @@ def test_matcher_protocol_and_make_matcher():
 
 
 def test_rejected_edges_is_a_declared_field():
-    from mosaicthinker.runtime.align.recover import AlignmentResult
+    from mosaicthinker.runtime.align import AlignmentResult
 
     assert "rejected_edges" in {f.name for f in dataclasses.fields(AlignmentResult)}
     assert AlignmentResult({}, 0, [], [], "mst").rejected_edges == []
@@ -96,16 +96,18 @@ def test_rejected_edges_is_a_declared_field():
 
 def test_pipeline_stage_configs_are_typed_and_merge_over_the_pipeline_defaults():
     from mosaicthinker.runtime import InputError, PipelineConfig
-    from mosaicthinker.runtime.align.recover import AlignConf
+    from mosaicthinker.runtime.align import AlignConf
     from mosaicthinker.runtime.align.matching import FeatureMatcher, MatchConf
 
     c = PipelineConfig()
-    assert isinstance(c.alignment, AlignConf) and c.alignment.min_inliers == 12  # depth-checked edges: 12
-    assert AlignConf().min_inliers == 20  # alignment on its own (no depth check afterwards)
+    # one owner: alignment on its own needs 20 inliers, the key frames' tree 12 (the depth check verifies it)
+    assert isinstance(c.alignment, AlignConf) and c.alignment == AlignConf()
+    assert (AlignConf().min_inliers, AlignConf().keyframe_min_inliers) == (20, 12)
     assert isinstance(c.match, MatchConf) and c.match.ratio is None  # the ratio is chosen per method later
     assert FeatureMatcher("orb", c.match).conf.ratio == 0.8 and FeatureMatcher("sift", c.match).conf.ratio == 0.9
-    c2 = PipelineConfig.merged({"alignment": {"iterations": 500}, "fusion": {"max_depth_m": 6.0}})
-    assert c2.alignment.iterations == 500 and c2.alignment.min_inliers == 12 and c2.fusion.max_depth_m == 6.0
+    c2 = PipelineConfig.merged({"alignment": {"ransac_iterations": 500}, "fusion": {"max_depth_m": 6.0}})
+    assert c2.alignment.ransac_iterations == 500 and c2.alignment.keyframe_min_inliers == 12
+    assert c2.fusion.max_depth_m == 6.0
     with pytest.raises(InputError, match="min_inlierz"):
         PipelineConfig.merged({"alignment": {"min_inlierz": 3}})
 
@@ -141,10 +143,10 @@ def test_no_semantic_map_prompt_import_circle():
 
 def test_pipeline_imports_its_stages_at_module_level_in_the_papers_order():
     tree = ast.parse((REPO / "runtime" / "pipeline.py").read_text())
-    top = [n.module for n in tree.body if isinstance(n, ast.ImportFrom) and n.level == 1 and n.module]
-    stages = [m for m in top if m in ("grounding", "scan", "keyframes", "align.recover", "map.model", "answer")]
-    order = list(dict.fromkeys(stages))
-    assert order == ["grounding", "scan", "keyframes", "align.recover", "map.model", "answer"]
+    top = [n.module.split(".")[0] for n in tree.body if isinstance(n, ast.ImportFrom) and n.level == 1 and n.module]
+    paper = ["scan", "grounding", "keyframes", "perceive", "align", "map", "prompt", "answer"]
+    order = list(dict.fromkeys(m for m in top if m in paper))
+    assert order == sorted(order, key=paper.index) and {"scan", "keyframes", "align", "map", "answer"} <= set(order)
     # no geometry of its own: back-projection and transforms live in the stage modules
     assert "geometry" not in top
 
@@ -171,13 +173,3 @@ def test_readme_public_api_imports():
 
     for name in r.__all__:
         assert getattr(r, name) is not None
-
-
-def test_moved_names_still_import_from_the_pipeline():
-    from mosaicthinker.runtime import pipeline
-    from mosaicthinker.runtime.align import recover as alignment
-    from mosaicthinker.runtime.map import model as semantic_map
-
-    assert pipeline.verify_tree is alignment.verify_tree and pipeline.depth_consistency is alignment.depth_consistency
-    assert pipeline.refine is semantic_map.refine and pipeline.floor_support is semantic_map.floor_support
-    assert pipeline._hull_candidates is semantic_map.hull_candidates

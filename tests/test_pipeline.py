@@ -99,10 +99,9 @@ def test_ask_answers_a_generated_question_from_the_video(scene):
 
 
 def test_depth_check_detaches_a_wrong_pose_on_7scenes(redkitchen):
-    from mosaicthinker.runtime.align.recover import AlignmentResult
+    from mosaicthinker.runtime.align import AlignConf, AlignmentResult, depth_consistency, verify_tree
     from mosaicthinker.runtime.frames import open_source
     from mosaicthinker.runtime.geometry import invert
-    from mosaicthinker.runtime.pipeline import PipelineConfig, depth_consistency, verify_tree
     from mosaicthinker.runtime.infra.trace import Trace
 
     src = open_source(redkitchen)
@@ -116,10 +115,10 @@ def test_depth_check_detaches_a_wrong_pose_on_7scenes(redkitchen):
     bad[10][:3, 3] += [0.0, 0.0, -0.8]  # 80 cm wrong along the view direction
     al = AlignmentResult(bad, 0, [(0, 5), (5, 10)], [], "mst")
     t = Trace()
-    al2 = verify_tree(al, fr, PipelineConfig(), t)
+    al2 = verify_tree(al, fr, AlignConf(), t)
     assert 10 not in al2.poses and 10 in al2.unaligned and 5 in al2.poses
     assert any("depth check rejected" in e["message"] for e in t.events)
-    al3 = verify_tree(AlignmentResult(dict(poses), 0, [(0, 5), (5, 10)], [], "mst"), fr, PipelineConfig(), Trace())
+    al3 = verify_tree(AlignmentResult(dict(poses), 0, [(0, 5), (5, 10)], [], "mst"), fr, AlignConf(), Trace())
     assert sorted(al3.poses) == [0, 5, 10]
 
 
@@ -168,7 +167,7 @@ def test_room_hull_prefilter_keeps_the_hull():
     """`_hull_candidates` (Akl-Toussaint) only drops points that cannot be hull vertices: same hull, also with
     duplicates and collinear points."""
     from mosaicthinker.runtime.geometry import convex_hull_2d
-    from mosaicthinker.runtime.pipeline import _hull_candidates
+    from mosaicthinker.runtime.map.model import hull_candidates as _hull_candidates
 
     g = np.random.default_rng(3)
     for P in (g.normal(size=(5000, 2)) * 3, np.round(g.uniform(-5, 5, (5000, 2)), 1),
@@ -288,7 +287,7 @@ def test_coverage_reserve_only_for_many_names():
 
 def test_floor_support_sees_legs_not_open_space():
     from mosaicthinker.runtime.geometry import OrientedBox
-    from mosaicthinker.runtime.pipeline import floor_support
+    from mosaicthinker.runtime.map.model import floor_support
 
     top = OrientedBox(np.array([0.0, 0.0, 0.75]), np.array([1.2, 0.8, 0.06]), np.eye(3))
     z = np.linspace(0.03, 0.71, 60)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mosaicthinker.runtime.align.recover import AlignConf, align_pair_essential, refine_essential
+from mosaicthinker.runtime.align import AlignConf, align_pair_essential, refine_essential
 from mosaicthinker.runtime.scan import (DedupConf, OnlineDedup, orb_features, orb_track, remove_redundant,
                                           small_gray)
 from mosaicthinker.runtime.infra.errors import InputError

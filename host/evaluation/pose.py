@@ -113,7 +113,7 @@ def evaluate_pose(source: Any, indices: Sequence[int], matcher: Any = "sift", st
     """Align frames `indices` of a source with ground-truth poses and score them. matcher: 'orb' | 'sift' |
     matcher object (a shared FeatureMatcher keeps its feature cache across calls); depth_model: None (sensor
     depth) or an adapter with .predict(rgb) and .semantics."""
-    from mosaicthinker.runtime.align.recover import align_frames
+    from mosaicthinker.runtime.align import align_frames
 
     frames = []
     with_scale = False

@@ -1,0 +1,73 @@
+"""The alignment stage's settings: pairwise edges, the spanning tree, the depth check and recovery (one owner).
+Why each default is what it is (the measurements): docs/settings.md."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import ClassVar
+
+from ..infra.config import StageConf
+from ..infra.errors import InputError
+
+
+@dataclass
+class AlignConf(StageConf):
+    """Defaults of the alignment stage (`AlignConf.merged(overrides)`, see config.StageConf)."""
+
+    conf_name: ClassVar[str] = "alignment config"
+
+    # --- pairwise RGB-D edges (`pairwise.align_pair`)
+    threshold_m: float = 0.05          # RANSAC inlier distance for metric depth (m)
+    threshold_rel: float = 0.025       # ... for relative depth: fraction of the median depth
+    refine_m: float = 0.02             # final least-squares refit on matches this close (m; 0 = off)
+    ransac_iterations: int = 1000
+    max_matches: int = 400             # matches with valid depth kept per pair, best scores first (0 = all)
+    min_inliers: int = 20              # an edge with fewer inliers fails (alignment on its own: `align_frames`)
+    keyframe_min_inliers: int = 12     # ... in `align_keyframes`, whose tree edges the depth check then verifies
+    min_inlier_ratio: float = 0.15     # inliers / matches with depth below this = failed edge (random matches)
+    max_match_depth_m: float = 10.0    # matches on depth beyond this are ignored (sensor noise)
+    edge_radius: int = 3               # a match's depth must be smooth in a (2r+1)^2 window (0 = off) ...
+    edge_rel: float = 0.05             # ... i.e. max - min depth there below this fraction of its depth
+    icp: bool = False                  # point-to-plane ICP on metric edges (off: it did not lower ATE)
+    icp_iterations: int = 10
+    icp_stride: int = 4
+    icp_max_change: tuple[float, float] = (0.10, 5.0)  # (m, deg) larger ICP corrections are rejected
+    icp_min_overlap: float = 0.2       # fraction of b's points paired in a, below = ICP rejected
+    ransac_seed: int = 0               # each pair draws from its own stream (seed, frame a, frame b)
+    threads: int = 0                   # pairs verified concurrently (0 = CPU count capped at 4); same results
+    # --- essential-matrix edges (`essential`), "auto": essential on relative depth, else rgbd
+    edge: str = "auto"
+    essential_px: float | None = None  # Sampson threshold (px); None = the matcher's `keypoint_px` or 1.0
+    essential_method: str = "magsac"   # "magsac" | "accurate" | "ransac" | "magsac-prosac" (OpenCV estimators)
+    essential_matches: int = 800       # matches kept for the essential matrix, best scores first (0 = all)
+    essential_refine: bool = True      # Sampson-error least squares (Huber) on the inliers
+    min_parallax_deg: float = 1.0      # triangulated points with a smaller ray angle do not vote on the scale
+    min_scale_points: int = 8          # fewer voting points = failed edge
+    scale_mode: str = "graph"          # "chain" | "graph" (scales solved over all verified edges) | "shared"
+    # --- the spanning tree (`tree`)
+    hsv_bins: tuple[int, int, int] = (16, 8, 4)  # colour histograms of the frame similarity
+    verify_top: int = 4                # each frame's top-k similar frames are verified; the tree prefers inliers
+    verify_neighbours: int | None = None   # ... plus n time neighbours; None = 1 for essential or narrow rgbd
+    verify_top_first: int | None = None    # first round's top-k, widened while a frame stays unconnected;
+                                           # None = 2 for rgbd edges, `verify_top` for essential ones
+    verify_rank: str = "inliers"       # "inliers": verify every candidate; "matches": rank by matches, lazy
+    max_attempts: int | None = None    # cap on pairwise alignments Kruskal tries (None = as many as needed)
+    # --- the depth check and recovery of the key frames the tree left out (`verify`, `recover`, `stage`)
+    verify_depth: bool = True          # metric depth: tree edges whose depth maps contradict each other are cut
+    max_free_space_violation: float = 0.02  # share of a frame's points seen in front of the other's surfaces
+    whole_image_fallback: bool = True  # key frames unaligned with matches inside boxes: retry on whole images
+    relative_box_matching: bool = False    # relative depth: match inside the boxes in the first tree too
+    attach_tries: int = 4              # metric depth: each tries its this many nearest aligned frames in time
+    bridge_frames: int = 48            # at most this many extra frames to connect unaligned key frames (0 = off)
+    bridge_gap_s: float = 0.25         # bridge frames are placed at least this far apart in time
+    bridge_rounds: int = 2             # bridge, check, bridge again around edges the check rejected
+    bridge_max_gap_s: float = 10.0     # ... only across gaps up to this long (long chains drift)
+    revisit_tries: int = 4             # metric depth, out of every chain's reach: (near, far) pairs alike by
+                                       # thumbnail tried per key frame (a place the video shows twice; 0 = off)
+
+    def validate(self) -> None:
+        if self.bridge_frames < 0 or self.revisit_tries < 0:
+            raise InputError("alignment config: bridge_frames and revisit_tries must be >= 0")
+        if self.attach_tries < 1:
+            raise InputError(f"alignment config: attach_tries must be >= 1 (got {self.attach_tries})")
+        if not 0 <= self.max_free_space_violation <= 1:
+            raise InputError("alignment config: max_free_space_violation must be in [0, 1]")
