@@ -98,7 +98,7 @@ def lift_seconds(frames: list, dets: dict[int, Any]) -> tuple[float, float, dict
     """Perception's per-key-frame lifting (`pipeline._lift`: masks + depth -> camera-frame clouds, no pose, run
     as each key frame is perceived): (wall s, CPU s, the observations per frame). Reported, not in the core."""
     from mosaicthinker.runtime.pipeline import _lift
-    from mosaicthinker.runtime.map.model import FusionConfig
+    from mosaicthinker.runtime.map import FusionConfig
 
     fconf = FusionConfig()
     t0, c0 = time.perf_counter(), time.process_time()
@@ -111,7 +111,7 @@ def fusion_seconds(frames: list, dets: dict[int, Any], poses: dict[int, np.ndarr
     """The pipeline's fusion stage over the aligned frames (place perception's clouds + fuse): (wall s, CPU s,
     instances as [name, centre, size])."""
     from mosaicthinker.runtime.pipeline import fuse_frames
-    from mosaicthinker.runtime.map.model import FusionConfig
+    from mosaicthinker.runtime.map import FusionConfig
 
     fconf = FusionConfig()
     t0, c0 = time.perf_counter(), time.process_time()

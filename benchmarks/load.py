@@ -47,7 +47,7 @@ SINGLES = ("refrigerator", "door", "oven", "toaster")  # one each: unique answer
 
 def make_map(path: Path, n: int) -> Path:
     from mosaicthinker.runtime.geometry import OrientedBox
-    from mosaicthinker.runtime.map.model import ObjectInstance, SemanticMap
+    from mosaicthinker.runtime.map import ObjectInstance, SemanticMap
 
     rng = np.random.default_rng(0)
     inst = []

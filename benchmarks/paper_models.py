@@ -293,7 +293,7 @@ def _rss_mb() -> float:
 def _paper_map(n: int = 14):
     """A fixed 14-object map (the prompt's real length; not dataset data)."""
     from mosaicthinker.runtime.geometry import OrientedBox, rotation_about
-    from mosaicthinker.runtime.map.model import ObjectInstance, SemanticMap
+    from mosaicthinker.runtime.map import ObjectInstance, SemanticMap
 
     rng = np.random.default_rng(3)
     names = ["sofa", "table", "chair", "tv", "lamp", "bed", "sink", "fridge", "door", "window", "plant", "shelf",

@@ -24,22 +24,18 @@ import numpy as np
 from .infra.config import StageConf
 from .infra.errors import InputError, MosaicError
 from .frames import Frame, FrameSource
-from .types import Detections
+from .types import Detections, Observation
 from .infra.progress import phase, start, ticking
 from .infra.trace import Trace, as_trace
 # the stages, in the paper's order
 from .scan import DedupConf, DedupResult, remove_redundant
 from .grounding import ParsedQuestion, ground
 from .keyframes import KeyFrameConf, scored_budget, select_keyframes, uniform_keyframes
-from .align.matching import MatchConf, make_matcher
-from .align import AlignConf, align_keyframes
-from .geometry import worker_threads
-from .map.model import (FusionConfig, ObjectInstance, Observation, SemanticMap, box_depth_mask,
-                           extend_to_floor, first_seen_from_detections, fuse_observations, gravity_from_frames,
-                           lift_camera, place, refine, room_extent)
+from .align import AlignConf, MatchConf, align_keyframes, make_matcher
+from .map import (FusionConfig, ObjectInstance, SemanticMap, box_depth_mask, extend_to_floor,
+                  first_seen_from_detections, fuse_frames, gravity_from_frames, lift_detections, refine, room_extent)
 from . import prompt as vprompt
 from .answer import MapReasoner, answer_question, answer_with_vlm, cannot_detect
-# moved to their stage modules; importable from here as before
 
 DetectFn = Callable[[Frame, list[str]], Detections]
 SegmentFn = Callable[[Frame, Detections], np.ndarray]          # -> masks [N, H, W] bool
@@ -396,12 +392,6 @@ def _with_depth(conf: PipelineConfig, perception: Perception, trace: Trace) -> C
     return lambda f: dataclasses.replace(f, depth=_depth_for(f, conf, perception, trace))
 
 
-def _lift(f: Frame, d: Detections, fconf: FusionConfig) -> list[Observation]:
-    """A key frame's detections as camera-frame point clouds (`semantic_map.lift_camera`)."""
-    return lift_camera(f.rgb.shape[:2], f.depth, f.K, d.boxes, d.names, d.scores, d.masks, f.index, f.t, fconf,
-                       d.instance_ids)
-
-
 def _perceive(source: FrameSource, chosen: list[int], det: _CachedDetector, names: list[str],
               perception: Perception, conf: PipelineConfig, fconf: FusionConfig, trace: Trace, budget: Any
               ) -> tuple[list[Frame], dict[int, Detections], dict[int, list[Observation]]]:
@@ -427,7 +417,7 @@ def _perceive(source: FrameSource, chosen: list[int], det: _CachedDetector, name
                                                                 conf.box_prompt_min_share))
             dets[i] = d
             frames.append(f)
-            lifting[i] = lifter.submit(_lift, f, d, fconf)
+            lifting[i] = lifter.submit(lift_detections, f, d, fconf)
             bar.update()
         lifted = {i: fut.result() for i, fut in lifting.items()}
     bar.done()
@@ -493,28 +483,6 @@ def _gravity(frames: list[Frame], poses_root: dict[int, np.ndarray], source: Fra
         if down is None and conf.gravity == "source":
             raise InputError("gravity=source but the source gives no gravity direction")
     return gravity_from_frames(frames, poses_root, down, conf.camera_height_m, conf.floor_fit_max_depth_m, trace)
-
-
-def fuse_frames(frames: list[Frame], dets: dict[int, Detections], poses: dict[int, np.ndarray], fconf: FusionConfig,
-                trace: Trace | None = None, lifted: dict[int, list[Observation]] | None = None
-                ) -> tuple[list[Observation], list[ObjectInstance], list[np.ndarray]]:
-    """Place every posed key frame's camera-frame observations in the world (`lifted`: perception's; a frame
-    without them is lifted here) and fuse them into instances."""
-    obs: list[Observation] = []
-    lifted = lifted or {}
-
-    def lift(f: Frame) -> list[Observation]:
-        return place(lifted[f.index] if f.index in lifted else _lift(f, dets[f.index], fconf), poses[f.index])
-
-    posed = [f for f in frames if f.index in poses]
-    threads = 1 if all(f.index in lifted for f in posed) else worker_threads()  # placing is a matrix product
-    with phase("fusion", len(frames), "key frame") as bar, ThreadPoolExecutor(threads) as ex:
-        for got in ex.map(lift, posed):  # frames lift independently; in order
-            obs += got
-            bar.update()
-        instances, clouds = fuse_observations(obs, fconf, trace)
-        bar.note(instances=len(instances))
-    return obs, instances, clouds
 
 
 def _refine(instances: list[ObjectInstance], clouds: list[np.ndarray], obs: list[Observation],

@@ -64,3 +64,18 @@ class Detections:
         return Detections(self.boxes[idx], self.scores[idx], [self.names[i] for i in idx],
                           None if self.masks is None else self.masks[idx],
                           None if self.instance_ids is None else self.instance_ids[idx], list(self.undetectable))
+
+
+@dataclass
+class Observation:
+    """One detection lifted to 3D. points: [N, 3] world (m); frame: key-frame index; t: seconds;
+    instance_hint: id from an oracle (evaluation only) or None."""
+
+    name: str
+    score: float
+    frame: int
+    t: float
+    points: np.ndarray
+    box2d: np.ndarray
+    instance_hint: int | None = None
+    recovered: bool = False  # a view occlusion refinement re-prompted for one instance (not a detection)

@@ -7,7 +7,7 @@ import pytest
 from mosaicthinker.runtime.answer import (Answer, MapReasoner, direction_label, signed_angle_deg, turn_label)
 from mosaicthinker.runtime.geometry import OrientedBox, rotation_about
 from mosaicthinker.runtime.grounding import (QTYPES, VOCABULARY, canonical_name, parse_question, split_options)
-from mosaicthinker.runtime.map.model import ObjectInstance, Room, SemanticMap
+from mosaicthinker.runtime.map import ObjectInstance, Room, SemanticMap
 
 
 def box(c, size=(0.5, 0.5, 0.5), yaw_deg=0.0) -> OrientedBox:

@@ -6,7 +6,7 @@ import numpy as np
 
 from mosaicthinker.runtime import evidence as ev
 from mosaicthinker.runtime.answer import MapReasoner
-from mosaicthinker.runtime.map.model import SemanticMap
+from mosaicthinker.runtime.map import SemanticMap
 from test_grounding_nl import ask
 
 

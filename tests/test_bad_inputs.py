@@ -26,7 +26,7 @@ from mosaicthinker.runtime.cli import main
 from mosaicthinker.runtime.infra.errors import BundleError, InputError
 from mosaicthinker.runtime.frames import open_source
 from mosaicthinker.runtime.geometry import OrientedBox
-from mosaicthinker.runtime.map.model import ObjectInstance, SemanticMap
+from mosaicthinker.runtime.map import ObjectInstance, SemanticMap
 
 REPO = Path(__file__).resolve().parents[1]
 Q_COUNT = "How many chair(s) are in this room?"

@@ -44,7 +44,7 @@ def test_parallel_faces_and_crossing_boxes():
 
 
 def test_a_distance_question_imports_no_scipy(tmp_path):
-    from mosaicthinker.runtime.map.model import ObjectInstance, SemanticMap
+    from mosaicthinker.runtime.map import ObjectInstance, SemanticMap
 
     m = tmp_path / "m.json"
     SemanticMap([ObjectInstance(0, "chair", OrientedBox(np.zeros(3), np.ones(3), np.eye(3))),

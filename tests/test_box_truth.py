@@ -266,7 +266,7 @@ def test_margin_rules_remove_and_count():
 def test_map_reasoner_against_the_box_key_on_benchmark_rooms(vsibench_dir):
     """The reasoner under test, on the exact map of every benchmark room, against this independent key."""
     from mosaicthinker.runtime.answer import MapReasoner
-    from mosaicthinker.runtime.map.model import SemanticMap
+    from mosaicthinker.runtime.map import SemanticMap
 
     meta = json.loads((vsibench_dir / "meta_info.json").read_text())
     per: dict[str, list[bool]] = defaultdict(list)

@@ -85,7 +85,7 @@ def test_mosaic_demo_runs_without_model_files(tmp_path):
 
 def test_inline_options_and_vlm_answerer_needs_a_bundle(tmp_path):
     from mosaicthinker.runtime.commands.ask import split_inline_options
-    from mosaicthinker.runtime.map.model import SemanticMap
+    from mosaicthinker.runtime.map import SemanticMap
 
     q, opts = split_inline_options("Which is closest to the tv? A. sofa B. chair C. door")
     assert q == "Which is closest to the tv?" and opts == ["A. sofa", "B. chair", "C. door"]

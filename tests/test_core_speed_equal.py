@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from mosaicthinker.runtime import geometry as G
-from mosaicthinker.runtime.map import model as sm
+from mosaicthinker.runtime import map as sm
+from mosaicthinker.runtime.map import cluster
 from mosaicthinker.runtime.align import AlignConf, align_frames
 from mosaicthinker.runtime.frames import open_source
 from test_alignment import _emb, _OracleMatcher, _synthetic
@@ -122,16 +123,16 @@ def test_components_cell_lookup_paths_agree(seed, monkeypatch):
     pts[rng.random(800) < 0.3] += [0.5, 0, 0]  # two blobs
     stray = np.r_[pts, [[40.0, 3.0, 1.0]]]
     built = []
-    orig = sm._Cells.index
-    monkeypatch.setattr(sm._Cells, "index", lambda self, n: (orig(self, n), built.append(self.lut is not None)))
+    orig = cluster._Cells.index
+    monkeypatch.setattr(cluster._Cells, "index", lambda self, n: (orig(self, n), built.append(self.lut is not None)))
     for cloud in (pts, stray):
         dense = sm.components(cloud, 0.05)
-        monkeypatch.setattr(sm._Cells, "LUT_PER_POINT", 0)  # every grid searched
+        monkeypatch.setattr(cluster._Cells, "LUT_PER_POINT", 0)  # every grid searched
         searched = sm.components(cloud, 0.05)
-        monkeypatch.setattr(sm._Cells, "LUT_PER_POINT", 64)
+        monkeypatch.setattr(cluster._Cells, "LUT_PER_POINT", 64)
         assert np.array_equal(dense, searched) and np.array_equal(dense, ref_components(cloud, 0.05))
     assert built == [True, False, False, False]  # the compact cloud used the table, the stray one searched
-    monkeypatch.setattr(sm._Cells, "LUT_MAX", 1000)  # a table never exceeds LUT_MAX entries (room-sized clouds)
+    monkeypatch.setattr(cluster._Cells, "LUT_MAX", 1000)  # a table never exceeds LUT_MAX entries (room-sized clouds)
     assert np.array_equal(sm.components(pts, 0.05), ref_components(pts, 0.05)) and built[-1] is False
 
 

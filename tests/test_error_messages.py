@@ -32,7 +32,7 @@ def test_cli_message_maps_only_the_named_fields():
 def test_api_error_names_the_parameter_and_the_cli_the_flag(tmp_path, capsys):
     from mosaicthinker.runtime.answer import answer_question
     from mosaicthinker.runtime.cli import main
-    from mosaicthinker.runtime.map.model import SemanticMap
+    from mosaicthinker.runtime.map import SemanticMap
 
     smap = SemanticMap([], None, [], {})
     with pytest.raises(InputError) as e:

@@ -13,7 +13,8 @@ from mosaicthinker.runtime import evidence
 from mosaicthinker.runtime.answer import MapReasoner
 from mosaicthinker.runtime.commands import ask as ask_cmd
 from mosaicthinker.runtime.geometry import OrientedBox
-from mosaicthinker.runtime.map.model import Observation, SemanticMap, fuse_observations
+from mosaicthinker.runtime.map import SemanticMap, fuse_observations
+from mosaicthinker.runtime.types import Observation
 
 
 def _box_points(c, size, n=600, seed=0) -> np.ndarray:

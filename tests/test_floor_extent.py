@@ -9,7 +9,7 @@ from types import SimpleNamespace
 import numpy as np
 
 from mosaicthinker.runtime.geometry import OrientedBox
-from mosaicthinker.runtime.map.model import ObjectInstance, band_visibility, extend_to_floor
+from mosaicthinker.runtime.map import ObjectInstance, band_visibility, extend_to_floor
 
 H, W = 96, 128
 K = np.array([[100.0, 0, W / 2], [0, 100.0, H / 2], [0, 0, 1]])

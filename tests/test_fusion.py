@@ -10,8 +10,7 @@ from mosaicthinker.runtime.geometry import OrientedBox, intrinsics_from_fov, rot
 from mosaicthinker.runtime.align.matching import Matches
 from mosaicthinker.runtime.types import Detections
 from mosaicthinker.runtime.pipeline import Perception, refine
-from mosaicthinker.runtime.map.model import (FusionConfig, expected_visible, fit_floor_plane, fuse_observations,
-                                                 gravity_world_transform, lift_observations, remove_outliers)
+from mosaicthinker.runtime.map import (FusionConfig, expected_visible, fit_floor_plane, fuse_observations, gravity_world_transform, lift_observations, remove_outliers)
 from mosaicthinker.runtime.infra.trace import Trace
 
 W, H = 320, 240
@@ -136,7 +135,7 @@ def test_outlier_removal_keeps_thin_parts_and_drops_flying_pixels():
     legs = np.concatenate([np.c_[np.full(20, x), np.full(20, y), np.linspace(0, 0.74, 20)]
                            for x in (-0.55, 0.55) for y in (-0.25, 0.25)])
     flying = np.array([[2.0, 2.0, 1.5], [-1.5, 1.0, 0.2], [0.0, -2.0, 2.0]])
-    from mosaicthinker.runtime.map.model import voxel_downsample
+    from mosaicthinker.runtime.map import voxel_downsample
 
     pts = voxel_downsample(np.concatenate([top, legs, flying]), 0.04)
     kept = remove_outliers(pts, 6.0, 0.1, 2)
@@ -183,7 +182,7 @@ def test_gravity_from_floor_fit_on_7scenes_frames(redkitchen):
 def test_expected_visible_projection_behind_and_occluded():
     obj = box([0.0, 0.0, 0.4], [0.6, 0.6, 0.8])
     T = look_at(np.array([0.0, -3.0, 1.2]), [0, 0, 0.4])
-    from mosaicthinker.runtime.map.model import ObjectInstance
+    from mosaicthinker.runtime.map import ObjectInstance
 
     inst = ObjectInstance(0, "chair", obj)
     depth, _ = raycast(T, [obj])

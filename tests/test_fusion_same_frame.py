@@ -5,7 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from mosaicthinker.runtime.map.model import FusionConfig, Observation, fuse_observations, same_frame_redundant
+from mosaicthinker.runtime.map import FusionConfig, fuse_observations, same_frame_redundant
+from mosaicthinker.runtime.types import Observation
 from mosaicthinker.runtime.infra.trace import Trace
 
 

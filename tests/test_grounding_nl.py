@@ -16,7 +16,7 @@ from mosaicthinker.runtime.geometry import OrientedBox
 from mosaicthinker.runtime.grounding import (MAX_QUESTION_CHARS, canonical_name, parse_question, safe_text,
                                              split_inline_options)
 from mosaicthinker.runtime.grounding_nl import direction_words, examples, noun_phrases, tokens
-from mosaicthinker.runtime.map.model import ObjectInstance, SemanticMap
+from mosaicthinker.runtime.map import ObjectInstance, SemanticMap
 
 # name, centre (x, y, z), size (x, y, z): axis-aligned, metres, z up
 ROOM = [("desk", (0.0, 0.0, 0.38), (1.4, 0.7, 0.76)),
@@ -917,7 +917,7 @@ def test_exceptions_are_applied_or_refused():
 def test_room_sides_and_the_room_against_an_area():
     import cv2
 
-    from mosaicthinker.runtime.map.model import room_from_boxes
+    from mosaicthinker.runtime.map import room_from_boxes
 
     smap = room_map()
     poly = room_from_boxes([o.box for o in smap.instances]).polygon

@@ -138,7 +138,7 @@ def test_pipeline_config_rejects_unknown_keys():
         PipelineConfig.merged({"keyframez": 3})
     # the shared StageConf merge: a mapping or an instance, keyword overrides (None = unset), validate()
     from mosaicthinker.runtime.budget import PlanConf
-    from mosaicthinker.runtime.map.model import FusionConfig
+    from mosaicthinker.runtime.map import FusionConfig
 
     c = PipelineConfig.merged({"keyframes": 8}, depth=None, matcher="orb")
     assert (c.keyframes, c.depth, c.matcher) == (8, "auto", "orb") and c.to_dict()["keyframes"] == 8
@@ -167,7 +167,7 @@ def test_room_hull_prefilter_keeps_the_hull():
     """`_hull_candidates` (Akl-Toussaint) only drops points that cannot be hull vertices: same hull, also with
     duplicates and collinear points."""
     from mosaicthinker.runtime.geometry import convex_hull_2d
-    from mosaicthinker.runtime.map.model import hull_candidates as _hull_candidates
+    from mosaicthinker.runtime.map import hull_candidates as _hull_candidates
 
     g = np.random.default_rng(3)
     for P in (g.normal(size=(5000, 2)) * 3, np.round(g.uniform(-5, 5, (5000, 2)), 1),
@@ -287,7 +287,7 @@ def test_coverage_reserve_only_for_many_names():
 
 def test_floor_support_sees_legs_not_open_space():
     from mosaicthinker.runtime.geometry import OrientedBox
-    from mosaicthinker.runtime.map.model import floor_support
+    from mosaicthinker.runtime.map import floor_support
 
     top = OrientedBox(np.array([0.0, 0.0, 0.75]), np.array([1.2, 0.8, 0.06]), np.eye(3))
     z = np.linspace(0.03, 0.71, 60)

@@ -10,7 +10,7 @@ from mosaicthinker.runtime.answer import answer_question, answer_with_vlm, parse
 from mosaicthinker.runtime.geometry import OrientedBox, rotation_about
 from mosaicthinker.runtime.grounding import ground, parse_grounding_reply
 from mosaicthinker.runtime.prompt import distinct_colours, render, text_block, vlm_prompt
-from mosaicthinker.runtime.map.model import ObjectInstance, SemanticMap
+from mosaicthinker.runtime.map import ObjectInstance, SemanticMap
 from mosaicthinker.runtime.infra.trace import Trace
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mosaicthinker.runtime.map.model import box_depth_mask, box_layer, duplicate_names, fit_floor_plane
+from mosaicthinker.runtime.map import box_depth_mask, box_layer, duplicate_names, fit_floor_plane
 
 
 def test_box_mask_takes_the_layer_that_stands_out_not_the_wall_or_the_table_edge():

@@ -12,7 +12,8 @@ from mosaicthinker.host.evaluation.scene import (SceneEvalConfig, iou_3d, load_a
                                                     register_box, score_instances)
 from mosaicthinker.host.evaluation.scene_annotate import floor_height, largest_components, up_transform
 from mosaicthinker.runtime.geometry import OrientedBox, rotation_about
-from mosaicthinker.runtime.map.model import Observation, box_depth_mask, fuse_observations
+from mosaicthinker.runtime.map import box_depth_mask, fuse_observations
+from mosaicthinker.runtime.types import Observation
 
 REPO = Path(__file__).resolve().parents[1]
 ANNOT = REPO / "benchmarks" / "data" / "redkitchen_annotation.json"

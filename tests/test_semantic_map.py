@@ -9,7 +9,7 @@ import pytest
 from mosaicthinker.runtime.infra.errors import InputError
 from mosaicthinker.runtime.geometry import (OrientedBox, box_closest_points, box_distance, convex_hull_2d,
                                             polygon_area, rotation_about)
-from mosaicthinker.runtime.map.model import MAP_SCHEMA, ObjectInstance, Room, SemanticMap, room_from_boxes
+from mosaicthinker.runtime.map import MAP_SCHEMA, ObjectInstance, Room, SemanticMap, room_from_boxes
 
 
 @pytest.fixture(scope="module")

@@ -197,7 +197,7 @@ def test_folder_reads_as_a_frame_source_and_video(scene_dir):
         n += 1
     assert n == len(src)
     # the scene.json is a VSI-Bench meta_info scene
-    from mosaicthinker.runtime.map.model import SemanticMap
+    from mosaicthinker.runtime.map import SemanticMap
     smap = SemanticMap.from_meta_info(meta, "fixture")
     assert smap.counts() == meta["object_counts"]
     for cat, bl in meta["object_bbox"].items():

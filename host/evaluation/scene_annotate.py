@@ -32,8 +32,8 @@ import numpy as np
 
 from mosaicthinker.runtime.infra.errors import InputError
 from mosaicthinker.runtime.geometry import OrientedBox, backproject, fit_gravity_box, project, transform
-from mosaicthinker.runtime.map.model import components as _components
-from mosaicthinker.runtime.map.model import largest_components
+from mosaicthinker.runtime.map import components as _components
+from mosaicthinker.runtime.map import largest_components
 
 ANNOT_SCHEMA = "mosaicthinker.scene_annotation/1"
 
@@ -88,7 +88,7 @@ def floor_height(z: np.ndarray, bin_m: float = 0.02, rel_peak: float = 0.25) -> 
 def fuse_room(data: str | Path, stride: int = 4, voxel_m: float = 0.02) -> FusedRoom:
     """Fuse the sensor depth of all frames of an RGB-D source with its ground-truth poses (see module doc)."""
     from mosaicthinker.runtime.frames import open_source
-    from mosaicthinker.runtime.map.model import voxel_downsample
+    from mosaicthinker.runtime.map import voxel_downsample
 
     src = open_source(data)
     frames = [src[i] for i in range(len(src))]
@@ -107,7 +107,7 @@ def fuse_room(data: str | Path, stride: int = 4, voxel_m: float = 0.02) -> Fused
 
 
 def _floor_fit_down(cloud: np.ndarray, frames: list) -> np.ndarray:
-    from mosaicthinker.runtime.map.model import fit_floor_plane
+    from mosaicthinker.runtime.map import fit_floor_plane
 
     hint = frames[0].pose_gt[:3, 1]  # the first camera's image-down axis
     fit = fit_floor_plane(cloud[:: max(1, len(cloud) // 50000)], hint)

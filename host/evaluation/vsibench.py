@@ -25,7 +25,7 @@ import numpy as np
 from mosaicthinker.runtime.answer import Answer, MapReasoner, NUMERIC_QTYPES
 from mosaicthinker.runtime.infra.errors import InputError
 from mosaicthinker.runtime.infra.progress import ticked
-from mosaicthinker.runtime.map.model import SemanticMap
+from mosaicthinker.runtime.map import SemanticMap
 
 SCHEMA = "mosaicthinker.eval.vsibench/1"
 MRA_THRESHOLDS = tuple(float(t) for t in np.linspace(0.50, 0.95, 10))  # as lmms-eval's vsibench utils

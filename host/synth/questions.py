@@ -24,7 +24,7 @@ import numpy as np
 
 from mosaicthinker.host.evaluation import box_truth
 from mosaicthinker.runtime.geometry import OrientedBox
-from mosaicthinker.runtime.map.model import ObjectInstance, Room, SemanticMap
+from mosaicthinker.runtime.map import ObjectInstance, Room, SemanticMap
 
 Q_ORDER = "What will be the first-time appearance order of the following categories in the video: {cats}?"
 

@@ -1,0 +1,49 @@
+"""The map stage's settings: lifting detections to points and fusing them into instances (one owner)."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import ClassVar
+
+from ..infra.config import StageConf
+from ..infra.errors import InputError
+
+
+@dataclass
+class FusionConfig(StageConf):
+    """Defaults chosen for metric indoor depth; all overridable (`FusionConfig.merged(mapping_or_conf,
+    **overrides)`: unknown keys are an error)."""
+
+    conf_name: ClassVar[str] = "fusion config"
+
+    stride: int = 2               # pixel stride when lifting masks (speed; masks are dense)
+    erode_px: int = 2             # shrink masks so depth edges (object/background) do not bleed in
+    max_depth_m: float = 8.0      # ignore far, noisy depth
+    min_points: int = 25          # an observation with fewer 3D points is dropped
+    max_points: int = 4000        # per observation, random subsample (memory bound)
+    voxel_m: float = 0.04         # instance point clouds are voxel-downsampled at this size
+    merge_radius_m: float = 0.12  # a point "overlaps" an instance if an instance point is this close
+    merge_overlap: float = 0.2    # ... and this share of the observation's points overlaps
+    merge_centre_m: float = 0.6   # or the centres are this close relative to the instance's size (see below)
+    outlier_mad: float = 6.0      # radial outlier removal: keep points within median + k * MAD of the centre
+    outlier_radius_m: float = 0.1  # density outlier removal: >= outlier_neighbors other points within this
+    outlier_neighbors: int = 2
+    component_link_m: float = 0.05  # per observation: keep its largest connected part (0 = off) ...
+    component_share: float = 0.5    # ... and parts with at least this share of its points
+    merge_footprint: bool = True  # after fusion, merge same-name instances whose floor footprints overlap
+    min_instance_points: int = 40
+    duplicate_iou: float = 0.7    # one frame's boxes of two names this alike are one object named twice (0 = off)
+    same_frame_share: float = 0.5  # one frame's same-name box whose points lie on another's: group/duplicate (0 = off)
+    seed: int = 0
+
+    def validate(self) -> None:
+        if self.stride < 1 or self.erode_px < 0 or self.min_points < 1 or self.max_points < self.min_points:
+            raise InputError(f"fusion config: need stride >= 1, erode_px >= 0, 1 <= min_points <= max_points "
+                             f"(got {self.stride}, {self.erode_px}, {self.min_points}, {self.max_points})")
+        for name in ("max_depth_m", "voxel_m", "merge_radius_m", "merge_centre_m", "outlier_mad", "outlier_radius_m"):
+            if getattr(self, name) <= 0:
+                raise InputError(f"fusion config: {name} must be > 0 (got {getattr(self, name)})")
+        if not 0 <= self.merge_overlap <= 1:
+            raise InputError(f"fusion config: merge_overlap must be in [0, 1] (got {self.merge_overlap})")
+
+
+default_fusion_conf = FusionConfig()
