@@ -9,9 +9,9 @@ replayed), on 7-Scenes frames, for both depth kinds the pipeline aligns with:
     python benchmarks/align_core.py [--keyframes 32] [--repeats 5] [--depths sensor,model] [--bundle B]
 
 Fusion input: the bundle's detector (SSD) and segmenter (DeepLab) on each key frame, box-prompted where DeepLab
-leaves a detection empty (the pipeline's `_box_prompted`); timed: `pipeline.fuse_frames` (place every frame's
+leaves a detection empty (`perceive.box_prompted`); timed: `map.fuse_frames` (place every frame's
 camera-frame clouds with its pose + fuse: the pipeline's "fusion" stage; gravity excluded, poses in the root frame).
-The clouds are lifted before, as perception lifts each key frame when it is perceived (`pipeline._lift`): that time
+The clouds are lifted before, as perception lifts each key frame when it is perceived (`map.lift_detections`): that time
 is reported apart (`lift_seconds_median`), not in the core.
 
 Prints and writes benchmarks/results/align_core.json: per depth kind and strategy (mst and sequential) median wall
@@ -82,22 +82,22 @@ def load_perception(bundle: Path, with_model_depth: bool) -> Any:
 
 def detections(frames: list, perception: Any) -> dict[int, Any]:
     """Detector + segmenter once per frame (masks box-prompted where the segmenter leaves them empty)."""
-    from mosaicthinker.runtime.pipeline import PipelineConfig, _box_prompted
-    from mosaicthinker.runtime.infra.trace import Trace
+    from mosaicthinker.runtime.conf import PipelineConfig
+    from mosaicthinker.runtime.perceive import box_prompted
 
     out, share = {}, PipelineConfig().box_prompt_min_share
     for f in frames:
         d = perception.detect(f, NAMES)
         if d.masks is None and perception.segment is not None and len(d):
-            d = dataclasses.replace(d, masks=_box_prompted(perception.segment(f, d), f.depth, d, Trace(), share))
+            d = dataclasses.replace(d, masks=box_prompted(perception.segment(f, d), f.depth, d, share)[0])
         out[f.index] = d
     return out
 
 
 def lift_seconds(frames: list, dets: dict[int, Any]) -> tuple[float, float, dict[int, list]]:
-    """Perception's per-key-frame lifting (`pipeline._lift`: masks + depth -> camera-frame clouds, no pose, run
+    """Perception's per-key-frame lifting (`map.lift_detections`: masks + depth -> camera-frame clouds, no pose, run
     as each key frame is perceived): (wall s, CPU s, the observations per frame). Reported, not in the core."""
-    from mosaicthinker.runtime.pipeline import _lift
+    from mosaicthinker.runtime.map import lift_detections as _lift
     from mosaicthinker.runtime.map import FusionConfig
 
     fconf = FusionConfig()
@@ -110,7 +110,7 @@ def fusion_seconds(frames: list, dets: dict[int, Any], poses: dict[int, np.ndarr
                    ) -> tuple[float, float, list]:
     """The pipeline's fusion stage over the aligned frames (place perception's clouds + fuse): (wall s, CPU s,
     instances as [name, centre, size])."""
-    from mosaicthinker.runtime.pipeline import fuse_frames
+    from mosaicthinker.runtime.map import fuse_frames
     from mosaicthinker.runtime.map import FusionConfig
 
     fconf = FusionConfig()

@@ -336,8 +336,8 @@ def main(argv: list[str] | None = None) -> int:
         if args.search_budget == "default":
             return {}
         if args.search_budget == "paper":  # 25% of the candidates, uncapped
-            return {"max_scored_per_keyframe": None}
-        n = PipelineConfig().min_scored_per_keyframe * k if args.search_budget == "auto" else int(args.search_budget)
+            return {"keyframe": {"max_scored_per_keyframe": None}}
+        n = PipelineConfig().keyframe.min_scored_per_keyframe * k if args.search_budget == "auto" else int(args.search_budget)
         return {"keyframe": {"budget": n}}
 
     def job(src: Path, k: int, on: Path = scene, detector: str = "model") -> dict[str, Any]:

@@ -29,17 +29,17 @@ import importlib
 from typing import Any
 
 _API: dict[str, tuple[str, str]] = {
-    "open_source": ("frames", "open_source"),
-    "Frame": ("frames", "Frame"),
+    "open_source": ("pipeline", "open_frames"),
+    "Frame": ("types", "Frame"),
     "FrameSource": ("frames", "FrameSource"),
     "build_map": ("pipeline", "build_map"),
     "ask": ("pipeline", "ask"),
     "AskResult": ("pipeline", "AskResult"),
     "MapBuild": ("pipeline", "MapBuild"),
-    "Perception": ("pipeline", "Perception"),
-    "PipelineConfig": ("pipeline", "PipelineConfig"),
-    "perception_from_bundle": ("pipeline", "perception_from_bundle"),
-    "load_vlm": ("pipeline", "load_vlm"),
+    "Perception": ("perceive", "Perception"),
+    "PipelineConfig": ("conf", "PipelineConfig"),
+    "perception_from_bundle": ("perceive", "perception_from_bundle"),
+    "load_vlm": ("perceive", "load_vlm"),
     "SemanticMap": ("map.model", "SemanticMap"),
     "ObjectInstance": ("map.model", "ObjectInstance"),
     "MapReasoner": ("answer", "MapReasoner"),

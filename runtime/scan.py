@@ -1,4 +1,6 @@
-"""Redundant-frame removal (paper: Preprocessing).
+"""The scan stage (paper: preprocessing): redundant-frame removal, returning a `ScanResult` (kept frames, reasons,
+thumbnails, colour histograms, counts) that the key-frame search and bridging read. Run on a source
+(`remove_redundant`), or while a video's opening scan decodes it (`open_scanned`, the frames decoded once).
 
 1. uniform down-sampling to `sample_fps` (or every `stride`-th frame);
 2. ORB keypoint tracking between consecutive KEPT frames: a frame whose keypoints are mostly tracked with a
@@ -17,14 +19,18 @@ Every dropped frame gets a reason. `ssim` reproduces scikit-image's
 from __future__ import annotations
 
 import dataclasses
+import queue
+import threading
 from dataclasses import dataclass, field
-from typing import Any, ClassVar, Mapping
+from typing import Any, Callable, ClassVar, Mapping, Sequence
 
+import cv2
 import numpy as np
 
 from .infra.config import StageConf
 from .infra.errors import InputError
-from .infra.trace import as_trace
+from .frames import FrameObserver, FrameSource, open_source, small_gray
+from .types import Frame
 
 
 # ----------------------------------------------------------------------------- SSIM
@@ -44,8 +50,6 @@ class SsimMoments:
 
 
 def _blur(a: np.ndarray, sigma: float) -> np.ndarray:
-    import cv2
-
     r = _ssim_radius(sigma)
     # BORDER_REFLECT (abc|cba) is scipy's mode='reflect'
     return cv2.GaussianBlur(a, (2 * r + 1, 2 * r + 1), sigma, sigmaY=sigma, borderType=cv2.BORDER_REFLECT)
@@ -133,7 +137,7 @@ class DedupConf(StageConf):
     min_tracked: float = 0.35
     max_motion: float = 0.04
     ssim_threshold: float = 0.80
-    # a small gray copy of each kept frame (`DedupResult.thumbs`): later per-candidate signals (the key-frame
+    # a small gray copy of each kept frame (`ScanResult.thumbs`): later per-candidate signals (the key-frame
     # search's content prior) read it instead of decoding every candidate of the video a second time
     thumb_width: int = 64
     # each kept frame's colour histogram (`keyframes.colour_histogram` with KeyFrameConf's bins and size) when the
@@ -144,10 +148,13 @@ class DedupConf(StageConf):
 
 
 @dataclass
-class DedupResult:
-    """kept: frame indices kept (time order); dropped: {frame index: reason}; counts: how many per stage;
-    scores: {frame index: {"ssim"} (+ "tracked", "motion_px" where SSIM made it a candidate)} for frames that
-    were compared."""
+class ScanResult:
+    """What the scan stage gives the stages after it. kept: frame indices kept (time order, the key-frame search's
+    candidates); dropped: {frame index: reason}; counts: how many per step; scores: {frame index: {"ssim"} (+
+    "tracked", "motion_px" where SSIM made it a candidate)} for frames that were compared; thumbs: small gray copies
+    of the kept frames (the search's content prior, bridging by appearance); histograms: the kept frames' colour
+    histograms made with `hist_params` (bins, size) (the search's kernel widths); decisions: what the pipeline
+    records in the trace (`dedup.*`)."""
 
     kept: list[int]
     dropped: dict[int, str]
@@ -157,27 +164,17 @@ class DedupResult:
     # kept frame -> colour histogram, when the reader gave colour; `hist_params` (bins, size) they were made with
     histograms: dict[int, np.ndarray] = field(default_factory=dict)
     hist_params: tuple[int, int] | None = None
+    decisions: dict[str, Any] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
         return {"kept": self.kept, "dropped": {str(k): v for k, v in self.dropped.items()}, "counts": self.counts,
                 "scores": {str(k): v for k, v in self.scores.items()}}
 
 
-def _small_gray(rgb: np.ndarray, width: int) -> np.ndarray:
-    import cv2
-
-    g = cv2.cvtColor(np.ascontiguousarray(rgb), cv2.COLOR_RGB2GRAY) if rgb.ndim == 3 else rgb
-    if g.shape[1] > width:
-        g = cv2.resize(g, (width, max(1, round(g.shape[0] * width / g.shape[1]))), interpolation=cv2.INTER_AREA)
-    return g
-
-
 def orb_features(g: np.ndarray, n_features: int | None = None, n_levels: int | None = None) -> tuple[Any, Any]:
     """ORB keypoints and descriptors of a gray image [H, W] uint8 (computed once per frame: a kept frame's
     features are reused as the reference of the next comparisons). n_features / n_levels: DedupConf's
     orb_features / orb_levels unless given."""
-    import cv2
-
     n_features = DedupConf.orb_features if n_features is None else n_features
     n_levels = DedupConf.orb_levels if n_levels is None else n_levels
     return cv2.ORB_create(nfeatures=n_features, nlevels=n_levels, fastThreshold=12).detectAndCompute(g, None)
@@ -188,8 +185,6 @@ def orb_track(g0: np.ndarray, g1: np.ndarray, n_features: int | None = None, f0:
     """Track ORB keypoints from gray image g0 to g1 ([H, W] uint8): (fraction of g0's keypoints with a mutual,
     ratio-tested match, median displacement in pixels). (0, inf) when nothing can be tracked. f0/f1: their
     `orb_features` when already computed (else computed with n_features / n_levels)."""
-    import cv2
-
     k0, d0 = f0 if f0 is not None else orb_features(g0, n_features, n_levels)
     k1, d1 = f1 if f1 is not None else orb_features(g1, n_features, n_levels)
     if d0 is None or d1 is None or len(k0) < 8 or len(k1) < 2:
@@ -222,10 +217,11 @@ class OnlineDedup:
     video is decoded once and only the sampled frames are converted, as small gray images.
 
     `wants(t)` says whether the frame at time t is sampled (call it for every frame, in order); `push(index,
-    gray)` gives the sampled frame's small gray image (`small_gray`); `result(n, index_at)` the DedupResult."""
+    gray)` gives the sampled frame's small gray image (`small_gray`); `result(n, index_at)` the ScanResult."""
 
-    def __init__(self, conf: DedupConf | Mapping[str, Any] | None = None):
+    def __init__(self, conf: DedupConf | Mapping[str, Any] | None = None, hist: tuple[int, int] | None = None):
         self.conf = DedupConf.merged(conf)
+        self.hist = hist  # (bins, size) of the kept frames' colour histograms (the key-frame search's); None: none
         self.sampled: list[int] = []    # positions
         self.kept: list[int] = []       # frame indices
         self.dropped: dict[int, str] = {}
@@ -258,8 +254,8 @@ class OnlineDedup:
         if g is None:
             g = small_gray(bgr, self.conf.work_width, bgr=True)
         kept = self._push(index, g)
-        if kept and bgr is not None and self.conf.histograms:
-            self.histograms[index] = bgr_histogram(bgr)
+        if kept and bgr is not None and self.conf.histograms and self.hist is not None:
+            self.histograms[index] = colour_histogram(bgr, *self.hist, bgr=True)
         return kept
 
     def _push(self, index: int, g: np.ndarray) -> bool:
@@ -291,12 +287,12 @@ class OnlineDedup:
 
     def _keep(self, index: int, g: np.ndarray, mom: SsimMoments, feats: Any) -> bool:
         self.kept.append(index)
-        self.thumbs[index] = _small_gray(g, self.conf.thumb_width)
+        self.thumbs[index] = small_gray(g, self.conf.thumb_width)
         self._last = (index, g, mom, feats)
         return True
 
-    def result(self, n: int, index_at: Any) -> DedupResult:
-        """DedupResult over n frames (positions 0..n-1; index_at(position) -> frame index)."""
+    def result(self, n: int, index_at: Any) -> ScanResult:
+        """ScanResult over n frames (positions 0..n-1; index_at(position) -> frame index)."""
         c = self.conf
         why = f"downsampled to {c.sample_fps} fps" if c.sample_fps else f"downsampled (stride {c.stride})"
         sset = set(self.sampled)
@@ -306,8 +302,8 @@ class OnlineDedup:
                 dropped[index_at(p)] = why
         counts = {"input": n, "after_downsampling": len(self.sampled), "downsampled_away": n - len(self.sampled),
                   "candidates": self.n_cand, "near_duplicates": self.n_dup, "kept": len(self.kept)}
-        return DedupResult(list(self.kept), dict(sorted(dropped.items())), counts, dict(self.scores),
-                           dict(self.thumbs), dict(self.histograms), hist_params() if self.histograms else None)
+        return ScanResult(list(self.kept), dict(sorted(dropped.items())), counts, dict(self.scores),
+                           dict(self.thumbs), dict(self.histograms), self.hist if self.histograms else None)
 
 
 class BackgroundDedup:
@@ -317,9 +313,6 @@ class BackgroundDedup:
     caller; an error of the worker is raised by the next `push` or by `finish`."""
 
     def __init__(self, od: OnlineDedup, depth: int = 8):
-        import queue
-        import threading
-
         self.od, self.conf = od, od.conf
         self._q: Any = queue.Queue(maxsize=depth)  # bounded: decoding never runs far ahead (memory)
         self._error: BaseException | None = None
@@ -351,30 +344,7 @@ class BackgroundDedup:
         return self.od
 
 
-def hist_params() -> tuple[int, int]:
-    """(bins, size) of the colour histograms the removal stores: the key-frame search's (`KeyFrameConf`)."""
-    from .keyframes import KeyFrameConf
-
-    return KeyFrameConf.hist_bins, KeyFrameConf.hist_size
-
-
-def bgr_histogram(bgr: np.ndarray) -> np.ndarray:
-    """`keyframes.colour_histogram` of the RGB frame a BGR frame [H, W, 3] uint8 converts to, with `hist_params`."""
-    from .keyframes import colour_histogram
-
-    return colour_histogram(bgr, *hist_params(), bgr=True)
-
-
-def small_gray(rgb: np.ndarray, width: int, bgr: bool = False) -> np.ndarray:
-    """Gray image [h, w] uint8 at most `width` wide (INTER_AREA) of an RGB (or BGR) image [H, W, 3]."""
-    import cv2
-
-    if rgb.ndim == 3:
-        rgb = cv2.cvtColor(np.ascontiguousarray(rgb), cv2.COLOR_BGR2GRAY if bgr else cv2.COLOR_RGB2GRAY)
-    return _small_gray(rgb, width)
-
-
-def _dense_enough(conf: DedupConf, ts: np.ndarray, trace: Any) -> DedupConf:
+def _dense_enough(conf: DedupConf, ts: np.ndarray, decisions: dict[str, Any]) -> DedupConf:
     """`conf`, or (when sampling at `sample_fps` leaves fewer than `min_sampled` of the frames at times `ts`)
     the same config sampling every k-th frame so that at least min(min_sampled, all) are compared."""
     if not conf.sample_fps or len(ts) <= 1:
@@ -385,18 +355,18 @@ def _dense_enough(conf: DedupConf, ts: np.ndarray, trace: Any) -> DedupConf:
     if n_time >= want:
         return conf
     stride = max(1, len(ts) // want)
-    trace.decide("dedup.short_input", {"frames": len(ts), "at_sample_fps": n_time, "stride": stride})
+    decisions["dedup.short_input"] = {"frames": len(ts), "at_sample_fps": n_time, "stride": stride}
     return dataclasses.replace(conf, sample_fps=None, stride=stride)
 
 
-def remove_redundant(source_or_frames: Any, conf: DedupConf | Mapping[str, Any] | None = None,
-                     trace: Any = None) -> DedupResult:
-    """Drop redundant frames of a FrameSource (or a sequence of Frames, with .rgb, .t, .index).
-    Returns DedupResult with the kept frame indices and a reason for every dropped one.
+def remove_redundant(source_or_frames: FrameSource | Sequence[Frame], conf: DedupConf | Mapping[str, Any] | None = None
+                     ) -> ScanResult:
+    """The scan stage: drop redundant frames of a FrameSource (or a sequence of Frames, with .rgb, .t, .index).
+    Returns the ScanResult: the kept frame indices, a reason for every dropped one, the kept frames' thumbnails,
+    and the decisions the pipeline records.
 
-    A source that already ran the same removal while decoding (`online_dedup()`: VideoSource's opening scan,
-    with the same config) gives its result without decoding the video again."""
-    trace = as_trace(trace)
+    A source whose opening scan already ran the same removal while decoding (`open_scanned`) gives its result
+    without decoding the video again."""
     conf = DedupConf.merged(conf)
     src = source_or_frames
     n = len(src)
@@ -404,12 +374,11 @@ def remove_redundant(source_or_frames: Any, conf: DedupConf | Mapping[str, Any] 
         raise InputError("remove_redundant: no frames")
     is_source = hasattr(src, "timestamps")  # a FrameSource (else a plain sequence of Frames)
     ts = np.asarray(src.timestamps if is_source else [f.t for f in src], dtype=np.float64)
-    conf = _dense_enough(conf, ts, trace)
-    online = getattr(src, "online_dedup", None) if is_source else None
-    res = online(conf) if online is not None else None  # None when the scan sampled by another rule
+    decisions: dict[str, Any] = {}
+    conf = _dense_enough(conf, ts, decisions)
+    res = online_result(src, conf) if is_source else None  # None when the scan sampled by another rule
     if res is not None:
-        trace.decide("dedup.online", True)
-        trace.decide("dedup.counts", res.counts)
+        res.decisions = {**decisions, "dedup.online": True, "dedup.counts": res.counts}
         return res
 
     def index_at(p: int) -> int:
@@ -422,10 +391,48 @@ def remove_redundant(source_or_frames: Any, conf: DedupConf | Mapping[str, Any] 
     try:
         for p, t in enumerate(ts):
             if od.wants(float(t)):
-                g = gray(p, conf.work_width) if gray is not None else _small_gray(src[p].rgb, conf.work_width)
+                g = gray(p, conf.work_width) if gray is not None else small_gray(src[p].rgb, conf.work_width)
                 od.push(index_at(p), g)
     finally:
         done = od.finish()
     res = done.result(n, index_at)
-    trace.decide("dedup.counts", res.counts)
+    res.decisions = {**decisions, "dedup.counts": res.counts}
     return res
+
+
+def online_result(source: FrameSource, conf: DedupConf) -> ScanResult | None:
+    """The removal a video's opening scan made while decoding (`open_scanned`), when it ran with `conf`; else
+    None (`remove_redundant` then decodes the sampled frames again)."""
+    od = getattr(source, "observed", None)
+    if not isinstance(od, OnlineDedup) or od.conf != conf:
+        return None
+    return od.result(len(source), source.index_of)
+
+
+def scanner(conf: DedupConf | Mapping[str, Any] | None = None, hist: tuple[int, int] | None = None
+            ) -> Callable[[], FrameObserver]:
+    """An observer factory for a video's opening scan (`frames.VideoSource(observer=...)`): redundant-frame
+    removal with `conf` on a worker thread, keeping colour histograms of `hist` (bins, size)."""
+    return lambda: BackgroundDedup(OnlineDedup(conf, hist))
+
+
+def open_scanned(path: Any, conf: DedupConf | Mapping[str, Any] | None = None, hist: tuple[int, int] | None = None,
+                 **opts: Any) -> FrameSource:
+    """`frames.open_source` with the scan stage running while a video decodes (its frames are then decoded once;
+    `remove_redundant` with the same `conf` takes the result). `opts` go to `open_source`."""
+    return open_source(path, observer=scanner(conf, hist), **opts)
+
+
+def colour_histogram(rgb: np.ndarray, bins: int = 8, size: int = 64, bgr: bool = False) -> np.ndarray:
+    """L1-normalised 3-D RGB histogram [bins**3] float32 of `rgb` [H, W, 3] uint8 (downscaled to `size` wide).
+    `bgr`: the image is BGR (a decoder's), swapped after the downscale, which works per channel: the same
+    figures as the RGB image's, without a full-size RGB copy."""
+    if rgb.ndim != 3 or rgb.shape[2] != 3:
+        raise InputError(f"colour_histogram: expected [H, W, 3] RGB, got shape {rgb.shape}")
+    h, w = rgb.shape[:2]
+    if w > size:
+        rgb = cv2.resize(rgb, (size, max(1, round(h * size / w))), interpolation=cv2.INTER_AREA)
+    if bgr:
+        rgb = rgb[..., ::-1]
+    hist = cv2.calcHist([np.ascontiguousarray(rgb)], [0, 1, 2], None, [bins] * 3, [0, 256] * 3).reshape(-1)
+    return (hist / max(hist.sum(), 1.0)).astype(np.float32)

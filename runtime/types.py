@@ -4,6 +4,7 @@ detection lifted to 3D). No stage imports another for its types."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any, ContextManager, Protocol, Sequence
 
 import numpy as np
 
@@ -79,3 +80,22 @@ class Observation:
     box2d: np.ndarray
     instance_hint: int | None = None
     recovered: bool = False  # a view occlusion refinement re-prompted for one instance (not a detection)
+
+
+class Budget(Protocol):
+    """What the pipeline asks of a device budget (`budget.BudgetController`): the plan's K and scored frames as
+    they stand, stage deadlines (an overrun re-plans the stages after it), the memory guard."""
+
+    keyframes: int
+    scored_frames: int
+    reduced: bool
+    reasons: list[str]
+    budget_ms: float
+
+    def stage(self, name: str) -> ContextManager[Any]: ...
+    def start_stage(self, name: str) -> None: ...
+    def end_stage(self, name: str) -> bool: ...
+    def update_candidates(self, n: int) -> None: ...
+    def allow_keyframes(self, k: int, held: int = 0) -> int: ...
+    def check_headroom(self, mb_needed: float, what: str = "", keep: Sequence[str] = ()) -> bool: ...
+    def remaining_ms(self) -> float: ...

@@ -11,7 +11,8 @@ from mosaicthinker.runtime import geometry as G
 from mosaicthinker.runtime.align import (align_frames, choose_root, compose_tree, maximum_spanning_tree, similarity_matrix)
 from mosaicthinker.runtime.infra.errors import AlignmentError
 from mosaicthinker.host.evaluation.pose import ate_rmse, evaluate_pose, pick_frames, rpe
-from mosaicthinker.runtime.frames import Frame, open_source
+from mosaicthinker.runtime.types import Frame
+from mosaicthinker.runtime.frames import open_source
 from mosaicthinker.runtime.align.matching import Matches, match_features
 
 # ----------------------------------------------------------------------------- spanning tree

@@ -503,7 +503,7 @@ def test_scored_budget_does_not_grow_with_duration():
     assert short.keyframes == long.keyframes == 8
     assert long.candidates == 10 * short.candidates
     assert long.scored_frames == short.scored_frames == 6 * 8
-    free = B.plan(prof, 600, 10, conf={**HAND, "keyframes_max": 8, "max_scored_per_keyframe": None})
+    free = B.plan(prof, 600, 10, conf={**HAND, "keyframes_max": 8, "plan_max_scored_per_keyframe": None})
     assert free.scored_frames == math.ceil(0.25 * free.candidates) > 6 * 8
-    with pytest.raises(InputError, match="max_scored_per_keyframe"):
-        B.plan(prof, 60, 10, conf={**HAND, "max_scored_per_keyframe": 1})
+    with pytest.raises(InputError, match="plan_max_scored_per_keyframe"):
+        B.plan(prof, 60, 10, conf={**HAND, "plan_max_scored_per_keyframe": 1})

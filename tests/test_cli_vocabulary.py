@@ -74,7 +74,7 @@ def test_a_flag_means_the_same_in_every_command():
 
 
 def test_keyframes_default_has_one_owner():
-    K = default_conf.keyframes
+    K = default_conf.keyframe.keyframes
     uses = {n: _visible(p)["--keyframes"] for n, _, p in COMMANDS_BUILT if "--keyframes" in _visible(p)}
     assert {"ask", "map", "demo", "eval e2e", "profile"} <= set(uses)
     for name, a in uses.items():

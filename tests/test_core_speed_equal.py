@@ -31,7 +31,7 @@ def ref_lift(depth, K, T_wc, boxes, names, scores, masks, frame, t, conf):
     """lift_observations as it was: erosion and back-projection over the whole image, reference components."""
     import cv2
 
-    rng = np.random.default_rng(conf.seed + frame)
+    rng = np.random.default_rng(conf.subsample_seed + frame)
     out = []
     d = np.where(depth < conf.max_depth_m, depth, 0).astype(np.float32)
     kernel = np.ones((2 * conf.erode_px + 1,) * 2, np.uint8) if conf.erode_px > 0 else None
@@ -46,7 +46,7 @@ def ref_lift(depth, K, T_wc, boxes, names, scores, masks, frame, t, conf):
                 m = eroded if eroded.sum() >= conf.min_points else m
         else:
             m = sm.box_depth_mask(d, bx).astype(np.uint8)
-        pts, _ = G.backproject(d, K, m.astype(bool), conf.stride)
+        pts, _ = G.backproject(d, K, m.astype(bool), conf.pixel_stride)
         if len(pts) < conf.min_points:
             continue
         if len(pts) > conf.max_points:
@@ -151,8 +151,8 @@ def test_remove_outliers_equals_ball_count(kitchen_masks):
         assert np.array_equal(sm.remove_outliers(pts, 6.0, radius, k), ref)
 
 
-@pytest.mark.parametrize("conf", [sm.FusionConfig(), sm.FusionConfig(stride=3, erode_px=3, max_points=1500),
-                                  sm.FusionConfig(stride=1, erode_px=0), sm.FusionConfig(max_depth_m=2.2)])
+@pytest.mark.parametrize("conf", [sm.FusionConfig(), sm.FusionConfig(pixel_stride=3, erode_px=3, max_points=1500),
+                                  sm.FusionConfig(pixel_stride=1, erode_px=0), sm.FusionConfig(max_depth_m=2.2)])
 def test_lift_observations_equal_reference(kitchen_masks, conf):
     T = G.make_pose(G.rotation_about([0, 0, 1], 0.3), [0.5, -1.0, 1.2])
     n = 0

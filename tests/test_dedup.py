@@ -7,7 +7,8 @@ from skimage.metrics import structural_similarity
 
 from mosaicthinker.runtime.scan import DedupConf, orb_track, remove_redundant, ssim
 from mosaicthinker.runtime.infra.errors import InputError
-from mosaicthinker.runtime.frames import Frame, FrameList, open_source
+from mosaicthinker.runtime.types import Frame
+from mosaicthinker.runtime.frames import FrameList, open_source
 
 
 def _ref(a, b, **kw):
@@ -98,15 +99,13 @@ def test_remove_redundant_downsampling_by_time(redkitchen):
 def test_a_short_input_is_sampled_densely_enough_to_compare(redkitchen):
     """Ten photos in a folder (a nominal 30 fps) or a 1 s clip kept one frame at 3 fps, and the map then failed
     with "only 1 key frame"; below `min_sampled` frames the input is sampled by stride instead."""
-    from mosaicthinker.runtime.infra.trace import Trace
 
     src = open_source(redkitchen)  # 15 fps: 2 s -> 6 frames at 3 fps
     frames = [src[i] for i in range(0, 30)]
-    tr = Trace()
-    res = remove_redundant(FrameList(frames), DedupConf(sample_fps=3.0, min_sampled=16), trace=tr)
-    assert res.counts["after_downsampling"] == 30 and tr.decisions["dedup.short_input"]["at_sample_fps"] == 6
+    res = remove_redundant(FrameList(frames), DedupConf(sample_fps=3.0, min_sampled=16))
+    assert res.counts["after_downsampling"] == 30 and res.decisions["dedup.short_input"]["at_sample_fps"] == 6
     assert len(res.kept) > 6  # the comparisons, not the clock, decide what is redundant
-    long = remove_redundant(src, DedupConf(sample_fps=3.0, min_sampled=16), trace=Trace())
+    long = remove_redundant(src, DedupConf(sample_fps=3.0, min_sampled=16))
     assert long.counts["after_downsampling"] == 50  # 250 frames: the clock's 50 are enough
 
 
@@ -127,10 +126,11 @@ def test_remove_redundant_errors():
 
 
 def test_background_scan_gives_the_serial_result_and_raises_the_workers_error(redkitchen):
-    from mosaicthinker.runtime.scan import BackgroundDedup, OnlineDedup, small_gray
+    from mosaicthinker.runtime.frames import small_gray
+    from mosaicthinker.runtime.scan import BackgroundDedup, OnlineDedup
 
     src = open_source(redkitchen)
-    serial, background = OnlineDedup(), BackgroundDedup(OnlineDedup())
+    serial, background = OnlineDedup(hist=(8, 64)), BackgroundDedup(OnlineDedup(hist=(8, 64)))
     for p, t in enumerate(src.timestamps[:120]):
         want = serial.wants(float(t))
         assert background.wants(float(t)) == want
@@ -261,13 +261,14 @@ def test_without_a_plan_the_search_budget_is_capped_per_key_frame(redkitchen):
 
     assert scored_budget(1795, 16, 0.25, 3, 6.0) == 96 and scored_budget(1795, 16, 0.25, 3, None) == 449
     assert scored_budget(180, 16, 0.25, 3, 6.0) == 48 and scored_budget(10, 4, 0.25, 0, 6.0) == 3
-    assert PipelineConfig().max_scored_per_keyframe == PipelineConfig().min_scored_per_keyframe  # no growth
+    kc = PipelineConfig().keyframe
+    assert kc.max_scored_per_keyframe == kc.min_scored_per_keyframe  # no growth
     src = open_source(redkitchen)
     nothing = lambda frame, names: Detections.empty()  # noqa: E731
     runs = {}
     for cap in (1.5, None):
         t = Trace()
-        conf = PipelineConfig.merged({"max_scored_per_keyframe": cap, "min_scored_per_keyframe": 1})
+        conf = PipelineConfig.merged({"keyframe": {"max_scored_per_keyframe": cap, "min_scored_per_keyframe": 1}})
         _, _, res, cands = select(src, ["chair"], [], Perception(detect=nothing), conf, t, keyframes=4)
         runs[cap] = (res.frames_scored, t.decisions.get("keyframes.budget_capped"), len(cands))
     n = runs[None][2]
@@ -275,4 +276,4 @@ def test_without_a_plan_the_search_budget_is_capped_per_key_frame(redkitchen):
     assert runs[1.5][1] == {"scored": 6, "fraction_would_score": int(np.ceil(0.25 * n)), "max_per_keyframe": 1.5}
     assert runs[None][1] is None
     with pytest.raises(InputError, match="max_scored_per_keyframe"):
-        PipelineConfig.merged({"max_scored_per_keyframe": 2, "min_scored_per_keyframe": 3})
+        PipelineConfig.merged({"keyframe": {"max_scored_per_keyframe": 2, "min_scored_per_keyframe": 3}})

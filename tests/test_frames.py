@@ -149,7 +149,7 @@ def test_video_random_access(tmp_path):
 
 
 def test_frame_list():
-    from mosaicthinker.runtime.frames import Frame
+    from mosaicthinker.runtime.types import Frame
 
     K = np.eye(3)
     fl = FrameList([Frame(_img(i), 0.1 * i, 5 + i, K) for i in range(3)])
@@ -194,7 +194,7 @@ def test_mp4_random_access_equals_sequential(tmp_path):
 def test_scan_decoder_threads_change_no_frame(tmp_path, monkeypatch):
     """VideoSource.scan_decoder_threads sets FFmpeg's decoder threads of the opening scan: a speed setting,
     the same timestamps, frames and online redundant-frame removal whatever its value."""
-    from mosaicthinker.runtime.scan import DedupConf
+    from mosaicthinker.runtime.scan import DedupConf, online_result, open_scanned
 
     p = tmp_path / "clip.mp4"
     if not _write_mp4(p, 60):
@@ -202,10 +202,10 @@ def test_scan_decoder_threads_change_no_frame(tmp_path, monkeypatch):
     runs = []
     for threads in (None, 1, 2):
         monkeypatch.setattr(VideoSource, "scan_decoder_threads", threads)
-        src = open_source(p)
+        src = open_scanned(p)
         if threads:
             assert src._open(threads).get(cv2.CAP_PROP_N_THREADS) == threads  # the backend took the setting
-        runs.append((src.timestamps, src[37].rgb, src.online_dedup(DedupConf()).to_dict()))
+        runs.append((src.timestamps, src[37].rgb, online_result(src, DedupConf()).to_dict()))
     for ts, rgb, dd in runs[1:]:
         assert np.array_equal(ts, runs[0][0]) and np.array_equal(rgb, runs[0][1]) and dd == runs[0][2]
     assert len(runs[0][0]) == 60 and len(runs[0][2]["kept"]) > 5
@@ -215,8 +215,8 @@ def test_the_scan_keeps_the_searchs_colour_histograms_and_the_search_reads_them(
     """A video's opening scan stores each kept frame's colour histogram (`DedupConf.histograms`): exactly the
     search's `colour_histogram` of the frame the source gives, so the search's kernel widths read them instead
     of decoding every scored frame's +-r neighbours: the same key frames, only the scored frames decoded."""
-    from mosaicthinker.runtime.scan import DedupConf
-    from mosaicthinker.runtime.keyframes import colour_histogram
+    from mosaicthinker.runtime.pipeline import open_frames
+    from mosaicthinker.runtime.scan import DedupConf, colour_histogram, online_result
     from mosaicthinker.runtime.types import Detections
     from mosaicthinker.runtime.pipeline import Perception, PipelineConfig, select
     from mosaicthinker.runtime.infra.trace import Trace
@@ -224,7 +224,7 @@ def test_the_scan_keeps_the_searchs_colour_histograms_and_the_search_reads_them(
     p = tmp_path / "clip.mp4"
     if not _write_mp4(p, 150):
         pytest.skip("this OpenCV build cannot write mp4v video")
-    dd = open_source(p).online_dedup(DedupConf())
+    dd = online_result(open_frames(p), DedupConf())  # the pipeline's scan: the search's histograms kept
     assert len(dd.histograms) == len(dd.kept) > 20
     src = open_source(p)
     assert all(np.array_equal(dd.histograms[f], colour_histogram(src.colour(f).rgb)) for f in dd.kept)
@@ -235,7 +235,7 @@ def test_the_scan_keeps_the_searchs_colour_histograms_and_the_search_reads_them(
 
     runs = []
     for conf in ({}, {"dedup": {"histograms": False}}):
-        src = open_source(p)
+        src = open_frames(p)
         read: set[int] = set()
         colour = src.colour
         src.colour = lambda i, _c=colour: (read.add(int(i)), _c(i))[1]
@@ -260,7 +260,7 @@ def test_opening_a_video_is_a_stage_of_its_own(tmp_path):
     t = Trace()
     with progress.session(quiet=False, draw=False, file=io.StringIO()) as s:
         src = open_frames(p, t)
-    assert src.deduped_while_decoding and len(src) == 60 and "open" in t.to_dict()["stages"]
+    assert src.observed is not None and len(src) == 60 and "open" in t.to_dict()["stages"]
     line = [ln for ln in s.lines() if ln.split()[0] == "open"]
     assert line and "60 frames" in line[0] and "removed while decoding" in line[0]
     seen: list[int] = []

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mosaicthinker.runtime.frames import Frame
+from mosaicthinker.runtime.types import Frame
 from mosaicthinker.runtime.geometry import OrientedBox, intrinsics_from_fov, rotation_about, transform
 from mosaicthinker.runtime.align.matching import Matches
 from mosaicthinker.runtime.types import Detections

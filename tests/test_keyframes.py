@@ -7,6 +7,9 @@ import numpy as np
 import pytest
 
 from mosaicthinker.runtime import keyframes as kf
+from mosaicthinker.runtime.infra.config import StageConf
+from mosaicthinker.runtime.keyframes import search as kfs
+from mosaicthinker.runtime.scan import colour_histogram
 from mosaicthinker.runtime.infra.errors import InputError
 from mosaicthinker.runtime.types import Detections
 from mosaicthinker.runtime.infra.trace import Trace
@@ -112,14 +115,14 @@ def test_distribution_after_first_iteration_is_the_kernel_update():
 def test_histogram_similarity_bounds():
     a = np.zeros((16, 16, 3), np.uint8)
     b = np.full((16, 16, 3), 255, np.uint8)
-    ha, hb = kf.colour_histogram(a), kf.colour_histogram(b)
+    ha, hb = colour_histogram(a), colour_histogram(b)
     assert ha.shape == (512,) and ha.sum() == pytest.approx(1.0)
     assert kf.histogram_similarity(ha, ha) == pytest.approx(1.0)
     assert kf.histogram_similarity(ha, hb) == pytest.approx(0.0)
     half = np.concatenate([a[:8], b[:8]])
-    assert kf.histogram_similarity(ha, kf.colour_histogram(half)) == pytest.approx(0.5)
+    assert kf.histogram_similarity(ha, colour_histogram(half)) == pytest.approx(0.5)
     with pytest.raises(InputError):
-        kf.colour_histogram(np.zeros((4, 4), np.uint8))
+        colour_histogram(np.zeros((4, 4), np.uint8))
 
 
 # ------------------------------------------------------------------------------------ search and baselines
@@ -156,7 +159,7 @@ def test_iterative_threshold_topk_and_fewer_than_k():
     det = table_detector(table)
     conf = kf.KeyFrameConf.merged(keyframes=4, budget=60, seed=1)
     tr = Trace()
-    res = kf.iterative_search(range(m), ["tv"], [], det, conf=conf, trace=tr)
+    res = kf.iterative_search(range(m), ["tv"], [], det, conf=conf, log=tr)
     assert res.frames_scored == 60 == len(det.calls) == len(set(res.order))
     assert len(res.chosen) == 4 and set(res.chosen.tolist()) <= set(peaks)
     assert any("kept the top 4" in n for n in res.notes)
@@ -179,7 +182,7 @@ def test_iterative_threshold_topk_and_fewer_than_k():
     # every candidate shows the object with the same score: nothing stands out, fewer than K (zero) returned
     flat = {f: {"tv": 0.8} for f in range(m)}
     tr = Trace()
-    res = kf.iterative_search(range(m), ["tv"], [], table_detector(flat), conf=conf, trace=tr)
+    res = kf.iterative_search(range(m), ["tv"], [], table_detector(flat), conf=conf, log=tr)
     assert len(res.chosen) == 0 and any("fewer than K: 0 of 4" in n for n in res.notes)
     assert any(e["kind"] == "degraded" for e in tr.events)
 
@@ -197,7 +200,7 @@ def test_iterative_is_deterministic_and_validates():
     with pytest.raises(InputError, match="unknown method"):
         kf.select_keyframes("bogus", range(5), ["tv"], [], table_detector(table))
     tr = Trace()
-    res = kf.iterative_search(range(80), [], [], table_detector(table), conf=conf, trace=tr)
+    res = kf.iterative_search(range(80), [], [], table_detector(table), conf=conf, log=tr)
     assert res.method == "uniform" and any(e["kind"] == "fallback" for e in tr.events)
 
 
@@ -280,7 +283,7 @@ def test_min_keyframes_tops_up_from_scored_frames_spread_out():
     table = {f: {"tv": 0.5 + 0.01 * (f % 7)} for f in range(m)}
     conf = kf.KeyFrameConf.merged(keyframes=4, min_keyframes=3, budget=m, threshold=5.0, seed=0)
     tr = Trace()
-    res = kf.iterative_search(range(m), ["tv"], [], table_detector(table), conf=conf, trace=tr)
+    res = kf.iterative_search(range(m), ["tv"], [], table_detector(table), conf=conf, log=tr)
     assert not res.zscores  # no pass at z >= 5
     ranked = sorted(res.scores, key=lambda f: (-res.scores[f], f))
     exp: list[int] = []
@@ -349,7 +352,7 @@ def test_min_keyframes_topup_covers_objects_first():
 
     conf = kf.KeyFrameConf.merged({"keyframes": 2, "budget": m, "threshold": 5.0}, min_keyframes=2, topup_gap=5,
                                   topup_relax=False)
-    assert isinstance(conf, kf.StageConf) and conf.to_dict()["topup_gap"] == 5
+    assert isinstance(conf, StageConf) and conf.to_dict()["topup_gap"] == 5
     res = kf.iterative_search(range(m), ["chair"], ["tv"], detect, conf=conf, image_size=(320, 240))
     # chair's largest view (earliest on ties), then the tv's largest view (40), not the top scores (30 and 40)
     assert res.chosen.tolist() == [0, 40]
@@ -384,7 +387,7 @@ def test_sequential_draw_spreads_a_batch_over_the_gaps():
     """Before anything is scored, a sequential batch of 4 from 100 candidates spreads out (each pick counts as
     explored for the next): its closest pair is on average much farther apart than the paper's iid draw's."""
     def min_gap(draw: str, seed: int) -> int:
-        st = kf._Search(100, kf.KeyFrameConf.merged(draw=draw, novelty=4.0), 1.0)
+        st = kfs._Search(100, kf.KeyFrameConf.merged(draw=draw, novelty=4.0), 1.0)
         picks, _ = st.draw(4, np.random.default_rng(seed))
         assert len(set(picks.tolist())) == 4
         return int(np.diff(np.sort(picks)).min())
@@ -436,7 +439,7 @@ def test_budget_beyond_the_candidates_is_said():
     table = _peaks_table(50, {10: 0.9})
     tr = Trace()
     res = kf.iterative_search(range(50), ["tv"], [], table_detector(table),
-                              conf=kf.KeyFrameConf(keyframes=4, budget=125), trace=tr)
+                              conf=kf.KeyFrameConf(keyframes=4, budget=125), log=tr)
     assert res.frames_scored == 50
     assert any("candidates ran out before the budget: 125" in n for n in res.notes)
     ev = [e for e in tr.events if e["kind"] == "budget"]
@@ -446,8 +449,9 @@ def test_budget_beyond_the_candidates_is_said():
 
 
 def test_random_baseline_scores_nothing_and_is_seeded():
-    a = kf.select_keyframes("random", range(100), ["tv"], [], table_detector({}), conf=kf.KeyFrameConf(seed=3))
-    b = kf.random_keyframes(range(100), kf.KeyFrameConf(seed=3))
+    a = kf.select_keyframes("random", range(100), ["tv"], [], table_detector({}),
+                            conf=kf.KeyFrameConf(keyframes=8, seed=3))
+    b = kf.random_keyframes(range(100), kf.KeyFrameConf(keyframes=8, seed=3))
     assert a.chosen.tolist() == b.chosen.tolist() and len(a.chosen) == 8 and a.frames_scored == 0
     assert a.chosen.tolist() == sorted(set(a.chosen.tolist()))
 
@@ -583,19 +587,19 @@ def test_view_change_and_the_change_weighted_axis_exact():
     dedup = {f: rng.integers(0, 256, (48, 64), dtype=np.uint8) for f in range(6)}
     store = dict(dedup)
     conf = kf.KeyFrameConf.merged(change_power=1.0)  # measured, off by default
-    x1 = kf._content_axis(np.arange(6), no_read, conf, [], None, {f: 0.1 for f in range(6)}, store)
+    x1 = kfs._content_axis(np.arange(6), no_read, conf, [], None, {f: 0.1 for f in range(6)}, store)
     assert all(g.dtype == np.float32 and g.shape == (24, 32) for g in store.values())
-    x2 = kf._content_axis(np.arange(6), no_read, conf, [], None, {f: 0.1 for f in range(6)}, store)
+    x2 = kfs._content_axis(np.arange(6), no_read, conf, [], None, {f: 0.1 for f in range(6)}, store)
     want = kf.content_axis(np.full(6, 0.1), conf.content_floor,
                            kf.view_change([kf.grey_thumbnail(dedup[f]) for f in range(6)]))
     np.testing.assert_allclose(x1, want)
     np.testing.assert_allclose(x2, want)
     # the densities themselves come from the thumbnails when none are given (the pipeline passes none): no read
     dens: dict[int, float] = {}
-    x3 = kf._content_axis(np.arange(6), no_read, kf.KeyFrameConf(), [], None, dens, dict(dedup))
+    x3 = kfs._content_axis(np.arange(6), no_read, kf.KeyFrameConf(), [], None, dens, dict(dedup))
     assert dens == {f: kf.edge_density(dedup[f], 64) for f in range(6)} and x3 is not None
     reads = []
-    kf._content_axis(np.arange(2), lambda f: reads.append(f) or dedup[f], kf.KeyFrameConf(), [], None, {},
+    kfs._content_axis(np.arange(2), lambda f: reads.append(f) or dedup[f], kf.KeyFrameConf(), [], None, {},
                      {0: dedup[0][:, :32]})  # too narrow a copy, and none for frame 1: both read
     assert reads == [0, 1]
     for bad in ({"change_power": -1}, {"change_size": 1}):
@@ -680,7 +684,7 @@ def test_first_grid_is_even_along_the_axis_and_the_budget_is_spent_exactly():
     first = sorted(res.order[:30])
     # the rooms (textured) hold nearly all of the axis: the grid lands in them, not in the empty corridors
     assert sum((f // 50) % 2 == 0 for f in first) >= 28
-    st = kf._Search(100, kf.KeyFrameConf(), 1.0)  # no axis: an even grid over the index
+    st = kfs._Search(100, kf.KeyFrameConf(), 1.0)  # no axis: an even grid over the index
     picks, _ = st.grid(10, np.random.default_rng(0))
     assert len(picks) == 10 and set(np.diff(np.sort(picks)).tolist()) <= {9, 10, 11}
     with pytest.raises(InputError, match="grid_share"):
@@ -733,7 +737,7 @@ def test_greedy_draw_without_hits_is_an_even_coarse_to_fine_grid():
     picks the widest unscored gap is at most twice an even grid's (random first pick: a random offset)."""
     m = 400
     for seed in (0, 1, 2):
-        st = kf._Search(m, kf.KeyFrameConf.merged(seed=seed), 1.0)
+        st = kfs._Search(m, kf.KeyFrameConf.merged(seed=seed), 1.0)
         rng = np.random.default_rng(seed)
         for n in (8, 8, 16, 8):
             picks, _ = st.draw(n, rng)
@@ -741,7 +745,7 @@ def test_greedy_draw_without_hits_is_an_even_coarse_to_fine_grid():
                 st.add(int(p), 0.0, st.conf.sigma_max)
             edges = np.concatenate([[-1], np.sort(st.pos), [m]])
             assert np.diff(edges).max() <= 2 * math.ceil(m / len(st.pos)) + 1
-    assert len({int(kf._Search(m, kf.KeyFrameConf.merged(seed=s), 1.0).draw(1, np.random.default_rng(s))[0][0])
+    assert len({int(kfs._Search(m, kf.KeyFrameConf.merged(seed=s), 1.0).draw(1, np.random.default_rng(s))[0][0])
                 for s in range(6)}) > 1
 
 
@@ -804,7 +808,7 @@ def test_no_climbing_while_hits_are_common():
     """More stretches than `climb_share` of the scored frames: the batch takes no climb steps (every pick is an
     exploration pick); at most that share: the cut stretch's neighbours come first."""
     for scores, climbs in (([0.6, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0], [19, 21]), ([0.6, 0.5, 0.0, 0.0], [])):
-        st = kf._Search(100, kf.KeyFrameConf.merged(climb_share=0.15), 1.0)
+        st = kfs._Search(100, kf.KeyFrameConf.merged(climb_share=0.15), 1.0)
         for p, s in zip((20, 60, 5, 35, 50, 70, 80, 95), scores):
             st.add(p, s, st.conf.sigma_max)
         assert st.climbs() == climbs

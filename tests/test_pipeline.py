@@ -39,7 +39,7 @@ def built(scene):
     names = sorted(meta["object_counts"])
     trace = Trace()
     src = open_source(scene)
-    mb = build_map(src, names, [], oracle_perception(scene), {"keyframes": 10}, trace)
+    mb = build_map(src, names, [], oracle_perception(scene), {"keyframe": {"keyframes": 10}}, trace)
     return mb, trace, src, meta, names
 
 
@@ -91,7 +91,7 @@ def test_ask_answers_a_generated_question_from_the_video(scene):
     qs = [json.loads(l) for l in (scene / "questions.jsonl").read_text().splitlines()]
     q = next(q for q in qs if q["question_type"] == "object_size_estimation")
     res = ask(scene, q["question"], q.get("options"), perception=oracle_perception(scene),
-              conf={"keyframes": 8})
+              conf={"keyframe": {"keyframes": 8}})
     assert res.answer.ok and score_answer(q["question_type"], res.answer.text, q["ground_truth"]) >= 0.8
     assert res.prompt is not None and res.prompt.image is not None
     d = res.to_dict()
@@ -140,11 +140,11 @@ def test_pipeline_config_rejects_unknown_keys():
     from mosaicthinker.runtime.budget import PlanConf
     from mosaicthinker.runtime.map import FusionConfig
 
-    c = PipelineConfig.merged({"keyframes": 8}, depth=None, matcher="orb")
-    assert (c.keyframes, c.depth, c.matcher) == (8, "auto", "orb") and c.to_dict()["keyframes"] == 8
-    assert PipelineConfig.merged(c, keyframes=4).keyframes == 4 and c.keyframes == 8
+    c = PipelineConfig.merged({"keyframe": {"keyframes": 8}}, depth=None, matcher="orb")
+    assert (c.keyframe.keyframes, c.depth, c.matcher) == (8, "auto", "orb") and c.to_dict()["keyframe"]["keyframes"] == 8
+    assert PipelineConfig.merged(c, depth="sensor").keyframe.keyframes == 8 and c.depth == "auto"
     with pytest.raises(InputError, match="keyframe_method"):
-        PipelineConfig.merged(keyframe_method="random")
+        PipelineConfig.merged(keyframe={"keyframe_method": "best"})
     assert FusionConfig.merged({"voxel_m": 0.05}).voxel_m == 0.05
     with pytest.raises(InputError, match="merge_overlap"):
         FusionConfig.merged(merge_overlap=1.5)
@@ -262,7 +262,7 @@ def test_reduced_key_frames_stay_spread_over_the_clip():
     msg = trace.events[-1]["message"]
     assert msg == "reduced plan: 20 -> 4 key frames, because stage keyframes took 900 ms of its 40 ms share"
 def test_spread_keyframes_fills_the_largest_gaps_and_prefers_scored_frames():
-    from mosaicthinker.runtime.pipeline import spread_keyframes
+    from mosaicthinker.runtime.keyframes import spread_keyframes
 
     cands = list(range(0, 100, 2))
     chosen = [40, 42, 44, 46, 48]  # a search clustered on the detection-dense middle
@@ -277,12 +277,12 @@ def test_spread_keyframes_fills_the_largest_gaps_and_prefers_scored_frames():
 
 
 def test_coverage_reserve_only_for_many_names():
-    from mosaicthinker.runtime.pipeline import PipelineConfig, coverage_reserve
+    from mosaicthinker.runtime.keyframes import KeyFrameConf, coverage_reserve
 
-    conf = PipelineConfig()
+    conf = KeyFrameConf()
     assert coverage_reserve(16, 2, conf) == 0  # a question about a pair of objects: the search takes all of K
     assert coverage_reserve(16, 20, conf) == 8
-    assert coverage_reserve(16, 20, PipelineConfig.merged({"coverage_share": 0.0})) == 0
+    assert coverage_reserve(16, 20, KeyFrameConf.merged(coverage_share=0.0)) == 0
 
 
 def test_floor_support_sees_legs_not_open_space():

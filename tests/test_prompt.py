@@ -174,7 +174,8 @@ def test_vlm_grounding_unknown_names_and_loud_fallback():
 
 def test_direct_input_baseline_sends_uniform_frames_to_the_vlm():
     from mosaicthinker.runtime import InputError, ask
-    from mosaicthinker.runtime.frames import Frame, FrameList
+    from mosaicthinker.runtime.types import Frame
+    from mosaicthinker.runtime.frames import FrameList
 
     K = np.array([[50.0, 0, 32], [0, 50.0, 24], [0, 0, 1]])
     frames = [Frame(np.full((48, 64, 3), i, np.uint8), i / 10, i, K) for i in range(40)]

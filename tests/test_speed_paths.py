@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 
 from mosaicthinker.runtime.align import AlignConf, align_pair_essential, refine_essential
-from mosaicthinker.runtime.scan import (DedupConf, OnlineDedup, orb_features, orb_track, remove_redundant,
-                                          small_gray)
+from mosaicthinker.runtime.frames import small_gray
+from mosaicthinker.runtime.scan import (DedupConf, OnlineDedup, online_result, orb_features, orb_track, remove_redundant,
+                                        scanner)
 from mosaicthinker.runtime.infra.errors import InputError
 from mosaicthinker.runtime.frames import VideoSource, open_source
 from mosaicthinker.runtime.geometry import rotation_about
@@ -35,20 +36,20 @@ def kitchen_video(tmp_path_factory, redkitchen):
 
 
 def test_online_dedup_during_scan_equals_decode_pass(kitchen_video):
-    offline = remove_redundant(VideoSource(kitchen_video, dedup=None))  # decodes the sampled frames again
-    src = VideoSource(kitchen_video)
-    assert src.online_dedup(DedupConf()) is not None
+    offline = remove_redundant(VideoSource(kitchen_video))  # decodes the sampled frames again
+    src = VideoSource(kitchen_video, observer=scanner())
+    assert online_result(src, DedupConf()) is not None
     online = remove_redundant(src)
     assert online.kept == offline.kept and online.dropped == offline.dropped and online.scores == offline.scores
     assert online.counts == offline.counts and online.counts["near_duplicates"] > 0  # the static runs
     # another config: the scan's result does not apply, the removal decodes (and still agrees with a plain run)
     other = {"ssim_threshold": 0.9}
-    assert src.online_dedup(DedupConf.merged(other)) is None
-    assert remove_redundant(src, other).kept == remove_redundant(VideoSource(kitchen_video, dedup=None), other).kept
+    assert online_result(src, DedupConf.merged(other)) is None
+    assert remove_redundant(src, other).kept == remove_redundant(VideoSource(kitchen_video), other).kept
 
 
 def test_video_gray_equals_rgb_gray(kitchen_video):
-    src = VideoSource(kitchen_video, dedup=None)
+    src = VideoSource(kitchen_video)
     for i in (0, 5, 40):
         g = src.gray(i, 320)
         assert np.array_equal(g, small_gray(src[i].rgb, 320))

@@ -132,7 +132,7 @@ def evaluate_pose(source: Any, indices: Sequence[int], matcher: Any = "sift", st
             raise InputError(f"{source.name}: frame {i} has no sensor depth; use `depth=model`", fields=("depth",))
         frames.append(f)
     t0 = time.perf_counter()
-    res = align_frames(frames, matcher=matcher, strategy=strategy, conf=conf, with_scale=with_scale, trace=trace)
+    res = align_frames(frames, matcher=matcher, strategy=strategy, conf=conf, with_scale=with_scale, log=trace)
     secs = time.perf_counter() - t0
     ev = [f for f in frames if f.index in res.poses]  # time order
     est = np.array([res.poses[f.index] for f in ev])

@@ -310,7 +310,7 @@ def evaluate_scene(data: str | Path, annotations: str | Path, bundle: str | Path
         raise InputError(f"{video}: {len(run_src)} frames, but {data} has {len(src)}: the video must hold the "
                          f"folder's frames in order (make it with host.evaluation.scene.video_of_frames)")
     trace = Trace()
-    pconf = {"depth": depth, "matcher": matcher, "gravity": gravity, "keyframe_method": keyframe_method}
+    pconf = {"depth": depth, "matcher": matcher, "gravity": gravity, "keyframe": {"keyframe_method": keyframe_method}}
     perception = pipeline.perception_from_bundle(str(bundle), pconf, trace)
     names = map_names_for(bundle, list(scene["object_bbox"]))
     build = pipeline.build_map(run_src, names, [], perception, pconf, trace, keyframes)

@@ -8,7 +8,7 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 
 from ..frames import FrameSource
-from ..infra.trace import as_trace
+from ..infra.trace import StageLog, as_trace
 from ..types import Frame
 from .conf import AlignConf
 from .matching import KeyedMatcher, Matches
@@ -111,26 +111,26 @@ def _bridge_frames(al: AlignmentResult, have: set[int], prev: Mapping[int, Frame
 
 
 def bridge_realign(al: AlignmentResult, frames: list[Frame], boxes: dict[int, np.ndarray | None], cands: list[int], source: FrameSource,
-                   matcher: KeyedMatcher, with_depth: WithDepth, with_scale: bool, conf: AlignConf, trace: Any,
+                   matcher: KeyedMatcher, with_depth: WithDepth, with_scale: bool, conf: AlignConf, log: StageLog | None,
                    previous: Sequence[Frame] = ()) -> tuple[AlignmentResult, list[Frame]]:
     """Relative depth: key frames far apart in time often share no view, so the tree falls apart into
     components. Connect each unaligned key frame to its nearest aligned key frame in time through intermediate
     candidate frames (`_bridge_frames`; used for poses only, never detected) and align again. Key frames still
     unaligned afterwards stay unaligned (recorded). Returns (alignment, the bridge frames used)."""
-    trace = as_trace(trace)
+    log = as_trace(log)
     have = {f.index for f in frames}
     prev = {f.index: f for f in previous}  # bridges of an earlier round are kept (their depth is loaded)
     extra = _bridge_frames(al, have, prev, cands, source, conf)
     if not set(extra) - set(prev):
         return al, []
     bf = [prev[i] if i in prev else with_depth(source[i]) for i in extra]
-    with trace.stage("alignment"):
+    with log.stage("alignment"):
         al2 = align_frames(frames + bf, matcher, "mst", conf, None,
-                           {**boxes, **{i: None for i in extra}}, with_scale=with_scale, trace=None)
+                           {**boxes, **{i: None for i in extra}}, with_scale=with_scale, log=None)
     before = len(al.unaligned)
     al2.unaligned = [i for i in al2.unaligned if i in have]
     al2.rejected_edges = list(al.rejected_edges)
-    trace.event("alignment", f"{before} key frame(s) had no verified edge to the tree; {len(extra)} bridge "
+    log.event("alignment", f"{before} key frame(s) had no verified edge to the tree; {len(extra)} bridge "
                 f"frames between them "
                 f"and their neighbours in time left {len(al2.unaligned)} unaligned", stage="alignment",
                 bridges=extra, unaligned=al2.unaligned)
@@ -140,13 +140,13 @@ def bridge_realign(al: AlignmentResult, frames: list[Frame], boxes: dict[int, np
 
 
 def whole_image_realign(al: AlignmentResult, frames: list[Frame], boxes: dict[int, np.ndarray | None], emb: np.ndarray | None,
-                         matcher: KeyedMatcher, with_scale: bool, conf: AlignConf, trace: Any
+                         matcher: KeyedMatcher, with_scale: bool, conf: AlignConf, log: StageLog | None
                          ) -> tuple[AlignmentResult, dict[int, Any]]:
     """Too few matches inside the task objects' boxes (small or few objects): match whole images instead;
     the better tree is kept. Returns (alignment, the boxes it used)."""
-    with trace.stage("alignment"):
-        al2 = align_frames(frames, matcher, "mst", conf, emb, None, with_scale=with_scale, trace=None)
-    trace.event("alignment", f"alignment inside object boxes left {len(al.unaligned)} of {len(frames)} key "
+    with log.stage("alignment"):
+        al2 = align_frames(frames, matcher, "mst", conf, emb, None, with_scale=with_scale, log=None)
+    log.event("alignment", f"alignment inside object boxes left {len(al.unaligned)} of {len(frames)} key "
                 f"frames "
                 f"unaligned; whole-image matching left {len(al2.unaligned)}", stage="alignment",
                 boxes_unaligned=list(al.unaligned), whole_unaligned=list(al2.unaligned))
@@ -188,7 +188,7 @@ class Fates:
 
 
 def bridge_attach(al: AlignmentResult, frames: list[Frame], source: FrameSource, matcher: KeyedMatcher, with_depth: WithDepth,
-                  conf: AlignConf, trace: Any = None, thumbs: Mapping[int, np.ndarray] | None = None,
+                  conf: AlignConf, log: StageLog | None = None, thumbs: Mapping[int, np.ndarray] | None = None,
                   fates: Fates | None = None) -> list[Frame]:
     """Metric depth: connect each unaligned key frame through a chain of video frames (at least `bridge_gap_s`
     apart, `bridge_frames` in all) walked from its nearest aligned key frame in time towards it (`bridge_chain`),
@@ -229,7 +229,7 @@ def bridge_attach(al: AlignmentResult, frames: list[Frame], source: FrameSource,
                     >= 2 * conf.bridge_gap_s:  # stuck inside the gap (not merely u itself failing at its end)
                 failed.setdefault((a, d), u)  # the nearest such key frame (they come nearest first)
     al.unaligned = [i for i in al.unaligned if i not in al.poses]
-    as_trace(trace).event("alignment", f"bridging: {conf.bridge_frames - budget} video frame(s) tried, "
+    as_trace(log).event("alignment", f"bridging: {conf.bridge_frames - budget} video frame(s) tried, "
                           f"{len(used)} attached as "
                           f"bridges, {n0 - len(al.unaligned)} of {n0} key frame(s) aligned through them; "
                           f"{len(al.unaligned)} key frame(s) left unaligned"
@@ -239,7 +239,7 @@ def bridge_attach(al: AlignmentResult, frames: list[Frame], source: FrameSource,
     if thumbs and conf.revisit_tries > 0 and al.unaligned and budget > 0:
         if fates is not None:
             fates.after(al, "through bridge frames")
-        budget, more = revisit_attach(al, pool, keys, source, matcher, with_depth, conf, thumbs, budget, trace)
+        budget, more = revisit_attach(al, pool, keys, source, matcher, with_depth, conf, thumbs, budget, log)
         used += more
         if fates is not None:
             fates.after(al, "through bridges found by appearance")
@@ -281,7 +281,7 @@ def revisit_pairs(u: int, aligned: Sequence[int], hist: Mapping[int, np.ndarray]
 
 def revisit_attach(al: AlignmentResult, pool: dict[int, Frame], keys: set[int], source: FrameSource, matcher: KeyedMatcher,
                    with_depth: WithDepth, conf: AlignConf, thumbs: Mapping[int, np.ndarray], budget: int,
-                   trace: Any = None) -> tuple[int, list[Frame]]:
+                   log: StageLog | None = None) -> tuple[int, list[Frame]]:
     """Bridges found by appearance, metric depth: a long video comes back to places (people walk back), so a
     key frame with no aligned key frame within `bridge_max_gap_s` in time (out of the time chains' reach) may
     still be near (in time) a view of an aligned frame's place. Key frames with an aligned key frame that near
@@ -330,7 +330,7 @@ def revisit_attach(al: AlignmentResult, pool: dict[int, Frame], keys: set[int], 
             gained.append(u)
             gained += reattach(al, al.poses, [i for i in al.unaligned if i in keys and i not in al.poses], ok)
     al.unaligned = [i for i in al.unaligned if i not in al.poses]
-    as_trace(trace).event("alignment", f"bridges found by appearance: {len(todo)} key frame(s) more than {gap:g} s "
+    as_trace(log).event("alignment", f"bridges found by appearance: {len(todo)} key frame(s) more than {gap:g} s "
                           f"from every aligned one, {tried} pair(s) tried, {len(used)} frame(s) attached as "
                           f"bridges, {n0 - len(al.unaligned)} of {n0} key frame(s) aligned through them; "
                           f"{len(al.unaligned)} left unaligned", stage="alignment", out_of_reach=todo,

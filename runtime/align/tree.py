@@ -23,7 +23,7 @@ import numpy as np
 
 from ..geometry import invert, worker_threads
 from ..infra.errors import AlignmentError, InputError
-from ..infra.trace import as_trace
+from ..infra.trace import StageLog, as_trace
 from ..types import Frame
 from .conf import AlignConf
 from .essential import EssentialPose, essential_edge, essential_pose, rescale_essential
@@ -485,10 +485,10 @@ def _align_sequential(frames: list[Frame], pv: _PairVerifier
     return root, poses, edges, guessed
 
 
-def _record_alignment(trace: Any, res: AlignmentResult, n: int, step: bool = False) -> None:
+def _record_alignment(log: StageLog | None, res: AlignmentResult, n: int, step: bool = False) -> None:
     """Decisions and the unaligned frames of one `align_frames` call: a final state ("degraded") for a caller
     that stops there, history (kind "alignment") for a first round that later steps continue (`step`)."""
-    t = as_trace(trace)
+    t = as_trace(log)
     t.decide("alignment.strategy", res.strategy)
     t.decide("alignment.edge", res.edge)
     t.decide("alignment.similarity", res.similarity_kind or "time_order")
@@ -505,7 +505,7 @@ def _record_alignment(trace: Any, res: AlignmentResult, n: int, step: bool = Fal
 def align_frames(frames: Sequence[Frame], matcher: Any = "sift", strategy: str = "mst",
                  conf: AlignConf | Mapping[str, Any] | None = None, embeddings: np.ndarray | None = None,
                  boxes: Sequence[np.ndarray | None] | Mapping[int, np.ndarray] | None = None,
-                 with_scale: bool = False, trace: Any = None, step: bool = False) -> AlignmentResult:
+                 with_scale: bool = False, log: StageLog | None = None, step: bool = False) -> AlignmentResult:
     """Align frames (objects with .rgb [H, W, 3], .depth [H, W] metres (or relative depth with with_scale),
     .K [3, 3], .index) into the root camera's frame.
 
@@ -538,5 +538,5 @@ def align_frames(frames: Sequence[Frame], matcher: Any = "sift", strategy: str =
     unaligned = [i for i in idx if i not in poses]
     res = AlignmentResult(poses, idx[root], edges, unaligned, strategy, guessed, pv.stats, S, kind, with_scale, secs,
                           edge)
-    _record_alignment(trace, res, len(idx), step)
+    _record_alignment(log, res, len(idx), step)
     return res

@@ -3,12 +3,12 @@ sees as empty; a right one only at occlusion edges. Cut edges split the tree; th
 from __future__ import annotations
 
 from collections import deque
-from typing import Any, Callable, Mapping, Sequence
+from typing import Callable, Mapping, Sequence
 
 import numpy as np
 
 from ..geometry import backproject, invert, sample_depth, transform
-from ..infra.trace import as_trace
+from ..infra.trace import StageLog, as_trace
 from ..types import Frame
 from .conf import AlignConf
 from .tree import AlignmentResult
@@ -59,7 +59,7 @@ def reattach(al: AlignmentResult, poses: dict[int, np.ndarray], dropped: list[in
     return reattached
 
 
-def verify_tree(al: AlignmentResult, frames: dict[int, Frame], conf: AlignConf, trace: Any = None
+def verify_tree(al: AlignmentResult, frames: dict[int, Frame], conf: AlignConf, log: StageLog | None = None
                 ) -> AlignmentResult:
     """Check every tree edge with `depth_consistency` in both directions; an edge that puts more than
     `max_free_space_violation` of the points into observed free space is cut. The largest part of the cut tree
@@ -100,7 +100,7 @@ def verify_tree(al: AlignmentResult, frames: dict[int, Frame], conf: AlignConf, 
         poses.pop(i)
     reattached = reattach(al, poses, dropped, ok)
     lost = [i for i in dropped if i not in poses]
-    as_trace(trace).event("alignment", f"depth check rejected tree edge(s) {bad}: {len(dropped)} frame(s) "
+    as_trace(log).event("alignment", f"depth check rejected tree edge(s) {bad}: {len(dropped)} frame(s) "
                           f"detached" + (f" (the larger part kept, rooted at frame {head})" if moved else "") +
                           f", {len(reattached)} re-attached through other verified pairs, {len(lost)} left unaligned",
                           stage="alignment", rejected=[list(e) for e in bad], unaligned=lost, root=al.root)

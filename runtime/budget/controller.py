@@ -186,7 +186,7 @@ class BudgetController:
         def s_for(k: int) -> int:
             if not search_left:
                 return self.scored_frames
-            return min(self.scored_frames, max(min(p.candidates, p.conf.min_scored_per_keyframe * k), 1))
+            return min(self.scored_frames, max(min(p.candidates, p.conf.plan_min_scored_per_keyframe * k), 1))
 
         def need(k: int, s: int) -> float:
             return slowdown * (fixed + per_k * k + (per_s * s if search_left else 0.0))

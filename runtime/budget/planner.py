@@ -7,7 +7,7 @@
     (3) key frames K x (segmenter + prompts + depth + embedder + features + matching + geometry [+ VLM images])
 
 and picks the largest K (<= PlanConf.keyframes_max) whose latency *and* memory fit, giving the search at least
-`min_scored_per_keyframe * K` frames, then as many more as the slack allows up to `scored_fraction` of the
+`plan_min_scored_per_keyframe * K` frames, then as many more as the slack allows up to `budget_fraction` of the
 candidates. Nothing fitting raises BudgetError naming the budget and the shortfall. `clip_of` is the one
 computation of a frame source's duration and frame rate (the planner's and `ask`'s).
 """
@@ -21,7 +21,7 @@ from typing import Any, ClassVar, Mapping
 from ..answer import VLMConfig
 from ..infra.config import StageConf
 from ..infra.errors import BudgetError, InputError
-from ..keyframes import scored_budget
+from ..keyframes import KeyFrameConf, scored_budget
 from .profile import MODEL_COSTS, Profile, load_profile, nearest_variant
 
 PLAN_SCHEMA = "mosaicthinker.plan/1"
@@ -29,6 +29,7 @@ MAX_CLIP_S = 86400.0      # 24 h: longer clips are not one question's video (and
 MAX_FPS = 1000.0
 MIN_MAP_FRAMES = 2        # alignment needs two views
 STARTS = ("cold", "warm")
+SEARCH = KeyFrameConf()  # the key-frame search's own settings (fraction scored, iterations): one owner
 
 
 @dataclass
@@ -40,13 +41,12 @@ class PlanConf(StageConf):
 
     keyframes_max: int = 32            # K never exceeds this (the map gains little beyond it)
     keyframes_min: int = 2             # alignment needs two frames; below this nothing fits
-    scored_fraction: float = 0.25      # search target: share of candidates scored (keyframes.KeyFrameConf)
-    min_scored_per_keyframe: int = 4   # the search scores at least this many frames per key frame wanted
+    plan_min_scored_per_keyframe: int = 4  # the search scores at least this many frames per key frame wanted
     max_scored_frames: int | None = None
     # the search budget does not grow with duration (issue 14: a 600 s clip costs <= 1.5x a 60 s one): at most
-    # this many scored frames per key frame, whatever the number of candidates (None: scored_fraction alone)
-    max_scored_per_keyframe: float | None = 6.0
-    iterations: int = 20               # search iterations (keyframes.KeyFrameConf.iterations)
+    # this many scored frames per key frame, whatever the number of candidates (None: the search's
+    # `KeyFrameConf.budget_fraction` alone)
+    plan_max_scored_per_keyframe: float | None = 6.0
     dedup_keep_fraction: float = 0.5   # candidates / frames after redundant-frame removal (estimate)
     prompts_per_keyframe: float = 4.0  # segmenter prompts (objects) per key frame
     pairs_per_keyframe: float = 2.5    # matched pairs per key frame: tree edge + verification + retries (the
@@ -68,18 +68,18 @@ class PlanConf(StageConf):
         if c.keyframes_min < 1 or c.keyframes_max < c.keyframes_min:
             raise InputError(f"plan config: need 1 <= keyframes_min <= keyframes_max (got {c.keyframes_min}, "
                              f"{c.keyframes_max})")
-        if not 0 < c.scored_fraction <= 1 or not 0 < c.dedup_keep_fraction <= 1:
-            raise InputError("plan config: scored_fraction and dedup_keep_fraction must be in (0, 1]")
+        if not 0 < c.dedup_keep_fraction <= 1:
+            raise InputError("plan config: dedup_keep_fraction must be in (0, 1]")
         if c.video_pass not in ("question", "online"):
             raise InputError(f"plan config: video_pass must be 'question' or 'online' (got {c.video_pass!r})")
         if c.start not in STARTS:
             raise InputError(f"plan config: start must be 'cold' or 'warm' (got {c.start!r})")
-        if not 0 <= c.safety_fraction < 1 or c.iterations < 1 or c.min_scored_per_keyframe < 1:
-            raise InputError("plan config: need 0 <= safety_fraction < 1, iterations >= 1, "
-                             "min_scored_per_keyframe >= 1")
-        if c.max_scored_per_keyframe is not None and not c.max_scored_per_keyframe >= c.min_scored_per_keyframe:
-            raise InputError(f"plan config: max_scored_per_keyframe must be >= min_scored_per_keyframe "
-                             f"({c.min_scored_per_keyframe}; got {c.max_scored_per_keyframe})")
+        if not 0 <= c.safety_fraction < 1 or c.plan_min_scored_per_keyframe < 1:
+            raise InputError("plan config: need 0 <= safety_fraction < 1, plan_min_scored_per_keyframe >= 1")
+        if c.plan_max_scored_per_keyframe is not None and \
+                not c.plan_max_scored_per_keyframe >= c.plan_min_scored_per_keyframe:
+            raise InputError(f"plan config: plan_max_scored_per_keyframe must be >= plan_min_scored_per_keyframe "
+                             f"({c.plan_min_scored_per_keyframe}; got {c.plan_max_scored_per_keyframe})")
 
 
 # pipeline stages the controller budgets (names the pipeline passes to start_stage/end_stage)
@@ -261,11 +261,12 @@ class _Terms:
         return e.get(key)
 
     def s_floor(self, k: int) -> int:
-        return min(self.n_c, self.c.min_scored_per_keyframe * k)
+        return min(self.n_c, self.c.plan_min_scored_per_keyframe * k)
 
     def s_target(self, k: int) -> int:
         c = self.c
-        t = scored_budget(self.n_c, k, c.scored_fraction, c.min_scored_per_keyframe, c.max_scored_per_keyframe)
+        t = scored_budget(self.n_c, k, SEARCH.budget_fraction, c.plan_min_scored_per_keyframe,
+                          c.plan_max_scored_per_keyframe)
         if c.max_scored_frames is not None:
             t = max(min(t, c.max_scored_frames), self.s_floor(k))
         return min(self.n_c, t)
@@ -536,7 +537,7 @@ def _arithmetic(t: _Terms, cand_how: str, K: int, S: int, s_max_fit: int, iters:
                  + f" = {_f(t.c_k)} ms   (segmenter incl. {c.prompts_per_keyframe:g} prompts, matching "
                    f"{c.pairs_per_keyframe:g} pairs)")
     arith.append(f"K = largest k <= min(keyframes_max {c.keyframes_max}, candidates {t.n_c}) with "
-                 f"fixed + {c.min_scored_per_keyframe}k x {_f(t.c_s)} (decode + detector) + k x {_f(t.c_k)} "
+                 f"fixed + {c.plan_min_scored_per_keyframe}k x {_f(t.c_s)} (decode + detector) + k x {_f(t.c_k)} "
                  f"<= {_f(t.L)} ms and "
                  f"{_f(t.base_mb)} + {_f(models_mb)} + k x {_f(t.kf_mb)} <= {_f(t.M)} MB  ->  K = {K} "
                  f"(limited by {why})")
@@ -592,14 +593,14 @@ def plan(profile: Profile | str | os.PathLike, duration_s: float, fps: float, bu
     S = max(t.s_floor(K), min(t.s_target(K), s_max_fit))
     if S < t.s_target(K):
         notes.append(f"search: {S} scored frames instead of the target {t.s_target(K)} "
-                     f"({c.scored_fraction:g} of {n_c} candidates): the latency budget limits it")
-    iters = max(1, min(c.iterations, S))
+                     f"({SEARCH.budget_fraction:g} of {n_c} candidates): the latency budget limits it")
+    iters = max(1, min(SEARCH.iterations, S))
     batch = int(math.ceil(S / iters))
     mem = {"process": t.base_mb, "models": models_mb, "keyframes": K * t.kf_mb}
     providers, resolutions = _providers_and_sizes(prof, used, b, notes)
     cost_status = _cost_notes(prof, bhash, notes)
     arith = _arithmetic(t, cand_how, K, S, s_max_fit, iters, batch, policy, models_mb, why, mem)
-    if S < c.iterations:
+    if S < SEARCH.iterations:
         notes.append(f"search: only {S} frames to score, so {iters} iterations of 1")
     return Plan(profile=prof.name, device=prof.device.get("description", prof.name), duration_s=float(duration_s),
                 fps=float(fps), total_frames=total_frames, candidates=n_c, keyframes=K, scored_frames=S,

@@ -72,7 +72,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         profile.apply_to_machine(trace)  # core_affinity applied (or refused loudly), threads fit to the cores
     matcher = args.matcher or default_matcher(args.bundle)
     trace.decide("ask.matcher", {"matcher": matcher, "given": args.matcher is not None})
-    conf = {"depth": args.depth, "matcher": matcher, "keyframe_method": args.keyframe_method}
+    conf = {"depth": args.depth, "matcher": matcher, "keyframe": {"keyframe_method": args.keyframe_method}}
     perception = None
     src = Path(args.source)
     is_map = src.suffix.lower() == ".json"

@@ -10,6 +10,8 @@ import argparse
 import sys
 from typing import Any, Sequence
 
+from ..keyframes import KeyFrameConf
+
 # API parameter / config field -> the flag that sets it: the CLI rewrites a MosaicError's backticked `field`
 # (or `field=value`) as `--flag` (`--flag value`); the library's messages name the parameters (errors.py).
 FLAG_FOR_FIELD = {
@@ -126,10 +128,8 @@ def add_scenes(p: argparse.ArgumentParser, default: int, what: str = "number of 
 
 
 def pipeline_keyframes() -> int:
-    """The pipeline's key-frame budget K: the one owner of the default (`PipelineConfig.keyframes`)."""
-    from ..pipeline import default_conf
-
-    return int(default_conf.keyframes)
+    """The pipeline's key-frame budget K: the one owner of the default (`KeyFrameConf.keyframes`)."""
+    return int(KeyFrameConf.keyframes)
 
 
 def add_keyframes(p: argparse.ArgumentParser, default: int | None = None, why: str = "") -> None:

@@ -91,7 +91,7 @@ def _run(args: argparse.Namespace, src: Path, outs: RunOutputs, paths: tuple[Pat
     else:
         names = default_objects(args, src)
     conf = {"depth": args.depth, "matcher": args.matcher if args.matcher != "model" else "model",
-            "keyframe_method": args.keyframe_method}
+            "keyframe": {"keyframe_method": args.keyframe_method}}
     if args.detector == "oracle":
         if not (src.is_dir() and (src / "scene.json").is_file()):
             raise InputError(f"{src}: --detector oracle needs a synthetic scene folder (with scene.json)")

@@ -130,6 +130,24 @@ class Trace:
             self.event("random_weights", f"{what} has RANDOM weights (test model): its outputs are meaningless",
                        warn=True, component=what)
 
+    def record(self, log: "Trace") -> None:
+        """Append a stage's log to this trace: its events in order (times re-based on this trace's start), its
+        decisions, sub-stage times and calls, providers and random-weight notes."""
+        shift = log.started - self.started
+        self.events += [{**e, "t": round(e.get("t", 0.0) + shift, 4)} for e in log.events]
+        self.decisions.update(log.decisions)
+        for name, r in log.stages.items():
+            rec = self.stages.setdefault(name, StageRecord(name))
+            if rec.calls == 0:
+                rec.rss_before_mb = r.rss_before_mb
+            rec.seconds += r.seconds
+            rec.cpu_seconds += r.cpu_seconds
+            rec.calls += r.calls
+            rec.rss_peak_mb = max(rec.rss_peak_mb, r.rss_peak_mb)
+            rec.provider = rec.provider or r.provider
+        self.providers.update(log.providers)
+        self.random_weights_used += [w for w in log.random_weights_used if w not in self.random_weights_used]
+
     def to_dict(self) -> dict[str, Any]:
         return {
             "schema": TRACE_SCHEMA,
@@ -155,6 +173,12 @@ class Trace:
         finally:
             if os.path.exists(tmp):
                 os.unlink(tmp)
+
+
+class StageLog(Trace):
+    """What one stage reports besides its result: events, decisions and the time of its sub-steps, in order. A stage
+    records into its own log (the one it is given, or a new one it returns); only the pipeline writes the run's
+    Trace (`Trace.record`)."""
 
 
 def _jsonable(x: Any) -> Any:

@@ -15,7 +15,7 @@ class FusionConfig(StageConf):
 
     conf_name: ClassVar[str] = "fusion config"
 
-    stride: int = 2               # pixel stride when lifting masks (speed; masks are dense)
+    pixel_stride: int = 2               # pixel stride when lifting masks (speed; masks are dense)
     erode_px: int = 2             # shrink masks so depth edges (object/background) do not bleed in
     max_depth_m: float = 8.0      # ignore far, noisy depth
     min_points: int = 25          # an observation with fewer 3D points is dropped
@@ -33,12 +33,12 @@ class FusionConfig(StageConf):
     min_instance_points: int = 40
     duplicate_iou: float = 0.7    # one frame's boxes of two names this alike are one object named twice (0 = off)
     same_frame_share: float = 0.5  # one frame's same-name box whose points lie on another's: group/duplicate (0 = off)
-    seed: int = 0
+    subsample_seed: int = 0  # the stream of each frame's point subsampling (seed + frame)
 
     def validate(self) -> None:
-        if self.stride < 1 or self.erode_px < 0 or self.min_points < 1 or self.max_points < self.min_points:
-            raise InputError(f"fusion config: need stride >= 1, erode_px >= 0, 1 <= min_points <= max_points "
-                             f"(got {self.stride}, {self.erode_px}, {self.min_points}, {self.max_points})")
+        if self.pixel_stride < 1 or self.erode_px < 0 or self.min_points < 1 or self.max_points < self.min_points:
+            raise InputError(f"fusion config: need pixel_stride >= 1, erode_px >= 0, 1 <= min_points <= max_points "
+                             f"(got {self.pixel_stride}, {self.erode_px}, {self.min_points}, {self.max_points})")
         for name in ("max_depth_m", "voxel_m", "merge_radius_m", "merge_centre_m", "outlier_mad", "outlier_radius_m"):
             if getattr(self, name) <= 0:
                 raise InputError(f"fusion config: {name} must be > 0 (got {getattr(self, name)})")

@@ -3,12 +3,12 @@ seen under them; the room is the hull of what the key frames' depth saw; first-s
 key-frame search scored."""
 from __future__ import annotations
 
-from typing import Any, Iterable, Sequence
+from typing import Iterable, Sequence
 
 import numpy as np
 
 from ..geometry import OrientedBox, convex_hull_2d
-from ..infra.trace import as_trace
+from ..infra.trace import StageLog, as_trace
 from ..types import Frame
 from .lift import world_points
 from .model import ObjectInstance, Room
@@ -101,7 +101,7 @@ def _band_counts(box: OrientedBox, P: np.ndarray, band_m: float) -> np.ndarray |
 
 
 def extend_to_floor(instances: list[ObjectInstance], frames: Sequence[Frame], poses: dict[int, np.ndarray],
-                    floor_standing: Sequence[str], band_share: float, trace: Any = None, band_m: float = 0.10,
+                    floor_standing: Sequence[str], band_share: float, log: StageLog | None = None, band_m: float = 0.10,
                     stride: int = 8, empty_share: float = 0.5, min_points: int = 3) -> list[int]:
     """A floor-standing object (a name in `floor_standing`) whose fused box stops above the floor (z = 0) — the
     top of a table seen from above, a chair's back over the table edge — gets its box extended down to the
@@ -141,7 +141,7 @@ def extend_to_floor(instances: list[ObjectInstance], frames: Sequence[Frame], po
             done.append(o.id)
         else:
             kept[o.id] = round(share, 2)
-    as_trace(trace).event("extent", f"{len(done)} floor-standing object(s) extended to the floor (support seen "
+    as_trace(log).event("extent", f"{len(done)} floor-standing object(s) extended to the floor (support seen "
                           f"or hidden under them, no open space seen): {done}; {len(kept)} kept as fused (open "
                           f"space seen under them; support share per id): {kept}", stage="extent", extended=done,
                           kept=kept, why=why)
@@ -203,7 +203,7 @@ def hull_candidates(P: np.ndarray, directions: int = 16) -> np.ndarray:
 
 
 def first_seen_from_detections(instances: list[ObjectInstance], detections: Iterable[tuple[float, Iterable[str]]],
-                               trace: Any = None) -> int:
+                               log: StageLog | None = None) -> int:
     """The key-frame search ran the detector on many more frames than the key frames: a category detected
     (`detections`: (time s, names detected) per scored frame) earlier than any of its instances' key frames was
     first seen then. The earliest instance of the category takes that time (appearance-order questions are
@@ -220,5 +220,5 @@ def first_seen_from_detections(instances: list[ObjectInstance], detections: Iter
             if t < o.first_seen:
                 o.first_seen, changed = t, changed + 1
     if changed:
-        as_trace(trace).decide("first_seen_from_search", changed)
+        as_trace(log).decide("first_seen_from_search", changed)
     return changed

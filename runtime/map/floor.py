@@ -3,11 +3,11 @@ the source (IMU, `gravity-direction.txt`) or from a floor-plane fit on the key f
 surface); the floor height from the same fit, else a documented camera-height prior."""
 from __future__ import annotations
 
-from typing import Any, Sequence
+from typing import Sequence
 
 import numpy as np
 
-from ..infra.trace import as_trace
+from ..infra.trace import StageLog, as_trace
 from ..types import Frame
 from .lift import world_points
 
@@ -228,13 +228,13 @@ def gravity_world_transform(down_root: np.ndarray, floor_offset: float | None = 
     return T
 
 
-def _floor_below_seen(P: np.ndarray, down: np.ndarray, offset: float, trace: Any) -> float:
+def _floor_below_seen(P: np.ndarray, down: np.ndarray, offset: float, log: StageLog | None) -> float:
     """Nothing lies below the floor: when a share of the seen points does, the plane found is a table or counter
     top (the key frames did not see the floor); the floor is then at least as low as those points."""
     q = P @ down
     if np.mean(q > offset + 0.05) > 0.005:
         low = float(np.percentile(q, 99.8))
-        trace.event("degraded", f"floor fit found a plane {low - offset:.2f} m above points the key frames saw "
+        log.event("degraded", f"floor fit found a plane {low - offset:.2f} m above points the key frames saw "
                     f"(a table or counter top; the floor itself was not seen): floor put at the lowest seen "
                     f"points instead (objects cannot be below it; the floor height is a lower bound)",
                     stage="gravity", plane_m=offset, floor_m=low)
@@ -243,11 +243,11 @@ def _floor_below_seen(P: np.ndarray, down: np.ndarray, offset: float, trace: Any
 
 
 def gravity_from_frames(frames: Sequence[Frame], poses_root: dict[int, np.ndarray], source_down: np.ndarray | None,
-                        camera_height_m: float, floor_fit_max_depth_m: float, trace: Any) -> np.ndarray:
+                        camera_height_m: float, floor_fit_max_depth_m: float, log: StageLog | None) -> np.ndarray:
     """World-from-root transform [4, 4] (z up, origin on the floor below the root camera). `source_down`: the
     source's gravity in the root camera (None: the floor fit on the key frames' depth points nearer than
     `floor_fit_max_depth_m` gives it); the floor height from the same fit, else `camera_height_m` (recorded)."""
-    trace = as_trace(trace)
+    log = as_trace(log)
     down, offset, how = None, None, ""
     if source_down is not None:
         down, how = np.asarray(source_down, float) / np.linalg.norm(source_down), "source"
@@ -262,13 +262,13 @@ def gravity_from_frames(frames: Sequence[Frame], poses_root: dict[int, np.ndarra
         if offset <= 0.3:
             offset = None
     if offset is not None and len(P):
-        offset = _floor_below_seen(P, down, offset, trace)
+        offset = _floor_below_seen(P, down, offset, log)
     if down is None:
         down, how = np.array([0.0, 1.0, 0.0]), "camera_axes"
-        trace.event("degraded", "no gravity from the source and no floor found: assuming the root camera is level",
+        log.event("degraded", "no gravity from the source and no floor found: assuming the root camera is level",
                     stage="gravity")
     if offset is None:
-        trace.event("degraded", f"floor height unknown: assuming the root camera is {camera_height_m} m above "
+        log.event("degraded", f"floor height unknown: assuming the root camera is {camera_height_m} m above "
                     f"the floor", stage="gravity")
-    trace.decide("gravity", {"method": how, "down_root": down.tolist(), "floor_below_root_m": offset})
+    log.decide("gravity", {"method": how, "down_root": down.tolist(), "floor_below_root_m": offset})
     return gravity_world_transform(down, offset, camera_height_m)

@@ -11,7 +11,7 @@ import numpy as np
 
 from ..geometry import OrientedBox, box_footprint, fit_gravity_box, polygon_area, worker_threads
 from ..infra.progress import phase
-from ..infra.trace import as_trace
+from ..infra.trace import StageLog, as_trace
 from ..types import Detections, Frame, Observation
 from .cluster import remove_outliers, voxel_downsample
 from .conf import FusionConfig, default_fusion_conf
@@ -97,7 +97,7 @@ def same_frame_redundant(observations: list[Observation], radius_m: float, share
 
 
 def fuse_observations(observations: list[Observation], conf: FusionConfig = default_fusion_conf,
-                      trace: Any = None) -> tuple[list[ObjectInstance], list[np.ndarray]]:
+                      log: StageLog | None = None) -> tuple[list[ObjectInstance], list[np.ndarray]]:
     """Fuse observations into instances (same name + 3D overlap or close centres), remove outliers and fit
     gravity-aligned oriented boxes (yaw from floor-projected points).
 
@@ -113,7 +113,7 @@ def fuse_observations(observations: list[Observation], conf: FusionConfig = defa
         # the voxel size (two small objects a few cm apart do not cover each other)
         drop = same_frame_redundant(observations, conf.voxel_m, conf.same_frame_share)
         if drop:
-            as_trace(trace).event("fusion", f"fusion: left out {len(drop)} detection(s) that repeat others of their "
+            as_trace(log).event("fusion", f"fusion: left out {len(drop)} detection(s) that repeat others of their "
                                   f"frame: " + ", ".join(f"{observations[i].name} in frame {observations[i].frame} "
                                                          f"({why})" for i, why in sorted(drop.items())),
                                   stage="fusion", dropped=[{"frame": observations[i].frame, "name": observations[i].name,
@@ -230,7 +230,7 @@ def _merge_overlapping(items: list[tuple["_Acc", np.ndarray]], conf: FusionConfi
 
 
 def fuse_frames(frames: list[Frame], dets: dict[int, Detections], poses: dict[int, np.ndarray], fconf: FusionConfig,
-                trace: Any = None, lifted: dict[int, list[Observation]] | None = None
+                log: StageLog | None = None, lifted: dict[int, list[Observation]] | None = None
                 ) -> tuple[list[Observation], list[ObjectInstance], list[np.ndarray]]:
     """Place every posed key frame's camera-frame observations in the world (`lifted`: perception's; a frame
     without them is lifted here) and fuse them into instances."""
@@ -246,6 +246,6 @@ def fuse_frames(frames: list[Frame], dets: dict[int, Detections], poses: dict[in
         for got in ex.map(lift, posed):  # frames lift independently; in order
             obs += got
             bar.update()
-        instances, clouds = fuse_observations(obs, fconf, trace)
+        instances, clouds = fuse_observations(obs, fconf, log)
         bar.note(instances=len(instances))
     return obs, instances, clouds

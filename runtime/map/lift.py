@@ -51,18 +51,18 @@ def lift_camera(rgb_shape: tuple[int, int], depth: np.ndarray, K: np.ndarray, bo
         if keep is not None and not keep[j]:
             continue
         full = masks[j] if masks is not None else box_depth_mask(d, box)
-        win = _mask_window(full, conf.erode_px if masks is not None else 0, conf.stride)
+        win = _mask_window(full, conf.erode_px if masks is not None else 0, conf.pixel_stride)
         if win is None:
             continue
         m = full[win].astype(np.uint8)
         if masks is not None and kernel is not None:
             eroded = cv2.erode(m, kernel)
             m = eroded if eroded.sum() >= conf.min_points else m
-        pts = _backproject_window(d, K, m.astype(bool), win, conf.stride, conf.max_depth_m)
+        pts = _backproject_window(d, K, m.astype(bool), win, conf.pixel_stride, conf.max_depth_m)
         if len(pts) < conf.min_points:
             continue
         if len(pts) > conf.max_points:
-            rng = rng or np.random.default_rng(conf.seed + frame)
+            rng = rng or np.random.default_rng(conf.subsample_seed + frame)
             pts = pts[rng.choice(len(pts), conf.max_points, replace=False)]
         if conf.component_link_m > 0:  # a mask that bled across a depth edge (onto the table, the next chair)
             pts = largest_components(pts, conf.component_link_m, conf.component_share)

@@ -9,7 +9,7 @@ import numpy as np
 
 from ..align.matching import make_matcher
 from ..geometry import invert, project, transform
-from ..infra.trace import as_trace
+from ..infra.trace import StageLog, as_trace
 from ..types import Detections, Frame, Observation
 from .conf import FusionConfig
 from .fuse import fuse_observations
@@ -82,7 +82,7 @@ def _recover_mask(inst: ObjectInstance, f: Frame, box: np.ndarray, perception: A
 
 def refine(instances: list[ObjectInstance], obs: list[Observation], frames: list[Frame],
            poses: dict[int, np.ndarray], dets: dict[int, Detections], perception: Any,
-           conf: FusionConfig, trace: Any, conf_views: int = 2, matcher: Any = None
+           conf: FusionConfig, log: StageLog | None, conf_views: int = 2, matcher: Any = None
            ) -> tuple[list[ObjectInstance], list[np.ndarray], int]:
     """Paper, occlusion refinement: project every instance into each key frame; where it should be visible but
     was not segmented, re-prompt the segmenter — with point prompts from cross-frame matches inside its other
@@ -122,7 +122,7 @@ def refine(instances: list[ObjectInstance], obs: list[Observation], frames: list
     gained = {instances[ii].id for ii, _ in found}
     if not new_obs:
         return instances, [np.zeros((0, 3))] * len(instances), 0
-    as_trace(trace).event("refinement", f"occlusion refinement recovered {len(new_obs)} view(s) of {len(gained)} "
+    as_trace(log).event("refinement", f"occlusion refinement recovered {len(new_obs)} view(s) of {len(gained)} "
                           f"instance(s)", views=len(new_obs), instances=len(gained))
-    inst2, clouds = fuse_observations(obs + new_obs, conf, trace)
+    inst2, clouds = fuse_observations(obs + new_obs, conf, log)
     return inst2, clouds, len(gained)
