@@ -5,7 +5,7 @@
 
 Reads `OUT/raw/<role>__<variant>__<component>__<provider>.txt` (one perf_test run each, with the
 `exit_code: N` line profile.sh appends) and `OUT/raw/device.txt`, and writes report.json / report.md /
-latency.png / memory.png with runtime/profiling.py's `write_report` (schema mosaicthinker.profile_report/1).
+latency.png / memory.png with runtime/commands/profile.py's `write_report` (schema mosaicthinker.profile_report/1).
 Each provider run becomes a variant entry `<variant>@<provider>` of the role, so the table and charts show the
 providers side by side.
 

@@ -43,7 +43,7 @@ DEFAULT_OPSET = 18
 def role_meta(arch: str, *, preprocessing: dict[str, Any], semantics: dict[str, Any], provenance: dict[str, Any],
               licence: str, random_weights: bool, config: dict[str, Any] | None = None,
               **extra: Any) -> dict[str, Any]:
-    """The role-level manifest fields (see runtime/bundle.py for their meaning).
+    """The role-level manifest fields (see runtime/infra/bundle.py for their meaning).
 
     arch: key in runtime.stages.ARCHS (e.g. "pydnet", "xfeat", "owlv2", "sam", "smolvlm");
     preprocessing: {"size": [H, W], "layout": "NCHW"|"NHWC", "channel_order": "RGB", "dtype": "float32",

@@ -1,5 +1,5 @@
 """Learned matchers: SuperPoint (fixed top-K) + LightGlue, and EfficientLoFTR, following the I/O contract of
-runtime/stages/matcher.py so its adapters run them unchanged.
+runtime/models/matcher.py so its adapters run them unchanged.
 
 SuperPoint + LightGlue: contract B ("extractor+matcher"), arch `superpoint_lightglue` -> TwoStageMatcher.
 - extractor: `image [1, 3, H, W] float32` (RGB, 0..1; the graph converts to gray) -> `kpts [K, 2]` (x, y

@@ -1,7 +1,7 @@
 """OWLv2 open-vocabulary detector: image branch and text branch as separate graphs, so a new object name
 costs one text pass (the runtime caches the text embedding per name) and a frame costs one image pass.
 
-Components (runtime adapter: runtime/stages/owlv2.py):
+Components (runtime adapter: runtime/models/owlv2.py):
 - image: `pixel_values [B, 3, S, S] float32` (padded to a square bottom/right with grey 0.5, resized to S,
   CLIP mean/std) -> `class_embeds [B, P, D]` (unit norm), `logit_shift [B, P, 1]`, `logit_scale [B, P, 1]`
   (ELU + 1 applied), `pred_boxes [B, P, 4]` (cx, cy, w, h in [0, 1] of the padded square), `objectness [B, P]`

@@ -6,7 +6,7 @@ DeepStack -- Qwen3-VL adds the vision tower's intermediate features (blocks `dee
 through its own patch merger) to the hidden states of the first decoder layers at the image-token positions --
 and no string of the 0.18.0 library or builder mentions DeepStack, so a GenAI package would silently drop it
 (a different model). The issue's rule applies: where the builder lacks an architecture, keep the project's own
-graphs and loop (runtime/stages/vlm.py: `MRopeDecoder`, `Qwen3VL`).
+graphs and loop (runtime/models/vlm.py: `MRopeDecoder`, `Qwen3VL`).
 
 Graphs (numpy I/O; fixed image grid S x S like the Qwen2.5-VL package, S a multiple of 32):
 - vision:  `pixel_values [P, 3*2*16*16]` (P = (S/16)^2 patches, merge-unit order) -> `image_features [P/4, H]`,
@@ -387,7 +387,7 @@ def export_qwen3_vl(source: str, out: str | Path, precisions: Sequence[str], *, 
     cfg = runtime_config(model, image_size)
     pre = {"size": [image_size, image_size], "layout": "NCHW", "channel_order": "RGB", "dtype": "float32",
            "scale": 1 / 255, "mean": [0.5, 0.5, 0.5], "std": [0.5, 0.5, 0.5], "resize": "bilinear",
-           "keep_aspect": False, "then": "qwen_patches (runtime/stages/vlm.py)"}
+           "keep_aspect": False, "then": "qwen_patches (runtime/models/vlm.py)"}
 
     def task(files: dict[str, Path], variant: str) -> dict[str, Any]:
         res = task_check(model, files, cfg, tok, pre, variant, check_tokens)

@@ -1,6 +1,6 @@
 """SAM / SlimSAM export: an image-encoder graph (once per frame) and a prompt-decoder graph (per prompt batch).
 
-Components (runtime adapter: runtime/stages/sam.py):
+Components (runtime adapter: runtime/models/sam.py):
 - encoder: `pixel_values [B, 3, S, S] float32` (longest side resized to S, zero-padded bottom/right, ImageNet
   mean/std on 0..255 pixels) -> `image_embeddings [B, C, S/16, S/16] float32`.
 - decoder: `image_embeddings [1, C, h, w]`, `point_coords [P, N, 2] float32` (x, y pixels in the S x S model

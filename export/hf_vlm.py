@@ -1,6 +1,6 @@
 """VLM export: SmolVLM (Idefics3 family) and InternVL as vision + embedding + decoder-with-KV-cache graphs.
 
-Graph I/O is documented in runtime/stages/vlm.py (the adapter). The decoder graph rebuilds a transformers
+Graph I/O is documented in runtime/models/vlm.py (the adapter). The decoder graph rebuilds a transformers
 `DynamicCache` from flat `past_key_i / past_value_i` tensors and returns the grown cache as flat
 `present_key_i / present_value_i`, so the runtime loop owns the cache as plain arrays.
 

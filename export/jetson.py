@@ -2,7 +2,7 @@
 
 Nothing is converted here: TensorRT cannot be installed on the export machine, and an engine is specific to the
 GPU, TensorRT version and JetPack it is built on. Instead, per role, variant (fp32, fp16, int8-qdq) and
-component this step writes into the manifest (RESERVED `jetson` fields of runtime/bundle.py):
+component this step writes into the manifest (RESERVED `jetson` fields of runtime/infra/bundle.py):
 
 - the onnxruntime **TensorRT execution provider options**: engine cache + timing cache under the container's
   cache folder, EP-context model dump (`trt_dump_ep_context_model`: the first run on the Jetson builds the
@@ -12,7 +12,7 @@ component this step writes into the manifest (RESERVED `jetson` fields of runtim
   and the **optimisation-profile shapes** (`trt_profile_min_shapes` / `opt` / `max`) for every dynamic axis of
   the manifest's inputs;
 - the provider chain TensorRT -> CUDA -> CPU (the Jetson profiles' `providers`), as `[name, options]` pairs that
-  `runtime/providers.py create_session(preference=...)` takes as is;
+  `runtime/infra/providers.py create_session(preference=...)` takes as is;
 - the equivalent **`trtexec`** command line (build a standalone engine, same shapes and precision), collected
   into `jetson/build_engines.sh` in the bundle.
 
@@ -169,7 +169,7 @@ def trt_provider_options(role: str, variant: str, component: str, precision: str
 
 
 def provider_chain(trt_opts: dict[str, Any]) -> list[list[Any]]:
-    """TensorRT -> CUDA -> CPU as [name, options] pairs (runtime/providers.py takes them as a preference)."""
+    """TensorRT -> CUDA -> CPU as [name, options] pairs (runtime/infra/providers.py takes them as a preference)."""
     return [["TensorrtExecutionProvider", trt_opts],
             ["CUDAExecutionProvider", {"device_id": 0, "cudnn_conv_algo_search": "HEURISTIC"}],
             ["CPUExecutionProvider", {}]]

@@ -59,7 +59,7 @@ def parity_trials(precision: str, trials: int | None = None) -> int:
 
 def ort_session(path: str | os.PathLike, threads: int = 1, *, runtime_opt: bool = False, arm_like: bool = False,
                 level: str | None = None):
-    """A CPU onnxruntime session for export-time checks (the runtime uses runtime/providers.py).
+    """A CPU onnxruntime session for export-time checks (the runtime uses runtime/infra/providers.py).
 
     runtime_opt=True replays the optimisations saved in a `*.with_runtime_opt.ort` file (without it that file
     runs un-fused: QDQ groups stay float-emulated). arm_like: the .ort converter's settings for the arm target

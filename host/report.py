@@ -1,7 +1,7 @@
 """The files of `mosaic profile --out DIR` (host side): report.json, report.md and Pillow bar charts.
 
-The measurements and the Markdown text live in `runtime/profiling.py`; here they become files, written as one
-group through `runtime/outputs.py` (folder checked and locked, every file staged in a temp file and renamed,
+The measurements and the Markdown text live in `runtime/commands/profile.py`; here they become files, written as one
+group through `runtime/infra/outputs.py` (folder checked and locked, every file staged in a temp file and renamed,
 the run id in each, a failed image encode raised, never skipped).
 """
 from __future__ import annotations

@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+import os
 
 # ----------------------------------------------------------------------------- pose algebra
 
@@ -168,8 +169,6 @@ def worker_threads(n: int = 0) -> int:
     """Threads for independent per-pair / per-frame work (numpy and OpenCV release the GIL): n when > 0, else
     $MOSAIC_THREADS when set, else the CPU count capped at 4 (1 = the caller's thread only). The results do not
     depend on it."""
-    import os
-
     env = os.environ.get("MOSAIC_THREADS", "")
     if n <= 0 and env:
         if not env.isdigit() or int(env) < 1:

@@ -22,6 +22,9 @@ from .infra.config import StageConf
 from .infra.errors import InputError
 from .geometry import box_footprint
 from .map.model import SemanticMap
+import json
+from pathlib import Path
+from .infra.outputs import encode_png
 
 MODES = ("grid", "points", "text", "json")
 
@@ -77,14 +80,11 @@ class VisualPrompt:
         return body.rstrip() + "\n"
 
     def save_text(self, path: str, question: str | None = None, options: list[str] | None = None) -> None:
-        from pathlib import Path
-
         Path(path).write_text(self.full_text(question, options))
 
     def save_png(self, path: str) -> None:
         if self.image is None:
             raise ValueError("text-only prompt has no image")
-        from .infra.outputs import encode_png  # checked encode, path-safe write (never a silent imwrite failure)
 
         with open(path, "wb") as f:
             f.write(encode_png(self.image))
@@ -123,8 +123,6 @@ def text_block(smap: SemanticMap) -> str:
 def json_block(smap: SemanticMap) -> str:
     """Compact JSON "spatial code": {"units": "m", "axes": "x right, y forward, z up", "objects": [{"id", "label",
     "center": [x, y, z], "size": [l, w, h], "yaw_deg"}], "camera": {"first", "last"}?, "floor_area_m2"?} (2 decimals)."""
-    import json
-
     objs = []
     for o in sorted(smap.instances, key=lambda o: (o.name, o.id)):
         ax = np.asarray(o.box.axes)

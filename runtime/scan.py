@@ -113,37 +113,24 @@ def ssim(a: np.ndarray, b: np.ndarray, data_range: float | None = None, sigma: f
 
 @dataclass
 class DedupConf(StageConf):
-    """Defaults of the preprocessing stage (`DedupConf.merged(overrides)`, see config.StageConf)."""
+    """Defaults of the scan stage's redundant-frame removal (`DedupConf.merged(overrides)`, see StageConf)."""
 
     conf_name: ClassVar[str] = "dedup config"
 
     sample_fps: float | None = 3.0   # uniform down-sampling rate (None: use `stride`)
     stride: int = 1                  # keep every stride-th frame when sample_fps is None
-    # a short input (a 1 s clip, ten photos in a folder read at a nominal 30 fps) would keep one or two frames at
-    # sample_fps: below this many sampled frames the input is sampled by stride instead, so that at least
-    # min(this, all frames) are compared (near-duplicates are still dropped by the comparisons)
-    min_sampled: int = 16
+    min_sampled: int = 16            # fewer sampled frames than this (a short input): sample by stride instead
     work_width: int = 320            # frames are resized to this width for ORB and SSIM
-    # ORB keypoints per frame (the matching cost grows with their square) over `orb_levels` pyramid levels
-    # (scale 1.2 each). 300 over 4 levels costs ~2/3 of the comparisons' CPU, keeps the same frames on the
-    # 60 s clips and the kitchen but flips one borderline frame (x5, ping-pong) of seed 8's 600 s clip, which
-    # moved that run's key frames and cost it 3 aligned key frames: kept at 500 / 8 (docs/performance.md,
-    # "the scan's CPU")
-    orb_features: int = 500
-    orb_levels: int = 8
+    orb_features: int = 500          # ORB keypoints per frame (fewer flipped a borderline frame: docs/settings.md)
+    orb_levels: int = 8              # ... over this many pyramid levels (scale 1.2 each)
     # a frame is dropped as a near-duplicate of the last kept one when all three hold: SSIM >= ssim_threshold
     # (tested first: it makes the frame a "candidate"), >= min_tracked of the ORB keypoints tracked, and their
     # median displacement <= max_motion x width
     min_tracked: float = 0.35
     max_motion: float = 0.04
     ssim_threshold: float = 0.80
-    # a small gray copy of each kept frame (`ScanResult.thumbs`): later per-candidate signals (the key-frame
-    # search's content prior) read it instead of decoding every candidate of the video a second time
-    thumb_width: int = 64
-    # each kept frame's colour histogram (`keyframes.colour_histogram` with KeyFrameConf's bins and size) when the
-    # reader gives the colour frame (a video's scan does): the key-frame search's kernel widths read them instead
-    # of decoding every scored frame's +-r neighbours again (~270 extra reads, ~2 s on a 600 s mp4)
-    histograms: bool = True
+    thumb_width: int = 64            # kept frames' gray copies (`ScanResult.thumbs`): no candidate decoded twice
+    histograms: bool = True          # kept frames' colour histograms when the reader gives colour (the search's)
 
 
 

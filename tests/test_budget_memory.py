@@ -1,4 +1,4 @@
-"""The memory guard over real model sessions (runtime/budget/controller.py + runtime/providers.py): every session
+"""The memory guard over real model sessions (runtime/budget/controller.py + runtime/infra/providers.py): every session
 the pipeline opens registers with the run's BudgetController, idle ones are released when the memory is over the
 profile's budget (at the budget, not above it) and re-open on their next use; every release and re-open is in the
 trace and counted in the answer's warnings, and the answer is the one an unconstrained run gives."""

@@ -194,7 +194,7 @@ def test_build_script_runs_with_stand_in_trtexec(bundle, tmp_path, shellcheck):
 
 
 def test_runtime_takes_the_provider_chain(bundle):
-    """runtime/providers.py accepts the manifest's [name, options] chain; here (no GPU) it ends on CPU and
+    """runtime/infra/providers.py accepts the manifest's [name, options] chain; here (no GPU) it ends on CPU and
     records why."""
     from mosaicthinker.runtime.infra.providers import create_session
     from mosaicthinker.runtime.infra.trace import Trace

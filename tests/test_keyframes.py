@@ -262,7 +262,7 @@ def test_end_to_end_keyframes_on_a_small_scene(small_eval):
 
 
 def test_eval_keyframes_out_is_written_as_one_group(small_eval):
-    """`--out`: the result through runtime/outputs.py (temp file + rename, run.json complete, same run id) and
+    """`--out`: the result through runtime/infra/outputs.py (temp file + rename, run.json complete, same run id) and
     the scene renamed into place only once complete (no partial folder left)."""
     import json
 

@@ -1,5 +1,5 @@
 """`mosaic profile` on the shared real models: report.json / report.md / PNG charts, providers used, memory
-figures, measured costs written back into a profile, random-weight roles marked (runtime/profiling.py)."""
+figures, measured costs written back into a profile, random-weight roles marked (runtime/commands/profile.py)."""
 from __future__ import annotations
 
 import json

@@ -1,4 +1,4 @@
-"""Progress you can see (runtime/progress.py): bars only on a terminal and without --json, one summary line per
+"""Progress you can see (runtime/infra/progress.py): bars only on a terminal and without --json, one summary line per
 stage at the end, the first line before the command's imports, and `mosaic demo` leaving nothing in /tmp."""
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Session creation through runtime/providers.py: short names, fallback over providers missing on this machine
+"""Session creation through runtime/infra/providers.py: short names, fallback over providers missing on this machine
 (ends on CPU, reasons in the trace), first-run failure, thread settings. Real onnxruntime, no mocks."""
 from __future__ import annotations
 

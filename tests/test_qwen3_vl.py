@@ -1,4 +1,4 @@
-"""Qwen3-VL over the project's own graphs (export/hf_qwen3_vl.py, runtime/stages/vlm.py): onnxruntime-genai
+"""Qwen3-VL over the project's own graphs (export/hf_qwen3_vl.py, runtime/models/vlm.py): onnxruntime-genai
 0.18.0 has no DeepStack input, so the vision graph emits the merged AND the DeepStack features and the decoder
 takes them with 3-D M-RoPE positions and the KV cache. A tiny random Qwen3-VL (transformers' own config class,
 real vocabulary size and special ids) goes through `mosaic export vlm`; the runtime loop must reproduce

@@ -35,7 +35,7 @@ variant (`<c>_kvwindow_step`, `<c>_kvwindow_prefill`: static W-slot cache, KV_WI
 `kv_window_check` shows that the protocol reproduces the dynamic decoder's logits; otherwise the reason is
 recorded (`kv_window_check` in the component's android entry).
 
-Manifest fields written (all under the RESERVED `android` keys of runtime/bundle.py)::
+Manifest fields written (all under the RESERVED `android` keys of runtime/infra/bundle.py)::
 
     roles.<role>.variants["android-ort-<precision>"] = {precision, target: "android", components: {c: {file:
         <role>/android-ort-<p>/<c>.ort, format: "ort", ...}}, parity: {c: {...}}, android: {source_variant,

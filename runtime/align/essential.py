@@ -150,9 +150,8 @@ def essential_edge(pose: EssentialPose, depth_a: np.ndarray, depth_b: np.ndarray
 def _find_essential(xa: np.ndarray, xb: np.ndarray, thr: float, method: str) -> tuple[Any, Any]:
     """Robust essential matrix of normalised correspondences xa, xb [N, 2] -> (E, mask). "magsac":
     cv2.USAC_MAGSAC; "accurate": cv2.USAC_ACCURATE; "ransac": cv2.RANSAC; "magsac-prosac": MAGSAC++ scoring and
-    sigma consensus with PROSAC sampling over the score order (xa, xb best first) - measured on 7-Scenes + XFeat
-    K=32: 22% less CPU for the edges but ATE 0.089 m against 0.065-0.085 m for "magsac" over 5 match orders, so
-    not the default."""
+    sigma consensus with PROSAC sampling over the score order (xa, xb best first; cheaper, less accurate:
+    docs/settings.md)."""
     import cv2
 
     if method == "magsac-prosac":
@@ -175,8 +174,7 @@ def refine_essential(R: np.ndarray, t: np.ndarray, xa: np.ndarray, xb: np.ndarra
     update and t on the unit sphere (2 tangent directions). Returns (R [3, 3], t [3]).
 
     Levenberg-Marquardt with Huber IRLS weights (the minimum of scipy's least_squares(loss="huber") on the same
-    residuals); the Jacobian by forward differences, all 6 residual vectors in one batched evaluation (was
-    scipy's trf with one Python call per difference: ~50 ms a pair, now ~1 ms)."""
+    residuals); the Jacobian by forward differences, all 6 residual vectors in one batched evaluation."""
     ha = np.hstack([xa, np.ones((len(xa), 1))])
     hb = np.hstack([xb, np.ones((len(xb), 1))])
     u = np.cross(t, [1.0, 0, 0] if abs(t[0]) < 0.9 else [0, 1.0, 0])

@@ -2,7 +2,7 @@
 
 Matching can be restricted to keypoints inside object boxes (the paper's trick: no walls and floors, whose
 repeated texture gives wrong matches); with no boxes the whole image is used. Learned matchers
-(`runtime/stages/matcher.py`) expose the same `.match(rgb0, rgb1, boxes0=None, boxes1=None) -> Matches`.
+(`runtime/models/matcher.py`) expose the same `.match(rgb0, rgb1, boxes0=None, boxes1=None) -> Matches`.
 
 `FeatureMatcher` caches keypoints and descriptors per frame key, so aligning K frames extracts K feature sets,
 however many pairs are tried.
@@ -55,8 +55,6 @@ class MatchConf(StageConf):
     method: str = "sift"
     max_keypoints: int = 3000
     ratio: float | None = None   # Lowe's ratio test (best / second-best distance); None = 0.9 SIFT, 0.8 ORB
-                                 # (0.9 for SIFT: RANSAC removes the extra outliers, wide baselines need the
-                                 # extra matches; measured on 7-Scenes, see benchmarks/pose_table.py)
     mutual: bool = True          # keep only mutual nearest neighbours
     max_side: int = 640          # images are downscaled so that the longer side is at most this (speed)
     orb_fast_threshold: int = 12
@@ -321,7 +319,7 @@ def match_features(rgb0: np.ndarray, rgb1: np.ndarray, boxes0: np.ndarray | None
 
 @runtime_checkable
 class Matcher(Protocol):
-    """What alignment needs of a matcher (OpenCV `FeatureMatcher`, learned matchers in `runtime/stages/matcher.py`):
+    """What alignment needs of a matcher (OpenCV `FeatureMatcher`, learned matchers in `runtime/models/matcher.py`):
     matches between two images, optionally only for keypoints inside the given boxes."""
 
     def match(self, rgb0: np.ndarray, rgb1: np.ndarray, boxes0: np.ndarray | None = None,

@@ -20,6 +20,8 @@ from typing import Any, Callable, Mapping, Sequence
 from ..infra.trace import Trace, as_trace, peak_rss_mb, reset_peak_rss, rss_mb
 from .planner import STAGE_ALIASES, Plan, PlanConf, clip_of, plan
 from .profile import Profile
+from ..infra import providers
+import gc
 
 
 @dataclass(eq=False)
@@ -84,7 +86,6 @@ class BudgetController:
                                           "scored_frames": plan.scored_frames, "iterations": plan.iterations,
                                           "latency_budget_ms": plan.latency_budget_ms,
                                           "memory_budget_mb": plan.memory_budget_mb})
-        from ..infra import providers
 
         providers.watch(self)  # the memory guard of every model session opened under this trace
 
@@ -313,8 +314,6 @@ class BudgetController:
     def release_idle(self, keep: Sequence[str] = (), *, need_mb: float | None = None) -> list[str]:
         """Release sessions not in `keep` and not used in the current stage (largest first, until `need_mb` is
         free if given). Returns the names released; each is a trace event."""
-        import gc
-
         out = []
         for s in self._idle(keep):
             if need_mb is not None and self.headroom_mb() >= need_mb:

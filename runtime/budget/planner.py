@@ -23,6 +23,8 @@ from ..infra.config import StageConf
 from ..infra.errors import BudgetError, InputError
 from ..keyframes import KeyFrameConf, scored_budget
 from .profile import MODEL_COSTS, Profile, load_profile, nearest_variant
+from ..infra.bundle import load_bundle
+from ..infra.bundle import bundle_hash
 
 PLAN_SCHEMA = "mosaicthinker.plan/1"
 MAX_CLIP_S = 86400.0      # 24 h: longer clips are not one question's video (and overflow frame counts)
@@ -43,10 +45,7 @@ class PlanConf(StageConf):
     keyframes_min: int = 2             # alignment needs two frames; below this nothing fits
     plan_min_scored_per_keyframe: int = 4  # the search scores at least this many frames per key frame wanted
     max_scored_frames: int | None = None
-    # the search budget does not grow with duration (issue 14: a 600 s clip costs <= 1.5x a 60 s one): at most
-    # this many scored frames per key frame, whatever the number of candidates (None: the search's
-    # `KeyFrameConf.budget_fraction` alone)
-    plan_max_scored_per_keyframe: float | None = 6.0
+    plan_max_scored_per_keyframe: float | None = 6.0  # ... at most this many whatever the duration (None: no cap)
     dedup_keep_fraction: float = 0.5   # candidates / frames after redundant-frame removal (estimate)
     prompts_per_keyframe: float = 4.0  # segmenter prompts (objects) per key frame
     pairs_per_keyframe: float = 2.5    # matched pairs per key frame: tree edge + verification + retries (the
@@ -189,8 +188,6 @@ def _fmt(x: float) -> str:
 
 
 def _bundle_roles(bundle: Any) -> tuple[Any, list[str]]:
-    from ..infra.bundle import load_bundle
-
     b = load_bundle(bundle, verify=False)
     return b, b.roles
 
@@ -579,8 +576,6 @@ def plan(profile: Profile | str | os.PathLike, duration_s: float, fps: float, bu
         cand_how = "given"
     b, broles, bhash = None, None, None
     if bundle is not None:
-        from ..infra.bundle import bundle_hash
-
         b, broles = _bundle_roles(bundle)
         bhash = bundle_hash(b)
     used = _roles_used(prof, broles, c, notes)

@@ -34,6 +34,8 @@ from typing import Any, Mapping, Sequence
 
 from ..infra.errors import ProfileError
 from ..infra.trace import Trace, as_trace
+from ..infra.bundle import load_bundle
+import psutil
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -249,7 +251,6 @@ class Profile:
         None when the profile does not set the role or the bundle lacks it (= the bundle's default variant)."""
         if role not in self.roles:
             return None
-        from ..infra.bundle import load_bundle
 
         b = load_bundle(bundle, verify=False) if not hasattr(bundle, "role_meta") else bundle
         if not b.has_role(role):
@@ -289,7 +290,6 @@ class Profile:
         """Pin this process to `core_affinity` where the OS allows it (Linux, Android); recorded in the trace."""
         if not self.core_affinity:
             return None
-        import psutil
 
         trace = as_trace(trace)
         proc = psutil.Process()

@@ -13,6 +13,16 @@ from typing import Any
 from ..infra.errors import InputError
 from ..infra.outputs import RunOutputs, note_outputs, save_run
 from ..grounding import split_inline_options  # linear; lives with the question parser
+from ..cli import add_stage_flags
+from .flags import add_answerer, add_keyframes
+from .. import pipeline
+from ..budget import load_profile
+from ..infra.trace import Trace
+from ..grounding import check_question
+from ..infra.bundle import load_bundle
+from ..answer import UNIT_WORDS
+from ..evidence import line
+from ..grounding_nl import EXAMPLES
 
 
 # trace events the printed answer repeats (a degraded or re-planned run says so next to its answer)
@@ -20,9 +30,6 @@ WARNING_KINDS = ("fallback", "degraded", "random_weights", "not_in_map", "unknow
                  "replan", "reduced_plan")
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from ..cli import add_stage_flags
-    from .flags import add_answerer, add_keyframes
-
     p.add_argument("source", nargs="?", help="video file, image / RGB-D folder, or a saved map (map.json)")
     p.add_argument("question", nargs="?", help="the question in plain English (`--examples` lists wordings the "
                                                "map reasoner understands)")
@@ -49,18 +56,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
-    from .. import pipeline
-    from ..budget import load_profile
-    from ..infra.trace import Trace
-
     if args.examples:
-        from ..grounding_nl import EXAMPLES
-
         return {"schema": "mosaicthinker.ask.examples/1", "examples": EXAMPLES}
     if not args.source or not args.question or not args.question.strip():
         raise InputError("ask: give SOURCE and QUESTION (`mosaic ask map.json \"How many chairs are there?\"`), "
                          "or --examples")
-    from ..grounding import check_question
 
     question, options = args.question, args.option
     check_question(question, options)
@@ -124,7 +124,6 @@ def default_matcher(bundle: Any) -> str:
     """'model' when the bundle has a `matcher` role (its learned matcher is what it was built with), else sift."""
     if not bundle:
         return "sift"
-    from ..infra.bundle import load_bundle
 
     try:
         return "model" if load_bundle(bundle).has_role("matcher") else "sift"
@@ -159,8 +158,6 @@ def _variant(v: Any) -> str:
 
 def _unit_suffix(r: dict[str, Any]) -> str:
     """" m" after a plain number in a unit (a person reads "1.3 m", the benchmark scores the number alone)."""
-    from ..answer import UNIT_WORDS
-
     unit, text = r.get("unit"), str(r.get("answer", ""))
     if r.get("status") != "ok" or not unit or not re.fullmatch(r"-?\d+(?:\.\d+)?", text):
         return ""
@@ -177,7 +174,6 @@ def render(r: dict[str, Any]) -> str:
         lines.append(f"  map: {len(r['instances'])} object(s)" + (f" from {len(r['keyframes'])} key frames"
                                                                    if r.get("keyframes") else "")
                      + (f" ({len(r['unaligned'])} unaligned, left out)" if r.get("unaligned") is not None else ""))
-    from ..evidence import line
 
     if r.get("evidence"):
         lines.append("  " + line(r["evidence"]))

@@ -20,6 +20,14 @@ from typing import Any
 
 from ..infra.errors import InputError
 from ..infra.outputs import RunOutputs, note_outputs, save_run
+from .flags import add_answerer, add_clip, add_complexity, add_keyframes, add_size, deprecated_alias
+from ..answer import answer_question
+from ..frames import open_source
+from ..grounding import parse_question
+from ..pipeline import build_map, load_vlm, perception_from_bundle
+from ..prompt import render as render_prompt
+from ..infra.trace import Trace
+from ..infra.bundle import load_bundle
 
 DEMO_TYPES = ("object_counting", "object_size_estimation", "object_abs_distance", "object_rel_distance",
               "object_rel_direction_hard", "object_rel_direction_medium", "route_planning", "obj_appearance_order",
@@ -30,8 +38,6 @@ COMMON_FLAGS = ("bundle", "out")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from .flags import add_answerer, add_clip, add_complexity, add_keyframes, add_size, deprecated_alias
-
     p.add_argument("--seed", type=int, default=4, help="scene seed")
     add_complexity(p, "low")
     p.add_argument("--room", choices=["small", "medium", "large"], default="medium", help="room-size level")
@@ -63,16 +69,10 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def _run(args: argparse.Namespace, out: Path, outs: "RunOutputs", size: tuple[int, int]) -> dict[str, Any]:
-    from ..answer import answer_question
     from mosaicthinker.host.evaluation.oracle_perception import oracle_perception
     from mosaicthinker.host.evaluation.vsibench import score_answer
-    from ..frames import open_source
-    from ..grounding import parse_question
-    from ..pipeline import build_map, load_vlm, perception_from_bundle
-    from ..prompt import render as render_prompt
     from mosaicthinker.host.synth.generate import write_scene
     from mosaicthinker.host.synth.scene import SceneConfig
-    from ..infra.trace import Trace
 
     w, h = size
     scene_dir = out / "scene"
@@ -101,7 +101,6 @@ def _run(args: argparse.Namespace, out: Path, outs: "RunOutputs", size: tuple[in
         targets = sorted(json.loads((scene_dir / "scene.json").read_text())["object_counts"])
 
     # perception: the bundle's real detector where it has one, else the oracle (no model files)
-    from ..infra.bundle import load_bundle
 
     use_models = bool(args.bundle) and load_bundle(args.bundle).has_role("detector")
     if use_models:

@@ -11,6 +11,7 @@ import sys
 from typing import Any, Sequence
 
 from ..keyframes import KeyFrameConf
+import re
 
 # API parameter / config field -> the flag that sets it: the CLI rewrites a MosaicError's backticked `field`
 # (or `field=value`) as `--flag` (`--flag value`); the library's messages name the parameters (errors.py).
@@ -29,8 +30,6 @@ _FIELD_RE = None
 def cli_message(message: str, fields: Sequence[str]) -> str:
     """A library message in the CLI's words: each backticked `field` / `field=value` of `fields` that has a
     flag becomes `--flag` / `--flag value`; everything else is left as written."""
-    import re
-
     global _FIELD_RE
     _FIELD_RE = _FIELD_RE or re.compile(r"`([A-Za-z_][\w.]*)(?:=([^`]*))?`")
 

@@ -13,12 +13,18 @@ from typing import Any
 
 from ..infra.errors import InputError
 from ..infra.outputs import RunOutputs, note_outputs, save_run
+from ..cli import add_stage_flags
+from .flags import add_keyframes
+from ..grounding import canonical_name
+from ..models.detector import detectable_names
+from .. import pipeline
+from ..budget import load_profile
+from ..prompt import render as render_prompt
+from ..infra.trace import Trace
+import numpy as np
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from ..cli import add_stage_flags
-    from .flags import add_keyframes
-
     p.add_argument("source", help="video file or image / RGB-D folder")
     p.add_argument("--objects", default=None, help="comma-separated object names to map (default: all the "
                                                    "detector can detect)")
@@ -43,8 +49,6 @@ def _out_paths(out: str | None, source: Path) -> tuple[Path, Path, Path]:
 
 def default_objects(args: argparse.Namespace, source: Path) -> list[str]:
     """Every category the chosen detector can detect, as vocabulary names."""
-    from ..grounding import canonical_name
-
     if args.detector == "oracle":
         from mosaicthinker.host.synth.generate import load_scene
 
@@ -52,7 +56,6 @@ def default_objects(args: argparse.Namespace, source: Path) -> list[str]:
     if not args.bundle:
         raise InputError("mosaic map with --detector model needs --bundle (or give --detector oracle on a "
                          "synthetic scene)")
-    from ..models.detector import detectable_names
 
     return detectable_names(args.bundle)
 
@@ -68,12 +71,6 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def _run(args: argparse.Namespace, src: Path, outs: RunOutputs, paths: tuple[Path, Path, Path]) -> dict[str, Any]:
-    from .. import pipeline
-    from ..budget import load_profile
-    from ..grounding import canonical_name
-    from ..prompt import render as render_prompt
-    from ..infra.trace import Trace
-
     map_path, png_path, trace_path = paths
     trace = Trace()
     note_outputs(outs, trace)
@@ -105,8 +102,6 @@ def _run(args: argparse.Namespace, src: Path, outs: RunOutputs, paths: tuple[Pat
     build = pipeline.build_map(pipeline.open_frames(src, trace), names, [], perception, conf, trace, args.keyframes)
     pts = ids = None
     if args.prompt == "points":
-        import numpy as np
-
         pts = np.concatenate([c for c in build.clouds if len(c)] or [np.zeros((0, 3))])
         ids = np.concatenate([np.full(len(c), o.id) for o, c in zip(build.map.instances, build.clouds)
                               if len(c)] or [np.zeros(0, int)])

@@ -12,14 +12,14 @@ from typing import Any
 from ..infra.errors import BudgetError, InputError, MosaicError
 from ..budget.planner import STARTS, PlanConf, clip_of, plan
 from ..budget.profile import MODEL_SETS, list_profiles
+from .flags import add_answerer, add_clip
+from ..frames import open_source
 
 
 COMMON_FLAGS = ("bundle", "profile")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from .flags import add_answerer, add_clip
-
     src = parser.add_argument_group("clip (one of)")
     src.add_argument("--video", metavar="V", help="video, image folder or RGB-D folder: its length and fps")
     add_clip(src, None, None, "clip (with --fps; or the --fps of an image folder)")
@@ -45,7 +45,6 @@ def _clip_from_args(args: argparse.Namespace) -> tuple[float, float]:
     if args.video:
         if args.duration:
             raise InputError("give either --video or --duration, not both")
-        from ..frames import open_source
 
         return clip_of(open_source(args.video, **({"fps": args.fps} if args.fps else {})), args.fps)
     if args.duration is None or args.fps is None:

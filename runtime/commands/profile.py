@@ -37,6 +37,16 @@ from ..infra.bundle import bundle_hash
 from ..infra.errors import InputError, MosaicError
 from ..infra.outputs import check_out_dir
 from ..infra.trace import Trace, peak_rss_mb, reset_peak_rss, rss_mb
+from ..infra.providers import create_session
+from ..models import load_role
+from ..infra.bundle import load_bundle
+from ..pipeline import ask
+from ..geometry import make_pose, ransac_transform, rotation_about
+from .flags import add_keyframes
+from ..infra.progress import stderr_is_terminal
+from ..frames import open_source
+import multiprocessing as mp
+from concurrent.futures import ProcessPoolExecutor
 
 REPORT_SCHEMA = "mosaicthinker.profile_report/1"
 _ORT_DTYPES = {"float": np.float32, "float16": np.float16, "double": np.float64, "uint8": np.uint8,
@@ -157,8 +167,6 @@ def _variant_for(bundle: Any, role: str, profile: Profile | None, which: str) ->
 def profile_components(bundle: Any, role: str, variant: str, providers: list[str] | None, threads: int | None,
                        runs: int, warmup: int, trace: Trace, rng: np.random.Generator) -> dict[str, Any]:
     """Per component of one variant: load ms, warm latency, memory, provider used (errors recorded, not raised)."""
-    from ..infra.providers import create_session
-
     spec = bundle.spec(role, variant, verify=True)
     out: dict[str, Any] = {}
     for cname, comp in spec.components.items():
@@ -236,8 +244,6 @@ def _adapter_call(model: Any, role: str, frames: list[np.ndarray], n: int
 def profile_adapter(bundle: Any, role: str, variant: str, providers: list[str] | None, threads: int | None,
                     runs: int, warmup: int, trace: Trace, frames: list[np.ndarray]) -> dict[str, Any]:
     """The runtime adapter of a role (pre/post-processing included): load ms, warm latency, memory, providers."""
-    from ..models import load_role
-
     rec: dict[str, Any] = {}
     try:
         with _Mem() as m:
@@ -273,8 +279,6 @@ def _role_worker(job: dict[str, Any]) -> dict[str, Any]:
 
     import onnxruntime  # noqa: F401
 
-    from ..infra.bundle import load_bundle
-    from ..models import load_role  # noqa: F401 - import cost outside the measurement
 
     trace = Trace()
     base = rss_mb()
@@ -290,21 +294,16 @@ def _role_worker(job: dict[str, Any]) -> dict[str, Any]:
 
 def _question_worker(job: dict[str, Any]) -> dict[str, Any]:
     """One full question through `pipeline.ask` in THIS process: wall time, per-stage times, peak RSS."""
-    from ..pipeline import ask
-
-    import resource
-
     reset_peak_rss()
     base = rss_mb()
     trace = Trace()
     prof = load_profile(job["profile"]) if job.get("profile") else None
-    ru0 = resource.getrusage(resource.RUSAGE_SELF)
+    c0 = time.process_time()  # user + system CPU of every thread of this process
     t0 = time.perf_counter()
     res = ask(job["video"], job["question"], bundle=job["bundle"], profile=prof, trace=trace,
               conf={"depth": "model", "matcher": "model"}, keyframes=job.get("keyframes"))
     wall = time.perf_counter() - t0
-    ru1 = resource.getrusage(resource.RUSAGE_SELF)
-    cpu = (ru1.ru_utime - ru0.ru_utime) + (ru1.ru_stime - ru0.ru_stime)
+    cpu = time.process_time() - c0
     td = trace.to_dict()
     kf = td["decisions"].get("keyframes", {})
     return {"question": job["question"], "answer": res.answer.text, "wall_s": round(wall, 3), "cpu_s": round(cpu, 3),
@@ -318,9 +317,6 @@ def _question_worker(job: dict[str, Any]) -> dict[str, Any]:
 
 def _run_isolated(job: dict[str, Any], fn: Callable[[dict[str, Any]], dict[str, Any]] | None = None
                   ) -> dict[str, Any]:
-    import multiprocessing as mp
-    from concurrent.futures import ProcessPoolExecutor
-
     with ProcessPoolExecutor(max_workers=1, mp_context=mp.get_context("spawn")) as ex:
         return ex.submit(fn or _role_worker, job).result()
 
@@ -330,8 +326,6 @@ def profile_cpu_side(video: str | None, frames: list[np.ndarray], runs: int, max
     """CPU-side pieces that exist: video decode and dedup per frame (needs --video), RANSAC per pair."""
     out: dict[str, Any] = {}
     if video:
-        from ..frames import open_source
-
         try:
             src = open_source(video, cache_size=0)
             n = min(len(src), max_frames)
@@ -355,7 +349,6 @@ def profile_cpu_side(video: str | None, frames: list[np.ndarray], runs: int, max
                             "note": "whole pass per video frame, including the decoding it does"}
         except Exception as e:  # noqa: BLE001
             out["dedup"] = {"error": f"{type(e).__name__}: {str(e)[:200]}"}
-    from ..geometry import make_pose, ransac_transform, rotation_about
 
     rng = np.random.default_rng(0)
     src_pts = rng.uniform(-2, 2, (400, 3))
@@ -377,8 +370,6 @@ def profile_cpu_side(video: str | None, frames: list[np.ndarray], runs: int, max
 def load_frames(video: str | None, n: int = 2) -> tuple[list[np.ndarray], str]:
     """Two real frames from --video (first and a quarter in), else synthetic ones (the second shifted by 8 px)."""
     if video:
-        from ..frames import open_source
-
         src = open_source(video)
         idx = [0, max(1, len(src) // 4)] if len(src) > 1 else [0]
         return [src[i].rgb for i in idx][:n], f"{video} frames {idx}"
@@ -477,7 +468,6 @@ def run_profile(bundle: Any, profile: Profile | str | None = None, *, video: str
     """
     from tqdm import tqdm
 
-    from ..infra.bundle import load_bundle
 
     import cv2  # noqa: F401 - counted in the runtime's baseline
 
@@ -706,7 +696,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--question", default="How many chairs are in this room?",
                         help="with --video: one full question through the pipeline, timed per stage")
     parser.add_argument("--no-question", action="store_true", help="skip the full-question run")
-    from .flags import add_keyframes
 
     add_keyframes(parser)  # K of the full-question run
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -715,8 +704,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
-    from ..infra.progress import stderr_is_terminal
-
     if not args.bundle:
         raise InputError("mosaic profile needs --bundle DIR")
     if args.runs < 1 or args.warmup < 1:

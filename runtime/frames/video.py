@@ -47,10 +47,7 @@ class VideoSource(FrameSource):
     """
 
     seek_min: int = 48  # forward jumps longer than this seek instead of decoding every frame in between
-    # FFmpeg decoder threads of the opening scan (None: `worker_threads()` less one, at least 1: the
-    # redundant-frame removal's worker has a core of its own). On two cores FFmpeg's own choice (one thread
-    # per core, competing with that worker) cost ~1 s more wall and ~1.5 s more CPU on the 600 s clip than one
-    # decoder thread: docs/performance.md, "the scan's CPU" and "round 4"
+    # FFmpeg threads of the opening scan (None: the cores less one: the observer's worker has its own)
     scan_decoder_threads: int | None = None
 
     def __init__(self, path: Path, hfov_deg: float = 60.0, K: np.ndarray | None = None,

@@ -1,5 +1,7 @@
 """One small exception hierarchy. Messages name the file/field and say what to do."""
 from __future__ import annotations
+import signal
+import threading
 
 
 class MosaicError(Exception):
@@ -51,8 +53,6 @@ class Interrupted(KeyboardInterrupt):
     KeyboardInterrupt, not a MosaicError, so no `except MosaicError` fallback can swallow it."""
 
     def __init__(self, signum: int):
-        import signal
-
         self.signum = signum
         super().__init__(f"interrupted by {signal.Signals(signum).name}; no output of this run was kept")
 
@@ -95,9 +95,6 @@ class handle_signals:
     Python, so a closed stdout raises BrokenPipeError, handled by the CLI."""
 
     def __enter__(self) -> "handle_signals":
-        import signal
-        import threading
-
         self._old: dict[int, object] = {}
         if threading.current_thread() is threading.main_thread():
             for sig in (signal.SIGTERM, signal.SIGHUP):
@@ -109,7 +106,5 @@ class handle_signals:
         raise Interrupted(signum)
 
     def __exit__(self, *exc: object) -> None:
-        import signal
-
         for sig, old in self._old.items():
             signal.signal(sig, old)

@@ -30,6 +30,8 @@ import numpy as np
 
 from .errors import OutputError
 from .trace import as_trace
+import io
+from .trace import jsonable
 
 LOCK = ".mosaic.lock"
 RUN_FILE = "run.json"
@@ -166,8 +168,6 @@ class RunOutputs:
 
     def add_json(self, name: str, obj: dict[str, Any], indent: int | None = 1) -> Path:
         """Stage a JSON object (a `run_id` field is added)."""
-        from .trace import jsonable
-
         obj = {**jsonable(obj), "run_id": self.run_id}
         return self._stage(name, (json.dumps(obj, indent=indent, default=str) + "\n").encode())
 
@@ -266,8 +266,6 @@ def _fsync_dir(folder: Path) -> None:
 
 def encode_png(rgb: np.ndarray, text: dict[str, str] | None = None) -> bytes:
     """RGB [H, W, 3] uint8 -> PNG bytes (Pillow, so text chunks can carry the run id). Raises on failure."""
-    import io
-
     from PIL import Image, PngImagePlugin
 
     if rgb is None or rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.size == 0:

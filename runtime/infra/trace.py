@@ -11,7 +11,7 @@ import os
 import sys
 import time
 import warnings
-from contextlib import contextmanager
+from contextlib import contextmanager, nullcontext
 from dataclasses import dataclass, field
 from typing import Any, Iterator
 
@@ -183,7 +183,7 @@ class StageLog(Trace):
 
 def _jsonable(x: Any) -> Any:
     """Convert numpy scalars/arrays and dataclass-ish values into JSON-friendly objects."""
-    import numpy as np
+    import numpy as np  # noqa: PLC0415 - the CLI's first line comes before numpy loads
 
     if isinstance(x, dict):
         return {str(k): _jsonable(v) for k, v in x.items()}
@@ -206,8 +206,6 @@ class NullTrace(Trace):
     degraded answer is never silent). Lets stage code call trace methods without `if trace is not None`."""
 
     def stage(self, name: str) -> Any:
-        from contextlib import nullcontext
-
         return nullcontext(StageRecord(name))
 
     def event(self, kind: str, message: str, *, warn: bool = False, **data: Any) -> None:

@@ -13,7 +13,7 @@ Interfaces (shapes as in ARCHITECTURE.md):
 - matcher:   `.match(rgb0, rgb1, boxes0=None, boxes1=None) -> matching.Matches`
 - vlm:       see the VLM adapter (H6)
 
-Adding an architecture: write `runtime/stages/<module>.py` with a `RoleModel` subclass and add ONE line to
+Adding an architecture: write `runtime/models/<module>.py` with a `RoleModel` subclass and add ONE line to
 `ARCHS` ("arch": "module:Class"); the class receives a `RoleSpec` (manifest metadata + component paths) and the
 created sessions.
 """
@@ -32,6 +32,7 @@ from ..infra.bundle import Bundle, RoleSpec, load_bundle
 from ..infra.errors import BundleError, InputError
 from ..infra.lru import LRU
 from ..infra.trace import Trace
+from ..infra.providers import create_session, files_mb
 
 # arch (manifest roles.<role>.arch) -> "module:Class" inside mosaicthinker.runtime.models
 ARCHS: dict[str, str] = {
@@ -140,8 +141,6 @@ def load_role(bundle_or_dir: Bundle | str | os.PathLike, role: str, variant: str
     variant: e.g. "fp32", "int8-dynamic" (default: the role's default_variant). The component files are
     sha256-checked before any session is created.
     """
-    from ..infra.providers import create_session, files_mb
-
     trace = trace if trace is not None else Trace()
     b = load_bundle(bundle_or_dir, verify=False)
     spec = b.spec(role, variant, verify=True)

@@ -36,6 +36,7 @@ import numpy as np
 from ..infra.errors import InputError
 from ..map.floor import fit_floor_plane
 from . import RoleModel, preprocess_image
+from ..geometry import sample_depth
 
 SEMANTICS = ("metric_m", "relative", "relative_inverse")
 
@@ -98,8 +99,6 @@ def _fit(x: np.ndarray, y: np.ndarray, shift: bool, trim_rounds: int = 2) -> tup
 def fit_to_points(pred: np.ndarray, uv: np.ndarray, z: np.ndarray, semantics: str = "relative",
                   shift: bool = True) -> ScaleShift:
     """Fit (s, t) so that pred at pixels uv [N, 2] (x, y) maps to metric depths z [N] (metres, > 0)."""
-    from ..geometry import sample_depth
-
     _check_semantics(semantics)
     uv = np.asarray(uv, np.float32).reshape(-1, 2)
     z = np.asarray(z, np.float64).reshape(-1)

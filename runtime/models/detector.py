@@ -15,6 +15,10 @@ import numpy as np
 
 from ..types import Detections
 from . import ImageLRU, RoleModel, preprocess_image
+from ..infra.bundle import load_bundle
+from ..infra.errors import InputError
+from ..grounding import VOCABULARY
+import difflib
 
 # question name -> candidate labels (the first one present in the model's label list is used; several may be).
 SYNONYMS: dict[str, list[str]] = {
@@ -75,10 +79,6 @@ def detectable_names(bundle: Any, preferred: Sequence[str] = ()) -> list[str]:
     (`one_name_per_label`; `preferred` names first, e.g. the question's): what a map of "everything" holds.
     bundle: a bundle folder or a loaded `Bundle`. InputError when it has no detector or an open-vocabulary one
     (which detects only what it is asked for)."""
-    from ..infra.bundle import load_bundle
-    from ..infra.errors import InputError
-    from ..grounding import VOCABULARY
-
     b = load_bundle(bundle) if isinstance(bundle, (str, os.PathLike)) else bundle
     if not b.has_role("detector"):
         raise InputError(f"{b.root}: the bundle has no `detector` role")
@@ -93,8 +93,6 @@ def detectable_names(bundle: Any, preferred: Sequence[str] = ()) -> list[str]:
 def closed_labels(bundle: Any) -> list[str] | None:
     """The label list of the bundle's closed-set detector; None without a detector or with an open-vocabulary
     one. bundle: a bundle folder or a loaded `Bundle`."""
-    from ..infra.bundle import load_bundle
-
     b = load_bundle(bundle) if isinstance(bundle, (str, os.PathLike)) else bundle
     return (b.spec("detector", verify=False).semantics.get("labels") or None) if b.has_role("detector") else None
 
@@ -103,9 +101,6 @@ def undetectable_names(bundle: Any, names: Sequence[str]) -> tuple[list[str], in
     """(the `names` the bundle's closed-set detector cannot detect, its number of labels, {such a name: a close
     spelling it can detect} for typos like "chiars"): what a question may name that no frame can show. ([], 0,
     {}) when the bundle has no detector or an open-vocabulary one (it looks for any name)."""
-    import difflib
-
-    from ..grounding import VOCABULARY
 
     labels = closed_labels(bundle)
     if not labels:

@@ -1,5 +1,5 @@
 """Learned matcher adapters: `.match(rgb0, rgb1, boxes0=None, boxes1=None) -> matching.Matches`, the same
-interface as the ORB/SIFT `FeatureMatcher` in runtime/matching.py.
+interface as the ORB/SIFT `FeatureMatcher` in runtime/align/matching.py.
 
 Graph I/O contract (every learned matcher export MUST follow one of the two; `semantics.contract` says which):
 
@@ -102,9 +102,7 @@ class TwoStageMatcher(RoleModel):
         self._ext_in = self._ext.input_names[0]
         self._cache = ImageLRU(self.cache_size)
         self.normalize_kpts = bool(spec.config.get("normalize_kpts", False))
-        # keypoint localisation noise (pixels) for geometric verification thresholds (alignment's essential-
-        # matrix edges): XFeat's keypoints come from 8x8-cell heatmaps and are coarser than SIFT's sub-pixel ones;
-        # 2 px measured best on 7-Scenes (ATE 0.08-0.09 m at K=32 vs 0.14 m at 1 px)
+        # keypoint noise (px) for the essential edges' threshold: heatmap keypoints are coarser than SIFT's
         self.keypoint_px = float(spec.config.get("keypoint_px", 2.0))
 
     def features(self, rgb: np.ndarray, key: Any = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

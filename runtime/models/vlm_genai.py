@@ -4,7 +4,7 @@ The bundle's variant names its package folder (`variants.<v>.genai.package`: gen
 processor_config.json, tokenizer, decoder/embedding/vision graphs, every file sha256-listed in the manifest).
 GenAI owns the whole loop: its processor turns the image into patches and expands the image tokens, its
 Generator runs vision, embedding merge, M-RoPE positions, prefill and greedy decode with the KV cache. Same
-`generate(images, prompt, max_new_tokens) -> str` interface as the project's own loop (runtime/stages/vlm.py),
+`generate(images, prompt, max_new_tokens) -> str` interface as the project's own loop (runtime/models/vlm.py),
 so the answerer's parsing does not change.
 
 `onnxruntime_genai` is the optional `vlm` extra, imported only here, only when such a bundle is loaded.
