@@ -178,12 +178,13 @@ def worker_threads(n: int = 0) -> int:
 
 
 def ransac_transform(src: np.ndarray, dst: np.ndarray, threshold: float = 0.05, iterations: int = 1000,
-                     with_scale: bool = False, min_inliers: int = 12, confidence: float = 0.999,
+                     with_scale: bool = False, *, min_inliers: int, confidence: float = 0.999,
                      rng: np.random.Generator | int | None = 0) -> RansacResult:
     """Robust SE(3) (or Sim(3)) from 3D-3D correspondences: Umeyama inside RANSAC, then an inlier refit.
 
     src, dst: [N, 3] metres; threshold: inlier distance (m). Stops early by the usual confidence bound.
-    `ok` is False when fewer than `min_inliers` agree (the caller must not trust `T` then).
+    `ok` is False when fewer than `min_inliers` agree (the caller's setting, e.g. `AlignConf.min_inliers`; the
+    caller must not trust `T` then).
     """
     src = np.asarray(src, dtype=np.float64)
     dst = np.asarray(dst, dtype=np.float64)

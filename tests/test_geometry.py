@@ -68,7 +68,7 @@ def test_ransac_recovers_transform_with_half_outliers(with_scale):
     out = np.zeros(300, bool)
     out[rng.choice(300, 150, replace=False)] = True
     dst[out] += rng.uniform(0.3, 2.0, size=(150, 3)) * rng.choice([-1, 1], size=(150, 3))
-    r = G.ransac_transform(src, dst, threshold=0.01, with_scale=with_scale, rng=0)
+    r = G.ransac_transform(src, dst, threshold=0.01, with_scale=with_scale, min_inliers=12, rng=0)
     assert r.ok
     assert np.array_equal(r.inliers, ~out)
     assert np.abs(r.T - T).max() < 1e-6

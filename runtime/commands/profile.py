@@ -32,6 +32,7 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
+from ..align import AlignConf
 from ..budget import Profile, load_profile, update_profile_costs
 from ..infra.bundle import bundle_hash
 from ..infra.errors import InputError, MosaicError
@@ -356,7 +357,8 @@ def profile_cpu_side(video: str | None, frames: list[np.ndarray], runs: int, max
     dst = src_pts @ T[:3, :3].T + T[:3, 3]
     dst[:120] += rng.normal(0, 0.5, (120, 3))
     try:
-        times, _ = time_calls(lambda: ransac_transform(src_pts, dst), runs, 1)
+        pair = lambda: ransac_transform(src_pts, dst, min_inliers=AlignConf.keyframe_min_inliers)  # noqa: E731
+        times, _ = time_calls(pair, runs, 1)
         out["ransac_pair"] = {"latency_ms": percentiles(times), "points": 400, "outliers": 120}
     except Exception as e:  # noqa: BLE001
         out["ransac_pair"] = {"error": f"{type(e).__name__}: {str(e)[:200]}"}
