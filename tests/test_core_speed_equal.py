@@ -276,15 +276,15 @@ def test_threads_give_identical_alignment_and_map_7scenes(redkitchen, with_scale
 def _fused(frames, poses, threads, monkeypatch, prelift=False):
     """The pipeline's fusion step (lifting per frame on `threads` threads) with two box detections per frame;
     prelift: the key frames lifted in the camera frame first, as perception does, and only placed by fusion."""
-    from mosaicthinker.runtime import pipeline
+    from mosaicthinker.runtime.map import fuse
     from mosaicthinker.runtime.types import Detections
 
-    monkeypatch.setattr(pipeline, "worker_threads", lambda n=0: threads)
+    monkeypatch.setattr(fuse, "worker_threads", lambda n=0: threads)
     H, W = frames[0].depth.shape
     boxes = np.array([[0, 0, W // 2, H // 2], [W // 3, H // 3, W, H]], np.float32)
     dets = {f.index: Detections(boxes, np.array([0.9, 0.8], np.float32), ["a", "b"]) for f in frames}
     fconf = sm.FusionConfig()
-    lifted = {f.index: pipeline._lift(f, dets[f.index], fconf) for f in frames} if prelift else None
+    lifted = {f.index: sm.lift_detections(f, dets[f.index], fconf) for f in frames} if prelift else None
     if prelift:
         for f in frames:  # the same points as lifting with the pose
             want = sm.lift_observations(f.depth.shape, f.depth, f.K, poses.get(f.index, np.eye(4)), boxes,
@@ -292,7 +292,7 @@ def _fused(frames, poses, threads, monkeypatch, prelift=False):
             got = sm.place(lifted[f.index], poses.get(f.index, np.eye(4)))
             assert [o.name for o in got] == [o.name for o in want]
             assert all(np.allclose(a.points, b.points, atol=1e-9) for a, b in zip(got, want))
-    return pipeline.fuse_frames(frames, dets, poses, fconf, None, lifted)[1]
+    return fuse.fuse_frames(frames, dets, poses, fconf, None, lifted)[1]
 
 
 def test_threads_config_checked():
