@@ -15,7 +15,9 @@ from mosaicthinker.runtime.errors import InputError
 from mosaicthinker.runtime.geometry import OrientedBox
 from mosaicthinker.runtime.grounding import (MAX_QUESTION_CHARS, canonical_name, parse_question, safe_text,
                                              split_inline_options)
-from mosaicthinker.runtime.grounding_nl import direction_words, examples, noun_phrases, tokens
+from mosaicthinker.runtime.query.ir import Count, List, NearestTo, Ref, Relation
+from mosaicthinker.runtime.query.rules.lexicon import examples
+from mosaicthinker.runtime.query.rules.tokens import direction_words, noun_phrases, tokens
 from mosaicthinker.runtime.semantic_map import ObjectInstance, SemanticMap
 
 # name, centre (x, y, z), size (x, y, z): axis-aligned, metres, z up
@@ -186,7 +188,7 @@ def test_the_questions_own_back_rule():
     q = ("From the desk, facing the whiteboard, is the radiator left, right, or behind (count it as behind if I'd "
          "have to turn {} degrees or more)?")
     opts = ["A. left", "B. right", "C. back"]
-    assert parse_question(q.format(50)).params["back_deg"] == 50.0
+    assert parse_question(q.format(50)).node.back_deg == 50
     assert ask(q.format(int(th) - 1), opts).value == "back" and ask(q.format(int(th) + 1), opts).value != "back"
 
 
@@ -275,7 +277,7 @@ def test_tokens_phrases_and_directions():
 
 def test_the_parser_reads_only_the_question_and_options():
     p = parse_question("How many stools are there?")
-    assert (p.qtype, p.params, p.how) == ("object_counting", {"object": "stool"}, "natural")
+    assert (p.qtype, p.node, p.how) == ("object_counting", Count((Ref("stool", "stools"),)), "natural")
     p = parse_question("How many stool(s) are in this room?")
     assert (p.qtype, p.how) == ("object_counting", "template")
 
@@ -437,7 +439,7 @@ def test_is_a_on_b_what_is_on_b_and_anything_on_b():
         a = ask(q)  # an IndexError (exit 1) before
         assert a.status == "unsupported" and "on, near, in, under" in a.explanation, q
     assert ask("is the tv on the piano?").status == "not_found"
-    assert parse_question("what's in the room?").params == {"objects": []}  # a room is not a location to test
+    assert parse_question("what's in the room?").node == List()  # a room is not a location to test
     assert parse_question("which things are near the couch?").qtype == "object_list"
     assert parse_question("what's next to the couch?").qtype == "object_nearest"  # one object: the nearest
 
@@ -580,7 +582,7 @@ def test_show_me_and_find_are_where_questions_and_behind_reads_right():
 
 def test_every_listed_example_parses_to_its_own_type():
     """`mosaic ask --examples` promises these wordings: each must be read as the type it is listed under."""
-    from mosaicthinker.runtime.grounding_nl import EXAMPLES
+    from mosaicthinker.runtime.query.rules.lexicon import EXAMPLES
 
     for qtype, qs in EXAMPLES.items():
         for q in qs:
@@ -622,11 +624,12 @@ def test_a_pronoun_after_a_location_is_the_object_named_before_it():
     q, explicit = "how much shorter is the desk than the chairs next to it?", \
         "how much shorter is the desk than the chairs next to the desk?"
     assert ask(q).text == want == ask(explicit).text != "14 cm"
-    assert parse_question(q).selectors == parse_question(explicit).selectors == {"chair": {"near": "desk"}}
+    assert parse_question(q).node == parse_question(explicit).node
+    assert parse_question(q).node.candidates[1].select == (NearestTo("desk"),)
     a, b = parse_question("the desk: how many chairs are next to it?"), parse_question("how many chairs are near "
                                                                                         "the desk?")
-    assert a.params == b.params and a.params["where"] == {"relation": "near", "object": "desk"}
-    assert parse_question("how many cups are near that desk?").params["where"]["object"] == "desk"  # a determiner
+    assert a.node == b.node and a.node.where == Relation("near", Ref("desk"))
+    assert parse_question("how many cups are near that desk?").node.where.object.name == "desk"  # a determiner
 
 
 @pytest.mark.parametrize("q, where, named", [

@@ -21,7 +21,7 @@ WARNING_KINDS = ("fallback", "degraded", "random_weights", "not_in_map", "unknow
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     from ..cli import add_stage_flags
-    from .flags import add_answerer, add_keyframes
+    from .flags import add_answerer, add_grounding, add_keyframes
 
     p.add_argument("source", nargs="?", help="video file, image / RGB-D folder, or a saved map (map.json)")
     p.add_argument("question", nargs="?", help="the question in plain English (`--examples` lists wordings the "
@@ -30,6 +30,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--option", action="append", default=None, metavar="TEXT",
                    help='a multiple-choice option, repeat for each ("A. left")')
     add_answerer(p)
+    add_grounding(p)
+    p.add_argument("--explain", action="store_true", help="print the question's program (JSON) with the answer")
     p.add_argument("--method", choices=["mosaic", "direct"], default="mosaic",
                    help="mosaic (semantic map) or direct (Direct Input baseline: sampled frames to the VLM)")
     p.add_argument("--prompt", choices=["grid", "points", "text", "json"], default="grid",
@@ -54,7 +56,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     from ..trace import Trace
 
     if args.examples:
-        from ..grounding_nl import EXAMPLES
+        from ..query.rules.lexicon import EXAMPLES
 
         return {"schema": "mosaicthinker.ask.examples/1", "examples": EXAMPLES}
     if not args.source or not args.question or not args.question.strip():
@@ -92,7 +94,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         res = pipeline.ask(args.source, question, options, perception=perception, bundle=args.bundle,
                            profile=profile, conf=conf, answerer=args.answerer, method=args.method,
                            prompt_mode=args.prompt, trace=trace, keyframes=args.keyframes,
-                           render_image=out is not None)
+                           render_image=out is not None, grounding=args.grounding)
         files, write_error, code = {}, None, 0
         if outs is not None:
             items = []
@@ -109,6 +111,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
             outs.close()
     d = res.to_dict()
     d.update({"schema": "mosaicthinker.ask/1", "question": question, "options": options, "files": files,
+              "explain": bool(args.explain),
               "warnings": [e["message"] for e in trace.events if e["kind"] in WARNING_KINDS],
               "random_weights_used": trace.random_weights_used, "evidence": res.answer.evidence,
               "ran": what_ran(trace, args.depth, res.build is not None),
@@ -173,11 +176,18 @@ def render(r: dict[str, Any]) -> str:
     lines = [f"answer: {r['answer']}" + _unit_suffix(r)]
     if r.get("explanation"):
         lines.append(f"  how: {r['explanation']}")
+    if r.get("explain"):
+        import json
+
+        g = r.get("grounding") or {}
+        prog = g.get("program")
+        lines.append(f"  program ({g.get('how', 'none')}): " + (json.dumps(prog["ask"]) if prog else
+                                                                "none (" + "; ".join(g.get("notes") or []) + ")"))
     if r.get("instances") is not None:
         lines.append(f"  map: {len(r['instances'])} object(s)" + (f" from {len(r['keyframes'])} key frames"
                                                                    if r.get("keyframes") else "")
                      + (f" ({len(r['unaligned'])} unaligned, left out)" if r.get("unaligned") is not None else ""))
-    from ..evidence import line
+    from ..answer.evidence import line
 
     if r.get("evidence"):
         lines.append("  " + line(r["evidence"]))
