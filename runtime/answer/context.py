@@ -11,9 +11,9 @@ from typing import Any
 import numpy as np
 
 from ..geometry import box_distance
-from ..query.ir import Described, InstanceId, NearestTo, Ref, Superlative, SUPERLATIVES, everything
+from ..query.ir import At, Closest, Described, InstanceId, NearestTo, Ref, Superlative, SUPERLATIVES, everything
 from ..query.vocabulary import name_key
-from .boxes import measure
+from .boxes import measure, relation_holds
 from .index import MapIndex
 from .result import NotFound, ReasonerConfig, Unsupported
 
@@ -54,17 +54,21 @@ class Ctx:
         self.used += out
         return out
 
-    def require(self, refs: list[Ref]) -> dict[str, list[Any]]:
+    def require(self, refs: list[Ref], select: bool = True) -> dict[str, list[Any]]:
         """name -> selected instances of each reference; NotFound for any the map lacks (and any a selector
-        needs)."""
-        self.missing(list(refs) + [Ref(s.name, s.phrase) for r in refs for s in r.select if isinstance(s, NearestTo)])
+        needs). select False: the instances unselected (the caller selects, e.g. from a walker's position)."""
+        self.missing(list(refs) + [Ref(s.name, s.phrase) for r in refs for s in r.select
+                                   if isinstance(s, (NearestTo, At))])
+        if not select:
+            return {r.name: self.find(r) for r in refs}
         out = {r.name: self.select(r, self.find(r)) for r in refs}
         self.used += [o for v in out.values() for o in v]
         return out
 
-    def select(self, ref: Ref, inst: list[Any]) -> list[Any]:
-        """Apply the reference's selectors ("the biggest table", "the chair nearest the door", "chair #3");
-        colours, materials and ordinals are not in a map: unsupported, said so."""
+    def select(self, ref: Ref, inst: list[Any], viewer_xy: np.ndarray | None = None) -> list[Any]:
+        """Apply the reference's selectors ("the biggest table", "the chair nearest the door", "chair #3", "the
+        laptop on the desk", "the closest sofa": from `viewer_xy [2]`, else the last camera); colours, materials
+        and ordinals are not in a map: unsupported, said so."""
         if not ref.select:
             return inst
         for s in ref.select:
@@ -83,6 +87,20 @@ class Ctx:
                 out = [o for o in out if int(o.id) == s.id]
                 if not out:
                     raise NotFound([f"{self.one(ref)} #{s.id}"], [f"{self.one(ref)} #{o.id}" for o in inst[:3]])
+            elif isinstance(s, At):
+                at = Ref(s.name, s.phrase)
+                self.missing([at])
+                others = self.find(at)
+                out = [o for o in out if any(relation_holds(o, r, s.relation, self.conf) for r in others
+                                             if r is not o)]
+                if not out:
+                    raise Unsupported(f"no {ref.words} is {s.relation} the {s.words} in the map")
+            elif isinstance(s, Closest):
+                if viewer_xy is None:
+                    viewer_xy = self.viewer(f"'the {s.extreme} {ref.words}' needs",
+                                            f"for the {ref.words} nearest another object")[:2, 3]
+                far = s.extreme == "farthest"
+                out = [(max if far else min)(out, key=lambda o: float(np.linalg.norm(o.center[:2] - viewer_xy)))]
         for s in ref.select:
             if isinstance(s, NearestTo):
                 near = Ref(s.name, s.phrase)

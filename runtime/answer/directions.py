@@ -138,28 +138,64 @@ def _where_one(ctx: Ctx, o: Any, own: list[Any], refs: set[int]) -> dict[str, An
     return value
 
 
-def route(node: Route, ctx: Ctx) -> tuple[Any, str]:
-    """Start at the start's centre heading to the facing object's centre; "go forward until X" moves to X's
-    centre (its instance nearest the previous waypoint) and sets the heading along the move; each turn is the
-    heading change towards the next waypoint: back when |turn| >= back_deg, else left / right by its sign."""
-    forwards = [s.to for s in node.steps if isinstance(s, Forward)]
-    ctx.require([node.start, node.face, *forwards])
-    start, face = ctx.find(node.start), ctx.find(node.face)
-    pairs = [(a, b) for a in start for b in face if a is not b]
+def room_centre(smap: Any) -> np.ndarray:
+    """[2] the centroid of the map's floor outline (its room, else the hull of its boxes)."""
+    poly = np.asarray(smap.extent().polygon, float)
+    x, y = poly[:, 0], poly[:, 1]
+    cross = x * np.roll(y, -1) - np.roll(x, -1) * y
+    area = cross.sum() / 2.0
+    if abs(area) < 1e-9:
+        return poly.mean(0)
+    return np.array([((x + np.roll(x, -1)) * cross).sum(), ((y + np.roll(y, -1)) * cross).sum()]) / (6.0 * area)
+
+
+def _route_start(node: Route, ctx: Ctx, first: Any) -> tuple[Any, np.ndarray, str]:
+    """(start instance, heading [2], how): beginning at the start facing the facing object; "at the tv facing the
+    tv" stands at it and faces it from the room (heading from the room's centre to it: objects face the room)."""
+    start = ctx.select(node.start, ctx.find(node.start))
+    if node.start.name == node.face.name:
+        near = first.center[:2] if first is not None else room_centre(ctx.map)
+        a = min(start, key=lambda o: float(np.linalg.norm(o.center[:2] - near)))
+        ctx.choice(node.start, start, a, "the one nearest the first waypoint")
+        heading = a.center[:2] - room_centre(ctx.map)
+        if np.linalg.norm(heading) < 1e-6:
+            raise Unsupported(f"beginning at the {node.start.words} facing it: it stands at the room's centre, so "
+                              f"which way it faces is unknown")
+        return a, heading, (f"at the {node.start.words} facing it from the room (heading from the room's centre "
+                            f"to it); ")
+    face_all = ctx.find(node.face)
+    face = ctx.select(node.face, face_all, viewer_xy=start[0].center[:2]) if len(start) == 1 else face_all
+    pairs = [(a, b) for a in start for b in (face if len(start) == 1 else  # "facing the closest sofa": from there
+                                             ctx.select(node.face, face_all, viewer_xy=a.center[:2])) if a is not b]
     if not pairs:
         raise Unsupported(f"beginning at {node.start.name} facing the same {node.face.name}: heading unknown")
     a, b = min(pairs, key=lambda ab: float(np.linalg.norm(ab[0].center[:2] - ab[1].center[:2])))
     ctx.choice(node.start, start, a, f"the one nearest the {node.face.words}")
     ctx.choice(node.face, face, b, f"the one nearest the {node.start.words}")
-    pos, heading = a.center[:2].copy(), b.center[:2] - a.center[:2]
+    return a, b.center[:2] - a.center[:2], ""
+
+
+def route(node: Route, ctx: Ctx) -> tuple[Any, str]:
+    """Start at the start's centre heading to the facing object's centre; "go forward until X" moves to X's
+    centre (its instance nearest the previous waypoint, after X's own selectors) and sets the heading along the
+    move; each turn is the heading change towards the next waypoint: back when |turn| >= back_deg, else left /
+    right by its sign."""
+    forwards = [s.to for s in node.steps if isinstance(s, Forward)]
+    ctx.require([node.start, node.face, *forwards], select=False)
+    first = ctx.find(forwards[0])[0] if forwards else None
+    a, heading, how = _route_start(node, ctx, first)
+    ctx.used.append(a)
+    pos = a.center[:2].copy()
     turns, log = [], []
     pending = False
     for s in node.steps:
         if not isinstance(s, Forward):
             pending = True
             continue
-        tgt = min(ctx.find(s.to), key=lambda o: float(np.linalg.norm(o.center[:2] - pos)))
+        cands = ctx.select(s.to, ctx.find(s.to), viewer_xy=pos)
+        tgt = min(cands, key=lambda o: float(np.linalg.norm(o.center[:2] - pos)))
         ctx.choice(s.to, ctx.find(s.to), tgt, "the one nearest the previous waypoint")
+        ctx.used.append(tgt)
         move = tgt.center[:2] - pos
         if np.linalg.norm(move) < 1e-6:
             if pending:
@@ -173,7 +209,7 @@ def route(node: Route, ctx: Ctx) -> tuple[Any, str]:
         pos, heading = tgt.center[:2].copy(), move
     if pending:
         raise Unsupported("a turn without a following waypoint")
-    return [t.title() for t in turns], "; ".join(log)
+    return [t.title() for t in turns], how + "; ".join(log)
 
 
 def appearance_order(node: AppearanceOrder, ctx: Ctx) -> tuple[Any, str]:

@@ -120,6 +120,11 @@ def choose(value: Any, options: list[str] | None, index: MapIndex, program: Prog
     for letter, text in opts:
         if _norm(text) == want or (isinstance(value, str) and _option_key(text) == want):
             return letter, text
+    if isinstance(value, list) and value and all(re.fullmatch(r"Turn (?:Left|Right|Back)", v) for v in value):
+        turns = [v.split()[1].lower() for v in value]  # "left then right", "L, R": the turns in order
+        hits = [(letter, text) for letter, text in opts if re.findall(r"\b(left|right|back)\b", text.lower()) == turns]
+        if len(hits) == 1:
+            return hits[0]
     if isinstance(value, str):
         ids = {id(o) for o in index.find(value, phrases(program.ask).get(value, value))}
         if ids:  # "A. couch" for the map's sofa
@@ -162,7 +167,7 @@ class MapReasoner:
     def answer(self, question: str, options: list[str] | None = None,
                parsed: ParsedQuestion | None = None) -> Answer:
         """Answer one question. `parsed` may be given (e.g. from a VLM's program); else `parse_question`."""
-        pq = parsed if parsed is not None else parse_question(question, options)
+        pq = parsed if parsed is not None else parse_question(question, options, self.index.names)
         if pq.program is None:
             return not_understood(pq)
         program = pq.program

@@ -18,6 +18,7 @@ class MapIndex:
         self.by_key: dict[str, list[Any]] = {}
         for o in smap.instances:
             self.by_key.setdefault(name_key(o.name), []).append(o)
+        self.names = sorted({o.name for o in smap.instances})  # the map's own category names
         self.by_canon: dict[str, list[str]] = {}
         for k in self.by_key:
             self.by_canon.setdefault(canonical_name(k) or k, []).append(k)
@@ -39,7 +40,7 @@ class MapIndex:
 
     def hints(self, phrase: str, n: int) -> list[str]:
         """Up to n map names close to a name the map lacks (spelled alike, or sharing a word)."""
-        names = sorted({o.name for v in self.by_key.values() for o in v})
+        names = self.names
         words = set(name_key(phrase).split())
         close = difflib.get_close_matches(name_key(phrase), names, n, 0.6)
         share = [x for x in names if words & set(name_key(x).split())]

@@ -135,16 +135,28 @@ def _size_difference(node: SizeCompare, vals: dict[str, float], key: str) -> dic
 
 
 def room_size(node: RoomSize, ctx: Ctx) -> tuple[Any, str]:
-    area = ctx.map.room_area()
-    if area is None:
+    """The floor area of the map's room extent. A map with a floor extent (built from video: the observed floor,
+    the camera track) measures that outline; a map of object boxes alone measures the smallest rectangle around
+    the boxes (rooms are rectangles with furniture along the walls; the room's sides are that rectangle's too),
+    said in the answer as a lower bound."""
+    room = ctx.map.extent()
+    if room is None:
         raise Unsupported("the map has no room extent and no objects")
-    src = ctx.map.extent().source
+    src = room.source
     if node.measure != "area":
         return _room_sides(ctx, node, src)
+    if src.startswith("object_boxes"):  # boxes only: the smallest rectangle around them, a lower bound
+        import cv2
+
+        (_, _), (w, h), _ = cv2.minAreaRect(np.asarray(room.polygon, np.float32))
+        area, what = float(w * h), ("smallest rectangle around the object boxes (the map has no floor extent: a "
+                                    "lower bound, the floor between the furniture and the walls is not seen)")
+    else:
+        area, what = float(room.area()), f"floor outline of the map's room extent ({src})"
     unit = node.unit
     if unit == "ft2":
         area = area / 0.3048 ** 2
-    expl = f"floor area of the map's room extent ({src}): {area:.2f} {unit}"
+    expl = f"area of the {what}: {area:.2f} {unit}"
     if node.than is not None:  # "is the room bigger than 20 square meters?"
         thr = node.than.threshold_cm2 / 1e4 / (0.3048 ** 2 if unit == "ft2" else 1.0)
         yes = area > thr if node.than.op == ">" else area < thr

@@ -93,7 +93,31 @@ class Described:
     phrase: str = field(metadata=NAME)
 
 
-Selector = Union[Superlative, NearestTo, InstanceId, Described]
+@dataclass(frozen=True)
+class At:
+    """"the laptop on the desk", "the chair by the window": the instances that are `relation` an instance of
+    `name` (tested on the boxes, as a count's location)."""
+
+    KIND: ClassVar[str] = "at"
+    relation: Literal["on", "near", "in", "under", "above"]
+    name: str = field(metadata=NAME)
+    phrase: str = field(default="", metadata=TEXT)
+
+    @property
+    def words(self) -> str:
+        return self.phrase or self.name
+
+
+@dataclass(frozen=True)
+class Closest:
+    """"the closest sofa", "the farthest chair" with no object to measure from: from the viewer (in a route, the
+    walker's position; else the last camera)."""
+
+    KIND: ClassVar[str] = "closest"
+    extreme: Extreme = "closest"
+
+
+Selector = Union[Superlative, NearestTo, InstanceId, Described, At, Closest]
 
 
 @dataclass(frozen=True)

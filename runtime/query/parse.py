@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Iterable
 
 from .ir import NearestTo, Option, Program, iter_refs, phrases
 from .rules.parse import parse_natural
@@ -93,9 +93,10 @@ def program_of(node: Any, options: list[str] | None) -> Program:
     return Program(node, tuple(Option(letter, text) for letter, text in split_options(options)))
 
 
-def parse_question(question: str, options: list[str] | None = None) -> ParsedQuestion:
+def parse_question(question: str, options: list[str] | None = None, names: Iterable[str] = ()) -> ParsedQuestion:
     """Parse a question: the VSI-Bench templates first (exact wording), then natural wording (`rules`). The
-    program is None when the question is not understood (`notes` say what was and was not). Questions over
+    program is None when the question is not understood (`notes` say what was and was not). names: object names
+    beyond the vocabulary the question may mention (a map's categories, a detector's labels). Questions over
     `text.MAX_QUESTION_CHARS` are an InputError."""
     check_question(question, options)
     q = clean_question(question)
@@ -104,6 +105,6 @@ def parse_question(question: str, options: list[str] | None = None) -> ParsedQue
     if matched:
         return ParsedQuestion(q, opts, program_of(node, opts) if node is not None else None, notes,
                               "template" if node is not None else "none")
-    node, st = parse_natural(q, opts)
+    node, st = parse_natural(q, opts, names)
     return ParsedQuestion(q, opts, program_of(node, opts) if node is not None else None, st.notes,
                           "natural" if node is not None else "none")

@@ -237,6 +237,8 @@ def _object_schema(cls: type, defs: dict[str, Any], prof: dict[str, Any]) -> dic
 def _schema_text(root: str, profile: str) -> str:
     defs: dict[str, Any] = {}
     top = _schema_of(Program if root == "program" else ir.Node, {}, defs, PROFILES[profile])
+    if "$ref" in top:  # the program itself inline at the top, its parts in $defs
+        top = defs.pop(top["$ref"].rsplit("/", 1)[1])
     schema = {"$schema": "https://json-schema.org/draft/2020-12/schema", "$id": SCHEMA_VERSION,
               "title": "MosaicThinker question program" if root == "program" else "MosaicThinker question node",
               "x-guidance": {"whitespace_flexible": False}, **top, "$defs": defs}

@@ -12,6 +12,7 @@ from dataclasses import replace
 
 from .ir import (AppearanceOrder, Count, Direction, Distance, Forward, Nearest, Node, Ref, RoomSize, Route, Size,
                  Turn, iter_refs, map_refs)
+from .rules.locations import ref_of_phrase
 from .vocabulary import canonical_name
 
 # an object phrase (leading articles dropped, lazily up to the template's next words); bounded and without
@@ -102,20 +103,26 @@ _STEP = re.compile(r"\d+\.\s*(\[please fill in\]\.?|go forward (?:until|to)\s+(.
 
 
 
+def _waypoint(phrase: str) -> Ref:
+    """A route's waypoint with what picks its instance ("the chair beside the screen", "the closest sofa")."""
+    text = re.sub(r"^(?:the\s+)+", "", phrase.strip().rstrip(".?,"), flags=re.I).strip()
+    return ref_of_phrase(text) or _ref(text)
+
+
 def _parse_route(q: str) -> tuple[Node | None, list[str]]:
     """Route questions are written by people: start, facing, destination, then numbered steps, each
     "[please fill in]" (a turn to choose) or "Go forward until X"."""
     m = _ROUTE_START.search(q)
     if not m:
         return None, ["understood: a route question; not understood: its start, facing object and destination"]
-    start, facing, dest = _ref(m.group(1)), _ref(m.group(2)), _ref(m.group(3))
+    start, facing, dest = _waypoint(m.group(1)), _waypoint(m.group(2)), _waypoint(m.group(3))
     steps: list[Forward | Turn] = []
     for sm in _STEP.finditer(q[m.end():]):
         if sm.group(2) is None:
             steps.append(Turn())
         else:
-            steps.append(Forward(_ref(re.sub(r"\s*(?:is on your (?:left|right)|on your (?:left|right))\s*\.?$", "",
-                                             sm.group(2)))))
+            steps.append(Forward(_waypoint(re.sub(r"\s*(?:is on your (?:left|right)|on your (?:left|right))\s*\.?$",
+                                                  "", sm.group(2)))))
     if not steps:
         return None, ["understood: a route question; not understood: its numbered steps"]
     order = [start, facing, dest] + [s.to for s in steps if isinstance(s, Forward)]  # the question's order

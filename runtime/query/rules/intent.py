@@ -7,6 +7,7 @@ from typing import Any
 
 from .lexicon import (CLOSE, FAR, WHICH, CMP, CMP_RX, DIST_CMP_RX, DIST_OPS, FACING_AHEAD_RX, LOCATED, NUMBERS, ROOM_REGION_RX,
                       SUP_DIM_RX, SUP_RX, UNIT_M, UNIT_WORDS, VIEW_RX, WHAT_AT_RX)
+from ..text import split_options
 from .state import State
 from .tokens import has, noun_phrases, unit_in
 
@@ -87,10 +88,34 @@ def distance_condition(text: str) -> dict[str, Any] | None:
     return {"op": DIST_OPS[m.group(1)], "threshold_m": v * UNIT_M[unit], "text": f"{m.group(1)} {n} {m.group(3)}"}
 
 
+# "which came first in the video", "what showed up earliest": an order in time and something seen (not a count)
+ORDER_RX = (r"^(?!how many\b)(?=.*\b(?:first|earliest|earlier|sooner|soonest|order|sequence|before)\b)"
+            r"(?=.*\b(?:came|come|comes|show|shows|showed|shown|seen|see|saw|spotted|noticed|visible|video|recording|"
+            r"footage|camera|view|filmed|recorded)\b)")
+# a route: a walk with turns to choose ("[please fill in]"), or turns and a walk from a start
+WALK_RX = (r"\b(?:navigate|route|path|robot|walk|walks|walking|head|heads|heading|drive|travel|proceed|forward|"
+           r"destination|go|goes|going|move|moves|moving)\b")
+ROUTE_RX = (rf"\bplease fill in\b|^(?=.*\bturn(?:s|ing)?\b)(?=.*{WALK_RX})(?=.*\b(?:begin|begins|beginning|start|"
+            rf"starts|starting)\b)")
+
+
+def route_options(options: list[str] | None) -> bool:
+    """Options that are turns ("A. Turn Left, Turn Right", "B. left then back"): a route's answers."""
+    texts = [t.lower() for _, t in split_options(options)]
+    turn = r"(?<![-\w])(?:left|right|back)(?![-\w])"  # "back-left" is a quadrant, not two turns
+    return bool(texts) and all(re.search(turn, t) for t in texts) and any(
+        re.search(r"\bturn", t) or len(re.findall(turn, t)) > 1 for t in texts)
+
+
 def intent(j: str, n_obj: int, has_opts: bool) -> str | None:
     """The intent from cue words (order matters: the more specific first)."""
+    if has(j, ROUTE_RX):
+        return "route"
     if has(j, ELEVATION_RX):
         return "size"
+    if n_obj == 0 and has(j, rf"\b{ROOMS}\b") and has(j, r"\b(?:area|size|big|large|square|footprint|floor space|"
+                                                         r"how much space|dimensions?|length|width|long|wide)\b"):
+        return "room_size"  # "what's the area covered by the room?": the room is the only thing named
     if has(j, rf"^(?:is|are) (?:the |this |our )?{ROOMS} (?:bigger|larger|smaller) than (?:about |around )?\d"):
         return "room_size"  # "is the room bigger than 20 square meters?": its floor area against a number
     if has(j, r"^(?:is|are|was|were)\b") and has(j.replace(" . ", "."), DIST_CMP_RX):
@@ -102,7 +127,7 @@ def intent(j: str, n_obj: int, has_opts: bool) -> str | None:
     if not has(j, r"\bhow many\b") and has(j, r"\b(?:appear|appears|appeared|appearance|show up|showed up|"
                                               r"came into view)\b|"
                r"\b(?:see|saw|seen|spot|spotted|notice|noticed)\b.*\bfirst\b|\bfirst\b.*\b(?:see|saw|seen)\b|"
-               r"\bin (?:what|which) order\b"):
+               r"\bin (?:what|which) order\b") or has(j, ORDER_RX) and not stance:
         return "obj_appearance_order"
     where_i = re.sub(r"\b(?:looking|look|looked|staring) at\b", " ", j)  # "looking at A, B or C, which ...": no place
     if stance and has(where_i, r"\b(?:standing|stand|stood|sitting|sit|i am|i'm|im|i was|you are|from|at|by|next "

@@ -4,11 +4,12 @@ from __future__ import annotations
 
 from typing import Any
 
-from ..ir import Relation
+from ..ir import At, Closest, Described, NearestTo, Ref, Relation, Superlative
 from ..vocabulary import canonical_name, name_key
-from .lexicon import CLOSE, COPULA, DET, FAR, LOCATION, NEAR_CUES, PRONOUN_CUES, PRONOUNS, RELATION_WORDS
+from .lexicon import (CLOSE, COPULA, DET, FAR, LOCATION, NEAR_CUES, PRONOUN_CUES, PRONOUNS, RELATION_WORDS,
+                      SUPERLATIVES)
 from .state import R, State
-from .tokens import before, has, is_content, noun_phrases
+from .tokens import before, has, is_content, noun_phrases, tokens
 
 def location_start(toks: list[str], i: int) -> int | None:
     """Where the location words before token i begin ("next to it", "on top of it", "near it"), or None when
@@ -133,3 +134,50 @@ def single(st: State, nps: list[dict[str, Any]], what: str) -> str | None:
         st.fail(f"a {what} of '{st.phrase(names[0])}'", f"what {extra} means for it")
         return None
     return names[0]
+
+
+_CLOSENESS = {"closest": "closest", "nearest": "closest", "farthest": "farthest", "furthest": "farthest"}
+
+
+def ref_of_phrase(text: str) -> Ref | None:
+    """One object phrase with what picks its instance ("the stool by the piano" -> stool, nearest to the piano;
+    "the laptop on the desk" -> laptop on a desk; "the closest sofa" -> the sofa nearest the viewer; "the black
+    nightstand" -> described by a colour the map does not hold; "the wardrobe with two mirrors on it" -> described
+    by words the map does not hold). None when the text names no object."""
+    toks = tokens(text)
+    nps = [p for p in noun_phrases(toks) if not p["scene"] and not (p["words"] == ["top"] and
+                                                                     toks[p["end"]:p["end"] + 1] == ["of"])]
+    while len(nps) > 1 and canonical_name(" ".join(nps[0]["words"])) is None and \
+            [t for t in toks[nps[0]["end"]:nps[1]["start"]] if t not in DET] == ["of"]:
+        nps = nps[1:]  # "the end of the cabinet", "the corner of the shower": the part's owner
+    if not nps:
+        return None
+    head = nps[0]
+    phrase = " ".join(head["words"])
+    name = canonical_name(phrase) or name_key(phrase)
+    select: list[Any] = []
+    words = [w for w in head["sel"] if w not in SUPERLATIVES]
+    if words:
+        select.append(Described(tuple(words), " ".join(head["sel"] + head["words"])))
+    select += [Superlative(w) for w in head["sel"] if w in SUPERLATIVES]
+    ahead = [t for t in toks[:head["start"]] if t not in DET]
+    if ahead and ahead[-1] in _CLOSENESS:  # "the closest sofa": from the viewer
+        select.append(Closest(_CLOSENESS[ahead[-1]]))
+    rest = " ".join(toks[head["end"]:]).strip(" .?,")
+    if len(nps) > 1 and rest:
+        other = nps[1]
+        gap = [t for t in toks[head["end"]:other["start"]] if t not in DET]
+        oname = canonical_name(" ".join(other["words"])) or name_key(" ".join(other["words"]))
+        ophrase = " ".join(other["words"])
+        rel = relation_of(toks, other)
+        if gap and gap[0] in NEAR_CUES | {"close", "closer", "nearer"} and len(gap) <= 3:
+            select.append(NearestTo(oname, "" if ophrase == oname else ophrase))
+        elif rel in ("on", "near", "in", "under", "above") and len(gap) <= 3:
+            select.append(At(rel, oname, "" if ophrase == oname else ophrase))
+        elif gap and gap[0] != "of":  # "with two mirrors on it", "to your right": words a map does not hold
+            select.append(Described((rest,), f"{phrase} {rest}"))
+    elif rest and rest.split()[0] in _CLOSENESS:  # "the chair farthest away", "the sofa closest to me"
+        select.append(Closest(_CLOSENESS[rest.split()[0]]))
+    elif rest and rest.split()[0] not in ("of",):
+        select.append(Described((rest,), f"{phrase} {rest}"))
+    return Ref(name, "" if phrase == name else phrase, canonical_name(phrase) is not None, tuple(select[:4]))

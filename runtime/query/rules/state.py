@@ -30,6 +30,7 @@ class State:
         self.known: dict[str, bool] = {}
         self.selectors: dict[str, dict[str, Any]] = {}
         self.notes: list[str] = []
+        self.dropped: list[str] = []  # phrases read as no object (`parse.mentions`)
 
     def phrase(self, name: str) -> str:
         return self.phrases.get(name, name)
