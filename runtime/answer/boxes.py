@@ -1,9 +1,7 @@
 """What the executors read off oriented boxes: measures (longest side, height, width, volume ...), the relations
 on / near / in / under / above / between, and the closest pair of two instance lists.
 
-The closest pair is exact (`geometry.box_distance` on every pair that can still be the minimum) and culled by
-axis-aligned bounds, so two categories of a 10,000-object map are not 10^8 exact distances; `index.MapIndex`
-adds the spatial index for questions over every object.
+Nearest boxes and closest pairs over many instances: `spatial` (a KD-tree, culled by the bounds here).
 """
 from __future__ import annotations
 
@@ -11,8 +9,8 @@ from typing import Any
 
 import numpy as np
 
-from ..geometry import box_distance
-from .result import ReasonerConfig, Unsupported
+from ..geometry import box_distance, point_box_distance
+from .result import ReasonerConfig, Unsupported  # noqa: F401 (Unsupported: view_relation)
 
 
 def measure(o: Any, what: str) -> float:
@@ -44,8 +42,9 @@ MEASURE_WORDS = {"volume": "box volume", "height": "height", "top": "top height"
 def relation_holds(a: Any, b: Any, relation: str, conf: ReasonerConfig, c: Any = None) -> bool:
     """Whether instance a is `relation` ("on", "near", "in", "under", "above"; "between" b and c) instance b,
     from their boxes (z up)."""
-    if relation == "near":
-        return box_distance(a.box, b.box) <= conf.near_m
+    if relation == "near":  # a centre within near_m of the other box: near already (an upper bound), no solve
+        return (point_box_distance(a.center, b.box) <= conf.near_m or point_box_distance(b.center, a.box) <= conf.near_m
+                or box_distance(a.box, b.box) <= conf.near_m)
     if relation == "in":
         return bool(b.box.contains(a.center[None])[0])
     if relation == "between":
@@ -84,45 +83,6 @@ def aabb_gaps(cx: np.ndarray, ex: np.ndarray, cb: np.ndarray, eb: np.ndarray) ->
     the distance of their AABBs (exact for axis-aligned boxes)."""
     gap = np.maximum(np.abs(cb - cx) - ex - eb, 0.0)
     return np.linalg.norm(gap, axis=1)
-
-
-def closest_pair(a: list[Any], b: list[Any]) -> tuple[float, Any, Any]:
-    """(distance, x of a, y of b) of the closest pair of distinct instances (closest points of the solid boxes);
-    ties: the first minimal pair in a x b order. Exact pairs only where the AABB lower bound does not exceed an
-    upper bound (the exact distance of the pair with the smallest lower bound) nor the best found so far.
-    Unsupported when a and b are one single instance."""
-    cb, eb = half_extents(b)
-    ca, ea = half_extents(a)
-    where_in_b = {id(y): j for j, y in enumerate(b)}
-
-    def bounds(i: int) -> np.ndarray:
-        lb = aabb_gaps(ca[i], ea[i], cb, eb)
-        if id(a[i]) in where_in_b:
-            lb[where_in_b[id(a[i])]] = np.inf
-        return lb
-
-    low, pair = np.inf, None
-    for i in range(len(a)):
-        lb = bounds(i)
-        j = int(np.argmin(lb)) if len(lb) else -1
-        if j >= 0 and lb[j] < low:
-            low, pair = float(lb[j]), (i, j)
-    if pair is None:
-        raise Unsupported("the two objects are the same single instance")
-    upper = box_distance(a[pair[0]].box, b[pair[1]].box)
-    best: tuple[float, Any, Any] | None = None
-    for i, x in enumerate(a):
-        lb = bounds(i)
-        for j in np.flatnonzero(lb <= upper + 1e-9):
-            if best is not None and lb[j] > best[0] + 1e-9:
-                continue
-            d = box_distance(x.box, b[j].box)
-            if best is None or d < best[0]:
-                best = (d, x, b[j])
-        if best is not None and best[0] <= 0.0:  # touching: nothing later can be smaller
-            break
-    assert best is not None  # the pair that set `upper` is examined
-    return best
 
 
 def view_relation(A: Any, B: Any, T: np.ndarray) -> tuple[str, str, float, float]:

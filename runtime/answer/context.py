@@ -10,11 +10,11 @@ from typing import Any
 
 import numpy as np
 
-from ..geometry import box_distance
 from ..query.ir import At, Closest, Described, InstanceId, NearestTo, Ref, Superlative, SUPERLATIVES, everything
 from ..query.vocabulary import name_key
 from .boxes import measure, relation_holds
 from .index import MapIndex
+from .spatial import closest_pair
 from .result import NotFound, ReasonerConfig, Unsupported
 
 
@@ -27,6 +27,7 @@ class Ctx:
         self.used: list[Any] = []
         self.spread: tuple[str, list[float], str | None] | None = None  # (quantity, per-view values, unit)
         self.ambiguous: list[dict[str, Any]] = []
+        self.cache: dict[Any, Any] = {}  # this question's derived structures (spatial indices of its references)
 
     # ------------------------------------------------------------------ names
     def find(self, ref: Ref) -> list[Any]:
@@ -105,9 +106,10 @@ class Ctx:
             if isinstance(s, NearestTo):
                 near = Ref(s.name, s.phrase)
                 self.missing([near])  # "the chair nearest the door" needs a door in the map
-                others = self.find(near)
-                out = [min(out, key=lambda o: min((box_distance(o.box, r.box) for r in others if r is not o),
-                                                  default=np.inf))]
+                try:  # the instance nearest any of them (the first of equals)
+                    out = [closest_pair(out, self.find(near))[1]]
+                except Unsupported:  # no other instance to measure to
+                    out = out[:1]
         return out
 
     def choice(self, ref: Ref, inst: list[Any], used: Any, rule: str, values: dict[int, float] | None = None,
@@ -116,7 +118,10 @@ class Ctx:
         it was picked; `values`: the asked quantity with each instance instead, by id)."""
         if len(inst) < 2:
             return
-        self.ambiguous.append({"name": self.one(ref), "instances": [int(o.id) for o in inst], "used": int(used.id),
+        ids = [int(o.id) for o in inst]
+        shown = ids[:self.conf.n_alternatives] + ([int(used.id)] if int(used.id) not in ids[:self.conf.n_alternatives]
+                                                  else [])
+        self.ambiguous.append({"name": self.one(ref), "instances": shown, "n_instances": len(ids), "used": int(used.id),
                                "rule": rule, "unit": unit,
                                "alternatives": None if values is None else
                                {int(k): round(float(v), 3) for k, v in values.items()}})

@@ -2,7 +2,7 @@
 from __future__ import annotations
 
 from collections import Counter
-from typing import Any
+from typing import Any, Iterable, Iterator
 
 import numpy as np
 
@@ -11,7 +11,7 @@ from ..query.ir import (Count, CountCompare, Described, Exists, List, NearestTo,
 from ..query.vocabulary import plural
 from . import evidence as ev
 from .angles import describe_direction, describe_from_camera, in_direction, signed_angle_deg
-from .boxes import relation_holds, view_relation
+from .boxes import aabb_gaps, half_extents, relation_holds, view_relation
 from .context import Ctx, is_everything
 from .result import Unsupported
 
@@ -33,7 +33,7 @@ def located(ctx: Ctx, ref: Ref, where: Relation) -> tuple[list[Any], list[Any], 
     else:
         ctx.missing([ref])
         cands = ctx.select(ref, ctx.find(ref))
-    keep = [o for o in cands if any(relation_holds(o, r, rel, ctx.conf, q) for r, q in pairs
+    keep = [o for o in cands if any(relation_holds(o, r, rel, ctx.conf, q) for r, q in _pairs_near(o, pairs, rel, ctx)
                                     if r is not o and q is not o)]
     if where.negate:  # "cups not on the table": the candidates the relation does not hold for
         keep = [o for o in cands if not any(o is k for k in keep)]
@@ -47,6 +47,48 @@ def located(ctx: Ctx, ref: Ref, where: Relation) -> tuple[list[Any], list[Any], 
     neg = "not " if where.negate else ""
     place = f"the {where.object.words}" + (f" and the {where.object2.words}" if rel == "between" else "")
     return keep, cands, f"{neg}{rel} {place} ({rule}){': ' + ids if ids else ''}"
+
+
+class _Near:
+    """The reference boxes of a location in a 2D KD-tree (xy centres): a candidate is tested only against those
+    whose footprint can hold its centre or, for "near", whose box can be within `near_m` of its box."""
+
+    def __init__(self, pairs: list[tuple[Any, Any]], rel: str, conf: Any):
+        from scipy.spatial import cKDTree
+
+        self.pairs, self.rel = pairs, rel
+        c, e = half_extents([r for r, _ in pairs])
+        self.c, self.e = c, e
+        self.tree = cKDTree(c[:, :2])
+        dims = slice(0, 3) if rel == "near" else slice(0, 2)  # near: whole boxes; else a footprint holds a centre
+        self.reach = float(np.linalg.norm(e[:, dims], axis=1).max())
+        self.margin = conf.near_m if rel == "near" else 0.0
+
+    def around(self, o: Any) -> Iterator[tuple[Any, Any]]:
+        """The pairs that can hold for `o`: its nearest few first (usually enough), then the rest in reach."""
+        co, eo = half_extents([o])
+        ro = float(np.linalg.norm(eo[0])) if self.rel == "near" else 0.0
+        xy, reach = np.asarray(o.center, float)[:2], self.reach + self.margin + ro
+        seen: set[int] = set()
+        _, first = self.tree.query(xy, k=min(8, len(self.pairs)))
+        for stage in (sorted(int(i) for i in np.atleast_1d(first)), sorted(self.tree.query_ball_point(xy, reach))):
+            idx = [i for i in stage if i not in seen and float(np.linalg.norm(self.c[i, :2] - xy)) <= reach]
+            seen.update(idx)
+            if self.rel == "near" and idx:  # boxes whose bounds are farther than near_m cannot be near
+                idx = [i for i, g in zip(idx, aabb_gaps(co[0], eo[0], self.c[idx], self.e[idx]))
+                       if g <= self.margin + 1e-9]
+            yield from (self.pairs[i] for i in idx)
+
+
+def _pairs_near(o: Any, pairs: list[tuple[Any, Any]], rel: str, ctx: Ctx) -> Iterable[tuple[Any, Any]]:
+    """The (reference, second reference) pairs of a location that can hold for instance `o` (all of them for
+    "between": its hull of two footprints is not culled here); the caller stops at the first that holds."""
+    if rel == "between" or len(pairs) < 16:
+        return pairs
+    near = ctx.cache.get(("near", id(pairs)))
+    if near is None:
+        near = ctx.cache[("near", id(pairs))] = _Near(pairs, rel, ctx.conf)
+    return near.around(o)
 
 
 def selector_phrase(ref: Ref) -> str:

@@ -7,7 +7,6 @@ from typing import Any
 
 import numpy as np
 
-from ..geometry import box_distance
 from ..query.ir import AppearanceOrder, Direction, Forward, Route, ViewDirection, Where
 from ..query.vocabulary import name_key, plural
 from . import evidence as ev
@@ -15,6 +14,7 @@ from .angles import (describe_direction, describe_from_camera, direction_label, 
                      turn_label)
 from .boxes import view_relation
 from .context import Ctx
+from .spatial import k_nearest
 from .result import Unsupported
 
 
@@ -118,11 +118,16 @@ def where(node: Where, ctx: Ctx) -> tuple[Any, str]:
 def _where_one(ctx: Ctx, o: Any, own: list[Any], refs: set[int]) -> dict[str, Any]:
     """One instance's place: its `n_landmarks` nearest other objects (those in `refs` first: "relative to the
     desk") and its direction from the last camera; "words" is the text of each."""
-    skip = {id(x) for x in own}
-    near = sorted(((box_distance(o.box, x.box), x) for v in ctx.index.by_key.values() for x in v
-                   if id(x) not in skip), key=lambda t: t[0])
+    bs = ctx.index.boxes
+    allow = np.ones(len(bs), bool)
+    allow[[bs.pos[id(x)] for x in own if id(x) in bs.pos]] = False
     if refs:  # the reference's nearest instance, then the nearest others
-        near = [next(t for t in near if id(t[1]) in refs)] + [t for t in near if id(t[1]) not in refs]
+        is_ref = np.zeros(len(bs), bool)
+        is_ref[[bs.pos[i] for i in (id(x) for x in bs.inst) if i in refs]] = True
+        found = k_nearest(o, bs, 1, allow & is_ref) + k_nearest(o, bs, ctx.conf.n_landmarks, allow & ~is_ref)
+    else:
+        found = k_nearest(o, bs, ctx.conf.n_landmarks, allow)
+    near = [(d, bs.inst[j]) for d, j in found]
     marks = [{"object": x.name, "instance": int(x.id), "distance_m": round(float(d), 3)}
              for d, x in near[:ctx.conf.n_landmarks]]
     value: dict[str, Any] = {"object": o.name, "instance": int(o.id), "centre": np.round(o.center, 3).tolist(),

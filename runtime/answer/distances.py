@@ -7,7 +7,7 @@ from ..geometry import point_box_distance
 from ..query.ir import UNIT_M, Distance, Nearest, Ref
 from ..query.vocabulary import plural
 from . import evidence as ev
-from .boxes import closest_pair
+from .spatial import BoxSet, closest_pair, nearest_values
 from .context import Ctx
 from .result import Unsupported
 
@@ -23,8 +23,9 @@ def distance(node: Distance, ctx: Ctx) -> tuple[Any, str]:
     v = d / UNIT_M[unit]
     ctx.spread = ("per-view-pair distance", ev.distance_values(x, y, UNIT_M[unit]), unit)
     for r, own, other, used in ((a, inst[a.name], inst[b.name], x), (b, inst[b.name], inst[a.name], y)):
-        ctx.choice(r, own, used, "the nearest", {o.id: closest_pair([o], other)[0] / UNIT_M[unit]
-                                                 for o in own if [p for p in other if p is not o]}, unit)
+        if len(own) > 1:
+            near = nearest_values(own, other, ctx.conf.n_alternatives)
+            ctx.choice(r, own, used, "the nearest", {own[i].id: near[i] / UNIT_M[unit] for i in sorted(near)}, unit)
     expl = f"closest points of {ctx.one(a)} #{x.id} and {ctx.one(b)} #{y.id}: {v:.3f} {unit}"
     cond = node.within
     if cond is not None:  # "is the sofa within 2 m of the tv?": yes or no, the distance said
@@ -79,7 +80,8 @@ def nearest(node: Nearest, ctx: Ctx) -> tuple[Any, str]:
     inst = ctx.require([ref, *cands])
     if len(cands) == 1 and cands[0].name != ref.name and not ctx.options and not node.yesno:
         return _which_instance(ctx, cands[0], ref, inst, node.extreme == "farthest")
-    pairs = {c.name: closest_pair(inst[c.name], inst[ref.name]) for c in cands if c.name != ref.name}
+    ref_set = BoxSet(inst[ref.name])
+    pairs = {c.name: closest_pair(inst[c.name], ref_set) for c in cands if c.name != ref.name}
     dists = {c: p[0] for c, p in pairs.items()}
     if not dists:
         raise Unsupported("no candidate other than the reference object itself")
@@ -88,10 +90,10 @@ def nearest(node: Nearest, ctx: Ctx) -> tuple[Any, str]:
     for c in [ref.name] + list(pairs):
         if c == ref.name:
             ctx.choice(ref, inst[ref.name], pairs[pick][2], f"the one nearest the {by_name[pick].words}")
-        else:
-            ctx.choice(by_name[c], inst[c], pairs[c][1], "the nearest", {
-                o.id: closest_pair([o], inst[ref.name])[0] for o in inst[c]
-                if [r for r in inst[ref.name] if r is not o]}, "m")
+        elif len(inst[c]) > 1:
+            near = nearest_values(inst[c], ref_set, ctx.conf.n_alternatives)
+            ctx.choice(by_name[c], inst[c], pairs[c][1], "the nearest", {inst[c][i].id: near[i] for i in sorted(near)},
+                       "m")
     ctx.spread = (f"per-view-pair distance of {by_name[pick].words}",
                   ev.distance_values(pairs[pick][1], pairs[pick][2]), "m")
     expl = f"closest-point distances to {ref.words}: " + ", ".join(
@@ -118,17 +120,17 @@ def _viewer_nearest(node: Nearest, ctx: Ctx) -> tuple[Any, str]:
 def _which_instance(ctx: Ctx, cand: Ref, ref: Ref, inst: dict[str, list[Any]], far: bool) -> tuple[Any, str]:
     """"Which chair is closest to (farthest from) the tv?": the chair instance by its closest-point distance to
     the tv (the nearest tv to it), not the category name."""
-    per = {o.id: closest_pair([o], inst[ref.name]) for o in inst[cand.name]
-           if [r for r in inst[ref.name] if r is not o]}
+    own, ref_set = inst[cand.name], BoxSet(inst[ref.name])
+    per = nearest_values(own, ref_set, 6, largest=far)  # position in own -> distance, best first
     if not per:
         raise Unsupported("no candidate other than the reference object itself")
-    oid = (max if far else min)(per, key=lambda k: per[k][0])
-    d, o, r = per[oid]  # which instance is the question, not an ambiguity: only the reference's is one
+    o = own[next(iter(per))]
+    d, j = ref_set.nearest(o)
+    r = ref_set.inst[j]  # which instance is the question, not an ambiguity: only the reference's is one
     ctx.choice(ref, inst[ref.name], r, f"the one nearest {ctx.one(cand)} #{o.id}")
     ctx.spread = (f"per-view-pair distance of {ctx.one(cand)} #{o.id}", ev.distance_values(o, r), "m")
-    ranked = sorted(per, key=lambda k: per[k][0], reverse=far)[:6]
     expl = f"closest-point distances to {ref.words}: " + ", ".join(
-        f"{ctx.one(cand)} #{k} {per[k][0]:.2f} m" for k in ranked)
+        f"{ctx.one(cand)} #{own[i].id} {v:.2f} m" for i, v in per.items())
     return {"text": f"{ctx.one(cand)} #{o.id}", "object": o.name, "instance": int(o.id),
             "distance_m": round(d, 3)}, expl
 
@@ -140,10 +142,11 @@ def _nearest_of_all(node: Nearest, ctx: Ctx) -> tuple[Any, str]:
     own = {id(o) for o in ctx.find(ref)}
     own |= {id(o) for r in node.exclude for o in ctx.find(r)}  # "..., apart from the bin"
     dist: dict[str, tuple[float, Any]] = {}
+    rset = BoxSet(rinst)
     for key, inst in ctx.index.by_key.items():
         others = [o for o in inst if id(o) not in own]
         if others:
-            d, o, _ = closest_pair(others, rinst)
+            d, o, _ = closest_pair(others, rset)
             dist[key] = (d, o)
     if not dist:
         raise Unsupported(f"the map holds nothing but {ref.words}")

@@ -126,9 +126,10 @@ def ambiguity_text(a: dict[str, Any]) -> str:
     alt = {int(k): v for k, v in (a.get("alternatives") or {}).items() if int(k) != a["used"]}
     u = f" {a['unit']}" if a.get("unit") else ""
     others = ", ".join(f"{a['name']} #{k}: {_fmt(v)}{u}" for k, v in alt.items())
-    n = len(a["instances"])
+    n = a.get("n_instances", len(a["instances"]))
+    more = f" and {n - len(a['instances'])} more" if n > len(a["instances"]) else ""
     return (f"{n} {a['name'] if n == 1 else plural(a['name'])} in the map "
-            f"({' '.join('#' + str(i) for i in a['instances'])}); used #{a['used']}, {a['rule']}"
+            f"({' '.join('#' + str(i) for i in a['instances'])}{more}); used #{a['used']}, {a['rule']}"
             + (f" ({others})" if others else ""))
 
 

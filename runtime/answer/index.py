@@ -35,6 +35,16 @@ class MapIndex:
                 return self.by_key[k]
         return []
 
+    @property
+    def boxes(self) -> Any:
+        """Every instance (in name order: `by_key`'s) in a `spatial.BoxSet`, built on first use and kept."""
+        if getattr(self, "_boxes", None) is None:
+            from .spatial import BoxSet
+
+            self._all = [o for v in self.by_key.values() for o in v]
+            self._boxes = BoxSet(self._all)
+        return self._boxes
+
     def has_category(self, phrase: str) -> bool:
         return name_key(phrase) in self.by_key
 

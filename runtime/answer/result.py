@@ -23,6 +23,7 @@ class ReasonerConfig(StageConf):
     option_rel_tol: float = 0.5  # a number picks the nearest option only within this relative difference
     n_landmarks: int = 2  # "where is X": the nearest other objects named
     n_hints: int = 3  # "not in the map": this many similar map names offered
+    n_alternatives: int = 16  # a name matching several instances: the asked quantity with at most this many others
     # "A on B": A's bottom within this of B's top, A's centre over B's footprint; "A near B": closest points within
     # near_m; "A in B": A's centre inside B's box (`boxes.relation_holds`)
     on_gap_m: float = 0.15

@@ -84,7 +84,7 @@ def ground_with_vlm(vlm: Any, question: str, options: list[str] | None, frames: 
                                      guidance=("json_schema", schema)))
     except Exception as e:  # noqa: BLE001 - a VLM failure must not lose the question: refused, loudly
         return refuse(f"generation failed ({type(e).__name__}: {e})")
-    trace.decide("grounding.vlm_reply", reply[:2000])
+    trace.decide("grounding.vlm_reply", reply)
     try:
         node = decode_program(reply)
     except ProgramError as e:
