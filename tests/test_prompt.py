@@ -192,6 +192,11 @@ def test_vlm_grounding_emits_a_validated_program_or_is_refused():
         with pytest.warns(RuntimeWarning, match="refused"):
             pq = ground(q, None, ScriptedProgram(bad), frames, t, grounding="vlm")
         assert pq.program is None and pq.how == "none" and why in pq.notes[-1]
+    # a VLM exported for another program version is still read under this runtime's schema, said loudly
+    old = ScriptedProgram('{"kind":"room_size"}')
+    old.query_schema = "mosaicthinker.query/0"
+    with pytest.warns(RuntimeWarning, match="exported for question programs mosaicthinker.query/0"):
+        assert ground(q, None, old, frames, Trace(), grounding="vlm").qtype == "room_size_estimation"
     # a VLM that cannot decode under a schema is refused, not asked for free text
     with pytest.warns(RuntimeWarning, match="cannot decode under a JSON schema"):
         pq = ground(q, None, Scripted("count chairs"), frames, Trace(), grounding="vlm")

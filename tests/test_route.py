@@ -108,6 +108,8 @@ def test_appearance_order_from_first_seen_times_in_peoples_words():
     r = MapReasoner(smap)
     for q in ("Which came first in the video: the sofa or the tv?", "Which did I see first, the desk or the tv?",
               "In what order did the desk, the sofa and the tv first appear?",
+              "What's the order in which the sofa, the desk and the tv first showed up?",
+              "Of the desk and the tv, which one was visible earlier in the video?",
               "What will be the first-time appearance order of the following categories in the video: desk, sofa, "
               "tv?"):
         a = r.answer(q)
@@ -115,4 +117,8 @@ def test_appearance_order_from_first_seen_times_in_peoples_words():
     a = r.answer("What will be the first-time appearance order of the following categories in the video: desk, "
                  "sofa, tv?", ["A. desk, sofa, tv", "B. tv, sofa, desk", "C. sofa, tv, desk"])
     assert a.text == "B"
+    a = r.answer("Order these by when they first appear: desk, couch, tv.",
+                 ["A. desk, couch, tv", "B. tv, couch, desk", "C. couch, tv, desk"])  # "couch": the map's sofa
+    assert a.text == "B"
+    assert r.answer("In what order did the couch and the tv first appear?").text == "tv, couch"
     assert MapReasoner(room(objs)).answer("Which came first, the sofa or the tv?").status == "unsupported"

@@ -166,6 +166,9 @@ def test_vlm_grounding_emits_a_schema_valid_program_for_200_questions(qwen_bundl
     from test_query_golden import validate, wording_sets
 
     out, _ = qwen_bundle
+    from mosaicthinker.runtime.query.ir import SCHEMA_VERSION
+
+    assert load_bundle(out).role_meta("vlm")["variants"]["int4"]["genai"]["guidance"] == {"json_schema": SCHEMA_VERSION}
     with pytest.warns(RuntimeWarning, match="RANDOM"):
         vlm = load_role(load_bundle(out), "vlm", trace=Trace())
     every = [q for qs in wording_sets().values() for q in qs]

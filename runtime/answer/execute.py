@@ -113,13 +113,25 @@ def choose(value: Any, options: list[str] | None, index: MapIndex, program: Prog
            conf: ReasonerConfig) -> tuple[str | None, Any]:
     """Option letter for a computed value: the same text, direction or object (through the map's names and
     synonyms), else the nearest number when it is plausibly close (`option_rel_tol`)."""
-    if not options:
-        return (str(value) if not isinstance(value, list) else ", ".join(value)), value
+    if not options:  # a list of objects in the question's own words ("couch, desk"), of turns as they are
+        words = phrases(program.ask)
+        return (str(value) if not isinstance(value, list) else ", ".join(words.get(v, v) for v in value)), value
     opts = split_options(options)
     want = _norm(", ".join(value) if isinstance(value, list) else value)
     for letter, text in opts:
         if _norm(text) == want or (isinstance(value, str) and _option_key(text) == want):
             return letter, text
+    if isinstance(value, list) and value and all(isinstance(v, str) for v in value) and not any(
+            re.fullmatch(r"Turn (?:Left|Right|Back)", v) for v in value):  # an order of objects, in other words
+        want_ids = [{id(o) for o in index.find(v, phrases(program.ask).get(v, v))} for v in value]
+        hits = []
+        for letter, text in opts:
+            items = [t for t in re.split(r",|;|->|\bthen\b|\band\b", text) if t.strip()]
+            got = [{id(o) for o in index.find(_name_of(t))} for t in items]
+            if len(got) == len(want_ids) and all(g and g == w for g, w in zip(got, want_ids)):
+                hits.append((letter, text))
+        if len(hits) == 1:
+            return hits[0]
     if isinstance(value, list) and value and all(re.fullmatch(r"Turn (?:Left|Right|Back)", v) for v in value):
         turns = [v.split()[1].lower() for v in value]  # "left then right", "L, R": the turns in order
         hits = [(letter, text) for letter, text in opts if re.findall(r"\b(left|right|back)\b", text.lower()) == turns]
@@ -145,6 +157,12 @@ def choose(value: Any, options: list[str] | None, index: MapIndex, program: Prog
             if d <= conf.option_rel_tol * max(abs(x), abs(float(value)), 1e-9):
                 return letter, text
     return None, value
+
+
+def _name_of(text: str) -> str:
+    """The object an option's item names (its first object phrase, else the text)."""
+    nps = [p for p in noun_phrases(tokens(text)) if not p["scene"]]
+    return " ".join(nps[0]["words"]) if nps else text.strip()
 
 
 def not_understood(pq: ParsedQuestion) -> Answer:

@@ -15,7 +15,7 @@ from __future__ import annotations
 import json
 from typing import Any
 
-from .ir import Node, Program, Ref, map_refs
+from .ir import SCHEMA_VERSION, Node, Program, Ref, map_refs
 from .parse import ParsedQuestion, program_of
 from .schema import ProgramError, from_json, json_schema, max_output_bytes
 from .text import clean_question, split_options
@@ -76,6 +76,10 @@ def ground_with_vlm(vlm: Any, question: str, options: list[str] | None, frames: 
     if not can_constrain(vlm):
         return refuse("this VLM cannot decode under a JSON schema (only ONNX Runtime GenAI packages can); "
                       "ask with --grounding rules")
+    recorded = getattr(vlm, "query_schema", None)
+    if recorded is not None and recorded != SCHEMA_VERSION:  # exported for another program version: said, loudly
+        trace.event("degraded", f"the VLM was exported for question programs {recorded}; this runtime reads "
+                                f"{SCHEMA_VERSION} (decoded under this runtime's schema)", stage="grounding", warn=True)
     schema = json.dumps(json_schema("ask", profile="vlm"))
     try:
         with trace.stage("grounding.vlm"):

@@ -69,6 +69,7 @@ class GenAIVLM(RoleModel):
         self.processor = self.model.create_multimodal_processor()
         self.tokenizer = og.Tokenizer(self.model)
         self.max_new_tokens = int(spec.config.get("max_new_tokens", 64))
+        self.query_schema = (genai.get("guidance") or {}).get("json_schema")  # recorded at export (None: older)
         self.specials = tuple(spec.config.get("stop_tokens") or ("<|im_end|>", "<|endoftext|>"))
         self.last: dict[str, Any] = {}
 

@@ -135,7 +135,8 @@ def intent(j: str, n_obj: int, has_opts: bool) -> str | None:
         return "direction"
     if has(j, r"\b(?:distance|how far|far apart|far away|far from|how close|how near|gap (?:between|from)|separat\w*|"
                r"spacing|"
-               r"how much (?:space|room|gap)|how many (?:m|meters?|"
+               r"how much (?:space|room|gap)|\b(?:from|between)\b.*\bhow many (?:meters?|metres?|feet|foot|ft|"
+               r"cm|centimet\w+|inch(?:es)?|mm)\b|how many (?:m|meters?|"
                r"metres?|cm|centimet\w+|feet|foot|ft|inch(?:es)?|mm)\b.*\b(?:between|from|apart|away|to)\b)"):
         if has(j, CLOSE + "|" + FAR) and has(j, r"\b(?:which|whichever|or|than)\b"):
             return "rel_distance"

@@ -34,6 +34,7 @@ watching staring
 point points object objects thing things item items stuff furniture piece pieces kind kinds type types
 please thanks roughly approximately approx around exactly just only really actually about estimate guess
 first second third fourth fifth last order appear appears appeared appearance came come comes seen
+showed shown shows popped appearing
 earliest latest earlier later sooner soonest sequence until till robot
 cm centimeter centimeters centimetre centimetres mm millimeter millimeters millimetre millimetres m meter meters
 metre metres ft foot feet inch inches sq
