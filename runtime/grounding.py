@@ -11,7 +11,7 @@ The vocabulary, question-text helpers and the parser live in `query/`; their pub
 """
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Iterable
 
 from .errors import InputError
 from .query.ir import QTYPES
@@ -28,11 +28,12 @@ __all__ = ["GROUNDINGS", "MAX_OPTIONS", "MAX_QUESTION_CHARS", "NAME_SYNONYMS", "
            "safe_text", "singular", "split_inline_options", "split_options"]
 
 
-def ground(question: str, options: list[str] | None = None, vlm: Any = None, frames: list[Any] | None = None,
-           trace: Any = None, grounding: str = "auto") -> ParsedQuestion:
+def ground(question: str, options: list[str] | None = None, vlm: Any = None, frames: Any = None,
+           trace: Any = None, grounding: str = "auto", names: Iterable[str] = ()) -> ParsedQuestion:
     """Task grounding: question -> `ParsedQuestion` (its program, targets and cues).
 
-    grounding: "rules" | "vlm" | "auto" (see the module doc). With "vlm" or "auto" and a VLM that can decode
+    grounding: "rules" | "vlm" | "auto" (see the module doc); names: object names beyond the vocabulary the
+    rule parser reads as mentions (a saved map's categories). With "vlm" or "auto" and a VLM that can decode
     under a JSON schema (`generate_json`), the VLM sees the question and `frames` ([H, W, 3] uint8 RGB) and emits
     the program; what it emits is validated (`query.schema.from_json`), and an output that fails validation is
     refused with the reason (trace event "grounding"), never guessed. Names outside the vocabulary are reported
@@ -42,7 +43,7 @@ def ground(question: str, options: list[str] | None = None, vlm: Any = None, fra
     trace = as_trace(trace)
     if grounding not in GROUNDINGS:
         raise InputError(f"`grounding` must be one of {GROUNDINGS}, got {grounding!r}", fields=("grounding",))
-    pq = parse_question(question, options)
+    pq = parse_question(question, options, names)
     how = "rules"
     if grounding == "vlm" or (grounding == "auto" and pq.program is None and vlm is not None):
         if vlm is None:

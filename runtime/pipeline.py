@@ -961,7 +961,8 @@ def ask(source: Any, question: str, options: list[str] | None = None, *, percept
         n = min(conf.grounding_frames, len(src))
         frames_for_grounding = lambda: [src[int(i)].rgb for i in np.linspace(0, len(src) - 1, n).round().astype(int)]  # noqa: E731
     with trace.stage("grounding"):
-        pq = ground(question, options, vlm, frames_for_grounding, trace, grounding)
+        names = sorted({o.name for o in src.instances}) if isinstance(src, SemanticMap) else ()
+        pq = ground(question, options, vlm, frames_for_grounding, trace, grounding, names)
     build = None
     if budget is None and profile is not None and not isinstance(src, SemanticMap):
         from .budget import controller_for

@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import subprocess
-import sys
 
 import pytest
 
@@ -69,25 +67,44 @@ def test_the_vlm_profile_is_a_bounded_subset_of_the_schema():
     assert validate({**doc, "steps": doc["steps"] * 2}, vlm)  # 16 steps: beyond the VLM's bound
 
 
-def _mosaic(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "mosaicthinker.runtime.cli", *args], capture_output=True, text=True,
-                          timeout=60)
+def _mosaic(capsys, *args: str) -> tuple[int, str, str]:
+    """`mosaic ARGS` in this process (the same `cli.main` the command runs): (exit code, stdout, stderr)."""
+    from mosaicthinker.runtime.cli import main
+
+    capsys.readouterr()
+    code = main(list(args))
+    out = capsys.readouterr()
+    return code, out.out, out.err
 
 
-def test_mosaic_parse_prints_the_program_and_refuses_bad_input():
-    r = _mosaic("parse", "--json", "how many chairs are near the desk?")
-    assert r.returncode == 0, r.stderr
-    d = json.loads(r.stdout)
+def test_mosaic_parse_prints_the_program_and_refuses_bad_input(capsys):
+    code, out, err = _mosaic(capsys, "parse", "--json", "how many chairs are near the desk?")
+    assert code == 0, err
+    d = json.loads(out)
     assert d["schema"] == "mosaicthinker.parse/1" and d["qtype"] == "object_counting"
     assert d["program"]["ask"] == {"kind": "count", "objects": [{"name": "chair", "phrase": "chairs"}],
                                    "where": {"kind": "relation", "relation": "near", "object": {"name": "desk"}}}
-    r = _mosaic("parse", "Is the bed to my left, standing by the door facing the window? A. yes B. no")
-    assert r.returncode == 0 and '"kind": "direction"' in r.stdout and "targets ['bed']" in r.stdout
-    r = _mosaic("parse", "what is the meaning of life?")
-    assert r.returncode == 0 and "not understood" in r.stdout
-    r = _mosaic("parse", "--schema", "vlm", "--json")
-    assert r.returncode == 0 and json.loads(r.stdout)["json_schema"]["x-guidance"]["whitespace_flexible"] is False
-    r = _mosaic("parse", " ")
-    assert r.returncode == 2 and r.stderr.startswith("error:")
-    r = _mosaic("parse", "--grounding", "vlm", "how many chairs?")
-    assert r.returncode == 2 and "--grounding" in r.stderr
+    code, out, _ = _mosaic(capsys, "parse", "Is the bed to my left, standing by the door facing the window? A. yes B. no")
+    assert code == 0 and '"kind": "direction"' in out and "targets ['bed']" in out
+    code, out, _ = _mosaic(capsys, "parse", "what is the meaning of life?")
+    assert code == 0 and "not understood" in out
+    code, out, _ = _mosaic(capsys, "parse", "--schema", "vlm", "--json")
+    assert code == 0 and json.loads(out)["json_schema"]["x-guidance"]["whitespace_flexible"] is False
+    code, _, err = _mosaic(capsys, "parse", " ")
+    assert code == 2 and err.startswith("error:")
+    code, _, err = _mosaic(capsys, "parse", "--grounding", "vlm", "how many chairs?")
+    assert code == 2 and "--grounding" in err
+
+
+@pytest.mark.slow
+def test_mosaic_ask_explain_prints_the_program_with_the_answer(tmp_path, capsys):
+    from test_grounding_nl import room_map
+
+    m = tmp_path / "map.json"
+    room_map().save(m)
+    code, out, err = _mosaic(capsys, "ask", str(m), "how far is the power strip from the desk, in cm?", "--explain")
+    assert code == 0, err
+    assert "program (natural):" in out and '"kind": "distance"' in out and "power strip" in out
+    code, out, _ = _mosaic(capsys, "ask", str(m), "how many chairs are there?", "--json")
+    d = json.loads(out)
+    assert d["grounding"]["program"]["ask"]["kind"] == "count" and d["answer"] == "3"

@@ -168,7 +168,8 @@ def test_vlm_grounding_emits_a_schema_valid_program_for_200_questions(qwen_bundl
     out, _ = qwen_bundle
     from mosaicthinker.runtime.query.ir import SCHEMA_VERSION
 
-    assert load_bundle(out).role_meta("vlm")["variants"]["int4"]["genai"]["guidance"] == {"json_schema": SCHEMA_VERSION}
+    rm = load_bundle(out).role_meta("vlm")
+    assert rm["variants"][rm["default_variant"]]["genai"]["guidance"] == {"json_schema": SCHEMA_VERSION}
     with pytest.warns(RuntimeWarning, match="RANDOM"):
         vlm = load_role(load_bundle(out), "vlm", trace=Trace())
     every = [q for qs in wording_sets().values() for q in qs]

@@ -20,6 +20,7 @@ from .boxes import aabb_gaps, half_extents
 from .result import Unsupported
 
 LARGE = 4.0  # a box whose half-diagonal exceeds this many times the median is checked by every query
+SMALL = 32  # a set of at most this many boxes is searched whole (bounds, then exact where they allow)
 
 
 class BoxSet:
@@ -41,6 +42,8 @@ class BoxSet:
 
     def near(self, cx: np.ndarray, rx: float, within: float) -> np.ndarray:
         """Indices of the boxes that can be within `within` of a box centred at cx with half-diagonal rx (sorted)."""
+        if len(self) <= SMALL:  # a few boxes: all of them (their bounds decide)
+            return np.arange(len(self))
         idx = list(self.large)
         if self.tree is not None and np.isfinite(within):
             idx += [int(self.small[k]) for k in self.tree.query_ball_point(cx, within + rx + self.rmax)]
@@ -48,20 +51,24 @@ class BoxSet:
             idx += list(self.small)
         return np.array(sorted(idx), dtype=int)
 
-    def upper(self, o: Any, cx: np.ndarray, skip: int) -> float:
-        """A distance some box of the set is within of `o`: the exact distance to the one with the nearest centre
-        (inf when the set has no box but `o` itself)."""
+    def upper(self, cx: np.ndarray, skip: int) -> float:
+        """A distance some box of the set is within of a box centred at cx: the distance between their centres
+        (both centres lie inside their boxes), to the nearest other centre; inf when there is none."""
+        if len(self) <= SMALL:
+            d = np.linalg.norm(self.c - cx, axis=1)
+            if skip >= 0:
+                d[skip] = np.inf
+            return float(d.min()) if len(d) else np.inf
         best = np.inf
         if self.tree is not None:
-            k = min(3, len(self.small))
-            _, ks = self.tree.query(cx, k=k)
-            for k_ in np.atleast_1d(ks):
-                j = int(self.small[int(k_)])
-                if j != skip:
-                    return box_distance(o.box, self.inst[j].box)
+            dd, kk = self.tree.query(cx, k=min(2, len(self.small)))
+            for d, k_ in zip(np.atleast_1d(dd), np.atleast_1d(kk)):
+                if int(self.small[int(k_)]) != skip:
+                    best = float(d)
+                    break
         for j in self.large:
             if int(j) != skip:
-                best = min(best, box_distance(o.box, self.inst[int(j)].box))
+                best = min(best, float(np.linalg.norm(self.c[j] - cx)))
         return best
 
     def nearest(self, o: Any, best: float = np.inf, bounds: tuple[np.ndarray, np.ndarray] | None = None
@@ -76,7 +83,7 @@ class BoxSet:
             cx, ex = bounds
         skip = self.pos.get(id(o), -1)
         if not np.isfinite(best):
-            best = self.upper(o, cx, skip)
+            best = self.upper(cx, skip)
         cand = self.near(cx, float(np.linalg.norm(ex)), best)
         if skip >= 0:
             cand = cand[cand != skip]

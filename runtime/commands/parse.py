@@ -35,7 +35,6 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     if not args.question or not args.question.strip():
         raise InputError("parse: give QUESTION (`mosaic parse \"How many chairs are there?\"`), or --schema")
     from ..grounding import check_question, ground, split_inline_options
-    from ..pipeline import load_vlm
     from ..trace import Trace
 
     question, options = args.question, args.option
@@ -43,7 +42,11 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     if options is None:
         question, options = split_inline_options(question)
     trace = Trace()
-    vlm = load_vlm(args.bundle, trace) if args.grounding != "rules" and args.bundle else None
+    vlm = None
+    if args.grounding != "rules" and args.bundle:  # the models only when a VLM may read the question
+        from ..pipeline import load_vlm
+
+        vlm = load_vlm(args.bundle, trace)
     if args.grounding == "vlm" and vlm is None:
         raise InputError("`grounding=vlm` needs a bundle with a `vlm` role", fields=("grounding",))
     pq = ground(question, options, vlm, None, trace, args.grounding)
