@@ -34,14 +34,15 @@ def _brute_pair(a, b):
     return best
 
 
-@pytest.mark.parametrize("spread, big", [(6.0, 0), (60.0, 3)])
-def test_closest_pair_and_nearest_values_equal_the_exhaustive_search(spread, big):
+@pytest.mark.parametrize("spread, big, n", [(6.0, 0, 24),  # 40 > SMALL: the KD-tree's path (slow: brute force)
+                                            pytest.param(60.0, 3, 40, marks=pytest.mark.slow)])
+def test_closest_pair_and_nearest_values_equal_the_exhaustive_search(spread, big, n):
     rng = np.random.default_rng(int(spread) + big)
-    a, b = _boxes(rng, 30, spread, big), _boxes(rng, 24, spread, big)
+    a, b = _boxes(rng, n + 6, spread, big), _boxes(rng, n, spread, big)
     d, x, y = closest_pair(a, b)
     want = _brute_pair(a, b)
     assert d == want[0] and x is a[want[1]] and y is b[want[2]]
-    shared = a[:16] + b[:12]  # a list with itself: an instance is never its own partner
+    shared = a[:n // 2] + b[:n // 2]  # a list with itself: an instance is never its own partner
     d, x, y = closest_pair(shared, shared)
     want = _brute_pair(shared, shared)
     assert d == want[0] and x is shared[want[1]] and y is shared[want[2]]

@@ -13,7 +13,6 @@ from __future__ import annotations
 from typing import Any, Iterable
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from ..geometry import box_distance
 from .boxes import aabb_gaps, half_extents
@@ -34,7 +33,11 @@ class BoxSet:
         big = self.r > LARGE * float(np.median(self.r)) if len(self.inst) else np.zeros(0, bool)
         self.large = np.flatnonzero(big)
         self.small = np.flatnonzero(~big)
-        self.tree = cKDTree(self.c[self.small]) if len(self.small) else None
+        self.tree = None  # small sets are searched whole: no tree (and no scipy import on a small map's question)
+        if len(self) > SMALL and len(self.small):
+            from scipy.spatial import cKDTree
+
+            self.tree = cKDTree(self.c[self.small])
         self.rmax = float(self.r[self.small].max()) if len(self.small) else 0.0
 
     def __len__(self) -> int:
@@ -42,7 +45,7 @@ class BoxSet:
 
     def near(self, cx: np.ndarray, rx: float, within: float) -> np.ndarray:
         """Indices of the boxes that can be within `within` of a box centred at cx with half-diagonal rx (sorted)."""
-        if len(self) <= SMALL:  # a few boxes: all of them (their bounds decide)
+        if self.tree is None:  # a few boxes (or only large ones): all of them, their bounds decide
             return np.arange(len(self))
         idx = list(self.large)
         if self.tree is not None and np.isfinite(within):
@@ -54,7 +57,7 @@ class BoxSet:
     def upper(self, cx: np.ndarray, skip: int) -> float:
         """A distance some box of the set is within of a box centred at cx: the distance between their centres
         (both centres lie inside their boxes), to the nearest other centre; inf when there is none."""
-        if len(self) <= SMALL:
+        if self.tree is None:
             d = np.linalg.norm(self.c - cx, axis=1)
             if skip >= 0:
                 d[skip] = np.inf
@@ -143,19 +146,27 @@ def nearest_values(a: list[Any], b: list[Any] | BoxSet, k: int, largest: bool = 
         return {}
     ca, ea = half_extents(a)
     ra = np.linalg.norm(ea, axis=1)
-    centre_d = np.full(len(a), np.inf)  # distance to the nearest other centre: an upper bound of the box distance
-    if bs.tree is not None:
+    own = np.array([bs.pos.get(id(x), -1) for x in a])
+    rows = np.arange(len(a))
+    if bs.tree is None:  # a small set: the bounds of every pair (an instance is not its own partner)
+        gaps = np.linalg.norm(np.maximum(np.abs(ca[:, None] - bs.c[None]) - ea[:, None] - bs.e[None], 0.0), axis=2)
+        cd = np.linalg.norm(ca[:, None] - bs.c[None], axis=2)
+        mine = own >= 0
+        gaps[rows[mine], own[mine]] = np.inf
+        cd[rows[mine], own[mine]] = np.inf
+        lower, centre_d = gaps.min(1), cd.min(1)  # a lower and an upper bound of each one's nearest distance
+    else:
         kk = min(2, len(bs.small))
         dd, jj = bs.tree.query(ca, k=kk)
-        dd, jj = dd.reshape(len(a), kk), jj.reshape(len(a), kk)
-        own = np.array([bs.pos.get(id(x), -1) for x in a])
-        first_other = np.where(bs.small[jj[:, 0]] == own, 1, 0) if kk > 1 else np.zeros(len(a), int)
-        centre_d = np.where((bs.small[jj[:, 0]] == own) & (kk == 1), np.inf, dd[np.arange(len(a)), first_other])
-    lower = np.maximum(np.asarray(centre_d, float) - ra - bs.rmax, 0.0)
-    for j in bs.large:  # the large boxes: their exact bounds
-        gap = aabb_gaps(bs.c[j], bs.e[j], ca, ea)
-        lower = np.minimum(lower, gap)
-        centre_d = np.minimum(centre_d, np.linalg.norm(ca - bs.c[j], axis=1))
+        dd, jj = dd.reshape(len(a), kk), bs.small[jj.reshape(len(a), kk)]
+        first_other = (jj[:, 0] == own).astype(int) if kk > 1 else np.zeros(len(a), int)
+        centre_d = np.where((jj[:, 0] == own) & (kk == 1), np.inf, dd[rows, first_other])
+        lower = np.maximum(centre_d - ra - bs.rmax, 0.0)
+        for j in bs.large:  # the large boxes: their exact bounds
+            gap = aabb_gaps(bs.c[j], bs.e[j], ca, ea)
+            cdj = np.linalg.norm(ca - bs.c[j], axis=1)
+            gap[own == j], cdj[own == j] = np.inf, np.inf
+            lower, centre_d = np.minimum(lower, gap), np.minimum(centre_d, cdj)
     key = -centre_d if largest else lower
     order = sorted(range(len(a)), key=lambda i: (key[i], i))
     got: dict[int, float] = {}
