@@ -1290,19 +1290,24 @@ def _turn_words(a: str, b: str, path: list[str]) -> list[str]:
 
 _ROUTE_START = ["Beginning at the {A}, facing the {B}, ", "You start by the {A} and face the {B}. ",
                 "I'm a robot standing next to the {A}, facing the {B}. ", "From the {A}, looking at the {B}, ",
-                "A robot begins at the {A} facing the {B}. "]
+                "A robot begins at the {A} facing the {B}. ", "A robot starts at the {A} with the {B} in front of it. ",
+                "Route: start = {A}, facing = {B}. "]
 _ROUTE_WALK = ["go forward until the {B}, [please fill in], go forward until the {C}, [please fill in], go forward "
                "until the {D}.", "walk to the {B}, turn, walk to the {C}, turn again, and walk to the {D}.",
                "head to the {B}, then turn and head to the {C}, then turn once more and head to the {D}.",
                "I go to the {B}, then to the {C}, then to the {D}.",
-               "move forward to the {B}; turn; move forward to the {C}; turn; move forward to the {D}."]
+               "move forward to the {B}; turn; move forward to the {C}; turn; move forward to the {D}.",
+               "it drives forward to the {B}, makes a turn, drives to the {C}, makes another turn, then drives to the "
+               "{D}.", "head forward until you hit the {B}, then ___, then head forward until the {C}, then ___, then "
+               "head forward until the {D}."]
 _ROUTE_ASK = ["Which turns do I make?", "What are the two turns?", "Which way do I turn each time?", "Fill in the turns.",
               ""]
 
 
 def test_every_route_phrasing_with_every_start_and_question():
     """Routes in the benchmark's sense (turn at each waypoint, back from 135 degrees) worded as people word them:
-    starts x walks x questions over three routes of the test room, the options' turns from the room's geometry."""
+    starts x walks x questions over three routes of the test room, the options' turns from the room's geometry
+    (7 x 7 x 5 x 3 questions)."""
     wrong = []
     for a, b, c, d in (("desk", "whiteboard", "radiator", "couch"), ("couch", "desk", "whiteboard", "laptop"),
                        ("radiator", "couch", "desk", "whiteboard")):

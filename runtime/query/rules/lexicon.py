@@ -35,7 +35,7 @@ point points object objects thing things item items stuff furniture piece pieces
 please thanks roughly approximately approx around exactly just only really actually about estimate guess
 first second third fourth fifth last order appear appears appeared appearance came come comes seen
 showed shown shows popped appearing
-earliest latest earlier later sooner soonest sequence until till robot
+earliest latest earlier later sooner soonest sequence until till robot start starts starting begin begins beginning
 cm centimeter centimeters centimetre centimetres mm millimeter millimeters millimetre millimetres m meter meters
 metre metres ft foot feet inch inches sq
 for about like per upon unto via else off out over onto into than
@@ -145,7 +145,7 @@ PRONOUN_CUES = LOCATION | set(RELATION_WORDS) | NEAR_CUES | {"top"}
 FACE1 = {"facing", "face", "faces", "faced", "towards", "toward", "watching"}
 PLACED_VERBS = {"am", "i'm", "im", "standing", "stand", "sitting", "sit", "be", "was", "were", "stood", "sat"}
 # "standing by the bed with the sofa in front of me": facing the sofa
-AHEAD_OF_ME = r"(?:in front of|ahead of|before) me\b"  # "with the sofa in front of me"
+AHEAD_OF_ME = r"(?:in front of|ahead of|before) (?:me|us|you|it|him|her|them)\b"  # "with the sofa in front of me"
 IS_AHEAD = r"(?:is|are) (?:straight |directly |right )?(?:ahead|in front of me)\b"  # "the tv is straight ahead"
 FACING_AHEAD_RX = rf"\bwith (?:the |a |an )?[^,?]{{1,40}}? {AHEAD_OF_ME}|\b{IS_AHEAD}"
 FACE2 = {"looking at", "look at", "looked at", "staring at", "turned to", "turn to", "direction of", "looking toward",

@@ -8,7 +8,9 @@ from typing import Any
 from ..ir import Forward, Node, Route, Turn
 from ..text import split_options
 from .directions import stance
+from .lexicon import DET
 from .state import R, State
+from ..vocabulary import canonical_name
 from .tokens import before
 
 # a waypoint follows a word of walking ("go forward until the tv", "walk to the door", "then the sofa")
@@ -33,6 +35,8 @@ def route(st: State, toks: list[str], joined: str, nps: list[dict[str, Any]], ex
     """"Starting at the bed facing the tv, I walk to the tv, turn, walk to the shower, turn and walk to the toilet:
     which turns?" -> Route(bed, tv, [forward tv, turn, forward shower, turn, forward toilet])."""
     pos, face, _ = stance(toks, nps)
+    if pos is None:  # "start = the sofa", "the walk begins: sofa": the phrase right after a word of starting
+        pos = next((k for k, p in enumerate(nps) if k != face and set(before(toks, p, 2)) & _START), None)
     if pos is None or face is None:
         have = {"where the walk begins": pos, "what it faces": face}
         return st.fail("a route question", ", ".join(k for k, v in have.items() if v is None) +
@@ -42,14 +46,18 @@ def route(st: State, toks: list[str], joined: str, nps: list[dict[str, Any]], ex
     dest = None
     events: list[tuple[int, Any]] = [(m.start(), "turn") for m in _TURN.finditer(" ".join(toks))]
     char = [len(" ".join(toks[:p["start"]])) + (1 if p["start"] else 0) for p in nps]  # phrase -> character offset
+    # a waypoint is an object: a name, or a phrase with a determiner ("the zither"); not "head", "makes", "once"
+    objects = [k for k, p in enumerate(nps) if canonical_name(" ".join(p["words"])) is not None or
+               (p["start"] > 0 and toks[p["start"] - 1] in DET)]
+    last_end = 0
     for k, p in enumerate(nps):
-        if k in (pos,):
+        gap, last_end = [t for t in toks[last_end:p["start"]] if t not in DET][-3:], p["end"] if k in objects \
+            else last_end  # the words since the object before it ("until you reach the tv")
+        if k in (pos, face) or k not in objects or _moves(toks, p):
             continue
-        b = before(toks, p, 4)
-        if _DEST.search(" ".join(b)) and dest is None and k != face:
+        if _DEST.search(" ".join(before(toks, p, 4))) and dest is None:
             dest = k
-        if b and (b[-1] in _WALK or (len(b) > 1 and b[-2] in ("go", "walk", "head", "move") and b[-1] == "to")) \
-                and not (k == dest and not _later_walk(toks, p)):
+        if set(gap) & _WALK and not (k == dest and not _later_walk(toks, p)):
             events.append((char[k], k))
     events.sort(key=lambda e: e[0])
     forwards = [e[1] for e in events if e[1] != "turn"]
@@ -69,6 +77,18 @@ def route(st: State, toks: list[str], joined: str, nps: list[dict[str, Any]], ex
         return st.fail("a route question", "the waypoints and the turns to choose")
     steps = tuple(Turn() if e[1] == "turn" else Forward(R(names[e[1]])) for e in events)
     return Route(R(names[pos]), R(names[face]), steps, R(names[dest]) if dest is not None else None)
+
+
+_START = {"start", "starts", "starting", "begin", "begins", "beginning", "origin"}
+# a word followed by one of these moves ("head forward", "walk to", "turn around"): a verb, not a place
+_PARTICLES = {"forward", "forwards", "to", "toward", "towards", "until", "till", "straight", "ahead", "up", "down",
+              "along", "past", "over", "around", "back", "on", "onward", "onwards"}
+
+
+def _moves(toks: list[str], p: dict[str, Any]) -> bool:
+    """A one-word phrase that is a verb of walking ("head forward until ...", "move to ...")."""
+    nxt = toks[p["end"]] if p["end"] < len(toks) else ""
+    return len(p["words"]) == 1 and not p["sel"] and nxt in _PARTICLES and canonical_name(p["words"][0]) is None
 
 
 def _later_walk(toks: list[str], p: dict[str, Any]) -> bool:
