@@ -827,7 +827,10 @@ def _add_variant(out: Path, v: str, pkg: Path, prov: dict, graphs: dict, build: 
     meta = C.role_meta(ARCH, preprocessing=pre, semantics={"kind": "vlm", "tiling": False}, provenance=prov,
                        licence="LicenseRef-Qwen-Research" if big else "Apache-2.0",
                        random_weights=prov["random_weights"], config=cfg)
+    from mosaicthinker.runtime.query.ir import SCHEMA_VERSION
+
     genai = {"package": pkg.relative_to(out).as_posix(), "version": GENAI_VERSION, "files": files,
+             "guidance": {"json_schema": SCHEMA_VERSION},  # the question-program schema it decodes under
              "builder": {k: build[k] for k in ("seconds", "peak_rss_mb")},
              "graphs_export_s": graphs["seconds"],
              "component_precision": {"decoder": v, **(side or {"vision": "fp32", "embedding": "fp32"})}}

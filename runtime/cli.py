@@ -23,6 +23,7 @@ from .infra import progress
 COMMANDS: dict[tuple[str, ...], tuple[str, str, str | None]] = {
     ("demo",): ("mosaicthinker.runtime.commands.demo", "run the whole pipeline on a generated scene (no model files)", None),
     ("ask",): ("mosaicthinker.runtime.commands.ask", "answer a spatial question about a video, folder or saved map", None),
+    ("parse",): ("mosaicthinker.runtime.commands.parse", "print a question's program (JSON) without answering it", None),
     ("map",): ("mosaicthinker.runtime.commands.map", "build a semantic map from a video or folder and save it", None),
     ("synth",): ("mosaicthinker.host.synth.cli", "generate synthetic indoor scenes with full ground truth", None),
     ("eval", "pose"): ("mosaicthinker.host.evaluation.pose", "camera-pose accuracy (ATE/RPE) on an RGB-D folder", None),

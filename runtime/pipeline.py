@@ -478,30 +478,32 @@ def ask(source: Any, question: str, options: list[str] | None = None, *, percept
         bundle: Any = None, profile: Any = None, conf: PipelineConfig | dict | None = None,
         answerer: str = "auto", method: str = "mosaic", prompt_mode: str = "grid", vlm: Any = None,
         trace: Trace | None = None, keyframes: int | None = None, budget: Budget | None = None,
-        direct_frames: int = 8, render_image: bool = True) -> AskResult:
+        direct_frames: int = 8, render_image: bool = True, grounding: str = "auto") -> AskResult:
     """Answer a spatial question about a video, frame folder or saved map.
 
     source: a path (video, image/RGB-D folder, `map.json`), a `FrameSource` or a `SemanticMap`; options:
     multiple-choice options ("A. ...") or None. perception: injected models (default: built from `bundle`);
     answerer: "map" | "vlm" | "auto"; method: "mosaic" (map + visual prompt) or "direct" (the baseline: frames
     sampled uniformly straight to the VLM); prompt_mode: "grid" | "points" | "text"; render_image=False skips
-    the map image when nothing will show it (no VLM, no file written: on a 10 k-object map it dominates).
+    the map image when nothing will show it (no VLM, no file written: on a 10 k-object map it dominates);
+    grounding: "rules" | "vlm" | "auto" (who reads the question into its program, `grounding.ground`).
     """
     trace = trace if trace is not None else Trace()
     conf = conf if isinstance(conf, PipelineConfig) else PipelineConfig.merged(conf)
     if method not in ("mosaic", "direct"):
         raise InputError(f"`method` must be mosaic or direct, got {method!r}", fields=("method",))
-    if vlm is None and bundle is not None and answerer != "map":  # the map answerer neither grounds nor answers
-        vlm = load_vlm(bundle, trace, profile)                     # with a VLM: not loaded, not run
+    if vlm is None and bundle is not None and (answerer != "map" or grounding == "vlm"):  # the map answerer with
+        vlm = load_vlm(bundle, trace, profile)  # rule grounding neither grounds nor answers with a VLM: not loaded
     src = _open(source, trace)
     if method == "direct":
         return _ask_direct(src, question, options, vlm, trace, direct_frames)
     frames_for_grounding = None
-    if vlm is not None and not isinstance(src, SemanticMap):
+    if vlm is not None and not isinstance(src, SemanticMap):  # decoded only if the VLM grounds the question
         n = min(conf.grounding_frames, len(src))
-        frames_for_grounding = [src[int(i)].rgb for i in np.linspace(0, len(src) - 1, n).round().astype(int)]
+        frames_for_grounding = lambda: [src[int(i)].rgb for i in np.linspace(0, len(src) - 1, n).round().astype(int)]  # noqa: E731
     with trace.stage("grounding"):
-        pq = ground(question, options, vlm, frames_for_grounding, trace)
+        names = sorted({o.name for o in src.instances}) if isinstance(src, SemanticMap) else ()
+        pq = ground(question, options, vlm, frames_for_grounding, trace, grounding, names)
     build = None
     if budget is None and profile is not None and not isinstance(src, SemanticMap):
         budget = controller_for(profile, src, trace, bundle)  # the planner's own clip length and frame rate

@@ -7,6 +7,8 @@ import pytest
 from mosaicthinker.runtime.answer import (Answer, MapReasoner, direction_label, signed_angle_deg, turn_label)
 from mosaicthinker.runtime.geometry import OrientedBox, rotation_about
 from mosaicthinker.runtime.grounding import (QTYPES, VOCABULARY, canonical_name, parse_question, split_options)
+from mosaicthinker.runtime.query.ir import (AppearanceOrder, Count, Direction, Distance, Nearest, Ref, RoomSize,
+                                           Size)
 from mosaicthinker.runtime.map import ObjectInstance, Room, SemanticMap
 
 
@@ -220,36 +222,34 @@ def test_vocabulary_covers_benchmark_and_common_objects():
 
 
 def test_parse_every_template():
+    R = Ref
     cases = {
-        "How many table(s) are in this room?": ("object_counting", ["table"], [], {"object": "table"}),
+        "How many table(s) are in this room?": ("object_counting", ["table"], [], Count((R("table"),))),
         "What is the length of the longest dimension (length, width, or height) of the couch, measured in "
-        "centimeters?": ("object_size_estimation", ["sofa"], [], {"object": "sofa"}),
+        "centimeters?": ("object_size_estimation", ["sofa"], [], Size(R("sofa", "couch"))),
         "What is the size of this room (in square meters)? \nIf multiple rooms are shown, estimate the size of the "
-        "combined space.": ("room_size_estimation", [], [], {}),
+        "combined space.": ("room_size_estimation", [], [], RoomSize()),
         "Measuring from the closest point of each object, what is the distance between the sofa and the stove (in "
-        "meters)?": ("object_abs_distance", ["sofa", "stove"], [], {"a": "sofa", "b": "stove"}),
+        "meters)?": ("object_abs_distance", ["sofa", "stove"], [], Distance(R("sofa"), R("stove"))),
         "Measuring from the closest point of each object, which of these objects (chair, stool, stove, sofa) is the "
         "closest to the tv?": ("object_rel_distance", ["chair", "stool", "stove", "sofa"], ["tv"],
-                               {"reference": "tv", "candidates": ["chair", "stool", "stove", "sofa"],
-                                "extreme": "closest"}),
+                               Nearest(R("tv"), (R("chair"), R("stool"), R("stove"), R("sofa")), "closest")),
         HARD.format(a="stove", b="sofa", c="tv"): ("object_rel_direction_hard", ["tv"], ["stove", "sofa"],
-                                                   {"position": "stove", "facing": "sofa", "query": "tv"}),
+                                                   Direction(R("stove"), R("sofa"), R("tv"), "hard")),
         MEDIUM.format(a="stove", b="sofa", c="tv"): ("object_rel_direction_medium", ["tv"], ["stove", "sofa"],
-                                                     {"position": "stove", "facing": "sofa", "query": "tv"}),
+                                                     Direction(R("stove"), R("sofa"), R("tv"), "medium")),
         EASY.format(a="stove", b="sofa", c="tv"): ("object_rel_direction_easy", ["tv"], ["stove", "sofa"],
-                                                   {"position": "stove", "facing": "sofa", "query": "tv",
-                                                    "relative_to": "sofa"}),
+                                                   Direction(R("stove"), R("sofa"), R("tv"), "easy", R("sofa"))),
         "What will be the first-time appearance order of the following categories in the video: chair, tv, fridge, "
         "sofa?": ("obj_appearance_order", ["chair", "tv", "refrigerator", "sofa"], [],
-                  {"categories": ["chair", "tv", "refrigerator", "sofa"]}),
+                  AppearanceOrder((R("chair"), R("tv"), R("refrigerator", "fridge"), R("sofa")))),
     }
-    for q, (qt, targets, cues, params) in cases.items():
+    for q, (qt, targets, cues, node) in cases.items():
         p = parse_question(q)
-        assert (p.qtype, p.targets, p.cues, p.params, p.unknown) == (qt, targets, cues, params, []), q
+        assert (p.qtype, p.targets, p.cues, p.node, p.unknown) == (qt, targets, cues, node, []), q
     p = parse_question(ROUTE)
     assert p.qtype == "route_planning" and p.targets == ["toilet"] and p.cues == ["bed", "tv", "stove"]
-    assert [s["action"] for s in p.params["steps"]] == ["forward", "turn", "forward", "turn", "forward"]
-    assert p.params["n_turns"] == 2
+    assert [type(s).__name__ for s in p.node.steps] == ["Forward", "Turn", "Forward", "Turn", "Forward"]
     assert {q.split("_")[0] for q in QTYPES} >= {"object", "room", "route", "obj"}
 
 
@@ -259,7 +259,7 @@ def test_parse_unknown_names_and_non_templates():
     p = parse_question("You are a robot beginning at the door and facing into the room. You want to navigate to "
                        "the window. You will perform the following actions: 1. [please fill in] 2. Go forward "
                        "until the window. You have reached the final destination.")
-    assert p.qtype == "route_planning" and p.unknown == ["room"] and p.params["facing"] == "room"
+    assert p.qtype == "route_planning" and p.unknown == ["room"] and p.node.face.name == "room"
     p = parse_question("Describe the kitchen.")
     assert p.qtype is None and p.targets == [] and p.unknown == []
 

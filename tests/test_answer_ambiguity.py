@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from mosaicthinker.runtime import evidence as ev
+from mosaicthinker.runtime.answer import evidence as ev
 from mosaicthinker.runtime.answer import MapReasoner
 from mosaicthinker.runtime.map import SemanticMap
 from test_grounding_nl import ask

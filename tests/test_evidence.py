@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mosaicthinker.runtime import evidence
+from mosaicthinker.runtime.answer import evidence
 from mosaicthinker.runtime.answer import MapReasoner
 from mosaicthinker.runtime.commands import ask as ask_cmd
 from mosaicthinker.runtime.geometry import OrientedBox

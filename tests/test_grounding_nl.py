@@ -15,7 +15,9 @@ from mosaicthinker.runtime.infra.errors import InputError
 from mosaicthinker.runtime.geometry import OrientedBox
 from mosaicthinker.runtime.grounding import (MAX_QUESTION_CHARS, canonical_name, parse_question, safe_text,
                                              split_inline_options)
-from mosaicthinker.runtime.grounding_nl import direction_words, examples, noun_phrases, tokens
+from mosaicthinker.runtime.query.ir import Count, List, NearestTo, Ref, Relation
+from mosaicthinker.runtime.query.rules.lexicon import examples
+from mosaicthinker.runtime.query.rules.tokens import direction_words, noun_phrases, tokens
 from mosaicthinker.runtime.map import ObjectInstance, SemanticMap
 
 # name, centre (x, y, z), size (x, y, z): axis-aligned, metres, z up
@@ -186,7 +188,7 @@ def test_the_questions_own_back_rule():
     q = ("From the desk, facing the whiteboard, is the radiator left, right, or behind (count it as behind if I'd "
          "have to turn {} degrees or more)?")
     opts = ["A. left", "B. right", "C. back"]
-    assert parse_question(q.format(50)).params["back_deg"] == 50.0
+    assert parse_question(q.format(50)).node.back_deg == 50
     assert ask(q.format(int(th) - 1), opts).value == "back" and ask(q.format(int(th) + 1), opts).value != "back"
 
 
@@ -275,7 +277,7 @@ def test_tokens_phrases_and_directions():
 
 def test_the_parser_reads_only_the_question_and_options():
     p = parse_question("How many stools are there?")
-    assert (p.qtype, p.params, p.how) == ("object_counting", {"object": "stool"}, "natural")
+    assert (p.qtype, p.node, p.how) == ("object_counting", Count((Ref("stool", "stools"),)), "natural")
     p = parse_question("How many stool(s) are in this room?")
     assert (p.qtype, p.how) == ("object_counting", "template")
 
@@ -437,7 +439,7 @@ def test_is_a_on_b_what_is_on_b_and_anything_on_b():
         a = ask(q)  # an IndexError (exit 1) before
         assert a.status == "unsupported" and "on, near, in, under" in a.explanation, q
     assert ask("is the tv on the piano?").status == "not_found"
-    assert parse_question("what's in the room?").params == {"objects": []}  # a room is not a location to test
+    assert parse_question("what's in the room?").node == List()  # a room is not a location to test
     assert parse_question("which things are near the couch?").qtype == "object_list"
     assert parse_question("what's next to the couch?").qtype == "object_nearest"  # one object: the nearest
 
@@ -580,7 +582,7 @@ def test_show_me_and_find_are_where_questions_and_behind_reads_right():
 
 def test_every_listed_example_parses_to_its_own_type():
     """`mosaic ask --examples` promises these wordings: each must be read as the type it is listed under."""
-    from mosaicthinker.runtime.grounding_nl import EXAMPLES
+    from mosaicthinker.runtime.query.rules.lexicon import EXAMPLES
 
     for qtype, qs in EXAMPLES.items():
         for q in qs:
@@ -622,11 +624,12 @@ def test_a_pronoun_after_a_location_is_the_object_named_before_it():
     q, explicit = "how much shorter is the desk than the chairs next to it?", \
         "how much shorter is the desk than the chairs next to the desk?"
     assert ask(q).text == want == ask(explicit).text != "14 cm"
-    assert parse_question(q).selectors == parse_question(explicit).selectors == {"chair": {"near": "desk"}}
+    assert parse_question(q).node == parse_question(explicit).node
+    assert parse_question(q).node.candidates[1].select == (NearestTo("desk"),)
     a, b = parse_question("the desk: how many chairs are next to it?"), parse_question("how many chairs are near "
                                                                                         "the desk?")
-    assert a.params == b.params and a.params["where"] == {"relation": "near", "object": "desk"}
-    assert parse_question("how many cups are near that desk?").params["where"]["object"] == "desk"  # a determiner
+    assert a.node == b.node and a.node.where == Relation("near", Ref("desk"))
+    assert parse_question("how many cups are near that desk?").node.where.object.name == "desk"  # a determiner
 
 
 @pytest.mark.parametrize("q, where, named", [
@@ -925,7 +928,14 @@ def test_room_sides_and_the_room_against_an_area():
     assert ask("how long is the room?").value["length"] == pytest.approx(max(w, h), abs=0.01)
     assert ask("how wide is this room?").value["width"] == pytest.approx(min(w, h), abs=0.01)
     assert ask("what are the dimensions of the room?").text == f"{max(w, h):.1f} x {min(w, h):.1f} m"
-    area = smap.room_area()
+    area = w * h  # a map of boxes alone: the smallest rectangle around them (a lower bound, said so)
+    assert ask("how big is the room?").value == pytest.approx(area, rel=1e-6)
+    assert "lower bound" in ask("how big is the room?").explanation
+    from mosaicthinker.runtime.map import Room  # a map with a floor outline (from video): its area
+    floor = Room([(-4.0, -3.0), (5.0, -3.0), (5.0, 4.0), (-1.0, 4.0)], 0.0, 2.7, "observed_depth_hull")
+    with_floor = SemanticMap(room_map().instances, floor, [])
+    a = ask("how big is the room?", smap=with_floor)
+    assert a.value == pytest.approx(floor.area()) and "observed_depth_hull" in a.explanation
     assert ask("is the room bigger than 20 square meters?").value["answer"] == (area > 20)
     assert ask("is the room smaller than 20 square meters?").value["answer"] == (area < 20)
     assert ask("is the room larger than 300 square feet?").value["answer"] == (area / 0.3048 ** 2 > 300)
@@ -996,6 +1006,8 @@ def test_where_are_several_instances_says_each():
 
 
 def test_more_wordings_of_is_there_heights_ties_and_the_tallest_object():
+    import cv2
+
     for q in ("is a couch present?", "have you seen a laptop?", "was there a laptop?",
               "I'm looking for a trash can, is there one?"):
         a = ask(q)
@@ -1007,7 +1019,8 @@ def test_more_wordings_of_is_there_heights_ties_and_the_tallest_object():
     tall = max(ROOM, key=lambda r: r[2][2])
     t = ask("how tall is the tallest object?")
     assert t.ok and t.text == f"{tall[0]}, {tall[2][2] * 100:.0f} cm"
-    assert ask("room area?").value == pytest.approx(room_map().room_area())
+    (_, _), (w, h), _ = cv2.minAreaRect(np.asarray(room_map().extent().polygon, np.float32))
+    assert ask("room area?").value == pytest.approx(w * h)
     eq = ask("which is longer, the couch or the whiteboard?")  # both 2.00 m: neither is picked
     assert eq.ok and eq.text.startswith("equal:") and set(eq.value["equal"]) == {"sofa", "whiteboard"}
 
@@ -1225,4 +1238,86 @@ def test_every_closest_and_quadrant_phrasing():
             r = ask(q)
             if not (r.ok and str(r.text).split(" ")[0].strip("(),") == direction_label(th, level)):
                 wrong.append((q, r.text[:50]))
+    assert not wrong, (len(wrong), wrong[:5])
+
+
+# words that name no object, in the kinds of places people put them (not wordings of any one set)
+_FILLER_START = ["I'm trying to work out ", "can you help me figure out ", "just wondering, ", "honestly, ",
+                 "I'd like to know ", "we need to check ", "quickly, ", "please help: ", "I was hoping to learn ",
+                 "could you kindly estimate "]
+_FILLER_END = [", thanks", " please", ", if you can help", " - just checking", ", I'm curious", ", honestly"]
+
+
+def test_words_that_name_no_object_are_read_as_none_wherever_they_stand():
+    """Mentions first: a verb or an adverb around a question ("I'm trying to work out", "can you help",
+    "honestly") names no object and changes no answer; each base question's answer is the room's own geometry."""
+    g = {c: min_gap(c, "desk") for c in ("couch", "radiator", "whiteboard")}
+    longest = max(max(s) for n, _, s in ROOM if n == "couch")
+    side = "left" if ccw_deg("desk", "whiteboard", "couch") > 0 else "right"
+    base = [("how many chairs are there", lambda r: r.value == 3),
+            ("how big is the couch", lambda r: float(r.value) == pytest.approx(longest * 100, rel=0.01)),
+            ("how far is the desk from the couch",
+             lambda r: float(r.value) == pytest.approx(min_gap("desk", "couch"), rel=0.01)),
+            ("standing by the desk facing the whiteboard, is the couch to my left or right",
+             lambda r: side in str(r.text)),
+            ("which is closest to the desk: the couch, the radiator or the whiteboard",
+             lambda r: str(r.value).replace("sofa", "couch") == min(g, key=g.get))]
+    wrong = []
+    for (q, ok), pre, post in itertools.product(base, [""] + _FILLER_START, [""] + _FILLER_END):
+        text = pre + q + post + "?"
+        r = ask(text)
+        if not (r.ok and ok(r)):
+            wrong.append((text, r.text[:60]))
+    assert not wrong, (len(wrong), wrong[:5])
+    # an unknown object that the sentence marks as one is still an object, never dropped
+    assert ask("how many cups are on the zither?").status == "not_found"
+    assert ask("is the couch more comfortable than the chair?").status == "unsupported"
+
+
+def _turn_words(a: str, b: str, path: list[str]) -> list[str]:
+    """The benchmark's turns, from the test room's box centres: start at a heading to b, each further waypoint's
+    turn back from 135 degrees, else left / right by the sign."""
+    pos, out = centre(a)[:2], []
+    heading = centre(b)[:2] - pos
+    for i, w in enumerate(path):
+        move = centre(w)[:2] - pos
+        th = math.degrees(math.atan2(heading[0] * move[1] - heading[1] * move[0], heading @ move))
+        if i:
+            out.append("back" if abs(th) >= 135 else "left" if th > 0 else "right")
+        pos, heading = centre(w)[:2], move
+    return out
+
+
+_ROUTE_START = ["Beginning at the {A}, facing the {B}, ", "You start by the {A} and face the {B}. ",
+                "I'm a robot standing next to the {A}, facing the {B}. ", "From the {A}, looking at the {B}, ",
+                "A robot begins at the {A} facing the {B}. ", "A robot starts at the {A} with the {B} in front of it. ",
+                "Route: start = {A}, facing = {B}. "]
+_ROUTE_WALK = ["go forward until the {B}, [please fill in], go forward until the {C}, [please fill in], go forward "
+               "until the {D}.", "walk to the {B}, turn, walk to the {C}, turn again, and walk to the {D}.",
+               "head to the {B}, then turn and head to the {C}, then turn once more and head to the {D}.",
+               "I go to the {B}, then to the {C}, then to the {D}.",
+               "move forward to the {B}; turn; move forward to the {C}; turn; move forward to the {D}.",
+               "it drives forward to the {B}, makes a turn, drives to the {C}, makes another turn, then drives to the "
+               "{D}.", "head forward until you hit the {B}, then ___, then head forward until the {C}, then ___, then "
+               "head forward until the {D}."]
+_ROUTE_ASK = ["Which turns do I make?", "What are the two turns?", "Which way do I turn each time?", "Fill in the turns.",
+              ""]
+
+
+def test_every_route_phrasing_with_every_start_and_question():
+    """Routes in the benchmark's sense (turn at each waypoint, back from 135 degrees) worded as people word them:
+    starts x walks x questions over three routes of the test room, the options' turns from the room's geometry
+    (7 x 7 x 5 x 3 questions)."""
+    wrong = []
+    for a, b, c, d in (("desk", "whiteboard", "radiator", "couch"), ("couch", "desk", "whiteboard", "laptop"),
+                       ("radiator", "couch", "desk", "whiteboard")):
+        truth = _turn_words(a, b, [b, c, d])
+        others = [t for t in itertools.product(("left", "right", "back"), repeat=2) if list(t) != truth][:3]
+        opts = [", ".join(f"Turn {w.title()}" for w in t) for t in others + [tuple(truth)]]
+        letters = [f"{chr(65 + i)}. {o}" for i, o in enumerate(opts)]
+        for s, w, q in itertools.product(_ROUTE_START, _ROUTE_WALK, _ROUTE_ASK):
+            text = s.format(A=a, B=b) + w.format(B=b, C=c, D=d) + (" " + q if q else "")
+            r = ask(text, letters)
+            if not (r.ok and r.text == "D"):
+                wrong.append((text, r.text[:60]))
     assert not wrong, (len(wrong), wrong[:5])

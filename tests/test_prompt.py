@@ -8,7 +8,7 @@ import pytest
 from mosaicthinker.runtime.infra import errors
 from mosaicthinker.runtime.answer import answer_question, answer_with_vlm, parse_choice, parse_number
 from mosaicthinker.runtime.geometry import OrientedBox, rotation_about
-from mosaicthinker.runtime.grounding import ground, parse_grounding_reply
+from mosaicthinker.runtime.grounding import ground
 from mosaicthinker.runtime.prompt import distinct_colours, render, text_block, vlm_prompt
 from mosaicthinker.runtime.map import ObjectInstance, SemanticMap
 from mosaicthinker.runtime.infra.trace import Trace
@@ -151,25 +151,58 @@ def test_answerer_routing_auto_map_vlm_and_not_found():
     assert a.status == "not_found" and a.missing == ["bed"] and vlm.prompts == []
 
 
-def test_vlm_grounding_unknown_names_and_loud_fallback():
-    q = "If I am standing by the tv and facing the sofa, is the chair to my left, right, or back?"
-    assert parse_grounding_reply("targets: couch, the fridge\ncues: none") == (["couch", "the fridge"], [])
-    assert parse_grounding_reply('{"targets": ["chair"], "cues": ["tv"]}') == (["chair"], ["tv"])
-    assert parse_grounding_reply("I cannot help") is None
+class ScriptedProgram(Scripted):
+    """A scripted VLM that decodes "under a schema": it records the guidance and replies with fixed text."""
+
+    supports_guidance = True
+
+    def __init__(self, *replies: str):
+        super().__init__(*replies)
+        self.guidance: list = []
+
+    def generate(self, images, prompt, max_new_tokens=None, guidance=None):
+        self.guidance.append(guidance)
+        return super().generate(images, prompt, max_new_tokens)
+
+
+def test_vlm_grounding_emits_a_validated_program_or_is_refused():
+    import json
+
+    q = "Is the couch bigger than whatever sits by the window?"  # the rules refuse it (no two objects to compare)
     t = Trace()
     frames = [np.zeros((8, 8, 3), np.uint8)] * 3
-    vlm = Scripted("targets: chair, unicorn\ncues: tv")
-    pq = ground(q, None, vlm, frames, t)
-    assert pq.targets == ["chair"] and pq.cues[0] == "tv" and "sofa" in pq.cues  # template object kept as cue
-    assert "unicorn" in pq.unknown and len(vlm.images[0]) == 3
-    assert any(e["kind"] == "unknown_objects" and "unicorn" in e["message"] for e in t.events)
+    assert ground(q, None, None, None, t).program is None
+    vlm = ScriptedProgram('{"kind":"size_compare","measure":"biggest","candidates":[{"name":"couch"},'
+                          '{"name":"unicorn"}],"form":"yesno"}')
+    pq = ground(q, None, vlm, frames, t)  # auto: the rules refused, so the VLM reads it
+    assert pq.how == "vlm" and pq.qtype == "object_size_compare" and pq.targets == ["sofa", "unicorn"]
+    assert pq.node.candidates[0].phrase == "couch" and pq.unknown == ["unicorn"] and len(vlm.images[0]) == 3
+    kind, schema = vlm.guidance[0]
+    assert kind == "json_schema" and json.loads(schema)["$id"] == "mosaicthinker.query/1"
     assert t.decisions["grounding"]["method"] == "vlm"
-    t = Trace()
-    with pytest.warns(RuntimeWarning, match="fallback"):
-        pq = ground(q, None, Scripted("I am not sure."), frames, t)
-    assert pq.targets == ["chair"] and pq.cues == ["tv", "sofa"]
-    assert t.decisions["grounding"]["method"] == "templates"
-    assert any(e["kind"] == "fallback" for e in t.events)
+    assert any(e["kind"] == "unknown_objects" and "unicorn" in e["message"] for e in t.events)
+    # auto: what the rules read is never sent to the VLM
+    vlm = ScriptedProgram('{"kind":"room_size"}')
+    assert ground("How many chairs are there?", None, vlm, frames, Trace()).qtype == "object_counting"
+    assert vlm.prompts == []
+    # a reply that is not a valid program (cut off, wrong field) is refused with the reason, never repaired
+    for bad, why in (('{"kind":"count","objects":[{"name":"chair"}', "not JSON"),
+                     ('{"kind":"count","objects":[]}', "0 items"), ('{"kind":"fly"}', "kind 'fly'")):
+        t = Trace()
+        with pytest.warns(RuntimeWarning, match="refused"):
+            pq = ground(q, None, ScriptedProgram(bad), frames, t, grounding="vlm")
+        assert pq.program is None and pq.how == "none" and why in pq.notes[-1]
+    # a VLM exported for another program version is still read under this runtime's schema, said loudly
+    old = ScriptedProgram('{"kind":"room_size"}')
+    old.query_schema = "mosaicthinker.query/0"
+    with pytest.warns(RuntimeWarning, match="exported for question programs mosaicthinker.query/0"):
+        assert ground(q, None, old, frames, Trace(), grounding="vlm").qtype == "room_size_estimation"
+    # a VLM that cannot decode under a schema is refused, not asked for free text
+    with pytest.warns(RuntimeWarning, match="cannot decode under a JSON schema"):
+        pq = ground(q, None, Scripted("count chairs"), frames, Trace(), grounding="vlm")
+    assert pq.program is None
+    with pytest.raises(errors.InputError, match="grounding"):
+        ground(q, None, None, None, Trace(), grounding="vlm")
 
 
 def test_direct_input_baseline_sends_uniform_frames_to_the_vlm():

@@ -150,3 +150,38 @@ def test_runtime_adapter_drives_the_package(qwen_bundle, tmp_path):
         assert any(e.get("kind") == "degraded" for e in trace.events)
     text_only = vlm.generate([], "Hello", max_new_tokens=3)
     assert isinstance(text_only, str)
+
+
+def test_vlm_grounding_emits_a_schema_valid_program_for_200_questions(qwen_bundle):
+    """Constrained decoding (LLGuidance with the program's JSON schema, query/vlm.py): the random-weight Qwen2.5-VL
+    still emits a valid program for each of 200 questions of the repo's wording sets, and every raw reply also
+    passes an independent JSON-schema validator (tests/test_query_golden.py), not only the product's reader."""
+    import json
+
+    from mosaicthinker.runtime.infra.bundle import load_bundle
+    from mosaicthinker.runtime.query.schema import json_schema
+    from mosaicthinker.runtime.query.vlm import ground_with_vlm
+    from mosaicthinker.runtime.models import load_role
+    from mosaicthinker.runtime.infra.trace import Trace
+    from test_query_golden import validate, wording_sets
+
+    out, _ = qwen_bundle
+    from mosaicthinker.runtime.query.ir import SCHEMA_VERSION
+
+    rm = load_bundle(out).role_meta("vlm")
+    assert rm["variants"][rm["default_variant"]]["genai"]["guidance"] == {"json_schema": SCHEMA_VERSION}
+    with pytest.warns(RuntimeWarning, match="RANDOM"):
+        vlm = load_role(load_bundle(out), "vlm", trace=Trace())
+    every = [q for qs in wording_sets().values() for q in qs]
+    qs = every[::max(1, len(every) // 200)][:200]
+    schema = json_schema("ask", profile="vlm")
+    bad, kinds = [], set()
+    for q in qs:
+        t = Trace()
+        pq = ground_with_vlm(vlm, q["question"], q.get("options"), [], t)
+        reply = t.decisions.get("grounding.vlm_reply", "")
+        errs = validate(json.loads(reply), schema) if pq.how == "vlm" else ["refused"]
+        if errs:
+            bad.append((q["question"][:60], pq.notes[-1:], errs[:2], reply[:80]))
+        kinds.add(pq.qtype)
+    assert len(qs) == 200 and not bad, bad[:3]

@@ -163,7 +163,7 @@ def _reason_for(q: dict[str, Any], rec: dict[str, Any], meta_scene: dict[str, An
         return f"reasoner status {rec['status']}: {rec['explanation']}"
     pq = parse_question(q["question"], q.get("options"))
     if qt == "object_counting":
-        name = pq.params["object"]
+        name = pq.node.objects[0].name
         boxes = sum(len(v) for k, v in meta_scene["object_bbox"].items() if (canonical_name(k) or k) == name)
         cnt = sum(v for k, v in meta_scene.get("object_counts", {}).items() if (canonical_name(k) or k) == name)
         return (f"count: the ground truth says {rec['ground_truth']} but meta_info holds {boxes} {name} box(es) "

@@ -6,6 +6,7 @@ Thin argument parsing over `pipeline.ask` (the Python API). Options of a multipl
 from __future__ import annotations
 
 import argparse
+import json
 import re
 from pathlib import Path
 from typing import Any
@@ -14,15 +15,15 @@ from ..infra.errors import InputError
 from ..infra.outputs import RunOutputs, note_outputs, save_run
 from ..grounding import split_inline_options  # linear; lives with the question parser
 from ..cli import add_stage_flags
-from .flags import add_answerer, add_keyframes
+from .flags import add_answerer, add_grounding, add_keyframes
 from .. import pipeline
 from ..budget import load_profile
 from ..infra.trace import Trace
 from ..grounding import check_question
 from ..infra.bundle import load_bundle
 from ..answer import UNIT_WORDS
-from ..evidence import line
-from ..grounding_nl import EXAMPLES
+from ..answer.evidence import line
+from ..query.rules.lexicon import EXAMPLES
 
 
 # trace events the printed answer repeats (a degraded or re-planned run says so next to its answer)
@@ -37,6 +38,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--option", action="append", default=None, metavar="TEXT",
                    help='a multiple-choice option, repeat for each ("A. left")')
     add_answerer(p)
+    add_grounding(p)
+    p.add_argument("--explain", action="store_true", help="print the question's program (JSON) with the answer")
     p.add_argument("--method", choices=["mosaic", "direct"], default="mosaic",
                    help="mosaic (semantic map) or direct (Direct Input baseline: sampled frames to the VLM)")
     p.add_argument("--prompt", choices=["grid", "points", "text", "json"], default="grid",
@@ -92,7 +95,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         res = pipeline.ask(args.source, question, options, perception=perception, bundle=args.bundle,
                            profile=profile, conf=conf, answerer=args.answerer, method=args.method,
                            prompt_mode=args.prompt, trace=trace, keyframes=args.keyframes,
-                           render_image=out is not None)
+                           render_image=out is not None, grounding=args.grounding)
         files, write_error, code = {}, None, 0
         if outs is not None:
             items = []
@@ -109,6 +112,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
             outs.close()
     d = res.to_dict()
     d.update({"schema": "mosaicthinker.ask/1", "question": question, "options": options, "files": files,
+              "explain": bool(args.explain),
               "warnings": [e["message"] for e in trace.events if e["kind"] in WARNING_KINDS],
               "random_weights_used": trace.random_weights_used, "evidence": res.answer.evidence,
               "ran": what_ran(trace, args.depth, res.build is not None),
@@ -170,6 +174,11 @@ def render(r: dict[str, Any]) -> str:
     lines = [f"answer: {r['answer']}" + _unit_suffix(r)]
     if r.get("explanation"):
         lines.append(f"  how: {r['explanation']}")
+    if r.get("explain"):
+        g = r.get("grounding") or {}
+        prog = g.get("program")
+        lines.append(f"  program ({g.get('how', 'none')}): " + (json.dumps(prog["ask"]) if prog else
+                                                                "none (" + "; ".join(g.get("notes") or []) + ")"))
     if r.get("instances") is not None:
         lines.append(f"  map: {len(r['instances'])} object(s)" + (f" from {len(r['keyframes'])} key frames"
                                                                    if r.get("keyframes") else "")

@@ -16,7 +16,7 @@ import re
 # API parameter / config field -> the flag that sets it: the CLI rewrites a MosaicError's backticked `field`
 # (or `field=value`) as `--flag` (`--flag value`); the library's messages name the parameters (errors.py).
 FLAG_FOR_FIELD = {
-    "answerer": "--answerer", "method": "--method", "depth": "--depth", "matcher": "--matcher",
+    "answerer": "--answerer", "grounding": "--grounding", "method": "--method", "depth": "--depth", "matcher": "--matcher",
     "detector": "--detector", "bundle": "--bundle", "profile": "--profile", "out": "--out",
     "candidates": "--candidates", "fps": "--fps", "duration": "--duration", "models": "--models",
     "keyframes": "--keyframes", "sampling": "--sampling", "update_profile": "--update-profile",
@@ -48,6 +48,7 @@ MAX_CLIP_S = 86400.0  # 24 h, as the planner (budget.MAX_CLIP_S): longer is not 
 MAX_FPS = 1000.0
 COMPLEXITY = ("low", "med", "high")   # object-number levels of a generated scene (VSI-Bench terciles)
 ANSWERERS = ("map", "vlm", "auto")    # map reasoner, VLM on the visual prompt, auto (reasoner when it knows)
+GROUNDINGS = ("rules", "vlm", "auto")  # question -> program: rule parser, VLM (constrained), auto (rules first)
 
 
 def parse_size(text: str) -> tuple[int, int]:
@@ -144,6 +145,12 @@ def add_answerer(p: argparse.ArgumentParser, help_: str | None = None) -> None:
     p.add_argument("--answerer", choices=list(ANSWERERS), default="auto",
                    help=help_ or "map reasoner, VLM on the visual prompt, or auto (the reasoner when it recognises "
                                  "the question, else the VLM) (default auto)")
+
+
+def add_grounding(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--grounding", choices=list(GROUNDINGS), default="auto",
+                   help="who reads the question into a program: the rule parser, the bundle's VLM under the "
+                        "program's JSON schema, or auto (the rules, the VLM for what they refuse) (default auto)")
 
 
 class _Deprecated(argparse.Action):

@@ -69,6 +69,7 @@ class GenAIVLM(RoleModel):
         self.processor = self.model.create_multimodal_processor()
         self.tokenizer = og.Tokenizer(self.model)
         self.max_new_tokens = int(spec.config.get("max_new_tokens", 64))
+        self.query_schema = (genai.get("guidance") or {}).get("json_schema")  # recorded at export (None: older)
         self.specials = tuple(spec.config.get("stop_tokens") or ("<|im_end|>", "<|endoftext|>"))
         self.last: dict[str, Any] = {}
 
@@ -87,14 +88,20 @@ class GenAIVLM(RoleModel):
             paths.append(p)
         return self.og.Images.open(*paths)
 
-    def generate_ids(self, images: Sequence[np.ndarray], prompt: str, max_new_tokens: int | None = None) -> list[int]:
-        """Greedy new token ids (the end-of-turn token, when reached, is the last id)."""
+    supports_guidance = True  # constrained decoding (LLGuidance): `guidance=("json_schema" | "lark_grammar" | "regex", text)`
+
+    def generate_ids(self, images: Sequence[np.ndarray], prompt: str, max_new_tokens: int | None = None,
+                     guidance: tuple[str, str] | None = None) -> list[int]:
+        """Greedy new token ids (the end-of-turn token, when reached, is the last id); `guidance`: decode under a
+        grammar (GenAI's `GeneratorParams.set_guidance`)."""
         n_new = int(max_new_tokens or self.max_new_tokens)
         with tempfile.TemporaryDirectory(prefix="mosaic-vlm-") as tmp:
             inputs = self.processor(chat_text(prompt, len(images)), images=self._images(images, tmp))
             n_prompt = int(inputs["input_ids"].as_numpy().size)
             params = self.og.GeneratorParams(self.model)
             params.set_search_options(do_sample=False, top_k=1, max_length=n_prompt + n_new)
+            if guidance is not None:
+                params.set_guidance(*guidance)
             gen = self.og.Generator(self.model, params)
             ids: list[int] = []
             t0, c0 = time.perf_counter(), time.process_time()  # CPU seconds too: other jobs move them less than wall
@@ -116,9 +123,10 @@ class GenAIVLM(RoleModel):
         self.trace.decide("vlm.genai", self.last)
         return ids
 
-    def generate(self, images: Sequence[np.ndarray], prompt: str, max_new_tokens: int | None = None) -> str:
+    def generate(self, images: Sequence[np.ndarray], prompt: str, max_new_tokens: int | None = None,
+                 guidance: tuple[str, str] | None = None) -> str:
         """images: list of rgb [H, W, 3] uint8 (may be empty); prompt: the user's text -> the answer text."""
-        text = self.tokenizer.decode(np.asarray(self.generate_ids(images, prompt, max_new_tokens), np.int32))
+        text = self.tokenizer.decode(np.asarray(self.generate_ids(images, prompt, max_new_tokens, guidance), np.int32))
         for s in self.specials:
             text = text.replace(s, "")
         return text.strip()

@@ -2,7 +2,7 @@
 (standard deviation) of the asked quantity over the per-view estimates the map keeps
 (`ObjectInstance.views`, from `semantic_map.view_estimates`).
 
-Per question type (`MapReasoner` picks one):
+Per question type (its executor picks one):
 - counting: the number of the counted instances seen in each view that saw any of them;
 - size: the chosen instance's measure (longest side, height, ...) of each view's own box;
 - distances: the distance of the two boxes placed at each pair of per-view centres (up to `max_views` views
@@ -22,8 +22,9 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from .geometry import OrientedBox, box_distance
-from .grounding import plural
+from ..geometry import OrientedBox, box_distance
+from ..query.vocabulary import plural
+from .angles import signed_angle_deg
 
 
 def _centres(o: Any, max_views: int) -> list[np.ndarray]:
@@ -78,8 +79,6 @@ def distance_values(x: Any, y: Any, scale: float = 1.0, max_views: int = 12) -> 
 def angle_values(a: Any, b: Any, c: Any, base_deg: float, max_views: int = 8) -> list[float]:
     """Angle (deg, counter-clockwise) of C's centre standing at A facing B over combinations of per-view
     centres, unwrapped around `base_deg` (the answer's own angle) so the spread is not split at +-180."""
-    from .answer import signed_angle_deg
-
     out = []
     for pa, pb, pc in itertools.product(_centres(a, max_views), _centres(b, max_views), _centres(c, max_views)):
         f = pb[:2] - pa[:2]
@@ -127,9 +126,10 @@ def ambiguity_text(a: dict[str, Any]) -> str:
     alt = {int(k): v for k, v in (a.get("alternatives") or {}).items() if int(k) != a["used"]}
     u = f" {a['unit']}" if a.get("unit") else ""
     others = ", ".join(f"{a['name']} #{k}: {_fmt(v)}{u}" for k, v in alt.items())
-    n = len(a["instances"])
+    n = a.get("n_instances", len(a["instances"]))
+    more = f" and {n - len(a['instances'])} more" if n > len(a["instances"]) else ""
     return (f"{n} {a['name'] if n == 1 else plural(a['name'])} in the map "
-            f"({' '.join('#' + str(i) for i in a['instances'])}); used #{a['used']}, {a['rule']}"
+            f"({' '.join('#' + str(i) for i in a['instances'])}{more}); used #{a['used']}, {a['rule']}"
             + (f" ({others})" if others else ""))
 
 

@@ -1,0 +1,110 @@
+"""Question -> program: the VSI-Bench templates first (exact wording), then the rule parser (plain English).
+
+`parse_question(question, options) -> ParsedQuestion`: the program (None when not understood), how it was read,
+and notes saying what was and was not understood. Only the question text and the options are read.
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from typing import Any, Iterable
+
+from .ir import NearestTo, Option, Program, iter_refs, phrases
+from .rules.parse import parse_natural
+from .schema import to_json
+from .templates import parse_template
+from .text import check_question, clean_question, split_options
+
+
+@dataclass
+class ParsedQuestion:
+    """A question read into a program. how: "template" (VSI-Bench wording), "natural" (the rule parser), "vlm"
+    (the VLM under the schema) or "none" (not understood: `notes` say what was and was not)."""
+
+    question: str
+    options: list[str] | None = None
+    program: Program | None = None
+    notes: list[str] = field(default_factory=list)
+    how: str = "none"
+
+    @property
+    def node(self) -> Any:
+        return None if self.program is None else self.program.ask
+
+    @property
+    def qtype(self) -> str | None:
+        return None if self.program is None else self.program.qtype
+
+    @property
+    def targets(self) -> list[str]:
+        """Names of the objects asked about, ranked (key-frame search weighs them 1)."""
+        return list(dict.fromkeys(self.node.roles()[0])) if self.node is not None else []
+
+    @property
+    def cues(self) -> list[str]:
+        """Names of the reference objects (weighed 0.5), then the objects a selector needs ("nearest the door")."""
+        if self.node is None:
+            return []
+        targets = self.targets
+        cues = [c for c in dict.fromkeys(self.node.roles()[1]) if c not in targets]
+        seen: set[str] = set()
+        for r in iter_refs(self.node):
+            near = [s.name for s in r.select if isinstance(s, NearestTo)]
+            if near and r.name not in seen:
+                seen.add(r.name)
+                cues += [n for n in near if n not in targets]
+        return cues
+
+    @property
+    def objects(self) -> list[str]:
+        """Targets then cues, without repeats."""
+        return list(dict.fromkeys(self.targets + self.cues))
+
+    @property
+    def whole_map(self) -> bool:
+        """About everything in the map (room size, a list, "how many objects", "the biggest object", "the nearest
+        object to the cup"): the map is built for every category the detector names, not for named objects."""
+        return self.node is not None and self.node.whole_map
+
+    @property
+    def unknown(self) -> list[str]:
+        """The question's words of every object name the vocabulary does not hold (open vocabulary)."""
+        return list(dict.fromkeys(r.words for r in iter_refs(self.node) if not r.known and r.name != "*")) \
+            if self.node is not None else []
+
+    def phrase(self, name: str) -> str:
+        """The question's own words for the object called `name` (the name itself when none was recorded)."""
+        return phrases(self.node).get(name, name) if self.node is not None else name
+
+    def describe(self) -> str:
+        """One line saying how the question was read (for replies and as a hint in the VLM prompt)."""
+        if self.program is None:
+            return "not understood" + (f" ({'; '.join(self.notes)})" if self.notes else "")
+        return f"{self.qtype} " + json.dumps(to_json(self.node), separators=(",", ":")) + \
+            (f"; not used: {'; '.join(self.notes)}" if self.notes else "")
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"how": self.how, "qtype": self.qtype, "targets": self.targets, "cues": self.cues,
+                "unknown": self.unknown, "notes": list(self.notes),
+                "program": None if self.program is None else to_json(self.program)}
+
+
+def program_of(node: Any, options: list[str] | None) -> Program:
+    return Program(node, tuple(Option(letter, text) for letter, text in split_options(options)))
+
+
+def parse_question(question: str, options: list[str] | None = None, names: Iterable[str] = ()) -> ParsedQuestion:
+    """Parse a question: the VSI-Bench templates first (exact wording), then natural wording (`rules`). The
+    program is None when the question is not understood (`notes` say what was and was not). names: object names
+    beyond the vocabulary the question may mention (a map's categories, a detector's labels). Questions over
+    `text.MAX_QUESTION_CHARS` are an InputError."""
+    check_question(question, options)
+    q = clean_question(question)
+    opts = list(options) if options is not None else None
+    node, notes, matched = parse_template(q)
+    if matched:
+        return ParsedQuestion(q, opts, program_of(node, opts) if node is not None else None, notes,
+                              "template" if node is not None else "none")
+    node, st = parse_natural(q, opts, names)
+    return ParsedQuestion(q, opts, program_of(node, opts) if node is not None else None, st.notes,
+                          "natural" if node is not None else "none")
