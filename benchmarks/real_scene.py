@@ -87,7 +87,8 @@ def same_outputs(a: Path, b: Path) -> dict:
     return {"same_map": ma == mb, "same_answers": qa == qb, "instances": len(ma or []), "questions": len(qa)}
 
 
-def probe_detector(bundle: Path, stride: int = 3, threshold: float = 0.2) -> dict:
+def probe_detector(bundle: Path, stride: int = 3, threshold: float = 0.2, role: str = "detector",
+                   variant: str | None = None, size: list[int] | None = None, keep: float | None = None) -> dict:
     """How the bundle's detector sees the annotated instances (a diagnosis of the map's misses, not a score):
     the raw detector at `threshold` on every `stride`-th frame; per annotated category, the frames where one of
     its boxes projects into the image (ground-truth pose, in front of the camera, >= 30 % of its projected box
@@ -104,8 +105,10 @@ def probe_detector(bundle: Path, stride: int = 3, threshold: float = 0.2) -> dic
     from mosaicthinker.runtime.stages.detector import map_names
     from mosaicthinker.runtime.trace import Trace
 
-    det = load_role(load_bundle(bundle), "detector", trace=Trace())
-    keep = det.conf.score_threshold
+    det = load_role(load_bundle(bundle), role, variant=variant, trace=Trace())
+    if size:  # another input size of a graph with a symbolic one (YOLOX)
+        det.spec.meta = {**det.spec.meta, "preprocessing": {**det.spec.preprocessing, "size": list(size)}}
+    keep = det.conf.score_threshold if keep is None else keep
     det.conf.score_threshold = threshold
     _, scene, T = load_annotation(ANNOT)
     src = open_source(DATA)
@@ -125,7 +128,7 @@ def probe_detector(bundle: Path, stride: int = 3, threshold: float = 0.2) -> dic
     for i in range(0, len(src), stride):
         f = src[i]
         H, W = f.rgb.shape[:2]
-        px, cls, sc = det.raw(f.rgb)
+        px, cls, sc = det.raw(f.rgb)[:3]
         for c, lst in boxes.items():
             proj, pid = [], []
             for j, b in enumerate(lst):

@@ -66,12 +66,13 @@ def add_variant_files(out: str | os.PathLike, role: str, variant: str, files: di
                       meta: dict[str, Any], precision: str, target: str = "cpu", parity: dict | None = None,
                       notes: str | None = None, default: bool = False, move: bool = False,
                       component_meta: dict[str, dict[str, Any]] | None = None,
-                      extra: dict[str, Any] | None = None) -> Path:
+                      extra: dict[str, Any] | None = None, alternative: bool = False) -> Path:
     """Copy (or move) graph files into `out/<role>/<variant>/<component><suffix>` and record the variant.
 
     files: {component name: path to a .onnx/.ort file}; every external-data file the graph references is
     copied too (same relative name) and listed with its sha256 in `extra_files`. meta: from `role_meta`. component_meta: extra
     per-component fields (e.g. {"pair": {"k": 1024}}). The bundle (and manifest.json) is created if needed.
+    alternative: another model for the existing role (`meta` becomes the variant's `overrides`).
     Returns the manifest path.
     """
     out = Path(out)
@@ -96,7 +97,7 @@ def add_variant_files(out: str | os.PathLike, role: str, variant: str, files: di
                     (shutil.move if move else shutil.copyfile)(str(src.parent / loc), str(ddst))
         comps[cname] = c
     return B.add_variant(out, role, variant, comps, role_meta=meta, precision=precision, target=target,
-                         parity=parity, notes=notes, default=default, extra=extra)
+                         parity=parity, notes=notes, default=default, extra=extra, alternative=alternative)
 
 
 def record_skipped_variant(out: str | os.PathLike, role: str, variant: str, reason: str) -> None:

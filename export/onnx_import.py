@@ -27,6 +27,7 @@ from mosaicthinker.host import bundle_write as B
 from mosaicthinker.runtime.errors import ExportError, InputError
 from mosaicthinker.runtime.progress import ticked
 
+from .detector_formats import ULTRALYTICS_CONFIG, ULTRALYTICS_PREPROCESSING, YOLOX_CONFIG, YOLOX_PREPROCESSING
 from .common import (Feeds, add_variant_files, calibration_frames, progress, quantize_variant,
                      record_skipped_variant, role_meta)
 
@@ -38,23 +39,31 @@ def _labels(path: Path) -> list[str]:
 
 
 def shared_model_specs(models_dir: str | os.PathLike) -> dict[str, dict[str, Any]]:
-    """role -> {"file": Path, "meta": role_meta dict} for the four models in ../shared/models (see its README)."""
+    """key -> {"role", "file": Path, "meta": role_meta dict, "alternative": bool} for the real models in
+    ../shared/models (see its README): depth, detector (YOLOX-Nano, the default), detector-ssd (the SSD, kept as
+    the detector's `ssd-fp32` variant), instance_segmenter (YOLO11n-seg, AGPL-3.0), segmenter (DeepLab), embedder."""
     d = Path(models_dir)
     voc = [x for x in _labels(d / "deeplabv3-mobilenetv2-voc" / "pascal_voc_segmentation_labels.txt")[:21]]
     coco = _labels(d / "ssd-mobilenet-v1-coco" / "coco_labels.txt")
+    coco80 = _labels(d / "yolox-nano-coco" / "coco80_labels.txt")
+    coco80_seg = _labels(d / "yolo11n-seg-coco" / "coco80_labels.txt")
     if len(voc) != 21 or voc[0] != "background" or voc[-1] != "tvmonitor":
         raise ExportError(f"{d}/deeplabv3-mobilenetv2-voc/pascal_voc_segmentation_labels.txt: expected the 21 VOC "
                           f"labels background..tvmonitor")
     if len(coco) != 90 or coco[0] != "person":
         raise ExportError(f"{d}/ssd-mobilenet-v1-coco/coco_labels.txt: expected 90 lines starting with person")
+    for name, lab in (("yolox-nano-coco", coco80), ("yolo11n-seg-coco", coco80_seg)):
+        if len(lab) != 80 or lab[0] != "person" or lab[56] != "chair":
+            raise ExportError(f"{d}/{name}/coco80_labels.txt: expected the 80 contiguous COCO labels (person ... "
+                              f"56 chair ...)")
 
-    def prov(folder: str, fname: str, upstream: str) -> dict[str, Any]:
+    def prov(folder: str, fname: str, upstream: str, conversion: str = SHARED_PROVENANCE_NOTE) -> dict[str, Any]:
         f = d / folder / fname
-        return {"source": f"onnx:{folder}/{fname}", "upstream": upstream, "conversion": SHARED_PROVENANCE_NOTE,
+        return {"source": f"onnx:{folder}/{fname}", "upstream": upstream, "conversion": conversion,
                 "sha256": B.sha256_file(f)}
 
-    return {
-        "depth": {"file": d / "pydnet" / "pydnet.onnx", "meta": role_meta(
+    specs = {
+        "depth": {"role": "depth", "file": d / "pydnet" / "pydnet.onnx", "meta": role_meta(
             "pydnet", licence="Apache-2.0", random_weights=False,
             preprocessing={"size": [448, 640], "layout": "NHWC", "channel_order": "RGB", "dtype": "float32",
                            "scale": 1.0 / 255.0, "resize": "bilinear"},
@@ -63,7 +72,17 @@ def shared_model_specs(models_dir: str | os.PathLike) -> dict[str, dict[str, Any
                             "FilippoAleotti/mobilePydnet Android/app/src/main/assets/optimized_pydnet++.tflite "
                             "(blob f6032de7)"),
             config={"output": 0})},
-        "detector": {"file": d / "ssd-mobilenet-v1-coco" / "ssd_mobilenet_v1_coco.onnx", "meta": role_meta(
+        "detector": {"role": "detector", "file": d / "yolox-nano-coco" / "yolox_nano.onnx", "meta": role_meta(
+            "yolox", licence="Apache-2.0", random_weights=False, preprocessing=YOLOX_PREPROCESSING,
+            semantics={"vocabulary": "closed", "labels": coco80, "label_source": "coco80_labels.txt (contiguous "
+                       "80 COCO classes)", "outputs": "output [1,A,85]: raw anchors (4 box values, objectness, 80 "
+                       "class probabilities); decoding and NMS in the adapter"},
+            provenance=prov("yolox-nano-coco", "yolox_nano.onnx", "Bigisland1729/object-detection-models@6e770c5e "
+                            "yolox_nano.onnx (YOLOX, Megvii)", "PyTorch ONNX export by its publisher (opset 11); "
+                            "input height/width and anchor count made symbolic in ../shared/models"),
+            config=dict(YOLOX_CONFIG))},
+        "detector-ssd": {"role": "detector", "alternative": True,
+                         "file": d / "ssd-mobilenet-v1-coco" / "ssd_mobilenet_v1_coco.onnx", "meta": role_meta(
             "ssd_tflite", licence="Apache-2.0", random_weights=False,
             preprocessing={"size": [300, 300], "layout": "NHWC", "channel_order": "RGB", "dtype": "uint8",
                            "resize": "bilinear"},
@@ -74,7 +93,24 @@ def shared_model_specs(models_dir: str | os.PathLike) -> dict[str, dict[str, Any
             provenance=prov("ssd-mobilenet-v1-coco", "ssd_mobilenet_v1_coco.onnx",
                             "tensorflow/tflite-support@dd3362ea coco_ssd_mobilenet_v1_1.0_quant_2018_06_29.tflite"),
             config={"score_threshold": 0.5})},
-        "segmenter": {"file": d / "deeplabv3-mobilenetv2-voc" / "deeplabv3_voc.onnx", "meta": role_meta(
+        "instance_segmenter": {"role": "instance_segmenter",
+                               "file": d / "yolo11n-seg-coco" / "yolo11n-seg_int8.onnx", "meta": role_meta(
+            "ultralytics_e2e", licence="AGPL-3.0", random_weights=False,
+            preprocessing=dict(ULTRALYTICS_PREPROCESSING, size=[640, 640], layout="NHWC"),
+            semantics={"vocabulary": "closed", "labels": coco80_seg, "kind": "instance",
+                       "label_source": "coco80_labels.txt (the export's metadata.json names)",
+                       "outputs": "Identity [1,300,38]: x1,y1,x2,y2 (fractions of the input), score, class, 32 "
+                                  "mask coefficients; Identity_1 [1,160,160,32] prototypes; NMS inside the graph"},
+            provenance={**prov("yolo11n-seg-coco", "yolo11n-seg_int8.onnx",
+                               "HE-22/realtimehitbox-detection@6f7cc564 mobile_export/yolo11n-seg_int8.tflite "
+                               "(stock Ultralytics yolo11n-seg.pt, Ultralytics 8.3.240, int8=True, nms=True)"),
+                        "licence_note": "Ultralytics weights under AGPL-3.0 (strong copyleft, which also reaches "
+                                        "software offered to users over a network): a test asset here"},
+            config={**ULTRALYTICS_CONFIG, "box_units": "normalised"},
+            notes="weights stored int8 with float activations (onnx2tf dynamic-range quantisation of the TFLite "
+                  "export): further int8 conversion is not attempted")},
+        "segmenter": {"role": "segmenter", "file": d / "deeplabv3-mobilenetv2-voc" / "deeplabv3_voc.onnx",
+                      "meta": role_meta(
             "deeplab", licence="Apache-2.0", random_weights=False,
             preprocessing={"size": [257, 257], "layout": "NHWC", "channel_order": "RGB", "dtype": "float32",
                            "mean": [127.5, 127.5, 127.5], "std": [127.5, 127.5, 127.5], "resize": "bilinear"},
@@ -83,7 +119,8 @@ def shared_model_specs(models_dir: str | os.PathLike) -> dict[str, dict[str, Any
             provenance=prov("deeplabv3-mobilenetv2-voc", "deeplabv3_voc.onnx",
                             "tensorflow/tflite-support@dd3362ea lite-model_deeplabv3_1_metadata_2.tflite"),
             config={"logits_layout": "NHWC"})},
-        "embedder": {"file": d / "mobilenet-v1-embedding" / "mobilenet_v1_embedding.onnx", "meta": role_meta(
+        "embedder": {"role": "embedder", "file": d / "mobilenet-v1-embedding" / "mobilenet_v1_embedding.onnx",
+                     "meta": role_meta(
             "mobilenet_embedding", licence="Apache-2.0", random_weights=False,
             preprocessing={"size": [224, 224], "layout": "NHWC", "channel_order": "RGB", "dtype": "uint8",
                            "resize": "bilinear"},
@@ -93,6 +130,7 @@ def shared_model_specs(models_dir: str | os.PathLike) -> dict[str, dict[str, Any
                             "google-coral/test_data@104342d2 mobilenet_v1_1.0_224_quant_embedding_extractor.tflite"),
             config={"output": 0})},
     }
+    return specs
 
 
 def random_feeds_for(path: str | os.PathLike) -> Callable[[np.random.Generator], Feeds]:
@@ -128,42 +166,53 @@ def _float_range_feeds(path: Path, lo: float, hi: float) -> Callable[[np.random.
 def import_onnx(out: str | os.PathLike, role: str, path: str | os.PathLike, meta: dict[str, Any],
                 precisions: list[str] = ("fp32",), *, calib: str | os.PathLike | None = None,
                 make_inputs: Callable[[np.random.Generator], Feeds] | None = None,
-                outputs: list[int] | None = None) -> dict[str, Any]:
-    """Copy `path` into bundle `out` as role/fp32, then make and parity-check the other precisions.
+                outputs: list[int] | None = None, prefix: str = "", alternative: bool = False) -> dict[str, Any]:
+    """Copy `path` into bundle `out` as role/<prefix>fp32, then make and parity-check the other precisions.
+    alternative=True: another model for an existing role (variants `<prefix>...` with their own metadata).
 
     Returns {"role", "variants": {name: parity}, "skipped": {name: reason}}.
     """
-    from mosaicthinker.runtime.stages import preprocess_image
-
     path = Path(path)
     if not path.is_file():
         raise ExportError(f"--source onnx:{path}: file not found")
-    progress(f"import {path.name} as {role}/fp32")
-    add_variant_files(out, role, "fp32", {"model": path}, meta=meta, precision="fp32",
+    progress(f"import {path.name} as {role}/{prefix}fp32")
+    add_variant_files(out, role, f"{prefix}fp32", {"model": path}, meta=meta, precision="fp32",
                       parity={"model": {"ok": True, "reference": "the imported file itself (copied unchanged)"}},
-                      notes=meta.get("notes"))
-    res: dict[str, Any] = {"role": role, "variants": {"fp32": {"ok": True, "copied": True}}, "skipped": {}}
+                      notes=meta.get("notes"), alternative=alternative)
+    res: dict[str, Any] = {"role": role, "variants": {f"{prefix}fp32": {"ok": True, "copied": True}}, "skipped": {}}
     make_inputs = make_inputs or random_feeds_for(path)
     calib_feeds: list[Feeds] = []
     if "int8-qdq" in precisions:
         if calib is None:
             raise ExportError("--precision int8-qdq needs calibration frames: --calib FOLDER_OR_VIDEO")
-        name = B.io_spec_from_onnx(path)[0][0]["name"]
-        calib_feeds = [{name: preprocess_image(f, meta["preprocessing"])} for f in calibration_frames(calib, 16)]
+        calib_feeds = calibration_feeds(path, meta["preprocessing"], calib)
     with tempfile.TemporaryDirectory() as td:
         for prec in ticked([p for p in precisions if p != "fp32"], f"export {role}", "variant"):
             q = quantize_variant(path, Path(td) / f"{prec}.onnx", prec, make_inputs=make_inputs,
                                  calibration=calib_feeds, outputs=outputs)
+            name = f"{prefix}{prec}"
             if q["ok"]:
-                add_variant_files(out, role, prec, {"model": q["path"]}, meta=meta, precision=prec,
+                add_variant_files(out, role, name, {"model": q["path"]}, meta=meta, precision=prec,
                                   target="cpu" if prec != "int8-qdq" else "accelerator",
-                                  parity={"model": q["parity"]})
-                res["variants"][prec] = q["parity"]
+                                  parity={"model": q["parity"]}, alternative=alternative)
+                res["variants"][name] = q["parity"]
             else:
-                record_skipped_variant(out, role, prec, q["reason"])
-                res["skipped"][prec] = q["reason"]
-                progress(f"{role}/{prec} NOT shipped: {q['reason']}")
+                record_skipped_variant(out, role, name, q["reason"])
+                res["skipped"][name] = q["reason"]
+                progress(f"{role}/{name} NOT shipped: {q['reason']}")
     return res
+
+
+def calibration_feeds(path: Path, pp: dict[str, Any], calib: str | os.PathLike, n: int = 16) -> list[Feeds]:
+    """int8-qdq calibration inputs: `n` frames of `calib` prepared as the runtime prepares them (a letterbox for
+    the YOLO formats, a plain resize otherwise)."""
+    from mosaicthinker.runtime.stages import preprocess_image
+    from mosaicthinker.runtime.stages.yolo import letterbox
+
+    name = B.io_spec_from_onnx(path)[0][0]["name"]
+    prep = (lambda f: letterbox(f, pp)[0]) if pp.get("resize") == "letterbox" else \
+        (lambda f: preprocess_image(f, pp))
+    return [{name: prep(f)} for f in calibration_frames(calib, n)]
 
 
 def read_sidecar(path: Path, meta_file: str | os.PathLike | None, weights: str | None = None) -> dict[str, Any]:
@@ -210,22 +259,38 @@ def export_role(role: str, source: str, precisions: list[str], out: Path, *, cal
 def import_shared_models(models_dir: str | os.PathLike, out: str | os.PathLike,
                          precisions: list[str] = ("fp32",), roles: list[str] | None = None,
                          calib: str | os.PathLike | None = None) -> dict[str, Any]:
-    """Import the four real models of ../shared/models into ONE bundle at `out` (fp32 = the files as given;
-    other precisions converted and parity-checked). Returns {role: import result}."""
+    """Import the real models of ../shared/models into ONE bundle at `out` (fp32 = the files as given; other
+    precisions converted and parity-checked): YOLOX-Nano as the detector with the SSD as its `ssd-fp32` variant,
+    YOLO11n-seg as the instance segmenter (AGPL-3.0), DeepLab, PyDNet++, the MobileNet embedder. `roles` limits
+    the roles imported. Returns {key: import result} (keys of `shared_model_specs`)."""
     specs = shared_model_specs(models_dir)
     results = {}
-    for role, sp in specs.items():
+    for key, sp in specs.items():
+        role = sp["role"]
         if roles and role not in roles:
             continue
         if not Path(sp["file"]).is_file():
             raise ExportError(f"{sp['file']}: shared model missing")
-        ranges = {"depth": (0.0, 1.0), "segmenter": (-1.0, 1.0)}
-        mk = _float_range_feeds(Path(sp["file"]), *ranges[role]) if role in ranges else None
-        # Only the first (finest) depth output is used at run time, so parity is checked on it.
+        mk = _shared_feeds(key, Path(sp["file"]))
+        # Only the first (finest) depth output is used at run time, so parity is checked on it; of a detector's
+        # outputs, those the adapter reads
         outputs = [0] if role == "depth" else None
-        results[role] = import_onnx(out, role, sp["file"], sp["meta"], list(precisions), calib=calib,
-                                    make_inputs=mk, outputs=outputs)
+        # the SSD and YOLO11n-seg files are already quantised (TFLite int8): only the files as given
+        precs = ["fp32"] if sp.get("alternative") or role == "instance_segmenter" else list(precisions)
+        results[key] = import_onnx(out, role, sp["file"], sp["meta"], precs, calib=calib, make_inputs=mk,
+                                   outputs=outputs, prefix="ssd-" if key == "detector-ssd" else "",
+                                   alternative=bool(sp.get("alternative")))
     return results
+
+
+def _shared_feeds(key: str, path: Path) -> Callable[[np.random.Generator], Feeds] | None:
+    """Parity inputs in each model's natural range: images as the runtime feeds them (YOLOX raw 0-255 at its
+    bundle size), PyDNet [0, 1], DeepLab [-1, 1]."""
+    if key == "detector":
+        h, w = YOLOX_PREPROCESSING["size"]
+        return lambda rng: {"images": (rng.random((1, 3, h, w), dtype=np.float32) * 255).astype(np.float32)}
+    ranges = {"depth": (0.0, 1.0), "segmenter": (-1.0, 1.0)}
+    return _float_range_feeds(path, *ranges[key]) if key in ranges else None
 
 
 # ---------------------------------------------------------------------------------------------------------------

@@ -17,7 +17,8 @@ class Detections:
     boxes: [N, 4] float32 x0, y0, x1, y1 pixels; scores: [N] float32 in [0, 1]; names: N object names (the
     question's vocabulary, not the model's label); masks: [N, H, W] bool or None; instance_ids: [N] int64 or None
     (only the synthetic oracle knows them); undetectable: names the backend cannot detect at all (reported, never
-    silently treated as "absent").
+    silently treated as "absent"); mask_from: N words saying where each mask came from (the role that made it,
+    e.g. "instance_segmenter", "segmenter", "box" for the box-prompted depth mask) or None.
     """
 
     boxes: np.ndarray
@@ -26,6 +27,7 @@ class Detections:
     masks: np.ndarray | None = None
     instance_ids: np.ndarray | None = None
     undetectable: list[str] = field(default_factory=list)
+    mask_from: list[str] | None = None
 
     def __post_init__(self) -> None:
         self.boxes = np.asarray(self.boxes, dtype=np.float32).reshape(-1, 4)
@@ -50,4 +52,53 @@ class Detections:
         idx = np.flatnonzero(keep) if keep.dtype == bool else keep
         return Detections(self.boxes[idx], self.scores[idx], [self.names[i] for i in idx],
                           None if self.masks is None else self.masks[idx],
-                          None if self.instance_ids is None else self.instance_ids[idx], list(self.undetectable))
+                          None if self.instance_ids is None else self.instance_ids[idx], list(self.undetectable),
+                          None if self.mask_from is None else [self.mask_from[i] for i in idx])
+
+
+def box_iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Pairwise IoU of boxes a [N, 4] and b [M, 4] (x0 y0 x1 y1 pixels) -> [N, M]."""
+    a, b = np.asarray(a, np.float64).reshape(-1, 4), np.asarray(b, np.float64).reshape(-1, 4)
+    x0 = np.maximum(a[:, None, 0], b[None, :, 0])
+    y0 = np.maximum(a[:, None, 1], b[None, :, 1])
+    x1 = np.minimum(a[:, None, 2], b[None, :, 2])
+    y1 = np.minimum(a[:, None, 3], b[None, :, 3])
+    inter = np.clip(x1 - x0, 0, None) * np.clip(y1 - y0, 0, None)
+    area_a = np.clip(a[:, 2] - a[:, 0], 0, None) * np.clip(a[:, 3] - a[:, 1], 0, None)
+    area_b = np.clip(b[:, 2] - b[:, 0], 0, None) * np.clip(b[:, 3] - b[:, 1], 0, None)
+    return inter / np.maximum(area_a[:, None] + area_b[None, :] - inter, 1e-9)
+
+
+def merge_detections(instances: Detections, boxes: Detections, iou: float = 0.5) -> Detections:
+    """One frame's detections from an instance segmenter (`instances`, with masks) and a box detector (`boxes`,
+    without) as one set: a pair of the same name whose boxes overlap (IoU >= `iou`, greedy from the highest IoU)
+    is one object -- the segmenter's box and mask, the higher score; every other detection of both is kept (the
+    detector's with an empty mask, `mask_from` "none", for the pipeline's fallbacks). Instances first, then the
+    detector's unmatched ones in their order. Pure."""
+    H, W = (instances.masks.shape[1:] if instances.masks is not None and instances.masks.ndim == 3 else (0, 0))
+    n, m = len(instances), len(boxes)
+    if m == 0:
+        return instances
+    scores = instances.scores.copy()
+    matched = np.zeros(m, bool)
+    if n:
+        ov = box_iou(instances.boxes, boxes.boxes)
+        same = np.array([[a == b for b in boxes.names] for a in instances.names])
+        ov = np.where(same, ov, 0.0)
+        used = np.zeros(n, bool)
+        for flat in np.argsort(-ov, axis=None, kind="stable"):
+            i, j = divmod(int(flat), m)
+            if ov[i, j] < iou:
+                break
+            if used[i] or matched[j]:
+                continue
+            used[i] = matched[j] = True
+            scores[i] = max(scores[i], boxes.scores[j])
+    rest = np.flatnonzero(~matched)
+    masks = None
+    if instances.masks is not None:
+        masks = np.concatenate([instances.masks, np.zeros((len(rest), H, W), bool)])
+    mask_from = list(instances.mask_from or ["instance_segmenter"] * n) + ["none"] * len(rest)
+    return Detections(np.concatenate([instances.boxes, boxes.boxes[rest]]), np.concatenate([scores, boxes.scores[rest]]),
+                      list(instances.names) + [boxes.names[j] for j in rest], masks, None,
+                      sorted(set(instances.undetectable) & set(boxes.undetectable)), mask_from)

@@ -24,7 +24,7 @@ import numpy as np
 from .config import StageConf
 from .errors import InputError, MosaicError
 from .frames import Frame, FrameSource
-from .perception import Detections
+from .perception import Detections, merge_detections
 from .progress import phase, start, ticking
 from .trace import Trace, as_trace
 # the stages, in the paper's order
@@ -36,6 +36,7 @@ from .alignment import AlignConf, align_keyframes, worker_threads
 from .semantic_map import (FusionConfig, ObjectInstance, Observation, SemanticMap, box_depth_mask,
                            extend_to_floor, first_seen_from_detections, fuse_observations, gravity_from_frames,
                            lift_camera, place, refine, room_extent)
+from .map.verify import Verification, VerifyConf, annotate_views, verify_observations
 from . import prompt as vprompt
 from .answer import MapReasoner, answer_question, answer_with_vlm, cannot_detect
 # moved to their stage modules; importable from here as before
@@ -55,7 +56,8 @@ def _pipeline_alignment() -> AlignConf:
 
 
 # typed stage configs of a run: field -> its class (a mapping given for one is merged over the field's default)
-_SUB_CONFS: dict[str, type] = {"dedup": DedupConf, "alignment": AlignConf, "match": MatchConf, "fusion": FusionConfig}
+_SUB_CONFS: dict[str, type] = {"dedup": DedupConf, "alignment": AlignConf, "match": MatchConf, "fusion": FusionConfig,
+                               "verify": VerifyConf}
 
 
 @dataclass
@@ -88,6 +90,9 @@ class PipelineConfig(StageConf):
     topup: bool = True                   # fewer than K passing: the search's `min_keyframes = K` top-up (recorded)
     topup_spacing: int = 4               # ... its frames at least len(video) / (this x K) frames apart
     box_prompt_min_share: float = 0.02   # a mask under this share of its box is replaced by a box-prompted one
+    # key-frame detections with an instance segmenter in the bundle: "merged" (its detections with masks and the
+    # detector's candidates as one set), "instance_segmenter" (its own alone: one model, one pass) or "detector"
+    keyframe_detections: str = "merged"
     grounding_frames: int = 4            # frames (evenly spaced) shown to a VLM that grounds the question
     whole_image_fallback: bool = True    # key frames unaligned with matches inside boxes: retry on whole images
     # relative depth (essential edges): match inside the boxes in the first tree too. Off: an essential matrix
@@ -123,6 +128,7 @@ class PipelineConfig(StageConf):
     alignment: AlignConf = field(default_factory=_pipeline_alignment)
     match: MatchConf = field(default_factory=MatchConf)  # OpenCV matchers (ratio per method when unset)
     fusion: FusionConfig = field(default_factory=FusionConfig)
+    verify: VerifyConf = field(default_factory=VerifyConf)  # candidate detections verified across views
 
     def __post_init__(self) -> None:
         for name, cls in _SUB_CONFS.items():
@@ -138,7 +144,8 @@ class PipelineConfig(StageConf):
                              f"(got {self.keyframe_method!r})")
         if self.keyframes < 1:
             raise InputError(f"pipeline config: keyframes must be >= 1 (got {self.keyframes})")
-        for name, allowed in (("depth", ("auto", "sensor", "model")), ("gravity", ("auto", "source", "floor"))):
+        for name, allowed in (("depth", ("auto", "sensor", "model")), ("gravity", ("auto", "source", "floor")),
+                              ("keyframe_detections", ("merged", "instance_segmenter", "detector"))):
             if getattr(self, name) not in allowed:
                 raise InputError(f"pipeline config: {name} must be one of {', '.join(allowed)} "
                                  f"(got {getattr(self, name)!r})")
@@ -188,6 +195,9 @@ class Perception:
     describe: dict[str, Any] = field(default_factory=dict)
     # every object the detector names in a frame (not only the question's): the boxes alignment matches inside
     detect_all: Callable[[Frame], Detections] | None = None
+    # key-frame perception: candidate detections down to the detector's low score, with instance masks where an
+    # instance segmenter gives them (the map verifies candidates across views); None = `detect`'s detections
+    detect_keyframe: DetectFn | None = None
 
 
 @dataclass
@@ -395,8 +405,30 @@ def _depth_for(frame: Frame, conf: PipelineConfig, perception: Perception, trace
         return perception.depth(frame)
 
 
+def _masks(f: Frame, d: Detections, perception: Perception, conf: PipelineConfig, trace: Trace) -> Detections:
+    """A key frame's detections with one mask each: the instance segmenter's where it gave one, else the
+    segmenter's (a semantic one: class pixels in the box), else the box-prompted depth mask (`_box_prompted`);
+    `mask_from` says which, per detection. Without any segmenter and without instance masks: unchanged (fusion
+    lifts the box's depth band)."""
+    if not len(d) or (d.masks is None and perception.segment is None):
+        return d
+    have = np.zeros(len(d), bool) if d.masks is None else np.array(
+        [m.any() and src not in ("none", "box") for m, src in zip(d.masks, d.mask_from or ["?"] * len(d))])
+    masks = np.zeros((len(d),) + f.rgb.shape[:2], bool) if d.masks is None else np.array(d.masks, bool)
+    src = list(d.mask_from or ["instance_segmenter" if d.masks is not None else "none"] * len(d))
+    if perception.segment is not None and not have.all():
+        rest = np.flatnonzero(~have)
+        with trace.stage("segment"):
+            masks[rest] = perception.segment(f, d.select(rest))
+        for j in rest:
+            src[j] = "segmenter"
+    with trace.stage("segment"):
+        masks = _box_prompted(masks, f.depth, d, trace, conf.box_prompt_min_share, src)
+    return dataclasses.replace(d, masks=masks, mask_from=src)
+
+
 def _box_prompted(masks: np.ndarray, depth: np.ndarray, d: Detections, trace: Trace,
-                  min_share: float) -> np.ndarray:
+                  min_share: float, src: list[str] | None = None) -> np.ndarray:
     """Masks [N, H, W]: a detection the segmenter left (nearly) empty — a category it cannot segment (DeepLab has
     no cup) or a miss — gets a box-prompted mask (the depth-consistent pixels inside its box) instead of being
     dropped; recorded as degraded (once per name)."""
@@ -406,6 +438,8 @@ def _box_prompted(masks: np.ndarray, depth: np.ndarray, d: Detections, trace: Tr
         if masks[j].sum() >= min_share * area:
             continue
         masks[j] = box_depth_mask(depth, b)
+        if src is not None:
+            src[j] = "box"
         noted = trace.decisions.setdefault("segment.box_prompted", {})
         if nm not in noted:
             trace.event("degraded", f"segmenter gave no mask for {nm!r}: box-prompted mask (depth-consistent "
@@ -446,11 +480,12 @@ def _perceive(source: FrameSource, chosen: list[int], det: _CachedDetector, name
                             stage="perception")
                 break
             f = _with_depth(conf, perception, trace)(source[i])
-            d = det(i, names)
-            if d.masks is None and perception.segment is not None and len(d):
-                with trace.stage("segment"):
-                    d = dataclasses.replace(d, masks=_box_prompted(perception.segment(f, d), f.depth, d, trace,
-                                                                conf.box_prompt_min_share))
+            if perception.detect_keyframe is not None:
+                with trace.stage("detect"):
+                    d = perception.detect_keyframe(_colour(source, i), list(names))
+            else:
+                d = det(i, names)
+            d = _masks(f, d, perception, conf, trace)
             dets[i] = d
             frames.append(f)
             lifting[i] = lifter.submit(_lift, f, d, fconf)
@@ -522,10 +557,12 @@ def _gravity(frames: list[Frame], poses_root: dict[int, np.ndarray], source: Fra
 
 
 def fuse_frames(frames: list[Frame], dets: dict[int, Detections], poses: dict[int, np.ndarray], fconf: FusionConfig,
-                trace: Trace | None = None, lifted: dict[int, list[Observation]] | None = None
+                trace: Trace | None = None, lifted: dict[int, list[Observation]] | None = None,
+                verify: Callable[[list[Observation]], list[Observation]] | None = None
                 ) -> tuple[list[Observation], list[ObjectInstance], list[np.ndarray]]:
     """Place every posed key frame's camera-frame observations in the world (`lifted`: perception's; a frame
-    without them is lifted here) and fuse them into instances."""
+    without them is lifted here), keep those `verify` keeps (cross-view verification) and fuse them into
+    instances. Returns (the fused observations, instances, clouds)."""
     obs: list[Observation] = []
     lifted = lifted or {}
 
@@ -538,9 +575,28 @@ def fuse_frames(frames: list[Frame], dets: dict[int, Detections], poses: dict[in
         for got in ex.map(lift, posed):  # frames lift independently; in order
             obs += got
             bar.update()
+        if verify is not None:
+            obs = verify(obs)
         instances, clouds = fuse_observations(obs, fconf, trace)
         bar.note(instances=len(instances))
     return obs, instances, clouds
+
+
+def _verify(obs: list[Observation], frames: list[Frame], poses: dict[int, np.ndarray], dets: dict[int, Detections],
+            conf: PipelineConfig, perception: Perception, trace: Trace, out: dict[str, Any]) -> list[Observation]:
+    """Cross-view verification of the candidate detections (`map.verify`), recorded in the trace; `out` gets
+    every observation and the verification (the views each instance rests on are annotated after refinement)."""
+    with trace.stage("verify"):
+        kept, ver = verify_observations(obs, frames, poses, dets, conf.verify, not perception.depth_relative)
+    out.update(obs=obs, ver=ver)
+    rep = ver.report(obs)
+    trace.decide("verify", rep)
+    if rep["dropped"]:
+        trace.event("verify", f"verification: left out {len(rep['dropped'])} of {rep['candidates']} candidate "
+                    f"detection(s) no other key frame agreed with (below score {conf.verify.confident}): "
+                    + ", ".join(f"{d['name']} in frame {d['frame']} ({d['score']:.2f})" for d in rep["dropped"]),
+                    stage="fusion", dropped=len(rep["dropped"]))
+    return kept
 
 
 def _refine(instances: list[ObjectInstance], clouds: list[np.ndarray], obs: list[Observation],
@@ -669,10 +725,14 @@ def build_map(source: FrameSource, targets: Sequence[str], cues: Sequence[str] =
     with trace.stage("gravity"):
         W = _gravity(frames, al.poses, source, al.root, conf, trace)
     poses = {i: W @ T for i, T in al.poses.items()}
+    checked: dict[str, Any] = {}
     with trace.stage("fusion"):
-        obs, instances, clouds = fuse_frames(frames, dets, poses, fconf, trace, lifted)
+        obs, instances, clouds = fuse_frames(frames, dets, poses, fconf, trace, lifted, lambda o: _verify(
+            o, frames, poses, dets, conf, perception, trace, checked))
     instances, clouds, recovered = _refine(instances, clouds, obs, frames, poses, dets, perception, fconf, matcher,
                                            conf, trace, budget)
+    if checked:
+        annotate_views(instances, checked["obs"], checked["ver"])
     if budget is not None:
         budget.end_stage("alignment")
     _record_instances(instances, names, recovered, trace, dets, al.unaligned, det.scored())
@@ -688,7 +748,7 @@ def build_map(source: FrameSource, targets: Sequence[str], cues: Sequence[str] =
 
 # ----------------------------------------------------------------------------- perception from a bundle
 
-PERCEPTION_ROLES = ("detector", "segmenter", "depth", "matcher", "embedder")
+PERCEPTION_ROLES = ("detector", "instance_segmenter", "segmenter", "depth", "matcher", "embedder")
 
 
 def _role_kwargs(profile: Any, role: str, bundle: Any = None, trace: Trace | None = None) -> dict[str, Any]:
@@ -744,6 +804,9 @@ def perception_from_bundle(bundle: Any, conf: PipelineConfig | dict | None = Non
     if getattr(det, "labels", None):
         labels = [x for x in dict.fromkeys(det.labels) if x and x.strip("?") and x.lower() != "n/a"]
         p.detect_all = lambda frame: det.detect(frame.rgb, labels)
+    inst = load("instance_segmenter") if has("instance_segmenter") and conf.keyframe_detections != "detector" \
+        else None
+    p.detect_keyframe = _keyframe_detector(det, inst, desc, alone=conf.keyframe_detections == "instance_segmenter")
     if has("segmenter"):
         seg = load("segmenter")
         if getattr(seg, "kind", "") == "semantic":
@@ -784,6 +847,32 @@ def perception_from_bundle(bundle: Any, conf: PipelineConfig | dict | None = Non
     p.describe = desc
     trace.decide("perception", desc)
     return p
+
+
+def _keyframe_detector(det: Any, inst: Any, desc: dict[str, Any], alone: bool = False) -> DetectFn | None:
+    """Key-frame detections: the detector's candidates (down to its `candidate_threshold`) and, with an instance
+    segmenter, its detections with one mask each, merged (`perception.merge_detections`: a pair of one name
+    that overlaps is one object with the segmenter's mask), or (alone) the instance segmenter's only. None when
+    neither keeps candidates nor gives masks (the key frames reuse the search's detections, as before)."""
+    cand = getattr(getattr(det, "conf", None), "candidate_threshold", None)
+    if inst is None:
+        if cand is None:
+            return None
+        desc["keyframe_detections"] = f"detector candidates down to score {cand}, verified across views"
+        return lambda frame, names: det.detect(frame.rgb, names, min_score=det.conf.floor)
+    if alone:
+        desc["keyframe_detections"] = (f"instance segmenter alone (masks per detection), candidates down to score "
+                                       f"{inst.conf.floor}, verified across views")
+        return lambda frame, names: inst.detect(frame.rgb, names, min_score=inst.conf.floor, masks=True)
+    desc["keyframe_detections"] = ("instance segmenter (masks per detection) merged with the detector's "
+                                   f"candidates down to score {cand if cand is not None else det.conf.floor}, "
+                                   f"verified across views")
+
+    def detect(frame: Frame, names: list[str]) -> Detections:
+        seg = inst.detect(frame.rgb, names, min_score=inst.conf.floor, masks=True)
+        return merge_detections(seg, det.detect(frame.rgb, names, min_score=det.conf.floor))
+
+    return detect
 
 
 def _first_mask(masks: Any) -> np.ndarray | None:

@@ -164,9 +164,11 @@ NEAREST_PRECISION = {"int8-qdq": ("int8-qdq", "int8-dynamic", "fp16", "fp32"),
 def nearest_variant(want: str, variants: dict[str, Any]) -> str | None:
     """The variant name to run for a requested one: `want` itself, else the variant whose precision is nearest
     (NEAREST_PRECISION; a variant's `precision` field, so `android-ort-int8-qdq` counts as int8-qdq, exact names
-    first). None when nothing matches (an unknown variant name: the bundle's default)."""
+    first). None when nothing matches (an unknown variant name: the bundle's default). A variant that is another
+    model for the role (`overrides`, e.g. the SSD beside YOLOX) is run only when named exactly."""
     if want in variants:
         return want
+    variants = {n: vm for n, vm in variants.items() if not (vm or {}).get("overrides")}
     order = NEAREST_PRECISION.get(want)
     if order is None:  # a variant named by the profile, e.g. android-ort-fp16: match its precision suffix
         order = next((v for k, v in NEAREST_PRECISION.items() if want.endswith(k)), ())

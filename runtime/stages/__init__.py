@@ -38,6 +38,8 @@ ARCHS: dict[str, str] = {
     "pydnet": "depth:DepthModel",            # relative monocular depth, single NHWC graph
     "depth_generic": "depth:DepthModel",     # any single-graph depth model described by its preprocessing
     "ssd_tflite": "detector:ClosedSetDetector",  # TFLite SSD with in-graph NMS (boxes, classes, scores, count)
+    "yolox": "yolo:YoloxDetector",               # YOLOX raw anchors: grid decoding + NMS in the adapter
+    "ultralytics_e2e": "yolo:UltralyticsDetector",  # Ultralytics nms=True export: boxes (+ mask coefficients)
     "deeplab": "segmenter:SemanticSegmenter",    # per-pixel class logits
     "mobilenet_embedding": "embedder:Embedder",  # pooled CNN features
     "embedding_generic": "embedder:Embedder",
