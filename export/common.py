@@ -158,15 +158,23 @@ def to_fp16(src: str | os.PathLike, dst: str | os.PathLike, *, keep_io_types: bo
     return Path(dst)
 
 
+# Dynamic int8 weights in 7 bits (onnxruntime's `reduce_range`): its u8s8 kernels add pairs of uint8 x int8
+# products in int16, which saturates on x86 CPUs without VNNI; with |w| <= 64 (2 x 255 x 64 < 2^15) one file gives
+# the same numbers on every x86 CPU, for one bit less of weight precision (docs/bundle-and-adapters.md)
+INT8_REDUCE_RANGE = True
+
+
 def quantize_int8_dynamic(src: str | os.PathLike, dst: str | os.PathLike, *, per_channel: bool = False,
                           op_types: Sequence[str] | None = None) -> Path:
-    """Dynamic int8 (weights int8, activations quantised at run time): the CPU variant."""
+    """Dynamic int8 (weights int8 in 7 bits, `INT8_REDUCE_RANGE`; activations quantised at run time): the CPU
+    variant."""
     from onnxruntime.quantization import QuantType, quantize_dynamic
 
     ext = bool(B.external_data_locations(src))  # a source past protobuf's 2 GiB: its int8 copy may be too
     progress(f"quantize_dynamic int8 -> {Path(dst).name}" + (" (external data)" if ext else ""))
     quantize_dynamic(str(src), str(dst), weight_type=QuantType.QInt8, per_channel=per_channel,
-                     op_types_to_quantize=list(op_types) if op_types else None, use_external_data_format=ext)
+                     op_types_to_quantize=list(op_types) if op_types else None, use_external_data_format=ext,
+                     reduce_range=INT8_REDUCE_RANGE)
     return Path(dst)
 
 
