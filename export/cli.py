@@ -36,7 +36,7 @@ from mosaicthinker.runtime.bundle import parity_text
 from . import formats
 from .common import parse_precisions
 
-ROLES = ("depth", "segmenter", "matcher", "detector", "embedder", "vlm")
+ROLES = ("depth", "segmenter", "instance_segmenter", "matcher", "detector", "embedder", "vlm")
 # source scheme -> "module:function" (module relative to mosaicthinker.export)
 SOURCE_EXPORTERS: dict[str, str] = {
     "onnx": "onnx_import:export_role",

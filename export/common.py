@@ -235,6 +235,7 @@ def quantize_int8_qdq(src: str | os.PathLike, dst: str | os.PathLike, calibratio
         raise ExportError("quantize_int8_qdq: no calibration inputs")
     progress(f"quantize_static QDQ int8 ({len(feeds)} calibration inputs) -> {Path(dst).name}")
     pre = Path(dst).with_name(Path(dst).stem + ".pre.onnx")
+    src = _at_least_opset(Path(src), 13, Path(dst).with_name(Path(dst).stem + ".op13.onnx"))
     try:
         quant_pre_process(str(src), str(pre), skip_symbolic_shape=True)
         model_in = pre
@@ -245,9 +246,25 @@ def quantize_int8_qdq(src: str | os.PathLike, dst: str | os.PathLike, calibratio
     quantize_static(str(model_in), str(dst), FeedsReader(feeds), quant_format=QuantFormat.QDQ,
                     activation_type=QuantType.QUInt8, weight_type=QuantType.QInt8, per_channel=per_channel,
                     op_types_to_quantize=list(op_types) if op_types else None, calibrate_method=cm)
-    if pre.exists():
-        pre.unlink()
+    for tmp in (pre, Path(dst).with_name(Path(dst).stem + ".op13.onnx")):
+        tmp.unlink(missing_ok=True)
     return Path(dst)
+
+
+def _at_least_opset(src: Path, opset: int, tmp: Path) -> Path:
+    """`src`, or a copy converted to `opset` when its default-domain opset is lower (per-channel QDQ needs the
+    `axis` of opset-13 DequantizeLinear; an opset-11 graph otherwise quantises into a graph that cannot load)."""
+    import onnx
+    from onnx import version_converter
+
+    if B.external_data_locations(src):
+        return src
+    m = onnx.load(str(src))
+    have = next((o.version for o in m.opset_import if o.domain in ("", "ai.onnx")), opset)
+    if have >= opset:
+        return src
+    onnx.save(version_converter.convert_version(m, opset), str(tmp))
+    return tmp
 
 
 def quantize_variant(fp32: str | os.PathLike, dst: str | os.PathLike, variant: str, *,

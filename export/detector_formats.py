@@ -1,11 +1,11 @@
 """The three closed-set detector graph formats `mosaic export detector --source onnx:PATH` takes, told apart by the
 graph's inputs and outputs, with the pre-processing and runtime settings each format implies.
 
-| format (arch)     | input                        | outputs                                                         |
-|-------------------|------------------------------|-----------------------------------------------------------------|
-| `ssd_tflite`      | NHWC image (uint8 or float)  | 4: boxes [1,N,4], classes [1,N], scores [1,N], count [1] (NMS in graph) |
-| `yolox`           | NCHW float image             | 1: [1,A,5+C] raw anchors (decoding + NMS in the adapter)        |
-| `ultralytics_e2e` | NCHW or NHWC float image     | [1,N,6+M] boxes, score, class, M mask coefficients (NMS in graph) and, for `-seg`, prototypes [1,M,h,w] / [1,h,w,M] |
+- `ssd_tflite`: an NHWC image (uint8 or float) -> 4 outputs: boxes [1,N,4], classes [1,N], scores [1,N], count [1]
+  (NMS in the graph);
+- `yolox`: an NCHW float image -> 1 output [1,A,5+C] of raw anchors (decoding and NMS in the adapter);
+- `ultralytics_e2e`: an NCHW or NHWC float image -> [1,N,6+M]: boxes, score, class, M mask coefficients (NMS in
+  the graph) and, for a `-seg` model, prototypes [1,M,h,w] / [1,h,w,M].
 
 What the graph cannot say (labels, licence, provenance, whether the weights are trained) still comes from the
 metadata sidecar; `arch` and `preprocessing` may be left out of it for these formats (filled in from here), and a

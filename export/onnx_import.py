@@ -64,7 +64,7 @@ def shared_model_specs(models_dir: str | os.PathLike) -> dict[str, dict[str, Any
 
     specs = {
         "depth": {"role": "depth", "file": d / "pydnet" / "pydnet.onnx", "meta": role_meta(
-            "pydnet", licence="Apache-2.0", random_weights=False,
+            "pydnet", licence="Apache-2.0", name="PyDNet++", random_weights=False,
             preprocessing={"size": [448, 640], "layout": "NHWC", "channel_order": "RGB", "dtype": "float32",
                            "scale": 1.0 / 255.0, "resize": "bilinear"},
             semantics={"depth": "relative", "note": "affine in depth, larger = farther; not metric"},
@@ -73,7 +73,8 @@ def shared_model_specs(models_dir: str | os.PathLike) -> dict[str, dict[str, Any
                             "(blob f6032de7)"),
             config={"output": 0})},
         "detector": {"role": "detector", "file": d / "yolox-nano-coco" / "yolox_nano.onnx", "meta": role_meta(
-            "yolox", licence="Apache-2.0", random_weights=False, preprocessing=YOLOX_PREPROCESSING,
+            "yolox", licence="Apache-2.0", name="YOLOX-Nano (COCO)", random_weights=False,
+            preprocessing=YOLOX_PREPROCESSING,
             semantics={"vocabulary": "closed", "labels": coco80, "label_source": "coco80_labels.txt (contiguous "
                        "80 COCO classes)", "outputs": "output [1,A,85]: raw anchors (4 box values, objectness, 80 "
                        "class probabilities); decoding and NMS in the adapter"},
@@ -83,7 +84,7 @@ def shared_model_specs(models_dir: str | os.PathLike) -> dict[str, dict[str, Any
             config=dict(YOLOX_CONFIG))},
         "detector-ssd": {"role": "detector", "alternative": True,
                          "file": d / "ssd-mobilenet-v1-coco" / "ssd_mobilenet_v1_coco.onnx", "meta": role_meta(
-            "ssd_tflite", licence="Apache-2.0", random_weights=False,
+            "ssd_tflite", licence="Apache-2.0", name="SSD MobileNet v1 (COCO)", random_weights=False,
             preprocessing={"size": [300, 300], "layout": "NHWC", "channel_order": "RGB", "dtype": "uint8",
                            "resize": "bilinear"},
             semantics={"vocabulary": "closed", "labels": coco, "label_source": "coco_labels.txt (class id = "
@@ -95,7 +96,7 @@ def shared_model_specs(models_dir: str | os.PathLike) -> dict[str, dict[str, Any
             config={"score_threshold": 0.5})},
         "instance_segmenter": {"role": "instance_segmenter",
                                "file": d / "yolo11n-seg-coco" / "yolo11n-seg_int8.onnx", "meta": role_meta(
-            "ultralytics_e2e", licence="AGPL-3.0", random_weights=False,
+            "ultralytics_e2e", licence="AGPL-3.0", name="YOLO11n-seg (COCO)", random_weights=False,
             preprocessing=dict(ULTRALYTICS_PREPROCESSING, size=[640, 640], layout="NHWC"),
             semantics={"vocabulary": "closed", "labels": coco80_seg, "kind": "instance",
                        "label_source": "coco80_labels.txt (the export's metadata.json names)",
@@ -111,7 +112,7 @@ def shared_model_specs(models_dir: str | os.PathLike) -> dict[str, dict[str, Any
                   "export): further int8 conversion is not attempted")},
         "segmenter": {"role": "segmenter", "file": d / "deeplabv3-mobilenetv2-voc" / "deeplabv3_voc.onnx",
                       "meta": role_meta(
-            "deeplab", licence="Apache-2.0", random_weights=False,
+            "deeplab", licence="Apache-2.0", name="DeepLabv3 MobileNetV2 (VOC)", random_weights=False,
             preprocessing={"size": [257, 257], "layout": "NHWC", "channel_order": "RGB", "dtype": "float32",
                            "mean": [127.5, 127.5, 127.5], "std": [127.5, 127.5, 127.5], "resize": "bilinear"},
             semantics={"kind": "semantic", "labels": voc, "prompts": "ignores point prompts; boxes select pixels "
@@ -121,7 +122,8 @@ def shared_model_specs(models_dir: str | os.PathLike) -> dict[str, dict[str, Any
             config={"logits_layout": "NHWC"})},
         "embedder": {"role": "embedder", "file": d / "mobilenet-v1-embedding" / "mobilenet_v1_embedding.onnx",
                      "meta": role_meta(
-            "mobilenet_embedding", licence="Apache-2.0", random_weights=False,
+            "mobilenet_embedding", licence="Apache-2.0", name="MobileNetV1 embedding (ImageNet)",
+            random_weights=False,
             preprocessing={"size": [224, 224], "layout": "NHWC", "channel_order": "RGB", "dtype": "uint8",
                            "resize": "bilinear"},
             semantics={"dim": 1024, "kind": "ImageNet MobileNetV1 pooled features (not CLIP)",
@@ -215,19 +217,42 @@ def calibration_feeds(path: Path, pp: dict[str, Any], calib: str | os.PathLike, 
     return [{name: prep(f)} for f in calibration_frames(calib, n)]
 
 
-def read_sidecar(path: Path, meta_file: str | os.PathLike | None, weights: str | None = None) -> dict[str, Any]:
+DETECTOR_ROLES = ("detector", "instance_segmenter")
+
+
+def read_sidecar(path: Path, meta_file: str | os.PathLike | None, weights: str | None = None,
+                 role: str | None = None) -> dict[str, Any]:
     """The role metadata of an imported graph. weights: "real" | "random" from --real-weights /
-    --random-weights, required when the sidecar has no boolean `random_weights`."""
+    --random-weights, required when the sidecar has no boolean `random_weights`. For a detector or instance
+    segmenter the graph's format (SSD, YOLOX, Ultralytics end-to-end: `detector_formats.detect_format`) gives
+    `arch`, `preprocessing` and `config` defaults; the sidecar may leave them out (what it gives wins; an `arch`
+    that contradicts the graph is refused), and an Ultralytics export's own `names` metadata gives the labels."""
+    from .detector_formats import detect_format, format_meta
+
     side = Path(meta_file) if meta_file else path.with_name(path.name + ".mosaic.json")
     if not side.is_file():
         raise ExportError(f"--source onnx:{path}: metadata sidecar {side} not found; write it (see "
-                          f"export/onnx_import.py) or pass --meta FILE")
+                          f"docs/bundle-and-adapters.md) or pass --meta FILE")
     try:
         raw = B.strict_json_loads(side.read_bytes(), str(side))
     except InputError as e:
         raise ExportError(str(e)) from e
     if not isinstance(raw, dict):
         raise ExportError(f"{side}: expected a JSON object")
+    if role in DETECTOR_ROLES:
+        fmt = detect_format(path)
+        raw = {**raw, **format_meta(fmt, raw, str(side))}
+        sem = dict(raw.get("semantics") or {})
+        if not sem.get("labels") and (names := graph_label_names(path)):
+            sem.update(vocabulary="closed", labels=names, label_source="the graph's own metadata (names)")
+        if not sem.get("labels") and sem.get("vocabulary") != "open":
+            raise ExportError(f"{side}: field 'semantics.labels' is required for a closed-set detector (the class "
+                              f"names in class-id order); {path.name} carries no `names` metadata to take them from")
+        sem.setdefault("vocabulary", "closed")
+        if fmt["arch"] == "ultralytics_e2e" and fmt.get("prototypes"):
+            sem.setdefault("kind", "instance")
+        raw["semantics"] = sem
+        progress(f"{path.name}: {fmt['arch']} format (from its inputs/outputs)")
     for k in ("arch", "licence", "preprocessing", "semantics"):
         if k not in raw:
             raise ExportError(f"{side}: field {k!r} is required")
@@ -248,12 +273,63 @@ def read_sidecar(path: Path, meta_file: str | os.PathLike | None, weights: str |
                      config=raw.get("config", {}), **({"notes": raw["notes"]} if raw.get("notes") else {}))
 
 
+def graph_label_names(path: Path) -> list[str] | None:
+    """Class names an exporter wrote into the graph's metadata (Ultralytics: `names`, a dict {id: name} in Python
+    or JSON syntax), in class-id order; None when there are none."""
+    import ast
+    import json
+
+    import onnxruntime as ort
+
+    so = ort.SessionOptions()
+    so.log_severity_level = 3
+    try:
+        meta = ort.InferenceSession(str(path), so, providers=["CPUExecutionProvider"]).get_modelmeta()
+    except Exception:  # noqa: BLE001 - detect_format has loaded it already; metadata is optional
+        return None
+    text = (meta.custom_metadata_map or {}).get("names")
+    if not text:
+        return None
+    try:
+        names = json.loads(text)
+    except ValueError:
+        try:
+            names = ast.literal_eval(text)
+        except (ValueError, SyntaxError):
+            return None
+    if isinstance(names, dict):
+        try:
+            return [str(names[k]) for k in sorted(names, key=lambda k: int(k))]
+        except (ValueError, TypeError):
+            return None
+    return [str(x) for x in names] if isinstance(names, list) else None
+
+
+def image_feeds(path: Path, pp: dict[str, Any]) -> Callable[[np.random.Generator], Feeds]:
+    """Parity inputs for an image graph: random images at the bundle's input size (`pp["size"]`, whatever the
+    graph's symbolic dims), in the range the runtime feeds (uint8 0..255; float: 0..255 x `scale`)."""
+    ins, _, _ = B.io_spec_from_onnx(path)
+    img = next((i for i in ins if len(i["shape"]) == 4), ins[0])
+    h, w = (int(v) for v in pp["size"])
+    shape = [1, 3, h, w] if str(pp.get("layout", "NHWC")).upper() == "NCHW" else [1, h, w, 3]
+    scale = float(pp.get("scale") or 1.0)
+
+    def make(rng: np.random.Generator) -> Feeds:
+        x = rng.integers(0, 256, shape).astype(np.uint8)
+        return {img["name"]: x if img["dtype"] == "uint8" else (x.astype(np.float32) * scale).astype(img["dtype"])}
+
+    return make
+
+
 def export_role(role: str, source: str, precisions: list[str], out: Path, *, calib: str | None = None,
                 meta_file: str | None = None, weights: str | None = None, **_: Any) -> dict[str, Any]:
     """`mosaic export ROLE --source onnx:PATH` entry point."""
     path = Path(source.split(":", 1)[1])
-    meta = read_sidecar(path, meta_file, weights)
-    return import_onnx(out, role, path, meta, precisions, calib=calib)
+    if not path.is_file():
+        raise ExportError(f"--source onnx:{path}: file not found")
+    meta = read_sidecar(path, meta_file, weights, role)
+    mk = image_feeds(path, meta["preprocessing"]) if role in DETECTOR_ROLES else None
+    return import_onnx(out, role, path, meta, precisions, calib=calib, make_inputs=mk)
 
 
 def import_shared_models(models_dir: str | os.PathLike, out: str | os.PathLike,
@@ -287,8 +363,7 @@ def _shared_feeds(key: str, path: Path) -> Callable[[np.random.Generator], Feeds
     """Parity inputs in each model's natural range: images as the runtime feeds them (YOLOX raw 0-255 at its
     bundle size), PyDNet [0, 1], DeepLab [-1, 1]."""
     if key == "detector":
-        h, w = YOLOX_PREPROCESSING["size"]
-        return lambda rng: {"images": (rng.random((1, 3, h, w), dtype=np.float32) * 255).astype(np.float32)}
+        return image_feeds(path, YOLOX_PREPROCESSING)
     ranges = {"depth": (0.0, 1.0), "segmenter": (-1.0, 1.0)}
     return _float_range_feeds(path, *ranges[key]) if key in ranges else None
 

@@ -8,6 +8,7 @@ Manifest shape (schema ``mosaicthinker.bundle/1``)::
       "roles": {
         "<role>": {                                   # depth | segmenter | matcher | detector | embedder | vlm
           "arch": "pydnet",                           # dispatch key of runtime.stages.ARCHS
+          "name": "PyDNet++",                         # optional: the model's own name (said in `ran`)
           "preprocessing": {"size": [H, W], "layout": "NHWC"|"NCHW"|"patches", "channel_order": "RGB"|"BGR",
                             "dtype": "float32"|"uint8"|"float16", "scale": 1/255, "mean": [3], "std": [3],
                             "resize": "bilinear", "keep_aspect": false},
@@ -72,7 +73,7 @@ MANIFEST = "manifest.json"
 ROLES = ("depth", "segmenter", "instance_segmenter", "matcher", "detector", "embedder", "vlm")
 # role-level fields a variant may override: a variant that is another model for the same role (the SSD kept beside
 # YOLOX as the detector's `ssd-fp32` variant) carries its own arch, pre-processing, labels, licence ...
-OVERRIDABLE = ("arch", "preprocessing", "semantics", "provenance", "licence", "random_weights", "config")
+OVERRIDABLE = ("arch", "name", "preprocessing", "semantics", "provenance", "licence", "random_weights", "config")
 DEPTH_SEMANTICS = ("metric_m", "relative", "relative_inverse")
 # Variant preference when the caller names none and the role has no default_variant.
 VARIANT_PREFERENCE = ("fp32", "fp16", "int8-dynamic", "int8-qdq")
@@ -332,9 +333,10 @@ class Bundle:
                 variants[v] = {"precision": vm.get("precision"), "target": vm.get("target"), "components": comps,
                                "parity": vm.get("parity", {}), "task": task_text(vm.get("task_check")),
                                "notes": vm.get("notes"),
-                               **({"model": {k: vm["overrides"][k] for k in ("arch", "licence", "provenance")
+                               **({"model": {k: vm["overrides"][k] for k in ("arch", "name", "licence", "provenance")
                                              if k in vm["overrides"]}} if vm.get("overrides") else {})}
-            roles[r] = {"arch": m.get("arch"), "licence": m.get("licence"), "random_weights": m.get("random_weights"),
+            roles[r] = {"arch": m.get("arch"), "name": m.get("name"), "licence": m.get("licence"),
+                        "random_weights": m.get("random_weights"),
                         "semantics": m.get("semantics", {}), "preprocessing": m.get("preprocessing", {}),
                         "provenance": m.get("provenance", {}), "default_variant": m.get("default_variant"),
                         "variants": variants, "skipped_variants": m.get("skipped_variants", {})}
@@ -645,7 +647,8 @@ def render(result: dict[str, Any]) -> str:
     lines = [f"bundle {result['bundle']}  ({result['schema_version']}, created {result.get('created')})"]
     for r, m in result["roles"].items():
         rw = "  ** RANDOM WEIGHTS (test model) **" if m.get("random_weights") else ""
-        lines.append(f"\n[{r}] arch={m['arch']} licence={m['licence']}{_licence_warning(m['licence'])}{rw}")
+        named = f" model={m['name']!r}" if m.get("name") else ""
+        lines.append(f"\n[{r}] arch={m['arch']}{named} licence={m['licence']}{_licence_warning(m['licence'])}{rw}")
         if m.get("semantics"):
             sem = {k: (v if not isinstance(v, list) or len(v) < 8 else f"<{len(v)} labels>")
                    for k, v in m["semantics"].items()}
@@ -659,7 +662,8 @@ def render(result: dict[str, Any]) -> str:
         for v, vm in m["variants"].items():
             star = "*" if v == m.get("default_variant") else " "
             other = vm.get("model") or {}
-            alt = (f" arch={other.get('arch')} licence={other.get('licence')}"
+            alt = (f" arch={other.get('arch')}" + (f" model={other['name']!r}" if other.get("name") else "")
+                   + f" licence={other.get('licence')}"
                    f"{_licence_warning(other.get('licence'))}") if other else ""
             lines.append(f" {star}{v:<14} precision={vm['precision']} target={vm['target']}{alt}")
             for c, cm in vm["components"].items():

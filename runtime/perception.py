@@ -99,6 +99,6 @@ def merge_detections(instances: Detections, boxes: Detections, iou: float = 0.5)
     if instances.masks is not None:
         masks = np.concatenate([instances.masks, np.zeros((len(rest), H, W), bool)])
     mask_from = list(instances.mask_from or ["instance_segmenter"] * n) + ["none"] * len(rest)
-    return Detections(np.concatenate([instances.boxes, boxes.boxes[rest]]), np.concatenate([scores, boxes.scores[rest]]),
-                      list(instances.names) + [boxes.names[j] for j in rest], masks, None,
+    return Detections(np.concatenate([instances.boxes, boxes.boxes[rest]]),
+                      np.concatenate([scores, boxes.scores[rest]]), list(instances.names) + [boxes.names[j] for j in rest], masks, None,
                       sorted(set(instances.undetectable) & set(boxes.undetectable)), mask_from)

@@ -220,6 +220,11 @@ def _adapter_call(model: Any, role: str, frames: list[np.ndarray], n: int
         return (lambda: model.predict(a())), "predict(rgb)"
     if role == "detector" and hasattr(model, "detect"):
         return (lambda: model.detect(a(), list(DEFAULT_NAMES))), f"detect(rgb, {len(DEFAULT_NAMES)} names)"
+    if role == "instance_segmenter" and hasattr(model, "detect"):
+        labels = list(dict.fromkeys(getattr(model, "labels", DEFAULT_NAMES)))
+        floor = getattr(getattr(model, "conf", None), "floor", None)
+        return ((lambda: model.detect(a(), labels, min_score=floor, masks=True)),
+                f"detect(rgb, every label, candidates, masks=True)")
     if role == "segmenter" and hasattr(model, "segment"):
         H, W = frames[0].shape[:2]
         boxes = np.array([[0, 0, W / 2, H / 2], [W / 2, H / 2, W, H], [W / 4, H / 4, 3 * W / 4, 3 * H / 4],

@@ -46,8 +46,10 @@ def test_import_metadata(shared_bundle: Path, shared_models: Path):
     from mosaicthinker.runtime.bundle import render
 
     shown = render({"schema": "mosaicthinker.bundle.show/1", **b.summary()})
-    assert "[instance_segmenter] arch=ultralytics_e2e licence=AGPL-3.0  ** AGPL-3.0: copyleft" in shown
-    assert "ssd-fp32       precision=fp32 target=cpu arch=ssd_tflite licence=Apache-2.0" in shown
+    assert ("[instance_segmenter] arch=ultralytics_e2e model='YOLO11n-seg (COCO)' licence=AGPL-3.0  ** AGPL-3.0: "
+            "copyleft") in shown
+    assert "ssd-fp32       precision=fp32 target=cpu arch=ssd_tflite model='SSD MobileNet v1 (COCO)' licence=Apache" \
+        in shown
     assert d["provenance"]["sha256"] and "mobilePydnet" in d["provenance"]["upstream"]
 
 

@@ -41,7 +41,7 @@ else:  # pragma: no cover - python 3.10
     import tomli as tomllib
 
 PROFILE_SCHEMA = "mosaicthinker.profile/1"
-ROLES = ("depth", "segmenter", "matcher", "detector", "embedder", "vlm")
+ROLES = ("depth", "segmenter", "instance_segmenter", "matcher", "detector", "embedder", "vlm")
 PRECISIONS = ("fp32", "fp16", "int8")
 INT8_KINDS = ("dynamic", "qdq")
 KNOWN_PROVIDERS = (
@@ -66,6 +66,8 @@ COST_ITEMS: dict[str, tuple[tuple[str, ...], str]] = {
     "detector": (("ms_per_call", "load_ms", "resident_mb"), "per scored frame (key frames reuse these boxes)"),
     "segmenter": (("ms_per_call", "ms_per_prompt", "load_ms", "resident_mb"),
                   "per key frame (image encoder) + per prompt (prompt decoder)"),
+    "instance_segmenter": (("ms_per_call", "load_ms", "resident_mb"),
+                           "per key frame: detections with one mask each (the adapter's whole call)"),
     "depth": (("ms_per_call", "load_ms", "resident_mb"), "per key frame"),
     "embedder": (("ms_per_call", "load_ms", "resident_mb"), "per key frame (frame similarity for the tree)"),
     "matcher": (("ms_per_call", "ms_per_pair", "load_ms", "resident_mb"),
@@ -80,8 +82,8 @@ COST_ITEMS: dict[str, tuple[tuple[str, ...], str]] = {
 REQUIRED_COSTS = ("process", "video_decode", "dedup", "grounding", "detector", "depth", "matcher", "geometry",
                   "keyframe_state")
 # roles whose cost entry is optional: absent -> the role is not used on this device (no VLM = map reasoner)
-OPTIONAL_ROLE_COSTS = ("segmenter", "embedder", "vlm")
-MODEL_COSTS = ("detector", "segmenter", "depth", "embedder", "matcher", "vlm")
+OPTIONAL_ROLE_COSTS = ("segmenter", "instance_segmenter", "embedder", "vlm")
+MODEL_COSTS = ("detector", "instance_segmenter", "segmenter", "depth", "embedder", "matcher", "vlm")
 PROVENANCE_KEYS = ("status", "date", "bundle_hash", "source", "provider", "note")
 VARIANT_KEYS = ("variant", "variants")  # a [paper_costs] model item measured at more than one precision
 

@@ -152,8 +152,16 @@ def what_ran(trace: Any, depth: str, built: bool) -> dict[str, Any] | None:
 
 
 def _variant(v: Any) -> str:
+    """A model that ran, in a few words: its name (else its arch) and variant, and a copyleft or restricted
+    licence in brackets (AGPL-3.0 reaches whoever ships or serves the answer)."""
     if isinstance(v, dict):
-        return " ".join(str(v[k]) for k in ("arch", "variant") if v.get(k)) or str(v.get("role", "?"))
+        from ..bundle import COPYLEFT
+
+        text = " ".join(str(v[k]) for k in (("model" if v.get("model") else "arch"), "variant") if v.get(k))
+        lic = str(v.get("licence") or "")
+        if any(lic.upper().startswith(c) for c in COPYLEFT):
+            text += f" [{lic}]"
+        return text or str(v.get("role", "?"))
     return str(v)
 
 

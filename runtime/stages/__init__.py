@@ -121,8 +121,9 @@ class RoleModel:
 
     def describe(self) -> dict[str, Any]:
         return {"role": self.spec.role, "arch": self.spec.arch, "variant": self.spec.variant,
-                "random_weights": self.spec.random_weights, "providers": self.providers_used(),
-                "licence": self.spec.meta.get("licence"), "source": self.spec.meta.get("provenance", {}).get("source")}
+                "model": self.spec.meta.get("name"), "random_weights": self.spec.random_weights,
+                "providers": self.providers_used(), "licence": self.spec.meta.get("licence"),
+                "source": self.spec.meta.get("provenance", {}).get("source")}
 
 
 def resolve_arch(arch: str) -> type:
