@@ -57,12 +57,22 @@ def shared_model_specs(models_dir: str | os.PathLike) -> dict[str, dict[str, Any
             raise ExportError(f"{d}/{name}/coco80_labels.txt: expected the 80 contiguous COCO labels (person ... "
                               f"56 chair ...)")
 
+    prov = _provenance(d)
+    return {**_depth_embedder_specs(d, prov), **_detector_specs(d, prov, coco, coco80),
+            **_segmenter_specs(d, prov, voc, coco80_seg)}
+
+
+def _provenance(d: Path) -> Callable[..., dict[str, Any]]:
     def prov(folder: str, fname: str, upstream: str, conversion: str = SHARED_PROVENANCE_NOTE) -> dict[str, Any]:
         f = d / folder / fname
         return {"source": f"onnx:{folder}/{fname}", "upstream": upstream, "conversion": conversion,
                 "sha256": B.sha256_file(f)}
 
-    specs = {
+    return prov
+
+
+def _depth_embedder_specs(d: Path, prov: Callable[..., dict[str, Any]]) -> dict[str, dict[str, Any]]:
+    return {
         "depth": {"role": "depth", "file": d / "pydnet" / "pydnet.onnx", "meta": role_meta(
             "pydnet", licence="Apache-2.0", name="PyDNet++", random_weights=False,
             preprocessing={"size": [448, 640], "layout": "NHWC", "channel_order": "RGB", "dtype": "float32",
@@ -72,6 +82,23 @@ def shared_model_specs(models_dir: str | os.PathLike) -> dict[str, dict[str, Any
                             "FilippoAleotti/mobilePydnet Android/app/src/main/assets/optimized_pydnet++.tflite "
                             "(blob f6032de7)"),
             config={"output": 0})},
+        "embedder": {"role": "embedder", "file": d / "mobilenet-v1-embedding" / "mobilenet_v1_embedding.onnx",
+                     "meta": role_meta(
+            "mobilenet_embedding", licence="Apache-2.0", name="MobileNetV1 embedding (ImageNet)",
+            random_weights=False,
+            preprocessing={"size": [224, 224], "layout": "NHWC", "channel_order": "RGB", "dtype": "uint8",
+                           "resize": "bilinear"},
+            semantics={"dim": 1024, "kind": "ImageNet MobileNetV1 pooled features (not CLIP)",
+                       "output": "uint8 [1,1,1,1024], cast to float and L2-normalise"},
+            provenance=prov("mobilenet-v1-embedding", "mobilenet_v1_embedding.onnx",
+                            "google-coral/test_data@104342d2 mobilenet_v1_1.0_224_quant_embedding_extractor.tflite"),
+            config={"output": 0})},
+    }
+
+
+def _detector_specs(d: Path, prov: Callable[..., dict[str, Any]], coco: list[str], coco80: list[str]
+                    ) -> dict[str, dict[str, Any]]:
+    return {
         "detector": {"role": "detector", "file": d / "yolox-nano-coco" / "yolox_nano.onnx", "meta": role_meta(
             "yolox", licence="Apache-2.0", name="YOLOX-Nano (COCO)", random_weights=False,
             preprocessing=YOLOX_PREPROCESSING,
@@ -94,6 +121,12 @@ def shared_model_specs(models_dir: str | os.PathLike) -> dict[str, dict[str, Any
             provenance=prov("ssd-mobilenet-v1-coco", "ssd_mobilenet_v1_coco.onnx",
                             "tensorflow/tflite-support@dd3362ea coco_ssd_mobilenet_v1_1.0_quant_2018_06_29.tflite"),
             config={"score_threshold": 0.5})},
+    }
+
+
+def _segmenter_specs(d: Path, prov: Callable[..., dict[str, Any]], voc: list[str], coco80_seg: list[str]
+                     ) -> dict[str, dict[str, Any]]:
+    return {
         "instance_segmenter": {"role": "instance_segmenter",
                                "file": d / "yolo11n-seg-coco" / "yolo11n-seg_int8.onnx", "meta": role_meta(
             "ultralytics_e2e", licence="AGPL-3.0", name="YOLO11n-seg (COCO)", random_weights=False,
@@ -120,19 +153,7 @@ def shared_model_specs(models_dir: str | os.PathLike) -> dict[str, dict[str, Any
             provenance=prov("deeplabv3-mobilenetv2-voc", "deeplabv3_voc.onnx",
                             "tensorflow/tflite-support@dd3362ea lite-model_deeplabv3_1_metadata_2.tflite"),
             config={"logits_layout": "NHWC"})},
-        "embedder": {"role": "embedder", "file": d / "mobilenet-v1-embedding" / "mobilenet_v1_embedding.onnx",
-                     "meta": role_meta(
-            "mobilenet_embedding", licence="Apache-2.0", name="MobileNetV1 embedding (ImageNet)",
-            random_weights=False,
-            preprocessing={"size": [224, 224], "layout": "NHWC", "channel_order": "RGB", "dtype": "uint8",
-                           "resize": "bilinear"},
-            semantics={"dim": 1024, "kind": "ImageNet MobileNetV1 pooled features (not CLIP)",
-                       "output": "uint8 [1,1,1,1024], cast to float and L2-normalise"},
-            provenance=prov("mobilenet-v1-embedding", "mobilenet_v1_embedding.onnx",
-                            "google-coral/test_data@104342d2 mobilenet_v1_1.0_224_quant_embedding_extractor.tflite"),
-            config={"output": 0})},
     }
-    return specs
 
 
 def random_feeds_for(path: str | os.PathLike) -> Callable[[np.random.Generator], Feeds]:
