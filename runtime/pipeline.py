@@ -592,8 +592,9 @@ def _verify(obs: list[Observation], frames: list[Frame], poses: dict[int, np.nda
     rep = ver.report(obs)
     trace.decide("verify", rep)
     if rep["dropped"]:
-        trace.event("verify", f"verification: left out {len(rep['dropped'])} of {rep['candidates']} candidate "
-                    f"detection(s) no other key frame agreed with (below score {conf.verify.confident}): "
+        trace.event("verify", f"verification: left out {len(rep['dropped'])} of {rep['candidates']} detection(s) "
+                    f"no other key frame agreed with (a lone view counts from score {conf.verify.confident} for a "
+                    f"category seen twice elsewhere): "
                     + ", ".join(f"{d['name']} in frame {d['frame']} ({d['score']:.2f})" for d in rep["dropped"]),
                     stage="fusion", dropped=len(rep["dropped"]))
     return kept

@@ -12,8 +12,10 @@ points), every other posed key frame is asked whether it agrees:
   not behind the surface its depth shows) and one of its boxes of the same name holds >= `inside_share` of them
   (box IoU with their projected box >= `min_iou`).
 Its views are the frames that agree plus its own. A detection is kept when its views reach `min_views`, or its
-score reaches `confident` -- the same rule for every category (no per-class thresholds). What was left out, and
-why, is reported.
+score reaches `confident` and its category is in the map on `min_views` views elsewhere (`confident_needs_seen`:
+one confident view can add another chair to a room where chairs are seen twice, but cannot bring a category into
+the map that no view supports twice) -- the same rule for every category (no per-class thresholds). What was left
+out, and why, is reported.
 
 Pure functions over numpy arrays and the pipeline's frames / detections; the pipeline records the report.
 """
@@ -36,7 +38,8 @@ class VerifyConf(StageConf):
     conf_name: ClassVar[str] = "verify config"
 
     enabled: bool = True
-    confident: float = 0.5       # a detection at or above this score stands on its own view
+    confident: float = 0.5       # a detection at or above this score stands on its own view ...
+    confident_needs_seen: bool = True  # ... when another detection of its name rests on `min_views` views
     min_views: int = 2           # below it, this many key frames (its own included) must agree
     agree_radius_m: float = 0.12  # 3D agreement: points of two views this close count as the same surface ...
     agree_overlap: float = 0.2    # ... for this share of the smaller view's points
@@ -67,8 +70,8 @@ class Verification:
 
     def report(self, obs: Sequence[Any]) -> dict[str, Any]:
         """A JSON-able summary: counts, and each left-out detection (name, frame, score, views that saw it)."""
-        dropped = [{"name": o.name, "frame": int(o.frame), "score": round(float(o.score), 3),
-                    "seen_without_it_in": a} for o, k, a in zip(obs, self.kept, self.against) if not k]
+        dropped = [{"name": o.name, "frame": int(o.frame), "score": round(float(o.score), 3), "why": w,
+                    "seen_without_it_in": a} for o, k, a, w in zip(obs, self.kept, self.against, self.why) if not k]
         return {"candidates": len(obs), "kept": int(sum(self.kept)),
                 "kept_by_views": int(sum(1 for k, w in zip(self.kept, self.why) if k and w == "views")),
                 "kept_confident": int(sum(1 for k, w in zip(self.kept, self.why) if k and w == "confident")),
@@ -182,20 +185,21 @@ def verify_observations(obs: Sequence[Any], frames: Sequence[Any], poses: Mappin
         n = len(obs)
         return list(obs), Verification([[] for _ in range(n)], [[] for _ in range(n)], [True] * n, ["off"] * n)
     support, against = cross_view_support(obs, frames, poses, dets, conf, use_depth)
+    seen = {o.name for o, sup in zip(obs, support) if 1 + len(sup) >= conf.min_views}
     kept, why = [], []
     for o, sup in zip(obs, support):
         if getattr(o, "recovered", False):
-            kept.append(True)
-            why.append("recovered")
-        elif float(o.score) >= conf.confident:
-            kept.append(True)
-            why.append("confident")
+            w = "recovered"
         elif 1 + len(sup) >= conf.min_views:
-            kept.append(True)
-            why.append("views")
+            w = "views"
+        elif float(o.score) >= conf.confident and (o.name in seen or not conf.confident_needs_seen):
+            w = "confident"
+        elif float(o.score) >= conf.confident:
+            w = "unseen category"
         else:
-            kept.append(False)
-            why.append("unverified")
+            w = "unverified"
+        kept.append(w in ("recovered", "views", "confident"))
+        why.append(w)
     return [o for o, k in zip(obs, kept) if k], Verification(support, against, kept, why)
 
 
