@@ -279,6 +279,14 @@ def main(argv: list[str] | None = None) -> int:
                                                             "its stored runs (no new runs)")
     ap.add_argument("--probe-detector", action="store_true", help="only the detector diagnosis (probe_detector) "
                                                                    "into benchmarks/results/real_scene_detector.json")
+    ap.add_argument("--probe-role", default="detector", help="--probe-detector: the role to probe (detector or "
+                                                              "instance_segmenter)")
+    ap.add_argument("--probe-variant", default=None, help="--probe-detector: the variant (e.g. ssd-fp32)")
+    ap.add_argument("--probe-size", default=None, help="--probe-detector: another input size HxW (YOLOX)")
+    ap.add_argument("--probe-stride", type=int, default=3, help="--probe-detector: every n-th frame")
+    ap.add_argument("--probe-keep", type=float, default=None, help="--probe-detector: the score counted as a "
+                    "detection (default: the detector's score_threshold)")
+    ap.add_argument("--probe-out", type=Path, default=OUT.with_name("real_scene_detector.json"))
     ap.add_argument("--probe-depth", action="store_true", help="only the relative-depth diagnosis (probe_depth, "
                                                                 "sensor depth for analysis only) into "
                                                                 "benchmarks/results/real_scene_depth.json")
@@ -303,8 +311,10 @@ def main(argv: list[str] | None = None) -> int:
     if a.probe_detector:
         doc = {"schema": "mosaicthinker.bench.real_scene_detector/1", "cmd": " ".join(sys.argv),
                "date": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "load_avg_1min": os.getloadavg()[0],
-               **probe_detector(a.bundle)}
-        path = OUT.with_name("real_scene_detector.json")
+               **probe_detector(a.bundle, a.probe_stride, role=a.probe_role, variant=a.probe_variant,
+                                keep=a.probe_keep,
+                                size=[int(v) for v in a.probe_size.split("x")] if a.probe_size else None)}
+        path = a.probe_out
         path.write_text(json.dumps(doc, indent=1, default=float))
         print(json.dumps({k: doc[k] for k in ("per_category", "per_instance", "recall_ceiling")}, indent=1))
         return 0

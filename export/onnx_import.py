@@ -343,23 +343,68 @@ def image_feeds(path: Path, pp: dict[str, Any]) -> Callable[[np.random.Generator
 
 
 def export_role(role: str, source: str, precisions: list[str], out: Path, *, calib: str | None = None,
-                meta_file: str | None = None, weights: str | None = None, **_: Any) -> dict[str, Any]:
-    """`mosaic export ROLE --source onnx:PATH` entry point."""
+                meta_file: str | None = None, weights: str | None = None, options: dict[str, str] | None = None,
+                **_: Any) -> dict[str, Any]:
+    """`mosaic export ROLE --source onnx:PATH` entry point. `--set size=HxW` re-shapes a fixed square
+    Ultralytics TFLite graph for rectangular frames (`ultralytics_rect`; needs --calib frames for its check)."""
     path = Path(source.split(":", 1)[1])
     if not path.is_file():
         raise ExportError(f"--source onnx:{path}: file not found")
     meta = read_sidecar(path, meta_file, weights, role)
-    mk = image_feeds(path, meta["preprocessing"]) if role in DETECTOR_ROLES else None
-    return import_onnx(out, role, path, meta, precisions, calib=calib, make_inputs=mk)
+    unknown = sorted(set(options or {}) - {"size"})
+    if unknown:
+        raise ExportError(f"--set {unknown[0]}: not an option of an onnx: import (known: size=HxW for an "
+                          f"Ultralytics end-to-end graph)")
+    with tempfile.TemporaryDirectory() as td:
+        if (options or {}).get("size"):
+            path, meta = rect_variant(path, meta, options["size"], calib, Path(td))
+        mk = image_feeds(path, meta["preprocessing"]) if role in DETECTOR_ROLES else None
+        return import_onnx(out, role, path, meta, precisions, calib=calib, make_inputs=mk)
+
+
+def rect_variant(path: Path, meta: dict[str, Any], size: str, calib: str | os.PathLike | None, tmp: Path,
+                 min_found: float = 0.9) -> tuple[Path, dict[str, Any]]:
+    """The graph re-shaped to `size` ("HxW", `ultralytics_rect.rect_graph`) and its metadata, after a task check
+    on real frames: at least `min_found` of the square graph's detections >= 0.5 found again. ExportError
+    otherwise, or without calibration frames, or for another format."""
+    from .ultralytics_rect import agreement, rect_graph
+
+    if meta["arch"] != "ultralytics_e2e":
+        raise ExportError(f"--set size: only an Ultralytics end-to-end graph is re-shaped here ({path.name} is "
+                          f"{meta['arch']}); a YOLOX graph takes any size from its symbolic input")
+    if calib is None:
+        raise ExportError("--set size=HxW checks the re-shaped graph against the original on real frames: give "
+                          "them with --calib FOLDER_OR_VIDEO")
+    try:
+        hw = [int(v) for v in size.lower().split("x")]
+    except ValueError:
+        hw = []
+    if len(hw) != 2:
+        raise ExportError(f"--set size={size}: expected HxW, e.g. 480x640")
+    dst = tmp / path.name
+    info = rect_graph(path, dst, hw)
+    task = agreement(path, dst, calibration_frames(calib, 16))
+    progress(f"{path.name} at {hw[0]}x{hw[1]}: {task['found']:.0%} of the square graph's {task['detections']} "
+             f"detections found again (IoU {task['mean_iou']}, score change {task['median_score_change']})")
+    if task["found"] < min_found:
+        raise ExportError(f"--set size={size}: the re-shaped graph finds only {task['found']:.0%} of the square "
+                          f"graph's detections on the --calib frames (need {min_found:.0%}); keep the square size")
+    meta = {**meta, "preprocessing": {**meta["preprocessing"], "size": hw},
+            "provenance": {**meta["provenance"], "resized": {**info, "task_check": task}},
+            "notes": ((meta.get("notes") or "") + f" Input re-shaped from {info['square']}x{info['square']} to "
+                      f"{hw[0]}x{hw[1]} (export/ultralytics_rect.py); checked against the square graph: "
+                      f"{task['found']:.0%} of its detections found again.").strip()}
+    return dst, meta
 
 
 def import_shared_models(models_dir: str | os.PathLike, out: str | os.PathLike,
                          precisions: list[str] = ("fp32",), roles: list[str] | None = None,
-                         calib: str | os.PathLike | None = None) -> dict[str, Any]:
+                         calib: str | os.PathLike | None = None, instance_size: str | None = None) -> dict[str, Any]:
     """Import the real models of ../shared/models into ONE bundle at `out` (fp32 = the files as given; other
     precisions converted and parity-checked): YOLOX-Nano as the detector with the SSD as its `ssd-fp32` variant,
     YOLO11n-seg as the instance segmenter (AGPL-3.0), DeepLab, PyDNet++, the MobileNet embedder. `roles` limits
-    the roles imported. Returns {key: import result} (keys of `shared_model_specs`)."""
+    the roles imported; instance_size "HxW": YOLO11n-seg re-shaped for that input (`rect_variant`, checked on
+    the `calib` frames). Returns {key: import result} (keys of `shared_model_specs`)."""
     specs = shared_model_specs(models_dir)
     results = {}
     for key, sp in specs.items():
@@ -374,9 +419,13 @@ def import_shared_models(models_dir: str | os.PathLike, out: str | os.PathLike,
         outputs = [0] if role == "depth" else None
         # the SSD and YOLO11n-seg files are already quantised (TFLite int8): only the files as given
         precs = ["fp32"] if sp.get("alternative") or role == "instance_segmenter" else list(precisions)
-        results[key] = import_onnx(out, role, sp["file"], sp["meta"], precs, calib=calib, make_inputs=mk,
-                                   outputs=outputs, prefix="ssd-" if key == "detector-ssd" else "",
-                                   alternative=bool(sp.get("alternative")))
+        with tempfile.TemporaryDirectory() as td:
+            path, meta = Path(sp["file"]), sp["meta"]
+            if role == "instance_segmenter" and instance_size:
+                path, meta = rect_variant(path, meta, instance_size, calib, Path(td))
+            results[key] = import_onnx(out, role, path, meta, precs, calib=calib, make_inputs=mk,
+                                       outputs=outputs, prefix="ssd-" if key == "detector-ssd" else "",
+                                       alternative=bool(sp.get("alternative")))
     return results
 
 

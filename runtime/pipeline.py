@@ -820,10 +820,12 @@ def perception_from_bundle(bundle: Any, conf: PipelineConfig | dict | None = Non
                 frame.rgb, None, [name], points=np.concatenate([np.asarray(pts, np.float32).reshape(-1, 2),
                                                                np.ones((len(pts), 1), np.float32)], 1)[None]))
             desc["refinement"] = "promptable segmenter: point prompts from cross-frame matches"
-    else:
+    elif inst is None:
         trace.event("degraded", "bundle has no segmenter: objects are lifted from their boxes (dominant depth "
                     "band), occlusion refinement is off", stage="perception")
         desc["segmenter"] = "none (box + depth band)"
+    if inst is not None and getattr(inst, "kind", "") == "instance":
+        _refine_with_instances(p, inst, desc)
     if conf.depth == "model":
         if not has("depth"):
             raise InputError("`depth=model` needs a bundle with a depth role (or use `depth=sensor`)", fields=("depth",))
@@ -874,6 +876,22 @@ def _keyframe_detector(det: Any, inst: Any, desc: dict[str, Any], alone: bool = 
         return merge_detections(seg, det.detect(frame.rgb, names, min_score=det.conf.floor))
 
     return detect
+
+
+def _refine_with_instances(p: Perception, inst: Any, desc: dict[str, Any]) -> None:
+    """Occlusion refinement asks the instance segmenter first (its masks of the name, every candidate, inside the
+    projected box), then the semantic segmenter's class mask (`p.segment_class` as it was), in that order."""
+    semantic = p.segment_class
+
+    def class_mask(frame: Frame, name: str) -> np.ndarray | None:
+        m = inst.class_mask(frame.rgb, name)
+        if (m is None or not m.any()) and semantic is not None:
+            return semantic(frame, name)
+        return m
+
+    p.segment_class = class_mask
+    desc["refinement"] = ("instance segmenter: its masks of the name inside the projected box"
+                          + (", else the semantic segmenter's class mask" if semantic is not None else ""))
 
 
 def _first_mask(masks: Any) -> np.ndarray | None:
