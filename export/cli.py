@@ -215,7 +215,8 @@ def _run(args: argparse.Namespace) -> dict[str, Any]:
 
 def _rows(result: dict[str, Any]) -> list[tuple[str, str, str, str]]:
     rows = []
-    for role, r in result["roles"].items():
+    for key, r in result["roles"].items():
+        role = r.get("role", key) if isinstance(r, dict) else key
         for v, p in (r.get("variants") or {}).items():
             rows.append((role, v, "shipped", parity_text(p.get("parity", p) if isinstance(p, dict) and
                                                           "components" in p else p)))

@@ -199,10 +199,16 @@ def import_onnx(out: str | os.PathLike, role: str, path: str | os.PathLike, meta
     if not path.is_file():
         raise ExportError(f"--source onnx:{path}: file not found")
     progress(f"import {path.name} as {role}/{prefix}fp32")
+    resized = (meta.get("provenance") or {}).get("resized")
+    first = ({"ok": True, "reference": "the imported file itself (copied unchanged)"} if not resized else
+             {"ok": True, "reference": f"the imported graph re-shaped to {resized['size']} (ultralytics_rect)",
+              "task": resized["task_check"]})
     add_variant_files(out, role, f"{prefix}fp32", {"model": path}, meta=meta, precision="fp32",
-                      parity={"model": {"ok": True, "reference": "the imported file itself (copied unchanged)"}},
-                      notes=meta.get("notes"), alternative=alternative)
-    res: dict[str, Any] = {"role": role, "variants": {f"{prefix}fp32": {"ok": True, "copied": True}}, "skipped": {}}
+                      parity={"model": first}, notes=meta.get("notes"), alternative=alternative)
+    res: dict[str, Any] = {"role": role, "variants": {f"{prefix}fp32": {"ok": True, "copied": not resized,
+                                                                          **({"task": resized["task_check"]}
+                                                                             if resized else {})}},
+                           "skipped": {}}
     make_inputs = make_inputs or random_feeds_for(path)
     calib_feeds: list[Feeds] = []
     if "int8-qdq" in precisions:

@@ -713,6 +713,10 @@ def parity_text(p: Any) -> str:
         return "" if p is None else str(p)
     if p.get("copied"):
         return "copied unchanged (the reference)"
+    if isinstance(p.get("task"), dict) and "found" in p["task"]:  # a re-shaped graph's check on real frames
+        t = p["task"]
+        return (f"task check: {t['found']:.0%} of the original graph's {t.get('detections')} detections found "
+                f"again (IoU {t.get('mean_iou')}, score change {t.get('median_score_change')})")
     if isinstance(p.get("worst"), dict):
         w, tol = p["worst"], p.get("tolerance") or {}
         return (f"parity rel {w.get('rel', float('nan')):.3g}" + (f" (tol {tol['rel']:g})" if "rel" in tol else "")
