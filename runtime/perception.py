@@ -1,4 +1,6 @@
-"""Per-frame perception results shared by every detector/segmenter backend (models, oracle, tests).
+"""Per-frame perception results shared by every detector/segmenter backend (models, oracle, tests), and how a key
+frame's detections are made from the bundle's adapters (`keyframe_detector`, `merge_detections`,
+`instance_class_mask`).
 
 Kept separate from the adapters so that the pipeline, the key-frame search and the synthetic oracle exchange one
 type without importing each other.
@@ -6,6 +8,7 @@ type without importing each other.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any, Callable
 
 import numpy as np
 
@@ -100,5 +103,48 @@ def merge_detections(instances: Detections, boxes: Detections, iou: float = 0.5)
         masks = np.concatenate([instances.masks, np.zeros((len(rest), H, W), bool)])
     mask_from = list(instances.mask_from or ["instance_segmenter"] * n) + ["none"] * len(rest)
     return Detections(np.concatenate([instances.boxes, boxes.boxes[rest]]),
-                      np.concatenate([scores, boxes.scores[rest]]), list(instances.names) + [boxes.names[j] for j in rest], masks, None,
+                      np.concatenate([scores, boxes.scores[rest]]),
+                      list(instances.names) + [boxes.names[j] for j in rest], masks, None,
                       sorted(set(instances.undetectable) & set(boxes.undetectable)), mask_from)
+
+
+def keyframe_detector(det: Any, inst: Any, desc: dict[str, Any], alone: bool = False
+                      ) -> Callable[[Any, list[str]], Detections] | None:
+    """Key-frame detections: the detector's candidates (down to its `candidate_threshold`) and, with an instance
+    segmenter, its detections with one mask each, merged (`perception.merge_detections`: a pair of one name
+    that overlaps is one object with the segmenter's mask), or (alone) the instance segmenter's only. None when
+    neither keeps candidates nor gives masks (the key frames reuse the search's detections, as before)."""
+    cand = getattr(getattr(det, "conf", None), "candidate_threshold", None)
+    if inst is None:
+        if cand is None:
+            return None
+        desc["keyframe_detections"] = f"detector candidates down to score {cand}, verified across views"
+        return lambda frame, names: det.detect(frame.rgb, names, min_score=det.conf.floor)
+    if alone:
+        desc["keyframe_detections"] = (f"instance segmenter alone (masks per detection), candidates down to score "
+                                       f"{inst.conf.floor}, verified across views")
+        return lambda frame, names: inst.detect(frame.rgb, names, min_score=inst.conf.floor, masks=True)
+    desc["keyframe_detections"] = ("instance segmenter (masks per detection) merged with the detector's "
+                                   f"candidates down to score {cand if cand is not None else det.conf.floor}, "
+                                   f"verified across views")
+
+    def detect(frame: Any, names: list[str]) -> Detections:
+        seg = inst.detect(frame.rgb, names, min_score=inst.conf.floor, masks=True)
+        return merge_detections(seg, det.detect(frame.rgb, names, min_score=det.conf.floor))
+
+    return detect
+
+
+def instance_class_mask(inst: Any, semantic: Callable[[Any, str], np.ndarray | None] | None, desc: dict[str, Any]
+                        ) -> Callable[[Any, str], np.ndarray | None]:
+    """Occlusion refinement's class mask: the instance segmenter's masks of the name (every candidate) first, then
+    the semantic segmenter's (`semantic`, may be None) where it has none. frame: anything with `.rgb`."""
+    def class_mask(frame: Any, name: str) -> np.ndarray | None:
+        m = inst.class_mask(frame.rgb, name)
+        if (m is None or not m.any()) and semantic is not None:
+            return semantic(frame, name)
+        return m
+
+    desc["refinement"] = ("instance segmenter: its masks of the name inside the projected box"
+                          + (", else the semantic segmenter's class mask" if semantic is not None else ""))
+    return class_mask

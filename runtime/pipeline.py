@@ -24,7 +24,7 @@ import numpy as np
 from .config import StageConf
 from .errors import InputError, MosaicError
 from .frames import Frame, FrameSource
-from .perception import Detections, merge_detections
+from .perception import Detections, instance_class_mask, keyframe_detector
 from .progress import phase, start, ticking
 from .trace import Trace, as_trace
 # the stages, in the paper's order
@@ -589,14 +589,9 @@ def _verify(obs: list[Observation], frames: list[Frame], poses: dict[int, np.nda
     with trace.stage("verify"):
         kept, ver = verify_observations(obs, frames, poses, dets, conf.verify, not perception.depth_relative)
     out.update(obs=obs, ver=ver)
-    rep = ver.report(obs)
-    trace.decide("verify", rep)
-    if rep["dropped"]:
-        trace.event("verify", f"verification: left out {len(rep['dropped'])} of {rep['candidates']} detection(s) "
-                    f"no other key frame agreed with (a lone view counts from score {conf.verify.confident} for a "
-                    f"category seen twice elsewhere): "
-                    + ", ".join(f"{d['name']} in frame {d['frame']} ({d['score']:.2f})" for d in rep["dropped"]),
-                    stage="fusion", dropped=len(rep["dropped"]))
+    trace.decide("verify", ver.report(obs))
+    if msg := ver.message(obs, conf.verify):
+        trace.event("verify", msg, stage="fusion", dropped=len(obs) - len(kept))
     return kept
 
 
@@ -807,7 +802,7 @@ def perception_from_bundle(bundle: Any, conf: PipelineConfig | dict | None = Non
         p.detect_all = lambda frame: det.detect(frame.rgb, labels)
     inst = load("instance_segmenter") if has("instance_segmenter") and conf.keyframe_detections != "detector" \
         else None
-    p.detect_keyframe = _keyframe_detector(det, inst, desc, alone=conf.keyframe_detections == "instance_segmenter")
+    p.detect_keyframe = keyframe_detector(det, inst, desc, alone=conf.keyframe_detections == "instance_segmenter")
     if has("segmenter"):
         seg = load("segmenter")
         if getattr(seg, "kind", "") == "semantic":
@@ -824,8 +819,8 @@ def perception_from_bundle(bundle: Any, conf: PipelineConfig | dict | None = Non
         trace.event("degraded", "bundle has no segmenter: objects are lifted from their boxes (dominant depth "
                     "band), occlusion refinement is off", stage="perception")
         desc["segmenter"] = "none (box + depth band)"
-    if inst is not None and getattr(inst, "kind", "") == "instance":
-        _refine_with_instances(p, inst, desc)
+    if inst is not None and getattr(inst, "kind", "") == "instance":  # refinement asks its masks first
+        p.segment_class = instance_class_mask(inst, p.segment_class, desc)
     if conf.depth == "model":
         if not has("depth"):
             raise InputError("`depth=model` needs a bundle with a depth role (or use `depth=sensor`)", fields=("depth",))
@@ -850,48 +845,6 @@ def perception_from_bundle(bundle: Any, conf: PipelineConfig | dict | None = Non
     p.describe = desc
     trace.decide("perception", desc)
     return p
-
-
-def _keyframe_detector(det: Any, inst: Any, desc: dict[str, Any], alone: bool = False) -> DetectFn | None:
-    """Key-frame detections: the detector's candidates (down to its `candidate_threshold`) and, with an instance
-    segmenter, its detections with one mask each, merged (`perception.merge_detections`: a pair of one name
-    that overlaps is one object with the segmenter's mask), or (alone) the instance segmenter's only. None when
-    neither keeps candidates nor gives masks (the key frames reuse the search's detections, as before)."""
-    cand = getattr(getattr(det, "conf", None), "candidate_threshold", None)
-    if inst is None:
-        if cand is None:
-            return None
-        desc["keyframe_detections"] = f"detector candidates down to score {cand}, verified across views"
-        return lambda frame, names: det.detect(frame.rgb, names, min_score=det.conf.floor)
-    if alone:
-        desc["keyframe_detections"] = (f"instance segmenter alone (masks per detection), candidates down to score "
-                                       f"{inst.conf.floor}, verified across views")
-        return lambda frame, names: inst.detect(frame.rgb, names, min_score=inst.conf.floor, masks=True)
-    desc["keyframe_detections"] = ("instance segmenter (masks per detection) merged with the detector's "
-                                   f"candidates down to score {cand if cand is not None else det.conf.floor}, "
-                                   f"verified across views")
-
-    def detect(frame: Frame, names: list[str]) -> Detections:
-        seg = inst.detect(frame.rgb, names, min_score=inst.conf.floor, masks=True)
-        return merge_detections(seg, det.detect(frame.rgb, names, min_score=det.conf.floor))
-
-    return detect
-
-
-def _refine_with_instances(p: Perception, inst: Any, desc: dict[str, Any]) -> None:
-    """Occlusion refinement asks the instance segmenter first (its masks of the name, every candidate, inside the
-    projected box), then the semantic segmenter's class mask (`p.segment_class` as it was), in that order."""
-    semantic = p.segment_class
-
-    def class_mask(frame: Frame, name: str) -> np.ndarray | None:
-        m = inst.class_mask(frame.rgb, name)
-        if (m is None or not m.any()) and semantic is not None:
-            return semantic(frame, name)
-        return m
-
-    p.segment_class = class_mask
-    desc["refinement"] = ("instance segmenter: its masks of the name inside the projected box"
-                          + (", else the semantic segmenter's class mask" if semantic is not None else ""))
 
 
 def _first_mask(masks: Any) -> np.ndarray | None:

@@ -68,6 +68,15 @@ class Verification:
     kept: list[bool] = field(default_factory=list)
     why: list[str] = field(default_factory=list)
 
+    def message(self, obs: Sequence[Any], conf: VerifyConf) -> str | None:
+        """The trace's one line on what was left out, or None when nothing was."""
+        out = [(o, a) for o, k, a in zip(obs, self.kept, self.against) if not k]
+        if not out:
+            return None
+        return (f"verification: left out {len(out)} of {len(obs)} detection(s) no other key frame agreed with (a "
+                f"lone view counts from score {conf.confident} for a category seen twice elsewhere): "
+                + ", ".join(f"{o.name} in frame {o.frame} ({o.score:.2f})" for o, _ in out))
+
     def report(self, obs: Sequence[Any]) -> dict[str, Any]:
         """A JSON-able summary: counts, and each left-out detection (name, frame, score, views that saw it)."""
         dropped = [{"name": o.name, "frame": int(o.frame), "score": round(float(o.score), 3), "why": w,
