@@ -37,7 +37,7 @@ def frames(n: int) -> list[np.ndarray]:
 
 
 def run(bundle: Path, n: int, threads: int, det_variant: str | None, seg_variant: str | None) -> dict:
-    from mosaicthinker.runtime.perception import merge_detections
+    from mosaicthinker.runtime.perception import keyframe_detector
     from mosaicthinker.runtime.stages import load_role
     from mosaicthinker.runtime.trace import Trace
 
@@ -55,16 +55,17 @@ def run(bundle: Path, n: int, threads: int, det_variant: str | None, seg_variant
     def segmenter(rgb):
         return seg.detect(rgb, names, min_score=seg.conf.floor, masks=True)
 
+    merged = keyframe_detector(det, seg, {}, "merged")  # what perception_from_bundle gives key frames
+
     def both(rgb):
-        return merge_detections(segmenter(rgb), detector(rgb))
+        return merged(type("F", (), {"rgb": rgb})(), names)
 
     out = {}
-    for name, fn in (("detector", detector), ("instance_segmenter", segmenter), ("merged", both)):
-        det._raw.clear() if hasattr(det._raw, "clear") else None
+    for c, (name, fn) in enumerate((("detector", detector), ("instance_segmenter", segmenter), ("merged", both))):
         wall, cpu, counts = [], [], []
-        for rgb in imgs[:n]:
+        for k, rgb in enumerate(imgs[:n]):
             rgb = rgb.copy()
-            rgb[0, 0, 0] ^= (len(wall) + hash(name)) & 1  # a new image for the result caches
+            rgb[0, :2] = [[c, k, 255], [255, k, c]]  # a corner marker: new to every result cache
             c0, t0 = time.process_time(), time.perf_counter()
             d = fn(rgb)
             wall.append((time.perf_counter() - t0) * 1000)

@@ -108,29 +108,30 @@ def merge_detections(instances: Detections, boxes: Detections, iou: float = 0.5)
                       sorted(set(instances.undetectable) & set(boxes.undetectable)), mask_from)
 
 
-def keyframe_detector(det: Any, inst: Any, desc: dict[str, Any], alone: bool = False
+def keyframe_detector(det: Any, inst: Any, desc: dict[str, Any], mode: str = "merged"
                       ) -> Callable[[Any, list[str]], Detections] | None:
-    """Key-frame detections: the detector's candidates (down to its `candidate_threshold`) and, with an instance
-    segmenter, its detections with one mask each, merged (`perception.merge_detections`: a pair of one name
-    that overlaps is one object with the segmenter's mask), or (alone) the instance segmenter's only. None when
-    neither keeps candidates nor gives masks (the key frames reuse the search's detections, as before)."""
+    """Key-frame detections (frames: anything with `.rgb`). Without an instance segmenter: the detector's candidates
+    down to its `candidate_threshold` (None when it keeps none: the key frames reuse the search's detections). With
+    one, by `mode`: "merged" -- its detections with one mask each, candidates down to its `candidate_threshold`,
+    plus the detector's confident boxes (>= `score_threshold`) it missed (`merge_detections`: a same-name pair that
+    overlaps is one object with the segmenter's mask); "merged_candidates" -- the detector's candidates too (boxes
+    without masks at low scores: weaker evidence); "instance_segmenter" -- its own alone (one model, one pass)."""
     cand = getattr(getattr(det, "conf", None), "candidate_threshold", None)
     if inst is None:
         if cand is None:
             return None
         desc["keyframe_detections"] = f"detector candidates down to score {cand}, verified across views"
         return lambda frame, names: det.detect(frame.rgb, names, min_score=det.conf.floor)
-    if alone:
-        desc["keyframe_detections"] = (f"instance segmenter alone (masks per detection), candidates down to score "
-                                       f"{inst.conf.floor}, verified across views")
+    masks = f"instance segmenter (a mask per detection) candidates down to score {inst.conf.floor}"
+    if mode == "instance_segmenter":
+        desc["keyframe_detections"] = f"{masks}, alone; verified across views"
         return lambda frame, names: inst.detect(frame.rgb, names, min_score=inst.conf.floor, masks=True)
-    desc["keyframe_detections"] = ("instance segmenter (masks per detection) merged with the detector's "
-                                   f"candidates down to score {cand if cand is not None else det.conf.floor}, "
-                                   f"verified across views")
+    floor = det.conf.floor if mode == "merged_candidates" else det.conf.score_threshold
+    desc["keyframe_detections"] = f"{masks}, with the detector's boxes >= {floor}; verified across views"
 
     def detect(frame: Any, names: list[str]) -> Detections:
         seg = inst.detect(frame.rgb, names, min_score=inst.conf.floor, masks=True)
-        return merge_detections(seg, det.detect(frame.rgb, names, min_score=det.conf.floor))
+        return merge_detections(seg, det.detect(frame.rgb, names, min_score=floor))
 
     return detect
 

@@ -90,8 +90,8 @@ class PipelineConfig(StageConf):
     topup: bool = True                   # fewer than K passing: the search's `min_keyframes = K` top-up (recorded)
     topup_spacing: int = 4               # ... its frames at least len(video) / (this x K) frames apart
     box_prompt_min_share: float = 0.02   # a mask under this share of its box is replaced by a box-prompted one
-    # key-frame detections with an instance segmenter in the bundle: "merged" (its detections with masks and the
-    # detector's candidates as one set), "instance_segmenter" (its own alone: one model, one pass) or "detector"
+    # key-frame detections with an instance segmenter in the bundle (`perception.keyframe_detector`): "merged",
+    # "merged_candidates", "instance_segmenter" (one model, one pass) or "detector" (the segmenter left out)
     keyframe_detections: str = "merged"
     grounding_frames: int = 4            # frames (evenly spaced) shown to a VLM that grounds the question
     whole_image_fallback: bool = True    # key frames unaligned with matches inside boxes: retry on whole images
@@ -145,7 +145,8 @@ class PipelineConfig(StageConf):
         if self.keyframes < 1:
             raise InputError(f"pipeline config: keyframes must be >= 1 (got {self.keyframes})")
         for name, allowed in (("depth", ("auto", "sensor", "model")), ("gravity", ("auto", "source", "floor")),
-                              ("keyframe_detections", ("merged", "instance_segmenter", "detector"))):
+                              ("keyframe_detections", ("merged", "merged_candidates", "instance_segmenter",
+                                                       "detector"))):
             if getattr(self, name) not in allowed:
                 raise InputError(f"pipeline config: {name} must be one of {', '.join(allowed)} "
                                  f"(got {getattr(self, name)!r})")
@@ -802,7 +803,7 @@ def perception_from_bundle(bundle: Any, conf: PipelineConfig | dict | None = Non
         p.detect_all = lambda frame: det.detect(frame.rgb, labels)
     inst = load("instance_segmenter") if has("instance_segmenter") and conf.keyframe_detections != "detector" \
         else None
-    p.detect_keyframe = keyframe_detector(det, inst, desc, alone=conf.keyframe_detections == "instance_segmenter")
+    p.detect_keyframe = keyframe_detector(det, inst, desc, conf.keyframe_detections)
     if has("segmenter"):
         seg = load("segmenter")
         if getattr(seg, "kind", "") == "semantic":
