@@ -55,6 +55,9 @@ def test_a_low_score_view_is_kept_when_another_frame_agrees_and_dropped_when_it_
     assert ver.support == [[1], []] and ver.against == [[], [1]] and ver.why == ["views", "unverified"]
     rep = ver.report(obs)
     assert rep["kept"] == 1 and rep["dropped"][0]["seen_without_it_in"] == [1]
+    # relative depth (no occlusion test, scales per frame): agreement is no test for a low-score candidate
+    _, rel = verify_observations(obs, frames, poses, dets, VerifyConf(), use_depth=False)
+    assert rel.support[0] == [1] and rel.kept == [False, False]
     # the depth of frame 1 shows a wall in front of both: it cannot see them, so it neither agrees nor disagrees
     _, hidden = verify_observations(obs, [_frame(0), _frame(1, depth_m=1.0)], poses, dets, VerifyConf())
     assert hidden.support == [[], []] and hidden.against == [[], []] and hidden.kept == [False, False]

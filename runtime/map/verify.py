@@ -189,17 +189,20 @@ def verify_observations(obs: Sequence[Any], frames: Sequence[Any], poses: Mappin
                         ) -> tuple[list[Any], Verification]:
     """The observations the map keeps (a view confident on its own, or agreed by `min_views` key frames in all;
     refinement's `recovered` views are not detections and pass) and what verification found. Each kept
-    observation is returned unchanged. -> (kept observations in input order, Verification over all of them)."""
+    observation is returned unchanged. use_depth=False (relative depth): low-score candidates are not kept (their
+    3D agreement is not a test there). -> (kept observations in input order, Verification over all of them)."""
     if not conf.enabled or not len(obs):
         n = len(obs)
         return list(obs), Verification([[] for _ in range(n)], [[] for _ in range(n)], [True] * n, ["off"] * n)
     support, against = cross_view_support(obs, frames, poses, dets, conf, use_depth)
+    # relative depth: each frame's scale differs, so points of one object need not meet; agreement can still
+    # support a confident view's category, but a low-score candidate needs a test it cannot get there
     seen = {o.name for o, sup in zip(obs, support) if 1 + len(sup) >= conf.min_views}
     kept, why = [], []
     for o, sup in zip(obs, support):
         if getattr(o, "recovered", False):
             w = "recovered"
-        elif 1 + len(sup) >= conf.min_views:
+        elif 1 + len(sup) >= conf.min_views and (use_depth or float(o.score) >= conf.confident):
             w = "views"
         elif float(o.score) >= conf.confident and (o.name in seen or not conf.confident_needs_seen):
             w = "confident"
