@@ -7,7 +7,8 @@ Manifest shape (schema ``mosaicthinker.bundle/1``)::
       "created": "2026-11-22T01:00:00Z", "tool": "mosaicthinker 0.1.0",
       "roles": {
         "<role>": {                                   # depth | segmenter | matcher | detector | embedder | vlm
-          "arch": "pydnet",                           # dispatch key of runtime.stages.ARCHS
+          "arch": "pydnet",                           # dispatch key of runtime.models.ARCHS
+          "name": "PyDNet++",                         # optional: the model's own name (said in `ran`)
           "preprocessing": {"size": [H, W], "layout": "NHWC"|"NCHW"|"patches", "channel_order": "RGB"|"BGR",
                             "dtype": "float32"|"uint8"|"float16", "scale": 1/255, "mean": [3], "std": [3],
                             "resize": "bilinear", "keep_aspect": false},
@@ -33,6 +34,8 @@ Manifest shape (schema ``mosaicthinker.bundle/1``)::
                 }},
               "parity": {...},                        # figures measured at export (per component)
               "notes": "...",
+              "overrides": {"arch": ...},             # optional: another model for this role (its own arch,
+                                                      #   preprocessing, semantics, provenance, licence, config)
               "android": {},                          # RESERVED (issue 7): ort_files, required_operators,
                                                       #   usability_report, fixed_shapes ...
               "jetson": {}                            # RESERVED (issue 7): trt_profile_shapes, provider_options,
@@ -67,7 +70,10 @@ from .errors import BundleError, InputError
 SCHEMA = "mosaicthinker.bundle/1"
 SUPPORTED_SCHEMAS = (SCHEMA,)
 MANIFEST = "manifest.json"
-ROLES = ("depth", "segmenter", "matcher", "detector", "embedder", "vlm")
+ROLES = ("depth", "segmenter", "instance_segmenter", "matcher", "detector", "embedder", "vlm")
+# role-level fields a variant may override: a variant that is another model for the same role (the SSD kept beside
+# YOLOX as the detector's `ssd-fp32` variant) carries its own arch, pre-processing, labels, licence ...
+OVERRIDABLE = ("arch", "name", "preprocessing", "semantics", "provenance", "licence", "random_weights", "config")
 DEPTH_SEMANTICS = ("metric_m", "relative", "relative_inverse")
 # Variant preference when the caller names none and the role has no default_variant.
 VARIANT_PREFERENCE = ("fp32", "fp16", "int8-dynamic", "int8-qdq")
@@ -241,6 +247,8 @@ class Bundle:
             comps[cname] = Component(cname, path, cmeta)
         if not comps:
             raise BundleError(f"{self.manifest_path}: roles.{role}.variants.{vname}.components is empty")
+        if vmeta.get("overrides"):  # another model for this role: its own arch, labels, licence ...
+            meta = {**meta, **{k: v for k, v in vmeta["overrides"].items() if k in OVERRIDABLE}}
         return RoleSpec(self, role, vname, meta, vmeta, comps)
 
     def file(self, ref: dict | None, where: str) -> Path:
@@ -324,8 +332,11 @@ class Bundle:
                                 "outputs": [f"{o['name']}{_shape_str(o)}:{o.get('dtype')}" for o in cm.get("outputs", [])]}
                 variants[v] = {"precision": vm.get("precision"), "target": vm.get("target"), "components": comps,
                                "parity": vm.get("parity", {}), "task": task_text(vm.get("task_check")),
-                               "notes": vm.get("notes")}
-            roles[r] = {"arch": m.get("arch"), "licence": m.get("licence"), "random_weights": m.get("random_weights"),
+                               "notes": vm.get("notes"),
+                               **({"model": {k: vm["overrides"][k] for k in ("arch", "name", "licence", "provenance")
+                                             if k in vm["overrides"]}} if vm.get("overrides") else {})}
+            roles[r] = {"arch": m.get("arch"), "name": m.get("name"), "licence": m.get("licence"),
+                        "random_weights": m.get("random_weights"),
                         "semantics": m.get("semantics", {}), "preprocessing": m.get("preprocessing", {}),
                         "provenance": m.get("provenance", {}), "default_variant": m.get("default_variant"),
                         "variants": variants, "skipped_variants": m.get("skipped_variants", {})}
@@ -361,16 +372,15 @@ def check_schema(manifest: Any, where: str = MANIFEST) -> None:
         if not isinstance(m["variants"], dict):
             raise BundleError(f"{where}: roles.{r}.variants must be an object")
         _check_role_types(m, f"{where}: roles.{r}")
-        if r == "depth":
-            d = m.get("semantics", {}).get("depth")
-            if d not in DEPTH_SEMANTICS:
-                raise BundleError(f"{where}: roles.depth.semantics.depth is {d!r}; expected one of {DEPTH_SEMANTICS}")
-        if r == "detector":
-            voc = m.get("semantics", {}).get("vocabulary")
-            if voc not in ("open", "closed"):
-                raise BundleError(f"{where}: roles.detector.semantics.vocabulary is {voc!r}; expected open|closed")
-            if voc == "closed" and not m["semantics"].get("labels"):
-                raise BundleError(f"{where}: roles.detector.semantics.labels is required for a closed vocabulary")
+        _check_role_semantics(r, m, f"{where}: roles.{r}")
+        for v, vm in m["variants"].items():
+            ov = vm.get("overrides") if isinstance(vm, dict) else None
+            if ov is not None:
+                if not isinstance(ov, dict) or set(ov) - set(OVERRIDABLE):
+                    raise BundleError(f"{where}: roles.{r}.variants.{v}.overrides must be an object with fields of "
+                                      f"{list(OVERRIDABLE)}")
+                _check_role_types({**m, **ov}, f"{where}: roles.{r}.variants.{v}.overrides")
+                _check_role_semantics(r, {**m, **ov}, f"{where}: roles.{r}.variants.{v}.overrides")
         for v, vm in m["variants"].items():
             if not isinstance(vm, dict) or not isinstance(vm.get("components"), dict):
                 raise BundleError(f"{where}: roles.{r}.variants.{v}.components must be an object")
@@ -381,6 +391,20 @@ def check_schema(manifest: Any, where: str = MANIFEST) -> None:
                     if k not in cm:
                         raise BundleError(f"{where}: roles.{r}.variants.{v}.components.{c}.{k} is missing")
                 _check_component_types(cm, f"{where}: roles.{r}.variants.{v}.components.{c}")
+
+
+def _check_role_semantics(r: str, m: dict[str, Any], w: str) -> None:
+    """What a role's semantics must say: depth its kind, a detector or instance segmenter its vocabulary (and
+    labels when closed). `w` names the role (or the variant override) in the message."""
+    sem = m.get("semantics", {})
+    if r == "depth" and sem.get("depth") not in DEPTH_SEMANTICS:
+        raise BundleError(f"{w}.semantics.depth is {sem.get('depth')!r}; expected one of {DEPTH_SEMANTICS}")
+    if r in ("detector", "instance_segmenter"):
+        voc = sem.get("vocabulary")
+        if voc not in ("open", "closed"):
+            raise BundleError(f"{w}.semantics.vocabulary is {voc!r}; expected open|closed")
+        if voc == "closed" and not sem.get("labels"):
+            raise BundleError(f"{w}.semantics.labels is required for a closed vocabulary")
 
 
 _HEX = frozenset("0123456789abcdefABCDEF")
@@ -623,7 +647,8 @@ def render(result: dict[str, Any]) -> str:
     lines = [f"bundle {result['bundle']}  ({result['schema_version']}, created {result.get('created')})"]
     for r, m in result["roles"].items():
         rw = "  ** RANDOM WEIGHTS (test model) **" if m.get("random_weights") else ""
-        lines.append(f"\n[{r}] arch={m['arch']} licence={m['licence']}{rw}")
+        named = f" model={m['name']!r}" if m.get("name") else ""
+        lines.append(f"\n[{r}] arch={m['arch']}{named} licence={m['licence']}{_licence_warning(m['licence'])}{rw}")
         if m.get("semantics"):
             sem = {k: (v if not isinstance(v, list) or len(v) < 8 else f"<{len(v)} labels>")
                    for k, v in m["semantics"].items()}
@@ -636,7 +661,11 @@ def render(result: dict[str, Any]) -> str:
             lines.append(f"  source: {prov['source']}")
         for v, vm in m["variants"].items():
             star = "*" if v == m.get("default_variant") else " "
-            lines.append(f" {star}{v:<14} precision={vm['precision']} target={vm['target']}")
+            other = vm.get("model") or {}
+            alt = (f" arch={other.get('arch')}" + (f" model={other['name']!r}" if other.get("name") else "")
+                   + f" licence={other.get('licence')}"
+                   f"{_licence_warning(other.get('licence'))}") if other else ""
+            lines.append(f" {star}{v:<14} precision={vm['precision']} target={vm['target']}{alt}")
             for c, cm in vm["components"].items():
                 size = f"{cm['bytes'] / 2**20:.1f} MiB" if cm.get("bytes") else "?"
                 lines.append(f"     {c}: {cm['file']} ({cm['format']}, opset {cm['opset']}, {size})")
@@ -651,6 +680,17 @@ def render(result: dict[str, Any]) -> str:
             lines.append(textwrap.fill(str(why), 110, initial_indent=f"  {v:<14} NOT shipped: ",
                                        subsequent_indent=" " * 7, break_long_words=False, break_on_hyphens=False))
     return "\n".join(lines)
+
+
+COPYLEFT = ("AGPL", "GPL", "LGPL", "SSPL", "CC-BY-SA", "CC-BY-NC")
+
+
+def _licence_warning(licence: Any) -> str:
+    """A loud note beside a copyleft or non-commercial licence (AGPL-3.0 also reaches software offered over a
+    network): whoever ships the bundle must know."""
+    text = str(licence or "")
+    return (f"  ** {text}: copyleft / restricted licence, check before you ship it **"
+            if any(text.upper().startswith(c) for c in COPYLEFT) else "")
 
 
 def task_text(task: Any) -> str | None:
@@ -673,6 +713,10 @@ def parity_text(p: Any) -> str:
         return "" if p is None else str(p)
     if p.get("copied"):
         return "copied unchanged (the reference)"
+    if isinstance(p.get("task"), dict) and "found" in p["task"]:  # a re-shaped graph's check on real frames
+        t = p["task"]
+        return (f"task check: {t['found']:.0%} of the original graph's {t.get('detections')} detections found "
+                f"again (IoU {t.get('mean_iou')}, score change {t.get('median_score_change')})")
     if isinstance(p.get("worst"), dict):
         w, tol = p["worst"], p.get("tolerance") or {}
         return (f"parity rel {w.get('rel', float('nan')):.3g}" + (f" (tol {tol['rel']:g})" if "rel" in tol else "")

@@ -39,6 +39,8 @@ ARCHS: dict[str, str] = {
     "pydnet": "depth:DepthModel",            # relative monocular depth, single NHWC graph
     "depth_generic": "depth:DepthModel",     # any single-graph depth model described by its preprocessing
     "ssd_tflite": "detector:ClosedSetDetector",  # TFLite SSD with in-graph NMS (boxes, classes, scores, count)
+    "yolox": "yolo:YoloxDetector",               # YOLOX raw anchors: grid decoding + NMS in the adapter
+    "ultralytics_e2e": "yolo:UltralyticsDetector",  # Ultralytics nms=True export: boxes (+ mask coefficients)
     "deeplab": "segmenter:SemanticSegmenter",    # per-pixel class logits
     "mobilenet_embedding": "embedder:Embedder",  # pooled CNN features
     "embedding_generic": "embedder:Embedder",
@@ -120,8 +122,9 @@ class RoleModel:
 
     def describe(self) -> dict[str, Any]:
         return {"role": self.spec.role, "arch": self.spec.arch, "variant": self.spec.variant,
-                "random_weights": self.spec.random_weights, "providers": self.providers_used(),
-                "licence": self.spec.meta.get("licence"), "source": self.spec.meta.get("provenance", {}).get("source")}
+                "model": self.spec.meta.get("name"), "random_weights": self.spec.random_weights,
+                "providers": self.providers_used(), "licence": self.spec.meta.get("licence"),
+                "source": self.spec.meta.get("provenance", {}).get("source")}
 
 
 def resolve_arch(arch: str) -> type:
