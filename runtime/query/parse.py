@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 from typing import Any, Iterable
 
 from .ir import NearestTo, Option, Program, iter_refs, phrases
+from .normalize import normalize
 from .rules.parse import parse_natural
 from .schema import to_json
 from .templates import parse_template
@@ -26,6 +27,7 @@ class ParsedQuestion:
     program: Program | None = None
     notes: list[str] = field(default_factory=list)
     how: str = "none"
+    read_as: list[str] = field(default_factory=list)  # spelling read otherwise ("read 'chiars' as 'chairs'")
 
     @property
     def node(self) -> Any:
@@ -85,7 +87,7 @@ class ParsedQuestion:
 
     def to_dict(self) -> dict[str, Any]:
         return {"how": self.how, "qtype": self.qtype, "targets": self.targets, "cues": self.cues,
-                "unknown": self.unknown, "notes": list(self.notes),
+                "unknown": self.unknown, "notes": list(self.notes), "read_as": list(self.read_as),
                 "program": None if self.program is None else to_json(self.program)}
 
 
@@ -105,6 +107,7 @@ def parse_question(question: str, options: list[str] | None = None, names: Itera
     if matched:
         return ParsedQuestion(q, opts, program_of(node, opts) if node is not None else None, notes,
                               "template" if node is not None else "none")
-    node, st = parse_natural(q, opts, names)
-    return ParsedQuestion(q, opts, program_of(node, opts) if node is not None else None, st.notes,
-                          "natural" if node is not None else "none")
+    text, read_as = normalize(q, names)  # typos, units, cue synonyms: in the parser's own words
+    node, st = parse_natural(text, opts, names)
+    return ParsedQuestion(q, opts, program_of(node, opts) if node is not None else None, read_as + st.notes,
+                          "natural" if node is not None else "none", read_as)

@@ -14,6 +14,10 @@ from .state import R, State
 from .tokens import before, direction_words, has, noun_phrases, tokens
 
 
+_OPENS = {"with", ",", ":", ";", ".", "-", "and", "", "one"}
+_AT_MY_BACK = r"(?:is )?(?:behind me|at my back|to my back)\b"
+
+
 def stance(toks: list[str], nps: list[dict[str, Any]]) -> tuple[int | None, int | None, int | None]:
     """Indices of the phrases for where I stand, what I face, and the object a side is relative to."""
     pos = face = rel = None
@@ -28,8 +32,12 @@ def stance(toks: list[str], nps: list[dict[str, Any]]) -> tuple[int | None, int 
         after = " ".join(toks[p["end"]:p["end"] + 5])
         ahead = re.match(AHEAD_OF_ME, after) is not None
         ahead_is = re.match(IS_AHEAD, after) is not None
-        if face is None and (last in FACE1 or two in FACE2 or (last == "with" and ahead) or ahead_is):
+        opens = last in _OPENS  # the phrase opens a clause ("..., the stove in front of me")
+        if face is None and (last in FACE1 or two in FACE2 or ((last == "with" or opens) and ahead) or ahead_is):
             face = k
+            continue
+        if pos is None and (two in ("back to", "back against") or (opens and re.match(_AT_MY_BACK, after))):
+            pos = k  # "with my back to the sofa", "the stool behind me": where I stand (the benchmark's "by")
             continue
         if rel is None and last == "of" and len(b) >= 2 and b[-2] in ("left", "right", "front", "behind", "back",
                                                                      "side"):

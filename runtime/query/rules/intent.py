@@ -131,7 +131,8 @@ def intent(j: str, n_obj: int, has_opts: bool) -> str | None:
         return "obj_appearance_order"
     where_i = re.sub(r"\b(?:looking|look|looked|staring) at\b", " ", j)  # "looking at A, B or C, which ...": no place
     if stance and has(where_i, r"\b(?:standing|stand|stood|sitting|sit|i am|i'm|im|i was|you are|from|at|by|next "
-                                r"to|beside|near|positioned|located|my (?:position|location|spot|place))\b"):
+                                r"to|beside|near|positioned|located|my (?:position|location|spot|place)|back (?:to|"
+                                r"against)|behind me|at my back)\b"):
         return "direction"
     if has(j, r"\b(?:distance|how far|far apart|far away|far from|how close|how near|gap (?:between|from)|separat\w*|"
                r"spacing|"
