@@ -107,10 +107,11 @@ def synonyms(text: str) -> str:
     return " ".join(text.split())
 
 
-def normalize(text: str, names: Iterable[str] = ()) -> tuple[str, list[str]]:
-    """(the question in the parser's words, notes of each spelling change). `names`: object names beyond the
-    vocabulary (the map's categories), which spelling also corrects to and never away from."""
+def normalize(text: str, names: Iterable[str] = ()) -> tuple[str, list[str], list[str]]:
+    """(the question in the parser's words; notes of each spelling change; words too close to several words the
+    parser uses to be read, which refuse the question). `names`: object names beyond the vocabulary (the map's
+    categories), which spelling also corrects to and never away from."""
     s = shorthand(unicode_ascii(text))
-    s, notes = correct(s, names)
+    s, notes, unclear = correct(s, names)
     s = _number_words(synonyms(s))
-    return s, notes
+    return s, notes, unclear

@@ -107,7 +107,10 @@ def parse_question(question: str, options: list[str] | None = None, names: Itera
     if matched:
         return ParsedQuestion(q, opts, program_of(node, opts) if node is not None else None, notes,
                               "template" if node is not None else "none")
-    text, read_as = normalize(q, names)  # typos, units, cue synonyms: in the parser's own words
+    text, read_as, unclear = normalize(q, names)  # typos, units, cue synonyms: in the parser's own words
+    if unclear:  # a typo as close to two words the parser uses: refused, never read one way at random
+        return ParsedQuestion(q, opts, None, read_as + [f"not understood: the word {', '.join(unclear)}; please "
+                                                        f"check its spelling"], "none", read_as)
     node, st = parse_natural(text, opts, names)
     return ParsedQuestion(q, opts, program_of(node, opts) if node is not None else None, read_as + st.notes,
                           "natural" if node is not None else "none", read_as)

@@ -117,10 +117,13 @@ def _object_words(names: Iterable[str]) -> set[str]:
 
 @functools.lru_cache(maxsize=1)
 def _static() -> tuple[frozenset[str], frozenset[str]]:
-    """(words of meaning: object names, cue words, markers and units; other known words)."""
-    meaning = _object_words(NAME_SYNONYMS) | cue_words() | set(UNIT_WORDS) | FACE1 | LOCATION | \
+    """(words of meaning: one-word object names, cue words, markers and units; other known words, the words of
+    longer names among them: "wash" of "wash basin" is no object alone)."""
+    names = set(NAME_SYNONYMS)
+    heads = {n for n in names if " " not in n} | {plural(n) for n in names if " " not in n}
+    meaning = heads | cue_words() | set(UNIT_WORDS) | FACE1 | LOCATION | \
         {w for p in FACE2 for w in p.split()} | set(COMPARATIVES) | set(SUPERLATIVES)
-    known = set(STOP) | DET | SCENE | COLOURS | ORDINALS | set(NUMBERS) | COMMON
+    known = set(STOP) | DET | SCENE | COLOURS | ORDINALS | set(NUMBERS) | COMMON | _object_words(names)
     return frozenset(w for w in meaning if w.isalpha()), frozenset(w for w in known | meaning if w.isalpha())
 
 
@@ -141,10 +144,17 @@ def is_known(word: str, known: frozenset[str]) -> bool:
 
 def best(word: str, extra: frozenset[str] = frozenset()) -> str | None:
     """The one known word `word` is read as (None: it is known, too short, too far, or ambiguous)."""
+    top = candidates(word, extra)
+    return top[0] if len(top) == 1 else None
+
+
+def candidates(word: str, extra: frozenset[str] = frozenset()) -> list[str]:
+    """The known words closest to `word` within the bound, best use first (see the module): one word, several
+    (a tie: the word cannot be read), or none (known, too short or too far)."""
     meaning, known = _static()
     meaning = meaning | extra
     if not word.isalpha() or len(word) <= 2 or word in extra or is_known(word, known):
-        return None
+        return []
     lim = bound(word)
     cands: list[tuple[float, int, str]] = []
     for w in known | extra:
@@ -158,12 +168,15 @@ def best(word: str, extra: frozenset[str] = frozenset()) -> str | None:
         if d <= lim:
             cands.append((d, 0 if w in meaning else 1, w))
     if not cands:
-        return _plural_stem(word, meaning, known)
+        stem = _plural_stem(word, meaning, known)
+        return [stem] if stem else []
     cands.sort()
     top = [c for c in cands if c[:2] == cands[0][:2]]
     if len({singular(c[2]) for c in top}) == 1:  # "sofaa": sofa or sofas, one name either way
         top = sorted(top, key=lambda c: (abs(len(c[2]) - len(word)), c[2]))[:1]
-    return top[0][2] if len(top) == 1 else None
+    if len(top) > 1 and top[0][1] == 1:  # a tie among words of no use to the parser: nothing to read
+        return []
+    return [c[2] for c in top]
 
 
 def _plural_stem(word: str, meaning: frozenset[str], known: frozenset[str]) -> str | None:
@@ -181,23 +194,28 @@ def _plural_stem(word: str, meaning: frozenset[str], known: frozenset[str]) -> s
 _WORD = re.compile(r"(?<![\w'-])[a-z]+(?![\w'-])")
 
 
-def correct(text: str, names: Iterable[str] = ()) -> tuple[str, list[str]]:
-    """(`text` with each unknown word read as its one close known word, notes "read 'x' as 'y'"). `names`:
-    object names beyond the vocabulary (a map's categories): words of them are known and corrected to."""
+def correct(text: str, names: Iterable[str] = ()) -> tuple[str, list[str], list[str]]:
+    """(`text` with each unknown word read as its one close known word; notes "read 'x' as 'y'"; the words that
+    are as close to several words the parser uses, "'bside' (beside or side?)": such a question is refused, never
+    read one way at random). `names`: object names beyond the vocabulary (a map's categories): words of them are
+    known and corrected to."""
     extra = frozenset(w for w in _object_words(names) if w.isalpha())
     notes: list[str] = []
+    unclear: list[str] = []
 
     def fix(m: re.Match) -> str:
         w = m.group(0)
-        to = _cached(w) if not extra else best(w, extra)
-        if to is None:
+        top = _cached(w) if not extra else tuple(candidates(w, extra))
+        if len(top) > 1:
+            unclear.append(f"'{w}' ({' or '.join(top)}?)")
+        if len(top) != 1:
             return w
-        notes.append(f"read '{w}' as '{to}'")
-        return to
+        notes.append(f"read '{w}' as '{top[0]}'")
+        return top[0]
 
-    return _WORD.sub(fix, text), list(dict.fromkeys(notes))
+    return _WORD.sub(fix, text), list(dict.fromkeys(notes)), list(dict.fromkeys(unclear))
 
 
 @functools.lru_cache(maxsize=4096)
-def _cached(word: str) -> str | None:
-    return best(word)
+def _cached(word: str) -> tuple[str, ...]:
+    return tuple(candidates(word))

@@ -146,19 +146,19 @@ def _topic(toks: list[str], known: Callable[[str], bool], notes: list[str]) -> l
     first = [w for w in toks[a:b] if w not in _BREAK]
     ment = _mentions(first, known)
     rest = [w for w in first if w not in DET]
-    about = ment and ment[0][0] > 0 and first[ment[0][0] - 1] in ("about", "regarding") or \
-        (ment and ment[0][0] > 1 and first[ment[0][0] - 2] in ("about", "regarding") and first[ment[0][0] - 1] in DET)
-    if len(ment) != 1 or (len(rest) > ment[0][1] - ment[0][0] + 2 and not about) or _cued(first):  # nothing asked
-        return toks
+    name = first[ment[0][0]:ment[0][1]] if len(ment) == 1 else []
+    if not name or any(w not in name and w not in _TOPIC_WORDS for w in rest) or _cued(first):
+        return toks  # a topic is the name alone ("the fridge -"), or "about the fridge:", "you see the fridge?"
     second = toks[c:]
     for i, w in enumerate(second):
         nxt = second[i + 1] if i + 1 < len(second) else ""
         if w in ("it", "them") or (w in _PRONOUN and (not nxt.isalpha() or nxt in _AFTER_PRONOUN)):
-            name = first[ment[0][0]:ment[0][1]]
             notes.append(f"'{w}' read as the {' '.join(name)}")
             return second[:i] + ["the"] + name + second[i + 1:]
     return toks
 
 
+_TOPIC_WORDS = {"about", "regarding", "re", "so", "quick", "one", "q", "question", "you", "see", "ok", "okay", "now",
+                "and", "then", "what", "hey"}
 # after "that" / "this" used as a pronoun ("how far is that from the bed"), not as a determiner ("that chair")
 _AFTER_PRONOUN = {"is", "are", "was", "from", "to", "in", "at", "on", "sit", "sits", "measure", "measures", "one"}
