@@ -219,3 +219,35 @@ def test_the_clauses_of_a_stance_question_say_the_same_in_any_order(a, b, c):
             node = pq.node
             seen.add((node.stand.name, node.face.name, node.target.name))
     assert seen == {(a if a != "tv" else "tv", b, c)}
+
+
+# ----------------------------------------------------------------------------- each failure class, in new words
+
+@pytest.mark.parametrize("q, qtype, names", [
+    ("Is it true that the sofa is closer to the tv than the bed?", "object_rel_distance", ["sofa", "bed", "tv"]),
+    ("Can you tell me how many chairs there are?", "object_counting", ["chair"]),
+    ("I'd like to know how far the fridge is from the sink", "object_abs_distance", ["refrigerator", "sink"]),
+    ("Do you know whether there is a lamp in the room?", "object_existence", ["lamp"]),
+    ("hey, quick question - how tall is teh wardrobe?", "object_size_estimation", ["wardrobe"]),
+    ("how many stools r in here", "object_counting", ["stool"]),
+    ("whats the distnace between the couch and the telly in feet", "object_abs_distance", ["sofa", "tv"]),
+    ("the bookcase: how wide is it?", "object_size_estimation", ["bookshelf"]),
+    ("so the fridge... how far is that from the oven?", "object_abs_distance", ["refrigerator", "oven"]),
+    ("roughly what's the floor space of this flat in sq ft", "room_size_estimation", []),
+    ("tally up the cushions for me", "object_counting", ["cushion"]),
+    ("how much clearance is there between the desk and the bed in cm", "object_abs_distance", ["desk", "bed"]),
+    ("measure the sofa end to end in inches", "object_size_estimation", ["sofa"]),
+    ("which is further from the loo, the bath or the sink?", "object_rel_distance", ["bathtub", "sink", "toilet"]),
+    ("with my back to the tv and the sofa in front of me, is the lamp on my left?", "object_rel_direction_medium",
+     ["lamp", "tv", "sofa"]),
+    ("I'm trying to figure out if the couch fits through the doorway: how long is it?", "object_size_estimation",
+     ["sofa"]),
+    ("Honestly I can't remember: how many chairs were there?", "object_counting", ["chair"]),
+    ("if you walked around counting the lamps, what would you get?", "object_counting", ["lamp"]),
+])
+def test_each_failure_class_in_words_the_parser_was_not_written_for(q, qtype, names):
+    """Typos, unknown cue words, clauses that are no object, lead-ins, topics and colloquial names, in wordings
+    written for this test (not the development set's): the program's type and objects."""
+    pq = parse_question(q)
+    assert pq.program is not None, pq.notes
+    assert pq.qtype == qtype and sorted(pq.objects) == sorted(names), (pq.qtype, pq.objects)

@@ -50,6 +50,8 @@ PHRASES: list[tuple[str, str]] = [
     (r"\b(?:smallest|shortest|least|tiniest) (?:gap|distance|space|way) (?:to|from)\b", "closest to"),
     (r"\b(?:biggest|largest|longest|greatest|most) (?:gap|distance|space|way) (?:to|from)\b", "farthest from"),
     (r"\bnearest neighbou?rs? (?:of|to)\b", "nearest to"),
+    # a turn left blank in a numbered route ("2) ??", "3. ___"): the benchmark's "[please fill in]"
+    (r"(\b\d[.)] ?)(?:\?{2,}|_{2,}|\[ ?(?:blank|\?+|_+) ?\])", r"\1[please fill in]"),
     # directions
     (r"\bdead ahead\b", "straight ahead"),
     (r"\b(looking|look|looks|staring|gazing|turned|facing) (?:over|straight|directly|right|across|out) "

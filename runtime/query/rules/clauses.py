@@ -20,7 +20,7 @@ import re
 from typing import Callable
 
 from ..cues import cue_words
-from .lexicon import DET, UNIT_WORDS
+from .lexicon import DET, FACE1, LOCATION, UNIT_WORDS
 
 LEAD_INS = [  # (tokens of a lead-in, optionally followed by if / whether / that)
     "is it true that", "is it true", "can you tell me", "could you tell me", "would you tell me", "will you tell me",
@@ -40,6 +40,7 @@ _NOT_CUE = {"to", "of", "at", "get", "go", "between", "side", "room", "space", "
 _KEEP = {"left", "right", "behind", "front", "ahead", "back", "facing", "how", "what", "what's", "where", "where's",
          "which", "whichever", "closest", "nearest", "farthest", "furthest", "start", "begin", "turn", "walk", "go",
          "options", "option", "both", "or", "than", "square", "sq"} | set(UNIT_WORDS)
+_MARKERS = LOCATION | FACE1 | {"from", "until", "till", "past", "to", "of", "than", "between"}
 _OBJECT_PRONOUNS = {"it", "them", "me", "you", "us", "him", "her"}  # "picture it": a verb, not the object
 
 
@@ -76,8 +77,11 @@ def _mentions(words: list[str], known: Callable[[str], bool]) -> list[tuple[int,
 
 
 def _cued(words: list[str]) -> bool:
+    """A cue word of some kind, a direction, a unit, a number, or a place marked by the sentence ("I'm at the
+    doorframe": an object the vocabulary does not know is still an object there)."""
     cues = cue_words() - _NOT_CUE
-    return any(w in cues or w in _KEEP or any(c.isdigit() for c in w) for w in words)
+    marked = any(w in _MARKERS and n in DET for w, n in zip(words, words[1:]))
+    return marked or any(w in cues or w in _KEEP or any(c.isdigit() for c in w) for w in words)
 
 
 def _lead_in(toks: list[str]) -> tuple[list[str], str | None]:

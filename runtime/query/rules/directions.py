@@ -14,6 +14,7 @@ from .state import R, State
 from .tokens import before, direction_words, has, noun_phrases, tokens
 
 
+_CLOSENESS = {"closest", "nearest", "farthest", "furthest"}
 _OPENS = {"with", ",", ":", ";", ".", "-", "and", "", "one"}
 _AT_MY_BACK = r"(?:is )?(?:behind me|at my back|to my back)\b"
 
@@ -22,7 +23,7 @@ def stance(toks: list[str], nps: list[dict[str, Any]]) -> tuple[int | None, int 
     """Indices of the phrases for where I stand, what I face, and the object a side is relative to."""
     pos = face = rel = None
     for k, p in enumerate(nps):
-        b = before(toks, p, 3)
+        b = [w for w in before(toks, p, 4) if w not in _CLOSENESS][-3:]  # "facing the closest sofa": facing
         last = b[-1] if b else ""
         two = " ".join(b[-2:])
         b4 = before(toks, p, 4)

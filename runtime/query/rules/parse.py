@@ -137,6 +137,8 @@ def _parse(st: State, keys: frozenset[str] | None, known_only: bool = False) -> 
                             f"appearance order): {why}")
             raise Refused
         st.notes.append(f"the kind read from its cue words ({why})")
+    if known_only and kind_word in ("route", "obj_appearance_order"):  # every phrase is a waypoint / an object
+        raise Refused
     nps = attachments(toks, nps_all) if kind_word not in ("rel_distance", "direction", "route") else nps_all
     first = next((i for i, t in enumerate(toks) if t in _TRIGGERS.get(kind_word, ())), None)
     if first is not None:  # "Quick question: how many chairs ...": the object comes after the question's cue
