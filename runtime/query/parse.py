@@ -13,6 +13,7 @@ from .ir import NearestTo, Option, Program, iter_refs, phrases
 from .normalize import normalize
 from .rules.parse import parse_natural
 from .schema import to_json
+from .spelling import second_reading
 from .templates import parse_template
 from .text import check_question, clean_question, split_options
 
@@ -112,5 +113,10 @@ def parse_question(question: str, options: list[str] | None = None, names: Itera
         return ParsedQuestion(q, opts, None, read_as + [f"not understood: the word {', '.join(unclear)}; please "
                                                         f"check its spelling"], "none", read_as)
     node, st = parse_natural(text, opts, names)
+    if node is None:  # refused as typed: a real word that is also a swap of a word the parser uses ("closets")
+        text2, more = second_reading(text)
+        node2, st2 = parse_natural(text2, opts, names) if more else (None, st)
+        if node2 is not None:
+            read_as, node, st = read_as + more, node2, st2
     return ParsedQuestion(q, opts, program_of(node, opts) if node is not None else None, read_as + st.notes,
                           "natural" if node is not None else "none", read_as)

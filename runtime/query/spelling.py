@@ -216,6 +216,25 @@ def correct(text: str, names: Iterable[str] = ()) -> tuple[str, list[str], list[
     return _WORD.sub(fix, text), list(dict.fromkeys(notes)), list(dict.fromkeys(unclear))
 
 
+def second_reading(text: str) -> tuple[str, list[str]]:
+    """`text` with each word that is a real word but also two swapped letters of a cue word or an object name
+    read as that word ("whichever is closets to the tv": "closest"); for a question refused as typed only."""
+    meaning, _ = _static()
+    notes: list[str] = []
+
+    def fix(m: re.Match) -> str:
+        w = m.group(0)
+        if w in meaning or len(w) < 4:
+            return w
+        hits = [c for c in meaning if len(c) == len(w) and _swapped(w, c)]
+        if len(hits) != 1:
+            return w
+        notes.append(f"read '{w}' as '{hits[0]}'")
+        return hits[0]
+
+    return _WORD.sub(fix, text), notes
+
+
 @functools.lru_cache(maxsize=4096)
 def _cached(word: str) -> tuple[str, ...]:
     return tuple(candidates(word))

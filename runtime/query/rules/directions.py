@@ -14,6 +14,8 @@ from .state import R, State
 from .tokens import before, direction_words, has, noun_phrases, tokens
 
 
+_FACING_IT = r"\b(?:facing|face|faces|looking at|look at|looking toward|looking towards|turned to|turned toward|" \
+             r"turned towards) (?:it|that one|that)\b"
 _CLOSENESS = {"closest", "nearest", "farthest", "furthest"}
 _OPENS = {"with", ",", ":", ";", ".", "-", "and", "", "one"}
 _AT_MY_BACK = r"(?:is )?(?:behind me|at my back|to my back)\b"
@@ -57,6 +59,9 @@ def direction(st: State, toks: list[str], joined: str, nps: list[dict[str, Any]]
               ) -> Node | None:
     pos, face, rel = stance(toks, nps)
     names = st.refs(nps)
+    if face is None and rel is not None and re.search(_FACING_IT, " ".join(toks)):
+        face = rel  # "is the lamp left or right of the tv when I'm by the bed facing it?": it is the tv
+        st.notes.append(f"'it' (what I face) read as the {st.phrase(names[rel])}")
     rest = [k for k in range(len(nps)) if k not in (pos, face, rel)]
     by_order = pos is None and face is not None and len(rest) >= 2 and nps[rest[0]]["start"] < nps[face]["start"]
     if by_order:  # "my spot is the stove and I look at the tv, is the sofa ...": the object named before what I face
