@@ -39,7 +39,8 @@ _NOT_CUE = {"to", "of", "at", "get", "go", "between", "side", "room", "space", "
 # words that keep a clause (besides a known object and the cue table): directions, the viewer, wh-words
 _KEEP = {"left", "right", "behind", "front", "ahead", "back", "facing", "how", "what", "what's", "where", "where's",
          "which", "whichever", "closest", "nearest", "farthest", "furthest", "start", "begin", "turn", "walk", "go",
-         "options", "option", "both", "or", "than", "square", "sq"} | set(UNIT_WORDS)
+         "options", "option", "both", "or", "than", "square", "sq", "is", "are", "was", "were", "there", "any",
+         "list", "see", "exist", "exists"} | set(UNIT_WORDS)
 _MARKERS = LOCATION | FACE1 | {"from", "until", "till", "past", "to", "of", "than", "between"}
 _OBJECT_PRONOUNS = {"it", "them", "me", "you", "us", "him", "her"}  # "picture it": a verb, not the object
 

@@ -84,6 +84,11 @@ _SUBJECTS = {"i", "i'm", "im", "you", "we", "they", "he", "she", "it", "me", "us
              "also"}
 
 
+# a word after one of these is a property asked about ("more comfortable", "is it cosy"), never left out
+_DEGREE = {"more", "less", "most", "least", "as", "so", "too", "very", "really", "quite", "is", "are", "was", "were",
+           "be", "being", "looks", "seems"}
+
+
 def mentions(toks: list[str], nps: list[dict[str, Any]], keys: frozenset[str], known_only: bool = False
              ) -> list[bool]:
     """Per phrase: read as an object? (see `parse_natural`). A phrase is left out only when it names no object,
@@ -122,7 +127,12 @@ def _parse(st: State, keys: frozenset[str] | None, known_only: bool = False) -> 
     nps_all = [p for p in noun_phrases(toks) if not p["scene"]]
     if keys is not None:  # mentions first: words that name no object and are marked as none are left out
         keep = mentions(toks, nps_all, keys, known_only)
-        st.unknown = any(not mentions(toks, [p], keys, True)[0] for p in nps_all)
+        known = mentions(toks, nps_all, keys, True)
+        st.unknown = not all(known)
+        prop = [p for p, k in zip(nps_all, known) if not k and p["start"] > 0 and toks[p["start"] - 1] in _DEGREE]
+        if known_only and prop:  # never left out: they say what is asked ("more comfortable than")
+            st.notes.append(f"'{' '.join(prop[0]['words'])}': a property the map does not hold")
+            raise Refused
         st.dropped = [" ".join(p["words"]) for p, k in zip(nps_all, keep) if not k]
         if st.dropped:
             nps_all = [p for p, k in zip(nps_all, keep) if k]
