@@ -57,8 +57,10 @@ PHRASES: list[tuple[str, str]] = [
     (r"\b(looking|look|looks|staring|gazing|turned|facing) (?:over|straight|directly|right|across|out) "
      r"(at|toward|towards|to)\b", r"\1 \2"),
     # "the stove in front", "the bed ahead": in front of the asker
-    (r"(\bthe [a-z]+(?: [a-z]+)?(?: is)?(?: straight| right| directly)?) (in front|ahead)(?= ?[,:;.?!-]| and\b|$)",
+    (r"(\bthe [a-z]+(?: [a-z]+)?(?: is)?(?: straight| right| directly)?) (in front|ahead)(?= ?[,:;.?!]| - | and\b|$)",
      r"\1 \2 of me"), (r"\b(?:which|what) (?:diagonal|corner)\b", "which quadrant"),
+    (r"\b(?:ahead|forward|in front)[- ](left|right)\b", r"front-\1"), (r"\b(?:behind|rear)[- ](left|right)\b", r"back-\1"),
+    (r"\b(left|right)[- ](?:front|ahead|forward)\b", r"front-\1"), (r"\b(left|right)[- ](?:back|rear|behind)\b", r"back-\1"),
     (r"\b(?:off )?to the (left|right)-hand side\b", r"to the \1"),
 ]
 _PHRASES = [(re.compile(rx), to) for rx, to in PHRASES]
@@ -109,11 +111,20 @@ def synonyms(text: str) -> str:
     return " ".join(text.split())
 
 
+def _blanks(s: str) -> str:
+    """A blank turn in a route told in words ("then ___, then walk to the sofa"): the benchmark's "[please fill
+    in]"; "turn ___" is one turn already. Only in a text that speaks of turning."""
+    if not re.search(r"\bturn", s):
+        return s
+    s = re.sub(r"\b(turn(?:s|ing)?) (?:_{2,}|\?{2,}|\.{3})", r"\1", s)
+    return re.sub(r"(?<![\w])_{2,}(?![\w])", "[please fill in]", s)
+
+
 def normalize(text: str, names: Iterable[str] = ()) -> tuple[str, list[str], list[str]]:
     """(the question in the parser's words; notes of each spelling change; words too close to several words the
     parser uses to be read, which refuse the question). `names`: object names beyond the vocabulary (the map's
     categories), which spelling also corrects to and never away from."""
     s = shorthand(unicode_ascii(text))
     s, notes, unclear = correct(s, names)
-    s = _number_words(synonyms(s))
+    s = _blanks(_number_words(synonyms(s)))
     return s, notes, unclear

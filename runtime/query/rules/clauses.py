@@ -82,7 +82,16 @@ def _cued(words: list[str]) -> bool:
     doorframe": an object the vocabulary does not know is still an object there)."""
     cues = cue_words() - _NOT_CUE
     marked = any(w in _MARKERS and n in DET for w, n in zip(words, words[1:]))
-    return marked or any(w in cues or w in _KEEP or any(c.isdigit() for c in w) for w in words)
+    return marked or any(_stem(w) & (cues | _KEEP) or any(c.isdigit() for c in w) for w in words)
+
+
+def _stem(w: str) -> set[str]:
+    """A word and its stems ("turns", "turned" -> "turn")."""
+    out = {w}
+    for suf in ("s", "es", "ed", "ing", "d"):
+        if w.endswith(suf) and len(w) - len(suf) >= 3:
+            out.add(w[:-len(suf)])
+    return out
 
 
 def _lead_in(toks: list[str]) -> tuple[list[str], str | None]:
@@ -128,11 +137,14 @@ def read_clauses(toks: list[str], known: Callable[[str], bool]) -> tuple[list[st
         notes.append("'you' read as the asker (where 'you' stand)")
     spans = _clauses(toks)
     keep = []
-    for a, b in spans:
+    for i, (a, b) in enumerate(spans):
         words = [w for w in toks[a:b] if w not in _BREAK]
         if not words:
             continue
-        if _mentions(words, known) or _cued(words):
+        # a clause between commas in the middle of a sentence is part of it ("walk to the tv, turn, ..."): only
+        # sentences, and a sentence's first or last comma clause ("honestly, ...", "..., please"), are left out
+        inner = toks[b - 1] == "," and i > 0 and toks[a - 1] == "," and i + 1 < len(spans)
+        if inner or _mentions(words, known) or _cued(words):
             keep.append((a, b))
         else:
             notes.append(f"left out '{' '.join(words)}' (no object and nothing asked)")

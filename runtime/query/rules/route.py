@@ -15,7 +15,7 @@ from .tokens import before
 
 # a waypoint follows a word of walking ("go forward until the tv", "walk to the door", "then the sofa")
 _WALK = {"until", "till", "reach", "reaching", "reached", "past", "toward", "towards", "then", "arrive", "arriving",
-         "forward", "to"}
+         "forward", "to", "stop", "stops", "stopping", "end", "ends", "arrives"}
 # the destination follows one of these ("navigate to the toilet", "to get to the bed", "my destination is the desk")
 _DEST = re.compile(r"\b(?:navigate|get|want to go|destination(?: is)?|goal(?: is)?|end up|target(?: is)?|heading for|"
                    r"(?:need|needs|want|wants|have|trying|going) to (?:reach|arrive at|go to|walk to|head to))"
