@@ -14,13 +14,16 @@ import functools
 
 CUES: dict[str, dict[str, float]] = {
     "count": {"how many": 3, "number of": 2, "count": 2, "counting": 1, "total": 1, "quantity": 2, "tally": 2,
-              "how much of": 2, "many": 1},
+              "how much of": 2, "many": 1,
+              # "how many metres / square feet": a length or an area, not a count
+              **{f"how many {u}": -4 for u in ("m", "meters", "metres", "cm", "centimeters", "centimetres", "mm",
+                                              "feet", "foot", "ft", "inches", "in", "square")}},
     "size": {"how big": 2, "how large": 2, "how long": 2, "how tall": 2, "how wide": 2, "how high": 2,
              "how deep": 2, "size": 2, "length": 2, "height": 2, "width": 2, "depth": 2, "dimension": 2,
              "dimensions": 2, "longest": 1, "biggest": 1, "largest": 1, "measure": 1, "measurement": 1, "big": 1,
              "long": 1, "tall": 1, "wide": 1, "side": 1, "edge": 1},
     "abs_distance": {"how far": 3, "distance": 2, "far": 1, "apart": 2, "gap": 2, "clearance": 2,
-                     "separation": 2, "space between": 2, "between": 1, "away": 1},
+                     "separation": 2, "space between": 2, "between": 2, "away": 1, "from": 1},
     "room_size": {"floor area": 4, "floor space": 4, "square meters": 4, "square feet": 4, "area": 3,
                   "footprint": 3, "room": 1, "space": 1},
     "rel_distance": {"closest": 3, "nearest": 3, "closer": 3, "nearer": 3, "farthest": 3, "furthest": 3,
@@ -28,7 +31,9 @@ CUES: dict[str, dict[str, float]] = {
     "direction": {"left": 2, "right": 2, "behind": 1, "back": 1, "front": 1, "quadrant": 3, "o'clock": 3,
                   "facing": 2, "looking at": 2, "front-left": 3, "front-right": 3, "back-left": 3,
                   "back-right": 3, "which side": 2},
-    "route": {"route": 3, "walk": 1, "turn": 2, "navigate": 3, "get to": 1, "go to": 1, "waypoint": 3},
+    "route": {"route": 3, "walk": 2, "turn": 3, "turns": 3, "navigate": 3, "get to": 1, "go to": 1, "waypoint": 3,
+              "go forward": 2, "until": 1, "till": 1, "reach": 1, "destination": 3, "please fill in": 4, "robot": 2,
+              "steps": 1},
     "obj_appearance_order": {"first": 2, "order": 2, "before": 1, "after": 1, "appear": 2, "appeared": 2,
                              "earliest": 2, "sequence": 2},
 }

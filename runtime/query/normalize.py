@@ -15,6 +15,7 @@ import re
 from typing import Iterable
 
 from .spelling import correct
+from .vocabulary import NAME_SYNONYMS, singular
 
 # unicode punctuation people's phones type -> ASCII
 _UNICODE = {"\u2018": "'", "\u2019": "'", "\u201a": "'", "\u2032": "'", "\u201c": '"', "\u201d": '"', "\u201e": '"',
@@ -44,6 +45,7 @@ PHRASES: list[tuple[str, str]] = [
     (r"\b(?:whichever|whatever) ?(?:'s| is)(?: the)? (biggest|largest|longest|greatest)\b", r"the \1"),
     (r"\bat (its|their) (longest|biggest|largest|greatest)(?: point| side)?\b", r"at \1 \2 dimension"),
     # distances
+    (r"\b(?:measure|measuring|measured) (?:the (?:way|gap|space|span) )?from\b", "distance from"),
     (r"\bwhatever\b", "whichever"),
     (r"\b(closest|nearest|farthest|furthest) (?:one )?of (?:these|those|them|the following|the options)\b", r"\1"),
     (r"\b(?:clearance|separation distance)\b", "distance"),
@@ -120,11 +122,27 @@ def _blanks(s: str) -> str:
     return re.sub(r"(?<![\w])_{2,}(?![\w])", "[please fill in]", s)
 
 
+def compounds(text: str, names: Iterable[str] = ()) -> str:
+    """A hyphenated name ("dish-washer", "flat-screen tv", "night-stand") as the vocabulary writes it, joined or
+    spaced; other hyphenated words ("front-left", "tv-to-bed") are left."""
+    known = set(NAME_SYNONYMS) | {n.lower() for n in names}
+
+    def fix(m: re.Match) -> str:
+        w = m.group(0)
+        for cand in (w.replace("-", ""), w.replace("-", " ")):
+            if cand in known or singular(cand) in known or " ".join(cand.split()[:-1] + [singular(cand.split()[-1])]) \
+                    in known:
+                return cand
+        return w
+    return re.sub(r"\b[a-z]+(?:-[a-z]+)+\b", fix, text)
+
+
 def normalize(text: str, names: Iterable[str] = ()) -> tuple[str, list[str], list[str]]:
     """(the question in the parser's words; notes of each spelling change; words too close to several words the
     parser uses to be read, which refuse the question). `names`: object names beyond the vocabulary (the map's
     categories), which spelling also corrects to and never away from."""
-    s = shorthand(unicode_ascii(text))
+    names = list(names)
+    s = compounds(shorthand(unicode_ascii(text)), names)
     s, notes, unclear = correct(s, names)
     s = _blanks(_number_words(synonyms(s)))
     return s, notes, unclear

@@ -35,7 +35,8 @@ _COPULA = {"is", "are", "was", "were"}
 _BREAK = {"?", ".", "!", ";", ":", "...", "-", ","}
 _PRONOUN = {"it", "that", "this", "them"}
 # cue words too common alone to keep a clause (function words of multi-word cues: "get to", "number of")
-_NOT_CUE = {"to", "of", "at", "get", "go", "between", "side", "room", "space", "edge", "after", "before", "first"}
+_NOT_CUE = {"to", "of", "at", "get", "go", "between", "side", "room", "space", "edge", "after", "before", "first",
+            "please", "fill", "in", "from", "until", "till", "steps", "robot", "reach", "m", "ft"}
 # words that keep a clause (besides a known object and the cue table): directions, the viewer, wh-words
 _KEEP = {"left", "right", "behind", "front", "ahead", "back", "facing", "how", "what", "what's", "where", "where's",
          "which", "whichever", "closest", "nearest", "farthest", "furthest", "start", "begin", "turn", "walk", "go",
