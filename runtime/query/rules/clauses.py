@@ -27,7 +27,11 @@ LEAD_INS = [  # (tokens of a lead-in, optionally followed by if / whether / that
     "tell me", "please tell me", "i'd like to know", "i would like to know", "i want to know", "i wanna know",
     "do you know", "do you happen to know", "i wonder", "i was wondering", "i'm wondering", "any idea",
     "would you mind checking", "can you check", "could you check", "can you work out", "could you work out",
-    "can you figure out", "i need to know", "let me know",
+    "can you figure out", "i need to know", "let me know", "i'd love to know", "i would love to know",
+    "can you please tell me", "could you please tell me", "tell me please", "would you be able to tell me",
+    "are you able to tell me", "can you let me know", "could you let me know", "i'm curious", "i am curious",
+    "i'm curious to know", "is it the case that", "would you say that", "would you say", "am i right that",
+    "am i right in thinking that", "true or false", "do you remember", "do you recall", "can you say",
 ]
 _LEAD = sorted((tuple(x.split()) for x in LEAD_INS), key=len, reverse=True)
 _THEN = {"if", "whether", "that"}
@@ -103,7 +107,9 @@ def _lead_in(toks: list[str]) -> tuple[list[str], str | None]:
             if tuple(words[:len(lead)]) != lead:
                 continue
             rest = words[len(lead):]
-            rest = rest[1:] if rest[:1] and rest[0] in _THEN else rest
+            rest = rest[1:] if rest[:1] and (rest[0] in _THEN or rest[0] in (":", ",", "-")) else rest
+            if not rest and b < len(toks):  # "true or false: the sofa is ...": the lead-in is its own clause
+                rest, b = toks[b:], len(toks)
             if not rest or rest[0] in _BREAK:
                 continue
             said = " ".join(lead)
