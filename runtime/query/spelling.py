@@ -157,14 +157,14 @@ def candidates(word: str, extra: frozenset[str] = frozenset()) -> list[str]:
         return []
     lim = bound(word)
     cands: list[tuple[float, int, str]] = []
-    for w in known | extra:
-        if len(word) == 3:  # three letters: only two neighbouring letters swapped
-            if len(w) == 3 and _swapped(word, w):
-                cands.append((SWAP, 0 if w in meaning else 1, w))
-            continue
-        if abs(len(w) - len(word)) > lim:
-            continue
-        d = distance(word, w, lim)
+    if len(word) == 3:  # three letters: only two neighbouring letters swapped
+        pool: set[str] = {word[:i] + word[i + 1] + word[i] + word[i + 2:] for i in range(2)} & (known | extra)
+    else:  # the known words that share a deletion variant with it (SymSpell): a few, not the whole vocabulary
+        index = _deletes_index()
+        pool = {w for v in _deletes(word, int(lim)) for w in index.get(v, ())}
+        pool |= {w for w in extra if abs(len(w) - len(word)) <= lim}
+    for w in sorted(pool):
+        d = SWAP if len(word) == 3 else distance(word, w, lim)
         if d <= lim:
             cands.append((d, 0 if w in meaning else 1, w))
     if not cands:
@@ -177,6 +177,29 @@ def candidates(word: str, extra: frozenset[str] = frozenset()) -> list[str]:
     if len(top) > 1 and top[0][1] == 1:  # a tie among words of no use to the parser: nothing to read
         return []
     return [c[2] for c in top]
+
+
+def _deletes(word: str, k: int) -> set[str]:
+    """`word` and every string made from it by deleting up to `k` letters."""
+    out, frontier = {word}, {word}
+    for _ in range(k):
+        frontier = {w[:i] + w[i + 1:] for w in frontier for i in range(len(w))}
+        out |= frontier
+    return out
+
+
+@functools.lru_cache(maxsize=1)
+def _deletes_index() -> dict[str, frozenset[str]]:
+    """Deletion variant -> the known words that have it (SymSpell). Two words within k edits share a variant
+    of up to k deletions each, so a typed word's own variants find every candidate the bound allows: 1 edit for
+    4-7 typed letters (targets of <= 8 letters), 2 for 8+ (targets of 6+ letters, indexed with 2 deletions)."""
+    _, known = _static()
+    index: dict[str, set[str]] = {}
+    for w in known:
+        if len(w) >= 3:  # a word typed with 8+ letters may be 2 edits away, and its words have 6+ letters
+            for v in _deletes(w, 2 if len(w) >= 6 else 1):
+                index.setdefault(v, set()).add(w)
+    return {v: frozenset(ws) for v, ws in index.items()}
 
 
 def _plural_stem(word: str, meaning: frozenset[str], known: frozenset[str]) -> str | None:
