@@ -13,19 +13,19 @@ from __future__ import annotations
 import functools
 
 CUES: dict[str, dict[str, float]] = {
-    "count": {"how many": 3, "number of": 2, "count": 2, "counting": 1, "total": 1, "quantity": 2, "tally": 2,
-              "how much of": 2, "many": 1,
+    "count": {"how many": 3, "number of": 2, "count": 2, "counting": 2, "total": 1, "quantity": 2, "tally": 2,
+              "how much of": 2, "many": 1, "amount of": 2, "number": 1,
               # "how many metres / square feet": a length or an area, not a count
               **{f"how many {u}": -4 for u in ("m", "meters", "metres", "cm", "centimeters", "centimetres", "mm",
                                               "feet", "foot", "ft", "inches", "in", "square")}},
     "size": {"how big": 2, "how large": 2, "how long": 2, "how tall": 2, "how wide": 2, "how high": 2,
              "how deep": 2, "size": 2, "length": 2, "height": 2, "width": 2, "depth": 2, "dimension": 2,
              "dimensions": 2, "longest": 1, "biggest": 1, "largest": 1, "measure": 1, "measurement": 1, "big": 1,
-             "long": 1, "tall": 1, "wide": 1, "side": 1, "edge": 1},
+             "long": 1, "tall": 1, "wide": 1, "side": 1, "edge": 1, "span": 2, "extent": 2},
     "abs_distance": {"how far": 3, "distance": 2, "far": 1, "apart": 2, "gap": 2, "clearance": 2,
                      "separation": 2, "space between": 2, "between": 2, "away": 1, "from": 1},
     "room_size": {"floor area": 4, "floor space": 4, "square meters": 4, "square feet": 4, "area": 3,
-                  "footprint": 3, "room": 1, "space": 1},
+                  "footprint": 3},
     "rel_distance": {"closest": 3, "nearest": 3, "closer": 3, "nearer": 3, "farthest": 3, "furthest": 3,
                      "farther": 3, "further": 3, "which": 1},
     "direction": {"left": 2, "right": 2, "behind": 1, "back": 1, "front": 1, "quadrant": 3, "o'clock": 3,
@@ -37,6 +37,9 @@ CUES: dict[str, dict[str, float]] = {
     "obj_appearance_order": {"first": 2, "order": 2, "before": 1, "after": 1, "appear": 2, "appeared": 2,
                              "earliest": 2, "sequence": 2},
 }
+
+
+MIN_SCORE = 2  # one weak cue word ("long", "which") alone names no kind
 
 
 @functools.lru_cache(maxsize=1)
@@ -64,9 +67,11 @@ def score(words: list[str]) -> dict[str, float]:
 
 def kind_of(words: list[str]) -> tuple[str | None, str]:
     """(the kind with the unique highest cue score, or None; a line saying why: the cues found per kind)."""
-    s = score(words)
+    every = score(words)
+    s = {k: v for k, v in every.items() if v >= MIN_SCORE}
     if not s:
-        return None, "no cue word of any question kind"
+        weak = ", ".join(k.replace("_", " ") for k in every)
+        return None, "no cue word of any question kind" + (f" (only weak cues of: {weak})" if weak else "")
     ranked = sorted(s.items(), key=lambda kv: -kv[1])
     found = ", ".join(f"{k.replace('_', ' ')} {v:g}" for k, v in ranked)
     if len(ranked) > 1 and ranked[0][1] == ranked[1][1]:

@@ -41,7 +41,8 @@ PHRASES: list[tuple[str, str]] = [
     # counts
     (r"\b(?:tally|headcount|head count)\b", "count"), (r"\bhow much of\b", "how many"),
     # sizes
-    (r"\b(?:end[- ]to[- ]end|from end to end|tip to tip|edge to edge)\b", ""),
+    (r"\b(?:from )?(?:end[- ]to[- ]end|tip to tip|edge to edge|head to (?:foot|toe)|top to bottom|side to side|"
+     r"wall to wall)\b", ""),
     (r"\b(?:whichever|whatever) ?(?:'s| is)(?: the)? (biggest|largest|longest|greatest)\b", r"the \1"),
     (r"\bat (its|their) (longest|biggest|largest|greatest)(?: point| side)?\b", r"at \1 \2 dimension"),
     # distances
