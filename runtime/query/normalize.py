@@ -55,6 +55,9 @@ PHRASES: list[tuple[str, str]] = [
     (r"\bnearest neighbou?rs? (?:of|to)\b", "nearest to"),
     # a turn left blank in a numbered route ("2) ??", "3. ___"): the benchmark's "[please fill in]"
     (r"(\b\d[.)] ?)(?:\?{2,}|_{2,}|\[ ?(?:blank|\?+|_+) ?\])", r"\1[please fill in]"),
+    # a part of an object as a place is the object ("at the foot of the bed", "by the end of the counter"); not the
+    # parts of a room, which are refused ("the middle of the room")
+    (r"\bthe (?:foot|head|end|edge|side|far side|near side|front|back|top|bottom) of (the|a|an|my|this|that) ", r"\1 "),
     # directions
     (r"\bdead ahead\b", "straight ahead"),
     (r"\b(looking|look|looks|staring|gazing|turned|facing) (?:over|straight|directly|right|across|out) "
