@@ -184,7 +184,7 @@ def test_a_one_edit_typo_in_a_vocabulary_word_gives_the_same_program_or_a_refusa
         clean = parse_question(q, opts)
         if clean.program is None or clean.how != "natural":
             continue
-        words = [w for w in q.split() if w.lower().strip("?,.:;!") in meaning and len(w.strip("?,.:;!")) >= 5]
+        words = [w for w in q.split() if w.lower().strip("?,.:;!") in meaning and len(w.strip("?,.:;!")) >= 4]
         if not words:
             continue
         w = rng.choice(words).strip("?,.:;!")

@@ -9,8 +9,9 @@ word: "tablet" is not "table", "hear" is not "near").
 Distance: Damerau-Levenshtein (optimal string alignment) where a substitution costs 1 between keys that touch on
 a QWERTY keyboard and 1.5 otherwise (a phone typo hits a neighbouring key; "cable" is not a typo of "table"), and
 a swap of two neighbouring letters 0.75 (the commonest slip: "waht" is "what", not "want").
-Bound by the typed word's length: <= 2 letters never; 3 letters a swap of two neighbouring letters only ("teh",
-"hwo"); 4-7 letters 1; 8 or more 2. The best candidate must be unique: ties are broken only by the candidate's
+Bound by the typed word's length: <= 2 letters never; 3 letters only a swap of two neighbouring letters ("teh",
+"hwo") or one letter dropped from a four-letter word ("soa", "frm", "lft": the commonest phone slip in short
+words); 4-7 letters 1; 8 or more 2. The best candidate must be unique: ties are broken only by the candidate's
 use (object names and cue words before other function words: "hwo" -> "how", not "who"); otherwise the word is
 left as typed (and the parser reads it, or refuses, as before).
 """
@@ -102,7 +103,7 @@ def distance(a: str, b: str, limit: float = 2.0) -> float:
 def bound(word: str) -> float:
     """How far a word of this length may be from what it is read as (see the module)."""
     n = len(word)
-    return 0.0 if n <= 2 else 1.0 if n <= 7 else 2.0
+    return 0.0 if n <= 2 else 1.0 if n <= 7 else 2.0  # 3 letters: a swap or one dropped letter only
 
 
 def _object_words(names: Iterable[str]) -> set[str]:
@@ -157,14 +158,16 @@ def candidates(word: str, extra: frozenset[str] = frozenset()) -> list[str]:
         return []
     lim = bound(word)
     cands: list[tuple[float, int, str]] = []
-    if len(word) == 3:  # three letters: only two neighbouring letters swapped
+    if len(word) == 3:  # three letters: two neighbouring letters swapped, or one letter dropped from four
         pool: set[str] = {word[:i] + word[i + 1] + word[i] + word[i + 2:] for i in range(2)} & (known | extra)
+        pool |= {w for w in _deletes_index().get(word, frozenset()) | {x for x in extra if len(x) == 4}
+                 if len(w) == 4 and word in _deletes(w, 1)}
     else:  # the known words that share a deletion variant with it (SymSpell): a few, not the whole vocabulary
         index = _deletes_index()
         pool = {w for v in _deletes(word, int(lim)) for w in index.get(v, ())}
         pool |= {w for w in extra if abs(len(w) - len(word)) <= lim}
     for w in sorted(pool):
-        d = SWAP if len(word) == 3 else distance(word, w, lim)
+        d = (SWAP if len(w) == 3 else 1.0) if len(word) == 3 else distance(word, w, lim)
         if d <= lim:
             cands.append((d, 0 if w in meaning else 1, w))
     if not cands:
@@ -173,7 +176,7 @@ def candidates(word: str, extra: frozenset[str] = frozenset()) -> list[str]:
     cands.sort()
     top = [c for c in cands if c[:2] == cands[0][:2]]
     if len({singular(c[2]) for c in top}) == 1:  # "sofaa": sofa or sofas, one name either way
-        top = sorted(top, key=lambda c: (abs(len(c[2]) - len(word)), c[2]))[:1]
+        top = sorted(top, key=lambda c: (c[2][-1] != word[-1], abs(len(c[2]) - len(word)), c[2]))[:1]  # "sofs"
     if len(top) > 1 and top[0][1] == 1:  # a tie among words of no use to the parser: nothing to read
         return []
     return [c[2] for c in top]
