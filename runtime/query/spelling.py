@@ -50,7 +50,7 @@ tally clearance neighbour neighbours neighbor neighbors footage diagonal
 note fill able tree flower stall pot pan mat box ball bag bar car cat dog man woman person people kid child
 baby toy toys game games food fruit water glass glasses plate plates bowl bowls basket drawer drawer blind
 blinds sheet blanket quilt duvet tap taps rail rails hanger light lights switch socket outlet vent fence gate
-yard garden porch deck step cant great stop stops stopped tops move moves moved cover covers span spans roomy
+yard garden porch deck step cant great stop stops stopped tops move moves moved cover covers span spans roomy self
 """.split())
 
 # keys that touch on a QWERTY keyboard (a substitution between them costs 1, else 1.5)
