@@ -35,6 +35,7 @@ PHRASES: list[tuple[str, str]] = [
     (r"\b(?:ft2|ft\^2|sq\.? ?ft|sqft|sq\.? ?f(?:ee|oo)t|square f(?:ee|oo)t(?:age)?|feet squared)(?![a-z])",
      "square feet"),
     (r"\barea-?wise\b", "in area"),
+    (r"\bhow (?:spacious|roomy|sizeable|sizable)\b", "how big"),
     # idioms of not knowing that carry no negation of the question ("honestly no idea how far ...")
     (r"\b(?:i have |i've |i've got |got )?(?:no idea|no clue|not a clue)\b", ""),
     (r"\bi (?:don't|do not|can't|cannot) (?:remember|recall|tell|say)\b(?! (?:if|whether)\b)", ""),

@@ -41,7 +41,8 @@ def strip_preamble(joined: str) -> tuple[str, dict[str, Any]]:
     return " ".join(joined.split()), extra
 
 
-ROOMS = r"(?:room|space|kitchen|bedroom|bathroom|apartment|flat|office|house|living room|area|whole space)"
+ROOMS = (r"(?:room|space|kitchen|bedroom|bathroom|apartment|flat|office|house|living room|area|whole space|place|"
+         r"home|studio|suite|lounge|hallway|scene)")
 UNITS_RX = r"(?:cm|centimet\w+|mm|millimet\w+|m|meters?|metres?|feet|foot|ft|inch(?:es)?)"
 SIMPLE_INTENTS = [(name, re.compile(rx)) for name, rx in (  # tried in this order, after the choice questions
     ("room_size", rf"\bhow (?:big|large|long|wide) is (?:the |this |our )?{ROOMS}\b|\b(?:length|width|dimensions?|"

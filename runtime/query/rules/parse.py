@@ -133,6 +133,12 @@ def _parse(st: State, keys: frozenset[str] | None, known_only: bool = False) -> 
         if known_only and prop:  # never left out: they say what is asked ("more comfortable than")
             st.notes.append(f"'{' '.join(prop[0]['words'])}': a property the map does not hold")
             raise Refused
+        placed = [(p, q) for p, q, k, kq in zip(nps_all, nps_all[1:], known, known[1:]) if not k and kq and
+                  set(toks[p["end"]:q["start"]]) & LOCATION]
+        if known_only and placed:  # "whatever sits by the window": the window places the unknown one, never
+            p, q = placed[0]     # stands in for it
+            st.notes.append(f"'{' '.join(toks[p['start']:q['end']])}': an object told by its place, not named")
+            raise Refused
         st.dropped = [" ".join(p["words"]) for p, k in zip(nps_all, keep) if not k]
         if st.dropped:
             nps_all = [p for p, k in zip(nps_all, keep) if k]
