@@ -275,3 +275,13 @@ def test_the_cue_table_alone_names_the_kind_of_almost_every_question_of_every_wo
                 right += got == kinds[row["question_type"]]
                 wrong += got is not None and got != kinds[row["question_type"]]
     assert right + wrong >= 2000 and right / (right + wrong) >= 0.95, (right, wrong)
+
+
+def test_the_answer_says_how_a_misspelt_word_was_read():
+    """On a map (the test room of test_grounding_nl): the count is the room's, and the answer's explanation
+    repeats each correction; a misspelt name of the map's own ("compter tower") is read as it."""
+    from test_grounding_nl import ask
+    a = ask("hwo many offce chiars are there?")
+    assert a.text == "2" and "read 'chiars' as 'chairs'" in a.explanation and "read 'offce' as 'office'" in a.explanation
+    b = ask("how tall is the compter tower?")
+    assert b.ok and "read 'compter' as 'computer'" in b.explanation
