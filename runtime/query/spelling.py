@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import functools
 import re
+from pathlib import Path
 from typing import Iterable
 
 from .cues import cue_words
@@ -149,12 +150,15 @@ def best(word: str, extra: frozenset[str] = frozenset()) -> str | None:
     return top[0] if len(top) == 1 else None
 
 
-def candidates(word: str, extra: frozenset[str] = frozenset()) -> list[str]:
+def candidates(word: str, extra: frozenset[str] = frozenset(), protect: bool = True) -> list[str]:
     """The known words closest to `word` within the bound, best use first (see the module): one word, several
-    (a tie: the word cannot be read), or none (known, too short or too far)."""
+    (a tie: the word cannot be read), or none (known, too short or too far, or an English word of
+    `common_words.txt`; `protect=False` reads past that list, for the script that writes it)."""
     meaning, known = _static()
     meaning = meaning | extra
     if not word.isalpha() or len(word) <= 2 or word in extra or is_known(word, known):
+        return []
+    if protect and (word in _english() or singular(word) in _english()):
         return []
     lim = bound(word)
     cands: list[tuple[float, int, str]] = []
@@ -180,6 +184,14 @@ def candidates(word: str, extra: frozenset[str] = frozenset()) -> list[str]:
     if len(top) > 1 and top[0][1] == 1:  # a tie among words of no use to the parser: nothing to read
         return []
     return [c[2] for c in top]
+
+
+@functools.lru_cache(maxsize=1)
+def _english() -> frozenset[str]:
+    """English words within the bound of a word the parser uses, never changed ("loop" is not "loo"):
+    `common_words.txt`, written by benchmarks/make_common_words.py from counted English text."""
+    path = Path(__file__).with_name("common_words.txt")
+    return frozenset(w for w in path.read_text().split() if w.isalpha()) if path.is_file() else frozenset()
 
 
 def _deletes(word: str, k: int) -> set[str]:
