@@ -286,3 +286,31 @@ def test_the_answer_says_how_a_misspelt_word_was_read():
     assert a.text == "2" and "read 'chiars' as 'chairs'" in a.explanation and "read 'offce' as 'office'" in a.explanation
     b = ask("how tall is the compter tower?")
     assert b.ok and "read 'compter' as 'computer'" in b.explanation
+
+
+OPENERS = ["", "honestly, ", "quick q - ", "can you tell me ", "I'd like to know ", "hey, so "]
+CLOSERS = ["?", ", please?", "? thanks", " - just curious", "?? cheers"]
+PHRASINGS = {
+    "object_abs_distance": ["how far is the {a} from the {b}", "what's the distance between the {a} and the {b}",
+                            "the {a} and the {b}: how far apart", "from the {b}, how far is the {a}",
+                            "how much space is there between the {a} and the {b}", "the gap from the {a} to the {b}"],
+    "object_counting": ["how many {a}s are there", "what's the number of {a}s", "count the {a}s",
+                        "the {a}s in this room: how many", "tally up the {a}s"],
+    "object_size_estimation": ["how big is the {a}", "what's the longest side of the {a}", "the {a}: how long is it",
+                               "what does the {a} measure at its longest", "the size of the {a}"],
+}
+
+
+@pytest.mark.parametrize("qtype", sorted(PHRASINGS))
+def test_every_opener_and_closer_with_every_phrasing_reads_the_same(qtype):
+    """Openers (lead-ins, fillers) x phrasings x closers, two object pairs: one type and the same objects each
+    time (6 x 5-6 x 5 x 2 questions per type)."""
+    wrong = []
+    for (a, b), pre, ph, post in itertools.product([("sofa", "tv"), ("bed", "wardrobe")], OPENERS, PHRASINGS[qtype],
+                                                   CLOSERS):
+        q = pre + ph.format(a=a, b=b) + post
+        pq = parse_question(q)
+        want = {a, b} if "{b}" in ph else {a}
+        if pq.qtype != qtype or set(pq.objects) != want:
+            wrong.append((q, pq.describe()[:120]))
+    assert not wrong, (len(wrong), wrong[:4])
