@@ -1633,13 +1633,16 @@ def bridge_chain(al: AlignmentResult, pool: dict[int, Any], a: int, u: int, sour
 def align_keyframes(frames: list[Any], matcher: KeyedMatcher, boxes: dict[int, Any], emb: np.ndarray | None,
                     source: Any, with_depth: WithDepth, with_scale: bool, conf: AlignPolicy, trace: Any,
                     over_budget: Callable[[list[int]], bool] = lambda unaligned: False,
-                    thumbs: Mapping[int, np.ndarray] | None = None) -> tuple[AlignmentResult, list[Any]]:
+                    thumbs: Mapping[int, np.ndarray] | None = None,
+                    rest: Callable[..., list[Any]] | None = None) -> tuple[AlignmentResult, list[Any]]:
     """The key frames' alignment: matches restricted to object boxes (the paper's trick; with relative depth
     only when `relative_box_matching`), MST over frame similarity; then, with metric depth and `verify_depth`,
     every tree edge depth-checked and the frames left out attached one edge at a time (`align_rest_metric`),
     else a whole-image re-alignment and bridge rounds (`align_rest_relative`). `over_budget(unaligned)` says
     (and records) when bridge rounds are skipped. `thumbs` (frame -> small gray image, e.g. dedup's) lets
-    metric bridging look for places the video revisits. Returns (alignment over the key frames only, the bridge frames used)."""
+    metric bridging look for places the video revisits. `rest`: what follows the tree with metric depth instead of
+    `align_rest_metric` (same arguments; e.g. `align.backbone.align_rest_backbone`). Returns (alignment over the key
+    frames only, the bridge frames used)."""
     trace = as_trace(trace)
     if with_scale and not conf.relative_box_matching:  # essential edges: whole images from the first tree
         boxes = {i: None for i in boxes}
@@ -1650,7 +1653,8 @@ def align_keyframes(frames: list[Any], matcher: KeyedMatcher, boxes: dict[int, A
     fates = Fates(keys)
     fates.after(al, "box-matched tree" if any(b is not None for b in boxes.values()) else "whole-image tree")
     if conf.verify_depth and not with_scale:  # metric depth: one edge at a time onto the verified tree (cheap)
-        used = align_rest_metric(al, frames, matcher, source, with_depth, conf, trace, over_budget, fates, thumbs)
+        used = (rest or align_rest_metric)(al, frames, matcher, source, with_depth, conf, trace, over_budget, fates,
+                                           thumbs)
     else:
         al, used = align_rest_relative(al, frames, boxes, emb, matcher, source, with_depth, with_scale, conf, trace,
                                        over_budget, fates)

@@ -22,6 +22,7 @@ from typing import Any, ClassVar, Mapping
 
 import numpy as np
 
+from .align.thinning import overlap_sampled
 from .config import StageConf
 from .errors import InputError
 from .trace import as_trace
@@ -140,7 +141,11 @@ class DedupConf(StageConf):
     # reader gives the colour frame (a video's scan does): the key-frame search's kernel widths read them instead
     # of decoding every scored frame's +-r neighbours again (~270 extra reads, ~2 s on a 600 s mp4)
     histograms: bool = True
-
+    # time sampling is undone where it loses overlap: between two consecutive sampled frames that track fewer
+    # than this share of ORB keypoints, the frames halfway are compared too (`align.thinning.overlap_sampled`;
+    # frame sources with random access; 0 = off). A fifth tracked is about where whole-image edges between
+    # adjacent frames still verify on the shared rooms (docs/real-rooms.md)
+    min_overlap: float = 0.2
 
 
 @dataclass
@@ -233,6 +238,7 @@ class OnlineDedup:
         self.thumbs: dict[int, np.ndarray] = {}
         self.histograms: dict[int, np.ndarray] = {}
         self.n_cand = self.n_dup = 0
+        self.n_inserted = 0             # sampled for overlap (`align.thinning`), not by the time sampling
         self._pos = -1
         self._next_t = -np.inf
         # (index, gray, SSIM moments, ORB features or None until a comparison needs them) of the last kept frame
@@ -305,7 +311,8 @@ class OnlineDedup:
             if p not in sset:
                 dropped[index_at(p)] = why
         counts = {"input": n, "after_downsampling": len(self.sampled), "downsampled_away": n - len(self.sampled),
-                  "candidates": self.n_cand, "near_duplicates": self.n_dup, "kept": len(self.kept)}
+                  "candidates": self.n_cand, "near_duplicates": self.n_dup, "kept": len(self.kept),
+                  "inserted_for_overlap": self.n_inserted}
         return DedupResult(list(self.kept), dict(sorted(dropped.items())), counts, dict(self.scores),
                            dict(self.thumbs), dict(self.histograms), hist_params() if self.histograms else None)
 
@@ -418,14 +425,28 @@ def remove_redundant(source_or_frames: Any, conf: DedupConf | Mapping[str, Any] 
     # reading in increasing order decodes a video exactly once, forward (no prefetch into an evicting cache);
     # sources with a `gray(position, width)` read skip the colour conversion and the frame cache
     gray = getattr(src, "gray", None) if is_source else None
+    def load(p: int) -> list[Any]:  # [gray, its ORB features once a measurement needs them]
+        return [gray(p, conf.work_width) if gray is not None else _small_gray(src[p].rgb, conf.work_width), None]
+
+    def overlap(a: list[Any], b: list[Any]) -> float:
+        for x in (a, b):
+            x[1] = x[1] if x[1] is not None else orb_features(x[0], conf.orb_features, conf.orb_levels)
+        return orb_track(a[0], b[0], f0=a[1], f1=b[1])[0]
+
     od = BackgroundDedup(OnlineDedup(conf))
+    sampled = [p for p, t in enumerate(ts) if od.wants(float(t))]
+    inserted: list[int] = []
     try:
-        for p, t in enumerate(ts):
-            if od.wants(float(t)):
-                g = gray(p, conf.work_width) if gray is not None else _small_gray(src[p].rgb, conf.work_width)
-                od.push(index_at(p), g)
+        # a video decodes forward only and its times are measured: the time sampling stands there
+        min_overlap = 0.0 if getattr(src, "sequential", False) else conf.min_overlap
+        for p, (g, _), extra in overlap_sampled(sampled, load, overlap, min_overlap):
+            if extra:
+                inserted.append(p)
+            od.push(index_at(p), g)
     finally:
         done = od.finish()
+    done.sampled = sorted(set(done.sampled) | set(inserted))
+    done.n_inserted = len(inserted)
     res = done.result(n, index_at)
     trace.decide("dedup.counts", res.counts)
     return res

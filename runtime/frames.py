@@ -188,6 +188,30 @@ def check_pose(T: np.ndarray, where: str) -> np.ndarray:
     return T
 
 
+def world_down(source: "FrameSource", n: int = 48) -> tuple[np.ndarray, str] | None:
+    """The direction of gravity (DOWN, unit [3]) in the world of a source's ground-truth poses, and how it was
+    found: the source's own (`gravity-direction.txt`), else from the poses: the mean image-down axis (camera +y)
+    of up to `n` cameras spread over the sequence - people hold cameras upright - snapped to the nearest world
+    axis when within 10 degrees of it (a tracker's world usually has one axis vertical: z in ScanNet, y in a
+    HoloLens or ARKit world). None without poses. For evaluation and annotation (top-down pictures in the world of
+    the ground truth); the pipeline finds its floor itself."""
+    if source.gravity is not None:
+        return np.asarray(source.gravity, float), "gravity-direction.txt"
+    bad = set(source.untracked_frames())
+    idx = [int(i) for i in np.unique(np.linspace(0, len(source) - 1, min(n, len(source))).round()) if int(i) not in bad]
+    downs = [T[:3, 1] for T in (source[i].pose_gt for i in idx) if T is not None]
+    if not downs:
+        return None
+    d = np.mean(downs, 0)
+    d /= max(float(np.linalg.norm(d)), 1e-12)
+    k = int(np.argmax(np.abs(d)))
+    if abs(d[k]) >= np.cos(np.radians(10.0)):
+        axis = np.zeros(3)
+        axis[k] = np.sign(d[k])
+        return axis, f"world {'xyz'[k]} axis (cameras' mean down, {np.degrees(np.arccos(abs(d[k]))):.1f} deg off it)"
+    return d, "cameras' mean down"
+
+
 def check_gravity(source: "FrameSource", where: str, max_deg: float = 75.0) -> None:
     """The source's gravity (down, world frame) seen from its cameras must point roughly along camera +y
     (image down): a handheld or robot video is seldom tilted by more than `max_deg` on median. A flipped or
@@ -231,7 +255,8 @@ def _scale_K(K: np.ndarray, s: float) -> np.ndarray:
     return K
 
 
-def _loadtxt(path: Path, shape: tuple[int, ...] | None = None, what: str = "numbers") -> np.ndarray:
+def _loadtxt(path: Path, shape: tuple[int, ...] | None = None, what: str = "numbers",
+             allow_nonfinite: bool = False) -> np.ndarray:
     try:
         a = np.loadtxt(path, dtype=np.float64, ndmin=1)
     except (OSError, ValueError) as e:
@@ -240,7 +265,7 @@ def _loadtxt(path: Path, shape: tuple[int, ...] | None = None, what: str = "numb
         if a.size != int(np.prod(shape)):
             raise InputError(f"{path}: expected {what} with {int(np.prod(shape))} values {shape}, got {a.size}")
         a = a.reshape(shape)
-    if not np.all(np.isfinite(a)):
+    if not allow_nonfinite and not np.all(np.isfinite(a)):
         raise InputError(f"{path}: {what} contains non-finite values")
     return a
 
@@ -305,6 +330,7 @@ class FrameSource:
     load_seconds: float = 0.0   # class defaults: a subclass that skips __init__ still counts
     loads: int = 0
     splits_colour: bool = False  # `_load_colour` reads less than `_load` (depth and pose are separate files)
+    sequential: bool = False     # frames decode forward only (a video: going back re-opens the file)
 
     def __init__(self, cache_size: int = 32):
         self._cache = LRU(cache_size)
@@ -383,10 +409,22 @@ class FrameSource:
         sources that can decode it more cheaply than the colour frame override this)."""
         from .dedup import small_gray
 
+        path = self._colour_path(position)
+        if path is not None and self._position(position) not in self._cache:
+            return _gray_file(path, width)
         return small_gray(self.colour(position).rgb, width)
+
+    def _colour_path(self, position: int) -> Path | None:
+        """The image file of the frame at `position`, when the source reads one file per frame (a cheaper gray
+        read decodes it at a reduced size: `_gray_file`)."""
+        return None
 
     def prefetch(self, indices: Sequence[int]) -> None:
         """Hint that these frames are needed soon (the video source decodes them in one forward pass)."""
+
+    def untracked_frames(self) -> list[int]:
+        """Positions of frames whose ground-truth pose marks a tracking failure (none for most sources)."""
+        return []
 
     def gravity_camera(self, i: int) -> np.ndarray | None:
         """Gravity (down) in camera i's frame [3], or None without gravity or ground-truth pose."""
@@ -507,6 +545,9 @@ class SevenScenesSource(FrameSource):
 
     splits_colour = True
 
+    def _colour_path(self, position: int) -> Path | None:
+        return self.color_paths[self._position(position)]
+
     def _load_colour(self, i: int) -> Frame:
         rgb = _downscale(_imread_rgb(self.color_paths[i], self.notes), self.scale)
         return Frame(rgb, float(self.timestamps[i]), i, self.K, None, None, self.dist)
@@ -521,11 +562,25 @@ class SevenScenesSource(FrameSource):
                                  f"is {rgb.shape[1::-1]}")
             depth = _downscale(depth, self.scale, nearest=True)  # nearest: never blend across depth edges
         rgb = _downscale(rgb, self.scale)
-        pose = None
-        if self.pose_paths[i].exists():
-            pose = check_pose(_loadtxt(self.pose_paths[i], (4, 4), "a 4x4 camera-to-world pose"),
-                              _show(self.pose_paths[i]))
+        pose = self._pose(i)
         return Frame(rgb, float(self.timestamps[i]), i, self.K, depth, pose, self.dist)
+
+    def _pose(self, i: int) -> np.ndarray | None:
+        """Frame i's ground-truth pose [4, 4], or None without a pose file or where the file marks a tracking
+        failure (ScanNet writes -inf: no ground truth for that frame, not bad input; `untracked_frames`)."""
+        if not self.pose_paths[i].exists():
+            return None
+        T = _loadtxt(self.pose_paths[i], (4, 4), "a 4x4 camera-to-world pose", allow_nonfinite=True)
+        if not np.isfinite(T).all():
+            return None
+        return check_pose(T, _show(self.pose_paths[i]))
+
+    def untracked_frames(self) -> list[int]:
+        """Positions whose pose file holds a non-finite pose (a tracking failure), read once and cached."""
+        if getattr(self, "_untracked", None) is None:
+            self._untracked = [i for i, p in enumerate(self.pose_paths) if p.exists() and not np.isfinite(
+                _loadtxt(p, (4, 4), "a 4x4 camera-to-world pose", allow_nonfinite=True)).all()]
+        return list(self._untracked)
 
 
 def _read_tum_list(path: Path) -> list[tuple[float, list[str]]]:
@@ -669,12 +724,53 @@ class ImageFolderSource(FrameSource):
         else:
             self._set_K(intrinsics_from_fov(W, H, hfov_deg), f"hfov_deg={hfov_deg}")
 
+    def _colour_path(self, position: int) -> Path | None:
+        return self.paths[self._position(position)]
+
     def _load(self, i: int) -> Frame:
         rgb = _imread_rgb(self.paths[i], self.notes)
         if rgb.shape[1::-1] != self.orig_size:
             raise InputError(f"{_show(self.paths[i])}: image is {rgb.shape[1]}x{rgb.shape[0]}, the folder's first "
                              f"image is {self.orig_size[0]}x{self.orig_size[1]}; all frames must have one size")
         return Frame(_downscale(rgb, self.scale), float(self.timestamps[i]), i, self.K)
+
+
+def _gray_file(path: Path, width: int) -> np.ndarray:
+    """Gray [h, w] uint8, at most `width` wide, of an image file, decoded at the largest JPEG reduction (1/2, 1/4,
+    1/8) that is still at least `width` wide: the redundant-frame removal reads every compared frame this way
+    (a full decode, colour conversion and copy cost ~3x more). A file that does not decode: `_imread_rgb`'s error."""
+    import cv2
+
+    from .dedup import small_gray
+
+    buf = _read_bytes(path, "image")
+    g = None
+    for flag, f in ((cv2.IMREAD_REDUCED_GRAYSCALE_8, 8), (cv2.IMREAD_REDUCED_GRAYSCALE_4, 4),
+                    (cv2.IMREAD_REDUCED_GRAYSCALE_2, 2), (cv2.IMREAD_GRAYSCALE, 1)):
+        head = _image_width(buf)
+        if head is not None and head // f < width and f > 1:
+            continue
+        g = cv2.imdecode(buf, flag) if buf.size else None
+        break
+    if g is None or g.size == 0 or (head is None and g.shape[1] < width and g.shape[1] * 2 <= width):
+        return small_gray(_imread_rgb(path), width)
+    return small_gray(g, width)
+
+
+def _image_width(buf: np.ndarray) -> int | None:
+    """The width stored in a JPEG's or PNG's header (None when not found: the caller decodes in full)."""
+    b = buf.tobytes()[:65536]
+    if b[:8] == b"\x89PNG\r\n\x1a\n" and len(b) >= 24:
+        return int.from_bytes(b[16:20], "big")
+    i = 2
+    while b[:2] == b"\xff\xd8" and i + 9 < len(b):
+        if b[i] != 0xFF:
+            return None
+        marker, seg = b[i + 1], int.from_bytes(b[i + 2:i + 4], "big")
+        if marker in (0xC0, 0xC1, 0xC2):
+            return int.from_bytes(b[i + 7:i + 9], "big")
+        i += 2 + seg
+    return None
 
 
 def _small_gray_bgr(bgr: np.ndarray, width: int, scale: float = 1.0) -> np.ndarray:
@@ -701,6 +797,8 @@ class VideoSource(FrameSource):
     forward pass. Rotation metadata is applied by OpenCV (CAP_PROP_ORIENTATION_AUTO) and recorded in
     `rotation_deg`. `progress(n)` is called with the frames the scan has decoded so far, every 32 (a bar).
     """
+
+    sequential = True
 
     seek_min: int = 48  # forward jumps longer than this seek instead of decoding every frame in between
     # FFmpeg decoder threads of the opening scan (None: `worker_threads()` less one, at least 1: the

@@ -15,6 +15,7 @@ pull in onnxruntime and the profile machinery, which a saved-map question never 
 from __future__ import annotations
 
 import dataclasses
+import functools
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any, Callable, ClassVar, Collection, Mapping, Sequence
@@ -33,6 +34,7 @@ from .dedup import DedupConf, DedupResult, remove_redundant
 from .keyframes import KeyFrameConf, scored_budget, select_keyframes, uniform_keyframes
 from .matching import MatchConf, make_matcher
 from .alignment import AlignConf, align_keyframes, worker_threads
+from .align.backbone import BackboneConf, align_rest_backbone
 from .semantic_map import (FusionConfig, ObjectInstance, Observation, SemanticMap, box_depth_mask,
                            extend_to_floor, first_seen_from_detections, fuse_observations, gravity_from_frames,
                            lift_camera, place, refine, room_extent)
@@ -55,7 +57,8 @@ def _pipeline_alignment() -> AlignConf:
 
 
 # typed stage configs of a run: field -> its class (a mapping given for one is merged over the field's default)
-_SUB_CONFS: dict[str, type] = {"dedup": DedupConf, "alignment": AlignConf, "match": MatchConf, "fusion": FusionConfig}
+_SUB_CONFS: dict[str, type] = {"dedup": DedupConf, "alignment": AlignConf, "match": MatchConf, "fusion": FusionConfig,
+                               "backbone": BackboneConf}
 
 
 @dataclass
@@ -123,6 +126,7 @@ class PipelineConfig(StageConf):
     alignment: AlignConf = field(default_factory=_pipeline_alignment)
     match: MatchConf = field(default_factory=MatchConf)  # OpenCV matchers (ratio per method when unset)
     fusion: FusionConfig = field(default_factory=FusionConfig)
+    backbone: BackboneConf = field(default_factory=BackboneConf)  # metric depth: odometry between key frames
 
     def __post_init__(self) -> None:
         for name, cls in _SUB_CONFS.items():
@@ -490,9 +494,10 @@ def _align(frames: list[Frame], dets: dict[int, Detections], source: FrameSource
     if budget is not None:  # one plan stage from matching to refinement (fusion is an alias of alignment)
         budget.start_stage("alignment")
     bar = start("alignment", unit="round")
+    rest = functools.partial(align_rest_backbone, conf.backbone, perception.embed) if conf.backbone.enabled else None
     al, _used = align_keyframes(frames, matcher, boxes, emb, source, _with_depth(conf, perception, trace),
                                 perception.depth_relative, conf, trace,
-                                lambda unaligned: _over_budget(budget, trace, unaligned), thumbs)
+                                lambda unaligned: _over_budget(budget, trace, unaligned), thumbs, rest)
     bar.done(aligned=f"{sum(f.index in al.poses for f in frames)}/{len(frames)} key frames")
     return al, matcher
 
