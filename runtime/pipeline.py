@@ -35,6 +35,7 @@ from .keyframes import KeyFrameConf, scored_budget, select_keyframes, uniform_ke
 from .matching import MatchConf, make_matcher
 from .alignment import AlignConf, align_keyframes, worker_threads
 from .align.backbone import BackboneConf, align_rest_backbone
+from .align.graph import rigid_part
 from .semantic_map import (FusionConfig, ObjectInstance, Observation, SemanticMap, box_depth_mask,
                            extend_to_floor, first_seen_from_detections, fuse_observations, gravity_from_frames,
                            lift_camera, place, refine, room_extent)
@@ -606,7 +607,9 @@ def _map_extras(instances: list[ObjectInstance], frames: list[Frame], poses: dic
                 det: _CachedDetector, names: list[str], source: FrameSource, perception: Perception,
                 conf: PipelineConfig, fconf: FusionConfig, trace: Trace) -> tuple[Any, list[Any]]:
     """First-seen times from the search's detections, floor-standing extents, the room. Returns (room, cams)."""
-    cams = [(float(f.t), poses[f.index]) for f in frames if f.index in poses]
+    # the cameras' rigid part: with relative depth a pose carries its frame's depth scale (Sim(3)); a camera is
+    # a position and an orientation, and a saved map holds rigid poses only
+    cams = [(float(f.t), rigid_part(poses[f.index])) for f in frames if f.index in poses]
     if conf.first_seen_from_search:
         key = tuple(names)
         first_seen_from_detections(instances, [(float(source.timestamps[i]), d.names)
@@ -855,8 +858,8 @@ def _open(source: Any, trace: Trace | None = None) -> FrameSource | SemanticMap:
     if p.is_file() and p.suffix.lower() == ".json":
         return SemanticMap.load(p)
     if p.is_dir() and (p / "map.json").is_file() and not any(p.glob("frame-*")) and not any(
-            q.suffix.lower() in (".jpg", ".png", ".mp4") for q in p.iterdir()):
-        return SemanticMap.load(p / "map.json")
+            q.suffix.lower() in (".jpg", ".png", ".mp4") and q.name != "map.png" for q in p.iterdir()):
+        return SemanticMap.load(p / "map.json")  # a `--out` folder: map.json beside the map's own map.png
     return open_frames(p, trace)
 
 

@@ -53,6 +53,9 @@ class BackboneConf(StageConf):
     walk_matcher: str = "pipeline"  # the walks' features: "orb" (OpenCV, ~10x cheaper than a learned matcher
                                     # per frame; adjacent frames need no more) or "pipeline" (the run's matcher)
     walk_keypoints: int = 1000      # ... ORB keypoints per frame (brute-force Hamming matching grows with their square)
+    walk_all: bool = False          # walk between EVERY two key frames next in time, not only between parts (the
+                                    # walks then also check the tree's long edges in the graph); measured on the
+                                    # ScanNet room, K=32: ATE 0.13 vs 0.08 m and 3.5x the frames (docs/real-rooms.md)
     closures: int = 12              # loop closures: this many pairs of posed frames far apart in the graph but
                                     # predicted to overlap (by their poses and depth) tried as edges (0 = off)
     closure_hops: int = 4           # ... "far apart": more than this many edges between them in the tree
@@ -287,7 +290,7 @@ def align_backbone(al: AlignmentResult, frames: list[Any], matcher: Any, source:
     budget = bconf.max_frames
     walks = []
     for a, b in zip(keys, keys[1:]):
-        if parts.find(a) == parts.find(b) or budget <= 0:
+        if (parts.find(a) == parts.find(b) and not bconf.walk_all) or budget <= 0:
             continue
         fw, budget = walk(a, b, grid, estimate, budget, lambda i: i in pool, bconf.first_jump, sigma_of,
                           bconf.max_jump)

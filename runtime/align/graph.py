@@ -245,8 +245,14 @@ def _huber(r: np.ndarray, k: float) -> float:
     return float(np.sum(np.where(a <= k, 0.5 * a * a, k * a - 0.5 * k * k)))
 
 
+def rigid_part(T: np.ndarray) -> np.ndarray:
+    """The nearest rigid transform [4, 4] of T [4, 4] (a similarity's scale removed, the rotation
+    re-orthonormalised; the translation kept)."""
+    return _rigid(T)
+
+
 def _rigid(T: np.ndarray) -> np.ndarray:
-    """The nearest rigid transform of T [4, 4] (a similarity's scale removed, the rotation re-orthonormalised)."""
+    """See `rigid_part`."""
     T = np.asarray(T, np.float64)
     U, _, Vt = np.linalg.svd(T[:3, :3])
     R = U @ np.diag([1, 1, np.sign(np.linalg.det(U @ Vt))]) @ Vt

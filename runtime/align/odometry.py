@@ -46,8 +46,10 @@ class Walk:
 
 def _jumps(n: int, last: int, max_jump: int = 1 << 30) -> list[int]:
     """Grid steps to try, in order, when n grid frames remain before the goal (the goal itself is step n + 1):
-    the goal, 2 x last, last, then halves down to 1 (each once, within 1..min(n, max_jump))."""
-    out = [n + 1]
+    the goal when within `max_jump`, then 2 x last, last and halves down to 1 (each once, within 1..min(n,
+    max_jump)). A goal further away is reached through the grid: a walk is a path independent of the direct edge
+    between its ends."""
+    out = [n + 1] if n + 1 <= max_jump else []  # the goal itself only within a jump (else: an independent path)
     for s in [2 * last, last] + [last // 2 ** k for k in range(1, 8)] + [1]:
         s = min(max(int(s), 1), n, max_jump)
         if n >= 1 and s not in out:
@@ -84,7 +86,8 @@ def walk(a: int, b: int, grid: Sequence[int], estimate: Estimate, budget: int, k
             w.why = f"{cur}->{j}: {r.reason}"
             return False
         st, sr = sigma(r) if sigma is not None else (0.02, 0.0175)
-        w.edges.append(Edge(cur, j, r.T_ab, f"odometry/{r.method}", st, sr, float(r.n_inliers)))
+        # after the tree's own edges, before loop closures (`backbone.key_edges`)
+        w.edges.append(Edge(cur, j, r.T_ab, f"odometry/{r.method}", st, sr, 1e3 + r.n_inliers))
         return True
 
     while cur != b:
