@@ -116,7 +116,7 @@ def scorable_categories(bundle: Any, categories: list[str]) -> tuple[dict[str, s
         groups.setdefault(tuple(sorted(ids)), []).append(n)
     name_of = {}
     for ids, names in groups.items():
-        keep = sorted(one_name_per_label({n: list(ids) for n in names}, labels, names))[0]
+        keep = sorted(one_name_per_label({n: list(ids) for n in names}, labels, []))[0]  # the label's own name
         for n in names:
             name_of[n] = keep
     scored = {c: name_of[canon[c]] for c in categories if canon[c] in name_of}
@@ -528,6 +528,12 @@ def _write_out(out: Path, res: dict[str, Any], build: Any, S: np.ndarray, vmeta:
                    f"registration) over the ground truth (white: boxes, grey line: camera path)",
                    {k: [{**m, "centroid": list(np.asarray(m["centroid"]) + shift)} for m in v] for k, v in extra.items()},
                    tracks=[(gt_track + shift, (160, 160, 160), True), (est + shift, (0, 255, 255), False)])
+    # the picture's geometry alone (boxes and camera paths, no dataset points), for redrawing it small elsewhere
+    res["topdown"] = {"gt_track": np.round(gt_track[::3] + shift, 3).tolist(),
+                      "keyframe_cameras": np.round(est + shift, 3).tolist() if len(est) else [],
+                      "truth_boxes": vmeta["object_bbox"],
+                      "built_boxes": {k: [{**m, "centroid": list(np.asarray(m["centroid"]) + shift)} for m in v]
+                                      for k, v in extra.items()}}
     build.map.save(out / "map.json")
     (out / "scene_eval.json").write_text(json.dumps(res, indent=1, default=float))
     trace.save(out / "trace.json")
