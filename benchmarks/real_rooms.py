@@ -157,6 +157,83 @@ def picture(out: Path, room: str, dest: Path) -> None:
                    tracks=[(track, (160, 160, 160), True), (est, (0, 255, 255), False)])
 
 
+def diagnose(room: Path, bundle: Path, k: int, conf: dict | None) -> dict[str, Any]:
+    """Why each key frame of `mosaic ask ROOM "How many chairs are in the room?"` (K, sensor depth, the bundle's
+    matcher) stays unaligned: dedup's counts and reasons, the key frames, every pair alignment tried grouped by
+    its failure reason (numbers blanked), the alignment steps' own messages and each key frame's path."""
+    import re
+
+    from mosaicthinker.runtime import pipeline
+    from mosaicthinker.runtime.frames import open_source
+    from mosaicthinker.runtime.trace import Trace
+
+    tr = Trace()
+    c = {"matcher": "model", "depth": "sensor", **(conf or {})}
+    p = pipeline.perception_from_bundle(str(bundle), c, tr)
+    t0 = time.perf_counter()
+    b = pipeline.build_map(open_source(room), ["chair"], [], p, c, tr, k)
+    al = b.info["alignment"]
+    reasons: dict[str, int] = {}
+    for st in al["edge_stats"].values():
+        key = re.sub(r"(?<![\w.])\d+(\.\d+)?(?![\w.])", "N", st["reason"] or "verified")
+        reasons[key] = reasons.get(key, 0) + 1
+    return {"room": room.name, "conf": conf or {}, "dedup": tr.decisions.get("dedup"),
+            "keyframes": b.keyframes, "unaligned": b.unaligned, "fates": al["fates"],
+            "pairs": len(al["edge_stats"]), "pair_outcomes": dict(sorted(reasons.items(), key=lambda kv: -kv[1])),
+            "alignment_events": [e["message"] for e in tr.events if e.get("stage") == "alignment"],
+            "seconds": round(time.perf_counter() - t0, 1), "load_avg_1min": round(os.getloadavg()[0], 2)}
+
+
+def probe_edges(room: Path, bundle: Path, stride: int, n: int = 40) -> dict[str, Any]:
+    """Pairwise edges between frames `stride` apart (n pairs spread over the sequence, the bundle's matcher, whole
+    images) against the ground truth: matches, matches with depth at both ends, after the depth-smoothness test
+    the 3D-3D edge applies, with smooth depth at one end at least; then each method alone (3d-3d, pnp, essential)
+    and the chain (`align.pnp.rgbd_edge`): verified, right (< 5 cm and < 3 deg from the ground truth), and the
+    median / 90th percentile error of the verified ones. The pose graph's sigmas (`backbone.EDGE_SIGMA`) are
+    these medians."""
+    import numpy as np
+
+    from mosaicthinker.runtime.align.pnp import lifted, rgbd_edge
+    from mosaicthinker.runtime.alignment import AlignConf, pose_change
+    from mosaicthinker.runtime.frames import open_source
+    from mosaicthinker.runtime.geometry import invert
+    from mosaicthinker.runtime.stages import load_role
+    from mosaicthinker.runtime.trace import Trace
+
+    src = open_source(room)
+    m = load_role(str(bundle), "matcher", trace=Trace())
+    conf = AlignConf(min_inliers=12)
+    px = 1.5 * float(getattr(m, "keypoint_px", 1.0))
+    idx = [int(i) for i in np.linspace(0, len(src) - 1 - stride, n).round()]
+    counts = []
+    per: dict[str, dict[str, Any]] = {k: {"verified": 0, "right": 0, "errors": []}
+                                      for k in ("3d-3d", "pnp", "essential", "chain")}
+    for i in idx:
+        fa, fb = src[i], src[i + stride]
+        if fa.pose_gt is None or fb.pose_gt is None:
+            continue
+        mt = m.match_keys(i, fa.rgb, i + stride, fb.rgb)
+        za, zb, ua, ub = lifted(mt, fa, fb, conf)
+        counts.append([len(mt), int(((za > 0) & (zb > 0)).sum()), int((ua & ub).sum()), int((ua | ub).sum())])
+        gt = invert(fa.pose_gt) @ fb.pose_gt
+        for name, methods in (("3d-3d", ("3d-3d",)), ("pnp", ("pnp",)), ("essential", ("essential",)),
+                              ("chain", ("3d-3d", "pnp", "essential"))):
+            r = rgbd_edge(mt, fa, fb, conf, px, 0, methods)
+            if r.ok:
+                dt, dr = pose_change(r.T_ab, gt)
+                per[name]["verified"] += 1
+                per[name]["right"] += int(dt < 0.05 and dr < 3)
+                per[name]["errors"].append((dt, dr))
+    out = {"room": room.name, "stride": stride, "pairs": len(counts),
+           "median_matches_depth_both_smooth_one": np.median(np.array(counts), 0).tolist() if counts else None}
+    for name, d in per.items():
+        e = np.array(d.pop("errors")).reshape(-1, 2)
+        d["median_err_m_deg"] = np.round(np.median(e, 0), 4).tolist() if len(e) else None
+        d["p90_err_m_deg"] = np.round(np.percentile(e, 90, axis=0), 4).tolist() if len(e) else None
+        out[name] = d
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--bundle", type=Path, default=Path("/work/bundles/real"))
@@ -169,11 +246,28 @@ def main(argv: list[str] | None = None) -> int:
                     "real_rooms_before.json")
     ap.add_argument("--no-ask", action="store_true", help="skip the `mosaic ask` timing runs")
     ap.add_argument("--pictures", action="store_true", help="write docs/img/real-rooms-<room>.png")
+    ap.add_argument("--diagnose", action="store_true", help="only the diagnosis (`diagnose`, K = the first of "
+                    "--keyframes, sensor depth) -> real_rooms_diagnosis[_before].json")
+    ap.add_argument("--probe-edges", default="", metavar="STRIDES", help="only the pairwise-edge probe at these "
+                    "frame strides (`probe_edges`) -> real_rooms_edges.json")
     ap.add_argument("--out", type=Path, default=REPO / "out" / "real_rooms")
     ap.add_argument("--results", type=Path, default=RESULTS)
     a = ap.parse_args(argv)
     from mosaicthinker.runtime.frames import open_source
 
+    if a.diagnose or a.probe_edges:
+        rooms = [r for r in discover(a.rooms, a.only_default_rooms) if open_source(r).has_pose]
+        if a.diagnose:
+            k = int(a.keyframes.split(",")[0])
+            got = [diagnose(r, a.bundle, k, BEFORE if a.before else None) for r in rooms]
+            dest = RESULTS.with_name(f"real_rooms_diagnosis{'_before' if a.before else ''}.json")
+        else:
+            got = [probe_edges(r, a.bundle, int(s)) for r in rooms for s in a.probe_edges.split(",") if s]
+            dest = RESULTS.with_name("real_rooms_edges.json")
+        dest.write_text(json.dumps({"command": " ".join(sys.argv), "date": time.strftime("%Y-%m-%dT%H:%M:%SZ",
+                                    time.gmtime()), "results": got}, indent=1, default=float))
+        print(json.dumps(got, indent=1, default=float))
+        return 0
     if a.before and a.results == RESULTS:
         a.results = RESULTS.with_name("real_rooms_before.json")
     if a.before:

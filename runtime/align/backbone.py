@@ -42,7 +42,9 @@ class BackboneConf(StageConf):
 
     enabled: bool = True
     max_frames: int = 160           # frames the walks may load in one alignment (each costs one feature extraction)
-    methods: tuple[str, ...] = ("3d-3d", "pnp", "essential")   # pairwise edge methods, in order of preference
+    methods: tuple[str, ...] = ("3d-3d", "pnp")  # pairwise edge methods, in order of preference; "essential"
+                                    # (2D-2D, scale from a few triangulated points) verified many wrong edges on the
+                                    # shared rooms (docs/real-rooms.md, "pairwise edges"): not by default
     pnp_px: float | None = None     # reprojection threshold (px); None: 1.5 x the matcher's keypoint noise
     first_jump: int = 4             # a walk's first jump (grid frames); later jumps follow the last success
     max_jump: int = 4               # ... and never exceed this many grid frames (a longer jump is a wider, less
