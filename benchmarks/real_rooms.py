@@ -42,6 +42,12 @@ ANNOTATIONS = {"7scenes-redkitchen": REPO / "benchmarks" / "data" / "redkitchen_
 RESULTS = REPO / "benchmarks" / "results" / "real_rooms.json"
 QUESTION = "How many chairs are in the room?"
 BEFORE = {"backbone": {"enabled": False}, "dedup": {"min_overlap": 0.0}}
+# alternatives measured against the default (`--variants`): eval pose K = 32 uniform, the bundle's matcher
+VARIANTS = {"default": {},
+            "walk every gap, jumps <= 2": {"backbone": {"walk_all": True, "max_jump": 2, "first_jump": 2}},
+            "walk every gap, jumps <= 4": {"backbone": {"walk_all": True}},
+            "ORB walks": {"backbone": {"walk_matcher": "orb"}},
+            "no pose graph": {"backbone": {"graph": False}}}
 TARGETS = {"aligned_sensor": 0.9, "aligned_model": 0.7,
            "ate_k32_m": {"7scenes-redkitchen": 0.03, "scannet-scene0000_00": 0.05, "hololens-lounge": 0.05},
            "ask_k16_s": 8.0}
@@ -120,9 +126,10 @@ def scene_row(room: Path, bundle: Path, depth: str, k: int, out: Path, conf: dic
     return row
 
 
-def pose_row(room: Path, bundle: Path, depth: str, k: int, path: str) -> dict[str, Any]:
+def pose_row(room: Path, bundle: Path, depth: str, k: int, path: str, conf: dict | None = None) -> dict[str, Any]:
     r, meta = _mosaic(["eval", "pose", "--data", str(room), "--keyframes", str(k), "--sampling", "uniform",
-                       "--bundle", str(bundle), "--matcher", "model", "--depth", depth, "--path", path, "--json"])
+                       "--bundle", str(bundle), "--matcher", "model", "--depth", depth, "--path", path, "--json"]
+                      + (["--conf", json.dumps(conf)] if conf else []))
     if r is None:
         return {"eval_pose": meta}
     fates: dict[str, int] = {}
@@ -250,11 +257,25 @@ def main(argv: list[str] | None = None) -> int:
                     "--keyframes, sensor depth) -> real_rooms_diagnosis[_before].json")
     ap.add_argument("--probe-edges", default="", metavar="STRIDES", help="only the pairwise-edge probe at these "
                     "frame strides (`probe_edges`) -> real_rooms_edges.json")
+    ap.add_argument("--variants", action="store_true", help="only eval pose (K = the last of --keyframes, sensor "
+                    "depth) per room for every entry of VARIANTS -> real_rooms_variants.json")
     ap.add_argument("--out", type=Path, default=REPO / "out" / "real_rooms")
     ap.add_argument("--results", type=Path, default=RESULTS)
     a = ap.parse_args(argv)
     from mosaicthinker.runtime.frames import open_source
 
+    if a.variants:
+        k = int(a.keyframes.split(",")[-1])
+        got = {r.name: {name: pose_row(r, a.bundle, "sensor", k, "ask", conf) for name, conf in VARIANTS.items()}
+               for r in discover(a.rooms, a.only_default_rooms) if open_source(r).has_pose}
+        dest = RESULTS.with_name("real_rooms_variants.json")
+        dest.write_text(json.dumps({"command": " ".join(sys.argv), "date": time.strftime("%Y-%m-%dT%H:%M:%SZ",
+                                    time.gmtime()), "variants": VARIANTS, "results": got}, indent=1, default=float))
+        for room, rows in got.items():
+            for name, r in rows.items():
+                print(f"{room:24s} {name:28s} ATE {_f(r.get('ate_m'))} aligned {r.get('aligned')}/{r.get('of')} "
+                      f"other frames {r.get('other_frames_used')} {r.get('seconds')} s")
+        return 0
     if a.diagnose or a.probe_edges:
         rooms = [r for r in discover(a.rooms, a.only_default_rooms) if open_source(r).has_pose]
         if a.diagnose:

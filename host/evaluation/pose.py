@@ -221,6 +221,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="seed of the random subset")
     parser.add_argument("--strategy", choices=["mst", "sequential"], default="mst",
                         help="maximum spanning tree (paper) or sequential chaining (baseline); --path frames only")
+    parser.add_argument("--conf", default=None, metavar="JSON", help="pipeline config keys as JSON for --path ask "
+                        "(e.g. '{\"backbone\": {\"walk_all\": true}}'), alignment config keys for --path frames")
     parser.add_argument("--path", choices=["ask", "frames"], default="ask",
                         help="ask: the alignment `mosaic ask` runs, the other frames of the sequence available to it "
                              "(default); frames: the given frames alone (the paper's tree or chain)")
@@ -251,12 +253,12 @@ def _run(args: argparse.Namespace, outs: Any) -> dict[str, Any]:
     from mosaicthinker.runtime.progress import phase
 
     with phase("alignment", len(idx), "frame") as bar:  # one call: the bar shows the time it takes
-        out = evaluate_pose(src, idx, matcher, args.strategy, depth_model, trace=trace, path=args.path,
-                            embedder=embedder)
+        out = evaluate_pose(src, idx, matcher, args.strategy, depth_model, conf=_conf_arg(args.conf), trace=trace,
+                            path=args.path, embedder=embedder)
         bar.to(len(idx))
     out["seconds"] = time.perf_counter() - t0
     out.update({"schema": SCHEMA, "data": str(args.data), "keyframes": args.keyframes, "sampling": args.sampling,
-                "seed": args.seed, "strategy": args.strategy if args.path == "frames" else "ask",
+                "seed": args.seed, "strategy": args.strategy if args.path == "frames" else "ask", "conf": args.conf,
                 "embedder": None if embedder is None else getattr(embedder, "name", "embedder"), "depth": args.depth, "matcher": args.matcher,
                 "events": trace.events})
     if outs is not None:
@@ -265,6 +267,21 @@ def _run(args: argparse.Namespace, outs: Any) -> dict[str, Any]:
         finish_group(outs, [("eval_pose_json", "eval_pose.json", dict(out)),
                             ("trace_json", "trace.json", trace.to_dict())], out, trace)
     return out
+
+
+def _conf_arg(text: str | None) -> dict[str, Any] | None:
+    """--conf JSON -> a mapping of config keys (None without)."""
+    import json
+
+    if not text:
+        return None
+    try:
+        conf = json.loads(text)
+    except ValueError as e:
+        raise InputError(f"--conf: not JSON ({e})") from None
+    if not isinstance(conf, dict):
+        raise InputError("--conf: must be a JSON object of config keys")
+    return conf
 
 
 def _bundle_embedder(bundle: str | None, trace: Any) -> Any:

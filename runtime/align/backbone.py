@@ -42,9 +42,11 @@ class BackboneConf(StageConf):
 
     enabled: bool = True
     max_frames: int = 160           # frames the walks may load in one alignment (each costs one feature extraction)
-    methods: tuple[str, ...] = ("3d-3d", "pnp")  # pairwise edge methods, in order of preference; "essential"
-                                    # (2D-2D, scale from a few triangulated points) verified many wrong edges on the
-                                    # shared rooms (docs/real-rooms.md, "pairwise edges"): not by default
+    methods: tuple[str, ...] = ("3d-3d", "pnp")  # pairwise edge methods, in order of preference
+    # the essential matrix (2D-2D, its scale from the few triangulated points that have depth) verifies many wrong
+    # edges over a baseline (docs/real-rooms.md, "pairwise edges": right in 0-27 % at strides 3-6) and is used
+    # only between neighbouring frames of a walk, as the last resort where neither end has depth enough
+    adjacent_essential: bool = True
     pnp_px: float | None = None     # reprojection threshold (px); None: 1.5 x the matcher's keypoint noise
     first_jump: int = 4             # a walk's first jump (grid frames); later jumps follow the last success
     max_jump: int = 4               # ... and never exceed this many grid frames (a longer jump is a wider, less
@@ -96,6 +98,21 @@ class _Parts:
 
     def union(self, a: int, b: int) -> None:
         self.p[self.find(b)] = self.find(a)
+
+
+def _join_ends(fw: Any, bw: Any, estimate: Callable[[int, int, bool], EdgeResult]) -> list[Edge]:
+    """Two walks that stopped facing each other: their last two frames are tried pairwise (loaded already), the
+    nearest pairs first; the first edge that verifies joins them."""
+    def tail(w: Any) -> list[int]:
+        seen = [w.start] + [e.b for e in w.edges]
+        return list(dict.fromkeys(reversed(seen)))[:2]
+
+    for a, b in sorted(((x, y) for x in tail(fw) for y in tail(bw) if x != y), key=lambda p: abs(p[0] - p[1])):
+        r = estimate(a, b, False)
+        if r.ok:
+            st, sr = sigma_of(r)
+            return [Edge(a, b, r.T_ab, f"odometry/{r.method}", st, sr, 1e3 + r.n_inliers)]
+    return []
 
 
 def key_edges(al: AlignmentResult, pool: Mapping[int, Any], max_violation: float, loops: bool) -> list[Edge]:
@@ -276,6 +293,8 @@ def align_backbone(al: AlignmentResult, frames: list[Any], matcher: Any, source:
         fa, fb = pool[a], pool[b]
         m = (matcher if wide else walker).match_keys(a, fa.rgb, b, fb.rgb, None, None)
         methods = tuple(x for x in bconf.methods if adjacent or x != "essential")
+        if adjacent and bconf.adjacent_essential and "essential" not in methods:
+            methods += ("essential",)
         r = rgbd_edge(m, fa, fb, aconf, px if wide else wpx, rng, methods)
         if r.ok and not _edge_ok(fa, fb, r.T_ab, viol):
             r = EdgeResult(r.T_ab, False, r.n_matches, r.n_valid, r.n_inliers, r.residual_m, r.seconds,
@@ -301,6 +320,8 @@ def align_backbone(al: AlignmentResult, frames: list[Any], matcher: Any, source:
             bw, budget = walk(b, fw.end, grid, estimate, budget, lambda i: i in pool, bconf.first_jump,
                               sigma_of, bconf.max_jump)
             gap.append(bw)
+            if not bw.reached:  # the two ends across the frames neither could step over
+                gap[-1].edges += _join_ends(fw, bw, estimate)
         for w in gap:
             walks.append(w)
             edges += w.edges

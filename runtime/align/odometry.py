@@ -103,7 +103,8 @@ def walk(a: int, b: int, grid: Sequence[int], estimate: Estimate, budget: int, k
         if not moved:  # the next grid frame failed: a frame between the two, then one grid frame further
             nxt = path[ci + 1]
             between = list(range(cur + step, nxt, step))
-            for j in ([between[len(between) // 2]] if between else []) + ([path[ci + 2]] if ci + 2 < len(path) else []):
+            # ... and up to three grid frames further (a blurred or featureless frame is skipped)
+            for j in ([between[len(between) // 2]] if between else []) + path[ci + 2:ci + 5]:
                 if attempt(j, True):
                     if j in path:
                         ci = path.index(j)
