@@ -44,13 +44,11 @@ QUESTION = "How many chairs are in the room?"
 BEFORE = {"backbone": {"enabled": False}, "dedup": {"min_overlap": 0.0}}
 # alternatives measured against the default (`--variants`): eval pose K = 32 uniform, the bundle's matcher
 VARIANTS = {"default": {},
-            "walk every gap, jumps <= 2": {"backbone": {"walk_all": True, "max_jump": 2, "first_jump": 2}},
-            "walk every gap, jumps <= 4": {"backbone": {"walk_all": True}},
+            "walks only between parts": {"backbone": {"walk_all": False}},
+            "walk every gap, jumps <= 2": {"backbone": {"max_jump": 2, "first_jump": 2}},
             "ORB walks": {"backbone": {"walk_matcher": "orb"}},
-            "no pose graph": {"backbone": {"graph": False}}}
-TARGETS = {"aligned_sensor": 0.9, "aligned_model": 0.7,
-           "ate_k32_m": {"7scenes-redkitchen": 0.03, "scannet-scene0000_00": 0.05, "hololens-lounge": 0.05},
-           "ask_k16_s": 8.0}
+            "no pose graph": {"backbone": {"graph": False}},
+            "no backbone (the landed path)": {"backbone": {"enabled": False}, "dedup": {"min_overlap": 0.0}}}
 
 
 def discover(extra: list[Path], only_default: bool = False) -> list[Path]:

@@ -110,17 +110,17 @@ def _load_role(bundle: str | None, role: str, trace: Any) -> Any:
 
 
 def evaluate_pose(source: Any, indices: Sequence[int], matcher: Any = "sift", strategy: str = "mst",
-                  depth_model: Any = None, conf: Any = None, trace: Any = None, path: str = "ask",
+                  depth_model: Any = None, conf: Any = None, trace: Any = None, path: str = "frames",
                   embedder: Any = None) -> dict[str, Any]:
     """Align frames `indices` of a source with ground-truth poses and score them. matcher: 'orb' | 'sift' |
     matcher object (a shared FeatureMatcher keeps its feature cache across calls); depth_model: None (sensor
     depth) or an adapter with .predict(rgb) / .predict_metric(rgb) and .semantics.
 
-    path "ask" (default): the alignment `mosaic ask` runs (`pipeline.align_keyframes` with the pipeline's config
+    path "ask" (the command's default, `mosaic eval pose --path ask`): the alignment `mosaic ask` runs (`pipeline.align_keyframes` with the pipeline's config
     `conf`: the whole-image tree over the given frames - there are no detections to restrict matches to - its depth
     check, then the odometry backbone or bridges over the other frames of the source, which are available to it as
-    they are to `ask`); the result lists the other frames it used. path "frames": the paper's alignment of the
-    given frames alone (`alignment.align_frames` with `strategy` and the alignment config `conf`). Frames whose
+    they are to `ask`); the result lists the other frames it used. path "frames" (this function's default, for the
+    benchmarks that compare strategies): the paper's alignment of the given frames alone (`alignment.align_frames` with `strategy` and the alignment config `conf`). Frames whose
     ground truth marks a tracking failure (ScanNet's -inf) are aligned but not scored (listed)."""
     if path not in ("ask", "frames"):
         raise InputError(f"`path` must be 'ask' or 'frames', got {path!r}", fields=("path",))
