@@ -49,6 +49,9 @@ VARIANTS = {"default": {},
             "ORB walks": {"backbone": {"walk_matcher": "orb"}},
             "no pose graph": {"backbone": {"graph": False}},
             "no backbone (the landed path)": {"backbone": {"enabled": False}, "dedup": {"min_overlap": 0.0}}}
+TARGETS = {"aligned_sensor": 0.9, "aligned_model": 0.7,
+           "ate_k32_m": {"7scenes-redkitchen": 0.03, "scannet-scene0000_00": 0.05, "hololens-lounge": 0.05},
+           "ask_k16_s": 8.0}
 
 
 def discover(extra: list[Path], only_default: bool = False) -> list[Path]:
