@@ -118,3 +118,41 @@ def test_overlap_sampling_inserts_only_where_samples_do_not_overlap():
     assert all(b - a <= 2 for a, b in zip(pos, pos[1:]))
     assert [p for p, _, ins in got if not ins] == [0, 10, 12, 20]
     assert [p for p, _, _ in overlap_sampled([0, 10], lambda p: p, lambda a, b: 0.0, 0.0)] == [0, 10]  # off
+
+
+def _corner_depth(T_wc: np.ndarray) -> np.ndarray:
+    """Depth [480, 640] of a room corner (floor y = 0.8, walls z = 3 and x = -0.8 in the world, camera looking down
+    +z) seen by a camera with pose T_wc: ray-plane intersections, the nearest in front."""
+    v, u = np.mgrid[0:480, 0:640].astype(np.float64)
+    rays = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones_like(u)], -1)  # camera, z = 1
+    d_w = rays @ T_wc[:3, :3].T
+    o = T_wc[:3, 3]
+    best = np.full(u.shape, np.inf)
+    for axis, value in ((1, 0.8), (2, 3.0), (0, -0.8)):
+        with np.errstate(divide="ignore", invalid="ignore"):
+            s = (value - o[axis]) / d_w[..., axis]
+        best = np.where((s > 0) & (s < best), s, best)
+    return np.where(np.isfinite(best), best, 0.0).astype(np.float32)  # s is the depth: rays have z = 1
+
+
+def test_icp_refines_a_verified_edge_and_refuses_a_large_move():
+    """`backbone.icp_refined`: a feature edge 2 cm / 1 deg off is pulled back onto the depth (two views of a room
+    corner); the pose graph then trusts it with `ICP_SIGMA`; a correction beyond `icp_max_change` is refused."""
+    from mosaicthinker.runtime.align.backbone import icp_refined, sigma_of
+    from mosaicthinker.runtime.align.conf import ICP_SIGMA
+
+    Ta = make_pose(so3_exp(np.array([[0.05, -0.2, 0.0]]))[0], np.array([0.2, 0.0, 0.0]))
+    Tb = make_pose(so3_exp(np.array([[0.08, -0.3, 0.02]]))[0], np.array([0.35, 0.05, 0.1]))
+    fa, fb = _frame(_corner_depth(Ta), 0), _frame(_corner_depth(Tb), 1)
+    T_true = invert(Ta) @ Tb
+    off = make_pose(so3_exp(np.array([[0.0, np.radians(1.0), 0.0]]))[0], np.array([0.02, 0.0, -0.01])) @ T_true
+    conf = AlignConf()
+    r = icp_refined(EdgeResult(off.copy(), True, 100, 100, 80, 0.01, 0.0, method="3d-3d"), fa, fb, conf)
+    assert r.icp == "applied"
+    dt, dr = pose_change(r.T_ab, T_true)
+    assert dt < 0.003 and dr < 0.1, (dt, dr)
+    assert np.allclose(sigma_of(r), (ICP_SIGMA[0], np.radians(ICP_SIGMA[1])))
+    tight = AlignConf(icp_max_change=(0.005, 0.2))
+    r2 = icp_refined(EdgeResult(off.copy(), True, 100, 100, 80, 0.01, 0.0, method="3d-3d"), fa, fb, tight)
+    assert r2.icp.startswith("rejected: moved") and np.allclose(r2.T_ab, off)
+    assert sigma_of(r2) == sigma_of(EdgeResult(off, True, 100, 100, 80, 0.01, 0.0, method="3d-3d"))

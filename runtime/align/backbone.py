@@ -19,21 +19,26 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 
 from ..frames import FrameSource
-from ..geometry import invert
+from ..geometry import icp_point_to_plane, invert
 from ..infra.trace import StageLog, as_trace
 from ..types import Frame
-from .conf import EDGE_SIGMA, AlignConf, BackboneConf
+from .conf import EDGE_SIGMA, ICP_SIGMA, AlignConf, BackboneConf
 from .graph import Edge, refine, spanning_poses
 from .matching import KeyedMatcher
 from .odometry import OrbWalker, walk
+from .pairwise import pose_change
 from .pnp import EdgeResult, rgbd_edge
 from .recover import Fates, WithDepth
 from .tree import AlignmentResult
 from .verify import depth_consistency, edge_ok, verify_tree
 
 def sigma_of(r: EdgeResult | Any) -> tuple[float, float]:
-    """(metres, radians) expected error of an edge by its method (`EDGE_SIGMA`; 3d-3d when it has none)."""
-    m, d = EDGE_SIGMA.get(getattr(r, "method", "") or "3d-3d", EDGE_SIGMA["3d-3d"])
+    """(metres, radians) expected error of an edge by its method (`EDGE_SIGMA`; 3d-3d when it has none; `ICP_SIGMA`
+    once ICP refined it)."""
+    if getattr(r, "icp", "") == "applied":
+        m, d = ICP_SIGMA
+    else:
+        m, d = EDGE_SIGMA.get(getattr(r, "method", "") or "3d-3d", EDGE_SIGMA["3d-3d"])
     return m, np.radians(d)
 
 
@@ -87,6 +92,23 @@ def key_edges(al: AlignmentResult, pool: Mapping[int, Any], max_violation: float
         st, sr = sigma_of(r)
         out.append(Edge(a, b, r.T_ab, kind, st, sr, 1e6 + r.n_inliers if kind == "tree" else float(r.n_inliers)))
     return out
+
+
+def icp_refined(r: EdgeResult, fa: Frame, fb: Frame, conf: AlignConf) -> EdgeResult:
+    """A verified edge refined by point-to-plane ICP on the two frames' depth (`geometry.icp_point_to_plane`, the
+    alignment's `icp_*` settings): features place the frames, the dense depth of everything both see fixes the
+    last centimetres. Rejected (the edge as it was, `r.icp` says why) when the depth overlaps too little or ICP
+    moves the edge more than `icp_max_change`."""
+    T2, rms, _n, overlap = icp_point_to_plane(fa.depth, fa.K, fb.depth, fb.K, r.T_ab, conf.icp_iterations,
+                                              conf.icp_stride)
+    dt, dr = pose_change(r.T_ab, T2)
+    if overlap < conf.icp_min_overlap:
+        r.icp = f"rejected: overlap {overlap:.2f} < {conf.icp_min_overlap}"
+    elif dt > conf.icp_max_change[0] or dr > conf.icp_max_change[1]:
+        r.icp = f"rejected: moved {dt:.3f} m / {dr:.1f} deg from the feature pose"
+    else:
+        r.T_ab, r.icp, r.icp_rms_m = T2, "applied", rms
+    return r
 
 
 def tiny_descriptor(rgb: np.ndarray) -> np.ndarray:
@@ -239,7 +261,7 @@ def align_backbone(al: AlignmentResult, frames: list[Frame], matcher: KeyedMatch
     walker = matcher if bconf.walk_matcher == 'pipeline' else OrbWalker(bconf.walk_keypoints)
     wpx = bconf.pnp_px if bconf.pnp_px is not None else 1.5 * float(getattr(walker, "keypoint_px", 1.0))
 
-    def estimate(a: int, b: int, adjacent: bool, wide: bool = False) -> EdgeResult:
+    def estimate(a: int, b: int, adjacent: bool, wide: bool = False, icp: bool = True) -> EdgeResult:
         for i in (a, b):
             if i not in pool:
                 pool[i] = with_depth(source[i])
@@ -252,6 +274,8 @@ def align_backbone(al: AlignmentResult, frames: list[Frame], matcher: KeyedMatch
         if r.ok and not edge_ok(fa, fb, r.T_ab, viol):
             r = EdgeResult(r.T_ab, False, r.n_matches, r.n_valid, r.n_inliers, r.residual_m, r.seconds,
                            f"{r.method} edge failed the depth check", method="")
+        if r.ok and bconf.edge_icp and icp:  # after the check: ICP refines an edge, never admits one
+            r = icp_refined(r, fa, fb, conf)
         stats[(a, b)] = r
         return r
 
@@ -282,11 +306,12 @@ def align_backbone(al: AlignmentResult, frames: list[Frame], matcher: KeyedMatch
                 parts.union(e.a, e.b)
     root = al.root if al.root in pool else keys[0]
     nodes = sorted({i for e in edges for i in (e.a, e.b)} | set(keys))
-    found, described = revisit_edges(parts, nodes, keys, root, pool, lambda a, b, adj: estimate(a, b, adj, True),
-                                     describe or tiny_descriptor, bconf.part_revisits)
+    found, described = revisit_edges(parts, nodes, keys, root, pool,
+                                     lambda a, b, adj: estimate(a, b, adj, True, False), describe or tiny_descriptor, bconf.part_revisits)
     edges += found
     poses, tree = spanning_poses(root, edges)
-    closed = closure_edges(poses, tree, pool, lambda a, b: estimate(a, b, False), bconf.closures, bconf.closure_hops)
+    closed = closure_edges(poses, tree, pool, lambda a, b: estimate(a, b, False, icp=False), bconf.closures,
+                           bconf.closure_hops)
     edges += closed
     report = None
     if bconf.graph and len(poses) > 2:

@@ -29,7 +29,7 @@ class AlignConf(StageConf):
     edge_radius: int = 3               # a match's depth must be smooth in a (2r+1)^2 window (0 = off) ...
     edge_rel: float = 0.05             # ... i.e. max - min depth there below this fraction of its depth
     icp: bool = False                  # point-to-plane ICP on metric edges (off: it did not lower ATE)
-    icp_iterations: int = 10
+    icp_iterations: int = 30           # projective ICP converges slowly: 10 stopped ~1 cm short on the kitchen
     icp_stride: int = 4
     icp_max_change: tuple[float, float] = (0.10, 5.0)  # (m, deg) larger ICP corrections are rejected
     icp_min_overlap: float = 0.2       # fraction of b's points paired in a, below = ICP rejected
@@ -77,6 +77,7 @@ class AlignConf(StageConf):
 # expected error of one edge by method (metres, degrees): the median error of each method against the ground truth
 # on adjacent frames of the shared rooms (docs/real-rooms.md, "pairwise edges"); the pose graph's sigmas
 EDGE_SIGMA = {"3d-3d": (0.02, 0.6), "pnp": (0.025, 0.6), "essential": (0.06, 1.5)}
+ICP_SIGMA = (0.008, 0.3)   # an edge ICP refined (`backbone.icp_refined`), whatever method placed it first
 
 
 @dataclass
@@ -105,6 +106,9 @@ class BackboneConf(StageConf):
     closures: int = 12              # loop closures: pairs of posed frames far apart in the graph but predicted to
                                     # overlap (by their poses and depth) tried as edges (0 = off)
     closure_hops: int = 4           # ... "far apart": more than this many edges between them in the tree
+    edge_icp: bool = False          # the walks' edges refined by point-to-plane ICP on the two frames' depth after
+                                    # the depth check (`backbone.icp_refined`, AlignConf's icp_* settings). Off: it
+                                    # helps one room and hurts two (docs/real-rooms.md, "ICP on the walks")
     graph: bool = True              # refine the poses over every edge (`graph.refine`); off: the spanning tree
     robust: float = 3.0             # the graph's loss scale (in sigmas)
 
