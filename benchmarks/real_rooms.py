@@ -48,6 +48,8 @@ VARIANTS = {"default": {},
             "walk every gap, jumps <= 2": {"backbone": {"max_jump": 2, "first_jump": 2}},
             "ORB walks": {"backbone": {"walk_matcher": "orb"}},
             "no pose graph": {"backbone": {"graph": False}},
+            "ICP on the walks' edges": {"backbone": {"edge_icp": True}},
+            "closures: 48, 2 hops apart": {"backbone": {"closures": 48, "closure_hops": 2}},
             "no backbone (the landed path)": {"backbone": {"odometry": False}, "dedup": {"min_overlap": 0.0}}}
 TARGETS = {"aligned_sensor": 0.9, "aligned_model": 0.7,
            "ate_k32_m": {"7scenes-redkitchen": 0.03, "scannet-scene0000_00": 0.05, "hololens-lounge": 0.05},
