@@ -1,12 +1,13 @@
 """The configuration of a run (`PipelineConfig`): each stage's own typed config (`dedup`, `keyframe`, `alignment`,
-`match`, `fusion`, `verify`) and the settings of the wiring and the map's extras, merged with user overrides."""
+`match`, `fusion`, `verify`, `backbone`) and the settings of the wiring and the map's extras, merged with user
+overrides."""
 from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
 from typing import Any, ClassVar, Mapping
 
-from .align import AlignConf, MatchConf
+from .align import AlignConf, BackboneConf, MatchConf
 from .infra.config import StageConf
 from .infra.errors import InputError
 from .keyframes import KeyFrameConf
@@ -17,7 +18,8 @@ from .scan import DedupConf
 
 # typed stage configs of a run: field -> its class (a mapping given for one is merged over the field's default)
 _SUB_CONFS: dict[str, type] = {"dedup": DedupConf, "keyframe": KeyFrameConf, "alignment": AlignConf,
-                               "match": MatchConf, "fusion": FusionConfig, "verify": VerifyConf}
+                               "match": MatchConf, "fusion": FusionConfig, "verify": VerifyConf,
+                               "backbone": BackboneConf}
 
 
 @dataclass
@@ -53,6 +55,7 @@ class PipelineConfig(StageConf):
     match: MatchConf = field(default_factory=MatchConf)  # OpenCV matchers (ratio per method when unset)
     fusion: FusionConfig = field(default_factory=FusionConfig)
     verify: VerifyConf = field(default_factory=VerifyConf)  # candidate detections verified across views
+    backbone: BackboneConf = field(default_factory=BackboneConf)  # metric depth: odometry between key frames
 
     def __post_init__(self) -> None:
         for name, cls in _SUB_CONFS.items():

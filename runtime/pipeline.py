@@ -35,7 +35,7 @@ from .keyframes import (KeyFrameConf, KeyFrameResult, plan_keyframes, reduce_key
                         spread_keyframes, uniform_keyframes)
 from .perceive import (CachedDetector, Perceived, Perception, colour_frame, load_vlm, match_boxes, perceive_keyframes,
                        perception_from_bundle, with_depth)
-from .align import AlignmentResult, align_keyframes, make_matcher
+from .align import AlignmentResult, align_keyframes, make_matcher, rigid_part
 from .map import (FusionConfig, ObjectInstance, Room, SemanticMap, annotate_views, extend_to_floor,
                   first_seen_from_detections, fuse_frames, gravity_from_frames, refine, room_extent,
                   verify_observations)
@@ -182,7 +182,8 @@ def _align(p: Perceived, source: FrameSource, perception: Perception, conf: Pipe
     bar = start("alignment", unit="round")
     al, _used = align_keyframes(p.frames, matcher, boxes, emb, source, with_depth(conf.depth, perception, log),
                                 perception.depth_relative, conf.alignment, log,
-                                lambda unaligned: _over_budget(budget, unaligned), thumbs)
+                                lambda unaligned: _over_budget(budget, unaligned), thumbs, conf.backbone,
+                                perception.embed)
     trace.record(log)
     bar.done(aligned=f"{sum(f.index in al.poses for f in p.frames)}/{len(p.frames)} key frames")
     return al, matcher
@@ -278,7 +279,8 @@ def _map_extras(instances: list[ObjectInstance], frames: list[Frame], poses: dic
                 det: CachedDetector, names: list[str], source: FrameSource, perception: Perception,
                 conf: PipelineConfig, fconf: FusionConfig, trace: Trace) -> tuple[Room | None, list[Any]]:
     """First-seen times from the search's detections, floor-standing extents, the room. Returns (room, cams)."""
-    cams = [(float(f.t), poses[f.index]) for f in frames if f.index in poses]
+    # a camera is a position and an orientation: with relative depth a pose carries its frame's depth scale (Sim(3))
+    cams = [(float(f.t), rigid_part(poses[f.index])) for f in frames if f.index in poses]
     log = StageLog()
     if conf.first_seen_from_search:
         key = tuple(names)
@@ -416,8 +418,8 @@ def _open(source: Any, trace: Trace | None = None) -> FrameSource | SemanticMap:
     if p.is_file() and p.suffix.lower() == ".json":
         return SemanticMap.load(p)
     if p.is_dir() and (p / "map.json").is_file() and not any(p.glob("frame-*")) and not any(
-            q.suffix.lower() in (".jpg", ".png", ".mp4") for q in p.iterdir()):
-        return SemanticMap.load(p / "map.json")
+            q.suffix.lower() in (".jpg", ".png", ".mp4") and q.name != "map.png" for q in p.iterdir()):
+        return SemanticMap.load(p / "map.json")  # a `--out` folder: map.json beside the map's own map.png
     return open_frames(p, trace)
 
 

@@ -2,7 +2,10 @@
 thumbnails, colour histograms, counts) that the key-frame search and bridging read. Run on a source
 (`remove_redundant`), or while a video's opening scan decodes it (`open_scanned`, the frames decoded once).
 
-1. uniform down-sampling to `sample_fps` (or every `stride`-th frame);
+1. uniform down-sampling to `sample_fps` (or every `stride`-th frame), undone where two consecutive samples of a
+   source with random access share fewer than `min_overlap` of their ORB keypoints (`overlap_sampled`: a folder
+   without timestamps has times assumed from its frame numbers, and a sparsely recorded one would lose the frames
+   consecutive views need to overlap);
 2. ORB keypoint tracking between consecutive KEPT frames: a frame whose keypoints are mostly tracked with a
    small displacement tracks the last kept frame;
 3. SSIM against the last kept frame: a frame that tracks it AND has SSIM above `ssim_threshold` is dropped as
@@ -131,6 +134,10 @@ class DedupConf(StageConf):
     ssim_threshold: float = 0.80
     thumb_width: int = 64            # kept frames' gray copies (`ScanResult.thumbs`): no candidate decoded twice
     histograms: bool = True          # kept frames' colour histograms when the reader gives colour (the search's)
+    # time sampling is undone where it loses overlap: between two consecutive sampled frames that track fewer than
+    # this share of ORB keypoints, the frame halfway is compared too (`overlap_sampled`; sources with random
+    # access; 0 = off)
+    min_overlap: float = 0.2
 
 
 
@@ -216,6 +223,7 @@ class OnlineDedup:
         self.thumbs: dict[int, np.ndarray] = {}
         self.histograms: dict[int, np.ndarray] = {}
         self.n_cand = self.n_dup = 0
+        self.n_inserted = 0             # sampled for overlap (`overlap_sampled`), not by the time sampling
         self._pos = -1
         self._next_t = -np.inf
         # (index, gray, SSIM moments, ORB features or None until a comparison needs them) of the last kept frame
@@ -288,7 +296,8 @@ class OnlineDedup:
             if p not in sset:
                 dropped[index_at(p)] = why
         counts = {"input": n, "after_downsampling": len(self.sampled), "downsampled_away": n - len(self.sampled),
-                  "candidates": self.n_cand, "near_duplicates": self.n_dup, "kept": len(self.kept)}
+                  "candidates": self.n_cand, "near_duplicates": self.n_dup, "kept": len(self.kept),
+                  "inserted_for_overlap": self.n_inserted}
         return ScanResult(list(self.kept), dict(sorted(dropped.items())), counts, dict(self.scores),
                            dict(self.thumbs), dict(self.histograms), self.hist if self.histograms else None)
 
@@ -329,6 +338,43 @@ class BackgroundDedup:
         if self._error is not None:
             raise self._error
         return self.od
+
+
+# ----------------------------------------------------------------------------- thinning by measured overlap
+# A frame folder without timestamps only has frame numbers, so its times are assumed (number / 30 fps), and a
+# sequence recorded sparsely (ScanNet's even subsample, a HoloLens walk-through) loses the frames consecutive views
+# need to overlap. The time sampling stays where it is harmless and is measured where it is not.
+
+
+def overlap_sampled(sampled: Sequence[int], load: Callable[[int], Any], overlap: Callable[[Any, Any], float],
+                    min_overlap: float) -> Iterator[tuple[int, Any, bool]]:
+    """Positions to compare, in order, as (position, item, inserted): every position of `sampled` (sorted) plus,
+    between two consecutive ones whose `overlap(item_a, item_b)` is below `min_overlap`, the position halfway,
+    recursively (a pair of adjacent positions is never split). load(position) -> item (e.g. a small gray image
+    and its keypoints), called once per yielded position; overlap(a, b) -> share of a's keypoints tracked in b.
+    Pure apart from the two callables; `min_overlap` <= 0 yields `sampled` unchanged."""
+    if not sampled:
+        return
+    prev = (int(sampled[0]), load(int(sampled[0])))
+    yield prev[0], prev[1], False
+    for p in sampled[1:]:
+        cur = (int(p), load(int(p)))
+        if min_overlap > 0:
+            yield from _between(prev, cur, load, overlap, min_overlap)
+        yield cur[0], cur[1], False
+        prev = cur
+
+
+def _between(a: tuple[int, Any], b: tuple[int, Any], load: Callable[[int], Any],
+             overlap: Callable[[Any, Any], float], min_overlap: float) -> Iterator[tuple[int, Any, bool]]:
+    """The positions strictly between a and b (each (position, item)) the rule inserts, in order."""
+    if b[0] - a[0] <= 1 or overlap(a[1], b[1]) >= min_overlap:
+        return
+    m = (a[0] + b[0]) // 2
+    mid = (m, load(m))
+    yield from _between(a, mid, load, overlap, min_overlap)
+    yield m, mid[1], True
+    yield from _between(mid, b, load, overlap, min_overlap)
 
 
 def _dense_enough(conf: DedupConf, ts: np.ndarray, decisions: dict[str, Any]) -> DedupConf:
@@ -374,14 +420,28 @@ def remove_redundant(source_or_frames: FrameSource | Sequence[Frame], conf: Dedu
     # reading in increasing order decodes a video exactly once, forward (no prefetch into an evicting cache);
     # sources with a `gray(position, width)` read skip the colour conversion and the frame cache
     gray = getattr(src, "gray", None) if is_source else None
+    def load(p: int) -> list[Any]:  # [gray, its ORB features once a measurement needs them]
+        return [gray(p, conf.work_width) if gray is not None else small_gray(src[p].rgb, conf.work_width), None]
+
+    def overlap(a: list[Any], b: list[Any]) -> float:
+        for x in (a, b):
+            x[1] = x[1] if x[1] is not None else orb_features(x[0], conf.orb_features, conf.orb_levels)
+        return orb_track(a[0], b[0], f0=a[1], f1=b[1])[0]
+
     od = BackgroundDedup(OnlineDedup(conf))
+    sampled = [p for p, t in enumerate(ts) if od.wants(float(t))]
+    inserted: list[int] = []
     try:
-        for p, t in enumerate(ts):
-            if od.wants(float(t)):
-                g = gray(p, conf.work_width) if gray is not None else small_gray(src[p].rgb, conf.work_width)
-                od.push(index_at(p), g)
+        # a video decodes forward only and its times are measured: the time sampling stands there
+        min_overlap = 0.0 if getattr(src, "sequential", False) else conf.min_overlap
+        for p, (g, _), extra in overlap_sampled(sampled, load, overlap, min_overlap):
+            if extra:
+                inserted.append(p)
+            od.push(index_at(p), g)
     finally:
         done = od.finish()
+    done.sampled = sorted(set(done.sampled) | set(inserted))
+    done.n_inserted = len(inserted)
     res = done.result(n, index_at)
     res.decisions = {**decisions, "dedup.counts": res.counts}
     return res

@@ -52,7 +52,7 @@ def test_remove_redundant_drops_static_copies(redkitchen):
     assert res.kept == [100, 104, 105, 106, 107]
     assert set(res.dropped) == {101, 102, 103} and all("near-duplicate" in r for r in res.dropped.values())
     assert res.counts == {"input": 8, "after_downsampling": 8, "downsampled_away": 0, "candidates": 3,
-                          "near_duplicates": 3, "kept": 5}
+                          "near_duplicates": 3, "kept": 5, "inserted_for_overlap": 0}
     assert res.scores[101]["ssim"] > 0.8 and res.scores[101]["tracked"] > 0.35
     assert res.scores[105]["ssim"] < 0.8 and "tracked" not in res.scores[105]  # ORB only on SSIM's candidates
 

@@ -162,7 +162,8 @@ def test_sift_nearest_neighbours_are_the_exact_ones(kitchen_rgbs):
 def test_colour_reads_skip_depth_and_give_the_same_images(redkitchen):
     """`FrameSource.colour`: the colour of the whole frame, no depth or pose decoded; a whole frame read later
     has them, and a cached whole frame serves colour reads too. Redundant-frame removal's gray images are
-    those of the whole frames."""
+    those of the whole frames, decoded from the JPEG at half size (`frames.source._gray_file`): on average within half a grey level of the
+    full decode's (at most a few levels at edges), and exactly it once the frame is cached."""
     from mosaicthinker.runtime.scan import small_gray
     from mosaicthinker.runtime.frames import open_source
 
@@ -170,6 +171,9 @@ def test_colour_reads_skip_depth_and_give_the_same_images(redkitchen):
     c = src.colour(30)
     assert c.depth is None and c.pose_gt is None and c.index == 30 and c.t == ref[30].t
     np.testing.assert_array_equal(c.rgb, ref[30].rgb)
+    g, full = src.gray(31, 320).astype(int), small_gray(ref[31].rgb, 320).astype(int)
+    assert g.shape == full.shape and np.abs(g - full).max() <= 8 and np.abs(g - full).mean() < 0.5
+    src[31]
     np.testing.assert_array_equal(src.gray(31, 320), small_gray(ref[31].rgb, 320))
     whole = src[30]
     assert whole.depth is not None and whole.pose_gt is not None

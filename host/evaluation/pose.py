@@ -109,19 +109,24 @@ def _load_role(bundle: str | None, role: str, trace: Any) -> Any:
 
 
 def evaluate_pose(source: Any, indices: Sequence[int], matcher: Any = "sift", strategy: str = "mst",
-                  depth_model: Any = None, conf: Any = None, trace: Any = None) -> dict[str, Any]:
+                  depth_model: Any = None, conf: Any = None, trace: Any = None, path: str = "frames",
+                  embedder: Any = None) -> dict[str, Any]:
     """Align frames `indices` of a source with ground-truth poses and score them. matcher: 'orb' | 'sift' |
     matcher object (a shared FeatureMatcher keeps its feature cache across calls); depth_model: None (sensor
-    depth) or an adapter with .predict(rgb) and .semantics."""
-    from mosaicthinker.runtime.align import align_frames
+    depth) or an adapter with .predict(rgb) / .predict_metric(rgb) and .semantics.
 
-    frames = []
-    with_scale = False
-    t_depth = 0.0
+    path "ask" (the command's default, `mosaic eval pose --path ask`): the alignment `mosaic ask` runs
+    (`align.align_keyframes` with the pipeline's config `conf`: the whole-image tree over the given frames - there
+    are no detections to restrict matches to - its depth check, then the odometry backbone or bridges over the
+    other frames of the source, which are available to it as they are to `ask`); the result lists the other frames
+    it used. path "frames" (this function's default, for the benchmarks that compare strategies): the paper's
+    alignment of the given frames alone (`align.align_frames` with `strategy` and the alignment config `conf`).
+    Frames whose ground truth marks a tracking failure (ScanNet's -inf) are aligned but not scored (listed)."""
+    if path not in ("ask", "frames"):
+        raise InputError(f"`path` must be 'ask' or 'frames', got {path!r}", fields=("path",))
+    frames, with_scale, t_depth = [], False, 0.0
     for i in indices:
         f = source[i]
-        if f.pose_gt is None:
-            raise InputError(f"{source.name}: frame {i} has no ground-truth pose (needed for ATE/RPE)")
         if depth_model is not None:
             t0 = time.perf_counter()
             d, metric = depth_to_metric_like(depth_model.predict(f.rgb), getattr(depth_model, "semantics", ""))
@@ -132,9 +137,19 @@ def evaluate_pose(source: Any, indices: Sequence[int], matcher: Any = "sift", st
             raise InputError(f"{source.name}: frame {i} has no sensor depth; use `depth=model`", fields=("depth",))
         frames.append(f)
     t0 = time.perf_counter()
-    res = align_frames(frames, matcher=matcher, strategy=strategy, conf=conf, with_scale=with_scale, log=trace)
+    if path == "frames":
+        from mosaicthinker.runtime.align import align_frames
+
+        res = align_frames(frames, matcher=matcher, strategy=strategy, conf=conf, with_scale=with_scale, log=trace)
+        used: list[int] = []
+    else:
+        res, used = _align_as_ask(source, frames, matcher, depth_model, with_scale, conf, trace, embedder)
     secs = time.perf_counter() - t0
-    ev = [f for f in frames if f.index in res.poses]  # time order
+    untracked = [f.index for f in frames if f.pose_gt is None]
+    if len(untracked) == len(frames):
+        raise InputError(f"{source.name}: none of the {len(frames)} frames has a ground-truth pose (needed for "
+                         f"ATE/RPE)")
+    ev = [f for f in frames if f.index in res.poses and f.pose_gt is not None]  # time order
     est = np.array([res.poses[f.index] for f in ev])
     gt = np.array([f.pose_gt for f in ev])
     if len(ev) >= 2:
@@ -143,15 +158,47 @@ def evaluate_pose(source: Any, indices: Sequence[int], matcher: Any = "sift", st
     else:
         ate, rt, rr = float("nan"), float("nan"), float("nan")
     return {
-        "ate_rmse_m": ate, "rpe_trans_m": rt, "rpe_rot_deg": rr,
-        "aligned_frames": len(res.aligned), "total_frames": len(frames),
+        "ate_rmse_m": ate, "rpe_trans_m": rt, "rpe_rot_deg": rr, "path": path,
+        "aligned_frames": len([i for i in res.aligned if i in {f.index for f in frames}]),
+        "total_frames": len(frames),
         "unaligned_frames": list(res.unaligned), "guessed_frames": list(res.guessed),
+        "untracked_frames": untracked, "other_frames_used": sorted(int(i) for i in used),
+        "fates": {str(k): v for k, v in res.fates.items()},
         "evaluated_frames": len(ev), "sim3": with_scale, "edge": res.edge, "root": res.root,
         "poses": {f.index: res.poses[f.index] for f in ev}, "gt_poses": {f.index: f.pose_gt for f in ev},
         "frames": list(map(int, indices)),
         "seconds": secs + t_depth, "seconds_breakdown": {**res.seconds, "depth_model": t_depth},
         "alignment": res.to_dict(),
     }
+
+
+def _align_as_ask(source: Any, frames: list[Any], matcher: Any, depth_model: Any, with_scale: bool, conf: Any,
+                  trace: Any, embedder: Any) -> tuple[Any, list[int]]:
+    """`pipeline`'s alignment of the key frames `frames` with the rest of `source` available (module doc of
+    `evaluate_pose`). Returns (alignment, the other frames it used)."""
+    from mosaicthinker.runtime.align import align_keyframes, make_matcher
+    from mosaicthinker.runtime.conf import PipelineConfig
+    from mosaicthinker.runtime.infra.trace import StageLog, as_trace
+    from mosaicthinker.runtime.scan import remove_redundant
+
+    pconf = conf if isinstance(conf, PipelineConfig) else PipelineConfig.merged(conf)
+    trace = as_trace(trace)
+    m = make_matcher(matcher, pconf.match)
+    if depth_model is None:
+        with_depth = lambda f: f  # noqa: E731 - sensor depth as read
+    else:
+        def with_depth(f: Any) -> Any:
+            return replace(f, depth=depth_to_metric_like(depth_model.predict(f.rgb),
+                                                         getattr(depth_model, "semantics", ""))[0])
+    with trace.stage("dedup"):
+        scan = remove_redundant(source, pconf.dedup)
+    emb = np.stack([embedder.embed(f.rgb) for f in frames]) if embedder is not None else None
+    log = StageLog()
+    al, used = align_keyframes(frames, m, {f.index: None for f in frames}, emb, source, with_depth, with_scale,
+                               pconf.alignment, log, thumbs=scan.thumbs, backbone=pconf.backbone,
+                               describe=embedder.embed if embedder is not None else None)
+    trace.record(log)
+    return al, [int(getattr(f, "index", f)) for f in used]
 
 
 # ----------------------------------------------------------------------------- command
@@ -171,7 +218,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="evenly spaced frames, or a random subset kept in time order")
     parser.add_argument("--seed", type=int, default=0, help="seed of the random subset")
     parser.add_argument("--strategy", choices=["mst", "sequential"], default="mst",
-                        help="maximum spanning tree (paper) or sequential chaining (baseline)")
+                        help="maximum spanning tree (paper) or sequential chaining (baseline); --path frames only")
+    parser.add_argument("--conf", default=None, metavar="JSON", help="pipeline config keys as JSON for --path ask "
+                        "(e.g. '{\"backbone\": {\"walk_all\": true}}'), alignment config keys for --path frames")
+    parser.add_argument("--path", choices=["ask", "frames"], default="ask",
+                        help="ask: the alignment `mosaic ask` runs, the other frames of the sequence available to it "
+                             "(default); frames: the given frames alone (the paper's tree or chain)")
     add_stage_flags(parser, depth=True, matcher=True)
 
 
@@ -195,14 +247,18 @@ def _run(args: argparse.Namespace, outs: Any) -> dict[str, Any]:
     idx = pick_frames(len(src), args.keyframes, args.sampling, args.seed)
     depth_model = _load_role(args.bundle, "depth", trace) if args.depth == "model" else None
     matcher = _load_role(args.bundle, "matcher", trace) if args.matcher == "model" else args.matcher
+    embedder = _bundle_embedder(args.bundle, trace) if args.path == "ask" else None
     from mosaicthinker.runtime.infra.progress import phase
 
     with phase("alignment", len(idx), "frame") as bar:  # one call: the bar shows the time it takes
-        out = evaluate_pose(src, idx, matcher, args.strategy, depth_model, trace=trace)
+        out = evaluate_pose(src, idx, matcher, args.strategy, depth_model, conf=_conf_arg(args.conf), trace=trace,
+                            path=args.path, embedder=embedder)
         bar.to(len(idx))
     out["seconds"] = time.perf_counter() - t0
     out.update({"schema": SCHEMA, "data": str(args.data), "keyframes": args.keyframes, "sampling": args.sampling,
-                "seed": args.seed, "strategy": args.strategy, "depth": args.depth, "matcher": args.matcher,
+                "seed": args.seed, "strategy": args.strategy if args.path == "frames" else "ask", "conf": args.conf,
+                "embedder": None if embedder is None else getattr(embedder, "name", "embedder"),
+                "depth": args.depth, "matcher": args.matcher,
                 "events": trace.events})
     if outs is not None:
         from mosaicthinker.runtime.infra.outputs import finish_group
@@ -212,9 +268,36 @@ def _run(args: argparse.Namespace, outs: Any) -> dict[str, Any]:
     return out
 
 
+def _conf_arg(text: str | None) -> dict[str, Any] | None:
+    """--conf JSON -> a mapping of config keys (None without)."""
+    import json
+
+    if not text:
+        return None
+    try:
+        conf = json.loads(text)
+    except ValueError as e:
+        raise InputError(f"--conf: not JSON ({e})") from None
+    if not isinstance(conf, dict):
+        raise InputError("--conf: must be a JSON object of config keys")
+    return conf
+
+
+def _bundle_embedder(bundle: str | None, trace: Any) -> Any:
+    """The bundle's embedder (the tree's similarity and the backbone's revisits use it in `ask`), or None."""
+    if not bundle:
+        return None
+    from mosaicthinker.runtime.infra.bundle import load_bundle
+
+    return _load_role(bundle, "embedder", trace) if load_bundle(bundle).has_role("embedder") else None
+
+
 def render(r: dict[str, Any]) -> str:
     un = r.get("unaligned_frames", [])
     gs = r.get("guessed_frames", [])
+    fates: dict[str, int] = {}
+    for v in (r.get("fates") or {}).values():
+        fates[v] = fates.get(v, 0) + 1
     lines = [f"pose evaluation on {r.get('data')}: {r.get('keyframes')} frames ({r.get('sampling')}, seed "
              f"{r.get('seed')}), strategy {r.get('strategy')}, depth {r.get('depth')}, matcher {r.get('matcher')}",
              f"  edges           {r.get('edge', 'rgbd')}" + ("  (essential matrix + depth scale: relative depth)"
@@ -224,4 +307,10 @@ def render(r: dict[str, Any]) -> str:
              f"  aligned frames  {r['aligned_frames']} / {r['total_frames']}"
              + (f"  unaligned: {un}" if un else "") + (f"  guessed (failed links): {gs}" if gs else ""),
              f"  seconds         {r['seconds']:.2f}"]
+    if r.get("path") == "ask":
+        lines.insert(1, f"  path            the alignment `mosaic ask` runs: {len(r.get('other_frames_used', []))} other "
+                        f"frame(s) of the sequence used" + (f" ({', '.join(f'{n} {k}' for k, n in fates.items())})"
+                                                           if fates else ""))
+    if r.get("untracked_frames"):
+        lines.append(f"  not scored      {r['untracked_frames']} (ground truth marks a tracking failure)")
     return "\n".join(lines)

@@ -65,6 +65,66 @@ def load_annotation(path: str | Path) -> tuple[str, dict[str, Any], np.ndarray]:
     return name, scene, T
 
 
+def load_gt_boxes(path: str | Path) -> tuple[str, dict[str, Any], np.ndarray]:
+    """(scene name, meta_info-style scene, T [4, 4] pose frame -> box frame) from a dataset's own boxes as shipped
+    (`gt_boxes.json`, ScanNet's: axis-aligned boxes in the axis-aligned frame, `axis_align_matrix` taking a camera
+    pose into it; the format is in ../shared/data/README.md). The boxes get identity axes."""
+    try:
+        doc = json.loads(Path(path).read_text())
+        T = np.asarray(doc["axis_align_matrix"], float).reshape(4, 4)
+        bbox = {str(c): [{**b, "normalizedAxes": [1, 0, 0, 0, 1, 0, 0, 0, 1]} for b in lst]
+                for c, lst in doc["object_bbox"].items()}
+        for lst in bbox.values():
+            for b in lst:
+                OrientedBox.from_meta(b)
+    except (OSError, ValueError, KeyError, TypeError) as e:
+        raise InputError(f"{path}: not a box file as shipped (need `axis_align_matrix` and `object_bbox` with "
+                         f"centroid / axesLengths per box) ({e})") from e
+    return str(doc.get("scene", Path(path).parent.name)), {"object_bbox": bbox, "dataset": "scannet"}, T
+
+
+def ground_truth_for(data: str | Path, annotations: str | Path | None) -> tuple[str, dict[str, Any], np.ndarray,
+                                                                             str] | None:
+    """The object ground truth of a room: the given annotation file (the project's, `scene_annotate`, or a
+    dataset's `gt_boxes.json`), else the room's own `gt_boxes.json`, else None. Returns (name, scene, T_from_pose,
+    what it is)."""
+    if annotations is not None:
+        p = Path(annotations)
+        if p.name == "gt_boxes.json" or "axis_align_matrix" in p.read_text()[:4096]:
+            return (*load_gt_boxes(p), f"{p} (as shipped)")
+        return (*load_annotation(p), f"{p} (annotation)")
+    own = Path(data) / "gt_boxes.json"
+    if own.is_file():
+        return (*load_gt_boxes(own), f"{own} (as shipped)")
+    return None
+
+
+def scorable_categories(bundle: Any, categories: list[str]) -> tuple[dict[str, str], dict[str, str]]:
+    """Which ground-truth categories a map from this bundle can be scored on: ({ground-truth category: the name
+    the map uses for it}, {category: why not scored}). A category is scored when the bundle's closed-set detector
+    has a label for it (its canonical name or a synonym: ScanNet's table / desk -> COCO "dining table", sofa ->
+    "couch"); categories that reach the same labels are scored together under one name (the map holds one name
+    per label set); the rest are listed, never counted."""
+    from mosaicthinker.runtime.grounding import canonical_name
+    from mosaicthinker.runtime.models.detector import closed_labels, map_names, one_name_per_label
+
+    labels = closed_labels(bundle) or []
+    canon = {c: canonical_name(c) or c for c in categories}
+    mapping, missing = map_names(sorted(set(canon.values())), labels)
+    groups: dict[tuple[int, ...], list[str]] = {}
+    for n, ids in mapping.items():
+        groups.setdefault(tuple(sorted(ids)), []).append(n)
+    name_of = {}
+    for ids, names in groups.items():
+        keep = sorted(one_name_per_label({n: list(ids) for n in names}, labels, []))[0]  # the label's own name
+        for n in names:
+            name_of[n] = keep
+    scored = {c: name_of[canon[c]] for c in categories if canon[c] in name_of}
+    why = {c: ("the bundle's detector has no label for it" if canon[c] in missing or canon[c] not in name_of
+               else "") for c in categories if c not in scored}
+    return scored, why
+
+
 def _box_samples(b: OrientedBox) -> np.ndarray:
     g = np.array([-0.4, 0.0, 0.4])
     u = np.stack(np.meshgrid(g, g, g, indexing="ij"), -1).reshape(-1, 3) * b.axes_lengths
@@ -81,6 +141,8 @@ def visible_instances(source: Any, T_annot: np.ndarray, scene: dict[str, Any], c
     seen = {c: [0] * len(lst) for c, lst in boxes.items()}
     for i in range(0, len(source), conf.visibility_stride):
         f = source[i]
+        if f.pose_gt is None and i in set(source.untracked_frames()):
+            continue  # a tracking failure: no ground truth there (listed in the result)
         if f.depth is None or f.pose_gt is None:
             raise InputError(f"{getattr(source, 'name', 'data')}: frame {i} lacks sensor depth or a ground-truth "
                              f"pose (eval scene needs both for visibility)")
@@ -192,7 +254,7 @@ def floor_metrics(build: Any, source: Any, T_annot: np.ndarray, S: np.ndarray, c
     z = np.array([0.0, 0.0, 1.0])
     errs, root = [], build.map.meta.get("root")
     err_root = None
-    for i in [k for k in build.keyframes if k in build.poses_world]:
+    for i in [k for k in build.keyframes if k in build.poses_world and source[k].pose_gt is not None]:
         T = build.poses_world[i]
         R = T[:3, :3] / np.linalg.norm(T[:3, 0])
         Rg = (T_annot @ source[i].pose_gt)[:3, :3]
@@ -278,7 +340,7 @@ def visible_meta(scene: dict[str, Any], visible: dict[str, list[bool]]) -> dict[
 
 def map_names_for(bundle: Any, annotated: list[str]) -> list[str]:
     """Every vocabulary name the bundle's closed-set detector can detect, one per set of detector labels (the
-    annotated name where it is one of them: `stages.detector.detectable_names`), plus the annotated categories."""
+    annotated name where it is one of them: `models.detector.detectable_names`), plus the annotated categories."""
     from mosaicthinker.runtime.grounding import canonical_name
     from mosaicthinker.runtime.models.detector import detectable_names
 
@@ -286,14 +348,17 @@ def map_names_for(bundle: Any, annotated: list[str]) -> list[str]:
     return sorted(set(detectable_names(bundle, want)) | set(want))
 
 
-def evaluate_scene(data: str | Path, annotations: str | Path, bundle: str | Path, depth: str = "sensor",
+def evaluate_scene(data: str | Path, annotations: str | Path | None, bundle: str | Path, depth: str = "sensor",
                    matcher: str = "sift", keyframes: int = 16, ask_n: int = 0, gravity: str = "floor",
                    keyframe_method: str = "iterative",
                    conf: SceneEvalConfig | None = None, out: str | Path | None = None,
-                   video: str | Path | None = None) -> dict[str, Any]:
-    """Build, register and score (see the module doc). Returns the JSON result. video: the pipeline reads this
-    video of `data`'s frames (the same frames, in order: `video_of_frames`) instead of the folder; the ground truth
-    (poses, visibility) still comes from `data`. A video has no sensor depth: use depth="model"."""
+                   video: str | Path | None = None, pipeline_conf: dict[str, Any] | None = None) -> dict[str, Any]:
+    """Build, register and score (see the module doc). Returns the JSON result. annotations: the project's
+    annotation or a dataset's boxes as shipped; None: the room's own `gt_boxes.json` when it has one, else no
+    object scoring (alignment, registration and time only). video: the pipeline reads this video of `data`'s
+    frames (the same frames, in order: `video_of_frames`) instead of the folder; the ground truth (poses,
+    visibility) still comes from `data`. A video has no sensor depth: use depth="model". pipeline_conf: extra
+    `PipelineConfig` keys (e.g. {"backbone": {"odometry": False}} for the previous alignment)."""
     from mosaicthinker.runtime import pipeline
     from mosaicthinker.runtime.frames import open_source
     from mosaicthinker.runtime.grounding import canonical_name
@@ -301,8 +366,11 @@ def evaluate_scene(data: str | Path, annotations: str | Path, bundle: str | Path
     from mosaicthinker.host.evaluation.pose import align_trajectories
 
     conf = conf or SceneEvalConfig()
-    name, scene, T_annot = load_annotation(annotations)
+    gt = ground_truth_for(data, annotations)
     src = open_source(data)
+    name, scene, T_annot, gt_what = gt if gt is not None else (Path(data).name, {"object_bbox": {}},
+                                                               _z_up(src), "none (camera poses only)")
+    untracked = src.untracked_frames()
     reset_peak_rss()
     t0 = time.perf_counter()
     run_src = src if video is None else open_source(video, K=src.K)
@@ -310,49 +378,91 @@ def evaluate_scene(data: str | Path, annotations: str | Path, bundle: str | Path
         raise InputError(f"{video}: {len(run_src)} frames, but {data} has {len(src)}: the video must hold the "
                          f"folder's frames in order (make it with host.evaluation.scene.video_of_frames)")
     trace = Trace()
-    pconf = {"depth": depth, "matcher": matcher, "gravity": gravity, "keyframe": {"keyframe_method": keyframe_method}}
+    extra = dict(pipeline_conf or {})
+    pconf = {"depth": depth, "matcher": matcher, "gravity": gravity, **extra,
+             "keyframe": {"keyframe_method": keyframe_method, **extra.get("keyframe", {})}}
     perception = pipeline.perception_from_bundle(str(bundle), pconf, trace)
-    names = map_names_for(bundle, list(scene["object_bbox"]))
+    scored, not_scored = scorable_categories(bundle, list(scene["object_bbox"]))
+    names = map_names_for(bundle, sorted(set(scored.values())))
     build = pipeline.build_map(run_src, names, [], perception, pconf, trace, keyframes)
     wall = time.perf_counter() - t0
     peak = peak_rss_mb()
-    idx = [i for i in build.keyframes if i in build.poses_world]  # key frames only (bridge frames are helpers)
-    est_T = np.stack([build.poses_world[i] for i in idx])
-    gt_T = np.stack([T_annot @ src[i].pose_gt for i in idx])
-    S = register_cameras(est_T, gt_T, with_scale=perception.depth_relative)
-    ate = float(np.sqrt(np.mean(np.sum((transform(S, est_T[:, :3, 3]) - gt_T[:, :3, 3]) ** 2, 1))))
-    S_c = align_trajectories(est_T[:, :3, 3], gt_T[:, :3, 3], with_scale=perception.depth_relative)
-    ate_c = float(np.sqrt(np.mean(np.sum((transform(S_c, est_T[:, :3, 3]) - gt_T[:, :3, 3]) ** 2, 1))))
-    visible = visible_instances(src, T_annot, scene, conf)
-    vmeta = visible_meta(scene, visible)
-    truth = {canonical_name(c) or c: [OrientedBox.from_meta(m) for m in lst] for c, lst in vmeta["object_bbox"].items()}
-    built: dict[str, list[OrientedBox]] = {}
-    for o in build.map.instances:
-        built.setdefault(o.name, []).append(register_box(o.box, S))
-    inst = score_instances(built, truth, conf)
-    answers, recs = score_answers(build.map, name, vmeta, conf)
+    idx = [i for i in build.keyframes if i in build.poses_world and src[i].pose_gt is not None]
+    reg: dict[str, Any] = {"method": "Sim(3)" if perception.depth_relative else "rigid", "n_cameras": len(idx),
+                           "ate_rmse_m": None, "ate_centres_only_umeyama_m": None, "scale": None, "S": None,
+                           "fit": "estimated key-frame camera poses -> ground truth (rotation from the camera "
+                                  "orientations, translation/scale from the centres; never object positions)"}
+    S = np.eye(4)
+    if len(idx) >= 2 and src.has_pose:
+        est_T = np.stack([build.poses_world[i] for i in idx])
+        gt_T = np.stack([T_annot @ src[i].pose_gt for i in idx])
+        S = register_cameras(est_T, gt_T, with_scale=perception.depth_relative)
+        S_c = align_trajectories(est_T[:, :3, 3], gt_T[:, :3, 3], with_scale=perception.depth_relative)
+        reg.update(ate_rmse_m=float(np.sqrt(np.mean(np.sum((transform(S, est_T[:, :3, 3]) - gt_T[:, :3, 3]) ** 2, 1)))),
+                   ate_centres_only_umeyama_m=float(np.sqrt(np.mean(np.sum(
+                       (transform(S_c, est_T[:, :3, 3]) - gt_T[:, :3, 3]) ** 2, 1)))),
+                   scale=float(np.cbrt(np.linalg.det(S[:3, :3]))), S=S.tolist())
+    al = build.info.get("alignment", {})
     res = {"schema": SCHEMA, "data": str(data), "video": None if video is None else str(video),
-           "annotations": str(annotations), "bundle": str(bundle),
-           "depth": depth, "matcher": matcher, "keyframes": keyframes, "gravity": gravity,
+           "annotations": None if annotations is None else str(annotations), "ground_truth": gt_what,
+           "bundle": str(bundle), "depth": depth, "matcher": matcher, "keyframes": keyframes, "gravity": gravity,
            "keyframe_method": keyframe_method, "depth_relative": perception.depth_relative,
-           "perception": trace.decisions.get("perception"),
-           "registration": {"method": "Sim(3)" if perception.depth_relative else "rigid",
-                            "fit": "estimated key-frame camera poses -> ground truth (rotation from the camera "
-                                   "orientations, translation/scale from the centres; never object positions)",
-                            "n_cameras": len(idx), "ate_rmse_m": ate, "ate_centres_only_umeyama_m": ate_c, "scale": float(np.cbrt(np.linalg.det(S[:3, :3]))),
-                            "S": S.tolist()},
-           "keyframes_chosen": build.keyframes, "unaligned": build.unaligned,
-           "visible": {c: int(sum(v)) for c, v in visible.items()},
-           "annotated": {c: len(v) for c, v in scene["object_bbox"].items()},
-           "instances": inst, "floor": floor_metrics(build, src, T_annot, S, conf), "answers": answers,
-           "questions": recs, "wall_s": wall, "peak_rss_mb": peak,
+           "pipeline_conf": pipeline_conf or {}, "perception": trace.decisions.get("perception"),
+           "registration": reg, "keyframes_chosen": build.keyframes, "unaligned": build.unaligned,
+           "aligned_by_path": _count(al.get("fates", {}).values()), "fates": al.get("fates", {}),
+           "untracked_frames": untracked, "frames": len(src),
+           "dedup": trace.decisions.get("dedup"), "wall_s": wall, "peak_rss_mb": peak,
            "stages": {k: {"seconds": round(v.seconds, 3), "calls": v.calls} for k, v in trace.stages.items()},
-           "warnings": [e["message"] for e in trace.events if e["kind"] in ("fallback", "degraded", "not_in_map")]}
-    if ask_n:
+           "warnings": [e["message"] for e in trace.events if e["kind"] in ("fallback", "degraded", "not_in_map")],
+           "alignment_events": [e["message"] for e in trace.events if e.get("stage") == "alignment"]}
+    vmeta, recs = {"object_bbox": {}}, []
+    if gt is not None:
+        visible = visible_instances(src, T_annot, scene, conf)
+        vmeta = visible_meta(scene, visible)
+        truth: dict[str, list[OrientedBox]] = {}
+        for c, lst in vmeta["object_bbox"].items():
+            if c in scored:
+                truth.setdefault(scored[c], []).extend(OrientedBox.from_meta(m) for m in lst)
+        built: dict[str, list[OrientedBox]] = {}
+        for o in build.map.instances:
+            built.setdefault(o.name, []).append(register_box(o.box, S))
+        inst = score_instances(built, truth, conf)
+        inst["scored_as"] = scored
+        inst["not_scored"] = not_scored
+        answers, recs = score_answers(build.map, name, visible_meta(
+            {"object_bbox": {scored[c]: v for c, v in scene["object_bbox"].items() if c in scored}},
+            {scored[c]: v for c, v in visible.items() if c in scored}), conf)
+        res.update({"visible": {c: int(sum(v)) for c, v in visible.items()},
+                    "annotated": {c: len(v) for c, v in scene["object_bbox"].items()},
+                    "instances": inst, "floor": floor_metrics(build, src, T_annot, S, conf) if idx else None,
+                    "answers": answers, "questions": recs})
+    if ask_n and recs:
         res["ask"] = ask_questions(run_src, recs, ask_n, perception, pconf, keyframes)
     if out:
-        _write_out(Path(out), res, build, S, vmeta, trace)
+        gt_poses = [src[i].pose_gt for i in range(len(src))] if src.has_pose else None
+        _write_out(Path(out), res, build, S, vmeta, trace, T_annot, gt_poses)
     return res
+
+
+def _z_up(src: Any) -> np.ndarray:
+    """A rotation [4, 4] of the source's pose world that puts its vertical axis on z (`frames.world_down`: a
+    HoloLens world is y up), for registration and pictures of a room without object ground truth."""
+    from mosaicthinker.runtime.frames import world_down
+    from mosaicthinker.host.evaluation.scene_annotate import up_transform
+
+    got = world_down(src) if src.has_pose else None
+    if got is None:
+        return np.eye(4)
+    down = got[0]
+    x = np.eye(3)[int(np.argmin(np.abs(down)))]
+    return up_transform(down, x)
+
+
+def _count(values: Any) -> dict[str, int]:
+    out: dict[str, int] = {}
+    for v in values:
+        out[v] = out.get(v, 0) + 1
+    return out
 
 
 def video_of_frames(data: str | Path, out: str | Path, fps: float | None = None) -> Path:
@@ -398,7 +508,8 @@ def ask_questions(src: Any, recs: list[dict[str, Any]], n: int, perception: Any,
     return {"n": len(out), "score": float(np.mean([r["score"] for r in out])) if out else None, "records": out}
 
 
-def _write_out(out: Path, res: dict[str, Any], build: Any, S: np.ndarray, vmeta: dict[str, Any], trace: Any) -> None:
+def _write_out(out: Path, res: dict[str, Any], build: Any, S: np.ndarray, vmeta: dict[str, Any], trace: Any,
+               T_annot: np.ndarray | None = None, gt_poses: list[np.ndarray | None] | None = None) -> None:
     from mosaicthinker.host.evaluation.scene_annotate import render_topdown
 
     out.mkdir(parents=True, exist_ok=True)
@@ -407,9 +518,24 @@ def _write_out(out: Path, res: dict[str, Any], build: Any, S: np.ndarray, vmeta:
     extra: dict[str, list[dict]] = {}
     for o in build.map.instances:
         extra.setdefault(o.name, []).append(register_box(o.box, S).to_meta())
-    render_topdown(pts, vmeta["object_bbox"], out / "map_over_annotation.png",
-                   f"built map (yellow, {res['registration']['method']} camera registration) over annotation (white)",
-                   extra)
+    T_annot = np.eye(4) if T_annot is None else T_annot
+    gt_track = np.array([(T_annot @ f)[:3, 3] for f in gt_poses if f is not None]) if gt_poses else np.zeros((0, 3))
+    est = np.array([transform(S, T[:3, 3][None])[0] for i, T in sorted(build.poses_world.items())
+                    if i in build.keyframes])
+    shift = np.zeros(3)
+    if not vmeta["object_bbox"] and len(pts):  # no annotation frame: the floor (lowest points) at z = 0
+        shift[2] = -float(np.percentile(pts[:, 2], 2))
+    render_topdown(pts + shift, vmeta["object_bbox"], out / "map_over_annotation.png",
+                   f"built map (yellow boxes, dots: key-frame cameras, {res['registration']['method']} camera "
+                   f"registration) over the ground truth (white: boxes, grey line: camera path)",
+                   {k: [{**m, "centroid": list(np.asarray(m["centroid"]) + shift)} for m in v] for k, v in extra.items()},
+                   tracks=[(gt_track + shift, (160, 160, 160), True), (est + shift, (0, 255, 255), False)])
+    # the picture's geometry alone (boxes and camera paths, no dataset points), for redrawing it small elsewhere
+    res["topdown"] = {"gt_track": np.round(gt_track[::3] + shift, 3).tolist(),
+                      "keyframe_cameras": np.round(est + shift, 3).tolist() if len(est) else [],
+                      "truth_boxes": vmeta["object_bbox"],
+                      "built_boxes": {k: [{**m, "centroid": list(np.asarray(m["centroid"]) + shift)} for m in v]
+                                      for k, v in extra.items()}}
     build.map.save(out / "map.json")
     (out / "scene_eval.json").write_text(json.dumps(res, indent=1, default=float))
     trace.save(out / "trace.json")
@@ -423,8 +549,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     from mosaicthinker.runtime.commands.flags import add_gravity, add_keyframes
 
     p.add_argument("--data", required=True, metavar="DIR",
-                   help="RGB-D frame folder with ground-truth poses (7-Scenes layout)")
-    p.add_argument("--annotations", required=True, help="scene annotation JSON (scene_annotate)")
+                   help="RGB-D frame folder with ground-truth poses (7-Scenes / ScanNet layout)")
+    p.add_argument("--conf", default=None, metavar="JSON", help="extra pipeline config keys as JSON (e.g. "
+                   "'{\"backbone\": {\"odometry\": false}}' for the alignment before the odometry backbone)")
+    p.add_argument("--annotations", default=None, help="object ground truth: the project's annotation "
+                   "(scene_annotate) or a dataset's boxes as shipped (gt_boxes.json); default: the room's own "
+                   "gt_boxes.json when it has one, else no object scoring")
     p.add_argument("--video", default=None, metavar="V", help="run the pipeline on this video of the --data "
                    "frames (same frames, in order; no sensor depth: --depth model); ground truth from --data")
     add_keyframes(p)
@@ -440,8 +570,17 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     from mosaicthinker.runtime.commands.flags import pipeline_keyframes
 
     k = args.keyframes if args.keyframes is not None else pipeline_keyframes()
+    extra = None
+    if args.conf:
+        try:
+            extra = json.loads(args.conf)
+        except ValueError as e:
+            raise InputError(f"--conf: not JSON ({e})") from None
+        if not isinstance(extra, dict):
+            raise InputError("--conf: must be a JSON object of pipeline config keys")
     return evaluate_scene(args.data, args.annotations, args.bundle, args.depth, args.matcher, k,
-                          args.ask, args.gravity, args.keyframe_method, out=args.out, video=args.video)
+                          args.ask, args.gravity, args.keyframe_method, out=args.out, video=args.video,
+                          pipeline_conf=extra)
 
 
 def render(r: dict[str, Any]) -> str:

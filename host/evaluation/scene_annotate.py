@@ -246,13 +246,17 @@ def annotate(data: str | Path, marks_doc: dict[str, Any], floor_tol_m: float = 0
 
 
 def render_topdown(points: np.ndarray, boxes: dict[str, list[dict]], path: str | Path, title: str,
-                   extra: dict[str, list[dict]] | None = None, px_per_m: int = 150) -> None:
+                   extra: dict[str, list[dict]] | None = None, px_per_m: int = 150,
+                   tracks: list[tuple[np.ndarray, tuple[int, int, int], bool]] | None = None) -> None:
     """Top-down PNG: a cloud `[N, 3]` (z up) coloured by height (blue low .. red high), annotation boxes (white,
-    labelled) and optional `extra` boxes (yellow, e.g. a built map registered into the annotation frame)."""
+    labelled), optional `extra` boxes (yellow, e.g. a built map registered into the annotation frame) and
+    `tracks`: (camera centres [M, 3], BGR colour, as a line (else dots)), e.g. the ground-truth camera path and the
+    registered key-frame cameras."""
     import cv2
 
+    tracks = [(np.asarray(c, float).reshape(-1, 3), col, line) for c, col, line in (tracks or []) if len(c)]
     corners = [OrientedBox.from_meta(m).corners() for d in (boxes, extra or {}) for lst in d.values() for m in lst]
-    p = np.concatenate([np.asarray(points, float).reshape(-1, 3)] + corners)
+    p = np.concatenate([np.asarray(points, float).reshape(-1, 3)] + corners + [c for c, _, _ in tracks])
     p = p[p[:, 2] < 2.2]  # the ceiling would hide everything
     lo, hi = p[:, :2].min(0) - 0.3, p[:, :2].max(0) + 0.3
     W, H = (np.ceil((hi - lo) * px_per_m)).astype(int) + 1
@@ -276,6 +280,13 @@ def render_topdown(points: np.ndarray, boxes: dict[str, list[dict]], path: str |
     draw(boxes, (255, 255, 255))
     if extra:
         draw(extra, (0, 255, 255))
+    for c, colour, line in tracks:
+        q = np.stack([(c[:, 0] - lo[0]) * px_per_m, H - 1 - (c[:, 1] - lo[1]) * px_per_m + 40], 1).astype(np.int32)
+        if line:
+            cv2.polylines(img, [q], False, colour, 1)
+        else:
+            for x, y in q:
+                cv2.circle(img, (int(x), int(y)), 3, colour, -1)
     cv2.putText(img, title, (5, 25), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 255), 1)
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     cv2.imwrite(str(path), img)

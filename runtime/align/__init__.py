@@ -7,11 +7,19 @@ essential essential-matrix edges for relative depth, per-frame scales solved ove
 tree      frame similarity, maximum spanning tree, poses composed to the root (`align_frames`)
 verify    the depth check of tree edges
 recover   whole-image edges, bridge frames, revisits; what placed each key frame (`Fates`)
+pnp       sensor-depth edges that need depth at one end only: 3D-3D, then PnP, then the essential matrix
+odometry  walks between two key frames over the scan's kept frames
+graph     pose-graph edges, spanning-tree composition, robust (Cauchy) refinement
+backbone  after the tree's depth check: walks, place revisits, loop closures, one pose graph (`BackboneConf`)
 stage     `align_keyframes`: the stage as `build_map` runs it
 """
-from .conf import AlignConf
+from .backbone import align_backbone, align_rest_backbone, tiny_descriptor
+from .conf import EDGE_SIGMA, AlignConf, BackboneConf
 from .essential import align_pair_essential, essential_edge, essential_frame_scales, essential_pose, refine_essential
 from .matching import FeatureMatcher, KeyedMatcher, MatchConf, Matcher, Matches, make_matcher
+from .graph import Edge, GraphReport, rigid_part, spanning_poses
+from .odometry import OrbWalker, Walk, walk
+from .pnp import EdgeResult, essential_metric_pair, pnp_pair, rgbd_edge
 from .pairwise import PairResult, align_pair, depth_smooth, depth_valid, pose_change
 from .recover import (BlockPairs, Fates, attach_frames, bridge_attach, bridge_chain, bridge_realign, chain_jumps,
                       revisit_attach, revisit_pairs, thumb_histograms)
@@ -21,7 +29,9 @@ from .tree import (AlignmentResult, align_frames, candidate_pairs, choose_root, 
 from .verify import depth_consistency, edge_ok, verify_tree
 
 __all__ = [
-    "AlignConf", "align_pair_essential", "essential_edge", "essential_frame_scales", "essential_pose",
+    "align_backbone", "align_rest_backbone", "tiny_descriptor", "EDGE_SIGMA", "BackboneConf", "Edge", "GraphReport",
+    "rigid_part", "spanning_poses", "OrbWalker", "Walk", "walk", "EdgeResult", "essential_metric_pair", "pnp_pair",
+    "rgbd_edge", "AlignConf", "align_pair_essential", "essential_edge", "essential_frame_scales", "essential_pose",
     "refine_essential", "FeatureMatcher", "KeyedMatcher", "MatchConf", "Matcher", "Matches", "make_matcher",
     "PairResult", "align_pair", "depth_smooth", "depth_valid", "pose_change", "BlockPairs", "Fates",
     "attach_frames", "bridge_attach", "bridge_chain", "bridge_realign", "chain_jumps", "revisit_attach",

@@ -1,4 +1,5 @@
-"""The alignment stage's settings: pairwise edges, the spanning tree, the depth check and recovery (one owner).
+"""The alignment stage's settings: pairwise edges, the spanning tree, the depth check and recovery (`AlignConf`),
+the odometry backbone (`BackboneConf`); one owner each.
 Why each default is what it is (the measurements): docs/settings.md."""
 from __future__ import annotations
 
@@ -28,7 +29,7 @@ class AlignConf(StageConf):
     edge_radius: int = 3               # a match's depth must be smooth in a (2r+1)^2 window (0 = off) ...
     edge_rel: float = 0.05             # ... i.e. max - min depth there below this fraction of its depth
     icp: bool = False                  # point-to-plane ICP on metric edges (off: it did not lower ATE)
-    icp_iterations: int = 10
+    icp_iterations: int = 30           # projective ICP converges slowly: 10 stopped ~1 cm short on the kitchen
     icp_stride: int = 4
     icp_max_change: tuple[float, float] = (0.10, 5.0)  # (m, deg) larger ICP corrections are rejected
     icp_min_overlap: float = 0.2       # fraction of b's points paired in a, below = ICP rejected
@@ -71,3 +72,53 @@ class AlignConf(StageConf):
             raise InputError(f"alignment config: attach_tries must be >= 1 (got {self.attach_tries})")
         if not 0 <= self.max_free_space_violation <= 1:
             raise InputError("alignment config: max_free_space_violation must be in [0, 1]")
+
+
+# expected error of one edge by method (metres, degrees): the median error of each method against the ground truth
+# on adjacent frames of the shared rooms (docs/real-rooms.md, "pairwise edges"); the pose graph's sigmas
+EDGE_SIGMA = {"3d-3d": (0.02, 0.6), "pnp": (0.025, 0.6), "essential": (0.06, 1.5)}
+ICP_SIGMA = (0.008, 0.3)   # an edge ICP refined (`backbone.icp_refined`), whatever method placed it first
+
+
+@dataclass
+class BackboneConf(StageConf):
+    """Defaults of the odometry backbone (`backbone.align_backbone`): metric depth, after the key frames' tree and
+    its depth check. `PipelineConfig.backbone`; `BackboneConf.merged(overrides)`."""
+
+    conf_name: ClassVar[str] = "backbone config"
+
+    odometry: bool = True           # off: the paper's recovery alone (`stage.align_rest_metric`: attach, bridges)
+    max_frames: int = 160           # frames the walks may load in one alignment (each costs one feature extraction)
+    methods: tuple[str, ...] = ("3d-3d", "pnp")  # pairwise edge methods, in order of preference
+    # the essential matrix verifies many wrong edges over a baseline: only between neighbouring frames of a walk,
+    # as the last resort where neither end has depth enough
+    adjacent_essential: bool = True
+    pnp_px: float | None = None     # reprojection threshold (px); None: 1.5 x the matcher's keypoint noise
+    first_jump: int = 4             # a walk's first jump (grid frames); later jumps follow the last success
+    max_jump: int = 4               # ... never more than this many grid frames (the goal itself is tried first)
+    loops: bool = True              # verified key-frame pairs beyond the tree join the graph (depth-checked)
+    part_revisits: int = 6          # a part the walks could not join: this many of its most alike frame pairs with
+                                    # the root's part (by appearance) tried with whole-image edges (0 = off)
+    walk_matcher: str = "pipeline"  # the walks' features: "orb" (OpenCV, cheaper) or "pipeline" (the run's matcher)
+    walk_keypoints: int = 1000      # ... ORB keypoints per frame
+    walk_all: bool = True           # walk between EVERY two key frames next in time, not only between parts: a
+                                    # path independent of the tree's long edges, so the graph can outvote a wrong one
+    closures: int = 12              # loop closures: pairs of posed frames far apart in the graph but predicted to
+                                    # overlap (by their poses and depth) tried as edges (0 = off)
+    closure_hops: int = 4           # ... "far apart": more than this many edges between them in the tree
+    edge_icp: bool = False          # the walks' edges refined by point-to-plane ICP on the two frames' depth after
+                                    # the depth check (`backbone.icp_refined`, AlignConf's icp_* settings). Off: it
+                                    # helps one room and hurts two (docs/real-rooms.md, "ICP on the walks")
+    graph: bool = True              # refine the poses over every edge (`graph.refine`); off: the spanning tree
+    robust: float = 3.0             # the graph's loss scale (in sigmas)
+
+    def validate(self) -> None:
+        bad = [m for m in self.methods if m not in EDGE_SIGMA]
+        if bad or not self.methods:
+            raise InputError(f"backbone config: methods must be a non-empty subset of {sorted(EDGE_SIGMA)}, got "
+                             f"{list(self.methods)}")
+        if self.walk_matcher not in ("orb", "pipeline"):
+            raise InputError(f"backbone config: walk_matcher must be orb or pipeline, got {self.walk_matcher!r}")
+        if self.max_frames < 0 or self.first_jump < 1 or self.robust <= 0 or self.part_revisits < 0:
+            raise InputError("backbone config: max_frames >= 0, first_jump >= 1, robust > 0 and part_revisits >= 0 "
+                             "are required")

@@ -1,5 +1,6 @@
 """The alignment stage of `build_map` (`align_keyframes`): the paper's box-matched spanning tree, then with metric
-depth the depth check and recovery one edge at a time, with relative depth a whole-image tree and bridge rounds."""
+depth the depth check and the odometry backbone (`backbone`; without one, recovery one edge at a time), with
+relative depth a whole-image tree and bridge rounds."""
 from __future__ import annotations
 
 from dataclasses import replace
@@ -10,7 +11,8 @@ import numpy as np
 from ..frames import FrameSource
 from ..infra.trace import StageLog, as_trace
 from ..types import Frame
-from .conf import AlignConf
+from .backbone import align_rest_backbone
+from .conf import AlignConf, BackboneConf
 from .matching import KeyedMatcher
 from .recover import (BlockPairs, Fates, WithDepth, attach_frames, bridge_attach, bridge_realign,
                       whole_image_realign)
@@ -97,13 +99,18 @@ def align_rest_metric(al: AlignmentResult, frames: list[Frame], matcher: KeyedMa
 def align_keyframes(frames: list[Frame], matcher: KeyedMatcher, boxes: dict[int, np.ndarray | None], emb: np.ndarray | None,
                     source: FrameSource, with_depth: WithDepth, with_scale: bool, conf: AlignConf, log: StageLog | None,
                     over_budget: OverBudget = lambda unaligned: None,
-                    thumbs: Mapping[int, np.ndarray] | None = None) -> tuple[AlignmentResult, list[Frame]]:
+                    thumbs: Mapping[int, np.ndarray] | None = None, backbone: BackboneConf | None = None,
+                    describe: Callable[[np.ndarray], np.ndarray] | None = None
+                    ) -> tuple[AlignmentResult, list[Frame]]:
     """The key frames' alignment: matches restricted to object boxes (the paper's trick; with relative depth
     only when `relative_box_matching`), MST over frame similarity; then, with metric depth and `verify_depth`,
     every tree edge depth-checked and the frames left out attached one edge at a time (`align_rest_metric`),
     else a whole-image re-alignment and bridge rounds (`align_rest_relative`). `over_budget(unaligned)` gives
     (and records) when bridge rounds are skipped. `thumbs` (frame -> small gray image, e.g. dedup's) lets
-    metric bridging look for places the video revisits. Returns (alignment over the key frames only, the bridge frames used)."""
+    metric bridging look for places the video revisits; with metric depth they are also the grid the odometry
+    `backbone` walks (`backbone.align_rest_backbone`, when given and `odometry` is on: it replaces
+    `align_rest_metric`; `describe`: rgb -> a place descriptor for its revisits, e.g. the bundle's embedder).
+    Returns (alignment over the key frames only, the bridge or walk frames used)."""
     log = as_trace(log)
     conf = replace(conf, min_inliers=conf.keyframe_min_inliers)  # the depth check verifies what this lets in
     if with_scale and not conf.relative_box_matching:  # essential edges: whole images from the first tree
@@ -115,7 +122,11 @@ def align_keyframes(frames: list[Frame], matcher: KeyedMatcher, boxes: dict[int,
     fates = Fates(keys)
     fates.after(al, "box-matched tree" if any(b is not None for b in boxes.values()) else "whole-image tree")
     if conf.verify_depth and not with_scale:  # metric depth: one edge at a time onto the verified tree (cheap)
-        used = align_rest_metric(al, frames, matcher, source, with_depth, conf, log, over_budget, fates, thumbs)
+        if backbone is not None and backbone.odometry:
+            used = align_rest_backbone(al, frames, matcher, source, with_depth, conf, backbone, log, over_budget,
+                                       fates, thumbs, describe)
+        else:
+            used = align_rest_metric(al, frames, matcher, source, with_depth, conf, log, over_budget, fates, thumbs)
     else:
         al, used = align_rest_relative(al, frames, boxes, emb, matcher, source, with_depth, with_scale, conf, log,
                                        over_budget, fates)

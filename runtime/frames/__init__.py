@@ -22,11 +22,12 @@ from typing import Any
 from ..infra.errors import InputError
 from .folders import ImageFolderSource, SevenScenesSource, TUMSource
 from .source import (IMAGE_EXTS, VIDEO_EXTS, FrameList, FrameSource, _show, check_intrinsics, imread_path,
-                     imwrite_path, small_gray)
+                     imwrite_path, small_gray, world_down)
 from .video import FrameObserver, VideoSource
 
 __all__ = ["FrameList", "FrameObserver", "FrameSource", "ImageFolderSource", "SevenScenesSource", "TUMSource",
-           "VideoSource", "check_intrinsics", "imread_path", "imwrite_path", "open_source", "small_gray"]
+           "VideoSource", "check_intrinsics", "imread_path", "imwrite_path", "open_source", "small_gray",
+           "world_down"]
 
 
 def open_source(path: str | os.PathLike, **opts: Any) -> FrameSource:

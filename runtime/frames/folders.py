@@ -101,11 +101,28 @@ class SevenScenesSource(FrameSource):
                                  f"is {rgb.shape[1::-1]}")
             depth = _downscale(depth, self.scale, nearest=True)  # nearest: never blend across depth edges
         rgb = _downscale(rgb, self.scale)
-        pose = None
-        if self.pose_paths[i].exists():
-            pose = check_pose(_loadtxt(self.pose_paths[i], (4, 4), "a 4x4 camera-to-world pose"),
-                              _show(self.pose_paths[i]))
+        pose = self._pose(i)
         return Frame(rgb, float(self.timestamps[i]), i, self.K, depth, pose, self.dist)
+
+    def _colour_path(self, position: int) -> Path | None:
+        return self.color_paths[self._position(position)]
+
+    def _pose(self, i: int) -> np.ndarray | None:
+        """Frame i's ground-truth pose [4, 4], or None without a pose file or where the file marks a tracking
+        failure (ScanNet writes -inf: no ground truth for that frame, not bad input; `untracked_frames`)."""
+        if not self.pose_paths[i].exists():
+            return None
+        T = _loadtxt(self.pose_paths[i], (4, 4), "a 4x4 camera-to-world pose", allow_nonfinite=True)
+        if not np.isfinite(T).all():
+            return None
+        return check_pose(T, _show(self.pose_paths[i]))
+
+    def untracked_frames(self) -> list[int]:
+        """Positions whose pose file holds a non-finite pose (a tracking failure), read once and cached."""
+        if getattr(self, "_untracked", None) is None:
+            self._untracked = [i for i, p in enumerate(self.pose_paths) if p.exists() and not np.isfinite(
+                _loadtxt(p, (4, 4), "a 4x4 camera-to-world pose", allow_nonfinite=True)).all()]
+        return list(self._untracked)
 
 
 def _read_tum_list(path: Path) -> list[tuple[float, list[str]]]:
@@ -245,6 +262,9 @@ class ImageFolderSource(FrameSource):
             self._set_K(_loadtxt(kf, (3, 3), "a 3x3 intrinsics matrix"), _show(kf))
         else:
             self._set_K(intrinsics_from_fov(W, H, hfov_deg), f"hfov_deg={hfov_deg}")
+
+    def _colour_path(self, position: int) -> Path | None:
+        return self.paths[self._position(position)]
 
     def _load(self, i: int) -> Frame:
         rgb = _imread_rgb(self.paths[i], self.notes)

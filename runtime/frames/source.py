@@ -143,6 +143,30 @@ def check_pose(T: np.ndarray, where: str) -> np.ndarray:
     return T
 
 
+def world_down(source: "FrameSource", n: int = 48) -> tuple[np.ndarray, str] | None:
+    """The direction of gravity (DOWN, unit [3]) in the world of a source's ground-truth poses, and how it was
+    found: the source's own (`gravity-direction.txt`), else from the poses: the mean image-down axis (camera +y)
+    of up to `n` cameras spread over the sequence - people hold cameras upright - snapped to the nearest world
+    axis when within 10 degrees of it (a tracker's world usually has one axis vertical: z in ScanNet, y in a
+    HoloLens or ARKit world). None without poses. For evaluation and annotation (top-down pictures in the world of
+    the ground truth); the pipeline finds its floor itself."""
+    if source.gravity is not None:
+        return np.asarray(source.gravity, float), "gravity-direction.txt"
+    bad = set(source.untracked_frames())
+    idx = [int(i) for i in np.unique(np.linspace(0, len(source) - 1, min(n, len(source))).round()) if int(i) not in bad]
+    downs = [T[:3, 1] for T in (source[i].pose_gt for i in idx) if T is not None]
+    if not downs:
+        return None
+    d = np.mean(downs, 0)
+    d /= max(float(np.linalg.norm(d)), 1e-12)
+    k = int(np.argmax(np.abs(d)))
+    if abs(d[k]) >= np.cos(np.radians(10.0)):
+        axis = np.zeros(3)
+        axis[k] = np.sign(d[k])
+        return axis, f"world {'xyz'[k]} axis (cameras' mean down, {np.degrees(np.arccos(abs(d[k]))):.1f} deg off it)"
+    return d, "cameras' mean down"
+
+
 def check_gravity(source: "FrameSource", where: str, max_deg: float = 75.0) -> None:
     """The source's gravity (down, world frame) seen from its cameras must point roughly along camera +y
     (image down): a handheld or robot video is seldom tilted by more than `max_deg` on median. A flipped or
@@ -184,7 +208,8 @@ def _scale_K(K: np.ndarray, s: float) -> np.ndarray:
     return K
 
 
-def _loadtxt(path: Path, shape: tuple[int, ...] | None = None, what: str = "numbers") -> np.ndarray:
+def _loadtxt(path: Path, shape: tuple[int, ...] | None = None, what: str = "numbers",
+             allow_nonfinite: bool = False) -> np.ndarray:
     try:
         a = np.loadtxt(path, dtype=np.float64, ndmin=1)
     except (OSError, ValueError) as e:
@@ -193,7 +218,7 @@ def _loadtxt(path: Path, shape: tuple[int, ...] | None = None, what: str = "numb
         if a.size != int(np.prod(shape)):
             raise InputError(f"{path}: expected {what} with {int(np.prod(shape))} values {shape}, got {a.size}")
         a = a.reshape(shape)
-    if not np.all(np.isfinite(a)):
+    if not allow_nonfinite and not np.all(np.isfinite(a)):
         raise InputError(f"{path}: {what} contains non-finite values")
     return a
 
@@ -250,6 +275,40 @@ def small_gray(rgb: np.ndarray, width: int, bgr: bool = False) -> np.ndarray:
     return _small_gray(rgb, width)
 
 
+def _gray_file(path: Path, width: int) -> np.ndarray:
+    """Gray [h, w] uint8, at most `width` wide, of an image file, decoded at the largest JPEG reduction (1/2, 1/4,
+    1/8) that is still at least `width` wide: the redundant-frame removal reads every compared frame this way
+    (a full decode, colour conversion and copy cost ~3x more). A file that does not decode: `_imread_rgb`'s error."""
+    buf = _read_bytes(path, "image")
+    g = None
+    head = _image_width(buf)
+    for flag, f in ((cv2.IMREAD_REDUCED_GRAYSCALE_8, 8), (cv2.IMREAD_REDUCED_GRAYSCALE_4, 4),
+                    (cv2.IMREAD_REDUCED_GRAYSCALE_2, 2), (cv2.IMREAD_GRAYSCALE, 1)):
+        if head is not None and head // f < width and f > 1:
+            continue
+        g = cv2.imdecode(buf, flag) if buf.size else None
+        break
+    if g is None or g.size == 0 or (head is None and g.shape[1] < width and g.shape[1] * 2 <= width):
+        return small_gray(_imread_rgb(path), width)
+    return small_gray(g, width)
+
+
+def _image_width(buf: np.ndarray) -> int | None:
+    """The width stored in a JPEG's or PNG's header (None when not found: the caller decodes in full)."""
+    b = buf.tobytes()[:65536]
+    if b[:8] == b"\x89PNG\r\n\x1a\n" and len(b) >= 24:
+        return int.from_bytes(b[16:20], "big")
+    i = 2
+    while b[:2] == b"\xff\xd8" and i + 9 < len(b):
+        if b[i] != 0xFF:
+            return None
+        marker, seg = b[i + 1], int.from_bytes(b[i + 2:i + 4], "big")
+        if marker in (0xC0, 0xC1, 0xC2):
+            return int.from_bytes(b[i + 7:i + 9], "big")
+        i += 2 + seg
+    return None
+
+
 class FrameSource:
     """Random access to frames. Subclasses set `name`, `timestamps [N] float64`, `K [3, 3]`, `size (W, H)`,
     `dist` and `gravity` and implement `_load(i) -> Frame`.
@@ -269,6 +328,7 @@ class FrameSource:
     load_seconds: float = 0.0   # class defaults: a subclass that skips __init__ still counts
     loads: int = 0
     splits_colour: bool = False  # `_load_colour` reads less than `_load` (depth and pose are separate files)
+    sequential: bool = False     # frames decode forward only (a video: going back re-opens the file)
 
     def __init__(self, cache_size: int = 32):
         self._cache = LRU(cache_size)
@@ -345,10 +405,22 @@ class FrameSource:
     def gray(self, position: int, width: int) -> np.ndarray:
         """Gray image [h, w] uint8, at most `width` wide, of the frame at `position` (redundant-frame removal;
         sources that can decode it more cheaply than the colour frame override this)."""
+        path = self._colour_path(position)
+        if path is not None and self._position(position) not in self._cache:
+            return _gray_file(path, width)
         return small_gray(self.colour(position).rgb, width)
+
+    def _colour_path(self, position: int) -> Path | None:
+        """The image file of the frame at `position`, when the source reads one file per frame (a cheaper gray
+        read decodes it at a reduced size: `_gray_file`)."""
+        return None
 
     def prefetch(self, indices: Sequence[int]) -> None:
         """Hint that these frames are needed soon (the video source decodes them in one forward pass)."""
+
+    def untracked_frames(self) -> list[int]:
+        """Positions of frames whose ground-truth pose marks a tracking failure (none for most sources)."""
+        return []
 
     def gravity_camera(self, i: int) -> np.ndarray | None:
         """Gravity (down) in camera i's frame [3], or None without gravity or ground-truth pose."""

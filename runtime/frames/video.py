@@ -46,6 +46,7 @@ class VideoSource(FrameSource):
     `rotation_deg`. `progress(n)` is called with the frames the scan has decoded so far, every 32 (a bar).
     """
 
+    sequential = True   # frames decode forward only (the scan keeps its time sampling: times are measured)
     seek_min: int = 48  # forward jumps longer than this seek instead of decoding every frame in between
     # FFmpeg threads of the opening scan (None: the cores less one: the observer's worker has its own)
     scan_decoder_threads: int | None = None
