@@ -23,7 +23,7 @@ from typing import Any, Callable, Iterator, Sequence
 
 import numpy as np
 
-from .errors import InputError
+from .errors import InputError, path_kind
 from .geometry import intrinsics_from_fov, make_pose, worker_threads
 from .lru import LRU
 
@@ -68,7 +68,7 @@ def _read_bytes(path: Path, what: str) -> np.ndarray:
     """File bytes as a uint8 array. Reading through Python, not cv2.imread(str(path)), keeps file names that
     are not valid UTF-8 (undecodable bytes as surrogates) from reaching OpenCV's C++ path handling."""
     if not path.is_file():
-        raise InputError(f"{_show(path)}: {what} file is missing")
+        raise InputError(f"{_show(path)}: the {what} file is {path_kind(path)}; give a readable file")
     try:
         return np.frombuffer(path.read_bytes(), np.uint8)
     except OSError as e:
@@ -913,8 +913,10 @@ def open_source(path: str | os.PathLike, **opts: Any) -> FrameSource:
     opts go to the source class (e.g. `hfov_deg`, `fps`, `K`, `cache_size`, `max_frames`)."""
     p = Path(path)
     opts = {k: v for k, v in opts.items() if v is not None}
-    if not p.exists():
-        raise InputError(f"{_show(p)}: no such file or folder")
+    kind = path_kind(p)
+    if kind not in ("a file", "a folder"):  # a FIFO would block the first read; a loop is not "missing"
+        raise InputError(f"{_show(p)}: {'no such file or folder' if kind == 'missing' else kind}; give a video "
+                         f"file or a folder of frames")
     if p.is_file():
         if p.suffix.lower() in IMAGE_EXTS:
             raise InputError(f"{p}: a single image is not a frame source; give its folder")

@@ -832,13 +832,20 @@ class AskResult:
                 "explanation": self.answer.explanation, "qtype": self.answer.qtype, "missing": self.answer.missing,
                 "method": self.method,
                 "grounding": None if self.question is None else self.question.to_dict(),
-                "instances": None if self.map is None else [
-                    {"id": o.id, "name": o.name, "centre": np.round(o.center, 3).tolist(),
-                     "size": np.round(np.asarray(o.box.axes_lengths), 3).tolist(), "first_seen": o.first_seen}
-                    for o in self.map.instances],
+                "instances": None if self.map is None else _instance_rows(self.map.instances),
                 "keyframes": None if self.build is None else self.build.keyframes,
                 # key frames left out of the map (no verified pose): stated with the answer, not only in the trace
                 "unaligned": None if self.build is None else sorted(self.build.unaligned)}
+
+
+def _instance_rows(instances: list[Any]) -> list[dict[str, Any]]:
+    """id, name, centre and size (3 decimals), first_seen of every instance (rounded for all at once)."""
+    if not instances:
+        return []
+    c = np.round(np.array([o.center for o in instances], np.float64).reshape(-1, 3), 3).tolist()
+    s = np.round(np.array([o.box.axes_lengths for o in instances], np.float64).reshape(-1, 3), 3).tolist()
+    return [{"id": o.id, "name": o.name, "centre": ci, "size": si, "first_seen": o.first_seen}
+            for o, ci, si in zip(instances, c, s)]
 
 
 def _open(source: Any, trace: Trace | None = None) -> FrameSource | SemanticMap:
@@ -847,7 +854,7 @@ def _open(source: Any, trace: Trace | None = None) -> FrameSource | SemanticMap:
     if isinstance(source, (FrameSource, SemanticMap)):
         return source
     p = Path(source)
-    if p.is_file() and p.suffix.lower() == ".json":
+    if p.suffix.lower() == ".json":  # a map file: a folder, FIFO or loop of that name is said as such
         return SemanticMap.load(p)
     if p.is_dir() and (p / "map.json").is_file() and not any(p.glob("frame-*")) and not any(
             q.suffix.lower() in (".jpg", ".png", ".mp4") for q in p.iterdir()):
