@@ -21,6 +21,7 @@ from typing import Any, Callable, ClassVar, Collection, Mapping, Sequence
 
 import numpy as np
 
+from . import health
 from .config import StageConf
 from .errors import InputError, MosaicError
 from .frames import Frame, FrameSource
@@ -459,9 +460,13 @@ def _perceive(source: FrameSource, chosen: list[int], det: _CachedDetector, name
     bar.done()
     if len(frames) < 2:
         c = trace.decisions.get("dedup.counts") or {}
-        why = (f" (redundant-frame removal kept {c['kept']} of the {c['input']} frames: the input shows one view; "
-               f"give a video or images that move around the room)") if c.get("kept", 2) < 2 else ""
-        raise MosaicError(f"only {len(frames)} key frame(s) available: need at least 2 to build a map{why}")
+        why = (f" (the input has {c['input']} frame(s); give a video or images that move around the room)"
+               if c.get("input", 2) < 2 else
+               f" (redundant-frame removal kept {c['kept']} of the {c['input']} frames: the input shows one view; "
+               f"give a video or images that move around the room)" if c.get("kept", 2) < 2 else "")
+        name = getattr(source, "name", None)
+        raise MosaicError(f"{name + ': ' if name else ''}only {len(frames)} key frame(s) available: need at least 2 "
+                          f"to build a map{why}")
     return frames, dets, lifted
 
 
@@ -658,6 +663,7 @@ def build_map(source: FrameSource, targets: Sequence[str], cues: Sequence[str] =
         raise InputError("build_map needs a Perception (bundle models or the synthetic oracle)")
     conf = conf if isinstance(conf, PipelineConfig) else PipelineConfig.merged(conf)
     trace = trace if trace is not None else Trace()
+    _say(trace, health.sample_frames(source))
     loaded0 = (getattr(source, "load_seconds", 0.0), getattr(source, "loads", 0))
     names, perception, K = _start_build(source, targets, cues, perception, conf, trace, keyframes, budget)
     dedup = _candidates(source, conf, trace, budget)  # its thumbnails serve the search and the bridges
@@ -665,6 +671,7 @@ def build_map(source: FrameSource, targets: Sequence[str], cues: Sequence[str] =
                                     dedup=dedup)
     fconf = FusionConfig.merged(conf.fusion)
     frames, dets, lifted = _perceive(source, chosen, det, names, perception, conf, fconf, trace, budget)
+    _say(trace, health.frame_notes([health.frame_health(f.rgb, f.depth) for f in frames]))
     al, matcher = _align(frames, dets, source, perception, conf, trace, budget, dedup.thumbs)
     with trace.stage("gravity"):
         W = _gravity(frames, al.poses, source, al.root, conf, trace)
@@ -838,6 +845,12 @@ class AskResult:
                 "unaligned": None if self.build is None else sorted(self.build.unaligned)}
 
 
+def _say(trace: Trace, notes: list[str]) -> None:
+    """Input health notes (`health`) as "input" events: the printed answer and the JSON result repeat them."""
+    for n in notes:
+        trace.event("input", n, stage="health")
+
+
 def _instance_rows(instances: list[Any]) -> list[dict[str, Any]]:
     """id, name, centre and size (3 decimals), first_seen of every instance (rounded for all at once)."""
     if not instances:
@@ -992,6 +1005,7 @@ def ask(source: Any, question: str, options: list[str] | None = None, *, percept
         build = build_map(src, _whole_map_targets(pq, bundle, trace), pq.cues, perception, conf, trace, keyframes,
                           budget)
         smap = build.map
+    _say(trace, health.map_notes(smap))
     with trace.stage("prompt"):
         vp = _render_prompt(smap, build, prompt_mode, render_image or vlm is not None)
     with trace.stage("answer"):

@@ -32,6 +32,7 @@ from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
+from ..bundle import ROLES as BUNDLE_ROLES
 from ..errors import ProfileError, path_kind
 from ..file_schemas import profile_spec
 from ..schema import check
@@ -43,7 +44,7 @@ else:  # pragma: no cover - python 3.10
     import tomli as tomllib
 
 PROFILE_SCHEMA = "mosaicthinker.profile/1"
-ROLES = ("depth", "segmenter", "matcher", "detector", "embedder", "vlm")
+ROLES = BUNDLE_ROLES  # the model roles have one home: the bundle
 PRECISIONS = ("fp32", "fp16", "int8")
 INT8_KINDS = ("dynamic", "qdq")
 KNOWN_PROVIDERS = (
