@@ -268,13 +268,11 @@ class _warnings_as_lines:
         def show(message: Any, category: Any, filename: str, lineno: int, file: Any = None, line: Any = None
                  ) -> None:
             text = " ".join(str(message).split())
-            if text.startswith("[") and "] " in text:  # our trace events: "[kind] message"
-                text = text.split("] ", 1)[1]
-            if text in seen:
-                return
-            seen.add(text)
-            where = "" if "mosaicthinker" in filename else f" ({category.__name__} from {Path(filename).name})"
-            print(f"warning: {text}{where}", file=sys.stderr)
+            ours = text.startswith("[") and "] " in text  # the runtime's trace events: "[kind] message"
+            text = text.split("] ", 1)[1] if ours else f"{text} ({category.__name__} from {Path(filename).name})"
+            if text not in seen:
+                seen.add(text)
+                print(f"warning: {text}", file=sys.stderr)
 
         warnings.showwarning = show
         return self

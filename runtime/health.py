@@ -95,8 +95,9 @@ def map_notes(smap: Any) -> list[str]:
     notes = []
     inst = smap.instances
     if inst:
-        L = np.array([o.box.axes_lengths for o in inst], np.float64).reshape(-1, 3)
-        C = np.array([o.box.centroid for o in inst], np.float64).reshape(-1, 3)
+        C, L, _ = smap.box_arrays() if hasattr(smap, "box_arrays") else (
+            np.array([o.box.centroid for o in inst], np.float64).reshape(-1, 3),
+            np.array([o.box.axes_lengths for o in inst], np.float64).reshape(-1, 3), None)
         big = np.flatnonzero(L.max(1) > MAX_OBJECT_M)
         if len(big):
             k = int(big[np.argmax(L[big].max(1))])

@@ -307,16 +307,17 @@ def to_plain(obj: Any) -> Any:
         return json.loads(json.dumps(jsonable(obj), default=json_default))
 
 
-def json_text(obj: Any, small: int = 2000) -> str:
-    """JSON text of `obj` written by the C encoder: indented by 1 when it is small, else one line per top-level
-    key and one line per item of a long list (a 100 k-object map.json: readable line by line, written in about
-    a second; the indenting encoder is pure Python and took tens of seconds)."""
-    if not isinstance(obj, dict) or not any(isinstance(v, list) and len(v) > small for v in obj.values()):
-        return json.dumps(obj, indent=1, default=json_default) + "\n"
+def json_text(obj: Any, indent_below: int = 200_000) -> str:
+    """JSON text of `obj`, always by the C encoder: indented by 1 when its compact form is under `indent_below`
+    characters (the indenting encoder is pure Python: a trace with 12,500 evidence rows took seconds), else one
+    line per top-level key (a long list one line per item)."""
     enc = json.JSONEncoder(default=json_default).encode
+    compact = enc(obj)
+    if len(compact) < indent_below or not isinstance(obj, dict):
+        return (json.dumps(obj, indent=1, default=json_default) if len(compact) < indent_below else compact) + "\n"
     parts = []
     for k, v in obj.items():
-        if isinstance(v, list) and len(v) > small:
+        if isinstance(v, list) and len(v) > 100:
             body = ",\n  ".join(map(enc, v))
             parts.append(f" {enc(str(k))}: [\n  {body}\n ]")
         else:

@@ -839,7 +839,7 @@ class AskResult:
                 "explanation": self.answer.explanation, "qtype": self.answer.qtype, "missing": self.answer.missing,
                 "method": self.method,
                 "grounding": None if self.question is None else self.question.to_dict(),
-                "instances": None if self.map is None else _instance_rows(self.map.instances),
+                "instances": None if self.map is None else _instance_rows(self.map),
                 "keyframes": None if self.build is None else self.build.keyframes,
                 # key frames left out of the map (no verified pose): stated with the answer, not only in the trace
                 "unaligned": None if self.build is None else sorted(self.build.unaligned)}
@@ -851,12 +851,13 @@ def _say(trace: Trace, notes: list[str]) -> None:
         trace.event("input", n, stage="health")
 
 
-def _instance_rows(instances: list[Any]) -> list[dict[str, Any]]:
+def _instance_rows(smap: SemanticMap) -> list[dict[str, Any]]:
     """id, name, centre and size (3 decimals), first_seen of every instance (rounded for all at once)."""
+    instances = smap.instances
     if not instances:
         return []
-    c = np.round(np.array([o.center for o in instances], np.float64).reshape(-1, 3), 3).tolist()
-    s = np.round(np.array([o.box.axes_lengths for o in instances], np.float64).reshape(-1, 3), 3).tolist()
+    C, L, _ = smap.box_arrays()
+    c, s = np.round(C, 3).tolist(), np.round(L, 3).tolist()
     return [{"id": o.id, "name": o.name, "centre": ci, "size": si, "first_seen": o.first_seen}
             for o, ci, si in zip(instances, c, s)]
 

@@ -111,14 +111,9 @@ def distinct_colours(n: int) -> list[tuple[int, int, int]]:
 
 
 def box_arrays(smap: SemanticMap) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Every instance's centroid [N, 3], axis lengths [N, 3] and axes [N, 3, 3] (rows), stacked once."""
-    n = len(smap.instances)
-    if not n:
-        return np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3, 3))
-    boxes = [o.box for o in smap.instances]
-    return (np.array([b.centroid for b in boxes], np.float64).reshape(n, 3),
-            np.array([b.axes_lengths for b in boxes], np.float64).reshape(n, 3),
-            np.array([b.axes for b in boxes], np.float64).reshape(n, 3, 3))
+    """Every instance's centroid [N, 3], axis lengths [N, 3] and axes [N, 3, 3] (rows), stacked once
+    (`SemanticMap.box_arrays`)."""
+    return smap.box_arrays()
 
 
 def footprints(C: np.ndarray, L: np.ndarray, AX: np.ndarray) -> np.ndarray:

@@ -24,7 +24,7 @@ from typing import Any, ClassVar, Iterable, Sequence
 import numpy as np
 
 from .config import StageConf
-from .errors import InputError, check_path
+from .errors import InputError, path_kind
 from .file_schemas import check_map
 from .geometry import OrientedBox, convex_hull_2d, polygon_area
 
@@ -169,6 +169,20 @@ class SemanticMap:
                 return o
         raise KeyError(instance_id)
 
+    def box_arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Every instance's box as stacked arrays: centroids [N, 3], axis lengths [N, 3], axes [N, 3, 3] (rows),
+        kept until an instance or a box is replaced (a big map's image, text, checks and file read them once)."""
+        key = tuple(id(o.box) for o in self.instances)
+        cached = self.__dict__.get("_boxes")
+        if cached is None or cached[0] != key:
+            n = len(self.instances)
+            b = [o.box for o in self.instances]
+            arrays = (np.array([x.centroid for x in b], np.float64).reshape(n, 3),
+                      np.array([x.axes_lengths for x in b], np.float64).reshape(n, 3),
+                      np.array([x.axes for x in b], np.float64).reshape(n, 3, 3))
+            cached = self.__dict__["_boxes"] = (key, arrays)
+        return cached[1]
+
     def extent(self) -> Room | None:
         """The map's room extent: its room, else the one its object boxes span (`room_from_boxes`); None when the
         map has neither."""
@@ -200,11 +214,14 @@ class SemanticMap:
         """A map from its JSON form, validated first (`validate_map_dict`): a bad field raises InputError naming
         it instead of crashing a renderer or answering from NaN / negative sizes."""
         validate_map_dict(d, where)
-        return cls(_instances_from_dicts(d["instances"]),
+        instances, arrays = _instances_from_dicts(d["instances"])
+        smap = cls(instances,
                    None if d.get("room") is None else Room.from_dict(d["room"]),
                    [(float(c["t"]), np.asarray(c["T_wc"], dtype=np.float64).reshape(4, 4))
                     for c in d.get("cameras", [])],
                    dict(d.get("meta", {})))
+        smap.__dict__["_boxes"] = (tuple(id(o.box) for o in instances), arrays)  # the boxes are views of them
+        return smap
 
     def json_text(self, **extra: Any) -> str:
         """The JSON of `to_dict()` (plus `extra` top-level fields, e.g. a run id), one line per object, written
@@ -213,7 +230,8 @@ class SemanticMap:
         d = self.to_dict(instances=False)
         d.update(extra)
         head = ",\n".join(f" {json.dumps(k)}: {json.dumps(v)}" for k, v in d.items())
-        return "{\n" + head + ',\n "instances": [\n  ' + ",\n  ".join(_instance_lines(self.instances)) + "\n ]\n}\n"
+        lines = _instance_lines(self.instances, self.box_arrays())
+        return "{\n" + head + ',\n "instances": [\n  ' + ",\n  ".join(lines) + "\n ]\n}\n"
 
     def save(self, path: str | os.PathLike) -> None:
         with open(path, "w") as f:
@@ -222,7 +240,10 @@ class SemanticMap:
     @classmethod
     def load(cls, path: str | os.PathLike) -> "SemanticMap":
         """Read and validate a saved map; maps over MAX_MAP_BYTES / MAX_MAP_OBJECTS are refused."""
-        check_path(path, "a file", "the map")  # a FIFO would block the read; a loop or a folder is said as such
+        kind = path_kind(path)  # a FIFO would block the read; a loop or a folder is said as such
+        if kind != "a file":
+            raise InputError(f"{path}: cannot read the semantic map (no such file); build one with `mosaic map`"
+                             if kind == "missing" else f"{path}: the map is {kind}; give a map.json file")
         try:
             size = os.path.getsize(path)
             if size > MAX_MAP_BYTES:
@@ -267,9 +288,7 @@ def _instance_dicts(instances: list[ObjectInstance]) -> list[dict[str, Any]]:
     n = len(instances)
     if not n:
         return []
-    C = np.array([o.box.centroid for o in instances], np.float64).reshape(n, 3)
-    L = np.array([o.box.axes_lengths for o in instances], np.float64).reshape(n, 3)
-    A = np.array([o.box.axes for o in instances], np.float64).reshape(n, 3, 3)
+    C, L, A = SemanticMap(instances).box_arrays()
     corners = C[:, None, :] + (_CORNER_SIGNS[None] * (L[:, None, :] / 2.0)) @ A
     out = []
     for o, c, ln, a, lo, hi in zip(instances, C.tolist(), L.tolist(), A.reshape(n, 9).tolist(),
@@ -289,15 +308,13 @@ _LINE = ('{"id": %d, "name": %s, "box": {"centroid": [%r, %r, %r], "axesLengths"
          '"first_seen": %s, "score": %r, "n_points": %d, "frames": %s%s}')
 
 
-def _instance_lines(instances: list[ObjectInstance]) -> list[str]:
+def _instance_lines(instances: list[ObjectInstance], arrays: tuple[np.ndarray, ...] | None = None) -> list[str]:
     """One JSON object per instance, equal to `json.dumps(o.to_dict())` once parsed (floats written by repr, as
     the JSON encoder does), formatted from the stacked numbers."""
     n = len(instances)
     if not n:
         return []
-    C = np.array([o.box.centroid for o in instances], np.float64).reshape(n, 3)
-    L = np.array([o.box.axes_lengths for o in instances], np.float64).reshape(n, 3)
-    A = np.array([o.box.axes for o in instances], np.float64).reshape(n, 3, 3)
+    C, L, A = SemanticMap(instances).box_arrays() if arrays is None else arrays
     corners = C[:, None, :] + (_CORNER_SIGNS[None] * (L[:, None, :] / 2.0)) @ A
     rows = np.concatenate([C, L, A.reshape(n, 9), corners.min(1), corners.max(1)], 1).tolist()
     names: dict[str, str] = {}
@@ -311,11 +328,13 @@ def _instance_lines(instances: list[ObjectInstance]) -> list[str]:
     return out
 
 
-def _instances_from_dicts(items: list[dict[str, Any]]) -> list[ObjectInstance]:
-    """`[ObjectInstance.from_dict(o) for o in items]` (validated dicts) with the box arrays built at once."""
+def _instances_from_dicts(items: list[dict[str, Any]]
+                          ) -> tuple[list[ObjectInstance], tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """`[ObjectInstance.from_dict(o) for o in items]` (validated dicts) with the box arrays built at once;
+    returns (instances, (centroids [N, 3], lengths [N, 3], axes [N, 3, 3])), the boxes being views of them."""
     n = len(items)
     if not n:
-        return []
+        return [], (np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3, 3)))
     boxes = [o["box"] for o in items]
     C = np.array([b["centroid"] for b in boxes], np.float64).reshape(n, 3)
     L = np.array([b["axesLengths"] for b in boxes], np.float64).reshape(n, 3)
@@ -323,7 +342,7 @@ def _instances_from_dicts(items: list[dict[str, Any]]) -> list[ObjectInstance]:
     return [ObjectInstance(int(d["id"]), str(d["name"]), OrientedBox(C[i], L[i], A[i]),
                            None if d.get("first_seen") is None else float(d["first_seen"]),
                            float(d.get("score", 1.0)), int(d.get("n_points", 0)), [int(f) for f in d.get("frames", [])],
-                           list(d.get("views", []))) for i, d in enumerate(items)]
+                           list(d.get("views", []))) for i, d in enumerate(items)], (C, L, A)
 
 
 def room_from_boxes(boxes: Iterable[OrientedBox], extra_xy: np.ndarray | None = None) -> Room | None:
