@@ -99,7 +99,7 @@ def classify(code: int | str, out: str, err: str, file: str | None = None, note:
 # ------------------------------------------------------------------------------------------------ field damage
 
 KINDS = sorted(MUTATIONS)
-PER_PATH = 3  # kinds per field path in the suite's stratified run (every kind still meets many paths)
+PER_PATH = 2  # kinds per field path in the suite's stratified run (every kind still meets many paths)
 
 
 def _pairs(base: Any, full: bool) -> Iterator[tuple[tuple, str]]:
