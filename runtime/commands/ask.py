@@ -89,8 +89,9 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                                        if matcher != "model" else "sift")
         trace.decide("perception", perception.describe)
     out = Path(args.out) if args.out else None
-    outs = RunOutputs(out) if out is not None else None  # checked and locked before the pipeline runs
+    outs = None
     try:
+        outs = RunOutputs(out) if out is not None else None  # checked and locked before the pipeline runs
         note_outputs(outs, trace)
         res = pipeline.ask(args.source, question, options, perception=perception, bundle=args.bundle,
                            profile=profile, conf=conf, answerer=args.answerer, method=args.method,
@@ -104,7 +105,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
             if res.prompt is not None:  # the text the VLM gets (with the image unless --prompt text)
                 items.append(("prompt_txt", "prompt.txt", res.prompt.full_text(question, options)))
             if res.map is not None:
-                items.append(("map_json", "map.json", res.map.to_dict()))
+                items.append(("map_json", "map.json", res.map))
             items.append(("trace_json", "trace.json", trace.to_dict()))
             files, write_error, code = save_run(outs, items)
     finally:
