@@ -87,7 +87,8 @@ def same_outputs(a: Path, b: Path) -> dict:
     return {"same_map": ma == mb, "same_answers": qa == qb, "instances": len(ma or []), "questions": len(qa)}
 
 
-def probe_detector(bundle: Path, stride: int = 3, threshold: float = 0.2) -> dict:
+def probe_detector(bundle: Path, stride: int = 3, threshold: float = 0.2, role: str = "detector",
+                   variant: str | None = None, size: list[int] | None = None, keep: float | None = None) -> dict:
     """How the bundle's detector sees the annotated instances (a diagnosis of the map's misses, not a score):
     the raw detector at `threshold` on every `stride`-th frame; per annotated category, the frames where one of
     its boxes projects into the image (ground-truth pose, in front of the camera, >= 30 % of its projected box
@@ -104,8 +105,10 @@ def probe_detector(bundle: Path, stride: int = 3, threshold: float = 0.2) -> dic
     from mosaicthinker.runtime.models.detector import map_names
     from mosaicthinker.runtime.infra.trace import Trace
 
-    det = load_role(load_bundle(bundle), "detector", trace=Trace())
-    keep = det.conf.score_threshold
+    det = load_role(load_bundle(bundle), role, variant=variant, trace=Trace())
+    if size:  # another input size of a graph with a symbolic one (YOLOX)
+        det.spec.meta = {**det.spec.meta, "preprocessing": {**det.spec.preprocessing, "size": list(size)}}
+    keep = det.conf.score_threshold if keep is None else keep
     det.conf.score_threshold = threshold
     _, scene, T = load_annotation(ANNOT)
     src = open_source(DATA)
@@ -125,7 +128,7 @@ def probe_detector(bundle: Path, stride: int = 3, threshold: float = 0.2) -> dic
     for i in range(0, len(src), stride):
         f = src[i]
         H, W = f.rgb.shape[:2]
-        px, cls, sc = det.raw(f.rgb)
+        px, cls, sc = det.raw(f.rgb)[:3]
         for c, lst in boxes.items():
             proj, pid = [], []
             for j, b in enumerate(lst):
@@ -276,6 +279,14 @@ def main(argv: list[str] | None = None) -> int:
                                                             "its stored runs (no new runs)")
     ap.add_argument("--probe-detector", action="store_true", help="only the detector diagnosis (probe_detector) "
                                                                    "into benchmarks/results/real_scene_detector.json")
+    ap.add_argument("--probe-role", default="detector", help="--probe-detector: the role to probe (detector or "
+                                                              "instance_segmenter)")
+    ap.add_argument("--probe-variant", default=None, help="--probe-detector: the variant (e.g. ssd-fp32)")
+    ap.add_argument("--probe-size", default=None, help="--probe-detector: another input size HxW (YOLOX)")
+    ap.add_argument("--probe-stride", type=int, default=3, help="--probe-detector: every n-th frame")
+    ap.add_argument("--probe-keep", type=float, default=None, help="--probe-detector: the score counted as a "
+                    "detection (default: the detector's score_threshold)")
+    ap.add_argument("--probe-out", type=Path, default=OUT.with_name("real_scene_detector.json"))
     ap.add_argument("--probe-depth", action="store_true", help="only the relative-depth diagnosis (probe_depth, "
                                                                 "sensor depth for analysis only) into "
                                                                 "benchmarks/results/real_scene_depth.json")
@@ -300,8 +311,10 @@ def main(argv: list[str] | None = None) -> int:
     if a.probe_detector:
         doc = {"schema": "mosaicthinker.bench.real_scene_detector/1", "cmd": " ".join(sys.argv),
                "date": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "load_avg_1min": os.getloadavg()[0],
-               **probe_detector(a.bundle)}
-        path = OUT.with_name("real_scene_detector.json")
+               **probe_detector(a.bundle, a.probe_stride, role=a.probe_role, variant=a.probe_variant,
+                                keep=a.probe_keep,
+                                size=[int(v) for v in a.probe_size.split("x")] if a.probe_size else None)}
+        path = a.probe_out
         path.write_text(json.dumps(doc, indent=1, default=float))
         print(json.dumps({k: doc[k] for k in ("per_category", "per_instance", "recall_ceiling")}, indent=1))
         return 0

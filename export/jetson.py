@@ -252,10 +252,11 @@ def _jetson_entry(root: Path, role: str, v: str, c: str, cm: dict[str, Any], rm:
     """One component's `jetson` entry: profile shapes, provider chain, trtexec line, Q/DQ facts, warnings."""
     profile = profile_shapes(cm.get("inputs", []), rm, conf)
     q = qdq_info(B.safe_path(root, cm["file"]))
+    p = rm["variants"].get(v, {}).get("precision", v)  # a variant named for its model (ssd-fp32) has a precision
     # Q/DQ nodes TensorRT takes need the int8 builder flag; ones it cannot take (uint8, non-zero zero
     # points) get no int8 flag and no standalone engine: trtexec would fail on them
     trt_int8 = q["qdq"] and q["trt_int8_compatible"]
-    prec = "int8-qdq" if trt_int8 else ("fp16" if v == "int8-qdq" else v)
+    prec = "int8-qdq" if trt_int8 else ("fp16" if p == "int8-qdq" else p)
     opts = trt_provider_options(role, v, c, prec, profile, conf)
     argv = None if q["qdq"] and not trt_int8 else trtexec_command(cm["file"], role, v, c, prec, profile, conf)
     entry = {"trt_profile_shapes": profile if profile["min"] else {},
@@ -271,26 +272,28 @@ def _jetson_entry(root: Path, role: str, v: str, c: str, cm: dict[str, Any], rm:
         entry["warnings"].append(
             "weight-only int8 (DequantizeLinear on weights, float activations): TensorRT's handling "
             "depends on its version; if the int8 build fails or is slow, use the fp16 engine")
-    if v == "fp32" and (not q["qdq"] or q["weight_only"]):
+    if p == "fp32" and (not q["qdq"] or q["weight_only"]):
         # the usual Jetson choice: an fp16 engine built from the fp32 graph
-        fp16 = trt_provider_options(role, "fp32-trtfp16", c, "fp16", profile, conf)
+        fp16 = trt_provider_options(role, f"{v}-trtfp16", c, "fp16", profile, conf)
         entry["providers_fp16_engine"] = provider_chain(fp16)
-        entry["trtexec_fp16_engine"] = trtexec_command(cm["file"], role, "fp32-trtfp16", c, "fp16", profile, conf)
+        entry["trtexec_fp16_engine"] = trtexec_command(cm["file"], role, f"{v}-trtfp16", c, "fp16", profile, conf)
     return entry
 
 
 def _jetson_role(root: Path, role: str, rm: dict[str, Any], conf: JetsonConfig) -> dict[str, Any]:
     """Write the `jetson` entries of one role's variants (ONNX components only) into `rm`; its summary."""
     role_sum = {}
-    for v in conf.precisions:
-        vm = rm["variants"].get(v)
-        if vm is None:
-            continue
-        comps = {c: _jetson_entry(root, role, v, c, cm, rm, conf) for c, cm in vm["components"].items()
+    # the precisions asked for, and variants that are another model for the role (ssd-fp32) at one of them
+    for v in [v for v, vm in rm["variants"].items() if v in conf.precisions
+              or (vm.get("overrides") and vm.get("precision") in conf.precisions)]:
+        vm = rm["variants"][v]
+        meta = {**rm, **(vm.get("overrides") or {})}  # the variant's own model: its pre-processing sizes
+        comps = {c: _jetson_entry(root, role, v, c, cm, meta, conf) for c, cm in vm["components"].items()
                  if cm.get("format", "onnx") == "onnx"}
         if comps:
-            vm["jetson"] = {"components": comps, "precision": v,
-                            "int8": ("explicit (QDQ nodes), no calibration table" if v == "int8-qdq" else None),
+            p = vm.get("precision", v)
+            vm["jetson"] = {"components": comps, "precision": p,
+                            "int8": ("explicit (QDQ nodes), no calibration table" if p == "int8-qdq" else None),
                             "engine_built_here": False}
             role_sum[v] = {c: {"profile": d["trt_profile_shapes"],
                                "trtexec": " ".join(d["trtexec"]) if d["trtexec"] else None,

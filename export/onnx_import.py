@@ -27,6 +27,7 @@ from mosaicthinker.host import bundle_write as B
 from mosaicthinker.runtime.infra.errors import ExportError, InputError
 from mosaicthinker.runtime.infra.progress import ticked
 
+from .detector_formats import ULTRALYTICS_CONFIG, ULTRALYTICS_PREPROCESSING, YOLOX_CONFIG, YOLOX_PREPROCESSING
 from .common import (Feeds, add_variant_files, calibration_frames, progress, quantize_variant,
                      record_skipped_variant, role_meta)
 
@@ -38,24 +39,42 @@ def _labels(path: Path) -> list[str]:
 
 
 def shared_model_specs(models_dir: str | os.PathLike) -> dict[str, dict[str, Any]]:
-    """role -> {"file": Path, "meta": role_meta dict} for the four models in ../shared/models (see its README)."""
+    """key -> {"role", "file": Path, "meta": role_meta dict, "alternative": bool} for the real models in
+    ../shared/models (see its README): depth, detector (YOLOX-Nano, the default), detector-ssd (the SSD, kept as
+    the detector's `ssd-fp32` variant), instance_segmenter (YOLO11n-seg, AGPL-3.0), segmenter (DeepLab), embedder."""
     d = Path(models_dir)
     voc = [x for x in _labels(d / "deeplabv3-mobilenetv2-voc" / "pascal_voc_segmentation_labels.txt")[:21]]
     coco = _labels(d / "ssd-mobilenet-v1-coco" / "coco_labels.txt")
+    coco80 = _labels(d / "yolox-nano-coco" / "coco80_labels.txt")
+    coco80_seg = _labels(d / "yolo11n-seg-coco" / "coco80_labels.txt")
     if len(voc) != 21 or voc[0] != "background" or voc[-1] != "tvmonitor":
         raise ExportError(f"{d}/deeplabv3-mobilenetv2-voc/pascal_voc_segmentation_labels.txt: expected the 21 VOC "
                           f"labels background..tvmonitor")
     if len(coco) != 90 or coco[0] != "person":
         raise ExportError(f"{d}/ssd-mobilenet-v1-coco/coco_labels.txt: expected 90 lines starting with person")
+    for name, lab in (("yolox-nano-coco", coco80), ("yolo11n-seg-coco", coco80_seg)):
+        if len(lab) != 80 or lab[0] != "person" or lab[56] != "chair":
+            raise ExportError(f"{d}/{name}/coco80_labels.txt: expected the 80 contiguous COCO labels (person ... "
+                              f"56 chair ...)")
 
-    def prov(folder: str, fname: str, upstream: str) -> dict[str, Any]:
+    prov = _provenance(d)
+    return {**_depth_embedder_specs(d, prov), **_detector_specs(d, prov, coco, coco80),
+            **_segmenter_specs(d, prov, voc, coco80_seg)}
+
+
+def _provenance(d: Path) -> Callable[..., dict[str, Any]]:
+    def prov(folder: str, fname: str, upstream: str, conversion: str = SHARED_PROVENANCE_NOTE) -> dict[str, Any]:
         f = d / folder / fname
-        return {"source": f"onnx:{folder}/{fname}", "upstream": upstream, "conversion": SHARED_PROVENANCE_NOTE,
+        return {"source": f"onnx:{folder}/{fname}", "upstream": upstream, "conversion": conversion,
                 "sha256": B.sha256_file(f)}
 
+    return prov
+
+
+def _depth_embedder_specs(d: Path, prov: Callable[..., dict[str, Any]]) -> dict[str, dict[str, Any]]:
     return {
-        "depth": {"file": d / "pydnet" / "pydnet.onnx", "meta": role_meta(
-            "pydnet", licence="Apache-2.0", random_weights=False,
+        "depth": {"role": "depth", "file": d / "pydnet" / "pydnet.onnx", "meta": role_meta(
+            "pydnet", licence="Apache-2.0", name="PyDNet++", random_weights=False,
             preprocessing={"size": [448, 640], "layout": "NHWC", "channel_order": "RGB", "dtype": "float32",
                            "scale": 1.0 / 255.0, "resize": "bilinear"},
             semantics={"depth": "relative", "note": "affine in depth, larger = farther; not metric"},
@@ -63,8 +82,36 @@ def shared_model_specs(models_dir: str | os.PathLike) -> dict[str, dict[str, Any
                             "FilippoAleotti/mobilePydnet Android/app/src/main/assets/optimized_pydnet++.tflite "
                             "(blob f6032de7)"),
             config={"output": 0})},
-        "detector": {"file": d / "ssd-mobilenet-v1-coco" / "ssd_mobilenet_v1_coco.onnx", "meta": role_meta(
-            "ssd_tflite", licence="Apache-2.0", random_weights=False,
+        "embedder": {"role": "embedder", "file": d / "mobilenet-v1-embedding" / "mobilenet_v1_embedding.onnx",
+                     "meta": role_meta(
+            "mobilenet_embedding", licence="Apache-2.0", name="MobileNetV1 embedding (ImageNet)",
+            random_weights=False,
+            preprocessing={"size": [224, 224], "layout": "NHWC", "channel_order": "RGB", "dtype": "uint8",
+                           "resize": "bilinear"},
+            semantics={"dim": 1024, "kind": "ImageNet MobileNetV1 pooled features (not CLIP)",
+                       "output": "uint8 [1,1,1,1024], cast to float and L2-normalise"},
+            provenance=prov("mobilenet-v1-embedding", "mobilenet_v1_embedding.onnx",
+                            "google-coral/test_data@104342d2 mobilenet_v1_1.0_224_quant_embedding_extractor.tflite"),
+            config={"output": 0})},
+    }
+
+
+def _detector_specs(d: Path, prov: Callable[..., dict[str, Any]], coco: list[str], coco80: list[str]
+                    ) -> dict[str, dict[str, Any]]:
+    return {
+        "detector": {"role": "detector", "file": d / "yolox-nano-coco" / "yolox_nano.onnx", "meta": role_meta(
+            "yolox", licence="Apache-2.0", name="YOLOX-Nano (COCO)", random_weights=False,
+            preprocessing=YOLOX_PREPROCESSING,
+            semantics={"vocabulary": "closed", "labels": coco80, "label_source": "coco80_labels.txt (contiguous "
+                       "80 COCO classes)", "outputs": "output [1,A,85]: raw anchors (4 box values, objectness, 80 "
+                       "class probabilities); decoding and NMS in the adapter"},
+            provenance=prov("yolox-nano-coco", "yolox_nano.onnx", "Bigisland1729/object-detection-models@6e770c5e "
+                            "yolox_nano.onnx (YOLOX, Megvii)", "PyTorch ONNX export by its publisher (opset 11); "
+                            "input height/width and anchor count made symbolic in ../shared/models"),
+            config=dict(YOLOX_CONFIG))},
+        "detector-ssd": {"role": "detector", "alternative": True,
+                         "file": d / "ssd-mobilenet-v1-coco" / "ssd_mobilenet_v1_coco.onnx", "meta": role_meta(
+            "ssd_tflite", licence="Apache-2.0", name="SSD MobileNet v1 (COCO)", random_weights=False,
             preprocessing={"size": [300, 300], "layout": "NHWC", "channel_order": "RGB", "dtype": "uint8",
                            "resize": "bilinear"},
             semantics={"vocabulary": "closed", "labels": coco, "label_source": "coco_labels.txt (class id = "
@@ -74,8 +121,31 @@ def shared_model_specs(models_dir: str | os.PathLike) -> dict[str, dict[str, Any
             provenance=prov("ssd-mobilenet-v1-coco", "ssd_mobilenet_v1_coco.onnx",
                             "tensorflow/tflite-support@dd3362ea coco_ssd_mobilenet_v1_1.0_quant_2018_06_29.tflite"),
             config={"score_threshold": 0.5})},
-        "segmenter": {"file": d / "deeplabv3-mobilenetv2-voc" / "deeplabv3_voc.onnx", "meta": role_meta(
-            "deeplab", licence="Apache-2.0", random_weights=False,
+    }
+
+
+def _segmenter_specs(d: Path, prov: Callable[..., dict[str, Any]], voc: list[str], coco80_seg: list[str]
+                     ) -> dict[str, dict[str, Any]]:
+    return {
+        "instance_segmenter": {"role": "instance_segmenter",
+                               "file": d / "yolo11n-seg-coco" / "yolo11n-seg_int8.onnx", "meta": role_meta(
+            "ultralytics_e2e", licence="AGPL-3.0", name="YOLO11n-seg (COCO)", random_weights=False,
+            preprocessing=dict(ULTRALYTICS_PREPROCESSING, size=[640, 640], layout="NHWC"),
+            semantics={"vocabulary": "closed", "labels": coco80_seg, "kind": "instance",
+                       "label_source": "coco80_labels.txt (the export's metadata.json names)",
+                       "outputs": "Identity [1,300,38]: x1,y1,x2,y2 (fractions of the input), score, class, 32 "
+                                  "mask coefficients; Identity_1 [1,160,160,32] prototypes; NMS inside the graph"},
+            provenance={**prov("yolo11n-seg-coco", "yolo11n-seg_int8.onnx",
+                               "HE-22/realtimehitbox-detection@6f7cc564 mobile_export/yolo11n-seg_int8.tflite "
+                               "(stock Ultralytics yolo11n-seg.pt, Ultralytics 8.3.240, int8=True, nms=True)"),
+                        "licence_note": "Ultralytics weights under AGPL-3.0 (strong copyleft, which also reaches "
+                                        "software offered to users over a network): a test asset here"},
+            config={**ULTRALYTICS_CONFIG, "box_units": "normalised"},
+            notes="weights stored int8 with float activations (onnx2tf dynamic-range quantisation of the TFLite "
+                  "export): further int8 conversion is not attempted")},
+        "segmenter": {"role": "segmenter", "file": d / "deeplabv3-mobilenetv2-voc" / "deeplabv3_voc.onnx",
+                      "meta": role_meta(
+            "deeplab", licence="Apache-2.0", name="DeepLabv3 MobileNetV2 (VOC)", random_weights=False,
             preprocessing={"size": [257, 257], "layout": "NHWC", "channel_order": "RGB", "dtype": "float32",
                            "mean": [127.5, 127.5, 127.5], "std": [127.5, 127.5, 127.5], "resize": "bilinear"},
             semantics={"kind": "semantic", "labels": voc, "prompts": "ignores point prompts; boxes select pixels "
@@ -83,15 +153,6 @@ def shared_model_specs(models_dir: str | os.PathLike) -> dict[str, dict[str, Any
             provenance=prov("deeplabv3-mobilenetv2-voc", "deeplabv3_voc.onnx",
                             "tensorflow/tflite-support@dd3362ea lite-model_deeplabv3_1_metadata_2.tflite"),
             config={"logits_layout": "NHWC"})},
-        "embedder": {"file": d / "mobilenet-v1-embedding" / "mobilenet_v1_embedding.onnx", "meta": role_meta(
-            "mobilenet_embedding", licence="Apache-2.0", random_weights=False,
-            preprocessing={"size": [224, 224], "layout": "NHWC", "channel_order": "RGB", "dtype": "uint8",
-                           "resize": "bilinear"},
-            semantics={"dim": 1024, "kind": "ImageNet MobileNetV1 pooled features (not CLIP)",
-                       "output": "uint8 [1,1,1,1024], cast to float and L2-normalise"},
-            provenance=prov("mobilenet-v1-embedding", "mobilenet_v1_embedding.onnx",
-                            "google-coral/test_data@104342d2 mobilenet_v1_1.0_224_quant_embedding_extractor.tflite"),
-            config={"output": 0})},
     }
 
 
@@ -128,57 +189,97 @@ def _float_range_feeds(path: Path, lo: float, hi: float) -> Callable[[np.random.
 def import_onnx(out: str | os.PathLike, role: str, path: str | os.PathLike, meta: dict[str, Any],
                 precisions: list[str] = ("fp32",), *, calib: str | os.PathLike | None = None,
                 make_inputs: Callable[[np.random.Generator], Feeds] | None = None,
-                outputs: list[int] | None = None) -> dict[str, Any]:
-    """Copy `path` into bundle `out` as role/fp32, then make and parity-check the other precisions.
+                outputs: list[int] | None = None, prefix: str = "", alternative: bool = False) -> dict[str, Any]:
+    """Copy `path` into bundle `out` as role/<prefix>fp32, then make and parity-check the other precisions.
+    alternative=True: another model for an existing role (variants `<prefix>...` with their own metadata).
 
     Returns {"role", "variants": {name: parity}, "skipped": {name: reason}}.
     """
-    from mosaicthinker.runtime.models import preprocess_image
-
     path = Path(path)
     if not path.is_file():
         raise ExportError(f"--source onnx:{path}: file not found")
-    progress(f"import {path.name} as {role}/fp32")
-    add_variant_files(out, role, "fp32", {"model": path}, meta=meta, precision="fp32",
-                      parity={"model": {"ok": True, "reference": "the imported file itself (copied unchanged)"}},
-                      notes=meta.get("notes"))
-    res: dict[str, Any] = {"role": role, "variants": {"fp32": {"ok": True, "copied": True}}, "skipped": {}}
+    progress(f"import {path.name} as {role}/{prefix}fp32")
+    resized = (meta.get("provenance") or {}).get("resized")
+    first = ({"ok": True, "reference": "the imported file itself (copied unchanged)"} if not resized else
+             {"ok": True, "reference": f"the imported graph re-shaped to {resized['size']} (ultralytics_rect)",
+              "task": resized["task_check"]})
+    add_variant_files(out, role, f"{prefix}fp32", {"model": path}, meta=meta, precision="fp32",
+                      parity={"model": first}, notes=meta.get("notes"), alternative=alternative)
+    res: dict[str, Any] = {"role": role, "variants": {f"{prefix}fp32": {"ok": True, "copied": not resized,
+                                                                          **({"task": resized["task_check"]}
+                                                                             if resized else {})}},
+                           "skipped": {}}
     make_inputs = make_inputs or random_feeds_for(path)
     calib_feeds: list[Feeds] = []
     if "int8-qdq" in precisions:
         if calib is None:
             raise ExportError("--precision int8-qdq needs calibration frames: --calib FOLDER_OR_VIDEO")
-        name = B.io_spec_from_onnx(path)[0][0]["name"]
-        calib_feeds = [{name: preprocess_image(f, meta["preprocessing"])} for f in calibration_frames(calib, 16)]
+        calib_feeds = calibration_feeds(path, meta["preprocessing"], calib)
     with tempfile.TemporaryDirectory() as td:
         for prec in ticked([p for p in precisions if p != "fp32"], f"export {role}", "variant"):
             q = quantize_variant(path, Path(td) / f"{prec}.onnx", prec, make_inputs=make_inputs,
                                  calibration=calib_feeds, outputs=outputs)
+            name = f"{prefix}{prec}"
             if q["ok"]:
-                add_variant_files(out, role, prec, {"model": q["path"]}, meta=meta, precision=prec,
+                add_variant_files(out, role, name, {"model": q["path"]}, meta=meta, precision=prec,
                                   target="cpu" if prec != "int8-qdq" else "accelerator",
-                                  parity={"model": q["parity"]})
-                res["variants"][prec] = q["parity"]
+                                  parity={"model": q["parity"]}, alternative=alternative)
+                res["variants"][name] = q["parity"]
             else:
-                record_skipped_variant(out, role, prec, q["reason"])
-                res["skipped"][prec] = q["reason"]
-                progress(f"{role}/{prec} NOT shipped: {q['reason']}")
+                record_skipped_variant(out, role, name, q["reason"])
+                res["skipped"][name] = q["reason"]
+                progress(f"{role}/{name} NOT shipped: {q['reason']}")
     return res
 
 
-def read_sidecar(path: Path, meta_file: str | os.PathLike | None, weights: str | None = None) -> dict[str, Any]:
+def calibration_feeds(path: Path, pp: dict[str, Any], calib: str | os.PathLike, n: int = 16) -> list[Feeds]:
+    """int8-qdq calibration inputs: `n` frames of `calib` prepared as the runtime prepares them (a letterbox for
+    the YOLO formats, a plain resize otherwise)."""
+    from mosaicthinker.runtime.models import preprocess_image
+    from mosaicthinker.runtime.models.yolo import letterbox
+
+    name = B.io_spec_from_onnx(path)[0][0]["name"]
+    prep = (lambda f: letterbox(f, pp)[0]) if pp.get("resize") == "letterbox" else \
+        (lambda f: preprocess_image(f, pp))
+    return [{name: prep(f)} for f in calibration_frames(calib, n)]
+
+
+DETECTOR_ROLES = ("detector", "instance_segmenter")
+
+
+def read_sidecar(path: Path, meta_file: str | os.PathLike | None, weights: str | None = None,
+                 role: str | None = None) -> dict[str, Any]:
     """The role metadata of an imported graph. weights: "real" | "random" from --real-weights /
-    --random-weights, required when the sidecar has no boolean `random_weights`."""
+    --random-weights, required when the sidecar has no boolean `random_weights`. For a detector or instance
+    segmenter the graph's format (SSD, YOLOX, Ultralytics end-to-end: `detector_formats.detect_format`) gives
+    `arch`, `preprocessing` and `config` defaults; the sidecar may leave them out (what it gives wins; an `arch`
+    that contradicts the graph is refused), and an Ultralytics export's own `names` metadata gives the labels."""
+    from .detector_formats import detect_format, format_meta
+
     side = Path(meta_file) if meta_file else path.with_name(path.name + ".mosaic.json")
     if not side.is_file():
         raise ExportError(f"--source onnx:{path}: metadata sidecar {side} not found; write it (see "
-                          f"export/onnx_import.py) or pass --meta FILE")
+                          f"docs/bundle-and-adapters.md) or pass --meta FILE")
     try:
         raw = B.strict_json_loads(side.read_bytes(), str(side))
     except InputError as e:
         raise ExportError(str(e)) from e
     if not isinstance(raw, dict):
         raise ExportError(f"{side}: expected a JSON object")
+    if role in DETECTOR_ROLES:
+        fmt = detect_format(path)
+        raw = {**raw, **format_meta(fmt, raw, str(side))}
+        sem = dict(raw.get("semantics") or {})
+        if not sem.get("labels") and (names := graph_label_names(path)):
+            sem.update(vocabulary="closed", labels=names, label_source="the graph's own metadata (names)")
+        if not sem.get("labels") and sem.get("vocabulary") != "open":
+            raise ExportError(f"{side}: field 'semantics.labels' is required for a closed-set detector (the class "
+                              f"names in class-id order); {path.name} carries no `names` metadata to take them from")
+        sem.setdefault("vocabulary", "closed")
+        if fmt["arch"] == "ultralytics_e2e" and fmt.get("prototypes"):
+            sem.setdefault("kind", "instance")
+        raw["semantics"] = sem
+        progress(f"{path.name}: {fmt['arch']} format (from its inputs/outputs)")
     for k in ("arch", "licence", "preprocessing", "semantics"):
         if k not in raw:
             raise ExportError(f"{side}: field {k!r} is required")
@@ -199,33 +300,148 @@ def read_sidecar(path: Path, meta_file: str | os.PathLike | None, weights: str |
                      config=raw.get("config", {}), **({"notes": raw["notes"]} if raw.get("notes") else {}))
 
 
+def graph_label_names(path: Path) -> list[str] | None:
+    """Class names an exporter wrote into the graph's metadata (Ultralytics: `names`, a dict {id: name} in Python
+    or JSON syntax), in class-id order; None when there are none."""
+    import ast
+    import json
+
+    import onnxruntime as ort
+
+    so = ort.SessionOptions()
+    so.log_severity_level = 3
+    try:
+        meta = ort.InferenceSession(str(path), so, providers=["CPUExecutionProvider"]).get_modelmeta()
+    except Exception:  # noqa: BLE001 - detect_format has loaded it already; metadata is optional
+        return None
+    text = (meta.custom_metadata_map or {}).get("names")
+    if not text:
+        return None
+    try:
+        names = json.loads(text)
+    except ValueError:
+        try:
+            names = ast.literal_eval(text)
+        except (ValueError, SyntaxError):
+            return None
+    if isinstance(names, dict):
+        try:
+            return [str(names[k]) for k in sorted(names, key=lambda k: int(k))]
+        except (ValueError, TypeError):
+            return None
+    return [str(x) for x in names] if isinstance(names, list) else None
+
+
+def image_feeds(path: Path, pp: dict[str, Any]) -> Callable[[np.random.Generator], Feeds]:
+    """Parity inputs for an image graph: random images at the bundle's input size (`pp["size"]`, whatever the
+    graph's symbolic dims), in the range the runtime feeds (uint8 0..255; float: 0..255 x `scale`)."""
+    ins, _, _ = B.io_spec_from_onnx(path)
+    img = next((i for i in ins if len(i["shape"]) == 4), ins[0])
+    h, w = (int(v) for v in pp["size"])
+    shape = [1, 3, h, w] if str(pp.get("layout", "NHWC")).upper() == "NCHW" else [1, h, w, 3]
+    scale = float(pp.get("scale") or 1.0)
+
+    def make(rng: np.random.Generator) -> Feeds:
+        x = rng.integers(0, 256, shape).astype(np.uint8)
+        return {img["name"]: x if img["dtype"] == "uint8" else (x.astype(np.float32) * scale).astype(img["dtype"])}
+
+    return make
+
+
 def export_role(role: str, source: str, precisions: list[str], out: Path, *, calib: str | None = None,
-                meta_file: str | None = None, weights: str | None = None, **_: Any) -> dict[str, Any]:
-    """`mosaic export ROLE --source onnx:PATH` entry point."""
+                meta_file: str | None = None, weights: str | None = None, options: dict[str, str] | None = None,
+                **_: Any) -> dict[str, Any]:
+    """`mosaic export ROLE --source onnx:PATH` entry point. `--set size=HxW` re-shapes a fixed square
+    Ultralytics TFLite graph for rectangular frames (`ultralytics_rect`; needs --calib frames for its check)."""
     path = Path(source.split(":", 1)[1])
-    meta = read_sidecar(path, meta_file, weights)
-    return import_onnx(out, role, path, meta, precisions, calib=calib)
+    if not path.is_file():
+        raise ExportError(f"--source onnx:{path}: file not found")
+    meta = read_sidecar(path, meta_file, weights, role)
+    unknown = sorted(set(options or {}) - {"size"})
+    if unknown:
+        raise ExportError(f"--set {unknown[0]}: not an option of an onnx: import (known: size=HxW for an "
+                          f"Ultralytics end-to-end graph)")
+    with tempfile.TemporaryDirectory() as td:
+        if (options or {}).get("size"):
+            path, meta = rect_variant(path, meta, options["size"], calib, Path(td))
+        mk = image_feeds(path, meta["preprocessing"]) if role in DETECTOR_ROLES else None
+        return import_onnx(out, role, path, meta, precisions, calib=calib, make_inputs=mk)
+
+
+def rect_variant(path: Path, meta: dict[str, Any], size: str, calib: str | os.PathLike | None, tmp: Path,
+                 min_found: float = 0.9) -> tuple[Path, dict[str, Any]]:
+    """The graph re-shaped to `size` ("HxW", `ultralytics_rect.rect_graph`) and its metadata, after a task check
+    on real frames: at least `min_found` of the square graph's detections >= 0.5 found again. ExportError
+    otherwise, or without calibration frames, or for another format."""
+    from .ultralytics_rect import agreement, rect_graph
+
+    if meta["arch"] != "ultralytics_e2e":
+        raise ExportError(f"--set size: only an Ultralytics end-to-end graph is re-shaped here ({path.name} is "
+                          f"{meta['arch']}); a YOLOX graph takes any size from its symbolic input")
+    if calib is None:
+        raise ExportError("--set size=HxW checks the re-shaped graph against the original on real frames: give "
+                          "them with --calib FOLDER_OR_VIDEO")
+    try:
+        hw = [int(v) for v in size.lower().split("x")]
+    except ValueError:
+        hw = []
+    if len(hw) != 2:
+        raise ExportError(f"--set size={size}: expected HxW, e.g. 480x640")
+    dst = tmp / path.name
+    info = rect_graph(path, dst, hw)
+    task = agreement(path, dst, calibration_frames(calib, 16))
+    progress(f"{path.name} at {hw[0]}x{hw[1]}: {task['found']:.0%} of the square graph's {task['detections']} "
+             f"detections found again (IoU {task['mean_iou']}, score change {task['median_score_change']})")
+    if task["found"] < min_found:
+        raise ExportError(f"--set size={size}: the re-shaped graph finds only {task['found']:.0%} of the square "
+                          f"graph's detections on the --calib frames (need {min_found:.0%}); keep the square size")
+    meta = {**meta, "preprocessing": {**meta["preprocessing"], "size": hw},
+            "provenance": {**meta["provenance"], "resized": {**info, "task_check": task}},
+            "notes": ((meta.get("notes") or "") + f" Input re-shaped from {info['square']}x{info['square']} to "
+                      f"{hw[0]}x{hw[1]} (export/ultralytics_rect.py); checked against the square graph: "
+                      f"{task['found']:.0%} of its detections found again.").strip()}
+    return dst, meta
 
 
 def import_shared_models(models_dir: str | os.PathLike, out: str | os.PathLike,
                          precisions: list[str] = ("fp32",), roles: list[str] | None = None,
-                         calib: str | os.PathLike | None = None) -> dict[str, Any]:
-    """Import the four real models of ../shared/models into ONE bundle at `out` (fp32 = the files as given;
-    other precisions converted and parity-checked). Returns {role: import result}."""
+                         calib: str | os.PathLike | None = None, instance_size: str | None = None) -> dict[str, Any]:
+    """Import the real models of ../shared/models into ONE bundle at `out` (fp32 = the files as given; other
+    precisions converted and parity-checked): YOLOX-Nano as the detector with the SSD as its `ssd-fp32` variant,
+    YOLO11n-seg as the instance segmenter (AGPL-3.0), DeepLab, PyDNet++, the MobileNet embedder. `roles` limits
+    the roles imported; instance_size "HxW": YOLO11n-seg re-shaped for that input (`rect_variant`, checked on
+    the `calib` frames). Returns {key: import result} (keys of `shared_model_specs`)."""
     specs = shared_model_specs(models_dir)
     results = {}
-    for role, sp in specs.items():
+    for key, sp in specs.items():
+        role = sp["role"]
         if roles and role not in roles:
             continue
         if not Path(sp["file"]).is_file():
             raise ExportError(f"{sp['file']}: shared model missing")
-        ranges = {"depth": (0.0, 1.0), "segmenter": (-1.0, 1.0)}
-        mk = _float_range_feeds(Path(sp["file"]), *ranges[role]) if role in ranges else None
-        # Only the first (finest) depth output is used at run time, so parity is checked on it.
+        mk = _shared_feeds(key, Path(sp["file"]))
+        # Only the first (finest) depth output is used at run time, so parity is checked on it; of a detector's
+        # outputs, those the adapter reads
         outputs = [0] if role == "depth" else None
-        results[role] = import_onnx(out, role, sp["file"], sp["meta"], list(precisions), calib=calib,
-                                    make_inputs=mk, outputs=outputs)
+        # the SSD and YOLO11n-seg files are already quantised (TFLite int8): only the files as given
+        precs = ["fp32"] if sp.get("alternative") or role == "instance_segmenter" else list(precisions)
+        with tempfile.TemporaryDirectory() as td:
+            path, meta = Path(sp["file"]), sp["meta"]
+            if role == "instance_segmenter" and instance_size:
+                path, meta = rect_variant(path, meta, instance_size, calib, Path(td))
+            results[key] = import_onnx(out, role, path, meta, precs, calib=calib, make_inputs=mk,
+                                       outputs=outputs, prefix="ssd-" if key == "detector-ssd" else "",
+                                       alternative=bool(sp.get("alternative")))
     return results
+
+
+def _shared_feeds(key: str, path: Path) -> Callable[[np.random.Generator], Feeds] | None:
+    """Parity inputs in each model's natural range: images as the runtime feeds them (YOLOX raw 0-255 at its
+    bundle size), PyDNet [0, 1], DeepLab [-1, 1]."""
+    if key == "detector":
+        return image_feeds(path, YOLOX_PREPROCESSING)
+    ranges = {"depth": (0.0, 1.0), "segmenter": (-1.0, 1.0)}
+    return _float_range_feeds(path, *ranges[key]) if key in ranges else None
 
 
 # ---------------------------------------------------------------------------------------------------------------

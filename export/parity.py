@@ -71,6 +71,7 @@ def ort_session(path: str | os.PathLike, threads: int = 1, *, runtime_opt: bool 
     so.intra_op_num_threads = threads
     so.inter_op_num_threads = 1
     so.log_severity_level = 3
+    ort.set_default_logger_severity(3)
     if level is not None:
         so.graph_optimization_level = {"basic": ort.GraphOptimizationLevel.ORT_ENABLE_BASIC,
                                        "all": ort.GraphOptimizationLevel.ORT_ENABLE_ALL}[level]

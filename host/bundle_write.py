@@ -13,7 +13,7 @@ import tempfile
 from pathlib import Path, PurePosixPath
 from typing import Any
 
-from mosaicthinker.runtime.infra.bundle import (MANIFEST, ROLES, SCHEMA, SUPPORTED_SCHEMAS, VARIANT_PREFERENCE, Bundle, Component,  # noqa: F401
+from mosaicthinker.runtime.infra.bundle import (MANIFEST, OVERRIDABLE, ROLES, SCHEMA, SUPPORTED_SCHEMAS, VARIANT_PREFERENCE, Bundle, Component,  # noqa: F401
                       RoleSpec, _varint, bundle_hash, check_schema, external_data_locations, iter_file_refs,
                       load_bundle, parity_text, read_manifest, safe_path, sha256_file, strict_json_loads,
                       task_text)
@@ -62,6 +62,7 @@ def io_spec_from_onnx(path: str | os.PathLike) -> tuple[list[dict], list[dict], 
 
     so = ort.SessionOptions()
     so.log_severity_level = 3
+    ort.set_default_logger_severity(3)
     so.graph_optimization_level = ort.GraphOptimizationLevel.ORT_DISABLE_ALL
     sess = ort.InferenceSession(str(path), so, providers=["CPUExecutionProvider"])
 
@@ -106,15 +107,24 @@ def add_role(root: str | os.PathLike, role: str, role_meta: dict[str, Any], *, r
 
 def add_variant(root: str | os.PathLike, role: str, variant: str, components: dict[str, dict[str, Any]], *,
                 role_meta: dict[str, Any], precision: str, target: str = "cpu", parity: dict | None = None,
-                notes: str | None = None, extra: dict[str, Any] | None = None, default: bool = False) -> Path:
+                notes: str | None = None, extra: dict[str, Any] | None = None, default: bool = False,
+                alternative: bool = False) -> Path:
     """Record one variant of a role (its component files must already be inside `root`).
 
     components: {component name: {"file": relative path, optional "format", "opset", ...}}; sha256, bytes and
     the I/O spec are filled in from the file when absent. role_meta: arch, preprocessing, semantics,
-    provenance, licence, random_weights, config (merged into the role). Returns the manifest path.
+    provenance, licence, random_weights, config (merged into the role). alternative=True: the variant is another
+    model for an existing role (e.g. the SSD beside YOLOX): `role_meta` goes into the variant's `overrides`, the
+    role's own fields stay. Returns the manifest path.
     """
     root = Path(root)
-    manifest = add_role(root, role, role_meta)
+    if alternative:
+        manifest = read_manifest(root) if (root / MANIFEST).is_file() else None
+        if manifest is None or role not in manifest.get("roles", {}):
+            raise BundleError(f"{root}: add the {role} role's default model before an alternative variant {variant!r}")
+        extra = {**(extra or {}), "overrides": {k: role_meta[k] for k in OVERRIDABLE if k in role_meta}}
+    else:
+        manifest = add_role(root, role, role_meta)
     rm = manifest["roles"][role]
     comps = {}
     for cname, c in components.items():

@@ -14,7 +14,8 @@ REF = {
   "video_decode": {"ms_per_call": 2.5, "source": "OpenCV software decode of 640x480 H.264, one core (typical 300-500 fps); estimate"},
   "dedup": {"ms_per_call": 4.0, "source": "the whole redundant-frame-removal pass per video frame: sequential decode (~2.5 ms for 640x480 on one core) + uniform down-sampling, ORB tracking and SSIM on candidates (~1.5 ms amortised); estimate"},
   "grounding": {"ms_per_call": 5.0, "source": "template parser (no VLM grounding); estimate"},
-  "detector": {"ms_per_call": 40.0, "load_ms": 160.0, "resident_mb": 40.0, "source": BASE_SRC},
+  "detector": {"ms_per_call": 36.0, "load_ms": 100.0, "resident_mb": 36.2, "source": "YOLOX-Nano 416x416: 35.6 ms of CPU per run on one thread (median of 6, load 7, 2026-12-03; wall times at that load are not usable); resident_mb measured by mosaic profile"},
+  "instance_segmenter": {"ms_per_call": 195.0, "load_ms": 250.0, "resident_mb": 122.8, "source": "YOLO11n-seg at 480x640: 184 ms of CPU per graph run on one thread (median of 12 kitchen frames, load 7, 2026-12-03) + ~10 ms mask decoding and merge; resident_mb measured by mosaic profile"},
   "segmenter": {"ms_per_call": 48.0, "ms_per_prompt": 0.5, "load_ms": 110.0, "resident_mb": 30.0, "source": BASE_SRC + "; semantic segmenter: prompts only select class pixels"},
   "depth": {"ms_per_call": 120.0, "load_ms": 70.0, "resident_mb": 140.0, "source": BASE_SRC + " (40 ms idle per models/README, 378 ms under load)"},
   "embedder": {"ms_per_call": 30.0, "load_ms": 120.0, "resident_mb": 20.0, "source": BASE_SRC},
@@ -23,7 +24,7 @@ REF = {
   "keyframe_state": {"mb_per_call": 4.5, "source": "arithmetic at 640x480: RGB 0.9 MB + depth float32 1.2 MB + 4 masks 1.2 MB + 4096 XFeat features x (64 x 4 + 12) B = 1.1 MB"},
   "vlm": {"ms_per_image": 4000.0, "ms_per_token": 45.0, "load_ms": 1500.0, "resident_mb": 450.0, "source": "SmolVLM-256M int8-dynamic (not measurable here: no real VLM weights): decoder 135M params -> ~0.27 GFLOP and ~135 MB of int8 weights read per token (memory bound, ~45 ms on 2 cores); image = SigLIP-93M vision pass at 512 px (~45 GFLOP) + prefill of its 64 tokens and the ~400-token text block (~125 GFLOP) at ~45 GFLOP/s"},
 }
-ACCEL_MODELS = ("detector", "segmenter", "depth", "embedder", "matcher")
+ACCEL_MODELS = ("detector", "instance_segmenter", "segmenter", "depth", "embedder", "matcher")
 CPU_SIDE = ("video_decode", "dedup", "grounding", "geometry", "refine")
 
 def base():
@@ -54,7 +55,8 @@ def cpu_generic(ref):
       "budget": {"latency_budget_ms": 60000, "memory_budget_mb": 1536},
       "runtime": {"providers": ["CPUExecutionProvider"], "intra_op_threads": 2, "inter_op_threads": 1,
                   "notes": "2 intra-op threads = the 2 cores; no affinity pinning (a shared VM)"},
-      "roles": {r: {"precision": "fp32"} for r in ("depth", "segmenter", "matcher", "detector", "embedder")} | {
+      "roles": {r: {"precision": "fp32"} for r in ("depth", "segmenter", "instance_segmenter", "matcher", "detector",
+                                                   "embedder")} | {
                 "vlm": {"precision": "int8", "int8_kind": "dynamic", "notes": "dynamic int8 keeps the decoder memory-bound cost low on CPU"}},
       "costs": costs,
     }
@@ -98,7 +100,7 @@ def main():
     ref = base()
     profs = {"cpu-generic": cpu_generic(ref)}
     TRT = ["TensorrtExecutionProvider", "CUDAExecutionProvider", "CPUExecutionProvider"]
-    jroles = {r: {"precision": "fp16"} for r in ("depth", "segmenter", "matcher", "embedder")} | {
+    jroles = {r: {"precision": "fp16"} for r in ("depth", "segmenter", "instance_segmenter", "matcher", "embedder")} | {
         "detector": {"precision": "int8", "int8_kind": "qdq", "notes": "static QDQ (calibrated) for TensorRT; implicit TensorRT calibration is deprecated"},
         "vlm": {"precision": "fp16", "providers": ["CUDAExecutionProvider", "CPUExecutionProvider"], "notes": "growing KV cache: CUDA EP (TensorRT needs fixed profiles)"}}
     jnote = "Jetson unified memory: GPU allocations share the 'RAM'; the budget covers CPU RSS plus model memory"
@@ -129,6 +131,7 @@ def main():
             "SmolVLM-256M fp16 on the CUDA EP: ~512 MB fp16 weights per token / ~40 GB/s effective of 68 GB/s = ~13 ms + overhead; image ~90 GFLOP at ~0.25 TFLOP/s effective = ~400 ms + copies; estimate"),
         rt_notes=jrt, mem_note=jnote + "; 8 GB shared with the OS and desktop, so 4 GB for this process", dev_notes="estimates only: no Jetson was available to measure")
     proles_q = {r: {"precision": "int8", "int8_kind": "qdq"} for r in ("depth", "segmenter", "detector", "embedder")} | {
+        "instance_segmenter": {"precision": "fp32", "notes": "YOLO11n-seg weights are already int8 (float activations)"},
         "matcher": {"precision": "fp16", "providers": ["QNNExecutionProvider", "XnnpackExecutionProvider", "CPUExecutionProvider"], "notes": "descriptor matching precision matters; fp16 on the HTP"},
         "vlm": {"precision": "int8", "int8_kind": "dynamic", "providers": ["XnnpackExecutionProvider", "CPUExecutionProvider"], "notes": "decoder with a growing KV cache: CPU/XNNPACK only (no fixed shapes for the NPU)"}}
     profs["oneplus-12r"] = scaled(ref, "oneplus-12r", "OnePlus 12R: Snapdragon 8 Gen 2 (SM8550), 16 GB LPDDR5X",
@@ -143,6 +146,7 @@ def main():
         rt_notes="QNN (Hexagon HTP) first; NNAPI is deprecated from Android 15 and kept only as a fallback for older builds; XNNPACK then CPU. Affinity: the 5 big cores (3-7); 4 threads",
         mem_note="Android's low-memory killer: keep one app process under ~4 GB on a 16 GB phone", dev_notes="estimates only: no phone was available to measure")
     proles_p = {r: {"precision": "int8", "int8_kind": "qdq"} for r in ("depth", "segmenter", "detector", "embedder")} | {
+        "instance_segmenter": {"precision": "fp32", "notes": "YOLO11n-seg weights are already int8 (float activations)"},
         "matcher": {"precision": "fp32", "providers": ["XnnpackExecutionProvider", "CPUExecutionProvider"]},
         "vlm": {"precision": "int8", "int8_kind": "dynamic", "providers": ["XnnpackExecutionProvider", "CPUExecutionProvider"], "notes": "decoder with a growing KV cache: CPU/XNNPACK only"}}
     profs["pixel-8gb"] = scaled(ref, "pixel-8gb", "Pixel-class phone with 8 GB (e.g. Pixel 8: Google Tensor G3)",
@@ -156,7 +160,8 @@ def main():
             "SmolVLM-256M int8-dynamic on XNNPACK/CPU with 4 big cores: ~0.85x the cpu-generic estimate; estimate"),
         rt_notes="NNAPI is deprecated from Android 15 (still present but unmaintained): keep XNNPACK and CPU behind it; there is no QNN on Tensor SoCs. Affinity: the big and mid cores (4-8); 4 threads",
         mem_note="an 8 GB phone keeps ~2 GB for one foreground app before the low-memory killer acts", dev_notes="estimates only: no phone was available to measure")
-    SIZES = {"depth": [640, 448], "detector": [300, 300], "segmenter": [257, 257], "embedder": [224, 224],
+    SIZES = {"depth": [640, 448], "detector": [416, 416], "instance_segmenter": [640, 480], "segmenter": [257, 257],
+             "embedder": [224, 224],
              "matcher": [640, 480], "vlm": [512, 512]}
     for n, d in profs.items():
         for r, rs in d["roles"].items():

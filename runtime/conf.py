@@ -1,5 +1,5 @@
 """The configuration of a run (`PipelineConfig`): each stage's own typed config (`dedup`, `keyframe`, `alignment`,
-`match`, `fusion`) and the settings of the wiring and the map's extras, merged with user overrides."""
+`match`, `fusion`, `verify`) and the settings of the wiring and the map's extras, merged with user overrides."""
 from __future__ import annotations
 
 import dataclasses
@@ -11,12 +11,13 @@ from .infra.config import StageConf
 from .infra.errors import InputError
 from .keyframes import KeyFrameConf
 from .map import FusionConfig
+from .map.verify import VerifyConf
 from .scan import DedupConf
 
 
 # typed stage configs of a run: field -> its class (a mapping given for one is merged over the field's default)
 _SUB_CONFS: dict[str, type] = {"dedup": DedupConf, "keyframe": KeyFrameConf, "alignment": AlignConf,
-                               "match": MatchConf, "fusion": FusionConfig}
+                               "match": MatchConf, "fusion": FusionConfig, "verify": VerifyConf}
 
 
 @dataclass
@@ -33,6 +34,9 @@ class PipelineConfig(StageConf):
     refine: bool = True                  # occlusion refinement
     first_seen_from_search: bool = True  # first-seen times also from the frames the search scored
     box_prompt_min_share: float = 0.02   # a mask under this share of its box is replaced by a box-prompted one
+    # key-frame detections with an instance segmenter in the bundle (`perceive.keyframe_detector`): "merged",
+    # "merged_candidates", "instance_segmenter" (one model, one pass) or "detector" (the segmenter left out)
+    keyframe_detections: str = "merged"
     grounding_frames: int = 4            # frames (evenly spaced) shown to a VLM that grounds the question
     # floor-standing furniture seen from above reaches down to the floor unless open space was seen under it
     # (`map.extend_to_floor`: support in >= `floor_band_share` of the 10 cm bands, the lowest included); () = off
@@ -48,6 +52,7 @@ class PipelineConfig(StageConf):
     alignment: AlignConf = field(default_factory=AlignConf)
     match: MatchConf = field(default_factory=MatchConf)  # OpenCV matchers (ratio per method when unset)
     fusion: FusionConfig = field(default_factory=FusionConfig)
+    verify: VerifyConf = field(default_factory=VerifyConf)  # candidate detections verified across views
 
     def __post_init__(self) -> None:
         for name, cls in _SUB_CONFS.items():
@@ -58,7 +63,9 @@ class PipelineConfig(StageConf):
                 setattr(self, name, getattr(type(self)(), name))
 
     def validate(self) -> None:
-        for name, allowed in (("depth", ("auto", "sensor", "model")), ("gravity", ("auto", "source", "floor"))):
+        for name, allowed in (("depth", ("auto", "sensor", "model")), ("gravity", ("auto", "source", "floor")),
+                              ("keyframe_detections", ("merged", "merged_candidates", "instance_segmenter",
+                                                       "detector"))):
             if getattr(self, name) not in allowed:
                 raise InputError(f"pipeline config: {name} must be one of {', '.join(allowed)} "
                                  f"(got {getattr(self, name)!r})")

@@ -1,7 +1,9 @@
 """Perception per key frame (paper: segmentation + depth per key frame): the models a run uses (`Perception`,
 from a bundle's roles or injected, e.g. the synthetic oracle), detections cached between the key-frame search and
-the map, depth (sensor or model), masks (box-prompted where the segmenter has none), and each detection lifted to
-camera-frame points as the key frame is perceived."""
+the map, a key frame's candidate detections (`keyframe_detector`: the detector's down to its low score, merged with
+an instance segmenter's, `merge_detections`), depth (sensor or model), one mask per detection (the instance
+segmenter's, else the segmenter's, else box-prompted: `keyframe_masks`), and each detection lifted to camera-frame
+points as the key frame is perceived."""
 from __future__ import annotations
 
 import dataclasses
@@ -16,6 +18,7 @@ from .frames import FrameSource
 from .infra.bundle import load_bundle
 from .infra.errors import InputError, MosaicError
 from .infra.progress import start
+from .geometry import box_iou
 from .infra.trace import StageLog, Trace, as_trace
 from .map import FusionConfig, box_depth_mask, lift_detections
 from .models import load_role
@@ -45,6 +48,9 @@ class Perception:
     describe: dict[str, Any] = field(default_factory=dict)
     # every object the detector names in a frame (not only the question's): the boxes alignment matches inside
     detect_all: Callable[[Frame], Detections] | None = None
+    # key-frame perception: candidate detections down to the detector's low score, with instance masks where an
+    # instance segmenter gives them (the map verifies candidates across views); None = `detect`'s detections
+    detect_keyframe: DetectFn | None = None
 
 
 def colour_frame(source: FrameSource, i: int) -> Frame:
@@ -102,11 +108,11 @@ def with_depth(depth: str, perception: Perception, log: StageLog) -> Callable[[F
     return lambda f: dataclasses.replace(f, depth=depth_for(f, depth, perception, log))
 
 
-def box_prompted(masks: np.ndarray, depth: np.ndarray, d: Detections, min_share: float
-                 ) -> tuple[np.ndarray, list[str]]:
+def box_prompted(masks: np.ndarray, depth: np.ndarray, d: Detections, min_share: float,
+                 src: list[str] | None = None) -> tuple[np.ndarray, list[str]]:
     """Masks [N, H, W]: a detection the segmenter left (nearly) empty — a category it cannot segment (DeepLab has
     no cup) or a miss — gets a box-prompted mask (the depth-consistent pixels inside its box) instead of being
-    dropped. Returns (masks, the names of the detections that got one)."""
+    dropped (`src`, when given, says "box" for it). Returns (masks, the names of the detections that got one)."""
     masks = np.array(masks, dtype=bool)
     prompted = []
     for j, (b, nm) in enumerate(zip(d.boxes, d.names)):
@@ -114,8 +120,33 @@ def box_prompted(masks: np.ndarray, depth: np.ndarray, d: Detections, min_share:
         if masks[j].sum() >= min_share * area:
             continue
         masks[j] = box_depth_mask(depth, b)
+        if src is not None:
+            src[j] = "box"
         prompted.append(nm)
     return masks, prompted
+
+
+def keyframe_masks(f: Frame, d: Detections, perception: Perception, min_share: float, log: StageLog
+                   ) -> tuple[Detections, list[str]]:
+    """A key frame's detections with one mask each: the instance segmenter's where it gave one, else the
+    segmenter's (a semantic one: class pixels in the box), else the box-prompted depth mask (`box_prompted`);
+    `mask_from` says which, per detection. Without any segmenter and without instance masks: unchanged (fusion
+    lifts the box's depth band). Returns (detections, the names of those that got a box-prompted mask)."""
+    if not len(d) or (d.masks is None and perception.segment is None):
+        return d, []
+    have = np.zeros(len(d), bool) if d.masks is None else np.array(
+        [m.any() and src not in ("none", "box") for m, src in zip(d.masks, d.mask_from or ["?"] * len(d))])
+    masks = np.zeros((len(d),) + f.rgb.shape[:2], bool) if d.masks is None else np.array(d.masks, bool)
+    src = list(d.mask_from or ["instance_segmenter" if d.masks is not None else "none"] * len(d))
+    if perception.segment is not None and not have.all():
+        rest = np.flatnonzero(~have)
+        with log.stage("segment"):
+            masks[rest] = perception.segment(f, d.select(rest))
+        for j in rest:
+            src[j] = "segmenter"
+    with log.stage("segment"):
+        masks, prompted = box_prompted(masks, f.depth, d, min_share, src)
+    return dataclasses.replace(d, masks=masks, mask_from=src), prompted
 
 
 @dataclass
@@ -132,8 +163,8 @@ class Perceived:
 def perceive_keyframes(source: FrameSource, chosen: list[int], det: CachedDetector, names: list[str],
                        perception: Perception, conf: PipelineConfig, fconf: FusionConfig,
                        budget: Budget | None = None, scan_counts: Mapping[str, int] | None = None) -> Perceived:
-    """Perception per key frame: depth, detections (cached from the search), masks, and the detections' point
-    clouds in the camera frame (`map.lift_detections`, on a worker thread while the next key frame's models run).
+    """Perception per key frame: depth, detections (`Perception.detect_keyframe`'s candidates, else cached from the
+    search), masks (`keyframe_masks`), and the detections' point clouds in the camera frame (`map.lift_detections`, on a worker thread while the next key frame's models run).
     The memory guard may stop adding key frames (logged). Needs 2 frames at least (`scan_counts`, the scan's, say
     why when the input shows one view)."""
     log = StageLog()
@@ -149,16 +180,17 @@ def perceive_keyframes(source: FrameSource, chosen: list[int], det: CachedDetect
                           stage="perception")
                 break
             f = with_depth(conf.depth, perception, log)(source[i])
-            d = det(i, names)
-            if d.masks is None and perception.segment is not None and len(d):
-                with log.stage("segment"):
-                    masks, got = box_prompted(perception.segment(f, d), f.depth, d, conf.box_prompt_min_share)
-                    d = dataclasses.replace(d, masks=masks)
-                for nm in got:
-                    if nm not in prompted:
-                        log.event("degraded", f"segmenter gave no mask for {nm!r}: box-prompted mask "
-                                  f"(depth-consistent pixels inside the box) used instead", stage="segment", name=nm)
-                    prompted[nm] = prompted.get(nm, 0) + 1
+            if perception.detect_keyframe is not None:
+                with log.stage("detect"):
+                    d = perception.detect_keyframe(colour_frame(source, i), list(names))
+            else:
+                d = det(i, names)
+            d, got = keyframe_masks(f, d, perception, conf.box_prompt_min_share, log)
+            for nm in got:
+                if nm not in prompted:
+                    log.event("degraded", f"segmenter gave no mask for {nm!r}: box-prompted mask "
+                              f"(depth-consistent pixels inside the box) used instead", stage="segment", name=nm)
+                prompted[nm] = prompted.get(nm, 0) + 1
             dets[i] = d
             frames.append(f)
             lifting[i] = lifter.submit(lift_detections, f, d, fconf)
@@ -191,7 +223,7 @@ def match_boxes(f: Frame, d: Detections, perception: Perception, log: StageLog) 
     return np.concatenate(boxes).astype(np.float32) if boxes else None
 
 
-PERCEPTION_ROLES = ("detector", "segmenter", "depth", "matcher", "embedder")
+PERCEPTION_ROLES = ("detector", "instance_segmenter", "segmenter", "depth", "matcher", "embedder")
 
 
 def role_kwargs(profile: Any, role: str, bundle: Any = None, trace: Trace | None = None) -> dict[str, Any]:
@@ -212,6 +244,8 @@ def perception_from_bundle(bundle: Any, conf: PipelineConfig | dict | None = Non
     """Build the pipeline's `Perception` from a bundle's roles (adapters of `runtime.models`).
 
     - detector (required unless `detector` is not "model"): `.detect(rgb, names)`;
+    - instance_segmenter (optional, unless `conf.keyframe_detections` is "detector"): detections with one mask
+      each, merged with the detector's at key frames (`keyframe_detector`); its masks first in refinement;
     - segmenter (optional): a semantic segmenter (`kind == "semantic"`, e.g. DeepLab) gives masks as class pixels
       inside each box and, for refinement, the class mask inside the projected box; a promptable one (SAM-style)
       gives box masks and point-prompt masks. Without one: the box + dominant depth band is lifted (recorded);
@@ -244,6 +278,9 @@ def perception_from_bundle(bundle: Any, conf: PipelineConfig | dict | None = Non
     if getattr(det, "labels", None):
         labels = [x for x in dict.fromkeys(det.labels) if x and x.strip("?") and x.lower() != "n/a"]
         p.detect_all = lambda frame: det.detect(frame.rgb, labels)
+    inst = load("instance_segmenter") if has("instance_segmenter") and conf.keyframe_detections != "detector" \
+        else None
+    p.detect_keyframe = keyframe_detector(det, inst, desc, conf.keyframe_detections)
     if has("segmenter"):
         seg = load("segmenter")
         if getattr(seg, "kind", "") == "semantic":
@@ -256,10 +293,12 @@ def perception_from_bundle(bundle: Any, conf: PipelineConfig | dict | None = Non
                 frame.rgb, None, [name], points=np.concatenate([np.asarray(pts, np.float32).reshape(-1, 2),
                                                                np.ones((len(pts), 1), np.float32)], 1)[None]))
             desc["refinement"] = "promptable segmenter: point prompts from cross-frame matches"
-    else:
+    elif inst is None:
         trace.event("degraded", "bundle has no segmenter: objects are lifted from their boxes (dominant depth "
                     "band), occlusion refinement is off", stage="perception")
         desc["segmenter"] = "none (box + depth band)"
+    if inst is not None and getattr(inst, "kind", "") == "instance":  # refinement asks its masks first
+        p.segment_class = instance_class_mask(inst, p.segment_class, desc)
     if conf.depth == "model":
         if not has("depth"):
             raise InputError("`depth=model` needs a bundle with a depth role (or use `depth=sensor`)", fields=("depth",))
@@ -284,6 +323,85 @@ def perception_from_bundle(bundle: Any, conf: PipelineConfig | dict | None = Non
     p.describe = desc
     trace.decide("perception", desc)
     return p
+
+
+def merge_detections(instances: Detections, boxes: Detections, iou: float = 0.5) -> Detections:
+    """One frame's detections from an instance segmenter (`instances`, with masks) and a box detector (`boxes`,
+    without) as one set: a pair of the same name whose boxes overlap (IoU >= `iou`, greedy from the highest IoU)
+    is one object -- the segmenter's box and mask, the higher score; every other detection of both is kept (the
+    detector's with an empty mask, `mask_from` "none", for the pipeline's fallbacks). Instances first, then the
+    detector's unmatched ones in their order. Pure."""
+    H, W = (instances.masks.shape[1:] if instances.masks is not None and instances.masks.ndim == 3 else (0, 0))
+    n, m = len(instances), len(boxes)
+    if m == 0:
+        return instances
+    scores = instances.scores.copy()
+    matched = np.zeros(m, bool)
+    if n:
+        ov = box_iou(instances.boxes, boxes.boxes)
+        same = np.array([[a == b for b in boxes.names] for a in instances.names])
+        ov = np.where(same, ov, 0.0)
+        used = np.zeros(n, bool)
+        for flat in np.argsort(-ov, axis=None, kind="stable"):
+            i, j = divmod(int(flat), m)
+            if ov[i, j] < iou:
+                break
+            if used[i] or matched[j]:
+                continue
+            used[i] = matched[j] = True
+            scores[i] = max(scores[i], boxes.scores[j])
+    rest = np.flatnonzero(~matched)
+    masks = None
+    if instances.masks is not None:
+        masks = np.concatenate([instances.masks, np.zeros((len(rest), H, W), bool)])
+    mask_from = list(instances.mask_from or ["instance_segmenter"] * n) + ["none"] * len(rest)
+    return Detections(np.concatenate([instances.boxes, boxes.boxes[rest]]),
+                      np.concatenate([scores, boxes.scores[rest]]),
+                      list(instances.names) + [boxes.names[j] for j in rest], masks, None,
+                      sorted(set(instances.undetectable) & set(boxes.undetectable)), mask_from)
+
+
+def keyframe_detector(det: Any, inst: Any, desc: dict[str, Any], mode: str = "merged"
+                      ) -> Callable[[Any, list[str]], Detections] | None:
+    """Key-frame detections (frames: anything with `.rgb`). Without an instance segmenter: the detector's candidates
+    down to its `candidate_threshold` (None when it keeps none: the key frames reuse the search's detections). With
+    one, by `mode`: "merged" -- its detections with one mask each, candidates down to its `candidate_threshold`,
+    plus the detector's confident boxes (>= `score_threshold`) it missed (`merge_detections`: a same-name pair that
+    overlaps is one object with the segmenter's mask); "merged_candidates" -- the detector's candidates too (boxes
+    without masks at low scores: weaker evidence); "instance_segmenter" -- its own alone (one model, one pass)."""
+    cand = getattr(getattr(det, "conf", None), "candidate_threshold", None)
+    if inst is None:
+        if cand is None:
+            return None
+        desc["keyframe_detections"] = f"detector candidates down to score {cand}, verified across views"
+        return lambda frame, names: det.detect(frame.rgb, names, min_score=det.conf.floor)
+    masks = f"instance segmenter (a mask per detection) candidates down to score {inst.conf.floor}"
+    if mode == "instance_segmenter":
+        desc["keyframe_detections"] = f"{masks}, alone; verified across views"
+        return lambda frame, names: inst.detect(frame.rgb, names, min_score=inst.conf.floor, masks=True)
+    floor = det.conf.floor if mode == "merged_candidates" else det.conf.score_threshold
+    desc["keyframe_detections"] = f"{masks}, with the detector's boxes >= {floor}; verified across views"
+
+    def detect(frame: Any, names: list[str]) -> Detections:
+        seg = inst.detect(frame.rgb, names, min_score=inst.conf.floor, masks=True)
+        return merge_detections(seg, det.detect(frame.rgb, names, min_score=floor))
+
+    return detect
+
+
+def instance_class_mask(inst: Any, semantic: Callable[[Any, str], np.ndarray | None] | None, desc: dict[str, Any]
+                        ) -> Callable[[Any, str], np.ndarray | None]:
+    """Occlusion refinement's class mask: the instance segmenter's masks of the name (every candidate) first, then
+    the semantic segmenter's (`semantic`, may be None) where it has none. frame: anything with `.rgb`."""
+    def class_mask(frame: Any, name: str) -> np.ndarray | None:
+        m = inst.class_mask(frame.rgb, name)
+        if (m is None or not m.any()) and semantic is not None:
+            return semantic(frame, name)
+        return m
+
+    desc["refinement"] = ("instance segmenter: its masks of the name inside the projected box"
+                          + (", else the semantic segmenter's class mask" if semantic is not None else ""))
+    return class_mask
 
 
 def _first_mask(masks: Any) -> np.ndarray | None:

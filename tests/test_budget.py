@@ -33,7 +33,7 @@ DEVICES = {"cpu-generic", "jetson-agx-orin-64gb", "jetson-orin-nx-16gb", "jetson
 
 @pytest.fixture(scope="module")
 def shared_bundle(tmp_path_factory, shared_models):
-    """The four shared real models imported into one fp32 bundle (files copied into a temp folder)."""
+    """The shared real models imported into one fp32 bundle (files copied into a temp folder)."""
     from mosaicthinker.export.onnx_import import import_shared_models
 
     out = tmp_path_factory.mktemp("shared_bundle")
@@ -229,7 +229,7 @@ def test_plan_with_bundle_drops_missing_roles_and_reads_sizes(shared_bundle):
     p = B.plan("cpu-generic", 60, 15, bundle=shared_bundle)
     d = p.to_dict()
     assert "vlm" not in d["providers"] and any("no vlm" in n for n in d["notes"])
-    assert d["resolutions"]["depth"] == [640, 448] and d["resolutions"]["detector"] == [300, 300]
+    assert d["resolutions"]["depth"] == [640, 448] and d["resolutions"]["detector"] == [416, 416]  # YOLOX-Nano
     assert d["bundle_hash"] == bundle_hash(shared_bundle) and len(d["bundle_hash"]) == 16
     assert d["stages"]["answer"]["planned_ms"] == 0
 

@@ -69,7 +69,8 @@ def test_tiny_memory_budget_releases_and_reopens_sessions_through_ask(scene, sha
               trace=roomy, keyframes=6)
     assert not _guard_events(roomy) and "budget.memory_guard" not in roomy.decisions
     sizes = roomy.decisions["budget.sessions"]  # every model session of the run registered, with its size
-    assert set(sizes) == {"detector", "segmenter", "depth", "embedder"} and all(v > 1.0 for v in sizes.values())
+    assert set(sizes) == {"detector", "instance_segmenter", "segmenter", "depth", "embedder"}
+    assert all(v > 1.0 for v in sizes.values())
 
     prof = tmp_path / "tiny-memory.toml"
     import tomli_w

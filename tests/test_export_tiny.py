@@ -1,7 +1,7 @@
 """Tiny-config fp32 export + parity for every Hugging Face role, then the runtime adapters on the bundle.
 
 One session-scoped bundle holds every role (each export runs once); the runtime tests load it through
-`runtime.stages.load_role` like the pipeline does. The full precision x architecture matrix is
+`runtime.models.load_role` like the pipeline does. The full precision x architecture matrix is
 benchmarks/export_matrix.py.
 """
 from __future__ import annotations

@@ -140,14 +140,15 @@ def test_provider_options_by_precision(bundle):
     assert oq["trt_int8_enable"] is True and "trt_int8_calibration_table_name" not in oq
     assert q["qdq"]["trt_int8_compatible"] is True and not q["warnings"]
     assert "--int8" in q["trtexec"] and not any(a.startswith("--calib") for a in q["trtexec"])
-    # the TFLite SSD carries uint8 asymmetric Q/DQ: TensorRT cannot take it, and the manifest says so
-    det = m["roles"]["detector"]["variants"]["fp32"]["jetson"]["components"]["model"]
+    # the TFLite SSD (the detector's ssd-fp32 variant) carries uint8 asymmetric Q/DQ: TensorRT cannot take it,
+    # and the manifest says so
+    det = m["roles"]["detector"]["variants"]["ssd-fp32"]["jetson"]["components"]["model"]
     assert det["qdq"]["qdq"] and not det["qdq"]["trt_int8_compatible"]
     assert det["warnings"] and "symmetric int8" in det["warnings"][0]
     # ... so neither the provider options nor the build script ask TensorRT for int8 on it
     assert det["providers"][0][1]["trt_int8_enable"] is False and det["trtexec"] is None
     script = (root / J.SCRIPT).read_text()
-    assert "detector/fp32/model: no engine" in script
+    assert "detector/ssd-fp32/model: no engine" in script
     assert all("--int8" not in ln for ln in script.splitlines() if "/detector/" in ln)
     assert m["jetson"]["provider_chain"][0] == "TensorrtExecutionProvider"
     assert "not installed" in m["jetson"]["not_run"]
@@ -190,7 +191,8 @@ def test_build_script_runs_with_stand_in_trtexec(bundle, tmp_path, shellcheck):
     assert r.returncode == 0, r.stderr
     engines = sorted(p.relative_to(cache).as_posix() for p in cache.rglob("*.engine"))
     assert "vlm/fp32/decoder.engine" in engines and "segmenter/fp32-trtfp16/model.engine" in engines
-    assert "detector/fp32/model.engine" not in engines and "vlm/int8-qdq/decoder.engine" in engines
+    assert "detector/ssd-fp32/model.engine" not in engines and "vlm/int8-qdq/decoder.engine" in engines
+    assert "detector/fp32/model.engine" in engines  # YOLOX-Nano, float: TensorRT takes it
 
 
 def test_runtime_takes_the_provider_chain(bundle):

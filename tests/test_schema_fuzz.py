@@ -163,3 +163,44 @@ def test_the_base_documents_are_accepted(capsys, work, tiny_bundle):
     use_roles(bundle)
     assert check_profile_case(capsys, work, ("device", "notes"), "string")[0] == 0
     assert check_annotation_case(work, ("licence",), "string")[0] == 0
+
+
+def test_variant_overrides_and_the_instance_segmenter_role_follow_the_schema(capsys, tiny_bundle):
+    """A variant that is another model for its role (`overrides`) and perception's `instance_segmenter` role are
+    checked like any role entry: fields it may not override, labels a closed vocabulary lacks, an arch of another
+    role are each refused naming the field (verify exits 2); a good override passes."""
+    import copy
+
+    bundle, manifest = tiny_bundle
+    f = bundle / "manifest.json"
+
+    def verify(man: dict) -> tuple[int, str]:
+        _dump_json(man, f)
+        try:
+            code, out, err = run_cli(capsys, ["bundle", "verify", bundle])
+            return code, err
+        finally:
+            _dump_json(manifest, f)
+
+    def with_override(ov: dict) -> dict:
+        man = copy.deepcopy(manifest)
+        det = man["roles"]["detector"]
+        det["variants"]["alt"] = {**copy.deepcopy(det["variants"]["fp32"]), "overrides": ov}
+        return man
+
+    sem = manifest["roles"]["detector"]["semantics"]
+    assert verify(with_override({"semantics": {**sem, "labels": ["chair"]}}))[0] == 0
+    for ov, said in (({"bogus": 1}, "variants.alt.overrides has a field 'bogus'"),
+                     ({"semantics": {"vocabulary": "closed"}}, "variants.alt.overrides: semantics.labels is required"),
+                     ({"arch": "deeplab"}, "variants.alt.overrides.arch is 'deeplab', an architecture of the "
+                                           "segmenter role")):
+        code, err = verify(with_override(ov))
+        assert code == 2 and said in err, (ov, err)
+    man = copy.deepcopy(manifest)
+    man["roles"]["instance_segmenter"] = {**copy.deepcopy(man["roles"]["detector"]),
+                                          "semantics": {"vocabulary": "closed"}}
+    code, err = verify(man)
+    assert code == 2 and "roles.instance_segmenter" in err and "labels is required" in err, err
+    man["roles"]["instance_segmenter"]["semantics"] = sem
+    code, err = verify(man)  # the SSD adapter serves the detector role only
+    assert code == 2 and "roles.instance_segmenter.arch is 'ssd_tflite', an architecture of the detector role" in err

@@ -16,18 +16,9 @@ from mosaicthinker.runtime.infra.trace import Trace
 FRAMES = [0, 40, 80, 120, 160, 200, 240]  # 7 of the 250 frames, spread over the sequence
 
 
-@pytest.fixture(scope="session")
-def shared_bundle(tmp_path_factory, shared_models) -> Path:
-    from mosaicthinker.export.onnx_import import import_shared_models
-
-    out = tmp_path_factory.mktemp("shared_bundle")
-    import_shared_models(shared_models, out)
-    return out
-
-
 def test_import_metadata(shared_bundle: Path, shared_models: Path):
     b = load_bundle(shared_bundle)
-    assert sorted(b.roles) == ["depth", "detector", "embedder", "segmenter"]
+    assert sorted(b.roles) == ["depth", "detector", "embedder", "instance_segmenter", "segmenter"]
     d = b.role_meta("depth")
     assert d["arch"] == "pydnet" and d["semantics"]["depth"] == "relative" and d["licence"] == "Apache-2.0"
     assert d["preprocessing"]["size"] == [448, 640] and d["preprocessing"]["layout"] == "NHWC"
@@ -36,12 +27,29 @@ def test_import_metadata(shared_bundle: Path, shared_models: Path):
     assert len(comp["outputs"]) == 3 and comp["opset"] == 17
     det = b.role_meta("detector")
     labels = det["semantics"]["labels"]
-    assert det["semantics"]["vocabulary"] == "closed" and labels[0] == "person"
-    # class ids are 0-based line numbers of coco_labels.txt (with its 'n/a' gaps): chair 61, dining table 66
-    assert labels[61] == "chair" and labels[66] == "dining table" and labels[71] == "tv"
+    # YOLOX-Nano is the default detector: the 80 contiguous COCO classes
+    assert det["arch"] == "yolox" and det["default_variant"] == "fp32" and det["licence"] == "Apache-2.0"
+    assert det["semantics"]["vocabulary"] == "closed" and labels[0] == "person" and len(labels) == 80
+    assert labels[56] == "chair" and labels[60] == "dining table" and labels[62] == "tv" and labels[71] == "sink"
+    assert det["preprocessing"]["channel_order"] == "BGR" and det["preprocessing"]["letterbox"] == "top-left"
+    # the SSD is kept as a variant with its own arch and labels (0-based lines of coco_labels.txt with 'n/a' gaps)
+    ssd = b.spec("detector", "ssd-fp32")
+    assert ssd.arch == "ssd_tflite" and ssd.semantics["labels"][61] == "chair" and ssd.preprocessing["size"] == [300, 300]
+    assert b.spec("detector").arch == "yolox"  # the default variant is YOLOX's
+    seg = b.role_meta("instance_segmenter")
+    assert seg["arch"] == "ultralytics_e2e" and seg["licence"] == "AGPL-3.0" and seg["semantics"]["kind"] == "instance"
+    assert seg["semantics"]["labels"][56] == "chair" and seg["config"]["box_units"] == "normalised"
     assert b.role_meta("segmenter")["semantics"]["labels"][9] == "chair"
     assert b.role_meta("embedder")["preprocessing"]["dtype"] == "uint8"
     assert all(not b.role_meta(r)["random_weights"] for r in b.roles)
+    # the bundle names every model's licence, and says it loudly for the copyleft one
+    from mosaicthinker.runtime.infra.bundle import render
+
+    shown = render({"schema": "mosaicthinker.bundle.show/1", **b.summary()})
+    assert ("[instance_segmenter] arch=ultralytics_e2e model='YOLO11n-seg (COCO)' licence=AGPL-3.0  ** AGPL-3.0: "
+            "copyleft") in shown
+    assert "ssd-fp32       precision=fp32 target=cpu arch=ssd_tflite model='SSD MobileNet v1 (COCO)' licence=Apache" \
+        in shown
     assert d["provenance"]["sha256"] and "mobilePydnet" in d["provenance"]["upstream"]
 
 

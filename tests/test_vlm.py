@@ -122,5 +122,9 @@ def test_the_map_answerer_never_loads_or_runs_the_bundled_vlm(vlm_bundle, tmp_pa
     q = "How many office chairs are there?"
     by_map = ask(str(m), q, bundle=str(vlm_bundle[0]), answerer="map")
     assert by_map.answer.text == "2" and "grounding.vlm" not in by_map.trace.stages
-    auto = ask(str(m), q, bundle=str(vlm_bundle[0]), answerer="auto")  # the paper's VLM grounding still runs
-    assert "grounding.vlm" in auto.trace.stages
+    assert not any("vlm" in w for w in by_map.trace.random_weights_used)
+    auto = ask(str(m), q, bundle=str(vlm_bundle[0]), answerer="auto")  # loaded; rules read this question first
+    assert any("vlm" in w for w in auto.trace.random_weights_used) and "grounding.vlm" not in auto.trace.stages
+    by_vlm = ask(str(m), q, bundle=str(vlm_bundle[0]), answerer="auto", grounding="vlm")  # asked for: tried, and
+    refused = [e for e in by_vlm.trace.events if e.get("kind") == "grounding"]  # this one cannot constrain: loudly
+    assert refused and "cannot decode under a JSON schema" in refused[0]["message"]

@@ -23,6 +23,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from ..geometry import OrientedBox, box_distance
+from ..map.verify import rests_on
 from ..query.vocabulary import plural
 from .angles import signed_angle_deg
 
@@ -110,8 +111,9 @@ def build(instances: Sequence[Any], quantity: str | None = None, values: Sequenc
     seen: dict[int, Any] = {}
     for o in instances:
         seen.setdefault(int(o.id), o)
-    rows = [{"id": i, "name": o.name, "views": len(set(o.frames)), "detections": len(getattr(o, "views", []))}
-            for i, o in seen.items()]
+    # rests_on: key frames its detections were fused from or agreed with (map.verify), the views it stands on
+    rows = [{"id": i, "name": o.name, "views": len(set(o.frames)), "detections": len(getattr(o, "views", [])),
+             "rests_on": rests_on(o)} for i, o in seen.items()]
     frames = {int(f) for o in seen.values() for f in o.frames}
     ev: dict[str, Any] = {"instances": rows, "views": len(frames), "detections": sum(r["detections"] for r in rows),
                           "quantity": quantity, "unit": unit, **spread(values or []),
@@ -139,8 +141,9 @@ def line(ev: dict[str, Any] | None, max_ids: int = 8) -> str:
         return ""
     rows = ev.get("instances", [])
     names: dict[str, list[str]] = {}
-    for r in rows[:max_ids]:
-        names.setdefault(r["name"], []).append(f"#{r['id']}")
+    for r in rows[:max_ids]:  # an instance's views (map.verify.rests_on) when the map recorded them
+        names.setdefault(r["name"], []).append(f"#{r['id']}" + (f" ({r['rests_on']} views)" if r.get("rests_on")
+                                                                 else ""))
     objs = "; ".join(f"{n} {' '.join(ids)}" for n, ids in names.items()) or "no instances"
     if len(rows) > max_ids:
         objs += f" (+{len(rows) - max_ids} more)"

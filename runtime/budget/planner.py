@@ -4,7 +4,8 @@
 
     (1) fixed      model loads + video pass (decode + dedup per frame) + grounding + VLM (images, decoding)
     (2) search     scored frames S x detector cost (the iterative key-frame search of keyframes.py)
-    (3) key frames K x (segmenter + prompts + depth + embedder + features + matching + geometry [+ VLM images])
+    (3) key frames K x (instance segmenter + segmenter + prompts + depth + embedder + features + matching + geometry
+                       [+ VLM images])
 
 and picks the largest K (<= PlanConf.keyframes_max) whose latency *and* memory fit, giving the search at least
 `plan_min_scored_per_keyframe * K` frames, then as many more as the slack allows up to `budget_fraction` of the
@@ -313,6 +314,7 @@ def _terms(prof: Profile, c: PlanConf, used: dict[str, bool], fps: float, total_
     t.c_s = cost("detector", "ms_per_call") + cost("video_decode", "ms_per_call")
     # (3) per key frame
     t.per_kf = {"decode": cost("video_decode", "ms_per_call"),  # key frames are fetched again for perception
+                "instance_segmenter": cost("instance_segmenter", "ms_per_call"),
                 "segmenter": cost("segmenter", "ms_per_call")
                 + c.prompts_per_keyframe * cost("segmenter", "ms_per_prompt"),
                 "depth": cost("depth", "ms_per_call"), "embedder": cost("embedder", "ms_per_call"),
@@ -444,8 +446,8 @@ def _stage_budgets(t: _Terms) -> dict[str, StageBudget]:
         "frames": StageBudget("frames", fixed_ms=t.video_ms),
         "grounding": StageBudget("grounding", fixed_ms=t.fixed["grounding"]),
         "keyframes": StageBudget("keyframes", per_scored_ms=t.c_s),
-        "perception": StageBudget("perception", per_keyframe_ms=kf["decode"] + kf["segmenter"]
-                                  + kf["depth"] + kf["embedder"] + kf["features"]),
+        "perception": StageBudget("perception", per_keyframe_ms=kf["decode"] + kf["instance_segmenter"]
+                                  + kf["segmenter"] + kf["depth"] + kf["embedder"] + kf["features"]),
         "alignment": StageBudget("alignment", per_keyframe_ms=kf["matching"] + kf["geometry"]
                                  + kf["refine"]),
         "answer": StageBudget("answer", fixed_ms=t.vlm_fixed, per_keyframe_ms=kf["vlm_images"]),

@@ -71,6 +71,8 @@ COST_ITEMS: dict[str, tuple[tuple[str, ...], str]] = {
     "detector": (("ms_per_call", "load_ms", "resident_mb"), "per scored frame (key frames reuse these boxes)"),
     "segmenter": (("ms_per_call", "ms_per_prompt", "load_ms", "resident_mb"),
                   "per key frame (image encoder) + per prompt (prompt decoder)"),
+    "instance_segmenter": (("ms_per_call", "load_ms", "resident_mb"),
+                           "per key frame: detections with one mask each (the adapter's whole call)"),
     "depth": (("ms_per_call", "load_ms", "resident_mb"), "per key frame"),
     "embedder": (("ms_per_call", "load_ms", "resident_mb"), "per key frame (frame similarity for the tree)"),
     "matcher": (("ms_per_call", "ms_per_pair", "load_ms", "resident_mb"),
@@ -85,8 +87,8 @@ COST_ITEMS: dict[str, tuple[tuple[str, ...], str]] = {
 REQUIRED_COSTS = ("process", "video_decode", "dedup", "grounding", "detector", "depth", "matcher", "geometry",
                   "keyframe_state")
 # roles whose cost entry is optional: absent -> the role is not used on this device (no VLM = map reasoner)
-OPTIONAL_ROLE_COSTS = ("segmenter", "embedder", "vlm")
-MODEL_COSTS = ("detector", "segmenter", "depth", "embedder", "matcher", "vlm")
+OPTIONAL_ROLE_COSTS = ("segmenter", "instance_segmenter", "embedder", "vlm")
+MODEL_COSTS = ("detector", "instance_segmenter", "segmenter", "depth", "embedder", "matcher", "vlm")
 PROVENANCE_KEYS = ("status", "date", "bundle_hash", "source", "provider", "note")
 VARIANT_KEYS = ("variant", "variants")  # a [paper_costs] model item measured at more than one precision
 
@@ -169,9 +171,11 @@ NEAREST_PRECISION = {"int8-qdq": ("int8-qdq", "int8-dynamic", "fp16", "fp32"),
 def nearest_variant(want: str, variants: dict[str, Any]) -> str | None:
     """The variant name to run for a requested one: `want` itself, else the variant whose precision is nearest
     (NEAREST_PRECISION; a variant's `precision` field, so `android-ort-int8-qdq` counts as int8-qdq, exact names
-    first). None when nothing matches (an unknown variant name: the bundle's default)."""
+    first). None when nothing matches (an unknown variant name: the bundle's default). A variant that is another
+    model for the role (`overrides`, e.g. the SSD beside YOLOX) is run only when named exactly."""
     if want in variants:
         return want
+    variants = {n: vm for n, vm in variants.items() if not (vm or {}).get("overrides")}
     order = NEAREST_PRECISION.get(want)
     if order is None:  # a variant named by the profile, e.g. android-ort-fp16: match its precision suffix
         order = next((v for k, v in NEAREST_PRECISION.items() if want.endswith(k)), ())

@@ -20,7 +20,7 @@ from .. import pipeline
 from ..budget import load_profile
 from ..infra.trace import Trace
 from ..grounding import check_question
-from ..infra.bundle import load_bundle
+from ..infra.bundle import COPYLEFT, load_bundle
 from ..answer import UNIT_WORDS
 from ..answer.evidence import line
 from ..query.rules.lexicon import EXAMPLES
@@ -156,8 +156,14 @@ def what_ran(trace: Any, depth: str, built: bool) -> dict[str, Any] | None:
 
 
 def _variant(v: Any) -> str:
+    """A model that ran, in a few words: its name (else its arch) and variant, and a copyleft or restricted
+    licence in brackets (AGPL-3.0 reaches whoever ships or serves the answer)."""
     if isinstance(v, dict):
-        return " ".join(str(v[k]) for k in ("arch", "variant") if v.get(k)) or str(v.get("role", "?"))
+        text = " ".join(str(v[k]) for k in (("model" if v.get("model") else "arch"), "variant") if v.get(k))
+        lic = str(v.get("licence") or "")
+        if any(lic.upper().startswith(c) for c in COPYLEFT):
+            text += f" [{lic}]"
+        return text or str(v.get("role", "?"))
     return str(v)
 
 

@@ -10,7 +10,8 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from ..infra.bundle import COMMON_FLAGS, Bundle, _fields, add_arguments_for, load_bundle, render, safe_path
+from ..infra.bundle import (COMMON_FLAGS, Bundle, _fields, add_arguments_for, load_bundle, render, safe_path,
+                            variant_meta)
 from ..infra.bundle import run_for as _bundle_run_for
 from ..infra.errors import BundleError
 from ..infra.file_schemas import image_input_problem
@@ -88,9 +89,11 @@ def check_graph_inputs(b: Bundle) -> int:
                 got = graph_inputs(path)
                 n += 1
                 _compare_inputs(cm["inputs"], got, where)
-                bad = image_input_problem(meta.get("preprocessing") or {}, got)
+                eff = variant_meta(meta, vm)  # a variant may be another model, with its own preprocessing
+                bad = image_input_problem(eff.get("preprocessing") or {}, got)
                 if bad is not None:
-                    raise BundleError(f"{b.manifest_path}: roles.{role}.preprocessing.{bad[0]} {bad[1]} (graph "
+                    at = f"variants.{vname}.overrides." if "preprocessing" in (vm.get("overrides") or {}) else ""
+                    raise BundleError(f"{b.manifest_path}: roles.{role}.{at}preprocessing.{bad[0]} {bad[1]} (graph "
                                       f"{cm['file']})")
     return n
 

@@ -124,10 +124,11 @@ def render(result: dict[str, Any]) -> str:
     for n, st in r["stages"].items():
         lines.append(f"  {n:<12} {st['fixed_ms']:>10,.1f} {st['per_keyframe_ms']:>11,.1f} "
                      f"{st['per_scored_ms']:>11,.1f} {st['planned_ms']:>11,.1f}")
-    lines += ["", f"  {'role':<10} {'provider (device)':<28} {'here':<22} {'precision':<13} {'input W x H'}"]
+    w = max([10] + [len(role) for role in r["providers"]])
+    lines += ["", f"  {'role':<{w}} {'provider (device)':<28} {'here':<22} {'precision':<13} {'input W x H'}"]
     for role, pv in r["providers"].items():
         size = r["resolutions"].get(role)
-        lines.append(f"  {role:<10} {pv['device']:<28} {pv['here']:<22} {pv['precision']:<13} "
+        lines.append(f"  {role:<{w}} {pv['device']:<28} {pv['here']:<22} {pv['precision']:<13} "
                      f"{'x'.join(map(str, size)) if size else '-'}")
     lines += ["", "arithmetic:"] + [f"  {a}" for a in r["arithmetic"]]
     lines += ["", "cost sources:"] + [f"  {n:<15} {s}" for n, s in r["cost_status"].items()]

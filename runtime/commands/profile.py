@@ -178,7 +178,7 @@ def profile_components(bundle: Any, role: str, variant: str, providers: list[str
                 t0 = time.perf_counter()
                 sess = create_session(comp.path, stage, providers, threads=threads, trace=trace)
                 rec["load_ms"] = round((time.perf_counter() - t0) * 1000, 2)
-                feeds = random_feeds(sess, rng)
+                feeds = _at_image_size(random_feeds(sess, rng), spec.preprocessing, rng)
                 times, first = time_calls(lambda: sess.run(feeds), runs, warmup)
                 if role == "vlm" and "dec" in cname:  # prefill of one image's tokens, empty cache
                     n_tok = int(spec.config.get("image_seq_len", 64))
@@ -197,6 +197,24 @@ def profile_components(bundle: Any, role: str, variant: str, providers: list[str
             rec["error"] = f"{type(e).__name__}: {str(e)[:300]}"
         gc.collect()
         out[cname] = rec
+    return out
+
+
+def _at_image_size(feeds: dict[str, np.ndarray], pp: dict[str, Any], rng: np.random.Generator
+                   ) -> dict[str, np.ndarray]:
+    """A graph with a symbolic image size (YOLOX) runs at the bundle's `preprocessing.size`, not at the 1 x 1 a
+    symbolic dim gets in `random_feeds`: its 3-channel rank-4 input is redrawn at [H, W] in the layout."""
+    size = pp.get("size")
+    if not size:
+        return feeds
+    h, w = (int(v) for v in size)
+    nchw = str(pp.get("layout", "NHWC")).upper() == "NCHW"
+    out = dict(feeds)
+    for k, x in feeds.items():
+        if x.ndim == 4 and x.shape[1 if nchw else 3] == 3 and tuple(x.shape[2:4] if nchw else x.shape[1:3]) != (h, w):
+            shape = (x.shape[0], 3, h, w) if nchw else (x.shape[0], h, w, 3)
+            out[k] = (rng.integers(0, 256, shape, dtype=np.uint8) if x.dtype == np.uint8
+                      else rng.random(shape, dtype=np.float32).astype(x.dtype))
     return out
 
 
@@ -229,6 +247,11 @@ def _adapter_call(model: Any, role: str, frames: list[np.ndarray], n: int
         return (lambda: model.predict(a())), "predict(rgb)"
     if role == "detector" and hasattr(model, "detect"):
         return (lambda: model.detect(a(), list(DEFAULT_NAMES))), f"detect(rgb, {len(DEFAULT_NAMES)} names)"
+    if role == "instance_segmenter" and hasattr(model, "detect"):
+        labels = list(dict.fromkeys(getattr(model, "labels", DEFAULT_NAMES)))
+        floor = getattr(getattr(model, "conf", None), "floor", None)
+        return ((lambda: model.detect(a(), labels, min_score=floor, masks=True)),
+                f"detect(rgb, every label, candidates, masks=True)")
     if role == "segmenter" and hasattr(model, "segment"):
         H, W = frames[0].shape[:2]
         boxes = np.array([[0, 0, W / 2, H / 2], [W / 2, H / 2, W, H], [W / 4, H / 4, 3 * W / 4, 3 * H / 4],

@@ -7,7 +7,8 @@ Manifest shape (schema ``mosaicthinker.bundle/1``)::
       "created": "2026-11-22T01:00:00Z", "tool": "mosaicthinker 0.1.0",
       "roles": {
         "<role>": {                                   # depth | segmenter | matcher | detector | embedder | vlm
-          "arch": "pydnet",                           # dispatch key of runtime.stages.ARCHS
+          "arch": "pydnet",                           # dispatch key of runtime.models.ARCHS
+          "name": "PyDNet++",                         # optional: the model's own name (said in `ran`)
           "preprocessing": {"size": [H, W], "layout": "NHWC"|"NCHW"|"patches", "channel_order": "RGB"|"BGR",
                             "dtype": "float32"|"uint8"|"float16", "scale": 1/255, "mean": [3], "std": [3],
                             "resize": "bilinear", "keep_aspect": false},
@@ -33,6 +34,8 @@ Manifest shape (schema ``mosaicthinker.bundle/1``)::
                 }},
               "parity": {...},                        # figures measured at export (per component)
               "notes": "...",
+              "overrides": {"arch": ...},             # optional: another model for this role (its own arch,
+                                                      #   preprocessing, semantics, provenance, licence, config)
               "android": {},                          # RESERVED (issue 7): ort_files, required_operators,
                                                       #   usability_report, fixed_shapes ...
               "jetson": {}                            # RESERVED (issue 7): trt_profile_shapes, provider_options,
@@ -68,7 +71,10 @@ from .file_schemas import check_manifest
 SCHEMA = "mosaicthinker.bundle/1"
 SUPPORTED_SCHEMAS = (SCHEMA,)
 MANIFEST = "manifest.json"
-ROLES = ("depth", "segmenter", "matcher", "detector", "embedder", "vlm")
+ROLES = ("depth", "segmenter", "instance_segmenter", "matcher", "detector", "embedder", "vlm")
+# role-level fields a variant may override: a variant that is another model for the same role (the SSD kept beside
+# YOLOX as the detector's `ssd-fp32` variant) carries its own arch, pre-processing, labels, licence ...
+OVERRIDABLE = ("arch", "name", "preprocessing", "semantics", "provenance", "licence", "random_weights", "config")
 DEPTH_SEMANTICS = ("metric_m", "relative", "relative_inverse")
 # Variant preference when the caller names none and the role has no default_variant.
 VARIANT_PREFERENCE = ("fp32", "fp16", "int8-dynamic", "int8-qdq")
@@ -240,7 +246,7 @@ class Bundle:
             comps[cname] = Component(cname, path, cmeta)
         if not comps:
             raise BundleError(f"{self.manifest_path}: roles.{role}.variants.{vname}.components is empty")
-        return RoleSpec(self, role, vname, meta, vmeta, comps)
+        return RoleSpec(self, role, vname, variant_meta(meta, vmeta), vmeta, comps)
 
     def file(self, ref: dict | None, where: str) -> Path:
         """A checked artifact path for a `{file, sha256}` reference of the manifest (e.g. a role's tokenizer):
@@ -323,8 +329,11 @@ class Bundle:
                                 "outputs": [f"{o['name']}{_shape_str(o)}:{o.get('dtype')}" for o in cm.get("outputs", [])]}
                 variants[v] = {"precision": vm.get("precision"), "target": vm.get("target"), "components": comps,
                                "parity": vm.get("parity", {}), "task": task_text(vm.get("task_check")),
-                               "notes": vm.get("notes")}
-            roles[r] = {"arch": m.get("arch"), "licence": m.get("licence"), "random_weights": m.get("random_weights"),
+                               "notes": vm.get("notes"),
+                               **({"model": {k: vm["overrides"][k] for k in ("arch", "name", "licence", "provenance")
+                                             if k in vm["overrides"]}} if vm.get("overrides") else {})}
+            roles[r] = {"arch": m.get("arch"), "name": m.get("name"), "licence": m.get("licence"),
+                        "random_weights": m.get("random_weights"),
                         "semantics": m.get("semantics", {}), "preprocessing": m.get("preprocessing", {}),
                         "provenance": m.get("provenance", {}), "default_variant": m.get("default_variant"),
                         "variants": variants, "skipped_variants": m.get("skipped_variants", {})}
@@ -340,13 +349,21 @@ def _shape_str(io: dict) -> str:
     return "[" + ",".join(str(s) for s in shape) + "]"
 
 
+def variant_meta(meta: dict[str, Any], vmeta: dict[str, Any]) -> dict[str, Any]:
+    """The role entry a variant runs with: the role's fields, with the variant's `overrides` (another model for
+    this role: its own arch, labels, licence ...) over them."""
+    if not vmeta.get("overrides"):
+        return meta
+    return {**meta, **{k: v for k, v in vmeta["overrides"].items() if k in OVERRIDABLE}}
+
+
 def check_schema(manifest: Any, where: str = MANIFEST) -> None:
     """The manifest against its schema (`file_schemas.manifest_spec`: required fields, types, ranges, enums,
     the fields each role's adapters read). Raises BundleError naming the field."""
     if isinstance(manifest, dict) and manifest.get("schema") not in SUPPORTED_SCHEMAS:
         raise BundleError(f"{where}: unknown schema version {manifest.get('schema')!r} (this runtime reads "
                           f"{SUPPORTED_SCHEMAS}); upgrade mosaicthinker or re-export the bundle")
-    check_manifest(manifest, where, ROLES, SUPPORTED_SCHEMAS, DEPTH_SEMANTICS)
+    check_manifest(manifest, where, ROLES, SUPPORTED_SCHEMAS, DEPTH_SEMANTICS, OVERRIDABLE)
 
 
 def strict_json_loads(data: bytes | str, where: str) -> Any:
@@ -530,7 +547,8 @@ def render(result: dict[str, Any]) -> str:
     lines = [f"bundle {result['bundle']}  ({result['schema_version']}, created {result.get('created')})"]
     for r, m in result["roles"].items():
         rw = "  ** RANDOM WEIGHTS (test model) **" if m.get("random_weights") else ""
-        lines.append(f"\n[{r}] arch={m['arch']} licence={m['licence']}{rw}")
+        named = f" model={m['name']!r}" if m.get("name") else ""
+        lines.append(f"\n[{r}] arch={m['arch']}{named} licence={m['licence']}{_licence_warning(m['licence'])}{rw}")
         if m.get("semantics"):
             sem = {k: (v if not isinstance(v, list) or len(v) < 8 else f"<{len(v)} labels>")
                    for k, v in m["semantics"].items()}
@@ -543,7 +561,11 @@ def render(result: dict[str, Any]) -> str:
             lines.append(f"  source: {prov['source']}")
         for v, vm in m["variants"].items():
             star = "*" if v == m.get("default_variant") else " "
-            lines.append(f" {star}{v:<14} precision={vm['precision']} target={vm['target']}")
+            other = vm.get("model") or {}
+            alt = (f" arch={other.get('arch')}" + (f" model={other['name']!r}" if other.get("name") else "")
+                   + f" licence={other.get('licence')}"
+                   f"{_licence_warning(other.get('licence'))}") if other else ""
+            lines.append(f" {star}{v:<14} precision={vm['precision']} target={vm['target']}{alt}")
             for c, cm in vm["components"].items():
                 size = f"{cm['bytes'] / 2**20:.1f} MiB" if cm.get("bytes") else "?"
                 lines.append(f"     {c}: {cm['file']} ({cm['format']}, opset {cm['opset']}, {size})")
@@ -558,6 +580,17 @@ def render(result: dict[str, Any]) -> str:
             lines.append(textwrap.fill(str(why), 110, initial_indent=f"  {v:<14} NOT shipped: ",
                                        subsequent_indent=" " * 7, break_long_words=False, break_on_hyphens=False))
     return "\n".join(lines)
+
+
+COPYLEFT = ("AGPL", "GPL", "LGPL", "SSPL", "CC-BY-SA", "CC-BY-NC")
+
+
+def _licence_warning(licence: Any) -> str:
+    """A loud note beside a copyleft or non-commercial licence (AGPL-3.0 also reaches software offered over a
+    network): whoever ships the bundle must know."""
+    text = str(licence or "")
+    return (f"  ** {text}: copyleft / restricted licence, check before you ship it **"
+            if any(text.upper().startswith(c) for c in COPYLEFT) else "")
 
 
 def task_text(task: Any) -> str | None:
@@ -580,6 +613,10 @@ def parity_text(p: Any) -> str:
         return "" if p is None else str(p)
     if p.get("copied"):
         return "copied unchanged (the reference)"
+    if isinstance(p.get("task"), dict) and "found" in p["task"]:  # a re-shaped graph's check on real frames
+        t = p["task"]
+        return (f"task check: {t['found']:.0%} of the original graph's {t.get('detections')} detections found "
+                f"again (IoU {t.get('mean_iou')}, score change {t.get('median_score_change')})")
     if isinstance(p.get("worst"), dict):
         w, tol = p["worst"], p.get("tolerance") or {}
         return (f"parity rel {w.get('rel', float('nan')):.3g}" + (f" (tol {tol['rel']:g})" if "rel" in tol else "")

@@ -221,42 +221,71 @@ def _depth_range(role: dict) -> str | None:
     return None if lo < hi else f"config.min_depth_m ({lo}) must be below config.max_depth_m ({hi})"
 
 
-def _role_spec(role: str, depth_semantics: Sequence[str]) -> Obj:
+_LISTS_LABELS = ("detector", "instance_segmenter")  # roles whose semantics say their vocabulary (labels when closed)
+
+
+def _semantics_problem(role: str, r: dict) -> str | None:
+    """What a role's semantics must say together: a closed vocabulary lists its labels, a semantic segmenter its
+    classes."""
+    sem = r.get("semantics") or {}
+    if role in _LISTS_LABELS and sem.get("vocabulary") == "closed" and not sem.get("labels"):
+        return "semantics.labels is required (non-empty) for a closed vocabulary"
+    if role == "segmenter" and sem.get("kind", "semantic") == "semantic" and not sem.get("labels"):
+        return "semantics.labels is required (non-empty) for a semantic segmenter"
+    return None
+
+
+def _overrides_problem(role: str) -> Any:
+    """A variant that is another model for the role (`overrides`): the role entry it makes must still mean
+    something (its own labels, depth units ...)."""
+    def rule(r: dict) -> str | None:
+        for vname, vm in r["variants"].items():
+            ov = vm.get("overrides")
+            why = _semantics_problem(role, {**r, **ov}) if ov else None
+            if why:
+                return f"variants.{vname}.overrides: {why}"
+        return None
+    return rule
+
+
+def _role_spec(role: str, depth_semantics: Sequence[str], overridable: Sequence[str]) -> Obj:
     """One role's entry; what a role's adapters must read is required here (a depth role says its units, a
-    closed-vocabulary detector and a semantic segmenter list their labels)."""
+    closed-vocabulary detector or instance segmenter and a semantic segmenter list their labels). A variant's
+    `overrides` (another model for the role) take the role's own field specs."""
     sem: dict[str, F] = {"labels": F(ListOf(item=Str(), want="a list of strings"), required=False),
-                         "vocabulary": F(Str(enum=("open", "closed")), required=role == "detector"),
+                         "vocabulary": F(Str(enum=("open", "closed")), required=role in _LISTS_LABELS),
                          "dim": F(Int(lo=0, hi=1_000_000), required=False),
                          "k": F(Int(lo=1, hi=1_000_000), required=False),
                          "kind": F(Str(), required=False)}
     sem["depth"] = F(Str(enum=tuple(depth_semantics)), required=role == "depth")
-    rules = [_default_variant, _output_index, _depth_range]
-    if role == "detector":
-        rules.append(lambda r: "semantics.labels is required (non-empty) for a closed vocabulary"
-                     if r["semantics"].get("vocabulary") == "closed" and not r["semantics"].get("labels") else None)
-    if role == "segmenter":
-        rules.append(lambda r: "semantics.labels is required (non-empty) for a semantic segmenter"
-                     if r.get("semantics", {}).get("kind", "semantic") == "semantic"
-                     and not r.get("semantics", {}).get("labels") else None)
-    return Obj(fields={
+    fields = {
         "arch": F(Str(nonempty=True)),
+        "name": F(Str(), required=False),
         "licence": F(Str(nonempty=True)),
         "random_weights": F(Bool()),
         "provenance": F(Obj(fields={"source": F(Str(), required=False)})),
         "preprocessing": F(_PREPROCESSING, required=False),
-        "semantics": F(Obj(fields=sem), required=role in ("depth", "detector")),
+        "semantics": F(Obj(fields=sem), required=role in ("depth", *_LISTS_LABELS)),
         "config": F(_CONFIG, required=False),
         "default_variant": F(Str(), required=False),
-        "variants": F(MapOf(value=_VARIANT, min_len=1)),
         "tokenizer": F(_FILE_REF, required=False),
         "skipped_variants": F(MapOf(value=AnyValue()), required=False),
-    }, item_rules=tuple(rules))
+    }
+    overrides = Obj(fields={k: F(fields[k].spec, required=False) for k in overridable}, extra=False,
+                    unknown=lambda k, known: f"has a field {k!r} a variant cannot override; it may override "
+                                             f"{', '.join(known)}")
+    variant = Obj(fields={**_VARIANT.fields, "overrides": F(overrides, required=False)})
+    return Obj(fields={**fields, "variants": F(MapOf(value=variant, min_len=1))},
+               item_rules=(_default_variant, _output_index, _depth_range, lambda r: _semantics_problem(role, r),
+                           _overrides_problem(role)))
 
 
 @lru_cache(maxsize=8)
-def manifest_spec(roles: tuple[str, ...], schemas: tuple[str, ...], depth_semantics: tuple[str, ...]) -> Obj:
-    """The bundle manifest (runtime/bundle.py's docstring) for the roles the runtime knows."""
-    role_fields = {r: F(_role_spec(r, depth_semantics), required=False) for r in roles}
+def manifest_spec(roles: tuple[str, ...], schemas: tuple[str, ...], depth_semantics: tuple[str, ...],
+                  overridable: tuple[str, ...] = ()) -> Obj:
+    """The bundle manifest (runtime/infra/bundle.py's docstring) for the roles the runtime knows; `overridable`:
+    the role fields a variant's `overrides` may set."""
+    role_fields = {r: F(_role_spec(r, depth_semantics, overridable), required=False) for r in roles}
     return Obj(fields={
         "schema": F(Str(enum=schemas)),
         "created": F(Str(), required=False), "updated": F(Str(), required=False), "tool": F(Str(), required=False),
@@ -266,9 +295,10 @@ def manifest_spec(roles: tuple[str, ...], schemas: tuple[str, ...], depth_semant
 
 
 def check_manifest(manifest: Any, where: str, roles: Sequence[str], schemas: Sequence[str],
-                   depth_semantics: Sequence[str]) -> None:
+                   depth_semantics: Sequence[str], overridable: Sequence[str] = ()) -> None:
     """Raise BundleError naming the manifest field that breaks the schema."""
-    check(manifest, manifest_spec(tuple(roles), tuple(schemas), tuple(depth_semantics)), where=where,
+    check(manifest, manifest_spec(tuple(roles), tuple(schemas), tuple(depth_semantics), tuple(overridable)),
+          where=where,
           error=BundleError, fix="fix the manifest or re-export the role")
 
 

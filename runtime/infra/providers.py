@@ -117,6 +117,9 @@ def _session_options(cfg: SessionConfig):
         "all": ort.GraphOptimizationLevel.ORT_ENABLE_ALL,
     }[cfg.graph_optimization]
     so.log_severity_level = cfg.log_severity
+    # kernels log through the default logger, not the session's (a TFLite conversion's deprecated Resize mode
+    # warns on every load otherwise)
+    ort.set_default_logger_severity(cfg.log_severity)
     so.add_session_config_entry("session.intra_op.allow_spinning", "1" if cfg.allow_spinning else "0")
     so.add_session_config_entry("session.inter_op.allow_spinning", "1" if cfg.allow_spinning else "0")
     return so

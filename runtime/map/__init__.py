@@ -4,6 +4,7 @@ model   SemanticMap, ObjectInstance, Room: the map, its JSON schema and checks
 conf    FusionConfig: every setting of lifting and fusion
 lift    a key frame's detections -> camera-frame points (masks or box depth layers) -> the world
 cluster connected components, voxel down-sampling, outlier removal
+verify  candidate detections verified across views (kept when another key frame agrees, or confident)
 fuse    observations of one object -> one instance with an oriented box
 floor   gravity and the floor plane (z up, origin on the floor)
 extent  floor-standing objects down to the floor, the room extent, first-seen times
@@ -20,6 +21,7 @@ from .lift import (box_depth_mask, box_layer, duplicate_names, lift_camera, lift
 from .model import (MAP_SCHEMA, MAX_MAP_BYTES, MAX_MAP_OBJECTS, ObjectInstance, Room, SemanticMap, room_from_boxes,
                     validate_map_dict)
 from .refine import expected_visible, refine
+from .verify import Verification, VerifyConf, annotate_views, rests_on, verify_observations
 
 __all__ = [
     "components", "largest_components", "remove_outliers", "voxel_downsample", "FusionConfig", "default_fusion_conf",
@@ -29,5 +31,6 @@ __all__ = [
     "view_estimates", "box_depth_mask", "box_layer", "duplicate_names", "lift_camera", "lift_detections",
     "lift_observations", "place",
     "world_points", "MAP_SCHEMA", "MAX_MAP_BYTES", "MAX_MAP_OBJECTS", "ObjectInstance", "Room", "SemanticMap",
-    "room_from_boxes", "validate_map_dict", "expected_visible", "refine",
+    "room_from_boxes", "validate_map_dict", "expected_visible", "refine", "Verification", "VerifyConf",
+    "annotate_views", "rests_on", "verify_observations",
 ]

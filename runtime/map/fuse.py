@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
@@ -230,10 +230,12 @@ def _merge_overlapping(items: list[tuple["_Acc", np.ndarray]], conf: FusionConfi
 
 
 def fuse_frames(frames: list[Frame], dets: dict[int, Detections], poses: dict[int, np.ndarray], fconf: FusionConfig,
-                log: StageLog | None = None, lifted: dict[int, list[Observation]] | None = None
+                log: StageLog | None = None, lifted: dict[int, list[Observation]] | None = None,
+                verify: Callable[[list[Observation]], list[Observation]] | None = None
                 ) -> tuple[list[Observation], list[ObjectInstance], list[np.ndarray]]:
     """Place every posed key frame's camera-frame observations in the world (`lifted`: perception's; a frame
-    without them is lifted here) and fuse them into instances."""
+    without them is lifted here), keep those `verify` keeps (cross-view verification, `map.verify`) and fuse them
+    into instances. Returns (the fused observations, instances, clouds)."""
     obs: list[Observation] = []
     lifted = lifted or {}
 
@@ -246,6 +248,8 @@ def fuse_frames(frames: list[Frame], dets: dict[int, Detections], poses: dict[in
         for got in ex.map(lift, posed):  # frames lift independently; in order
             obs += got
             bar.update()
+        if verify is not None:
+            obs = verify(obs)
         instances, clouds = fuse_observations(obs, fconf, log)
         bar.note(instances=len(instances))
     return obs, instances, clouds

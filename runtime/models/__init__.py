@@ -40,6 +40,8 @@ ARCHS: dict[str, str] = {
     "pydnet": "depth:DepthModel",            # relative monocular depth, single NHWC graph
     "depth_generic": "depth:DepthModel",     # any single-graph depth model described by its preprocessing
     "ssd_tflite": "detector:ClosedSetDetector",  # TFLite SSD with in-graph NMS (boxes, classes, scores, count)
+    "yolox": "yolo:YoloxDetector",               # YOLOX raw anchors: grid decoding + NMS in the adapter
+    "ultralytics_e2e": "yolo:UltralyticsDetector",  # Ultralytics nms=True export: boxes (+ mask coefficients)
     "deeplab": "segmenter:SemanticSegmenter",    # per-pixel class logits
     "mobilenet_embedding": "embedder:Embedder",  # pooled CNN features
     "embedding_generic": "embedder:Embedder",
@@ -121,8 +123,9 @@ class RoleModel:
 
     def describe(self) -> dict[str, Any]:
         return {"role": self.spec.role, "arch": self.spec.arch, "variant": self.spec.variant,
-                "random_weights": self.spec.random_weights, "providers": self.providers_used(),
-                "licence": self.spec.meta.get("licence"), "source": self.spec.meta.get("provenance", {}).get("source")}
+                "model": self.spec.meta.get("name"), "random_weights": self.spec.random_weights,
+                "providers": self.providers_used(), "licence": self.spec.meta.get("licence"),
+                "source": self.spec.meta.get("provenance", {}).get("source")}
 
 
 def resolve_arch(arch: str) -> type:
@@ -134,18 +137,24 @@ def resolve_arch(arch: str) -> type:
 
 
 def check_archs(bundle: Bundle, roles: Sequence[str] | None = None) -> None:
-    """Every role's `arch` names an adapter of that role (`ARCHS` and the adapter's `role`, or `roles` where one
-    model serves several): a depth graph labelled with a segmenter's arch would load and crash on first use."""
+    """Every role's `arch` (and every variant's own, under `overrides`) names an adapter of that role (`ARCHS` and
+    the adapter's `role`, or `roles` where one model serves several): a depth graph labelled with a segmenter's
+    arch would load and crash on first use."""
     for role in roles if roles is not None else bundle.roles:
-        arch = bundle.role_meta(role)["arch"]
-        where = f"{bundle.manifest_path}: roles.{role}.arch"
-        if arch not in ARCHS:
-            raise BundleError(f"{where} is {arch!r}, which has no runtime adapter (known: {', '.join(sorted(ARCHS))}); "
-                              f"fix the manifest or re-export the role")
-        cls = resolve_arch(arch)
-        if role not in getattr(cls, "roles", (cls.role,)):
-            raise BundleError(f"{where} is {arch!r}, an architecture of the {cls.role} role, not of {role}; fix "
-                              f"the manifest or re-export the role")
+        meta = bundle.role_meta(role)
+        archs = {f"roles.{role}.arch": meta["arch"]}
+        for vname, vm in meta["variants"].items():
+            if "arch" in (vm.get("overrides") or {}):
+                archs[f"roles.{role}.variants.{vname}.overrides.arch"] = vm["overrides"]["arch"]
+        for field_, arch in archs.items():
+            where = f"{bundle.manifest_path}: {field_}"
+            if arch not in ARCHS:
+                raise BundleError(f"{where} is {arch!r}, which has no runtime adapter (known: "
+                                  f"{', '.join(sorted(ARCHS))}); fix the manifest or re-export the role")
+            cls = resolve_arch(arch)
+            if role not in getattr(cls, "roles", (cls.role,)):
+                raise BundleError(f"{where} is {arch!r}, an architecture of the {cls.role} role, not of {role}; fix "
+                                  f"the manifest or re-export the role")
 
 
 def load_role(bundle_or_dir: Bundle | str | os.PathLike, role: str, variant: str | None = None,

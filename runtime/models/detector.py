@@ -152,20 +152,39 @@ def map_names(names: Sequence[str], labels: Sequence[str]) -> tuple[dict[str, li
 
 @dataclass
 class DetectorConf:
+    """score_threshold: a detection the key-frame search counts and a single view may stand on alone;
+    candidate_threshold: key-frame perception keeps detections down to this score for the map to verify across
+    views (`map.verify`; None = score_threshold: no candidates below it); nms_iou: per-class NMS where the graph
+    has none (YOLOX); max_detections per frame."""
+
     score_threshold: float = 0.5   # SSD MobileNet v1 quantised: 0.5 is the TFLite example's default
+    candidate_threshold: float | None = None
+    nms_iou: float = 0.45
     max_detections: int = 100
 
+    @property
+    def floor(self) -> float:
+        """The lowest score any call can ask for (what the graph run keeps)."""
+        c = self.candidate_threshold
+        return min(self.score_threshold, c) if c is not None else self.score_threshold
 
-class ClosedSetDetector(RoleModel):
-    """TFLite-style SSD graph with NMS inside: outputs boxes [1, N, 4] (ymin, xmin, ymax, xmax normalised),
-    classes [1, N] (index into semantics.labels), scores [1, N], count [1]."""
+
+def detector_conf(spec: Any) -> DetectorConf:
+    """The manifest's `config` fields that are DetectorConf's (others belong to the adapter)."""
+    return DetectorConf(**{k: v for k, v in spec.config.items() if k in DetectorConf.__dataclass_fields__})
+
+
+class LabelDetector(RoleModel):
+    """A closed-set detector over `semantics.labels`: subclasses implement `_run(rgb) -> (boxes [N, 4] pixels x0
+    y0 x1 y1 float32, class ids [N] int64, scores [N] float32)` with every detection at or above `conf.floor`;
+    this class maps the question's names onto labels, filters by score and caches one graph run per image."""
 
     role = "detector"
 
     def __init__(self, spec, sessions, trace, conf: DetectorConf | None = None):
         super().__init__(spec, sessions, trace)
-        cfg = {k: v for k, v in spec.config.items() if k in DetectorConf.__dataclass_fields__}
-        self.conf = conf or DetectorConf(**cfg)
+        self.role = spec.role  # one adapter class may serve the detector and the instance_segmenter role
+        self.conf = conf or detector_conf(spec)
         self.labels: list[str] = list(spec.semantics["labels"])
         self.vocabulary = "closed"
         self._input = self.session().input_names[0]
@@ -173,48 +192,66 @@ class ClosedSetDetector(RoleModel):
         # one graph run. Every scored frame is kept (the planner scores <= 6 K; a frame's boxes are a few kB)
         self._raw = ImageLRU(512)
 
-    def raw(self, rgb: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """All detections above the threshold: boxes [N, 4] pixels x0 y0 x1 y1, class ids [N], scores [N]
-        (read-only arrays, shared by every call on the same image)."""
+    def raw(self, rgb: np.ndarray) -> tuple[np.ndarray, ...]:
+        """All detections at or above `conf.floor`: boxes [N, 4] pixels x0 y0 x1 y1, class ids [N], scores [N]
+        (read-only arrays, shared by every call on the same image; adapters may append more per-detection
+        arrays after these three)."""
         return self._raw.cached(rgb, self._run)
 
-    def _run(self, rgb: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        H, W = rgb.shape[:2]
-        x = preprocess_image(rgb, self.spec.preprocessing)
-        with self._stage("detector"):
-            boxes, classes, scores, count = self.session().run({self._input: x})
-        n = int(np.asarray(count).reshape(-1)[0])
-        b, c, s = boxes[0, :n], classes[0, :n].astype(np.int64), scores[0, :n].astype(np.float32)
-        keep = s >= self.conf.score_threshold
-        b, c, s = b[keep], c[keep], s[keep]
-        px = np.stack([b[:, 1] * W, b[:, 0] * H, b[:, 3] * W, b[:, 2] * H], 1).clip(0, [W, H, W, H])
-        return px.astype(np.float32), c, s
+    def _run(self, rgb: np.ndarray) -> tuple[np.ndarray, ...]:
+        raise NotImplementedError
 
-    def detect(self, rgb: np.ndarray, names: Sequence[str]) -> Detections:
-        """rgb [H, W, 3] uint8, names: the question's object names -> Detections in those names."""
-        with self._overhead("detector"):
-            return self._detect(rgb, names)
+    def detect(self, rgb: np.ndarray, names: Sequence[str], min_score: float | None = None) -> Detections:
+        """rgb [H, W, 3] uint8, names: the question's object names -> Detections in those names with score >=
+        `min_score` (default `conf.score_threshold`; at most down to `conf.floor`)."""
+        with self._overhead(self.role):
+            return self._detect(rgb, names, min_score)
 
-    def _detect(self, rgb: np.ndarray, names: Sequence[str]) -> Detections:
+    def _select(self, rgb: np.ndarray, names: Sequence[str], min_score: float | None
+                ) -> tuple[np.ndarray, list[str], list[str]]:
+        """(indices into `raw(rgb)`, their names, the names it cannot detect), by score then name order."""
         mapping, missing = map_names(names, self.labels)
         if missing and not getattr(self, "_warned", set()) >= set(missing):
             self._warned = getattr(self, "_warned", set()) | set(missing)
             self.trace.event("undetectable", f"{self.name}: closed label set cannot detect {missing}",
-                             names=missing, stage="detector")
-        px, cls, sc = self.raw(rgb)
-        out_b, out_s, out_n = [], [], []
-        taken = np.zeros(len(cls), bool)
+                             names=missing, stage=self.role)
+        raw = self.raw(rgb)
+        cls, sc = raw[1], raw[2]
+        thr = self.conf.score_threshold if min_score is None else max(float(min_score), self.conf.floor)
+        taken = sc < thr
+        idx: list[np.ndarray] = []
+        out_n: list[str] = []
         # one detection is one object whatever alias names it (COCO "chair" is both chair and stool): names that
         # are the label itself claim their detections first, an alias only gets the ones left
         order = sorted(mapping, key=lambda n: not any(normalize_name(self.labels[i]) == normalize_name(n)
                                                       for i in mapping[n]))
         for name in order:
-            ids = mapping[name]
-            sel = np.isin(cls, ids) & ~taken
+            sel = np.isin(cls, mapping[name]) & ~taken
             taken |= sel
-            out_b.append(px[sel])
-            out_s.append(sc[sel])
+            idx.append(np.flatnonzero(sel))
             out_n += [name] * int(sel.sum())
+        return (np.concatenate(idx) if idx else np.zeros(0, np.int64)), out_n, missing
+
+    def _detect(self, rgb: np.ndarray, names: Sequence[str], min_score: float | None) -> Detections:
+        idx, out_n, missing = self._select(rgb, names, min_score)
         if not out_n:
             return Detections.empty(missing)
-        return Detections(np.concatenate(out_b), np.concatenate(out_s), out_n, undetectable=missing)
+        raw = self.raw(rgb)
+        return Detections(raw[0][idx], raw[2][idx], out_n, undetectable=missing)
+
+
+class ClosedSetDetector(LabelDetector):
+    """TFLite-style SSD graph with NMS inside: outputs boxes [1, N, 4] (ymin, xmin, ymax, xmax normalised),
+    classes [1, N] (index into semantics.labels), scores [1, N], count [1]."""
+
+    def _run(self, rgb: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        H, W = rgb.shape[:2]
+        x = preprocess_image(rgb, self.spec.preprocessing)
+        with self._stage(self.role):
+            boxes, classes, scores, count = self.session().run({self._input: x})
+        n = int(np.asarray(count).reshape(-1)[0])
+        b, c, s = boxes[0, :n], classes[0, :n].astype(np.int64), scores[0, :n].astype(np.float32)
+        keep = s >= self.conf.floor
+        b, c, s = b[keep], c[keep], s[keep]
+        px = np.stack([b[:, 1] * W, b[:, 0] * H, b[:, 3] * W, b[:, 2] * H], 1).clip(0, [W, H, W, H])
+        return px.astype(np.float32), c, s
