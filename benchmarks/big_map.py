@@ -152,7 +152,7 @@ def parts(map_path: Path, part_limit: int) -> dict[str, Any]:
     vp, t_render = part(lambda: prompt.render(smap))
     _, t_png = part(lambda: encode_png(vp.image))
     with tempfile.TemporaryDirectory() as tmp, RunOutputs(Path(tmp)) as outs:
-        _, t_json = part(lambda: outs._stage("map.json", smap.json_text(run_id=outs.run_id).encode()))
+        _, t_json = part(lambda: outs._stage("map.json", smap.json_bytes(run_id=outs.run_id)))
     res = {"read_map": {"json_parse": t_parse, "schema_check": t_check, "build_objects": t_build},
            "answer_only": {},
            "map_png_and_prompt": {"render": t_render, "png": t_png, "labels_drawn": vp.labels_drawn},

@@ -107,7 +107,7 @@ def _resolve(argv: Sequence[str]) -> tuple[tuple[str, ...] | None, list[str]]:
 
 
 def _emit(result: dict[str, Any], words: tuple[str, ...], as_json: bool, module: Any) -> None:
-    from .infra.outputs import json_default, to_plain
+    from .infra.trace import json_default, to_plain
 
     result = dict(result)
     result.setdefault("schema", f"mosaicthinker.{'.'.join(words)}/1")

@@ -397,13 +397,16 @@ class AskResult:
     question: Any = None
     method: str = "mosaic"
 
-    def to_dict(self) -> dict[str, Any]:
+    def to_dict(self, rows: bool = True) -> dict[str, Any]:
+        """The result as JSON values; rows=False leaves out the per-object rows (`instances`; `objects` counts
+        them): a printed answer shows only the count, and 100 k rows cost about a second."""
         return {"answer": self.answer.text, "status": self.answer.status, "value": self.answer.value,
                 "unit": self.answer.unit,
                 "explanation": self.answer.explanation, "qtype": self.answer.qtype, "missing": self.answer.missing,
                 "method": self.method,
                 "grounding": None if self.question is None else self.question.to_dict(),
-                "instances": None if self.map is None else _instance_rows(self.map),
+                "objects": None if self.map is None else len(self.map.instances),
+                "instances": None if self.map is None or not rows else _instance_rows(self.map),
                 "keyframes": None if self.build is None else self.build.keyframes,
                 # key frames left out of the map (no verified pose): stated with the answer, not only in the trace
                 "unaligned": None if self.build is None else sorted(self.build.unaligned)}

@@ -139,9 +139,12 @@ def text_block(smap: SemanticMap, arrays: tuple[np.ndarray, np.ndarray, np.ndarr
     if len(C):
         yaw = np.degrees(np.arctan2(AX[:, 0, 1], AX[:, 0, 0]))
         insts = smap.instances
-        order = sorted(range(len(insts)), key=lambda i: (insts[i].name, insts[i].id))
-        rows = np.concatenate([C, L, yaw[:, None]], 1).tolist()
-        lines += [_LINE % (insts[i].name, insts[i].id, *rows[i]) for i in order]
+        names = [o.name for o in insts]
+        ids = np.array([o.id for o in insts])
+        rank = {k: r for r, k in enumerate(sorted(set(names)))}
+        order = np.lexsort((ids, np.fromiter(map(rank.__getitem__, names), np.int64, len(names))))  # name, id
+        rows = np.concatenate([C, L, yaw[:, None]], 1)[order].tolist()
+        lines += [_LINE % (names[i], ids_i, *r) for i, ids_i, r in zip(order.tolist(), ids[order].tolist(), rows)]
     if smap.cameras:
         t0, T0 = smap.cameras[0]
         t1, T1 = smap.cameras[-1]
@@ -364,7 +367,7 @@ def place_labels(anchors: np.ndarray, sizes: np.ndarray | Callable[[int], tuple[
     out = np.full_like(anchors, np.nan)
     rects = np.zeros((max(16, len(reserved or [])), 4))
     grid: dict[tuple[int, int], list[int]] = {}
-    fails: dict[tuple[int, int], int] = {}
+    fails: dict[int, int] = {}
     n_rects = 0
 
     def add(r: np.ndarray) -> None:
@@ -380,10 +383,12 @@ def place_labels(anchors: np.ndarray, sizes: np.ndarray | Callable[[int], tuple[
     for r in reserved or []:
         add(np.asarray(r, np.float64))
     radii = np.arange(1, rings + 1)[:, None, None]
-    for i, a in enumerate(anchors):
-        cell = (int(a[0] // h_cell), int(a[1] // h_cell))
+    g = (anchors // h_cell).astype(np.int64)  # anchor cells, one integer each (cheap keys for 100 k labels)
+    cells = (g[:, 0] * (1 << 32) + g[:, 1]).tolist()
+    for i, cell in enumerate(cells):
         if fails.get(cell, 0) >= _MAX_FAILS:
             continue
+        a = anchors[i]
         w, h = (float(v) for v in size_of(i))
         step = np.broadcast_to(radii * (h + 2 * pad), (rings, 8, 1))  # [rings, 8, 1]
         sx = np.where(_DIRS[None, :, :1] != 0, w / 2 + step, step)  # x: w/2 + r on the sides, else r

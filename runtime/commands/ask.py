@@ -111,7 +111,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     finally:
         if outs is not None:
             outs.close()
-    d = res.to_dict()
+    d = res.to_dict(rows=bool(getattr(args, "json", True)))  # printed: the object count alone
     d.update({"schema": "mosaicthinker.ask/1", "question": question, "options": options, "files": files,
               "explain": bool(args.explain),
               "warnings": [e["message"] for e in trace.events if e["kind"] in WARNING_KINDS],
@@ -119,7 +119,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
               "ran": what_ran(trace, args.depth, res.build is not None),
               "undetectable": sorted({n for e in trace.events if e["kind"] == "undetectable"
                                       for n in e.get("names", [])}),
-              "seconds": trace.to_dict()["wall_seconds"]})
+              "seconds": trace.wall_seconds()})
     if outs is not None:
         d.update({"run_id": outs.run_id, "write_error": write_error, "exit_code": code or d.get("exit_code", 0)})
     return d
@@ -186,8 +186,8 @@ def render(r: dict[str, Any]) -> str:
         prog = g.get("program")
         lines.append(f"  program ({g.get('how', 'none')}): " + (json.dumps(prog["ask"]) if prog else
                                                                 "none (" + "; ".join(g.get("notes") or []) + ")"))
-    if r.get("instances") is not None:
-        lines.append(f"  map: {len(r['instances'])} object(s)" + (f" from {len(r['keyframes'])} key frames"
+    if r.get("objects") is not None:
+        lines.append(f"  map: {r['objects']} object(s)" + (f" from {len(r['keyframes'])} key frames"
                                                                    if r.get("keyframes") else "")
                      + (f" ({len(r['unaligned'])} unaligned, left out)" if r.get("unaligned") is not None else ""))
 

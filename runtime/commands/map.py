@@ -119,7 +119,7 @@ def _run(args: argparse.Namespace, src: Path, outs: RunOutputs, paths: tuple[Pat
             "warnings": [e["message"] for e in trace.events if e["kind"] in ("fallback", "degraded",
                                                                              "random_weights", "not_in_map",
                                                                              "output", "input")],
-            "seconds": trace.to_dict()["wall_seconds"]}
+            "seconds": trace.wall_seconds()}
 
 
 def render(r: dict[str, Any]) -> str:

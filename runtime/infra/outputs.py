@@ -31,7 +31,7 @@ from typing import Any, Iterator
 import numpy as np
 
 from .errors import OutputError, path_kind
-from .trace import as_trace, jsonable
+from .trace import as_trace, json_default
 
 LOCK = ".mosaic.lock"
 RUN_FILE = "run.json"
@@ -282,29 +282,6 @@ class RunOutputs:
         self.close(exc)
 
 
-def json_default(x: Any) -> Any:
-    """What the JSON encoder cannot write itself: numpy arrays and scalars, objects with `to_dict`, the rest as
-    text (the conversions of `trace.jsonable`, done only where such a value is met)."""
-    if isinstance(x, np.ndarray):
-        return x.tolist()
-    if isinstance(x, np.generic):
-        return x.item()
-    if hasattr(x, "to_dict"):
-        return x.to_dict()
-    if isinstance(x, (set, frozenset)):
-        return sorted(x, key=str)
-    return str(x)
-
-
-def to_plain(obj: Any) -> Any:
-    """`obj` as plain JSON values (dicts with string keys, lists, numbers, strings): one encode and one decode in
-    C, linear in the size (a per-value Python walk took seconds on a 100 k-object result)."""
-    try:
-        return json.loads(json.dumps(obj, default=json_default))
-    except TypeError:  # a key JSON cannot hold (a tuple): the per-value walk names keys as text
-        return json.loads(json.dumps(jsonable(obj), default=json_default))
-
-
 def json_text(obj: Any, indent_below: int = 200_000) -> str:
     """JSON text of `obj`, always by the C encoder: indented by 1 when its compact form is under `indent_below`
     characters (the indenting encoder is pure Python: a trace with 12,500 evidence rows took seconds), else one
@@ -372,7 +349,7 @@ def write_error_message(e: OSError, folder: Path) -> str:
 
 def save_run(outs: RunOutputs, items: list[tuple[str, str, Any]]) -> tuple[dict[str, str], str | None, int]:
     """Stage then commit every item `(key, file name, dict | str | RGB [H, W, 3] uint8 | an object with
-    `json_text(run_id=...)`, e.g. a SemanticMap)` as one group.
+    `json_bytes(run_id=...)`, e.g. a SemanticMap)` as one group.
 
     Returns ({key: path}, None, 0) when all were written, else ({}, one `error:` line, exit code): the caller
     still prints its answer, and the folder keeps the previous run's files (nothing was renamed)."""
@@ -380,8 +357,8 @@ def save_run(outs: RunOutputs, items: list[tuple[str, str, Any]]) -> tuple[dict[
         for _, name, obj in items:
             if isinstance(obj, np.ndarray):
                 outs.add_png(name, obj)
-            elif hasattr(obj, "json_text"):  # a semantic map writes its own JSON (one line per object, fast)
-                outs._stage(name, obj.json_text(run_id=outs.run_id).encode())
+            elif hasattr(obj, "json_bytes"):  # a semantic map writes its own JSON (a read map unchanged: a copy)
+                outs._stage(name, obj.json_bytes(run_id=outs.run_id))
             elif isinstance(obj, str):
                 outs.add_text(name, obj)
             else:

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from itertools import chain
+from itertools import chain, repeat
 from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
@@ -342,7 +342,7 @@ class Obj(Spec):
                         msg = self.unknown(k, known) if self.unknown else None
                         raise _fail(at, i, msg or f"has an unknown key {k!r}; known keys: {', '.join(known)}")
         for k, f in self.fields.items():
-            col = [v.get(k, MISSING) for v in vals]
+            col = list(map(dict.get, vals, repeat(k), repeat(MISSING)))  # in C: a column of 100 k objects
             sub = (lambda kk: (lambda j: f"{at(j)}.{kk}" if at(j) else str(kk)))(k)
             missing = [i for i, c in enumerate(col) if c is MISSING] if MISSING in col else []
             if missing:

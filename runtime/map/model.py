@@ -8,10 +8,14 @@ the hull of what the key frames' depth saw (`extent.room_extent`). The benchmark
 """
 from __future__ import annotations
 
+import gc
 import json
 import os
+import re
+from contextlib import contextmanager
 from dataclasses import dataclass, field
-from typing import Any, Iterable
+from operator import attrgetter
+from typing import Any, Iterable, Iterator
 
 import numpy as np
 
@@ -163,7 +167,7 @@ class SemanticMap:
     def box_arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Every instance's box as stacked arrays: centroids [N, 3], axis lengths [N, 3], axes [N, 3, 3] (rows),
         kept until an instance or a box is replaced (a big map's image, text, checks and file read them once)."""
-        key = tuple(id(o.box) for o in self.instances)
+        key = _box_key(self.instances)
         cached = self.__dict__.get("_boxes")
         if cached is None or cached[0] != key:
             n = len(self.instances)
@@ -211,7 +215,7 @@ class SemanticMap:
                    [(float(c["t"]), np.asarray(c["T_wc"], dtype=np.float64).reshape(4, 4))
                     for c in d.get("cameras", [])],
                    dict(d.get("meta", {})))
-        smap.__dict__["_boxes"] = (tuple(id(o.box) for o in instances), arrays)  # the boxes are views of them
+        smap.__dict__["_boxes"] = (_box_key(instances), arrays)  # the boxes are views of them
         return smap
 
     def json_text(self, **extra: Any) -> str:
@@ -224,9 +228,26 @@ class SemanticMap:
         lines = _instance_lines(self.instances, self.box_arrays())
         return "{\n" + head + ',\n "instances": [\n  ' + ",\n  ".join(lines) + "\n ]\n}\n"
 
+    def json_bytes(self, **extra: Any) -> bytes:
+        """`json_text(**extra)` as UTF-8; a map read by `load` and unchanged since is its file's own text with the
+        `extra` fields set (`_with_fields`): a 100 k-object map's map.json is a copy, not a re-encoding."""
+        src = self.__dict__.get("_source")
+        if src is not None and src[2] == self._state():
+            out = _with_fields(src[0], src[1], extra)
+            if out is not None:
+                return out
+        return self.json_text(**extra).encode()
+
+    def _state(self) -> tuple[Any, ...]:
+        """Everything the map holds, to tell whether it changed since it was read (`json_bytes`)."""
+        C, L, A = self.box_arrays()
+        rows = [(o.id, o.name, o.first_seen, o.score, o.n_points, tuple(o.frames), repr(o.views) if o.views else "")
+                for o in self.instances]
+        return rows, C.tobytes(), L.tobytes(), A.tobytes(), json.dumps(self.to_dict(instances=False), default=str)
+
     def save(self, path: str | os.PathLike) -> None:
-        with open(path, "w") as f:
-            f.write(self.json_text())
+        with open(path, "wb") as f:
+            f.write(self.json_bytes())
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> "SemanticMap":
@@ -242,12 +263,16 @@ class SemanticMap:
                                  f"({MAX_MAP_OBJECTS} objects) is supported; split the scene or map fewer objects")
             with open(path, "rb") as f:
                 raw = f.read()
-            d = json.loads(raw.decode("utf-8"), parse_constant=_no_json_constant)
-        except InputError:
-            raise
-        except (OSError, ValueError, RecursionError) as e:
+        except OSError as e:
             raise InputError(f"{path}: cannot read the semantic map ({e}); build one with `mosaic map`") from e
-        return cls.from_dict(d, str(path))
+        with _gc_paused():  # millions of parsed values: the cyclic collector would walk them all again and again
+            try:
+                d = json.loads(raw.decode("utf-8"), parse_constant=_no_json_constant)
+            except (ValueError, RecursionError) as e:
+                raise InputError(f"{path}: cannot read the semantic map ({e}); build one with `mosaic map`") from e
+            smap = cls.from_dict(d, str(path))
+            smap.__dict__["_source"] = (raw, frozenset(d), smap._state())  # what `json_bytes` may copy
+        return smap
 
     # -- construction from benchmark ground truth
     @classmethod
@@ -319,8 +344,9 @@ def _instance_lines(instances: list[ObjectInstance], arrays: tuple[np.ndarray, .
 
 def _instances_from_dicts(items: list[dict[str, Any]]
                           ) -> tuple[list[ObjectInstance], tuple[np.ndarray, np.ndarray, np.ndarray]]:
-    """`[ObjectInstance.from_dict(o) for o in items]` (validated dicts) with the box arrays built at once;
-    returns (instances, (centroids [N, 3], lengths [N, 3], axes [N, 3, 3])), the boxes being views of them."""
+    """`[ObjectInstance.from_dict(o) for o in items]` (dicts the map schema accepted: ids and n_points are ints,
+    names strings) with the box arrays built at once; returns (instances, (centroids [N, 3], lengths [N, 3], axes
+    [N, 3, 3])), the boxes being views of them."""
     n = len(items)
     if not n:
         return [], (np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3, 3)))
@@ -328,10 +354,59 @@ def _instances_from_dicts(items: list[dict[str, Any]]
     C = np.array([b["centroid"] for b in boxes], np.float64).reshape(n, 3)
     L = np.array([b["axesLengths"] for b in boxes], np.float64).reshape(n, 3)
     A = np.array([b["normalizedAxes"] for b in boxes], np.float64).reshape(n, 3, 3)
-    return [ObjectInstance(int(d["id"]), str(d["name"]), OrientedBox(C[i], L[i], A[i]),
-                           None if d.get("first_seen") is None else float(d["first_seen"]),
-                           float(d.get("score", 1.0)), int(d.get("n_points", 0)), [int(f) for f in d.get("frames", [])],
-                           list(d.get("views", []))) for i, d in enumerate(items)], (C, L, A)
+    out = []
+    for d, box in zip(items, map(OrientedBox, C, L, A)):
+        fs = d.get("first_seen")
+        out.append(ObjectInstance(d["id"], d["name"], box, None if fs is None else float(fs),
+                                  float(d.get("score", 1.0)), d.get("n_points", 0), list(d.get("frames", ())),
+                                  list(d.get("views", ()))))
+    return out, (C, L, A)
+
+
+@contextmanager
+def _gc_paused() -> Iterator[None]:
+    """The cyclic garbage collector off for a block that builds many objects and no cycles (reading a map: a
+    100 k-object file parsed in about 2/3 of the time); back as it was after."""
+    was = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if was:
+            gc.enable()
+
+
+def _box_key(instances: list[ObjectInstance]) -> tuple[int, ...]:
+    """Identity of every instance's box: the stacked box arrays are kept while it is unchanged (a box is a value:
+    new numbers are a new `OrientedBox`; the boxes of a loaded map are views of the arrays, so edits show)."""
+    return tuple(map(id, map(_BOX, instances)))
+
+
+_BOX = attrgetter("box")
+_STRING = re.compile(rb'"(?:[^"\\]|\\.)*"')
+
+
+def _with_fields(raw: bytes, keys: frozenset[str], extra: dict[str, Any]) -> bytes | None:
+    """The JSON text `raw` of an object (top-level `keys`) with the string fields `extra` set: a field it lacks is
+    inserted after its `{`; one it has is replaced where the text holds it, found as the only `"key":` in the
+    text (a second one, e.g. in `meta`, and None is returned: the caller re-encodes)."""
+    body = raw.lstrip()
+    if not body.startswith(b"{"):
+        return None
+    start, head = len(raw) - len(body) + 1, []
+    for k, v in extra.items():
+        key, val = json.dumps(k).encode(), json.dumps(v).encode()
+        if not isinstance(v, str):
+            return None
+        if k not in keys:
+            head.append(key + b": " + val)
+            continue
+        hits = list(re.finditer(re.escape(key) + rb"\s*:\s*", raw))
+        old = _STRING.match(raw, hits[0].end()) if len(hits) == 1 else None
+        if old is None:
+            return None
+        raw = raw[:old.start()] + val + raw[old.end():]
+    return raw[:start] + b"".join(h + b", " for h in head) + raw[start:] if head else raw
 
 
 def room_from_boxes(boxes: Iterable[OrientedBox], extra_xy: np.ndarray | None = None) -> Room | None:
