@@ -6,6 +6,7 @@ Thin argument parsing over `pipeline.ask` (the Python API). Options of a multipl
 from __future__ import annotations
 
 import argparse
+import gc
 import json
 import re
 from pathlib import Path
@@ -21,6 +22,7 @@ from ..budget import load_profile
 from ..infra.trace import Trace
 from ..grounding import check_question
 from ..infra.bundle import COPYLEFT, load_bundle
+from ..map import SemanticMap
 from ..answer import UNIT_WORDS
 from ..answer.evidence import line
 from ..query.rules.lexicon import EXAMPLES
@@ -89,11 +91,18 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                                        if matcher != "model" else "sift")
         trace.decide("perception", perception.describe)
     out = Path(args.out) if args.out else None
-    outs = None
+    outs, frozen = None, False
     try:
         outs = RunOutputs(out) if out is not None else None  # checked and locked before the pipeline runs
         note_outputs(outs, trace)
-        res = pipeline.ask(args.source, question, options, perception=perception, bundle=args.bundle,
+        source: Any = args.source
+        if is_map:
+            source = SemanticMap.load(src)
+            # the map's objects live as long as this command: the cyclic collector would walk them at every full
+            # collection (a 100 k-object map: about a second); set aside until the command ends
+            gc.freeze()
+            frozen = True
+        res = pipeline.ask(source, question, options, perception=perception, bundle=args.bundle,
                            profile=profile, conf=conf, answerer=args.answerer, method=args.method,
                            prompt_mode=args.prompt, trace=trace, keyframes=args.keyframes,
                            render_image=out is not None, grounding=args.grounding)
@@ -111,6 +120,8 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     finally:
         if outs is not None:
             outs.close()
+        if frozen:
+            gc.unfreeze()
     d = res.to_dict(rows=bool(getattr(args, "json", True)))  # printed: the object count alone
     d.update({"schema": "mosaicthinker.ask/1", "question": question, "options": options, "files": files,
               "explain": bool(args.explain),

@@ -285,18 +285,19 @@ class RunOutputs:
 def json_text(obj: Any, indent_below: int = 200_000) -> str:
     """JSON text of `obj`, always by the C encoder: indented by 1 when its compact form is under `indent_below`
     characters (the indenting encoder is pure Python: a trace with 12,500 evidence rows took seconds), else one
-    line per top-level key (a long list one line per item)."""
+    line per top-level key (a long list one line per item). Each value is encoded once."""
     enc = json.JSONEncoder(default=json_default).encode
-    compact = enc(obj)
-    if len(compact) < indent_below or not isinstance(obj, dict):
+    if not isinstance(obj, dict):
+        compact = enc(obj)
         return (json.dumps(obj, indent=1, default=json_default) if len(compact) < indent_below else compact) + "\n"
     parts = []
     for k, v in obj.items():
         if isinstance(v, list) and len(v) > 100:
-            body = ",\n  ".join(map(enc, v))
-            parts.append(f" {enc(str(k))}: [\n  {body}\n ]")
+            parts.append(f" {enc(str(k))}: [\n  " + ",\n  ".join(map(enc, v)) + "\n ]")
         else:
             parts.append(f" {enc(str(k))}: {enc(v)}")
+    if sum(map(len, parts)) < indent_below:
+        return json.dumps(obj, indent=1, default=json_default) + "\n"
     return "{\n" + ",\n".join(parts) + "\n}\n"
 
 

@@ -272,6 +272,7 @@ class SemanticMap:
                 raise InputError(f"{path}: cannot read the semantic map ({e}); build one with `mosaic map`") from e
             smap = cls.from_dict(d, str(path))
             smap.__dict__["_source"] = (raw, frozenset(d), smap._state())  # what `json_bytes` may copy
+            del d  # freed before the collector is back: it would walk every parsed value once more
         return smap
 
     # -- construction from benchmark ground truth
