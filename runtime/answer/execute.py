@@ -59,6 +59,8 @@ def execute(program: Program, index: Any, conf: ReasonerConfig | dict | None = N
         ans.evidence = evidence.build(ctx.used, q[0], q[1], q[2], ctx.ambiguous)
         if ctx.ambiguous:  # said in the answer itself, not only in the evidence
             ans.explanation += "; " + "; ".join(evidence.ambiguity_text(a) for a in ctx.ambiguous)
+    if parsed is not None and parsed.read_as:  # the words read otherwise than typed are said with the answer
+        ans.explanation += "; " + "; ".join(parsed.read_as)
     return ans
 
 

@@ -61,5 +61,7 @@ def render(r: dict[str, Any]) -> str:
                  f"  read by: {r['how']}; type {r['qtype']}; targets {r['targets']}; cues {r['cues']}"]
         if r.get("unknown"):
             lines.append(f"  not in the vocabulary (matched by name): {', '.join(r['unknown'])}")
+        if r.get("notes"):  # spelling read otherwise, clauses set aside, words read as no object
+            lines.append(f"  read: {'; '.join(r['notes'])}")
     lines += [f"  note: {w}" for w in r.get("warnings", [])]
     return "\n".join(lines)

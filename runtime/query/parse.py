@@ -10,8 +10,10 @@ from dataclasses import dataclass, field
 from typing import Any, Iterable
 
 from .ir import NearestTo, Option, Program, iter_refs, phrases
+from .normalize import normalize
 from .rules.parse import parse_natural
 from .schema import to_json
+from .spelling import second_reading
 from .templates import parse_template
 from .text import check_question, clean_question, split_options
 
@@ -26,6 +28,7 @@ class ParsedQuestion:
     program: Program | None = None
     notes: list[str] = field(default_factory=list)
     how: str = "none"
+    read_as: list[str] = field(default_factory=list)  # spelling read otherwise ("read 'chiars' as 'chairs'")
 
     @property
     def node(self) -> Any:
@@ -85,7 +88,7 @@ class ParsedQuestion:
 
     def to_dict(self) -> dict[str, Any]:
         return {"how": self.how, "qtype": self.qtype, "targets": self.targets, "cues": self.cues,
-                "unknown": self.unknown, "notes": list(self.notes),
+                "unknown": self.unknown, "notes": list(self.notes), "read_as": list(self.read_as),
                 "program": None if self.program is None else to_json(self.program)}
 
 
@@ -105,6 +108,15 @@ def parse_question(question: str, options: list[str] | None = None, names: Itera
     if matched:
         return ParsedQuestion(q, opts, program_of(node, opts) if node is not None else None, notes,
                               "template" if node is not None else "none")
-    node, st = parse_natural(q, opts, names)
-    return ParsedQuestion(q, opts, program_of(node, opts) if node is not None else None, st.notes,
-                          "natural" if node is not None else "none")
+    text, read_as, unclear = normalize(q, names)  # typos, units, cue synonyms: in the parser's own words
+    if unclear:  # a typo as close to two words the parser uses: refused, never read one way at random
+        return ParsedQuestion(q, opts, None, read_as + [f"not understood: the word {', '.join(unclear)}; please "
+                                                        f"check its spelling"], "none", read_as)
+    node, st = parse_natural(text, opts, names)
+    if node is None:  # refused as typed: a real word that is also a swap of a word the parser uses ("closets")
+        text2, more = second_reading(text)
+        node2, st2 = parse_natural(text2, opts, names) if more else (None, st)
+        if node2 is not None:
+            read_as, node, st = read_as + more, node2, st2
+    return ParsedQuestion(q, opts, program_of(node, opts) if node is not None else None, read_as + st.notes,
+                          "natural" if node is not None else "none", read_as)

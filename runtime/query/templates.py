@@ -97,8 +97,9 @@ def _node(qtype: str, m: re.Match[str], q: str) -> tuple[Node | None, list[str]]
 _ROUTE_START = re.compile(
     r"beginning (?:at|by|near) (.+?)(?:,)? (?:and )?facing (?:into |toward |towards |to |out )?(.+?)\s*\. "
     r"you want to navigate to (.+?)\s*\. ", re.I)
-_STEP = re.compile(r"\d+\.\s*(\[please fill in\]\.?|go forward (?:until|to)\s+(.+?))\s*(?=\d+\.\s|you have reached|$)",
-                   re.I)
+# "go forward until past the bed": the bed is the waypoint ("past" is how it is reached, not an object)
+_STEP = re.compile(r"\d+\.\s*(\[please fill in\]\.?|go forward (?:until|to)\s+(?:(?:you )?(?:are |have |get )?(?:past|passed|"
+                   r"passing|beyond)\s+)?(.+?))\s*(?=\d+\.\s|you have reached|$)", re.I)
 
 
 

@@ -14,11 +14,18 @@ from .state import R, State
 from .tokens import before, direction_words, has, noun_phrases, tokens
 
 
+_FACING_IT = r"\b(?:facing|face|faces|looking at|look at|looking toward|looking towards|turned to|turned toward|" \
+             r"turned towards) (?:it|that one|that)\b"
+_CLOSENESS = {"closest", "nearest", "farthest", "furthest"}
+_OPENS = {"with", ",", ":", ";", ".", "-", "and", "", "one"}
+_AT_MY_BACK = r"(?:is )?(?:behind me|at my back|to my back)\b"
+
+
 def stance(toks: list[str], nps: list[dict[str, Any]]) -> tuple[int | None, int | None, int | None]:
     """Indices of the phrases for where I stand, what I face, and the object a side is relative to."""
     pos = face = rel = None
     for k, p in enumerate(nps):
-        b = before(toks, p, 3)
+        b = [w for w in before(toks, p, 4) if w not in _CLOSENESS][-3:]  # "facing the closest sofa": facing
         last = b[-1] if b else ""
         two = " ".join(b[-2:])
         b4 = before(toks, p, 4)
@@ -28,8 +35,12 @@ def stance(toks: list[str], nps: list[dict[str, Any]]) -> tuple[int | None, int 
         after = " ".join(toks[p["end"]:p["end"] + 5])
         ahead = re.match(AHEAD_OF_ME, after) is not None
         ahead_is = re.match(IS_AHEAD, after) is not None
-        if face is None and (last in FACE1 or two in FACE2 or (last == "with" and ahead) or ahead_is):
+        opens = last in _OPENS  # the phrase opens a clause ("..., the stove in front of me")
+        if face is None and (last in FACE1 or two in FACE2 or ((last == "with" or opens) and ahead) or ahead_is):
             face = k
+            continue
+        if pos is None and (two in ("back to", "back against") or (opens and re.match(_AT_MY_BACK, after))):
+            pos = k  # "with my back to the sofa", "the stool behind me": where I stand (the benchmark's "by")
             continue
         if rel is None and last == "of" and len(b) >= 2 and b[-2] in ("left", "right", "front", "behind", "back",
                                                                      "side"):
@@ -48,6 +59,9 @@ def direction(st: State, toks: list[str], joined: str, nps: list[dict[str, Any]]
               ) -> Node | None:
     pos, face, rel = stance(toks, nps)
     names = st.refs(nps)
+    if face is None and rel is not None and re.search(_FACING_IT, " ".join(toks)):
+        face = rel  # "is the lamp left or right of the tv when I'm by the bed facing it?": it is the tv
+        st.notes.append(f"'it' (what I face) read as the {st.phrase(names[rel])}")
     rest = [k for k in range(len(nps)) if k not in (pos, face, rel)]
     by_order = pos is None and face is not None and len(rest) >= 2 and nps[rest[0]]["start"] < nps[face]["start"]
     if by_order:  # "my spot is the stove and I look at the tv, is the sofa ...": the object named before what I face

@@ -33,9 +33,14 @@ def abs_distance(st: State, toks: list[str], joined: str, nps: list[dict[str, An
         return st.fail(f"a distance question naming {got}", "exactly two objects to measure between")
     within = None
     cond = distance_condition(st.question)
-    if cond is not None and toks[0] in COPULA:  # "is the sofa within 2 m of the tv?": yes or no
+    if cond is not None and toks[0] in COPULA and not has(joined, VALUE_ASKED_RX):  # "within 2 m of ...?": yes/no
         within = DistanceCondition(cond["op"], round(cond["threshold_m"] * 1000), cond["text"])
     return Distance(R(names[0]), R(names[1]), unit_in(joined, "m"), within)
+
+
+# "... more than 2 m from the tv? what's the actual distance": the number is asked, not only yes or no
+VALUE_ASKED_RX = (r"\b(?:actual|exact|precise|real) (?:distance|figure|number|value)\b|\bhow far exactly\b|"
+                  r"\bexactly how far\b")
 
 
 def two_names(words: list[str]) -> tuple[str, str] | None:

@@ -41,7 +41,8 @@ def strip_preamble(joined: str) -> tuple[str, dict[str, Any]]:
     return " ".join(joined.split()), extra
 
 
-ROOMS = r"(?:room|space|kitchen|bedroom|bathroom|apartment|flat|office|house|living room|area|whole space)"
+ROOMS = (r"(?:room|space|kitchen|bedroom|bathroom|apartment|flat|office|house|living room|area|whole space|place|"
+         r"home|studio|suite|lounge|hallway|scene)")
 UNITS_RX = r"(?:cm|centimet\w+|mm|millimet\w+|m|meters?|metres?|feet|foot|ft|inch(?:es)?)"
 SIMPLE_INTENTS = [(name, re.compile(rx)) for name, rx in (  # tried in this order, after the choice questions
     ("room_size", rf"\bhow (?:big|large|long|wide) is (?:the |this |our )?{ROOMS}\b|\b(?:length|width|dimensions?|"
@@ -131,7 +132,8 @@ def intent(j: str, n_obj: int, has_opts: bool) -> str | None:
         return "obj_appearance_order"
     where_i = re.sub(r"\b(?:looking|look|looked|staring) at\b", " ", j)  # "looking at A, B or C, which ...": no place
     if stance and has(where_i, r"\b(?:standing|stand|stood|sitting|sit|i am|i'm|im|i was|you are|from|at|by|next "
-                                r"to|beside|near|positioned|located|my (?:position|location|spot|place))\b"):
+                                r"to|beside|near|positioned|located|my (?:position|location|spot|place)|back (?:to|"
+                                r"against)|behind me|at my back)\b"):
         return "direction"
     if has(j, r"\b(?:distance|how far|far apart|far away|far from|how close|how near|gap (?:between|from)|separat\w*|"
                r"spacing|"

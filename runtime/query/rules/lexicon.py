@@ -147,9 +147,10 @@ PLACED_VERBS = {"am", "i'm", "im", "standing", "stand", "sitting", "sit", "be", 
 # "standing by the bed with the sofa in front of me": facing the sofa
 AHEAD_OF_ME = r"(?:in front of|ahead of|before) (?:me|us|you|it|him|her|them)\b"  # "with the sofa in front of me"
 IS_AHEAD = r"(?:is|are) (?:straight |directly |right )?(?:ahead|in front of me)\b"  # "the tv is straight ahead"
-FACING_AHEAD_RX = rf"\bwith (?:the |a |an )?[^,?]{{1,40}}? {AHEAD_OF_ME}|\b{IS_AHEAD}"
+FACING_AHEAD_RX = (rf"\bwith (?:the |a |an )?[^,?]{{1,40}}? {AHEAD_OF_ME}|\b{IS_AHEAD}|(?:^|[,:;.] )(?:the |a |an )"
+                   rf"[^,?.]{{1,40}}? {AHEAD_OF_ME}")
 FACE2 = {"looking at", "look at", "looked at", "staring at", "turned to", "turn to", "direction of", "looking toward",
-          "gazing at", "gaze at", "face to", "faced to",
+          "gazing at", "gaze at", "face to", "faced to", "facing to", "faces to",
           "look toward", "looking towards", "look towards", "eyes on", "gaze on", "looking over", "pointed at",
           "pointing at", "oriented toward", "oriented towards"}
 

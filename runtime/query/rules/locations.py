@@ -11,6 +11,10 @@ from .lexicon import (CLOSE, COPULA, DET, FAR, LOCATION, NEAR_CUES, PRONOUN_CUES
 from .state import R, State
 from .tokens import before, has, is_content, noun_phrases, tokens
 
+_LOOK = {"look", "looks", "looking", "looked", "stare", "staring", "gaze", "gazing", "glance", "glancing", "point",
+         "pointing", "pointed"}
+
+
 def location_start(toks: list[str], i: int) -> int | None:
     """Where the location words before token i begin ("next to it", "on top of it", "near it"), or None when
     token i does not follow a location word."""
@@ -18,6 +22,8 @@ def location_start(toks: list[str], i: int) -> int | None:
     if k >= 1 and toks[k] in ("to", "of"):
         k -= 1
     if k < 0 or toks[k] not in PRONOUN_CUES:
+        return None
+    if toks[k] == "at" and k >= 1 and toks[k - 1] in _LOOK:  # "look at it": what one faces, not a place
         return None
     return k - 1 if toks[k] == "top" and k >= 1 and toks[k - 1] == "on" else k
 

@@ -13,12 +13,14 @@ import re
 from dataclasses import replace
 from typing import Any, Callable, Iterable
 
+from ..cues import kind_of
 from ..ir import Nearest, Node
 from . import counting, directions, distances, measures, route
 from .intent import EXCEPT_RX, WALK_RX, intent, refuse_whole_text, route_options, strip_preamble, unread_negation
-from ..vocabulary import canonical_name, name_key
+from ..vocabulary import NAME_SYNONYMS, canonical_name, name_key
 from .distances import two_names
 from .lexicon import DET, FACE1, LOCATION, RANKS, RELATION_WORDS
+from .clauses import read_clauses
 from .locations import attachments, resolve_pronouns
 from .state import R, Refused, State
 from .tokens import before, has, noun_phrases, tokens
@@ -53,16 +55,20 @@ def parse_natural(question: str, options: list[str] | None = None, names: Iterab
     as an object, as before."""
     keys = frozenset(name_key(n) for n in names)
     node, st = _attempt(question, options, keys, mentions_first=True)
+    if node is None and st.unknown:  # refused: read only the phrases that name a known object ("the doorway")
+        node2, st2 = _attempt(question, options, keys, mentions_first=True, known_only=True)
+        if node2 is not None:
+            return st2.finish(node2), st2
     if node is None and st.dropped:  # refused without the dropped words: read every phrase as an object
         node, st = _attempt(question, options, keys, mentions_first=False)
     return (st.finish(node) if node is not None else None), st
 
 
-def _attempt(question: str, options: list[str] | None, keys: frozenset[str], mentions_first: bool
-             ) -> tuple[Node | None, State]:
+def _attempt(question: str, options: list[str] | None, keys: frozenset[str], mentions_first: bool,
+             known_only: bool = False) -> tuple[Node | None, State]:
     st = State(question, options)
     try:
-        node = _parse(st, keys if mentions_first else None)
+        node = _parse(st, keys if mentions_first else None, known_only)
     except Refused:
         node = None
     return node, st
@@ -78,7 +84,13 @@ _SUBJECTS = {"i", "i'm", "im", "you", "we", "they", "he", "she", "it", "me", "us
              "also"}
 
 
-def mentions(toks: list[str], nps: list[dict[str, Any]], keys: frozenset[str]) -> list[bool]:
+# a word after one of these is a property asked about ("more comfortable", "is it cosy"), never left out
+_DEGREE = {"more", "less", "most", "least", "as", "so", "too", "very", "really", "quite", "is", "are", "was", "were",
+           "be", "being", "looks", "seems"}
+
+
+def mentions(toks: list[str], nps: list[dict[str, Any]], keys: frozenset[str], known_only: bool = False
+             ) -> list[bool]:
     """Per phrase: read as an object? (see `parse_natural`). A phrase is left out only when it names no object,
     nothing marks it as one, and it reads as a verb or an adverb: after a subject, an object pronoun, a modal or
     a bare "to", or words ending in -ing / -ly / -ed."""
@@ -96,12 +108,17 @@ def mentions(toks: list[str], nps: list[dict[str, Any]], keys: frozenset[str]) -
             prev in _SUBJECTS or re.fullmatch(r"(?:i|you|we|they|he|she)'(?:d|ll|ve|re|m)", prev) is not None
             or all(re.search(r"(?:ing|ly)$", w) or (len(w) > 4 and w.endswith("ed")) for w in p["words"]))
 
+    if known_only:  # the second reading: words that name no known object are no object
+        return [named(p) for p in nps]
     return [named(p) or marked(p) or not verb_like(p) for p in nps]
 
 
-def _parse(st: State, keys: frozenset[str] | None) -> Node | None:
+def _parse(st: State, keys: frozenset[str] | None, known_only: bool = False) -> Node | None:
     """The parse steps, each refusing (`Refused`) rather than dropping a word it cannot apply."""
-    joined, extra = strip_preamble(" ".join(tokens(st.question)))
+    toks, read = read_clauses(tokens(st.question), lambda ph: name_key(ph) in NAME_SYNONYMS or name_key(ph) in
+                              (keys or frozenset()))
+    st.notes += [n for n in read if n not in st.notes]
+    joined, extra = strip_preamble(" ".join(toks))
     toks = resolve_pronouns(st, joined.split())
     if toks is None:
         raise Refused
@@ -109,16 +126,34 @@ def _parse(st: State, keys: frozenset[str] | None) -> Node | None:
     refuse_whole_text(st, joined, bool(st.options))
     nps_all = [p for p in noun_phrases(toks) if not p["scene"]]
     if keys is not None:  # mentions first: words that name no object and are marked as none are left out
-        keep = mentions(toks, nps_all, keys)
+        keep = mentions(toks, nps_all, keys, known_only)
+        known = mentions(toks, nps_all, keys, True)
+        st.unknown = not all(known)
+        prop = [p for p, k in zip(nps_all, known) if not k and p["start"] > 0 and toks[p["start"] - 1] in _DEGREE]
+        if known_only and prop:  # never left out: they say what is asked ("more comfortable than")
+            st.notes.append(f"'{' '.join(prop[0]['words'])}': a property the map does not hold")
+            raise Refused
+        placed = [(p, q) for p, q, k, kq in zip(nps_all, nps_all[1:], known, known[1:]) if not k and kq and
+                  set(toks[p["end"]:q["start"]]) & LOCATION]
+        if known_only and placed:  # "whatever sits by the window": the window places the unknown one, never
+            p, q = placed[0]     # stands in for it
+            st.notes.append(f"'{' '.join(toks[p['start']:q['end']])}': an object told by its place, not named")
+            raise Refused
         st.dropped = [" ".join(p["words"]) for p, k in zip(nps_all, keep) if not k]
         if st.dropped:
             nps_all = [p for p, k in zip(nps_all, keep) if k]
             st.notes.append(f"read as no object: {', '.join(repr(w) for w in st.dropped)}")
     walk = has(joined, WALK_RX) or has(joined, r"\bturn")
     kind_word = "route" if route_options(st.options) and walk else intent(joined, len(nps_all), bool(st.options))
-    if kind_word is None:
-        st.notes.append("no question type recognised (counting, count comparison, existence, size, size comparison, "
-                        "distance, nearest, direction, left-of / behind, where, list, room size, appearance order)")
+    if kind_word is None:  # no wording rule applies: the kind whose cue words score highest, if only one does
+        kind_word, why = kind_of(joined.split())
+        if kind_word is None:
+            st.notes.append("no question type recognised (counting, count comparison, existence, size, size "
+                            "comparison, distance, nearest, direction, left-of / behind, where, list, room size, "
+                            f"appearance order): {why}")
+            raise Refused
+        st.notes.append(f"the kind read from its cue words ({why})")
+    if known_only and kind_word in ("route", "obj_appearance_order"):  # every phrase is a waypoint / an object
         raise Refused
     nps = attachments(toks, nps_all) if kind_word not in ("rel_distance", "direction", "route") else nps_all
     first = next((i for i, t in enumerate(toks) if t in _TRIGGERS.get(kind_word, ())), None)

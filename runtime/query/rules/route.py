@@ -15,9 +15,10 @@ from .tokens import before
 
 # a waypoint follows a word of walking ("go forward until the tv", "walk to the door", "then the sofa")
 _WALK = {"until", "till", "reach", "reaching", "reached", "past", "toward", "towards", "then", "arrive", "arriving",
-         "forward", "to"}
+         "forward", "to", "stop", "stops", "stopping", "end", "ends", "arrives"}
 # the destination follows one of these ("navigate to the toilet", "to get to the bed", "my destination is the desk")
-_DEST = re.compile(r"\b(?:navigate|get|want to go|destination(?: is)?|goal(?: is)?|end up|target(?: is)?|heading for)"
+_DEST = re.compile(r"\b(?:navigate|get|want to go|destination(?: is)?|goal(?: is)?|end up|target(?: is)?|heading for|"
+                   r"(?:need|needs|want|wants|have|trying|going) to (?:reach|arrive at|go to|walk to|head to))"
                    r"(?: to| at| by)?$")
 # a turn to choose: "[please fill in]", or "turn" that is neither answered ("turn left") nor asked ("which turn")
 _TURN = re.compile(r"\bplease fill in\b|(?<!which )(?<!what )(?<!which way to )\bturn(?:s|ing)?\b"
@@ -94,4 +95,5 @@ def _moves(toks: list[str], p: dict[str, Any]) -> bool:
 def _later_walk(toks: list[str], p: dict[str, Any]) -> bool:
     """Whether the destination phrase is also walked to (a walking word right before it)."""
     b = before(toks, p, 2)
-    return bool(b) and b[-1] in ("until", "till", "reach", "reaching")
+    wish = set(before(toks, p, 4)) & {"need", "needs", "want", "wants", "have", "trying", "going"}
+    return bool(b) and b[-1] in ("until", "till", "reach", "reaching") and not wish  # "need to reach X": the goal
