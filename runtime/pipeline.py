@@ -21,6 +21,7 @@ from typing import Any, Collection, Mapping, Sequence
 import numpy as np
 
 from .budget import controller_for
+from . import health
 from .conf import PipelineConfig
 from .frames import FrameSource
 from .infra.errors import InputError
@@ -340,6 +341,7 @@ def build_map(source: FrameSource, targets: Sequence[str], cues: Sequence[str] =
         raise InputError("build_map needs a Perception (bundle models or the synthetic oracle)")
     conf = conf if isinstance(conf, PipelineConfig) else PipelineConfig.merged(conf)
     trace = trace if trace is not None else Trace()
+    _say(trace, health.sample_frames(source))
     loaded0 = (getattr(source, "load_seconds", 0.0), getattr(source, "loads", 0))
     names, perception, K = _start_build(source, targets, cues, perception, conf, trace, keyframes, budget)
     scanned = scan(source, conf, trace, budget)  # its thumbnails serve the search and the bridges
@@ -349,6 +351,7 @@ def build_map(source: FrameSource, targets: Sequence[str], cues: Sequence[str] =
     with _stage(budget, trace, "perception"):
         p = perceive_keyframes(source, chosen, det, names, perception, conf, fconf, budget, scanned.counts)
     trace.record(p.log)
+    _say(trace, health.frame_notes([health.frame_health(f.rgb, f.depth) for f in p.frames]))
     al, matcher = _align(p, source, perception, conf, trace, budget, scanned.thumbs)
     log = StageLog()
     with trace.stage("gravity"):
@@ -396,26 +399,43 @@ class AskResult:
     question: Any = None
     method: str = "mosaic"
 
-    def to_dict(self) -> dict[str, Any]:
+    def to_dict(self, rows: bool = True) -> dict[str, Any]:
+        """The result as JSON values; rows=False leaves out the per-object rows (`instances`; `objects` counts
+        them): a printed answer shows only the count, and 100 k rows cost about a second."""
         return {"answer": self.answer.text, "status": self.answer.status, "value": self.answer.value,
                 "unit": self.answer.unit,
                 "explanation": self.answer.explanation, "qtype": self.answer.qtype, "missing": self.answer.missing,
                 "method": self.method,
                 "grounding": None if self.question is None else self.question.to_dict(),
-                "instances": None if self.map is None else [
-                    {"id": o.id, "name": o.name, "centre": np.round(o.center, 3).tolist(),
-                     "size": np.round(np.asarray(o.box.axes_lengths), 3).tolist(), "first_seen": o.first_seen}
-                    for o in self.map.instances],
+                "objects": None if self.map is None else len(self.map.instances),
+                "instances": None if self.map is None or not rows else _instance_rows(self.map),
                 "keyframes": None if self.build is None else self.build.keyframes,
                 # key frames left out of the map (no verified pose): stated with the answer, not only in the trace
                 "unaligned": None if self.build is None else sorted(self.build.unaligned)}
+
+
+def _say(trace: Trace, notes: list[str]) -> None:
+    """Input health notes (`health`) as "input" events: the printed answer and the JSON result repeat them."""
+    for n in notes:
+        trace.event("input", n, stage="health")
+
+
+def _instance_rows(smap: SemanticMap) -> list[dict[str, Any]]:
+    """id, name, centre and size (3 decimals), first_seen of every instance (rounded for all at once)."""
+    instances = smap.instances
+    if not instances:
+        return []
+    C, L, _ = smap.box_arrays()
+    c, s = np.round(C, 3).tolist(), np.round(L, 3).tolist()
+    return [{"id": o.id, "name": o.name, "centre": ci, "size": si, "first_seen": o.first_seen}
+            for o, ci, si in zip(instances, c, s)]
 
 
 def _open(source: Any, trace: Trace | None = None) -> FrameSource | SemanticMap:
     if isinstance(source, (FrameSource, SemanticMap)):
         return source
     p = Path(source)
-    if p.is_file() and p.suffix.lower() == ".json":
+    if p.suffix.lower() == ".json":  # a map file: a folder, FIFO or loop of that name is said as such
         return SemanticMap.load(p)
     if p.is_dir() and (p / "map.json").is_file() and not any(p.glob("frame-*")) and not any(
             q.suffix.lower() in (".jpg", ".png", ".mp4") and q.name != "map.png" for q in p.iterdir()):
@@ -550,6 +570,7 @@ def ask(source: Any, question: str, options: list[str] | None = None, *, percept
         build = build_map(src, _whole_map_targets(pq, bundle, trace), pq.cues, perception, conf, trace, keyframes,
                           budget)
         smap = build.map
+    _say(trace, health.map_notes(smap))
     with trace.stage("prompt"):
         vp = _render_prompt(smap, build, prompt_mode, render_image or vlm is not None)
     with trace.stage("answer"):

@@ -180,7 +180,7 @@ def _case_maps():
         ("map_zero_axes", lambda t: ["ask", edit_map(t, lambda d: _set(d, box + ".normalizedAxes", [0] * 9)), Q_DIST],
          2, "orthonormal"),
         ("map_missing_instances", lambda t: ["ask", edit_map(t, lambda d: d.pop("instances")), Q_COUNT],
-         2, "`instances` is missing"),
+         2, "instances is missing"),
         ("map_duplicate_ids", lambda t: ["ask", edit_map(t, lambda d: _set(d, "instances.1.id", 0)), Q_COUNT],
          2, "duplicates"),
         ("map_not_json", lambda t: ["ask", _write(t / "map.json", b"{\"schema\": "), Q_COUNT], 2, "cannot read"),
@@ -281,7 +281,7 @@ def _case_profiles():
         ("input_size_int", lambda t: pl + [profile_with(t, "input_size_px = [\n    640,\n    448,\n]", "input_size_px = 640"),
                                            *clip], 2, "input_size_px"),
         ("threads_huge", lambda t: pl + [profile_with(t, "intra_op_threads = 2", "intra_op_threads = 100000"), *clip],
-         2, "runtime.intra_op_threads must be 1..256"),
+         2, "runtime.intra_op_threads must be an integer in 1..256"),
         ("affinity_bad", lambda t: pl + [profile_with(t, "intra_op_threads = 2",
                                                       "intra_op_threads = 2\ncore_affinity = [1, 1]"), *clip],
          2, "core_affinity"),
@@ -633,7 +633,9 @@ def test_late_write_failure_still_prints_the_answer(tmp_path, capsys, monkeypatc
     assert code == 2 and stdout.startswith("answer: 4.0")
     assert err.startswith("error: could not write the output files") and "disk is full" in err
     assert (out / "map.json").read_bytes() == before  # the previous run's files, untouched
-    assert json.loads((out / "run.json").read_text())["status"] == "running"  # and marked as not current
+    run = json.loads((out / "run.json").read_text())
+    assert run["status"] == "failed" and "No space left" in run["reason"]  # and marked as not current
+    assert run["previous"]["status"] == "complete" and run["previous"]["files"]  # whose files the folder keeps
 
 
 def test_internal_error_is_one_line_and_traceback_only_with_debug(tmp_path, capsys, monkeypatch):

@@ -143,3 +143,39 @@ def test_box_distance_hand_cases():
     # flat boxes (zero height) still work
     f = OrientedBox(np.array([0, 0, 2.0]), np.array([1.0, 1.0, 0.0]), np.eye(3))
     assert box_distance(a, f) == pytest.approx(1.5)
+
+
+def _small_map() -> SemanticMap:
+    inst = [ObjectInstance(i, ("chair", "table")[i % 2], OrientedBox(np.array([i, 0.5, 0.4]), np.array([0.5, 0.4, 0.8]),
+                                                                  np.eye(3)), float(i), 0.9, 10, [i]) for i in range(4)]
+    return SemanticMap(inst, None, [(0.0, np.eye(4))], {"scene": "t", "note": "x"})
+
+
+@pytest.mark.parametrize("previous_run_id", [None, "20261203T000000Z-aaaa"])
+def test_an_unchanged_loaded_map_is_written_as_its_own_file_with_the_run_id(tmp_path, previous_run_id):
+    """A map read by `load` and unchanged writes its file's text with `run_id` set (inserted, or replaced where the
+    file has one): what a reader gets equals the file plus the new run id. Any change to the map, and a file whose
+    text names `"run_id":` twice, take the encoder instead: never a stale copy."""
+    p = tmp_path / "map.json"
+    d = _small_map().to_dict()
+    if previous_run_id:
+        d["run_id"] = previous_run_id
+    p.write_text(json.dumps(d, indent=2))
+    m = SemanticMap.load(p)
+    out = m.json_bytes(run_id="NEW")
+    assert json.loads(out) == {**d, "run_id": "NEW"}
+    text = p.read_bytes()  # the file's own text: the field replaced in place, or inserted after the `{`
+    assert out.count(b'"run_id"') == 1
+    assert (out.replace(b'"NEW"', json.dumps(previous_run_id).encode()) == text if previous_run_id else
+            out.endswith(text[1:]))
+    for change in (lambda m: setattr(m.instances[1], "name", "sofa"), lambda m: m.instances[2].frames.append(7),
+                   lambda m: m.instances[0].box.centroid.__setitem__(0, 9.0), lambda m: m.meta.update(scene="u"),
+                   lambda m: m.instances.pop()):
+        m = SemanticMap.load(p)
+        change(m)
+        got = json.loads(m.json_bytes(run_id="NEW"))
+        assert got == {**m.to_dict(), "run_id": "NEW"} and got != {**d, "run_id": "NEW"}
+    d["meta"]["x\\\"run_id"] = "trap"  # a key whose text ends like a run_id field: a second match
+    p.write_text(json.dumps(d))
+    got = json.loads(SemanticMap.load(p).json_bytes(run_id="NEW"))
+    assert got["run_id"] == "NEW" and got["meta"]["x\\\"run_id"] == "trap"

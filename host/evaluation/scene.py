@@ -32,7 +32,10 @@ from typing import Any
 
 import numpy as np
 
-from mosaicthinker.runtime.infra.errors import InputError
+from mosaicthinker.runtime.infra import schema as S
+from mosaicthinker.runtime.infra.bundle import strict_json_loads
+from mosaicthinker.runtime.infra.errors import InputError, check_path
+from mosaicthinker.runtime.infra.file_schemas import BOX, rigid_pose
 from mosaicthinker.runtime.geometry import OrientedBox, transform
 
 SCHEMA = "mosaicthinker.eval.scene/1"
@@ -53,16 +56,51 @@ class SceneEvalConfig:
 # ----------------------------------------------------------------------------- annotation
 
 
+ANNOTATION_SCHEMA = "mosaicthinker.scene_annotation/1"
+
+
+def _counts_agree(scene: dict[str, Any]) -> str | None:
+    for c, n in (scene.get("object_counts") or {}).items():
+        if n != len(scene["object_bbox"].get(c, [])):
+            return f"object_counts.{c} is {n} but object_bbox.{c} holds {len(scene['object_bbox'].get(c, []))} boxes"
+    for c, ids in (scene.get("instance_ids") or {}).items():
+        if len(ids) != len(scene["object_bbox"].get(c, [])):
+            return f"instance_ids.{c} names {len(ids)} instances but object_bbox.{c} holds " \
+                   f"{len(scene['object_bbox'].get(c, []))} boxes"
+    return None
+
+
+# The scene annotation (`scene_annotate` writes it): one meta_info-style scene in the annotation frame and the
+# rigid transform from the pose frame into it.
+ANNOTATION_SPEC = S.Obj(fields={
+    "schema": S.F(S.Str(enum=(ANNOTATION_SCHEMA,)), required=False),
+    "scene": S.F(S.Str(), required=False), "licence": S.F(S.Str(), required=False),
+    "frame": S.F(S.Str(), required=False), "n_frames": S.F(S.Int(lo=0, hi=10**9), required=False),
+    "not_annotated": S.F(S.AnyValue(), required=False),
+    "T_annot_from_pose": S.F(S.Arr(shape=(4, 4), lo=-1e6, hi=1e6, array_rules=(rigid_pose,))),
+    "meta_info": S.F(S.MapOf(min_len=1, rules=(lambda v: next(((i, f"holds {len(m)} scenes; an annotation holds "
+                                                                  f"exactly one") for i, m in enumerate(v)
+                                                                if len(m) != 1), None),),
+                             value=S.Obj(fields={
+                                 "object_bbox": S.F(S.MapOf(value=S.ListOf(item=BOX))),
+                                 "object_counts": S.F(S.MapOf(value=S.Int(lo=0, hi=10**6)), required=False),
+                                 "instance_ids": S.F(S.MapOf(value=S.ListOf(item=S.Str())), required=False),
+                                 "dataset": S.F(S.Str(), required=False)}, item_rules=(_counts_agree,)))),
+})
+
+
 def load_annotation(path: str | Path) -> tuple[str, dict[str, Any], np.ndarray]:
-    """(scene name, meta_info-style scene, T [4, 4] pose frame -> annotation frame) from an annotation file."""
+    """(scene name, meta_info-style scene, T [4, 4] pose frame -> annotation frame) from an annotation file,
+    checked against ANNOTATION_SPEC (a malformed field is an InputError naming it)."""
+    check_path(path, "a file", "the scene annotation")
     try:
-        doc = json.loads(Path(path).read_text())
-        (name, scene), = doc["meta_info"].items()
-        T = np.asarray(doc["T_annot_from_pose"], float).reshape(4, 4)
-    except (OSError, ValueError, KeyError, TypeError) as e:
-        raise InputError(f"{path}: not a scene annotation (need `meta_info` with one scene and "
-                         f"`T_annot_from_pose`; make one with scene_annotate) ({e})") from e
-    return name, scene, T
+        doc = strict_json_loads(Path(path).read_bytes(), str(path))
+    except OSError as e:
+        raise InputError(f"{path}: cannot read the scene annotation ({e.strerror or e})") from e
+    S.check(doc, ANNOTATION_SPEC, where=str(path), error=InputError,
+            fix="fix that field or make the annotation again with scene_annotate")
+    (name, scene), = doc["meta_info"].items()
+    return name, scene, np.asarray(doc["T_annot_from_pose"], float).reshape(4, 4)
 
 
 def load_gt_boxes(path: str | Path) -> tuple[str, dict[str, Any], np.ndarray]:

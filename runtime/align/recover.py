@@ -359,8 +359,8 @@ def bridge_chain(al: AlignmentResult, pool: dict[int, Frame], a: int, u: int, so
         if attach_frames(al, pool, [u], matcher, conf, tries=1):
             break
         gap = abs(float(ts[u]) - float(ts[end]))
-        if gap < 2 * conf.bridge_gap_s:
-            break  # no room for a bridge frame
+        if gap < 2 * conf.bridge_gap_s or abs(u - end) < 2:
+            break  # no room for a bridge frame (in time, or no frame at all between: sparse frames far apart)
         step, moved = (1 if u > end else -1), False
         for jump in chain_jumps(gap, conf.bridge_gap_s):  # a blurred frame is skipped
             if budget <= 0 or moved:

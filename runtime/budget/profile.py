@@ -32,9 +32,12 @@ from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
-from ..infra.errors import ProfileError
-from ..infra.trace import Trace, as_trace
+from ..infra.bundle import ROLES as BUNDLE_ROLES
 from ..infra.bundle import load_bundle
+from ..infra.errors import ProfileError, path_kind
+from ..infra.file_schemas import profile_spec
+from ..infra.schema import check
+from ..infra.trace import Trace, as_trace
 import psutil
 
 if sys.version_info >= (3, 11):
@@ -43,7 +46,7 @@ else:  # pragma: no cover - python 3.10
     import tomli as tomllib
 
 PROFILE_SCHEMA = "mosaicthinker.profile/1"
-ROLES = ("depth", "segmenter", "instance_segmenter", "matcher", "detector", "embedder", "vlm")
+ROLES = BUNDLE_ROLES  # the model roles have one home: the bundle
 PRECISIONS = ("fp32", "fp16", "int8")
 INT8_KINDS = ("dynamic", "qdq")
 KNOWN_PROVIDERS = (
@@ -533,11 +536,28 @@ def _parse_cost_tables(data: Mapping[str, Any], w: str) -> tuple[dict[str, CostE
     return costs, paper_costs
 
 
+def _unknown_key(key: str, known: tuple[str, ...]) -> str:
+    hint = _unit_hint(key, known)
+    if hint:
+        return f"key {key!r} has the wrong unit; this project writes it as {hint!r} (convert the value)"
+    return f"has an unknown key {key!r}; known keys: {', '.join(known)}"
+
+
+def _spec() -> Any:
+    return profile_spec(COST_ITEMS, ROLES, PRECISIONS, INT8_KINDS, KNOWN_PROVIDERS, MAX_THREADS, _unknown_key)
+
+
 def parse_profile(data: Mapping[str, Any], path: str | os.PathLike | None = None) -> Profile:
     """Validate a profile dict (as read from TOML) and build a Profile. Raises ProfileError naming the
-    file and field: unknown key, wrong unit, negative or non-numeric value, missing field, bad provider."""
+    file and field: unknown key, wrong unit, negative or non-numeric value, missing field, bad provider.
+    Types, ranges and enums come from the schema (`file_schemas.profile_spec`); what fields mean together
+    (a chain ending on CPU, int8 kinds, provenance) is checked below."""
     path = Path(path) if path else None
     w = _where(path)
+    if isinstance(data, Mapping) and data.get("schema") != PROFILE_SCHEMA:
+        raise ProfileError(f"{w}: field 'schema' is {data.get('schema')!r}; expected {PROFILE_SCHEMA!r}")
+    check(dict(data) if isinstance(data, Mapping) else data, _spec(), where=w, error=ProfileError,
+          fix="fix the profile (docs/budgets.md lists its fields)")
     _check_sections(data, w)
     bud = data["budget"]
     lat = _check_number(bud["latency_budget_ms"], f"{w}: budget.latency_budget_ms", positive=True)
@@ -558,6 +578,10 @@ def resolve_profile_path(name_or_path: str | os.PathLike) -> Path:
     p = Path(name_or_path)
     if p.is_file():
         return p
+    if os.path.lexists(p) or os.sep in str(name_or_path) or str(name_or_path).endswith(".toml"):
+        kind = path_kind(p)
+        if kind != "missing":
+            raise ProfileError(f"{p}: the profile is {kind}; give a profile file (profiles/*.toml)")
     for cand in (ROOT_PROFILES / f"{name_or_path}.toml", ROOT_PROFILES / str(name_or_path)):
         if cand.is_file():
             return cand

@@ -6,6 +6,7 @@ Thin argument parsing over `pipeline.ask` (the Python API). Options of a multipl
 from __future__ import annotations
 
 import argparse
+import gc
 import json
 import re
 from pathlib import Path
@@ -21,6 +22,7 @@ from ..budget import load_profile
 from ..infra.trace import Trace
 from ..grounding import check_question
 from ..infra.bundle import COPYLEFT, load_bundle
+from ..map import SemanticMap
 from ..answer import UNIT_WORDS
 from ..answer.evidence import line
 from ..query.rules.lexicon import EXAMPLES
@@ -89,10 +91,18 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                                        if matcher != "model" else "sift")
         trace.decide("perception", perception.describe)
     out = Path(args.out) if args.out else None
-    outs = RunOutputs(out) if out is not None else None  # checked and locked before the pipeline runs
+    outs, gc_off = None, False
     try:
+        outs = RunOutputs(out) if out is not None else None  # checked and locked before the pipeline runs
         note_outputs(outs, trace)
-        res = pipeline.ask(args.source, question, options, perception=perception, bundle=args.bundle,
+        source: Any = args.source
+        if is_map:
+            source = SemanticMap.load(src)
+            # answering a saved map makes no reference cycles worth collecting, while the cyclic collector would
+            # walk the map's objects again and again (100 k objects: 1-1.5 s of CPU): off until the command ends
+            gc_off = gc.isenabled()
+            gc.disable()
+        res = pipeline.ask(source, question, options, perception=perception, bundle=args.bundle,
                            profile=profile, conf=conf, answerer=args.answerer, method=args.method,
                            prompt_mode=args.prompt, trace=trace, keyframes=args.keyframes,
                            render_image=out is not None, grounding=args.grounding)
@@ -104,13 +114,15 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
             if res.prompt is not None:  # the text the VLM gets (with the image unless --prompt text)
                 items.append(("prompt_txt", "prompt.txt", res.prompt.full_text(question, options)))
             if res.map is not None:
-                items.append(("map_json", "map.json", res.map.to_dict()))
+                items.append(("map_json", "map.json", res.map))
             items.append(("trace_json", "trace.json", trace.to_dict()))
             files, write_error, code = save_run(outs, items)
     finally:
         if outs is not None:
             outs.close()
-    d = res.to_dict()
+        if gc_off:
+            gc.enable()
+    d = res.to_dict(rows=bool(getattr(args, "json", True)))  # printed: the object count alone
     d.update({"schema": "mosaicthinker.ask/1", "question": question, "options": options, "files": files,
               "explain": bool(args.explain),
               "warnings": [e["message"] for e in trace.events if e["kind"] in WARNING_KINDS],
@@ -118,7 +130,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
               "ran": what_ran(trace, args.depth, res.build is not None),
               "undetectable": sorted({n for e in trace.events if e["kind"] == "undetectable"
                                       for n in e.get("names", [])}),
-              "seconds": trace.to_dict()["wall_seconds"]})
+              "seconds": trace.wall_seconds()})
     if outs is not None:
         d.update({"run_id": outs.run_id, "write_error": write_error, "exit_code": code or d.get("exit_code", 0)})
     return d
@@ -185,8 +197,8 @@ def render(r: dict[str, Any]) -> str:
         prog = g.get("program")
         lines.append(f"  program ({g.get('how', 'none')}): " + (json.dumps(prog["ask"]) if prog else
                                                                 "none (" + "; ".join(g.get("notes") or []) + ")"))
-    if r.get("instances") is not None:
-        lines.append(f"  map: {len(r['instances'])} object(s)" + (f" from {len(r['keyframes'])} key frames"
+    if r.get("objects") is not None:
+        lines.append(f"  map: {r['objects']} object(s)" + (f" from {len(r['keyframes'])} key frames"
                                                                    if r.get("keyframes") else "")
                      + (f" ({len(r['unaligned'])} unaligned, left out)" if r.get("unaligned") is not None else ""))
 

@@ -108,7 +108,7 @@ def _run(args: argparse.Namespace, src: Path, outs: RunOutputs, paths: tuple[Pat
     vp = render_prompt(build.map, {"mode": args.prompt}, pts, ids)
     # the text the VLM gets with map.png: prompt.txt beside it (NAME.prompt.txt beside NAME.png)
     txt_name = "prompt.txt" if png_path.name == "map.png" else png_path.stem + ".prompt.txt"
-    files, write_error, code = save_run(outs, [("map_json", map_path.name, build.map.to_dict()),
+    files, write_error, code = save_run(outs, [("map_json", map_path.name, build.map),
                                                ("map_png", png_path.name, vp.image),
                                                ("prompt_txt", txt_name, vp.full_text()),
                                                ("trace_json", trace_path.name, trace.to_dict())])
@@ -119,7 +119,7 @@ def _run(args: argparse.Namespace, src: Path, outs: RunOutputs, paths: tuple[Pat
             "warnings": [e["message"] for e in trace.events if e["kind"] in ("fallback", "degraded",
                                                                              "random_weights", "not_in_map",
                                                                              "output", "input")],
-            "seconds": trace.to_dict()["wall_seconds"]}
+            "seconds": trace.wall_seconds()}
 
 
 def render(r: dict[str, Any]) -> str:

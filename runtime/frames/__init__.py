@@ -19,7 +19,7 @@ import os
 from pathlib import Path
 from typing import Any
 
-from ..infra.errors import InputError
+from ..infra.errors import InputError, path_kind
 from .folders import ImageFolderSource, SevenScenesSource, TUMSource
 from .source import (IMAGE_EXTS, VIDEO_EXTS, FrameList, FrameSource, _show, check_intrinsics, imread_path,
                      imwrite_path, small_gray, world_down)
@@ -36,8 +36,10 @@ def open_source(path: str | os.PathLike, **opts: Any) -> FrameSource:
     opts go to the source class (e.g. `hfov_deg`, `fps`, `K`, `cache_size`, `max_frames`)."""
     p = Path(path)
     opts = {k: v for k, v in opts.items() if v is not None}
-    if not p.exists():
-        raise InputError(f"{_show(p)}: no such file or folder")
+    kind = path_kind(p)
+    if kind not in ("a file", "a folder"):  # a FIFO would block the first read; a loop is not "missing"
+        raise InputError(f"{_show(p)}: {'no such file or folder' if kind == 'missing' else kind}; give a video "
+                         f"file or a folder of frames")
     if p.is_file():
         if p.suffix.lower() in IMAGE_EXTS:
             raise InputError(f"{p}: a single image is not a frame source; give its folder")

@@ -11,7 +11,7 @@ from typing import Any, Iterator, Sequence
 import cv2
 import numpy as np
 
-from ..infra.errors import InputError
+from ..infra.errors import InputError, path_kind
 from ..infra.lru import LRU
 from ..types import Frame
 
@@ -31,7 +31,7 @@ def _read_bytes(path: Path, what: str) -> np.ndarray:
     """File bytes as a uint8 array. Reading through Python, not cv2.imread(str(path)), keeps file names that
     are not valid UTF-8 (undecodable bytes as surrogates) from reaching OpenCV's C++ path handling."""
     if not path.is_file():
-        raise InputError(f"{_show(path)}: {what} file is missing")
+        raise InputError(f"{_show(path)}: the {what} file is {path_kind(path)}; give a readable file")
     try:
         return np.frombuffer(path.read_bytes(), np.uint8)
     except OSError as e:

@@ -65,7 +65,8 @@ from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath
 from typing import Any, Iterator
 
-from .errors import BundleError, InputError
+from .errors import BundleError, InputError, path_kind
+from .file_schemas import check_manifest
 
 SCHEMA = "mosaicthinker.bundle/1"
 SUPPORTED_SCHEMAS = (SCHEMA,)
@@ -77,8 +78,6 @@ OVERRIDABLE = ("arch", "name", "preprocessing", "semantics", "provenance", "lice
 DEPTH_SEMANTICS = ("metric_m", "relative", "relative_inverse")
 # Variant preference when the caller names none and the role has no default_variant.
 VARIANT_PREFERENCE = ("fp32", "fp16", "int8-dynamic", "int8-qdq")
-_ROLE_REQUIRED = ("arch", "variants", "licence", "random_weights", "provenance")
-_COMPONENT_REQUIRED = ("file", "sha256", "format", "inputs", "outputs")
 
 
 def sha256_file(path: str | os.PathLike) -> str:
@@ -247,9 +246,7 @@ class Bundle:
             comps[cname] = Component(cname, path, cmeta)
         if not comps:
             raise BundleError(f"{self.manifest_path}: roles.{role}.variants.{vname}.components is empty")
-        if vmeta.get("overrides"):  # another model for this role: its own arch, labels, licence ...
-            meta = {**meta, **{k: v for k, v in vmeta["overrides"].items() if k in OVERRIDABLE}}
-        return RoleSpec(self, role, vname, meta, vmeta, comps)
+        return RoleSpec(self, role, vname, variant_meta(meta, vmeta), vmeta, comps)
 
     def file(self, ref: dict | None, where: str) -> Path:
         """A checked artifact path for a `{file, sha256}` reference of the manifest (e.g. a role's tokenizer):
@@ -352,122 +349,21 @@ def _shape_str(io: dict) -> str:
     return "[" + ",".join(str(s) for s in shape) + "]"
 
 
+def variant_meta(meta: dict[str, Any], vmeta: dict[str, Any]) -> dict[str, Any]:
+    """The role entry a variant runs with: the role's fields, with the variant's `overrides` (another model for
+    this role: its own arch, labels, licence ...) over them."""
+    if not vmeta.get("overrides"):
+        return meta
+    return {**meta, **{k: v for k, v in vmeta["overrides"].items() if k in OVERRIDABLE}}
+
+
 def check_schema(manifest: Any, where: str = MANIFEST) -> None:
-    """Structural checks (schema version, required fields, types). Raises BundleError naming the field."""
-    if not isinstance(manifest, dict):
-        raise BundleError(f"{where}: expected a JSON object at top level")
-    schema = manifest.get("schema")
-    if schema not in SUPPORTED_SCHEMAS:
-        raise BundleError(f"{where}: unknown schema version {schema!r} (this runtime reads {SUPPORTED_SCHEMAS}); "
-                          f"upgrade mosaicthinker or re-export the bundle")
-    roles = manifest.get("roles")
-    if not isinstance(roles, dict):
-        raise BundleError(f"{where}: field 'roles' must be an object")
-    for r, m in roles.items():
-        if not isinstance(m, dict):
-            raise BundleError(f"{where}: roles.{r} must be an object")
-        for k in _ROLE_REQUIRED:
-            if k not in m:
-                raise BundleError(f"{where}: roles.{r}.{k} is missing")
-        if not isinstance(m["variants"], dict):
-            raise BundleError(f"{where}: roles.{r}.variants must be an object")
-        _check_role_types(m, f"{where}: roles.{r}")
-        _check_role_semantics(r, m, f"{where}: roles.{r}")
-        for v, vm in m["variants"].items():
-            ov = vm.get("overrides") if isinstance(vm, dict) else None
-            if ov is not None:
-                if not isinstance(ov, dict) or set(ov) - set(OVERRIDABLE):
-                    raise BundleError(f"{where}: roles.{r}.variants.{v}.overrides must be an object with fields of "
-                                      f"{list(OVERRIDABLE)}")
-                _check_role_types({**m, **ov}, f"{where}: roles.{r}.variants.{v}.overrides")
-                _check_role_semantics(r, {**m, **ov}, f"{where}: roles.{r}.variants.{v}.overrides")
-        for v, vm in m["variants"].items():
-            if not isinstance(vm, dict) or not isinstance(vm.get("components"), dict):
-                raise BundleError(f"{where}: roles.{r}.variants.{v}.components must be an object")
-            for c, cm in vm["components"].items():
-                if not isinstance(cm, dict):
-                    raise BundleError(f"{where}: roles.{r}.variants.{v}.components.{c} must be an object")
-                for k in _COMPONENT_REQUIRED:
-                    if k not in cm:
-                        raise BundleError(f"{where}: roles.{r}.variants.{v}.components.{c}.{k} is missing")
-                _check_component_types(cm, f"{where}: roles.{r}.variants.{v}.components.{c}")
-
-
-def _check_role_semantics(r: str, m: dict[str, Any], w: str) -> None:
-    """What a role's semantics must say: depth its kind, a detector or instance segmenter its vocabulary (and
-    labels when closed). `w` names the role (or the variant override) in the message."""
-    sem = m.get("semantics", {})
-    if r == "depth" and sem.get("depth") not in DEPTH_SEMANTICS:
-        raise BundleError(f"{w}.semantics.depth is {sem.get('depth')!r}; expected one of {DEPTH_SEMANTICS}")
-    if r in ("detector", "instance_segmenter"):
-        voc = sem.get("vocabulary")
-        if voc not in ("open", "closed"):
-            raise BundleError(f"{w}.semantics.vocabulary is {voc!r}; expected open|closed")
-        if voc == "closed" and not sem.get("labels"):
-            raise BundleError(f"{w}.semantics.labels is required for a closed vocabulary")
-
-
-_HEX = frozenset("0123456789abcdefABCDEF")
-
-
-def _is_num(x: Any) -> bool:
-    return isinstance(x, (int, float)) and not isinstance(x, bool) and x == x and abs(x) != float("inf")
-
-
-def _bad(field: str, want: str, got: Any) -> BundleError:
-    return BundleError(f"{field} must be {want}, got {type(got).__name__} {got!r:.60}; fix the manifest or "
-                       f"re-export the role")
-
-
-def _check_role_types(m: dict[str, Any], w: str) -> None:
-    """Field types of one role: a wrong type would be misread silently (labels as a string become letters)
-    or crash later, far from the manifest."""
-    if not isinstance(m["random_weights"], bool):
-        raise _bad(f"{w}.random_weights", "true or false (JSON boolean)", m["random_weights"])
-    for k in ("semantics", "preprocessing", "config", "provenance"):
-        if k in m and not isinstance(m[k], dict):
-            raise _bad(f"{w}.{k}", "an object", m[k])
-    if "default_variant" in m and not (isinstance(m["default_variant"], str) and m["default_variant"] in m["variants"]):
-        raise _bad(f"{w}.default_variant", f"one of the variant names {sorted(m['variants'])}", m["default_variant"])
-    labels = m.get("semantics", {}).get("labels")
-    if labels is not None and not (isinstance(labels, list) and all(isinstance(x, str) for x in labels)):
-        raise _bad(f"{w}.semantics.labels", "a list of strings", labels)
-    pp = m.get("preprocessing", {})
-    size = pp.get("size")
-    if size is not None and not (isinstance(size, list) and len(size) == 2 and all(
-            isinstance(x, int) and not isinstance(x, bool) and 0 < x <= 16384 for x in size)):
-        raise _bad(f"{w}.preprocessing.size", "[height, width] as two positive integers", size)
-    if "scale" in pp and pp["scale"] is not None and not (_is_num(pp["scale"]) and pp["scale"] > 0):
-        raise _bad(f"{w}.preprocessing.scale", "a positive number", pp["scale"])
-    if "dtype" in pp and pp["dtype"] not in ("float32", "float16", "uint8"):
-        raise _bad(f"{w}.preprocessing.dtype", "one of float32, float16, uint8", pp["dtype"])
-    for k in ("mean", "std"):
-        v = pp.get(k)
-        if v is not None and not (isinstance(v, list) and len(v) in (1, 3) and all(_is_num(x) for x in v)
-                                  and (k == "mean" or all(x != 0 for x in v))):
-            raise _bad(f"{w}.preprocessing.{k}", "a list of 3 numbers" + (" (non-zero)" if k == "std" else ""), v)
-    # layout "patches": a GenAI VLM package whose own processor cuts the image into patches (vlm_genai.py)
-    for k, allowed in (("layout", ("NHWC", "NCHW", "PATCHES")), ("channel_order", ("RGB", "BGR"))):
-        if k in pp and not (isinstance(pp[k], str) and pp[k].upper() in allowed):
-            raise _bad(f"{w}.preprocessing.{k}", " or ".join(allowed), pp[k])
-
-
-def _check_component_types(cm: dict[str, Any], w: str) -> None:
-    sha = cm["sha256"]
-    if not (isinstance(sha, str) and len(sha) == 64 and set(sha) <= _HEX):
-        raise _bad(f"{w}.sha256", "64 hex digits", sha)
-    for k in ("inputs", "outputs"):
-        if not isinstance(cm[k], list) or not all(isinstance(io, dict) for io in cm[k]):
-            raise _bad(f"{w}.{k}", "a list of objects", cm[k])
-        for i, io in enumerate(cm[k]):
-            shape = io.get("shape", [])
-            if not (isinstance(shape, list) and all(isinstance(x, int) and not isinstance(x, bool) for x in shape)):
-                raise _bad(f"{w}.{k}[{i}].shape", "a list of integers", shape)
-            if "dtype" in io and not isinstance(io["dtype"], str):
-                raise _bad(f"{w}.{k}[{i}].dtype", "a string", io["dtype"])
-    ef = cm.get("extra_files", [])
-    if not (isinstance(ef, list) and all(isinstance(e, dict) and "file" in e and "sha256" in e for e in ef)):
-        raise _bad(f"{w}.extra_files", "a list of {file, sha256} objects", ef)
+    """The manifest against its schema (`file_schemas.manifest_spec`: required fields, types, ranges, enums,
+    the fields each role's adapters read). Raises BundleError naming the field."""
+    if isinstance(manifest, dict) and manifest.get("schema") not in SUPPORTED_SCHEMAS:
+        raise BundleError(f"{where}: unknown schema version {manifest.get('schema')!r} (this runtime reads "
+                          f"{SUPPORTED_SCHEMAS}); upgrade mosaicthinker or re-export the bundle")
+    check_manifest(manifest, where, ROLES, SUPPORTED_SCHEMAS, DEPTH_SEMANTICS, OVERRIDABLE)
 
 
 def strict_json_loads(data: bytes | str, where: str) -> Any:
@@ -502,9 +398,13 @@ def read_manifest(root: str | os.PathLike) -> dict[str, Any]:
     root = Path(root)
     mp = root / MANIFEST
     if not root.is_dir():
-        raise BundleError(f"{root}: bundle folder does not exist")
+        kind = path_kind(root)
+        raise BundleError(f"{root}: bundle folder does not exist" if kind == "missing" else
+                          f"{root}: the bundle folder is {kind}; give a bundle folder")
     if not mp.is_file():
-        raise BundleError(f"{mp}: manifest.json is missing; is {root} a bundle folder?")
+        kind = path_kind(mp)
+        raise BundleError(f"{mp}: manifest.json is missing; is {root} a bundle folder?" if kind == "missing" else
+                          f"{mp}: manifest.json is {kind}; re-export the bundle")
     safe_path(root, MANIFEST, "manifest.json (a symlink out of the bundle)")
     try:
         manifest = strict_json_loads(mp.read_bytes(), str(mp))

@@ -1,6 +1,10 @@
 """One small exception hierarchy. Messages name the file/field and say what to do."""
 from __future__ import annotations
+
+import errno
+import os
 import signal
+import stat
 import threading
 
 
@@ -46,6 +50,39 @@ class ExportError(MosaicError):
 
 class OutputError(MosaicError):
     """An output folder that cannot be written (a file, read-only, full, locked by another run)."""
+
+
+def path_kind(path: "str | os.PathLike[str]") -> str:
+    """What a path is, in words for an error message: "a file", "a folder", "missing", "a broken symlink (to
+    X)", "a symlink loop", "a FIFO (named pipe)", "a socket", "a device", "unreadable (permission denied)",
+    "below a file (a path part is not a folder)", "a name too long"."""
+    try:
+        st = os.stat(path)
+    except FileNotFoundError:
+        if os.path.islink(path):
+            return f"a broken symlink (to {os.readlink(path)})"
+        return "missing"
+    except OSError as e:
+        return {errno.ELOOP: "a symlink loop", errno.ENOTDIR: "below a file (a path part is not a folder)",
+                errno.EACCES: "unreadable (permission denied on a folder above it)",
+                errno.ENAMETOOLONG: "a name too long"}.get(e.errno, f"not usable ({e.strerror})")
+    m = st.st_mode
+    kind = ("a folder" if stat.S_ISDIR(m) else "a file" if stat.S_ISREG(m) else "a FIFO (named pipe)"
+            if stat.S_ISFIFO(m) else "a socket" if stat.S_ISSOCK(m) else "a device"
+            if stat.S_ISCHR(m) or stat.S_ISBLK(m) else "not a file or folder")
+    if kind in ("a file", "a folder") and not os.access(path, os.R_OK | (os.X_OK if kind == "a folder" else 0)):
+        return f"{kind}, unreadable (permission denied)"
+    return kind
+
+
+def check_path(path: "str | os.PathLike[str]", want: str, what: str, error: "type | None" = None) -> None:
+    """Raise `error` (InputError) unless `path` is a readable `want` ("a file", "a folder" or "a file or
+    folder"): `<path>: <what> is <kind>; give <want>`. A FIFO is refused before it is opened (reading one
+    waits for a writer forever)."""
+    kind = path_kind(path)
+    if kind in {"a file": ("a file",), "a folder": ("a folder",)}.get(want, ("a file", "a folder")):
+        return
+    raise (error or InputError)(f"{path}: {what} is {kind}; give {want}")
 
 
 class Interrupted(KeyboardInterrupt):

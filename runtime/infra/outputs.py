@@ -16,11 +16,13 @@ on a locked folder is refused. A lock whose process is gone is taken over and th
 from __future__ import annotations
 
 import errno
+import io
 import json
 import os
 import secrets
 import shutil
 import socket
+import sys
 import time
 from contextlib import contextmanager
 from pathlib import Path
@@ -28,10 +30,8 @@ from typing import Any, Iterator
 
 import numpy as np
 
-from .errors import OutputError
-from .trace import as_trace
-import io
-from .trace import jsonable
+from .errors import OutputError, path_kind
+from .trace import as_trace, json_default
 
 LOCK = ".mosaic.lock"
 RUN_FILE = "run.json"
@@ -63,8 +63,11 @@ def _age_s(path: Path) -> float:
 
 def check_out_dir(folder: Path, what: str = "--out") -> None:
     """Refuse, before any work, an output folder that is a file, cannot be created, is read-only or full."""
-    if folder.exists() and not folder.is_dir():
+    kind = path_kind(folder)
+    if kind == "a file":
         raise OutputError(f"{what} {folder}: is a file, not a folder; give a folder path (it is created if needed)")
+    if kind not in ("a folder", "missing"):
+        raise OutputError(f"{what} {folder}: is {kind}; give a writable folder path (it is created if needed)")
     try:
         folder.mkdir(parents=True, exist_ok=True)
     except OSError as e:
@@ -93,10 +96,15 @@ class RunOutputs:
         self.staged_dirs: list[tuple[Path, Path]] = []  # (temp folder, final folder): whole trees of files
         self.notes: list[str] = []
         self._locked = False
+        self._started = False  # run.json says "running": close() must end it as complete, failed or interrupted
+        self._done = False
+        self.failure: str | None = None  # why the files were not written (set by save_run on a write error)
         check_out_dir(self.folder, what)
         try:
             self._lock()
             self._clean_stale_temps()
+            self._previous = self._read_previous()
+            self._started = True  # before the write: a signal landing in it still ends run.json as interrupted
             self._write_run_file("running", [])
         except BaseException:  # incl. a SIGTERM landing here: never leave our lock behind
             self.close()
@@ -133,6 +141,17 @@ class RunOutputs:
         raise OutputError(f"{self.what} {self.folder}: could not take the folder's lock {lock}; remove it if no "
                          f"run is writing there")
 
+    def _read_previous(self) -> dict[str, Any] | None:
+        """The run this folder held before (its run.json), for a run that ends without its files."""
+        try:
+            d = json.loads((self.folder / RUN_FILE).read_text())
+        except (OSError, ValueError):
+            return None
+        if not isinstance(d, dict):
+            return None
+        prev = d.get("previous") if d.get("status") != "complete" else None
+        return prev if isinstance(prev, dict) else {k: d.get(k) for k in ("run_id", "status", "files")}
+
     @staticmethod
     def _read_lock(lock: Path) -> dict[str, Any] | None:
         try:
@@ -166,10 +185,9 @@ class RunOutputs:
         self.staged = [s for s in self.staged if s[1] != final] + [(tmp, final)]
         return final
 
-    def add_json(self, name: str, obj: dict[str, Any], indent: int | None = 1) -> Path:
-        """Stage a JSON object (a `run_id` field is added)."""
-        obj = {**jsonable(obj), "run_id": self.run_id}
-        return self._stage(name, (json.dumps(obj, indent=indent, default=str) + "\n").encode())
+    def add_json(self, name: str, obj: dict[str, Any]) -> Path:
+        """Stage a JSON object (a `run_id` field is added), written by `json_text`."""
+        return self._stage(name, json_text({**obj, "run_id": self.run_id}).encode())
 
     def add_png(self, name: str, rgb: np.ndarray) -> Path:
         """Stage an RGB image [H, W, 3] uint8 as PNG with the run id in a tEXt chunk; a failed encode raises."""
@@ -201,12 +219,14 @@ class RunOutputs:
             done += _move_tree(tmp, final)
         self.staged_dirs = []
         self._write_run_file("complete", done)
+        self._done = True
         _fsync_dir(self.folder)
         return done
 
-    def _write_run_file(self, status: str, files: list[str]) -> None:
+    def _write_run_file(self, status: str, files: list[str], **extra: Any) -> None:
         rec = {"schema": "mosaicthinker.run/1", "run_id": self.run_id, "status": status, "pid": os.getpid(),
-               "files": [os.path.relpath(f, self.folder) for f in files], "time": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
+               "files": [os.path.relpath(f, self.folder) for f in files],
+               "time": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), **extra}
         tmp = self.folder / f"{TMP_PREFIX}{self.run_id}.{RUN_FILE}"
         with open(tmp, "w") as f:
             json.dump(rec, f)
@@ -214,7 +234,31 @@ class RunOutputs:
             os.fsync(f.fileno())
         os.replace(tmp, self.folder / RUN_FILE)
 
-    def close(self) -> None:
+    def _end_status(self, exc: BaseException | None) -> tuple[str, str]:
+        """How a run that did not commit ended: "interrupted" (a signal, Ctrl-C: the exception in flight) or
+        "failed" (a write error, any other exception, or closed before its files were complete), and why."""
+        exc = exc if exc is not None else sys.exc_info()[1]  # in a `finally:`, the exception in flight
+        if isinstance(exc, KeyboardInterrupt):
+            return "interrupted", str(exc) or "interrupted (Ctrl-C)"
+        if exc is not None:
+            return "failed", f"{type(exc).__name__}: {exc}"[:300]
+        return "failed", self.failure or "the run ended before its files were complete"
+
+    def close(self, exc: BaseException | None = None) -> None:
+        """Drop temp files and the lock; a run that did not commit ends run.json as failed or interrupted (the
+        folder keeps the previous run's files, named in `previous`). exc: the exception that ended the run."""
+        if self._started and not self._done:
+            status, why = self._end_status(exc)
+            for tmp, _ in self.staged:  # first free what was staged (a full disk needs the room for run.json)
+                try:
+                    tmp.unlink()
+                except OSError:
+                    pass
+            try:
+                self._write_run_file(status, [], reason=why, previous=self._previous)
+            except OSError:
+                pass  # a disk too full even for run.json: it keeps saying "running" (not current)
+            self._started = False
         for tmp, _ in self.staged:
             try:
                 tmp.unlink()
@@ -234,8 +278,27 @@ class RunOutputs:
     def __enter__(self) -> "RunOutputs":
         return self
 
-    def __exit__(self, *exc: Any) -> None:
-        self.close()
+    def __exit__(self, exc_type: Any, exc: BaseException | None, tb: Any) -> None:
+        self.close(exc)
+
+
+def json_text(obj: Any, indent_below: int = 200_000) -> str:
+    """JSON text of `obj`, always by the C encoder: indented by 1 when its compact form is under `indent_below`
+    characters (the indenting encoder is pure Python: a trace with 12,500 evidence rows took seconds), else one
+    line per top-level key (a long list one line per item). Each value is encoded once."""
+    enc = json.JSONEncoder(default=json_default).encode
+    if not isinstance(obj, dict):
+        compact = enc(obj)
+        return (json.dumps(obj, indent=1, default=json_default) if len(compact) < indent_below else compact) + "\n"
+    parts = []
+    for k, v in obj.items():
+        if isinstance(v, list) and len(v) > 100:
+            parts.append(f" {enc(str(k))}: [\n  " + ",\n  ".join(map(enc, v)) + "\n ]")
+        else:
+            parts.append(f" {enc(str(k))}: {enc(v)}")
+    if sum(map(len, parts)) < indent_below:
+        return json.dumps(obj, indent=1, default=json_default) + "\n"
+    return "{\n" + ",\n".join(parts) + "\n}\n"
 
 
 def _move_tree(tmp: Path, final: Path) -> list[str]:
@@ -286,7 +349,8 @@ def write_error_message(e: OSError, folder: Path) -> str:
 
 
 def save_run(outs: RunOutputs, items: list[tuple[str, str, Any]]) -> tuple[dict[str, str], str | None, int]:
-    """Stage then commit every item `(key, file name, dict | str | RGB [H, W, 3] uint8)` as one group.
+    """Stage then commit every item `(key, file name, dict | str | RGB [H, W, 3] uint8 | an object with
+    `json_bytes(run_id=...)`, e.g. a SemanticMap)` as one group.
 
     Returns ({key: path}, None, 0) when all were written, else ({}, one `error:` line, exit code): the caller
     still prints its answer, and the folder keeps the previous run's files (nothing was renamed)."""
@@ -294,14 +358,18 @@ def save_run(outs: RunOutputs, items: list[tuple[str, str, Any]]) -> tuple[dict[
         for _, name, obj in items:
             if isinstance(obj, np.ndarray):
                 outs.add_png(name, obj)
+            elif hasattr(obj, "json_bytes"):  # a semantic map writes its own JSON (a read map unchanged: a copy)
+                outs._stage(name, obj.json_bytes(run_id=outs.run_id))
             elif isinstance(obj, str):
                 outs.add_text(name, obj)
             else:
                 outs.add_json(name, obj)
         outs.commit()
     except OSError as e:
+        outs.failure = f"could not write the files: {e.strerror or e}"
         return {}, write_error_message(e, outs.folder), 2
     except ValueError as e:  # an image that cannot be encoded: a bug upstream, said so
+        outs.failure = f"could not encode a file: {e}"
         return {}, f"internal error: could not encode an output file in {outs.folder} ({e}); report it", 1
     return {key: str(outs.folder / name) for key, name, _ in items}, None, 0
 

@@ -30,6 +30,7 @@ import numpy as np
 
 from ..infra.bundle import Bundle, RoleSpec, load_bundle
 from ..infra.errors import BundleError, InputError
+from ..infra.file_schemas import image_input_problem
 from ..infra.lru import LRU
 from ..infra.trace import Trace
 from ..infra.providers import create_session, files_mb
@@ -135,6 +136,27 @@ def resolve_arch(arch: str) -> type:
     return getattr(module, cls)
 
 
+def check_archs(bundle: Bundle, roles: Sequence[str] | None = None) -> None:
+    """Every role's `arch` (and every variant's own, under `overrides`) names an adapter of that role (`ARCHS` and
+    the adapter's `role`, or `roles` where one model serves several): a depth graph labelled with a segmenter's
+    arch would load and crash on first use."""
+    for role in roles if roles is not None else bundle.roles:
+        meta = bundle.role_meta(role)
+        archs = {f"roles.{role}.arch": meta["arch"]}
+        for vname, vm in meta["variants"].items():
+            if "arch" in (vm.get("overrides") or {}):
+                archs[f"roles.{role}.variants.{vname}.overrides.arch"] = vm["overrides"]["arch"]
+        for field_, arch in archs.items():
+            where = f"{bundle.manifest_path}: {field_}"
+            if arch not in ARCHS:
+                raise BundleError(f"{where} is {arch!r}, which has no runtime adapter (known: "
+                                  f"{', '.join(sorted(ARCHS))}); fix the manifest or re-export the role")
+            cls = resolve_arch(arch)
+            if role not in getattr(cls, "roles", (cls.role,)):
+                raise BundleError(f"{where} is {arch!r}, an architecture of the {cls.role} role, not of {role}; fix "
+                                  f"the manifest or re-export the role")
+
+
 def load_role(bundle_or_dir: Bundle | str | os.PathLike, role: str, variant: str | None = None,
               providers: Sequence[Any] | str | None = None, threads: int | None = None,
               trace: Trace | None = None) -> RoleModel:
@@ -147,6 +169,7 @@ def load_role(bundle_or_dir: Bundle | str | os.PathLike, role: str, variant: str
     trace = trace if trace is not None else Trace()
     b = load_bundle(bundle_or_dir, verify=False)
     spec = b.spec(role, variant, verify=True)
+    check_archs(b, [role])
     cls = resolve_arch(spec.arch)
     if spec.random_weights:
         trace.note_random_weights(f"{role}:{spec.arch} ({b.root})")
@@ -167,7 +190,11 @@ def load_role(bundle_or_dir: Bundle | str | os.PathLike, role: str, variant: str
         check_image_input(spec, cname, sessions[cname])
     trace.decide(f"model.{role}", {"arch": spec.arch, "variant": spec.variant, "bundle": str(b.root),
                                    "random_weights": spec.random_weights})
-    return cls(spec, sessions, trace)
+    try:
+        return cls(spec, sessions, trace)
+    except (KeyError, TypeError, ValueError, IndexError) as e:  # a manifest entry its adapter cannot use
+        raise BundleError(f"{b.manifest_path}: roles.{role}: the {spec.arch} adapter cannot use this entry "
+                          f"({type(e).__name__}: {e}); fix the manifest or re-export the role") from e
 
 
 _ORT_DTYPES = {"tensor(float)": "float32", "tensor(float16)": "float16", "tensor(uint8)": "uint8"}
@@ -175,33 +202,12 @@ _ORT_DTYPES = {"tensor(float)": "float32", "tensor(float16)": "float16", "tensor
 
 def check_image_input(spec: RoleSpec, cname: str, sess: Any) -> None:
     """The manifest's `preprocessing` (size, layout, dtype) must fit the graph's image input, or every run
-    would fail inside the provider with a message that names neither. Checked on the one rank-4 input with 3
-    channels where the layout puts them; graphs without such an input (decoders, text branches) are skipped."""
-    pp = spec.preprocessing
-    if not pp.get("size") and not pp.get("dtype"):
-        return
-    nchw = str(pp.get("layout", "NHWC")).upper() == "NCHW"
-    ins = [i for i in sess.get_inputs() if len(i.shape or []) == 4]
-    if len(ins) != 1:
-        return
-    inp, w = ins[0], f"{spec.bundle.manifest_path}: roles.{spec.role}.preprocessing"
-    name = spec.components[cname].path.name
-    chan, other = (inp.shape[1], inp.shape[3]) if nchw else (inp.shape[3], inp.shape[1])
-    if chan != 3 and other != 3:
-        return  # not an RGB image input (feature maps, masks)
-    if chan != 3 and isinstance(chan, int):
-        raise BundleError(f"{w}.layout is {'NCHW' if nchw else 'NHWC'} but the graph {name} input {inp.name!r} "
-                          f"is {list(inp.shape)}; fix preprocessing.layout or re-export the role")
-    hw = list(inp.shape[2:4] if nchw else inp.shape[1:3])
-    size = pp.get("size")
-    if size and any(isinstance(g, int) and g > 0 and g != int(s) for g, s in zip(hw, size)):
-        raise BundleError(f"{w}.size is {list(size)} but the graph {name} input {inp.name!r} is "
-                          f"{list(inp.shape)}; fix preprocessing.size or re-export the role")
-    want = str(pp.get("dtype", "float32"))
-    got = _ORT_DTYPES.get(inp.type)
-    if got is not None and got != want:
-        raise BundleError(f"{w}.dtype is {want!r} but the graph {name} input "
-                          f"{inp.name!r} takes {got}; fix preprocessing.dtype or re-export the role")
+    would fail inside the provider with a message that names neither (`file_schemas.image_input_problem`)."""
+    ins = [(i.name, list(i.shape or []), _ORT_DTYPES.get(i.type, i.type)) for i in sess.get_inputs()]
+    bad = image_input_problem(spec.preprocessing, ins)
+    if bad is not None:
+        raise BundleError(f"{spec.bundle.manifest_path}: roles.{spec.role}.preprocessing.{bad[0]} {bad[1]} "
+                          f"(graph {spec.components[cname].path.name})")
 
 
 # ---------------------------------------------------------------------------------------------------------------

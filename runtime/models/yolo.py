@@ -131,6 +131,8 @@ class UltralyticsDetector(LabelDetector):
     """Ultralytics end-to-end export (NMS in the graph); with prototypes also an instance segmenter: `detect(...,
     masks=True)` gives one mask per detection, `segment` masks for given boxes, `class_mask` for refinement."""
 
+    roles = ("detector", "instance_segmenter")  # the roles a manifest may give this arch (`models.check_archs`)
+
     def __init__(self, spec, sessions, trace, conf=None):
         super().__init__(spec, sessions, trace, conf)
         outs = self.session().get_outputs()
