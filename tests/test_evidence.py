@@ -3,8 +3,6 @@ fused detections, spread of the asked quantity over the views), and how `mosaic 
 from __future__ import annotations
 
 import json
-import shutil
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -106,21 +104,6 @@ def test_ask_prints_evidence_what_ran_and_undetectable():
     assert "evidence: chair #1, 2 view(s), 2 fused detection(s); per-view count std 0.50 (n=2)" in out
     assert "ran: depth sensor; matcher xfeat fp32; detector ssd_tflite fp32" in out
     assert "cannot detect" in out and "cabinet" in out
-
-
-def test_ask_default_matcher_is_the_bundles(tmp_path):
-    real = Path("/work/bundles/real/manifest.json")
-    if not real.is_file():
-        pytest.skip("the real-model bundle is not built here")
-    man = json.loads(real.read_text())
-    assert "matcher" in man["roles"]
-    assert ask_cmd.default_matcher(str(real.parent)) == "model"
-    man["roles"].pop("matcher")
-    for role in man["roles"]:  # the same model files (~10 MB), a manifest without the matcher role
-        shutil.copytree(real.parent / role, tmp_path / role)
-    (tmp_path / "manifest.json").write_text(json.dumps(man))
-    assert ask_cmd.default_matcher(str(tmp_path)) == "sift"
-    assert ask_cmd.default_matcher(None) == "sift"
 
 
 def test_mosaic_ask_on_a_saved_map_returns_and_prints_the_evidence(tmp_path, capsys):

