@@ -46,6 +46,11 @@ PHRASES: list[tuple[str, str]] = [
      r"wall to wall)\b", ""),
     (r"\b(?:whichever|whatever) ?(?:'s| is)(?: the)? (biggest|largest|longest|greatest)\b", r"the \1"),
     (r"\bat (its|their) (longest|biggest|largest|greatest)(?: point| side)?\b", r"at \1 \2 dimension"),
+    # "the longest of its three dimensions", "whichever of the three is biggest": the count of sides is no object
+    (r"\b(its|their|the|all|all of its|all of the) (?:two|three|four|2|3|4) (dimensions|sides|measurements|axes|"
+     r"edges|directions)\b", r"\1 \2"),
+    (r"\b(?:of )?(?:the|those|these|all) (?:two|three|four|2|3|4)(?= (?:is|are|was|were|would|will|gives?)\b|\s*[,?.!]|$)",
+     ""),
     # distances
     (r"\b(?:measure|measuring|measured) (?:the (?:way|gap|space|span) )?from\b", "distance from"),
     (r"\bwhatever\b", "whichever"),

@@ -48,7 +48,8 @@ lie lies occupy occupies measure
 maximum max minimum min overall total approximate rough
 everything anything something nothing everyone all anywhere somewhere everywhere
 whichever whatever whoever whenever wherever altogether anyway anyhow though although also again already still
-even ever quite rather very perhaps maybe yet instead otherwise together
+even ever quite rather very perhaps maybe yet instead otherwise together answer answers reply greatest
+full entire exact precise
 me myself mine origin axis y-axis x-axis cartesian plane quadrant quadrants degrees degree
 """.split())
 COPULA = {"is", "are", "was", "were", "be", "been", "being", "get", "got", "gets"}
