@@ -17,6 +17,9 @@ PREAMBLE = [  # phrases that would be misread as the question's own words
     re.compile(r"(?:closest|nearest)[- ]point[- ]to[- ](?:closest|nearest)[- ]point"),
     re.compile(r"(?:an object is (?:to )?my back|(?:it|something) counts as (?:behind|back)|count (?:it|that|"
                r"something) as (?:behind|back)) if .{0,120}?(?:face it|degrees(?: or more)?)\b"),
+    # "(behind meaning I'd have to turn 135 degrees or more)": what "behind" means, not a question
+    re.compile(r"\(?\b(?:behind|back) (?:means|meaning|meant|being|is|=|here means|here is)\b[^()?]{0,120}?"
+               r"\bdegrees(?: or (?:more|over|above|beyond))?\)?"),
     re.compile(r"(?:the )?directions? (?:refer|refers|are) .{0,160}?(?:y-axis|y axis|quadrants?)\b\)?"),
 ]
 

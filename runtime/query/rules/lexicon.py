@@ -148,9 +148,9 @@ PRONOUN_CUES = LOCATION | set(RELATION_WORDS) | NEAR_CUES | {"top"}
 FACE1 = {"facing", "face", "faces", "faced", "towards", "toward", "watching"}
 PLACED_VERBS = {"am", "i'm", "im", "standing", "stand", "sitting", "sit", "be", "was", "were", "stood", "sat"}
 # "standing by the bed with the sofa in front of me": facing the sofa
-AHEAD_OF_ME = r"(?:in front of|ahead of|before) (?:me|us|you|it|him|her|them)\b"  # "with the sofa in front of me"
+AHEAD_OF_ME = r"(?:(?:right|straight|directly|just|dead) )?(?:in front of|ahead of|before) (?:me|us|you|it|him|her|them)\b"  # "with the sofa in front of me"
 IS_AHEAD = r"(?:is|are) (?:straight |directly |right )?(?:ahead|in front of me)\b"  # "the tv is straight ahead"
-FACING_AHEAD_RX = (rf"\bwith (?:the |a |an )?[^,?]{{1,40}}? {AHEAD_OF_ME}|\b{IS_AHEAD}|(?:^|[,:;.] )(?:the |a |an )"
+FACING_AHEAD_RX = (rf"\b(?:with|have|having|got) (?:the |a |an )?[^,?]{{1,40}}? {AHEAD_OF_ME}|\b{IS_AHEAD}|(?:^|[,:;.] )(?:the |a |an )"
                    rf"[^,?.]{{1,40}}? {AHEAD_OF_ME}")
 FACE2 = {"looking at", "look at", "looked at", "staring at", "turned to", "turn to", "direction of", "looking toward",
           "gazing at", "gaze at", "face to", "faced to", "facing to", "faces to",
