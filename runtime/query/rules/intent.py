@@ -15,6 +15,9 @@ PREAMBLE = [  # phrases that would be misread as the question's own words
     re.compile(r"(?:measuring|measured|measure|as measured)?\s*(?:from|between)?\s*(?:the\s+)?(?:closest|nearest)"
                r"\s+points?(?:\s+(?:of|on)\s+(?:each|the|both|two)(?:\s+(?:two|the))?\s+objects?)?"),
     re.compile(r"(?:closest|nearest)[- ]point[- ]to[- ](?:closest|nearest)[- ]point"),
+    # "at the closest bit", "at their nearest": how a distance is measured (always between the closest points)
+    re.compile(r"\bat (?:the|its|their) (?:closest|nearest) (?:bits?|parts?|spots?|points?|edges?|places?|sides?)\b|"
+               r"\bat (?:its|their) (?:closest|nearest)\b(?! (?:to|from)\b)"),
     re.compile(r"(?:an object is (?:to )?my back|(?:it|something) counts as (?:behind|back)|count (?:it|that|"
                r"something) as (?:behind|back)) if .{0,120}?(?:face it|degrees(?: or more)?)\b"),
     # "(behind meaning I'd have to turn 135 degrees or more)": what "behind" means, not a question
@@ -139,6 +142,7 @@ def intent(j: str, n_obj: int, has_opts: bool) -> str | None:
                                 r"against)|behind me|at my back)\b"):
         return "direction"
     if has(j, r"\b(?:distance|how far|far apart|far away|far from|how close|how near|gap (?:between|from)|separat\w*|"
+               r"(?:gap|space) (?:is there |are there |do you see |would there be )?(?:between|from)|"
                r"spacing|"
                r"how much (?:space|room|gap)|\b(?:from|between)\b.*\bhow many (?:meters?|metres?|feet|foot|ft|"
                r"cm|centimet\w+|inch(?:es)?|mm)\b|how many (?:m|meters?|"
