@@ -131,10 +131,11 @@ def intent(j: str, n_obj: int, has_opts: bool) -> str | None:
                      r"looking in the direction of|eyes on|gaze on|pointed at|pointing at|oriented towards?|"
                      r"turn(?:s|ing)? (?:to|towards?)|gazing at|gaze at|watching|staring at|my face to)\b|" +
                   FACING_AHEAD_RX)
-    if not has(j, r"\bhow many\b") and has(j, r"\b(?:appear|appears|appeared|appearance|show up|showed up|"
-                                              r"came into view)\b|"
+    sided = stance and has(j, r"\b(?:left|right|behind)\b")  # "facing X, does Y appear left or right of X?"
+    if not sided and (not has(j, r"\bhow many\b") and has(j, r"\b(?:appear|appears|appeared|appearance|show up|"
+                                                            r"showed up|came into view)\b|"
                r"\b(?:see|saw|seen|spot|spotted|notice|noticed)\b.*\bfirst\b|\bfirst\b.*\b(?:see|saw|seen)\b|"
-               r"\bin (?:what|which) order\b") or has(j, ORDER_RX) and not stance:
+               r"\bin (?:what|which) order\b") or has(j, ORDER_RX) and not stance):
         return "obj_appearance_order"
     where_i = re.sub(r"\b(?:looking|look|looked|staring) at\b", " ", j)  # "looking at A, B or C, which ...": no place
     if stance and has(where_i, r"\b(?:standing|stand|stood|sitting|sit|i am|i'm|im|i was|you are|from|at|by|next "
