@@ -130,13 +130,17 @@ def weak(toks: list[str], nps: list[dict[str, Any]], known: list[bool]) -> list[
     is held when it is listed with a known object ("chairs and zithers") or comes right after a location,
     facing or comparison word ("near the zither", "than the zither") and does not read as a participle
     ("my face pointed at"); else it is weak ("exact number if you can", "do me a favour", "all told")."""
-    def listed(i: int) -> bool:
-        for j in (i - 1, i + 1):
-            if 0 <= j < len(nps):
-                a, b = (nps[j], nps[i]) if j < i else (nps[i], nps[j])
-                gap = [t for t in toks[a["end"]:b["start"]] if t not in DET]
-                if known[j] and gap and set(gap) <= _COORD:
-                    return True
+    def gap(i: int, j: int) -> list[str]:
+        if not 0 <= j < len(nps):
+            return []
+        a, b = (nps[j], nps[i]) if j < i else (nps[i], nps[j])
+        return [t for t in toks[a["end"]:b["start"]] if t not in DET]
+
+    def listed(i: int) -> bool:  # a comma alone lists only inside a list ("the sofa, whereabouts is ...": none)
+        for j, other in ((i - 1, i + 1), (i + 1, i - 1)):
+            g = gap(i, j)
+            if g and known[j] and set(g) <= _COORD and (g != [","] or set(gap(i, other) or ["x"]) <= _COORD):
+                return True
         return False
 
     def placed(p: dict[str, Any]) -> bool:
