@@ -39,6 +39,8 @@ PHRASES: list[tuple[str, str]] = [
     # idioms of not knowing that carry no negation of the question ("honestly no idea how far ...")
     (r"\b(?:i have |i've |i've got |got )?(?:no idea|no clue|not a clue)\b", ""),
     (r"\bi (?:don't|do not|can't|cannot) (?:remember|recall|tell|say)\b(?! (?:if|whether)\b)", ""),
+    # courtesies with a "no" that negate nothing asked ("no rush", "no worries if not")
+    (r"\b(?:there's |there is )?no (?:rush|hurry|pressure|worries|worry|stress|biggie)(?: at all)?(?: if not)?\b", ""),
     # counts
     (r"\b(?:tally|headcount|head count)\b", "count"), (r"\bhow much of\b", "how many"),
     # sizes

@@ -142,6 +142,7 @@ def read_clauses(toks: list[str], known: Callable[[str], bool]) -> tuple[list[st
     toks, you = _viewer_you(toks)
     if you:
         notes.append("'you' read as the asker (where 'you' stand)")
+    toks = _asides(toks, known, notes)
     spans = _clauses(toks)
     keep = []
     for i, (a, b) in enumerate(spans):
@@ -159,6 +160,26 @@ def read_clauses(toks: list[str], known: Callable[[str], bool]) -> tuple[list[st
         return toks, []
     toks = [t for a, b in keep for t in toks[a:b]]
     return _topic(toks, known, notes), notes
+
+
+def _asides(toks: list[str], known: Callable[[str], bool], notes: list[str]) -> list[str]:
+    """A parenthesis that names no known object and holds no cue word, unit or number ("(ballpark is fine)",
+    "(thanks!)") is an aside: left out, said in the notes."""
+    if any(t.startswith("turn") for t in toks):  # a route's "(blank)" is a turn to fill in, not an aside
+        return toks
+    out, i = [], 0
+    cues = cue_words() - _NOT_CUE
+    while i < len(toks):
+        j = toks.index(")", i) if toks[i] == "(" and ")" in toks[i:] else -1
+        words = [w for w in toks[i + 1:j] if w not in _BREAK] if j > 0 else []
+        if words and not _mentions(words, known) and not any(
+                _stem(w) & cues or w in UNIT_WORDS or any(c.isdigit() for c in w) for w in words):
+            notes.append(f"left out the aside '({' '.join(words)})'")
+            i = j + 1
+            continue
+        out.append(toks[i])
+        i += 1
+    return out
 
 
 def _topic(toks: list[str], known: Callable[[str], bool], notes: list[str]) -> list[str]:

@@ -19,7 +19,7 @@ from . import counting, directions, distances, measures, route
 from .intent import EXCEPT_RX, WALK_RX, intent, refuse_whole_text, route_options, strip_preamble, unread_negation
 from ..vocabulary import NAME_SYNONYMS, canonical_name, name_key
 from .distances import two_names
-from .lexicon import DET, FACE1, LOCATION, RANKS, RELATION_WORDS
+from .lexicon import DET, FACE1, LOCATION, RANKS, RELATION_WORDS, STOP
 from .clauses import read_clauses
 from .locations import attachments, resolve_pronouns
 from .state import R, Refused, State
@@ -57,7 +57,11 @@ def parse_natural(question: str, options: list[str] | None = None, names: Iterab
     node, st = _attempt(question, options, keys, mentions_first=True)
     if node is not None and st.weak:  # "do me a favour and add up the sofas": stray words in object slots
         node2, st2 = _attempt(question, options, keys, mentions_first=True, drop_weak=True)
-        if node2 is not None and node2.qtype == node.qtype and node.qtype not in _EVERY_PHRASE:
+        if node2 is not None and type(node2) is type(node) and node.qtype not in _EVERY_PHRASE:
+            return st2.finish(node2), st2
+    if node is None and st.weak:  # refused: without the stray words ("..., no rush at all", "bit of a weird one")
+        node2, st2 = _attempt(question, options, keys, mentions_first=True, drop_weak=True)
+        if node2 is not None and node2.qtype not in _EVERY_PHRASE:
             return st2.finish(node2), st2
     if node is None and st.unknown:  # refused: read only the phrases that name a known object ("the doorway")
         node2, st2 = _attempt(question, options, keys, mentions_first=True, known_only=True)
@@ -143,10 +147,11 @@ def weak(toks: list[str], nps: list[dict[str, Any]], known: list[bool]) -> list[
                 return True
         return False
 
-    def placed(p: dict[str, Any]) -> bool:
-        b = before(toks, p, 1)
+    def placed(p: dict[str, Any]) -> bool:  # "of" places only after a word of the parser ("left of", "size of";
+        b = before(toks, p, 2)                # not "a bit of a weird one", "the top of your head")
         participle = all(re.search(r"(?:ing|ed)$", w) for w in p["words"])
-        return bool(b) and b[-1] in _MARKERS and not participle
+        of_ok = b[-1:] != ["of"] or (len(b) > 1 and b[-2] in STOP)
+        return bool(b) and b[-1] in _MARKERS and of_ok and not participle
 
     return [not k and not listed(i) and not placed(p) for i, (p, k) in enumerate(zip(nps, known))]
 
@@ -173,7 +178,7 @@ def _parse(st: State, keys: frozenset[str] | None, known_only: bool = False, dro
             keep = [k and not f for k, f in zip(keep, frail)]
         st.weak = [" ".join(p["words"]) for p, k, f in zip(nps_all, keep, frail) if k and f]
         prop = [p for p, k in zip(nps_all, known) if not k and p["start"] > 0 and toks[p["start"] - 1] in _DEGREE]
-        if known_only and prop:  # never left out: they say what is asked ("more comfortable than")
+        if (known_only or drop_weak) and prop:  # never left out: they say what is asked ("more comfortable than")
             st.notes.append(f"'{' '.join(prop[0]['words'])}': a property the map does not hold")
             raise Refused
         placed = [(p, q) for p, q, k, kq in zip(nps_all, nps_all[1:], known, known[1:]) if not k and kq and
