@@ -37,7 +37,8 @@ IMAGINED_VIEWER = [(re.compile(rx), to) for rx, to in (
 
 def strip_preamble(joined: str) -> tuple[str, dict[str, Any]]:
     extra: dict[str, Any] = {}
-    m = re.search(r"(?:turn|turning) (?:at least |more than |over |by )?(\d+)\s+degrees", joined)
+    m = re.search(r"\b(?:turn|turning|turned|rotate|rotating|rotation)(?: of| by| through)?(?: at least| more than| over|"
+                  r" about)? (\d+)\s+degrees", joined)
     if m:
         extra["back_deg"] = float(m.group(1))
     for rx in PREAMBLE:

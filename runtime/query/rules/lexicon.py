@@ -74,7 +74,7 @@ CMP = "(?:" + "|".join(COMPARATIVES) + ")"
 CMP_RX = rf"\b{CMP}\b"
 SUP_RX = r"\b(?:" + "|".join(SUPERLATIVES) + r")\b"
 # "the longest side of the bed", "the biggest dimension of the tv": a size question, not a comparison
-SUP_DIM_RX = SUP_RX + r" (?:sides?|dimensions?|edges?|extents?|length|measurements?|axis)\b"
+SUP_DIM_RX = SUP_RX + r"(?: of (?:its|their|the|his|her))? (?:sides?|dimensions?|edges?|extents?|length|measurements?|axis|axes)\b"
 NEAR_CUES = {"nearest", "closest", "next", "beside", "near", "by", "nearer", "closer"}
 DIR_PHRASES = [  # (regex over the joined tokens, canonical direction)
     (r"front-left|front left|left front|forward left|ahead (?:and )?(?:to the )?left", "front-left"),
