@@ -39,6 +39,8 @@ PHRASES: list[tuple[str, str]] = [
     # idioms of not knowing that carry no negation of the question ("honestly no idea how far ...")
     (r"\b(?:i have |i've |i've got |got )?(?:no idea|no clue|not a clue)\b", ""),
     (r"\bi (?:don't|do not|can't|cannot) (?:remember|recall|tell|say)\b(?! (?:if|whether)\b)", ""),
+    # courtesies with a "no" that negate nothing asked ("no rush", "no worries if not")
+    (r"\b(?:there's |there is )?no (?:rush|hurry|pressure|worries|worry|stress|biggie)(?: at all)?(?: if not)?\b", ""),
     # counts
     (r"\b(?:tally|headcount|head count)\b", "count"), (r"\bhow much of\b", "how many"),
     # sizes
@@ -46,6 +48,11 @@ PHRASES: list[tuple[str, str]] = [
      r"wall to wall)\b", ""),
     (r"\b(?:whichever|whatever) ?(?:'s| is)(?: the)? (biggest|largest|longest|greatest)\b", r"the \1"),
     (r"\bat (its|their) (longest|biggest|largest|greatest)(?: point| side)?\b", r"at \1 \2 dimension"),
+    # "the longest of its three dimensions", "whichever of the three is biggest": the count of sides is no object
+    (r"\b(its|their|the|all|all of its|all of the) (?:two|three|four|2|3|4) (dimensions|sides|measurements|axes|"
+     r"edges|directions|quadrants|options|choices|answers|possibilities)\b", r"\1 \2"),
+    (r"\b(?:of )?(?:the|those|these|all) (?:two|three|four|2|3|4)(?= (?:is|are|was|were|would|will|gives?)\b|\s*[,?.!]|$)",
+     ""),
     # distances
     (r"\b(?:measure|measuring|measured) (?:the (?:way|gap|space|span) )?from\b", "distance from"),
     (r"\bwhatever\b", "whichever"),
@@ -65,6 +72,9 @@ PHRASES: list[tuple[str, str]] = [
      r"(at|toward|towards|to)\b", r"\1 \2"),
     # "the stove in front", "the bed ahead": in front of the asker
     (r"(\bthe [a-z]+(?: [a-z]+)?(?: is)?(?: straight| right| directly)?) (in front|ahead)(?= ?[,:;.?!]| - | and\b|$)",
+     r"\1 \2 of me"),
+    # the same at a clause's start without "the" ("bed at my side, stool straight in front - is ...")
+    (r"((?:^|[,:;.] |- )[a-z]+(?: [a-z]+)?(?: is)? (?:straight|right|directly|dead)) (in front|ahead)(?= ?[,:;.?!]| - | and\b|$)",
      r"\1 \2 of me"), (r"\b(?:which|what) (?:diagonal|corner)\b", "which quadrant"),
     (r"\b(?:ahead|forward|in front)[- ](left|right)\b", r"front-\1"), (r"\b(?:behind|rear)[- ](left|right)\b", r"back-\1"),
     (r"\b(left|right)[- ](?:front|ahead|forward)\b", r"front-\1"), (r"\b(left|right)[- ](?:back|rear|behind)\b", r"back-\1"),
@@ -76,7 +86,7 @@ _SMALL = {w: i for i, w in enumerate("zero one two three four five six seven eig
                                      "fourteen fifteen sixteen seventeen eighteen nineteen".split())}
 _TENS = {w: 10 * (i + 2) for i, w in enumerate("twenty thirty forty fifty sixty seventy eighty ninety".split())}
 _UNIT_AFTER = (r"(?= ?(?:m|cm|mm|ft|in|meters?|metres?|centimet\w+|millimet\w+|feet|foot|inch(?:es)?|square|"
-               r"percent)\b)")
+               r"percent|degrees?)\b)")
 
 
 def _number_words(s: str) -> str:
@@ -89,12 +99,12 @@ def _number_words(s: str) -> str:
     tens = "|".join(_TENS)
     small = "|".join(sorted(_SMALL, key=len, reverse=True))
 
-    rx = rf"\b(?:({tens})(?:[- ]({small}))?|({small}))( and a half)?\b{_UNIT_AFTER}"
+    rx = rf"\b(?:(a|one|two|three) hundred(?: and)? )?(?:({tens})(?:[- ]({small}))?|({small}))( and a half)?\b{_UNIT_AFTER}"
 
     def value2(m: re.Match) -> str:
-        v = (_TENS[m.group(1)] if m.group(1) else 0) + (_SMALL[m.group(2)] if m.group(2) else 0) + \
-            (_SMALL[m.group(3)] if m.group(3) else 0)
-        return f"{v}.5" if m.group(4) else str(v)
+        v = (100 * (_SMALL.get(m.group(1), 1)) if m.group(1) else 0) + (_TENS[m.group(2)] if m.group(2) else 0) + \
+            (_SMALL[m.group(3)] if m.group(3) else 0) + (_SMALL[m.group(4)] if m.group(4) else 0)
+        return f"{v}.5" if m.group(5) else str(v)
 
     return re.sub(rx, value2, s)
 

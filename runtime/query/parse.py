@@ -13,7 +13,7 @@ from .ir import NearestTo, Option, Program, iter_refs, phrases
 from .normalize import normalize
 from .rules.parse import parse_natural
 from .schema import to_json
-from .spelling import second_reading
+from .spelling import cue_reading, second_reading
 from .templates import parse_template
 from .text import check_question, clean_question, split_options
 
@@ -118,5 +118,11 @@ def parse_question(question: str, options: list[str] | None = None, names: Itera
         node2, st2 = parse_natural(text2, opts, names) if more else (None, st)
         if node2 is not None:
             read_as, node, st = read_as + more, node2, st2
+    if node is None:  # a typo read as an object name that is as near a cue word ("cloest": closet, closest)
+        text3, other = cue_reading(text, read_as)
+        node3, st3 = parse_natural(text3, opts, names) if other else (None, st)
+        if node3 is not None:
+            read_as = [n for n in read_as if not any(n.split(" as ")[0] in o for o in other)] + other
+            node, st = node3, st3
     return ParsedQuestion(q, opts, program_of(node, opts) if node is not None else None, read_as + st.notes,
                           "natural" if node is not None else "none", read_as)

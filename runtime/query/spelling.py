@@ -139,6 +139,8 @@ def is_known(word: str, known: frozenset[str]) -> bool:
     for suf in _SUFFIXES:
         if word.endswith(suf) and len(word) - len(suf) >= 2:
             stem = word[:-len(suf)]
+            if suf == "ing" and len(stem) > 2 and stem[-1] == "e" and stem[-2] not in "aeiouy":
+                continue  # "faceing" is no inflection of "face" (that is "facing"): a typo to read
             if stem in known or stem + "e" in known or (len(stem) > 2 and stem[-1] == stem[-2] and stem[:-1] in known):
                 return True
     return False
@@ -271,6 +273,24 @@ def second_reading(text: str) -> tuple[str, list[str]]:
         return hits[0]
 
     return _WORD.sub(fix, text), notes
+
+
+def cue_reading(text: str, read_as: list[str]) -> tuple[str, list[str]]:
+    """For a question refused as typed: each typo that was read as an object name or a plain word ("cloest" as
+    "closet") read instead as the one cue word also within the bound ("closest"), if there is exactly one."""
+    meaning, _ = _static()
+    objects = {w for n in NAME_SYNONYMS for w in (n, plural(n)) if " " not in n}
+    notes: list[str] = []
+    for note in read_as:
+        m = re.fullmatch(r"read '([a-z]+)' as '([a-z]+)'", note)
+        if m is None or (m.group(2) in meaning and m.group(2) not in objects):  # it was read as a cue word
+            continue
+        typed, lim = m.group(1), bound(m.group(1))
+        cues = [w for w in meaning - objects if abs(len(w) - len(typed)) <= lim and distance(typed, w, lim) <= lim]
+        if len(cues) == 1:
+            text = re.sub(rf"(?<![\w'-]){m.group(2)}(?![\w'-])", cues[0], text, count=1)
+            notes.append(f"read '{typed}' as '{cues[0]}' (not '{m.group(2)}': the question means nothing with it)")
+    return text, notes
 
 
 @functools.lru_cache(maxsize=4096)

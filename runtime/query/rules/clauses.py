@@ -82,12 +82,14 @@ def _mentions(words: list[str], known: Callable[[str], bool]) -> list[tuple[int,
     return out
 
 
-def _cued(words: list[str]) -> bool:
+def _cued(words: list[str], remark_copula: bool = False) -> bool:
     """A cue word of some kind, a direction, a unit, a number, or a place marked by the sentence ("I'm at the
     doorframe": an object the vocabulary does not know is still an object there)."""
     cues = cue_words() - _NOT_CUE
     marked = any(w in _MARKERS and n in DET for w, n in zip(words, words[1:]))
-    return marked or any(_stem(w) & (cues | _KEEP) or any(c.isdigit() for c in w) for w in words)
+    # a copula keeps a clause that asks with it ("is there ...", "are they ..."), not a remark ("hope you are well")
+    keep = _KEEP - _COPULA if remark_copula and words[0] not in _COPULA and "there" not in words else _KEEP
+    return marked or any(_stem(w) & (cues | keep) or any(c.isdigit() for c in w) for w in words)
 
 
 def _stem(w: str) -> set[str]:
@@ -142,6 +144,8 @@ def read_clauses(toks: list[str], known: Callable[[str], bool]) -> tuple[list[st
     toks, you = _viewer_you(toks)
     if you:
         notes.append("'you' read as the asker (where 'you' stand)")
+    toks = _asides(toks, known, notes)
+    route = any(t.startswith("turn") for t in toks)  # a route's "the steps are:" stays
     spans = _clauses(toks)
     keep = []
     for i, (a, b) in enumerate(spans):
@@ -151,7 +155,7 @@ def read_clauses(toks: list[str], known: Callable[[str], bool]) -> tuple[list[st
         # a clause between commas in the middle of a sentence is part of it ("walk to the tv, turn, ..."): only
         # sentences, and a sentence's first or last comma clause ("honestly, ...", "..., please"), are left out
         inner = toks[b - 1] == "," and i > 0 and toks[a - 1] == "," and i + 1 < len(spans)
-        if inner or _mentions(words, known) or _cued(words):
+        if inner or _mentions(words, known) or _cued(words, not route):
             keep.append((a, b))
         else:
             notes.append(f"left out '{' '.join(words)}' (no object and nothing asked)")
@@ -159,6 +163,26 @@ def read_clauses(toks: list[str], known: Callable[[str], bool]) -> tuple[list[st
         return toks, []
     toks = [t for a, b in keep for t in toks[a:b]]
     return _topic(toks, known, notes), notes
+
+
+def _asides(toks: list[str], known: Callable[[str], bool], notes: list[str]) -> list[str]:
+    """A parenthesis that names no known object and holds no cue word, unit or number ("(ballpark is fine)",
+    "(thanks!)") is an aside: left out, said in the notes."""
+    if any(t.startswith("turn") for t in toks):  # a route's "(blank)" is a turn to fill in, not an aside
+        return toks
+    out, i = [], 0
+    cues = cue_words() - _NOT_CUE
+    while i < len(toks):
+        j = toks.index(")", i) if toks[i] == "(" and ")" in toks[i:] else -1
+        words = [w for w in toks[i + 1:j] if w not in _BREAK] if j > 0 else []
+        if words and not _mentions(words, known) and not any(
+                _stem(w) & cues or w in UNIT_WORDS or any(c.isdigit() for c in w) for w in words):
+            notes.append(f"left out the aside '({' '.join(words)})'")
+            i = j + 1
+            continue
+        out.append(toks[i])
+        i += 1
+    return out
 
 
 def _topic(toks: list[str], known: Callable[[str], bool], notes: list[str]) -> list[str]:

@@ -15,8 +15,14 @@ PREAMBLE = [  # phrases that would be misread as the question's own words
     re.compile(r"(?:measuring|measured|measure|as measured)?\s*(?:from|between)?\s*(?:the\s+)?(?:closest|nearest)"
                r"\s+points?(?:\s+(?:of|on)\s+(?:each|the|both|two)(?:\s+(?:two|the))?\s+objects?)?"),
     re.compile(r"(?:closest|nearest)[- ]point[- ]to[- ](?:closest|nearest)[- ]point"),
+    # "at the closest bit", "at their nearest": how a distance is measured (always between the closest points)
+    re.compile(r"\bat (?:the|its|their) (?:closest|nearest) (?:bits?|parts?|spots?|points?|edges?|places?|sides?)\b|"
+               r"\bat (?:its|their) (?:closest|nearest)\b(?! (?:to|from)\b)"),
     re.compile(r"(?:an object is (?:to )?my back|(?:it|something) counts as (?:behind|back)|count (?:it|that|"
                r"something) as (?:behind|back)) if .{0,120}?(?:face it|degrees(?: or more)?)\b"),
+    # "(behind meaning I'd have to turn 135 degrees or more)": what "behind" means, not a question
+    re.compile(r"\(?\b(?:behind|back) (?:means|meaning|meant|being|is|=|here means|here is)\b[^()?]{0,120}?"
+               r"\bdegrees(?: or (?:more|over|above|beyond))?\)?"),
     re.compile(r"(?:the )?directions? (?:refer|refers|are) .{0,160}?(?:y-axis|y axis|quadrants?)\b\)?"),
 ]
 
@@ -31,7 +37,8 @@ IMAGINED_VIEWER = [(re.compile(rx), to) for rx, to in (
 
 def strip_preamble(joined: str) -> tuple[str, dict[str, Any]]:
     extra: dict[str, Any] = {}
-    m = re.search(r"(?:turn|turning) (?:at least |more than |over |by )?(\d+)\s+degrees", joined)
+    m = re.search(r"\b(?:turn|turning|turned|rotate|rotating|rotation)(?: of| by| through)?(?: at least| more than| over|"
+                  r" about)? (\d+)\s+degrees", joined)
     if m:
         extra["back_deg"] = float(m.group(1))
     for rx in PREAMBLE:
@@ -125,10 +132,11 @@ def intent(j: str, n_obj: int, has_opts: bool) -> str | None:
                      r"looking in the direction of|eyes on|gaze on|pointed at|pointing at|oriented towards?|"
                      r"turn(?:s|ing)? (?:to|towards?)|gazing at|gaze at|watching|staring at|my face to)\b|" +
                   FACING_AHEAD_RX)
-    if not has(j, r"\bhow many\b") and has(j, r"\b(?:appear|appears|appeared|appearance|show up|showed up|"
-                                              r"came into view)\b|"
+    sided = stance and has(j, r"\b(?:left|right|behind)\b")  # "facing X, does Y appear left or right of X?"
+    if not sided and (not has(j, r"\bhow many\b") and has(j, r"\b(?:appear|appears|appeared|appearance|show up|"
+                                                            r"showed up|came into view)\b|"
                r"\b(?:see|saw|seen|spot|spotted|notice|noticed)\b.*\bfirst\b|\bfirst\b.*\b(?:see|saw|seen)\b|"
-               r"\bin (?:what|which) order\b") or has(j, ORDER_RX) and not stance:
+               r"\bin (?:what|which) order\b") or has(j, ORDER_RX) and not stance):
         return "obj_appearance_order"
     where_i = re.sub(r"\b(?:looking|look|looked|staring) at\b", " ", j)  # "looking at A, B or C, which ...": no place
     if stance and has(where_i, r"\b(?:standing|stand|stood|sitting|sit|i am|i'm|im|i was|you are|from|at|by|next "
@@ -136,6 +144,7 @@ def intent(j: str, n_obj: int, has_opts: bool) -> str | None:
                                 r"against)|behind me|at my back)\b"):
         return "direction"
     if has(j, r"\b(?:distance|how far|far apart|far away|far from|how close|how near|gap (?:between|from)|separat\w*|"
+               r"(?:gap|space) (?:is there |are there |do you see |would there be )?(?:between|from)|"
                r"spacing|"
                r"how much (?:space|room|gap)|\b(?:from|between)\b.*\bhow many (?:meters?|metres?|feet|foot|ft|"
                r"cm|centimet\w+|inch(?:es)?|mm)\b|how many (?:m|meters?|"

@@ -47,6 +47,9 @@ placed shown fit fits go goes come comes get gets got keep keeps contain contain
 lie lies occupy occupies measure
 maximum max minimum min overall total approximate rough
 everything anything something nothing everyone all anywhere somewhere everywhere
+whichever whatever whoever whenever wherever altogether anyway anyhow though although also again already still
+even ever quite rather very perhaps maybe yet instead otherwise together answer answers reply greatest
+full entire exact precise
 me myself mine origin axis y-axis x-axis cartesian plane quadrant quadrants degrees degree
 """.split())
 COPULA = {"is", "are", "was", "were", "be", "been", "being", "get", "got", "gets"}
@@ -71,7 +74,7 @@ CMP = "(?:" + "|".join(COMPARATIVES) + ")"
 CMP_RX = rf"\b{CMP}\b"
 SUP_RX = r"\b(?:" + "|".join(SUPERLATIVES) + r")\b"
 # "the longest side of the bed", "the biggest dimension of the tv": a size question, not a comparison
-SUP_DIM_RX = SUP_RX + r" (?:sides?|dimensions?|edges?|extents?|length|measurements?|axis)\b"
+SUP_DIM_RX = SUP_RX + r"(?: of (?:its|their|the|his|her))? (?:sides?|dimensions?|edges?|extents?|length|measurements?|axis|axes)\b"
 NEAR_CUES = {"nearest", "closest", "next", "beside", "near", "by", "nearer", "closer"}
 DIR_PHRASES = [  # (regex over the joined tokens, canonical direction)
     (r"front-left|front left|left front|forward left|ahead (?:and )?(?:to the )?left", "front-left"),
@@ -145,9 +148,9 @@ PRONOUN_CUES = LOCATION | set(RELATION_WORDS) | NEAR_CUES | {"top"}
 FACE1 = {"facing", "face", "faces", "faced", "towards", "toward", "watching"}
 PLACED_VERBS = {"am", "i'm", "im", "standing", "stand", "sitting", "sit", "be", "was", "were", "stood", "sat"}
 # "standing by the bed with the sofa in front of me": facing the sofa
-AHEAD_OF_ME = r"(?:in front of|ahead of|before) (?:me|us|you|it|him|her|them)\b"  # "with the sofa in front of me"
+AHEAD_OF_ME = r"(?:(?:right|straight|directly|just|dead) )?(?:in front of|ahead of|before) (?:me|us|you|it|him|her|them)\b"  # "with the sofa in front of me"
 IS_AHEAD = r"(?:is|are) (?:straight |directly |right )?(?:ahead|in front of me)\b"  # "the tv is straight ahead"
-FACING_AHEAD_RX = (rf"\bwith (?:the |a |an )?[^,?]{{1,40}}? {AHEAD_OF_ME}|\b{IS_AHEAD}|(?:^|[,:;.] )(?:the |a |an )"
+FACING_AHEAD_RX = (rf"\b(?:with|have|having|got) (?:the |a |an )?[^,?]{{1,40}}? {AHEAD_OF_ME}|\b{IS_AHEAD}|(?:^|[,:;.] )(?:the |a |an )"
                    rf"[^,?.]{{1,40}}? {AHEAD_OF_ME}")
 FACE2 = {"looking at", "look at", "looked at", "staring at", "turned to", "turn to", "direction of", "looking toward",
           "gazing at", "gaze at", "face to", "faced to", "facing to", "faces to",

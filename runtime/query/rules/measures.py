@@ -12,6 +12,12 @@ from .state import R, State
 from .tokens import has, unit_in
 
 
+_DIMS = {"height": r"\b(?:tall|high|height)\b", "width": r"\b(?:wide|width)\b", "length": r"\b(?:long|length)\b",
+         "depth": r"\b(?:deep|depth)\b"}
+# the one of several dimensions asked for ("whichever of them is biggest")
+_MOST = r"\b(?:biggest|largest|longest|greatest|most|max|maximum|bigger|larger|longer|greater|highest|widest)\b"
+
+
 def _dimension(joined: str) -> str:
     if has(joined, ELEVATION_RX):
         return "elevation"  # "how high above the floor is the lamp?": its bottom over the floor
@@ -20,6 +26,9 @@ def _dimension(joined: str) -> str:
     if (has(joined, r"\bdimensions\b|\bmeasurements\b|\bhow (?:long|wide|tall|high|deep) and (?:wide|long|tall|high|"
                     r"deep)\b") and not has(joined, SUP_RX + r"|\b(?:maximum|max|greatest)\b")):
         return "all"  # "what are the dimensions of the desk?": width x depth x height
+    named = [d for d, rx in _DIMS.items() if has(joined, rx)]
+    if len(named) > 1 and has(joined, r"\bor\b"):  # "how tall or wide or long is it": one of several
+        return "longest" if has(joined, _MOST) else "several"
     for dim, rx in (("longest", r"\b(?:longest|biggest|largest|maximum|max|greatest)\b(?: \w+)? (?:side|dimension|"
                                 r"edge|extent|length)|\bsize\b|\bhow (?:big|large)\b|\bdimensions?\b"),
                     ("height", r"\bhow (?:tall|high)\b|\bheight\b|\btall\b"),
@@ -38,6 +47,10 @@ def size(st: State, toks: list[str], joined: str, nps: list[dict[str, Any]], ext
     if n is None:
         return None
     dim = _dimension(joined)
+    if dim == "several":  # never one of them picked at random
+        names = [d for d, rx in _DIMS.items() if has(joined, rx)]
+        return st.fail(f"a size question of '{st.phrase(n)}'", f"which of {' or '.join(names)} (ask for one, or "
+                                                               f"'the longest dimension')")
     unit = "m3" if dim == "volume" else unit_in(joined, "m" if dim == "elevation" else "cm")
     return Size(R(n), dim, unit)
 

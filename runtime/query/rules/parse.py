@@ -19,7 +19,7 @@ from . import counting, directions, distances, measures, route
 from .intent import EXCEPT_RX, WALK_RX, intent, refuse_whole_text, route_options, strip_preamble, unread_negation
 from ..vocabulary import NAME_SYNONYMS, canonical_name, name_key
 from .distances import two_names
-from .lexicon import DET, FACE1, LOCATION, RANKS, RELATION_WORDS
+from .lexicon import DET, FACE1, LOCATION, RANKS, RELATION_WORDS, STOP
 from .clauses import read_clauses
 from .locations import attachments, resolve_pronouns
 from .state import R, Refused, State
@@ -55,6 +55,14 @@ def parse_natural(question: str, options: list[str] | None = None, names: Iterab
     as an object, as before."""
     keys = frozenset(name_key(n) for n in names)
     node, st = _attempt(question, options, keys, mentions_first=True)
+    if node is not None and st.weak:  # "do me a favour and add up the sofas": stray words in object slots
+        node2, st2 = _attempt(question, options, keys, mentions_first=True, drop_weak=True)
+        if node2 is not None and type(node2) is type(node) and node.qtype not in _EVERY_PHRASE:
+            return st2.finish(node2), st2
+    if node is None and st.weak:  # refused: without the stray words ("..., no rush at all", "bit of a weird one")
+        node2, st2 = _attempt(question, options, keys, mentions_first=True, drop_weak=True)
+        if node2 is not None and node2.qtype not in _EVERY_PHRASE:
+            return st2.finish(node2), st2
     if node is None and st.unknown:  # refused: read only the phrases that name a known object ("the doorway")
         node2, st2 = _attempt(question, options, keys, mentions_first=True, known_only=True)
         if node2 is not None:
@@ -64,11 +72,15 @@ def parse_natural(question: str, options: list[str] | None = None, names: Iterab
     return (st.finish(node) if node is not None else None), st
 
 
+# kinds whose every phrase is an object, known or not (a waypoint, a thing seen)
+_EVERY_PHRASE = {"route_planning", "obj_appearance_order"}
+
+
 def _attempt(question: str, options: list[str] | None, keys: frozenset[str], mentions_first: bool,
-             known_only: bool = False) -> tuple[Node | None, State]:
+             known_only: bool = False, drop_weak: bool = False) -> tuple[Node | None, State]:
     st = State(question, options)
     try:
-        node = _parse(st, keys if mentions_first else None, known_only)
+        node = _parse(st, keys if mentions_first else None, known_only, drop_weak)
     except Refused:
         node = None
     return node, st
@@ -113,7 +125,39 @@ def mentions(toks: list[str], nps: list[dict[str, Any]], keys: frozenset[str], k
     return [named(p) or marked(p) or not verb_like(p) for p in nps]
 
 
-def _parse(st: State, keys: frozenset[str] | None, known_only: bool = False) -> Node | None:
+# between two phrases of one list of objects ("the chair, the zither or the lamp")
+_COORD = {"and", "or", ",", "nor", "versus", "vs", "&", "/", "plus"}
+
+
+def weak(toks: list[str], nps: list[dict[str, Any]], known: list[bool]) -> list[bool]:
+    """Per phrase: a word that names no known object and that nothing in the sentence holds as one? Such a phrase
+    is held when it is listed with a known object ("chairs and zithers") or comes right after a location,
+    facing or comparison word ("near the zither", "than the zither") and does not read as a participle
+    ("my face pointed at"); else it is weak ("exact number if you can", "do me a favour", "all told")."""
+    def gap(i: int, j: int) -> list[str]:
+        if not 0 <= j < len(nps):
+            return []
+        a, b = (nps[j], nps[i]) if j < i else (nps[i], nps[j])
+        return [t for t in toks[a["end"]:b["start"]] if t not in DET]
+
+    def listed(i: int) -> bool:  # a comma alone lists only inside a list ("the sofa, whereabouts is ...": none)
+        for j, other in ((i - 1, i + 1), (i + 1, i - 1)):
+            g = gap(i, j)
+            if g and known[j] and set(g) <= _COORD and (g != [","] or set(gap(i, other) or ["x"]) <= _COORD):
+                return True
+        return False
+
+    def placed(p: dict[str, Any]) -> bool:  # "of" places only after a word of the parser ("left of", "size of";
+        b = before(toks, p, 2)                # not "a bit of a weird one", "the top of your head")
+        participle = all(re.search(r"(?:ing|ed)$", w) for w in p["words"])
+        of_ok = b[-1:] != ["of"] or (len(b) > 1 and b[-2] in STOP)
+        return bool(b) and b[-1] in _MARKERS and of_ok and not participle
+
+    return [not k and not listed(i) and not placed(p) for i, (p, k) in enumerate(zip(nps, known))]
+
+
+def _parse(st: State, keys: frozenset[str] | None, known_only: bool = False, drop_weak: bool = False
+           ) -> Node | None:
     """The parse steps, each refusing (`Refused`) rather than dropping a word it cannot apply."""
     toks, read = read_clauses(tokens(st.question), lambda ph: name_key(ph) in NAME_SYNONYMS or name_key(ph) in
                               (keys or frozenset()))
@@ -129,8 +173,12 @@ def _parse(st: State, keys: frozenset[str] | None, known_only: bool = False) -> 
         keep = mentions(toks, nps_all, keys, known_only)
         known = mentions(toks, nps_all, keys, True)
         st.unknown = not all(known)
+        frail = weak(toks, nps_all, known)
+        if drop_weak:  # the stray words leave; the rest of the reading stays as it was
+            keep = [k and not f for k, f in zip(keep, frail)]
+        st.weak = [" ".join(p["words"]) for p, k, f in zip(nps_all, keep, frail) if k and f]
         prop = [p for p, k in zip(nps_all, known) if not k and p["start"] > 0 and toks[p["start"] - 1] in _DEGREE]
-        if known_only and prop:  # never left out: they say what is asked ("more comfortable than")
+        if (known_only or drop_weak) and prop:  # never left out: they say what is asked ("more comfortable than")
             st.notes.append(f"'{' '.join(prop[0]['words'])}': a property the map does not hold")
             raise Refused
         placed = [(p, q) for p, q, k, kq in zip(nps_all, nps_all[1:], known, known[1:]) if not k and kq and
@@ -138,6 +186,12 @@ def _parse(st: State, keys: frozenset[str] | None, known_only: bool = False) -> 
         if known_only and placed:  # "whatever sits by the window": the window places the unknown one, never
             p, q = placed[0]     # stands in for it
             st.notes.append(f"'{' '.join(toks[p['start']:q['end']])}': an object told by its place, not named")
+            raise Refused
+        held = [p for p, k, f in zip(nps_all, known, frail) if not k and not f]
+        if known_only and held:  # "how many chairs are near the zither?": never answered without the zither
+            b = before(toks, held[0], 1)
+            st.notes.append(f"'{' '.join(b + held[0]['words'])}': an object the vocabulary does not know, where "
+                            f"the question needs one")
             raise Refused
         st.dropped = [" ".join(p["words"]) for p, k in zip(nps_all, keep) if not k]
         if st.dropped:

@@ -31,6 +31,7 @@ class State:
         self.selectors: dict[str, dict[str, Any]] = {}
         self.notes: list[str] = []
         self.dropped: list[str] = []  # phrases read as no object (`parse.mentions`)
+        self.weak: list[str] = []  # unknown phrases read as objects that nothing in the sentence holds as one
         self.unknown = False  # a phrase names no known object (the parse may be tried without such phrases)
 
     def phrase(self, name: str) -> str:
