@@ -123,3 +123,25 @@ def test_asides_give_the_same_program_or_a_refusal_never_another():
                 seen[key] += 1
     assert not seen["other"], seen["other"][:3]
     assert seen["same"] >= 0.9 * (seen["same"] + seen["refused"]), seen
+
+
+@pytest.mark.parametrize("q", [
+    "Is the couch bigger than whatever sits by the window?",
+    "How big is whatever is on the table?",
+    "Which is bigger, the couch or something near the window?",
+    "how far is the sofa from the thing by the door?",
+    "Is the chair taller than the one next to the tv?",
+])
+def test_an_object_told_only_by_its_place_is_refused_never_replaced_by_the_place(q):
+    p = parse_question(q)
+    assert p.program is None and any("told by its place" in n for n in p.notes), (q, p.notes)
+
+
+@pytest.mark.parametrize("q,kind", [
+    ("Is there anything on the table?", "object_existence"),
+    ("which things are near the couch?", "object_list"),
+    ("How many things are on the desk?", "object_counting"),
+    ("Which one is closest to the door, the sofa or the chair?", "object_rel_distance"),
+])
+def test_asking_for_every_object_by_its_place_stays_a_reading(q, kind):
+    assert parse_question(q).qtype == kind, q

@@ -156,6 +156,36 @@ def weak(toks: list[str], nps: list[dict[str, Any]], known: list[bool]) -> list[
     return [not k and not listed(i) and not placed(p) for i, (p, k) in enumerate(zip(nps, known))]
 
 
+_VAGUE = {"whichever", "whatever", "thing", "object", "item"}
+# "is there anything on the desk?", "how many things are on it?": every object the map holds, a reading of its own
+_WILDCARD = {"something", "anything", "things", "stuff", "objects", "items"}
+_ASKS_ALL = {"many", "there", "which", "what", "whats", "any"}  # the words that ask for every object
+
+
+def told_by_place(toks: list[str], nps: list[dict[str, Any]], known: list[bool]) -> str | None:
+    """The words of an object told only by its place ("whatever sits by the window", "the one next to the door"),
+    else None: a vague word, then within a few words a location word, then a known object."""
+    starts = {p["start"]: k for p, k in zip(nps, known)}
+    inside = {i for p, k in zip(nps, known) if k for i in range(p["start"], p["end"])}
+    for i, w in enumerate(toks):
+        one = w in ("one", "ones") and i > 0 and toks[i - 1] in ("the", "that", "this", "those")
+        asked_all = w in _WILDCARD and bool(set(toks[max(0, i - 3):i]) & _ASKS_ALL)  # "is there anything on it?"
+        vague = w in _VAGUE or (w in _WILDCARD and not asked_all) or one
+        if not vague or i in inside:
+            continue
+        seen_loc = False
+        for j in range(i + 1, min(i + 6, len(toks))):
+            if j in starts:
+                if seen_loc and starts[j]:
+                    return " ".join(toks[i:j + 1])
+                break
+            if toks[j] in LOCATION:
+                seen_loc = True
+            elif not re.match(r"^[a-z']+$", toks[j]):
+                break
+    return None
+
+
 def _parse(st: State, keys: frozenset[str] | None, known_only: bool = False, drop_weak: bool = False
            ) -> Node | None:
     """The parse steps, each refusing (`Refused`) rather than dropping a word it cannot apply."""
@@ -186,6 +216,10 @@ def _parse(st: State, keys: frozenset[str] | None, known_only: bool = False, dro
         if known_only and placed:  # "whatever sits by the window": the window places the unknown one, never
             p, q = placed[0]     # stands in for it
             st.notes.append(f"'{' '.join(toks[p['start']:q['end']])}': an object told by its place, not named")
+            raise Refused
+        vague = told_by_place(toks, nps_all, known)
+        if vague:  # "bigger than whatever sits by the window": the window places the object, never stands in for it
+            st.notes.append(f"'{vague}': an object told by its place, not named")
             raise Refused
         held = [p for p, k, f in zip(nps_all, known, frail) if not k and not f]
         if known_only and held:  # "how many chairs are near the zither?": never answered without the zither
