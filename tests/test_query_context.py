@@ -33,8 +33,12 @@ def test_a_typo_of_a_function_word_is_never_an_object(q):
 
 
 def test_a_typo_as_near_a_number_as_a_function_word_before_a_noun_is_refused():
-    node, notes = ask("are thre lamps by the bed?")  # "there" or "three" lamps: never guessed
+    node, notes = ask("how far apart are the thre lamps?")  # "the" or "three" lamps: never guessed
     assert node is None and any("thre" in n and "three" in n for n in notes), notes
+    node, notes = ask("are thre lamps by the bed?")  # after a copula, "there" asks ("are there lamps ...")
+    assert node is not None and node["kind"] == "exists" and any("'thre' as 'there'" in n for n in notes), notes
+    node, notes = ask("how long is the sofa now?")  # a time word is no part of a name
+    assert node is not None and node["object"]["name"] == "sofa", node
 
 
 @pytest.mark.parametrize("q, unit", [("desk and bed, edge-to-edge gap, mm?", "mm"),

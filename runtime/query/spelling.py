@@ -183,9 +183,9 @@ def candidates(word: str, extra: frozenset[str] = frozenset(), protect: bool = T
     top = [c for c in cands if c[:2] == cands[0][:2]]
     if len({singular(c[2]) for c in top}) == 1:  # "sofaa": sofa or sofas, one name either way
         top = sorted(top, key=lambda c: (c[2][-1] != word[-1], abs(len(c[2]) - len(word)), c[2]))[:1]  # "sofs"
-    if len(top) > 1 and top[0][1] == 1:  # a tie among words of no use to the parser: nothing to read, unless one
-        # is a number ("thre": there or three?): a count read past it, or it read as an object, would be a guess
-        return [c[2] for c in top] if any(c[2] in NUMBERS for c in top) else []
+    if len(top) > 1 and top[0][1] == 1:  # a tie among words of no use to the parser: nothing to read, unless one is
+        # a number or the "there" of counting ("thre": the, there or three?; "ther"): read as an object, a guess
+        return [c[2] for c in top] if any(c[2] in NUMBERS or c[2] == "there" for c in top) else []
     return [c[2] for c in top]
 
 
@@ -250,6 +250,8 @@ def correct(text: str, names: Iterable[str] = ()) -> tuple[str, list[str], list[
         top = _cached(w) if not extra else tuple(candidates(w, extra))
         if len(top) > 1 and not _before_a_noun(m.string[m.end():]):  # "how many are thre?": not a number or an
             top = tuple(c for c in top if c not in NUMBERS and c not in DET) or top  # article, nothing follows
+        if len(top) > 1 and "there" in top and _after_copula(m.string[:m.start()]):  # "are ther", "is thre":
+            top = ("there",)                                                          # "there" asks
         if len(top) > 1:
             unclear.append(f"'{w}' ({' or '.join(top)}?)")
         if len(top) != 1:
@@ -265,6 +267,10 @@ def _before_a_noun(after: str) -> bool:
     break or a function word ("are thre in this room", "how many are thre?")."""
     m = re.match(r"\s*([a-z']+)", after)
     return m is not None and m.group(1) not in STOP and m.group(1) not in LOCATION and m.group(1) not in DET
+
+
+def _after_copula(before: str) -> bool:
+    return re.search(r"\b(?:is|are|was|were)\s*$", before) is not None
 
 
 def second_reading(text: str) -> tuple[str, list[str]]:
