@@ -69,6 +69,13 @@ def test_a_context_with_two_objects_the_map_holds_is_refused_not_guessed():
     assert node is not None and node["kind"] == "nearest" and node["origin"]["name"] == "bookshelf", node
 
 
+def test_from_there_after_a_context_is_the_place_it_names():
+    node, notes = ask("I'm leaving a box beside the wardrobe. From there, which is nearest: the desk, the bed or "
+                      "the tv?", names=("box", "wardrobe", "desk", "bed", "tv"))
+    assert node is not None and node["kind"] == "nearest" and node["origin"]["name"] == "wardrobe", (node, notes)
+    assert "box" not in str(node), node
+
+
 def test_a_context_sentence_is_never_an_object_asked_about():
     node, notes = ask("I'm deciding where a new lamp should go. With the sofa at my side and the tv straight in "
                       "front, which quadrant is the desk in: front-left, front-right, back-left or back-right?")
@@ -112,6 +119,7 @@ def test_the_reference_named_first_with_shortest_distance_away():
 
 @pytest.mark.parametrize("q", [
     "position: desk. facing: bed. is the lamp left or right of the bed?",
+    "stand at: desk / face: bed - is the lamp on the left or the right of the bed?",
     "If I stand by the desk and spin around to face the bed, is the lamp to the left or the right of the bed?",
     "Suppose I'm at the desk and swivel round to face the bed: would the lamp be on the bed's left or right?",
 ])

@@ -82,8 +82,9 @@ PHRASES: list[tuple[str, str]] = [
     # directions
     (r"\bdead ahead\b", "straight ahead"),
     # a stance told in a form's colons ("stand: table. face: fireplace.")
-    (r"(^|[.;,] |- )(?:stand|standing|position|location|at|start|starting|start at|me)\s*: ", r"\1standing at "),
-    (r"(^|[.;,] |- )(?:face|facing|looking at|look at|heading|facing toward|facing towards)\s*: ", r"\1facing "),
+    (r"(^|[.;,/|] |- )(?:stand|standing|stand at|standing at|position|location|at|start|starting|start at|me)\s*: ",
+     r"\1standing at "),
+    (r"(^|[.;,/|] |- )(?:face|facing|looking at|look at|heading|facing toward|facing towards)\s*: ", r"\1facing "),
     # turning to face, in other verbs ("swing round to face", "spin around and face")
     (r"\b(?:swing|swings|swung|spin|spins|spun|swivel|swivels|pivot|pivots|wheel|wheels|twist|twists|rotate|rotates)"
      r"(?: (?:round|around|about))?(?= (?:to|and) fac)", "turn"),

@@ -208,14 +208,18 @@ def _context(toks: list[str], known: Callable[[str], bool], held: Callable[[str]
         return toks  # no question after it
     stance, asks_direction = bool(set(words) & _STANCE), bool(rest_words & _DIRECTION)
     said = " ".join(words)
-    pron = next((i for i, w in enumerate(rest) if w == "it" or (w == "that" and i + 1 < len(rest) and
-                                                                 rest[i + 1] in _AFTER_PRONOUN)), None)
+    pron = next((i for i, w in enumerate(rest) if w == "it" or (w == "that" and i + 1 < len(rest) and rest[i + 1]
+                 in _AFTER_PRONOUN) or (w == "there" and i > 0 and rest[i - 1] in ("from", "to"))), None)
     if pron is not None and _mentions(rest[:pron], known):  # "it" has its object in the question itself
         pron = None
     if pron is not None:
         if stance and asks_direction:
             return toks
-        objs = [words[a:c] for a, c in _mentions(words, known)]
+        spans = _mentions(words, known)
+        if rest[pron] == "there":  # "from there": the place the context names ("a plant near the sofa")
+            spans = [(a, c) for a, c in spans if [w for w in words[max(0, a - 3):a] if w not in DET][-1:] and
+                     [w for w in words[max(0, a - 3):a] if w not in DET][-1] in _MARKERS]
+        objs = [words[a:c] for a, c in spans]
         if len(objs) > 1 and held is not None:
             objs = [o for o in objs if held(" ".join(o))] or objs
         if len({" ".join(o) for o in objs}) != 1:
