@@ -41,11 +41,14 @@ PHRASES: list[tuple[str, str]] = [
     (r"\bi (?:don't|do not|can't|cannot) (?:remember|recall|tell|say)\b(?! (?:if|whether)\b)", ""),
     # courtesies with a "no" that negate nothing asked ("no rush", "no worries if not")
     (r"\b(?:there's |there is )?no (?:rush|hurry|pressure|worries|worry|stress|biggie)(?: at all)?(?: if not)?\b", ""),
+    # asides about precision that ask nothing ("give or take is fine", "roughly is ok"): not before a number
+    (r"\b(?:give or take|roughly|approximately|approx|ballpark)(?: is| would be| will be|'s|'d be)? "
+     r"(?:fine|ok|okay|good|enough|alright|all right)\b", ""),
     # counts
     (r"\b(?:tally|headcount|head count)\b", "count"), (r"\bhow much of\b", "how many"),
     # sizes
-    (r"\b(?:from )?(?:end[- ]to[- ]end|tip to tip|edge to edge|head to (?:foot|toe)|top to bottom|side to side|"
-     r"wall to wall)\b", ""),
+    (r"\b(?:from )?(?:end[- ]to[- ]end|tip[- ]to[- ]tip|edge[- ]to[- ]edge|head[- ]to[- ](?:foot|toe)|top[- ]to[- ]bottom|"
+     r"side[- ]to[- ]side|wall[- ]to[- ]wall)\b", ""),
     (r"\b(?:whichever|whatever) ?(?:'s| is)(?: the)? (biggest|largest|longest|greatest)\b", r"the \1"),
     (r"\bat (its|their) (longest|biggest|largest|greatest)(?: point| side)?\b", r"at \1 \2 dimension"),
     # "the longest of its three dimensions", "whichever of the three is biggest": the count of sides is no object
@@ -53,6 +56,16 @@ PHRASES: list[tuple[str, str]] = [
      r"edges|directions|quadrants|options|choices|answers|possibilities)\b", r"\1 \2"),
     (r"\b(?:of )?(?:the|those|these|all) (?:two|three|four|2|3|4)(?= (?:is|are|was|were|would|will|gives?)\b|\s*[,?.!]|$)",
      ""),
+    # how it is measured, said in words: no object ("closest point to closest point", "from the nearest points on
+    # each of them", "count from the closest point of each")
+    (r"\b(?:(?:measur(?:e|ing|ed)|count(?:ing|ed)?|going|taken|take it) )?(?:from )?(?:the )?(?:closest|nearest) "
+     r"(?:points?|bits?|edges?|parts?|surfaces?)(?: to (?:the )?(?:closest|nearest) (?:points?|bits?|edges?|parts?|"
+     r"surfaces?))?(?: (?:on|of) (?:each of them|each of the two|both of them|each|both|either|them))?"
+     r"(?= ?[,:;.?!)]| - |$| in | please\b)", ""),
+    (r"\b(?:measure|measuring) (?:the (?:distance|gap|space) )?between\b", "distance between"),
+    # the reference first, the candidates after ("from the bed, which is the shortest distance away: ...")
+    (r"\b(?:is )?(?:the )?(?:shortest|smallest|least) (?:distance|way) (?:away|off)\b", "is closest"),
+    (r"\b(?:is )?(?:the )?(?:longest|biggest|largest|greatest) (?:distance|way) (?:away|off)\b", "is farthest"),
     # distances
     (r"\b(?:measure|measuring|measured) (?:the (?:way|gap|space|span) )?from\b", "distance from"),
     (r"\bwhatever\b", "whichever"),
@@ -68,6 +81,16 @@ PHRASES: list[tuple[str, str]] = [
     (r"\bthe (?:foot|head|end|edge|side|far side|near side|front|back|top|bottom) of (the|a|an|my|this|that) ", r"\1 "),
     # directions
     (r"\bdead ahead\b", "straight ahead"),
+    # a stance told in a form's colons ("stand: table. face: fireplace.")
+    (r"(^|[.;,/|] |- )(?:stand|standing|stand at|standing at|position|location|at|start|starting|start at|me)\s*: ",
+     r"\1standing at "),
+    (r"(^|[.;,/|] |- )(?:face|facing|looking at|look at|heading|facing toward|facing towards)\s*: ", r"\1facing "),
+    # turning to face, in other verbs ("swing round to face", "spin around and face")
+    (r"\b(?:swing|swings|swung|spin|spins|spun|swivel|swivels|pivot|pivots|wheel|wheels|twist|twists|rotate|rotates)"
+     r"(?: (?:round|around|about))?(?= (?:to|and) fac)", "turn"),
+    # a measure told by a verb after the object ("how many feet does the chair span")
+    (r"\b(does|do|did|would|will) (the|that|this|each|its|their|a|an|my) ([a-z]+(?: [a-z]+)?) (?:span|stretch|extend|"
+     r"run|reach|cover|go|come to|take up)\b", r"\1 \2 \3 measure"),
     (r"\b(looking|look|looks|staring|gazing|turned|facing) (?:over|straight|directly|right|across|out) "
      r"(at|toward|towards|to)\b", r"\1 \2"),
     # "the stove in front", "the bed ahead": in front of the asker

@@ -47,7 +47,7 @@ between across along among behind beside besides beyond near nearby next past si
 day days time times way ways side sides end ends top tops bottom middle centre center corner corners edge
 edges front back left right ahead straight first last second third start starts started begin begins began
 walk walking turn turns turned turning reach reached facing faced standing stood sitting seated lying
-tally clearance neighbour neighbours neighbor neighbors footage diagonal
+swing swings swung tally clearance neighbour neighbours neighbor neighbors footage diagonal
 note fill able tree flower stall pot pan mat box ball bag bar car cat dog man woman person people kid child
 baby toy toys game games food fruit water glass glasses plate plates bowl bowls basket drawer drawer blind
 blinds sheet blanket quilt duvet tap taps rail rails hanger light lights switch socket outlet vent fence gate
@@ -183,8 +183,9 @@ def candidates(word: str, extra: frozenset[str] = frozenset(), protect: bool = T
     top = [c for c in cands if c[:2] == cands[0][:2]]
     if len({singular(c[2]) for c in top}) == 1:  # "sofaa": sofa or sofas, one name either way
         top = sorted(top, key=lambda c: (c[2][-1] != word[-1], abs(len(c[2]) - len(word)), c[2]))[:1]  # "sofs"
-    if len(top) > 1 and top[0][1] == 1:  # a tie among words of no use to the parser: nothing to read
-        return []
+    if len(top) > 1 and top[0][1] == 1:  # a tie among words of no use to the parser: nothing to read, unless one is
+        # a number or the "there" of counting ("thre": the, there or three?; "ther"): read as an object, a guess
+        return [c[2] for c in top] if any(c[2] in NUMBERS or c[2] == "there" for c in top) else []
     return [c[2] for c in top]
 
 
@@ -231,7 +232,8 @@ def _plural_stem(word: str, meaning: frozenset[str], known: frozenset[str]) -> s
     return plural(w) if w is not None and w in meaning else None
 
 
-_WORD = re.compile(r"(?<![\w'-])[a-z]+(?![\w'-])")
+# a word, also before a possessive "'s" ("the fireplcae's largest side")
+_WORD = re.compile(r"(?<![\w'-])[a-z]+(?=(?:'s)?(?![\w'-]))")
 
 
 def correct(text: str, names: Iterable[str] = ()) -> tuple[str, list[str], list[str]]:
@@ -246,6 +248,10 @@ def correct(text: str, names: Iterable[str] = ()) -> tuple[str, list[str], list[
     def fix(m: re.Match) -> str:
         w = m.group(0)
         top = _cached(w) if not extra else tuple(candidates(w, extra))
+        if len(top) > 1 and not _before_a_noun(m.string[m.end():]):  # "how many are thre?": not a number or an
+            top = tuple(c for c in top if c not in NUMBERS and c not in DET) or top  # article, nothing follows
+        if len(top) > 1 and "there" in top and _after_copula(m.string[:m.start()]):  # "are ther", "is thre":
+            top = ("there",)                                                          # "there" asks
         if len(top) > 1:
             unclear.append(f"'{w}' ({' or '.join(top)}?)")
         if len(top) != 1:
@@ -254,6 +260,17 @@ def correct(text: str, names: Iterable[str] = ()) -> tuple[str, list[str], list[
         return top[0]
 
     return _WORD.sub(fix, text), list(dict.fromkeys(notes)), list(dict.fromkeys(unclear))
+
+
+def _before_a_noun(after: str) -> bool:
+    """Whether a word that could be what a number or an article counts follows ("thre chairs"), not the end, a
+    break or a function word ("are thre in this room", "how many are thre?")."""
+    m = re.match(r"\s*([a-z']+)", after)
+    return m is not None and m.group(1) not in STOP and m.group(1) not in LOCATION and m.group(1) not in DET
+
+
+def _after_copula(before: str) -> bool:
+    return re.search(r"\b(?:is|are|was|were)\s*$", before) is not None
 
 
 def second_reading(text: str) -> tuple[str, list[str]]:

@@ -30,7 +30,7 @@ width height depth measure measures measured measuring measurement measurements 
 volume elevation hung installed fixed relative relation respect regard half counting excluding including
 leave leaving forgot forget forgotten drop dropped lost present visible separating spacing separation
 option options choice choices following eyes gaze oriented orientated position location pointing gazing
-watching staring
+watching staring now currently presently today tonight anymore
 point points object objects thing things item items stuff furniture piece pieces kind kinds type types
 please thanks roughly approximately approx around exactly just only really actually about estimate guess
 first second third fourth fifth last order appear appears appeared appearance came come comes seen

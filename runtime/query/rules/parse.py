@@ -186,11 +186,19 @@ def told_by_place(toks: list[str], nps: list[dict[str, Any]], known: list[bool])
     return None
 
 
+def _held(keys: frozenset[str] | None) -> Callable[[str], bool] | None:
+    """Whether the map holds a phrase, by its name or a synonym ("cooker" in a map of "stove"s); None: no map."""
+    if not keys:
+        return None
+    canon = {canonical_name(k) or k for k in keys}
+    return lambda ph: name_key(ph) in keys or (canonical_name(ph) or name_key(ph)) in canon
+
+
 def _parse(st: State, keys: frozenset[str] | None, known_only: bool = False, drop_weak: bool = False
            ) -> Node | None:
     """The parse steps, each refusing (`Refused`) rather than dropping a word it cannot apply."""
     toks, read = read_clauses(tokens(st.question), lambda ph: name_key(ph) in NAME_SYNONYMS or name_key(ph) in
-                              (keys or frozenset()))
+                              (keys or frozenset()), _held(keys))
     st.notes += [n for n in read if n not in st.notes]
     joined, extra = strip_preamble(" ".join(toks))
     toks = resolve_pronouns(st, joined.split())

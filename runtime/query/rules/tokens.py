@@ -102,10 +102,11 @@ def unit_in(joined: str, default: str) -> str:
     m = re.search(r"\b(?:in|into|using|as|how many|number of|many)\s+(?:the\s+)?([a-z]+)\b", joined)
     if m and m.group(1) in UNIT_WORDS:
         return UNIT_WORDS[m.group(1)]
-    for w in joined.split():
-        if w in UNIT_WORDS and len(w) > 2:
+    for w in joined.split():  # "cm", "mm", "ft" are no other word ("..., cm?"); "m" and "in" only as said above
+        if w in UNIT_WORDS and (len(w) > 2 or w in ("cm", "mm", "ft")):
             return UNIT_WORDS[w]
-    return default
+    m = re.search(r"(?:^|[,:;.?!-] )(m|in)(?: [?.!,]|$)", joined)  # a bare "m" / "in" only as a clause of its own
+    return UNIT_WORDS[m.group(1)] if m else default
 
 
 # ----------------------------------------------------------------------------- intents
