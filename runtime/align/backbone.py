@@ -259,6 +259,10 @@ def align_backbone(al: AlignmentResult, frames: list[Frame], matcher: KeyedMatch
     stats: dict[tuple[int, int], EdgeResult] = {}
 
     walker = matcher if bconf.walk_matcher == 'pipeline' else OrbWalker(bconf.walk_keypoints)
+    for m in (matcher, walker):  # every frame the walks may load stays cached: none is extracted twice
+        hold = getattr(m, "hold", None)
+        if callable(hold):
+            hold(len(frames) + bconf.max_frames)
     wpx = bconf.pnp_px if bconf.pnp_px is not None else 1.5 * float(getattr(walker, "keypoint_px", 1.0))
 
     def estimate(a: int, b: int, adjacent: bool, wide: bool = False, icp: bool = True) -> EdgeResult:

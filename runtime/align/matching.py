@@ -227,6 +227,10 @@ class FeatureMatcher:
         self._pending: dict[Hashable, tuple[Future, np.ndarray]] = {}
         self._pool: ThreadPoolExecutor | None = None
 
+    def hold(self, n: int) -> None:
+        """Keep the features of at least `n` frame keys (`LRU.hold`)."""
+        self._cache.hold(n)
+
     def prefetch(self, items: Sequence[tuple[Hashable, np.ndarray]], workers: int = 1) -> None:
         """Start extracting the features of these (key, rgb) frames on `workers` threads (OpenCV releases the GIL;
         SIFT itself runs on one core): the caller's next steps run meanwhile, and `features` extracts a frame no

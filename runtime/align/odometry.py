@@ -133,6 +133,10 @@ class OrbWalker:
         self.extract_seconds = self.match_seconds = 0.0
         self.extracts = self.matches_done = 0
 
+    def hold(self, n: int) -> None:
+        """Keep the features of at least `n` frame keys (`LRU.hold`)."""
+        self._cache.hold(n)
+
     def features(self, key: Hashable, rgb: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
         """(keypoints [N, 2] float32 pixels, descriptors [N, 32] uint8 or None) of an image [H, W, 3] uint8."""
         import cv2

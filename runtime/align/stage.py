@@ -112,6 +112,10 @@ def align_keyframes(frames: list[Frame], matcher: KeyedMatcher, boxes: dict[int,
     `align_rest_metric`; `describe`: rgb -> a place descriptor for its revisits, e.g. the bundle's embedder).
     Returns (alignment over the key frames only, the bridge or walk frames used)."""
     log = as_trace(log)
+    walks = backbone is not None and backbone.odometry and conf.verify_depth and not with_scale
+    hold = getattr(matcher, "hold", None)  # every frame this alignment may load stays cached: none extracted twice
+    if callable(hold):
+        hold(len(frames) + (backbone.max_frames if walks else conf.bridge_frames * max(1, conf.bridge_rounds)))
     conf = replace(conf, min_inliers=conf.keyframe_min_inliers)  # the depth check verifies what this lets in
     if with_scale and not conf.relative_box_matching:  # essential edges: whole images from the first tree
         boxes = {i: None for i in boxes}

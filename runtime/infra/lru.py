@@ -38,6 +38,12 @@ class LRU:
                 self._d.popitem(last=False)
         return value
 
+    def hold(self, n: int) -> None:
+        """Grow the bound to at least `n` entries (a caller that will revisit n keys); never shrinks, never turns
+        a switched-off cache (size <= 0) on."""
+        if self.size > 0:
+            self.size = max(self.size, int(n))
+
     def pop(self, key: Hashable, default: Any = None) -> Any:
         return self._d.pop(key, default)
 

@@ -105,6 +105,11 @@ class TwoStageMatcher(RoleModel):
         # keypoint noise (px) for the essential edges' threshold: heatmap keypoints are coarser than SIFT's
         self.keypoint_px = float(spec.config.get("keypoint_px", 2.0))
 
+    def hold(self, n: int) -> None:
+        """Keep the features of at least `n` frames (the backbone's walks return to frames they loaded: past the
+        default bound a frame would be extracted twice)."""
+        self._cache.hold(n)
+
     def features(self, rgb: np.ndarray, key: Any = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """rgb [H, W, 3] uint8 -> (kpts [K, 2] model-input pixels, kpt_scores [K], desc [K, D]), cached by
         `key` (default: a hash of the image bytes)."""
