@@ -579,3 +579,18 @@ def box_iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     area_a = np.clip(a[:, 2] - a[:, 0], 0, None) * np.clip(a[:, 3] - a[:, 1], 0, None)
     area_b = np.clip(b[:, 2] - b[:, 0], 0, None) * np.clip(b[:, 3] - b[:, 1], 0, None)
     return inter / np.maximum(area_a[:, None] + area_b[None, :] - inter, 1e-9)
+
+
+# ----------------------------------------------------------------------------- image regions
+
+
+def in_boxes(uv: np.ndarray, boxes: np.ndarray | None, margin: float = 0.0) -> np.ndarray:
+    """Which pixels uv [N, 2] lie inside any of boxes [B, 4] (x0, y0, x1, y1) -> [N] bool (all True if None)."""
+    if boxes is None:
+        return np.ones(len(uv), bool)
+    b = np.asarray(boxes, dtype=np.float32).reshape(-1, 4)
+    if len(b) == 0:
+        return np.zeros(len(uv), bool)
+    x, y = uv[:, :1], uv[:, 1:2]
+    inside = (x >= b[:, 0] - margin) & (x <= b[:, 2] + margin) & (y >= b[:, 1] - margin) & (y <= b[:, 3] + margin)
+    return inside.any(1)

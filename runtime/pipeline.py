@@ -27,7 +27,7 @@ from .frames import FrameSource
 from .infra.errors import InputError
 from .infra.progress import phase, start, ticking
 from .infra.trace import StageLog, Trace, as_trace
-from .models.detector import detectable_names, undetectable_names
+from .detectable import detectable_names, undetectable_names
 from .types import Budget, Detections, Frame, Observation
 # the stages, in the paper's order
 from .scan import DedupConf, ScanResult, open_scanned, remove_redundant

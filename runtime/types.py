@@ -1,6 +1,7 @@
 """The types the stages exchange, in one place so signatures name them: `Frame` (a source's frame), `Detections`
-(one frame's objects, from any detector: bundle models, the synthetic oracle, tests) and `Observation` (one
-detection lifted to 3D). No stage imports another for its types."""
+(one frame's objects, from any detector: bundle models, the synthetic oracle, tests), `Observation` (one
+detection lifted to 3D) and `Matches` (two images' correspondences, from any matcher). No stage imports another
+for its types."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -102,3 +103,27 @@ class Budget(Protocol):
     def allow_keyframes(self, k: int, held: int = 0) -> int: ...
     def check_headroom(self, mb_needed: float, what: str = "", keep: Sequence[str] = ()) -> bool: ...
     def remaining_ms(self) -> float: ...
+
+
+@dataclass
+class Matches:
+    """Correspondences between two images. uv0, uv1: [M, 2] float32 pixels (x, y); scores: [M] float32 in
+    [0, 1] (higher = more distinctive: 1 - ratio of best to second-best distance for ORB/SIFT)."""
+
+    uv0: np.ndarray
+    uv1: np.ndarray
+    scores: np.ndarray
+
+    def __post_init__(self) -> None:
+        self.uv0 = np.asarray(self.uv0, dtype=np.float32).reshape(-1, 2)
+        self.uv1 = np.asarray(self.uv1, dtype=np.float32).reshape(-1, 2)
+        self.scores = np.asarray(self.scores, dtype=np.float32).reshape(-1)
+        if not (len(self.uv0) == len(self.uv1) == len(self.scores)):
+            raise ValueError("Matches: uv0, uv1 and scores must have the same length")
+
+    def __len__(self) -> int:
+        return len(self.scores)
+
+    @classmethod
+    def empty(cls) -> "Matches":
+        return cls(np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0))

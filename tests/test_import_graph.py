@@ -169,6 +169,23 @@ def test_no_import_circle_but_the_two_issue_30_removes():
     assert [c for c in found if c not in ALLOWED_CIRCLES] == []
 
 
+# the stage packages and modules (README, "How a question is answered") and what wires them
+STAGES = {"frames", "scan", "grounding", "query", "keyframes", "perceive", "align", "map", "prompt", "answer",
+          "detectable", "pipeline", "budget", "commands", "cli"}
+
+
+def stage_imports(graph: dict[str, set[str]], below: str = "models") -> dict[str, list[str]]:
+    """module of package `below` -> the stage modules it imports (only modules that import one)."""
+    out = {m: sorted(t for t in ts if t.split(".")[0] in STAGES) for m, ts in graph.items()
+           if m.split(".")[0] == below}
+    return {m: t for m, t in out.items() if t}
+
+
+def test_model_adapters_import_no_stage():
+    """runtime/models/ sits below every stage: what an adapter borrows lives in geometry, planes, types or infra."""
+    assert stage_imports(import_graph(REPO / "runtime")) == {}
+
+
 def test_no_module_over_800_lines_but_the_query_work():
     assert set(long_modules(REPO / "runtime")) <= ALLOWED_LONG
 
@@ -203,6 +220,14 @@ def test_a_circle_is_found_through_a_package_and_a_function_body(tmp_path):
     assert circles(g) == []
     (root / "pkg" / "b.py").write_text("from ..a import z\nx = 1\n")  # a -> pkg -> pkg.b -> a
     assert circles(import_graph(root)) == [{"a", "pkg", "pkg.b"}]
+
+
+def test_a_model_adapter_importing_a_stage_is_found(tmp_path):
+    root = _tree(tmp_path, {"__init__.py": "", "geometry.py": "", "map/__init__.py": "", "map/floor.py": "",
+                            "models/__init__.py": "", "models/depth.py": "from ..geometry import x\n"})
+    assert stage_imports(import_graph(root)) == {}
+    (root / "models" / "depth.py").write_text("from ..map.floor import fit_floor_plane\n")
+    assert stage_imports(import_graph(root)) == {"models.depth": ["map", "map.floor"]}
 
 
 def test_a_long_module_is_found(tmp_path):

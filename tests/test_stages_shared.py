@@ -155,7 +155,7 @@ def test_a_question_about_what_the_detector_cannot_see_says_so_before_reading_fr
     """'where's the kettle?' with the COCO SSD: "unsupported: cannot recognise", never a searched-looking
     "not found"/"no" (no frame could show it), and no map built; a detectable name is unaffected."""
     from mosaicthinker.runtime.pipeline import ask
-    from mosaicthinker.runtime.models.detector import undetectable_names
+    from mosaicthinker.runtime.detectable import undetectable_names
 
     assert undetectable_names(shared_bundle, ["kettle", "chair", "fridge", "counter"]) == (["kettle", "counter"], 80,
                                                                                               {})

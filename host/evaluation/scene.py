@@ -378,9 +378,9 @@ def visible_meta(scene: dict[str, Any], visible: dict[str, list[bool]]) -> dict[
 
 def map_names_for(bundle: Any, annotated: list[str]) -> list[str]:
     """Every vocabulary name the bundle's closed-set detector can detect, one per set of detector labels (the
-    annotated name where it is one of them: `models.detector.detectable_names`), plus the annotated categories."""
+    annotated name where it is one of them: `detectable.detectable_names`), plus the annotated categories."""
     from mosaicthinker.runtime.grounding import canonical_name
-    from mosaicthinker.runtime.models.detector import detectable_names
+    from mosaicthinker.runtime.detectable import detectable_names
 
     want = [canonical_name(c) or c for c in annotated]
     return sorted(set(detectable_names(bundle, want)) | set(want))

@@ -19,31 +19,9 @@ import numpy as np
 
 from ..infra.config import StageConf
 from ..infra.errors import InputError
+from ..geometry import in_boxes
 from ..infra.lru import LRU
-
-
-@dataclass
-class Matches:
-    """Correspondences between two images. uv0, uv1: [M, 2] float32 pixels (x, y); scores: [M] float32 in
-    [0, 1] (higher = more distinctive: 1 - ratio of best to second-best distance for ORB/SIFT)."""
-
-    uv0: np.ndarray
-    uv1: np.ndarray
-    scores: np.ndarray
-
-    def __post_init__(self) -> None:
-        self.uv0 = np.asarray(self.uv0, dtype=np.float32).reshape(-1, 2)
-        self.uv1 = np.asarray(self.uv1, dtype=np.float32).reshape(-1, 2)
-        self.scores = np.asarray(self.scores, dtype=np.float32).reshape(-1)
-        if not (len(self.uv0) == len(self.uv1) == len(self.scores)):
-            raise ValueError("Matches: uv0, uv1 and scores must have the same length")
-
-    def __len__(self) -> int:
-        return len(self.scores)
-
-    @classmethod
-    def empty(cls) -> "Matches":
-        return cls(np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0))
+from ..types import Matches
 
 
 @dataclass
@@ -113,18 +91,6 @@ def extract_features(rgb: np.ndarray, conf: MatchConf | None = None) -> Features
         return Features(np.zeros((0, 2), np.float32), np.zeros((0, dim), dtype), conf.method)
     uv = np.array([k.pt for k in kps], dtype=np.float32) / s
     return Features(uv, desc.astype(dtype, copy=False), conf.method)
-
-
-def in_boxes(uv: np.ndarray, boxes: np.ndarray | None, margin: float = 0.0) -> np.ndarray:
-    """Which pixels uv [N, 2] lie inside any of boxes [B, 4] (x0, y0, x1, y1) -> [N] bool (all True if None)."""
-    if boxes is None:
-        return np.ones(len(uv), bool)
-    b = np.asarray(boxes, dtype=np.float32).reshape(-1, 4)
-    if len(b) == 0:
-        return np.zeros(len(uv), bool)
-    x, y = uv[:, :1], uv[:, 1:2]
-    inside = (x >= b[:, 0] - margin) & (x <= b[:, 2] + margin) & (y >= b[:, 1] - margin) & (y <= b[:, 3] + margin)
-    return inside.any(1)
 
 
 def _knn2_from_distances(D: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

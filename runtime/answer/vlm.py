@@ -2,16 +2,14 @@
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass
-from typing import Any, ClassVar
+from typing import Any
 
 import numpy as np
 
-from ..infra.config import StageConf
-from ..infra.errors import InputError
 from ..query.parse import ParsedQuestion, parse_question
 from ..query.text import split_options
 from ..infra.trace import as_trace
+from ..models.vlm import VLMConfig  # how the VLM is asked: the adapter's, below the planner too
 from .result import Answer
 
 
@@ -78,22 +76,6 @@ def parse_number(reply: str) -> float | None:
 
 
 # ----------------------------------------------------------------------------- the VLM answerer
-
-
-@dataclass
-class VLMConfig(StageConf):
-    """How the VLM is asked. max_new_tokens: reply length limit; retries: extra attempts (with a stricter format
-    reminder) when the reply cannot be parsed."""
-
-    max_new_tokens: int = 16
-    retries: int = 1
-
-    conf_name: ClassVar[str] = "vlm config"
-
-    def validate(self) -> None:
-        if not (1 <= self.max_new_tokens <= 4096 and 0 <= self.retries <= 5):
-            raise InputError(f"vlm config: need 1 <= max_new_tokens <= 4096 and 0 <= retries <= 5 (got "
-                             f"{self.max_new_tokens}, {self.retries})")
 
 
 def answer_with_vlm(vlm: Any, question: str, options: list[str] | None, prompt_text: str,

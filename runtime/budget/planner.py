@@ -19,10 +19,10 @@ import os
 from dataclasses import asdict, dataclass, field
 from typing import Any, ClassVar, Mapping
 
-from ..answer import VLMConfig
 from ..infra.config import StageConf
 from ..infra.errors import BudgetError, InputError
 from ..keyframes import KeyFrameConf, scored_budget
+from ..models.vlm import VLMConfig
 from .profile import MODEL_COSTS, Profile, load_profile, nearest_variant
 from ..infra.bundle import load_bundle
 from ..infra.bundle import bundle_hash

@@ -16,7 +16,7 @@ from ..infra.outputs import RunOutputs, note_outputs, save_run
 from ..cli import add_stage_flags
 from .flags import add_keyframes
 from ..grounding import canonical_name
-from ..models.detector import detectable_names
+from ..detectable import detectable_names
 from .. import pipeline
 from ..budget import load_profile
 from ..prompt import render as render_prompt

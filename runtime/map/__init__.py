@@ -14,7 +14,8 @@ from .cluster import components, largest_components, remove_outliers, voxel_down
 from .conf import FusionConfig, default_fusion_conf
 from .extent import (band_visibility, extend_to_floor, first_seen_from_detections, floor_decision, floor_support,
                      hull_candidates, room_extent)
-from .floor import fit_floor_plane, gravity_from_frames, gravity_world_transform, sharpen_normal
+from ..planes import fit_floor_plane, sharpen_normal  # the one floor fit, below every stage
+from .floor import gravity_from_frames, gravity_world_transform
 from .fuse import footprint_overlap, fuse_frames, fuse_observations, same_frame_redundant, view_estimates
 from .lift import (box_depth_mask, box_layer, duplicate_names, lift_camera, lift_detections, lift_observations,
                    place, world_points)

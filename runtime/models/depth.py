@@ -34,9 +34,9 @@ from typing import Any
 import numpy as np
 
 from ..infra.errors import InputError
-from ..map.floor import fit_floor_plane
 from . import RoleModel, preprocess_image
 from ..geometry import sample_depth
+from ..planes import fit_floor_plane
 
 SEMANTICS = ("metric_m", "relative", "relative_inverse")
 
@@ -147,7 +147,7 @@ def camera_height_prior(points: np.ndarray, height_m: float, up_hint: np.ndarray
                         iterations: int = 200, threshold: float = 0.02, rng: int = 0,
                         max_tilt_deg: float = 25.8) -> float:
     """Scale factor from a known camera height: the floor plane of camera points [N, 3] (up to scale), found by
-    the map's floor fit (`map.floor.fit_floor_plane`, the one floor RANSAC); returns
+    the map's floor fit (`planes.fit_floor_plane`, the one floor RANSAC); returns
     height_m / distance(camera, plane). up_hint [3] (camera frame, e.g. gravity from an IMU, default -y: OpenCV
     cameras look roughly horizontal) selects planes below the camera, within `max_tilt_deg` of horizontal;
     `threshold` is relative to the points' median range (they have no unit yet). Limit: needs visible floor."""

@@ -30,7 +30,8 @@ from typing import Any
 import numpy as np
 
 from ..infra.lru import LRU
-from ..align.matching import Matches, in_boxes
+from ..geometry import in_boxes
+from ..types import Matches
 from . import ImageLRU, RoleModel, preprocess_image
 
 

@@ -18,12 +18,29 @@ Tokenizer: `tokenizer.json` from the bundle, through the `tokenizers` library (n
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, ClassVar, Sequence
 
 import numpy as np
 
+from ..infra.config import StageConf
 from ..infra.errors import BundleError, InputError
 from . import RoleModel, preprocess_image
+
+@dataclass
+class VLMConfig(StageConf):
+    """How the VLM is asked. max_new_tokens: reply length limit; retries: extra attempts (with a stricter format
+    reminder) when the reply cannot be parsed."""
+
+    max_new_tokens: int = 16
+    retries: int = 1
+
+    conf_name: ClassVar[str] = "vlm config"
+
+    def validate(self) -> None:
+        if not (1 <= self.max_new_tokens <= 4096 and 0 <= self.retries <= 5):
+            raise InputError(f"vlm config: need 1 <= max_new_tokens <= 4096 and 0 <= retries <= 5 (got "
+                             f"{self.max_new_tokens}, {self.retries})")
+
 
 # family -> chat template pieces. {content} = images then text; {image_tokens} = the image token repeated.
 TEMPLATES: dict[str, dict[str, Any]] = {
