@@ -169,7 +169,7 @@ def parts(map_path: Path, part_limit: int) -> dict[str, Any]:
            "map_json": {"unchanged_loaded_map (what ask MAP --out writes)": t_copy,
                         "re-encoded (a built or changed map)": t_encode}}
     for name, q in CLI_QUESTIONS.items():
-        ans, t = part(lambda: pipeline.ask(smap, q, render_image=False).answer.text, part_limit)
+        ans, t = part(lambda: pipeline.ask(smap, q, request=pipeline.AskRequest(render_image=False)).answer.text, part_limit)
         res["answer_only"][name] = {"cpu_s": t, "answer": ans}
     return res
 

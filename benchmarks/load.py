@@ -66,13 +66,13 @@ def questions_in_process(map_path: Path) -> dict[str, Any]:
     from mosaicthinker.runtime import pipeline
 
     proc = psutil.Process()
-    pipeline.ask(map_path, QUESTIONS[0], render_image=False)  # warm the imports once
+    pipeline.ask(map_path, QUESTIONS[0], request=pipeline.AskRequest(render_image=False))  # warm the imports once
     rounds = []
     for _ in range(2):
         rows = []
         for q in QUESTIONS:
             t0, c0 = time.perf_counter(), time.process_time()
-            r = pipeline.ask(map_path, q, render_image=False)
+            r = pipeline.ask(map_path, q, request=pipeline.AskRequest(render_image=False))
             rows.append({"question": q, "answer": r.answer.text, "status": r.answer.status,
                          "seconds": round(time.perf_counter() - t0, 3),
                          "cpu_s": round(time.process_time() - c0, 3),  # less inflated by other jobs

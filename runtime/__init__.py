@@ -18,7 +18,7 @@ stays light (numpy/OpenCV/onnxruntime are loaded only by what you use; torch is 
     res = ask(SemanticMap.load("map.json"), "What is the distance between the chair and the table (in meters)?")
 
 Main names: `open_source` (frames.py), `build_map`, `ask`, `perception_from_bundle`, `Perception`,
-`PipelineConfig`, `AskResult`, `MapBuild` (pipeline.py), `SemanticMap`, `ObjectInstance` (semantic_map.py),
+`PipelineConfig`, `AskRequest`, `AskResult`, `MapBuild` (pipeline.py), `SemanticMap`, `ObjectInstance` (semantic_map.py),
 `MapReasoner`, `Answer`, `answer_question`, `parse_choice` (answer.py), `parse_question`, `ground`
 (grounding.py), `render_prompt`, `VisualPrompt` (prompt.py), `Trace` (trace.py), `load_bundle` (bundle.py),
 `load_role` (stages), `load_profile` (budget.py), and the errors (`MosaicError`, `InputError`, ...).
@@ -34,6 +34,7 @@ _API: dict[str, tuple[str, str]] = {
     "FrameSource": ("frames", "FrameSource"),
     "build_map": ("pipeline", "build_map"),
     "ask": ("pipeline", "ask"),
+    "AskRequest": ("pipeline", "AskRequest"),
     "AskResult": ("pipeline", "AskResult"),
     "MapBuild": ("pipeline", "MapBuild"),
     "Perception": ("perceive", "Perception"),

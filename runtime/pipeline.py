@@ -166,10 +166,9 @@ def _over_budget(budget: Budget | None, unaligned: Sequence[int]) -> str | None:
 
 
 def _align(p: Perceived, source: FrameSource, perception: Perception, conf: PipelineConfig, trace: Trace,
-           budget: Budget | None, thumbs: Mapping[int, np.ndarray] | None = None) -> tuple[AlignmentResult, Any]:
+           budget: Budget | None, matcher: Any, thumbs: Mapping[int, np.ndarray] | None = None) -> AlignmentResult:
     """Alignment of the key frames (`align.align_keyframes`; `thumbs`: the scan's, for bridges found by
-    appearance). Returns (alignment, the matcher: its feature cache serves refinement too)."""
-    matcher = make_matcher(perception.matcher, conf.match)  # one matcher: features cached across the rounds
+    appearance), with `matcher` (its feature cache serves refinement too)."""
     if hasattr(matcher, "prefetch"):  # every key frame is matched: extract on worker threads while embedding
         matcher.prefetch([(f.index, f.rgb) for f in p.frames])
     emb = None
@@ -187,7 +186,7 @@ def _align(p: Perceived, source: FrameSource, perception: Perception, conf: Pipe
                                 perception.embed)
     trace.record(log)
     bar.done(aligned=f"{sum(f.index in al.poses for f in p.frames)}/{len(p.frames)} key frames")
-    return al, matcher
+    return al
 
 
 def _gravity(frames: list[Frame], poses_root: dict[int, np.ndarray], source: FrameSource, root: int,
@@ -202,21 +201,70 @@ def _gravity(frames: list[Frame], poses_root: dict[int, np.ndarray], source: Fra
     return gravity_from_frames(frames, poses_root, down, conf.camera_height_m, conf.floor_fit_max_depth_m, log)
 
 
-def _verifier(p: Perceived, poses: dict[int, np.ndarray], conf: PipelineConfig, perception: Perception,
-              log: StageLog, out: dict[str, Any]) -> Any:
-    """Fusion's cross-view verification of the candidate detections (`map.verify_observations`): what it found goes
-    into `log` (timed as "verify"; the report as a decision, what it left out as an event) and `out` (every
-    observation and the `Verification`: the views each instance rests on are annotated after refinement)."""
-    def verify(obs: list[Observation]) -> list[Observation]:
-        with log.stage("verify"):
-            kept, ver = verify_observations(obs, p.frames, poses, p.dets, conf.verify, not perception.depth_relative)
-        out.update(obs=obs, ver=ver)
-        log.decide("verify", ver.report(obs))
-        if msg := ver.message(obs, conf.verify):
-            log.event("verify", msg, stage="fusion", dropped=len(obs) - len(kept))
+@dataclass
+class _Verifier:
+    """Fusion's cross-view verification of the candidate detections (`map.verify_observations`), called by
+    `map.fuse_frames`: what it found goes into `log` (timed as "verify"; the report as a decision, what it left
+    out as an event) and is kept (`obs`: every observation, `ver`: the `Verification`) so the views each instance
+    rests on are annotated after refinement."""
+
+    p: Perceived
+    poses: dict[int, np.ndarray]
+    conf: PipelineConfig
+    metric: bool
+    log: StageLog
+    obs: list[Observation] | None = None
+    ver: Any = None
+
+    def __call__(self, obs: list[Observation]) -> list[Observation]:
+        with self.log.stage("verify"):
+            kept, ver = verify_observations(obs, self.p.frames, self.poses, self.p.dets, self.conf.verify,
+                                            self.metric)
+        self.obs, self.ver = obs, ver
+        self.log.decide("verify", ver.report(obs))
+        if msg := ver.message(obs, self.conf.verify):
+            self.log.event("verify", msg, stage="fusion", dropped=len(obs) - len(kept))
         return kept
 
-    return verify
+
+@dataclass
+class _Mapped:
+    """What the alignment plan stage makes of the perceived key frames: poses in the map world (gravity applied),
+    the fused and refined instances with their points, and the matcher (its feature counters are booked)."""
+
+    alignment: AlignmentResult
+    world_from_root: np.ndarray
+    poses: dict[int, np.ndarray]
+    instances: list[ObjectInstance]
+    clouds: list[np.ndarray]
+    recovered: int
+    matcher: Any
+
+
+def _map_stage(p: Perceived, source: FrameSource, perception: Perception, conf: PipelineConfig,
+               fconf: FusionConfig, trace: Trace, budget: Budget | None,
+               thumbs: Mapping[int, np.ndarray] | None) -> _Mapped:
+    """The budget's "alignment" plan stage, opened and closed here: alignment, gravity, fusion with cross-view
+    verification, occlusion refinement and the views each instance rests on."""
+    matcher = make_matcher(perception.matcher, conf.match)  # one matcher: features cached across the rounds
+    al = _align(p, source, perception, conf, trace, budget, matcher, thumbs)  # opens the plan stage
+    log = StageLog()
+    with trace.stage("gravity"):
+        W = _gravity(p.frames, al.poses, source, al.root, conf, log)
+    trace.record(log)
+    poses = {i: W @ T for i, T in al.poses.items()}
+    log = StageLog()
+    verifier = _Verifier(p, poses, conf, not perception.depth_relative, log)
+    with trace.stage("fusion"):
+        obs, instances, clouds = fuse_frames(p.frames, p.dets, poses, fconf, log, p.lifted, verifier)
+    trace.record(log)
+    instances, clouds, recovered = _refine(instances, clouds, obs, p.frames, poses, p.dets, perception, fconf,
+                                           matcher, conf, trace, budget)
+    if verifier.ver is not None:
+        annotate_views(instances, verifier.obs, verifier.ver)
+    if budget is not None:
+        budget.end_stage("alignment")
+    return _Mapped(al, W, poses, instances, clouds, recovered, matcher)
 
 
 def _refine(instances: list[ObjectInstance], clouds: list[np.ndarray], obs: list[Observation],
@@ -352,32 +400,16 @@ def build_map(source: FrameSource, targets: Sequence[str], cues: Sequence[str] =
         p = perceive_keyframes(source, chosen, det, names, perception, conf, fconf, budget, scanned.counts)
     trace.record(p.log)
     _say(trace, health.frame_notes([health.frame_health(f.rgb, f.depth) for f in p.frames]))
-    al, matcher = _align(p, source, perception, conf, trace, budget, scanned.thumbs)
-    log = StageLog()
-    with trace.stage("gravity"):
-        W = _gravity(p.frames, al.poses, source, al.root, conf, log)
-    trace.record(log)
-    poses = {i: W @ T for i, T in al.poses.items()}
-    log = StageLog()
-    checked: dict[str, Any] = {}
-    with trace.stage("fusion"):
-        obs, instances, clouds = fuse_frames(p.frames, p.dets, poses, fconf, log, p.lifted,
-                                             _verifier(p, poses, conf, perception, log, checked))
-    trace.record(log)
-    instances, clouds, recovered = _refine(instances, clouds, obs, p.frames, poses, p.dets, perception, fconf,
-                                           matcher, conf, trace, budget)
-    if checked:
-        annotate_views(instances, checked["obs"], checked["ver"])
-    if budget is not None:
-        budget.end_stage("alignment")
-    _record_instances(instances, names, recovered, trace, p.dets, al.unaligned, det.scored())
-    room, cams = _map_extras(instances, p.frames, poses, det, names, source, perception, conf, fconf, trace)
+    m = _map_stage(p, source, perception, conf, fconf, trace, budget, scanned.thumbs)
+    al, instances = m.alignment, m.instances
+    _record_instances(instances, names, m.recovered, trace, p.dets, al.unaligned, det.scored())
+    room, cams = _map_extras(instances, p.frames, m.poses, det, names, source, perception, conf, fconf, trace)
     trace.record(det.log)  # the detector's time over the search and perception
-    _book_counters(trace, source, loaded0, matcher)
+    _book_counters(trace, source, loaded0, m.matcher)
     smap = SemanticMap(instances, room, cams,
                        {"source": getattr(source, "name", "frames"), "built_from": "video", "keyframes": chosen,
-                        "root": al.root, "unaligned": al.unaligned, "objects": names, "recovered": recovered})
-    return MapBuild(smap, chosen, clouds, poses, W, list(al.unaligned), recovered,
+                        "root": al.root, "unaligned": al.unaligned, "objects": names, "recovered": m.recovered})
+    return MapBuild(smap, chosen, m.clouds, m.poses, m.world_from_root, list(al.unaligned), m.recovered,
                     bool(budget is not None and getattr(budget, "reduced", False)),
                     {"alignment": al.to_dict(), "dedup_kept": None}, det.undetectable())
 
@@ -518,63 +550,106 @@ def _cannot_detect_first(pq: ParsedQuestion, options: list[str] | None, bundle: 
     return ans
 
 
-def ask(source: Any, question: str, options: list[str] | None = None, *, perception: Perception | None = None,
-        bundle: Any = None, profile: Any = None, conf: PipelineConfig | dict | None = None,
-        answerer: str = "auto", method: str = "mosaic", prompt_mode: str = "grid", vlm: Any = None,
-        trace: Trace | None = None, keyframes: int | None = None, budget: Budget | None = None,
-        direct_frames: int = 8, render_image: bool = True, grounding: str = "auto") -> AskResult:
+@dataclass
+class AskRequest:
+    """How one question is answered: every choice `ask` makes beside the source, the question and the models.
+
+    answerer: "map" | "vlm" | "auto"; method: "mosaic" (map + visual prompt) or "direct" (the baseline: frames
+    sampled uniformly straight to the VLM, `direct_frames` of them); prompt_mode: "grid" | "points" | "text" |
+    "json"; grounding: "rules" | "vlm" | "auto" (who reads the question into its program, `grounding.ground`);
+    keyframes: K (None: the budget's, else the config's: `keyframes.resolve_keyframes`); render_image=False skips
+    the map image when nothing will show it (no VLM, no file written: on a 10 k-object map it dominates); conf: the
+    `PipelineConfig` or overrides of it; profile: a device profile (a budget controller is made from it for a
+    video) or budget: a controller already made."""
+
+    answerer: str = "auto"
+    method: str = "mosaic"
+    prompt_mode: str = "grid"
+    grounding: str = "auto"
+    keyframes: int | None = None
+    direct_frames: int = 8
+    render_image: bool = True
+    conf: PipelineConfig | dict | None = None
+    profile: Any = None
+    budget: Budget | None = None
+
+
+def ask(source: Any, question: str, options: list[str] | None = None, request: AskRequest | None = None, *,
+        perception: Perception | None = None, bundle: Any = None, vlm: Any = None,
+        trace: Trace | None = None) -> AskResult:
     """Answer a spatial question about a video, frame folder or saved map.
 
     source: a path (video, image/RGB-D folder, `map.json`), a `FrameSource` or a `SemanticMap`; options:
-    multiple-choice options ("A. ...") or None. perception: injected models (default: built from `bundle`);
-    answerer: "map" | "vlm" | "auto"; method: "mosaic" (map + visual prompt) or "direct" (the baseline: frames
-    sampled uniformly straight to the VLM); prompt_mode: "grid" | "points" | "text"; render_image=False skips
-    the map image when nothing will show it (no VLM, no file written: on a 10 k-object map it dominates);
-    grounding: "rules" | "vlm" | "auto" (who reads the question into its program, `grounding.ground`).
+    multiple-choice options ("A. ...") or None; request: how to answer (`AskRequest`; default: its defaults).
+    perception: injected models (default: built from `bundle`); vlm: an injected VLM (default: the bundle's,
+    loaded only when it grounds or answers).
     """
+    req = request if request is not None else AskRequest()
     trace = trace if trace is not None else Trace()
-    conf = conf if isinstance(conf, PipelineConfig) else PipelineConfig.merged(conf)
-    if method not in ("mosaic", "direct"):
-        raise InputError(f"`method` must be mosaic or direct, got {method!r}", fields=("method",))
-    if vlm is None and bundle is not None and (answerer != "map" or grounding == "vlm"):  # the map answerer with
-        vlm = load_vlm(bundle, trace, profile)  # rule grounding neither grounds nor answers with a VLM: not loaded
+    conf = req.conf if isinstance(req.conf, PipelineConfig) else PipelineConfig.merged(req.conf)
+    if req.method not in ("mosaic", "direct"):
+        raise InputError(f"`method` must be mosaic or direct, got {req.method!r}", fields=("method",))
+    if vlm is None and bundle is not None and (req.answerer != "map" or req.grounding == "vlm"):  # the map answerer
+        vlm = load_vlm(bundle, trace, req.profile)  # with rule grounding neither grounds nor answers with a VLM
     src = _open(source, trace)
-    if method == "direct":
-        return _ask_direct(src, question, options, vlm, trace, direct_frames)
+    if req.method == "direct":
+        return _ask_direct(src, question, options, vlm, trace, req.direct_frames)
+    pq = _ground(src, question, options, vlm, conf, trace, req.grounding)
+    build = None
+    if isinstance(src, SemanticMap):
+        smap = src
+        trace.decide("map", {"source": "saved map", "instances": len(smap.instances)})
+    else:
+        budget = req.budget
+        if budget is None and req.profile is not None:
+            budget = controller_for(req.profile, src, trace, bundle)  # the planner's own clip length and frame rate
+        early = _refused_before_frames(question, options, pq, bundle if perception is None else None, trace)
+        if early is not None:
+            return AskResult(early, None, trace, None, None, pq, "mosaic")
+        if perception is None:
+            perception = perception_from_bundle(bundle, conf, trace, req.profile)
+        build = build_map(src, _whole_map_targets(pq, bundle, trace), pq.cues, perception, conf, trace,
+                          req.keyframes, budget)
+        smap = build.map
+    return _answer(smap, build, question, options, pq, vlm, req, trace)
+
+
+def _ground(src: FrameSource | SemanticMap, question: str, options: list[str] | None, vlm: Any,
+            conf: PipelineConfig, trace: Trace, grounding: str) -> ParsedQuestion:
+    """The grounding stage: the question's program (`grounding.ground`); a video's frames are decoded only if
+    the VLM grounds it, a saved map's names help read it."""
     frames_for_grounding = None
     if vlm is not None and not isinstance(src, SemanticMap):  # decoded only if the VLM grounds the question
         n = min(conf.grounding_frames, len(src))
         frames_for_grounding = lambda: [src[int(i)].rgb for i in np.linspace(0, len(src) - 1, n).round().astype(int)]  # noqa: E731
     with trace.stage("grounding"):
         names = sorted({o.name for o in src.instances}) if isinstance(src, SemanticMap) else ()
-        pq = ground(question, options, vlm, frames_for_grounding, trace, grounding, names)
-    build = None
-    if budget is None and profile is not None and not isinstance(src, SemanticMap):
-        budget = controller_for(profile, src, trace, bundle)  # the planner's own clip length and frame rate
-    if isinstance(src, SemanticMap):
-        smap = src
-        trace.decide("map", {"source": "saved map", "instances": len(smap.instances)})
-    else:
-        if not pq.objects and not pq.whole_map:
-            # nothing to look for: the reasoner's "not understood" reply (status unsupported, exit 0, trace kept)
-            ans = MapReasoner(SemanticMap()).answer(question, options, parsed=pq)
-            why = "the question was not understood" if pq.qtype is None else "the question names no object to look for"
-            trace.event("degraded", f"{why}: {ans.explanation}", stage="grounding")
-            trace.decide("answer", {k: v for k, v in ans.to_dict().items() if k != "parsed"})
-            return AskResult(ans, None, trace, None, None, pq, "mosaic")
-        cannot = _cannot_detect_first(pq, options, bundle if perception is None else None, trace)
-        if cannot is not None:
-            return AskResult(cannot, None, trace, None, None, pq, "mosaic")
-        if perception is None:
-            perception = perception_from_bundle(bundle, conf, trace, profile)
-        build = build_map(src, _whole_map_targets(pq, bundle, trace), pq.cues, perception, conf, trace, keyframes,
-                          budget)
-        smap = build.map
+        return ground(question, options, vlm, frames_for_grounding, trace, grounding, names)
+
+
+def _refused_before_frames(question: str, options: list[str] | None, pq: ParsedQuestion, bundle: Any,
+                           trace: Trace) -> Any:
+    """The answer given before any frame is read, else None: nothing to look for (the reasoner's "not understood"
+    reply: status unsupported, exit 0, trace kept) or a name the bundle's detector cannot see
+    (`_cannot_detect_first`)."""
+    if not pq.objects and not pq.whole_map:
+        ans = MapReasoner(SemanticMap()).answer(question, options, parsed=pq)
+        why = "the question was not understood" if pq.qtype is None else "the question names no object to look for"
+        trace.event("degraded", f"{why}: {ans.explanation}", stage="grounding")
+        trace.decide("answer", {k: v for k, v in ans.to_dict().items() if k != "parsed"})
+        return ans
+    return _cannot_detect_first(pq, options, bundle, trace)
+
+
+def _answer(smap: SemanticMap, build: MapBuild | None, question: str, options: list[str] | None,
+            pq: ParsedQuestion, vlm: Any, req: AskRequest, trace: Trace) -> AskResult:
+    """The map's notes, the visual prompt and the answer (`answer.answer_question`); a name missing because the
+    detector could not look for it is said as such."""
     _say(trace, health.map_notes(smap))
     with trace.stage("prompt"):
-        vp = _render_prompt(smap, build, prompt_mode, render_image or vlm is not None)
+        vp = _render_prompt(smap, build, req.prompt_mode, req.render_image or vlm is not None)
     with trace.stage("answer"):
-        ans = answer_question(smap, question, options, answerer, vlm, vp, trace, pq)
+        ans = answer_question(smap, question, options, req.answerer, vlm, vp, trace, pq)
         if ans.status == "not_found":  # missing because the detector could not look for them: say so
             und = set(build.undetectable) if build is not None else set()
             if cannot_see := [n for n in ans.missing if n in und]:

@@ -61,12 +61,12 @@ def test_tiny_memory_budget_releases_and_reopens_sessions_through_ask(scene, sha
     """`mosaic ask` under a profile whose memory budget leaves ~2 MB for ~12 MB of model sessions: idle sessions
     are released, used ones re-open, each step is in the trace, the answer counts them, and the answer, key frames
     and map equal those of a run with room to spare."""
-    from mosaicthinker.runtime import ask
+    from mosaicthinker.runtime import AskRequest, ask
     from mosaicthinker.runtime.cli import main
 
     roomy = Trace()
-    ref = ask(scene, QUESTION, bundle=shared_bundle, profile=B.parse_profile(memory_profile(100000, 100)),
-              trace=roomy, keyframes=6)
+    ref = ask(scene, QUESTION, request=AskRequest(keyframes=6, profile=B.parse_profile(memory_profile(100000, 100))),
+              bundle=shared_bundle, trace=roomy)
     assert not _guard_events(roomy) and "budget.memory_guard" not in roomy.decisions
     sizes = roomy.decisions["budget.sessions"]  # every model session of the run registered, with its size
     assert set(sizes) == {"detector", "instance_segmenter", "segmenter", "depth", "embedder"}
@@ -166,7 +166,7 @@ def test_no_trace_means_a_null_trace_not_a_crash(tmp_path):
 def test_real_kitchen_map_is_the_same_with_sessions_released(redkitchen, shared_bundle, tmp_path):
     """The first 60 frames of the real 7-Scenes kitchen (a chair the detector finds): the map built while the guard
     releases and re-opens sessions equals the unconstrained one, object for object."""
-    from mosaicthinker.runtime import ask
+    from mosaicthinker.runtime import AskRequest, ask
     from mosaicthinker.runtime.commands.ask import WARNING_KINDS
     from mosaicthinker.runtime.frames import open_source
 
@@ -174,8 +174,8 @@ def test_real_kitchen_map_is_the_same_with_sessions_released(redkitchen, shared_
     runs = []
     for process_mb in (100, 99997):
         trace = Trace()
-        res = ask(open_source(redkitchen, max_frames=60), q, bundle=shared_bundle, trace=trace, keyframes=6,
-                  profile=B.parse_profile(memory_profile(100000, process_mb)))
+        req = AskRequest(keyframes=6, profile=B.parse_profile(memory_profile(100000, process_mb)))
+        res = ask(open_source(redkitchen, max_frames=60), q, request=req, bundle=shared_bundle, trace=trace)
         runs.append((res, trace))
     (ref, free), (res, tight) = runs
     assert ref.map.instances and not _guard_events(free)

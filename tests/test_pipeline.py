@@ -84,14 +84,14 @@ def test_map_save_load_round_trip_and_ask_the_saved_map(built, tmp_path):
 def test_ask_answers_a_generated_question_from_the_video(scene):
     import json
 
-    from mosaicthinker.runtime import ask
+    from mosaicthinker.runtime import AskRequest, ask
     from mosaicthinker.host.evaluation.oracle_perception import oracle_perception
     from mosaicthinker.host.evaluation.vsibench import score_answer
 
     qs = [json.loads(l) for l in (scene / "questions.jsonl").read_text().splitlines()]
     q = next(q for q in qs if q["question_type"] == "object_size_estimation")
-    res = ask(scene, q["question"], q.get("options"), perception=oracle_perception(scene),
-              conf={"keyframe": {"keyframes": 8}})
+    res = ask(scene, q["question"], q.get("options"), AskRequest(conf={"keyframe": {"keyframes": 8}}),
+              perception=oracle_perception(scene))
     assert res.answer.ok and score_answer(q["question_type"], res.answer.text, q["ground_truth"]) >= 0.8
     assert res.prompt is not None and res.prompt.image is not None
     d = res.to_dict()

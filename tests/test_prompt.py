@@ -206,7 +206,7 @@ def test_vlm_grounding_emits_a_validated_program_or_is_refused():
 
 
 def test_direct_input_baseline_sends_uniform_frames_to_the_vlm():
-    from mosaicthinker.runtime import InputError, ask
+    from mosaicthinker.runtime import AskRequest, InputError, ask
     from mosaicthinker.runtime.types import Frame
     from mosaicthinker.runtime.frames import FrameList
 
@@ -214,13 +214,13 @@ def test_direct_input_baseline_sends_uniform_frames_to_the_vlm():
     frames = [Frame(np.full((48, 64, 3), i, np.uint8), i / 10, i, K) for i in range(40)]
     vlm = Scripted("Answer: (C)")
     q = "If I am standing by the tv and facing the sofa, is the chair to my left, right, or back?"
-    res = ask(FrameList(frames), q, ["A. left", "B. right", "C. back"], method="direct", vlm=vlm)
+    res = ask(FrameList(frames), q, ["A. left", "B. right", "C. back"], AskRequest(method="direct"), vlm=vlm)
     assert res.answer.text == "C" and res.method == "direct" and res.map is None
     sent = vlm.images[-1]
     assert len(sent) == 8 and [int(im[0, 0, 0]) for im in sent] == [2, 7, 12, 17, 22, 27, 32, 37]
     assert "frames sampled uniformly" in vlm.prompts[-1] and "Question: If I am standing" in vlm.prompts[-1]
     with pytest.raises(InputError, match="vlm"):
-        ask(FrameList(frames), q, None, method="direct")
+        ask(FrameList(frames), q, None, AskRequest(method="direct"))
 
 
 def test_labels_of_overlapping_boxes_do_not_overlap_and_the_map_has_a_title():

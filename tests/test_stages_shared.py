@@ -154,19 +154,20 @@ def test_a_question_about_what_the_detector_cannot_see_says_so_before_reading_fr
                                                                                       redkitchen: Path):
     """'where's the kettle?' with the COCO SSD: "unsupported: cannot recognise", never a searched-looking
     "not found"/"no" (no frame could show it), and no map built; a detectable name is unaffected."""
-    from mosaicthinker.runtime.pipeline import ask
+    from mosaicthinker.runtime.pipeline import AskRequest, ask
     from mosaicthinker.runtime.detectable import undetectable_names
 
     assert undetectable_names(shared_bundle, ["kettle", "chair", "fridge", "counter"]) == (["kettle", "counter"], 80,
                                                                                               {})
-    res = ask(redkitchen, "how many chayrs are there?", bundle=shared_bundle, answerer="map")  # a typo too far
+    by_map = AskRequest(answerer="map")
+    res = ask(redkitchen, "how many chayrs are there?", request=by_map, bundle=shared_bundle)  # a typo too far
     assert res.answer.text == "unsupported: the detector cannot recognise chayr ('chayr': did you mean chair?)"
     assert res.answer.hints == ["chair"]  # to be read as a name (y-i do not touch: not one keystroke away)
-    res = ask(redkitchen, "how many chiars are there?", bundle=shared_bundle, answerer="map")  # a phone typo:
+    res = ask(redkitchen, "how many chiars are there?", request=by_map, bundle=shared_bundle)  # a phone typo:
     assert res.answer.ok and "read 'chiars' as 'chairs'" in res.answer.explanation  # read, and said so
     for q, name in (("where's the kettle?", "kettle"), ("how many cups are on the counter?", "counter"),
                     ("is there a kettle in here?", "kettle")):
-        res = ask(redkitchen, q, bundle=shared_bundle, answerer="map")
+        res = ask(redkitchen, q, request=by_map, bundle=shared_bundle)
         assert res.answer.status == "unsupported" and res.build is None, q
         assert res.answer.text == f"unsupported: the detector cannot recognise {name}"
         assert "80 classes" in res.answer.explanation and res.answer.missing == [name]

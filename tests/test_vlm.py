@@ -113,18 +113,20 @@ def test_bundle_show_states_the_token_agreement_a_low_precision_vlm_shipped_at()
 
 @pytest.mark.slow
 def test_the_map_answerer_never_loads_or_runs_the_bundled_vlm(vlm_bundle, tmp_path):
-    from mosaicthinker.runtime.pipeline import ask
+    from mosaicthinker.runtime.pipeline import AskRequest, ask
 
     from test_grounding_nl import room_map
 
     m = tmp_path / "map.json"
     room_map().save(m)
     q = "How many office chairs are there?"
-    by_map = ask(str(m), q, bundle=str(vlm_bundle[0]), answerer="map")
+    by_map = ask(str(m), q, None, AskRequest(answerer="map"), bundle=str(vlm_bundle[0]))
     assert by_map.answer.text == "2" and "grounding.vlm" not in by_map.trace.stages
     assert not any("vlm" in w for w in by_map.trace.random_weights_used)
-    auto = ask(str(m), q, bundle=str(vlm_bundle[0]), answerer="auto")  # loaded; rules read this question first
+    # loaded; rules read this question first
+    auto = ask(str(m), q, None, AskRequest(answerer="auto"), bundle=str(vlm_bundle[0]))
     assert any("vlm" in w for w in auto.trace.random_weights_used) and "grounding.vlm" not in auto.trace.stages
-    by_vlm = ask(str(m), q, bundle=str(vlm_bundle[0]), answerer="auto", grounding="vlm")  # asked for: tried, and
+    by_vlm = ask(str(m), q, None, AskRequest(answerer="auto", grounding="vlm"),
+                 bundle=str(vlm_bundle[0]))  # asked for: tried, and
     refused = [e for e in by_vlm.trace.events if e.get("kind") == "grounding"]  # this one cannot constrain: loudly
     assert refused and "cannot decode under a JSON schema" in refused[0]["message"]

@@ -536,8 +536,8 @@ def ask_questions(src: Any, recs: list[dict[str, Any]], n: int, perception: Any,
     for k in sorted(order):
         q = recs[k]
         t0 = time.perf_counter()
-        r = pipeline.ask(src, q["question"], q.get("options"), perception=perception, conf=pconf,
-                         answerer="map", keyframes=keyframes)
+        r = pipeline.ask(src, q["question"], q.get("options"),
+                         pipeline.AskRequest(answerer="map", keyframes=keyframes, conf=pconf), perception=perception)
         a = r.answer
         out.append({"id": q["id"], "question_type": q["question_type"], "pred": a.text, "status": a.status,
                     "ground_truth": q["ground_truth"], "evidence": a.explanation, "support": a.evidence,

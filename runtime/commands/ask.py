@@ -102,10 +102,10 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
             # walk the map's objects again and again (100 k objects: 1-1.5 s of CPU): off until the command ends
             gc_off = gc.isenabled()
             gc.disable()
-        res = pipeline.ask(source, question, options, perception=perception, bundle=args.bundle,
-                           profile=profile, conf=conf, answerer=args.answerer, method=args.method,
-                           prompt_mode=args.prompt, trace=trace, keyframes=args.keyframes,
-                           render_image=out is not None, grounding=args.grounding)
+        req = pipeline.AskRequest(answerer=args.answerer, method=args.method, prompt_mode=args.prompt,
+                                  grounding=args.grounding, keyframes=args.keyframes,
+                                  render_image=out is not None, conf=conf, profile=profile)
+        res = pipeline.ask(source, question, options, req, perception=perception, bundle=args.bundle, trace=trace)
         files, write_error, code = {}, None, 0
         if outs is not None:
             items = []

@@ -41,7 +41,7 @@ from ..infra.trace import Trace, peak_rss_mb, reset_peak_rss, rss_mb
 from ..infra.providers import create_session
 from ..models import load_role
 from ..infra.bundle import load_bundle
-from ..pipeline import ask
+from ..pipeline import AskRequest, ask
 from ..geometry import make_pose, ransac_transform, rotation_about
 from .flags import add_keyframes
 from ..infra.progress import stderr_is_terminal
@@ -324,8 +324,8 @@ def _question_worker(job: dict[str, Any]) -> dict[str, Any]:
     prof = load_profile(job["profile"]) if job.get("profile") else None
     c0 = time.process_time()  # user + system CPU of every thread of this process
     t0 = time.perf_counter()
-    res = ask(job["video"], job["question"], bundle=job["bundle"], profile=prof, trace=trace,
-              conf={"depth": "model", "matcher": "model"}, keyframes=job.get("keyframes"))
+    req = AskRequest(keyframes=job.get("keyframes"), conf={"depth": "model", "matcher": "model"}, profile=prof)
+    res = ask(job["video"], job["question"], request=req, bundle=job["bundle"], trace=trace)
     wall = time.perf_counter() - t0
     cpu = time.process_time() - c0
     td = trace.to_dict()
