@@ -32,8 +32,8 @@ from .types import Budget, Detections, Frame, Observation
 # the stages, in the paper's order
 from .scan import DedupConf, ScanResult, open_scanned, remove_redundant
 from .grounding import ParsedQuestion, ground
-from .keyframes import (KeyFrameConf, KeyFrameResult, plan_keyframes, reduce_keyframes, select_keyframes,
-                        spread_keyframes, uniform_keyframes)
+from .keyframes import (KeyFrameConf, KeyFrameResult, finish_keyframes, plan_keyframes, requested_keyframes,
+                        select_keyframes)
 from .perceive import (CachedDetector, Perceived, Perception, colour_frame, load_vlm, match_boxes, perceive_keyframes,
                        perception_from_bundle, with_depth)
 from .align import AlignmentResult, align_keyframes, make_matcher, rigid_part
@@ -123,35 +123,13 @@ def select(source: FrameSource, targets: Sequence[str], cues: Sequence[str], per
         det.on_call = None
         bar.note(keyframes=len(res.chosen))
     trace.record(log)
-    chosen = [int(i) for i in res.chosen]
-    floor = kconf.uniform_floor
-    if len(chosen) < min(floor, len(cands)):
-        extra = [int(i) for i in uniform_keyframes(cands, KeyFrameConf.merged(keyframes=floor)).chosen
-                 if int(i) not in chosen]
-        chosen = sorted(chosen + extra[:floor - len(chosen)])
-        trace.event("degraded", f"only {len(res.chosen)} frames passed the key-frame threshold; topped up with "
-                    f"{min(floor - len(res.chosen), len(extra))} evenly spaced frames", stage="keyframes")
-    if plan.reserve:
-        spread = spread_keyframes(chosen, cands, res.scores, plan.reserve)
-        trace.event("keyframes", f"{len(names)} object names: {plan.reserve} of {kconf.keyframes} key "
-                    f"frames reserved for temporal coverage (largest gaps between the search's frames): {spread}",
-                    stage="keyframes", coverage=spread)
-        chosen = sorted(chosen + spread)
-    if budget is not None and len(chosen) > budget.keyframes:  # the search overran and the plan was reduced
-        chosen = _reduce_keyframes(chosen, int(budget.keyframes), budget, trace)
+    log = StageLog()
+    chosen = finish_keyframes(res, plan, cands, len(names), budget, log)  # floor, coverage, a re-planned budget
+    trace.record(log)
     trace.decide("keyframes", {**res.to_dict(), "chosen": chosen, "scores": None, "order": None,
                                "coverage_reserve": plan.reserve})
     bar.note(keyframes=len(chosen))  # the summary line: the key frames perception gets (top-up and reserve in)
     return sorted(chosen), det, res, cands
-
-
-def _reduce_keyframes(chosen: list[int], k: int, budget: Budget, trace: Trace) -> list[int]:
-    """`keyframes.reduce_keyframes`, said as a reduced plan with the budget's reason."""
-    keep = reduce_keyframes(chosen, k)
-    why = budget.reasons[-1].removeprefix("reduced plan: ") if budget.reasons else "the budget was re-planned"
-    trace.event("reduced_plan", f"reduced plan: {len(chosen)} -> {len(keep)} key frames, because {why}",
-                stage="keyframes", keyframes=len(keep))
-    return keep
 
 
 # ----------------------------------------------------------------------------- build_map: the stages wired
@@ -368,10 +346,9 @@ def _start_build(source: FrameSource, targets: Sequence[str], cues: Sequence[str
     uses_model_depth = conf.depth == "model" or (conf.depth == "auto" and not getattr(source, "has_depth", False))
     if perception.depth_relative and not uses_model_depth:  # sensor depth is metric whatever the bundle holds
         perception = dataclasses.replace(perception, depth_relative=False)
-    K = int(keyframes or getattr(budget, "keyframes", None) or conf.keyframe.keyframes)
-    if budget is not None:
-        K = int(budget.allow_keyframes(K))
-        trace.decide("budget.keyframes", K)
+    log = StageLog()
+    K = requested_keyframes(keyframes, conf.keyframe, budget, log)  # flag, budget, config; the memory guard
+    trace.record(log)
     return names, perception, K
 
 

@@ -250,14 +250,12 @@ def test_without_overrun_the_plan_is_kept(scene):
 
 
 def test_reduced_key_frames_stay_spread_over_the_clip():
-    from mosaicthinker.runtime.pipeline import _reduce_keyframes
-    from mosaicthinker.runtime.infra.trace import Trace
+    from mosaicthinker.runtime.keyframes import cut_keyframes
+    from mosaicthinker.runtime.infra.trace import StageLog
 
-    class Ctl:
-        reasons = ["reduced plan: stage keyframes took 900 ms of its 40 ms share"]
-
-    trace = Trace()
-    kept = _reduce_keyframes(list(range(0, 200, 10)), 4, Ctl(), trace)
+    trace = StageLog()
+    kept = cut_keyframes(list(range(0, 200, 10)), 4, ["reduced plan: stage keyframes took 900 ms of its 40 ms share"],
+                         trace)
     assert kept == [0, 60, 130, 190]
     msg = trace.events[-1]["message"]
     assert msg == "reduced plan: 20 -> 4 key frames, because stage keyframes took 900 ms of its 40 ms share"

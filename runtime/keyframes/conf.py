@@ -1,10 +1,10 @@
-"""The key-frame stage's settings (one owner: K, the search, its budget, the top-up, the coverage reserve) and the
-per-clip plan that resolves them once (`plan_keyframes`). Why each default is what it is: docs/settings.md."""
+"""The key-frame stage's settings (one owner: K, the search, its budget, the top-up, the coverage reserve); K itself
+is resolved in one place, `count.py`. Why each default is what it is: docs/settings.md."""
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
-from typing import Any, ClassVar, Protocol
+from dataclasses import dataclass
+from typing import ClassVar
 
 from ..infra.config import StageConf
 from ..infra.errors import InputError
@@ -15,7 +15,7 @@ METHODS = ("iterative", "uniform", "random", "exhaustive")
 @dataclass
 class KeyFrameConf(StageConf):
     """Key-frame selection; defaults follow the paper. Merge overrides with `KeyFrameConf.merged`. The fields the
-    pipeline derives per clip are None here (`plan_keyframes` resolves them; the search alone reads None as noted)."""
+    pipeline derives per clip are None here (`count.plan_keyframes` resolves them; the search alone reads None as noted)."""
 
     conf_name: ClassVar[str] = "key-frame config"
 
@@ -136,64 +136,3 @@ def scored_budget(n_candidates: int, keyframes: int, fraction: float, min_per_ke
     if max_per_keyframe is not None:
         b = min(b, math.ceil(max_per_keyframe * keyframes))
     return int(max(b, math.ceil(min_per_keyframe * keyframes)))
-
-
-def coverage_reserve(K: int, n_names: int, conf: KeyFrameConf) -> int:
-    """Key frames kept back from the search for temporal coverage: a map of many categories (an "everything"
-    question, `mosaic map`) needs every part of the video, not only the frames dense in detections."""
-    if conf.coverage_share <= 0 or n_names < max(conf.coverage_min_names, 1) or K < 4:
-        return 0
-    return int(min(K - 2, round(conf.coverage_share * K)))
-
-
-class KeyFrameBudget(Protocol):
-    """What `plan_keyframes` reads of a device budget (`budget.BudgetController`)."""
-
-    keyframes: int
-    scored_frames: int
-
-
-@dataclass(frozen=True)
-class KeyFramePlan:
-    """K for one clip, resolved once. k: the key frames the map gets (after the budget); reserve: of which
-    `spread_keyframes` picks for temporal coverage; search: the search's config (k - reserve key frames, its
-    scored-frame budget and top-up); capped: the note when `max_scored_per_keyframe` lowered the budget."""
-
-    k: int
-    reserve: int
-    search: KeyFrameConf
-    capped: dict[str, Any] | None = None
-
-
-def plan_keyframes(conf: KeyFrameConf, budget: KeyFrameBudget | None, n_candidates: int, n_frames: int,
-                   n_names: int, keyframes: int | None = None) -> KeyFramePlan:
-    """K (`keyframes`, else `conf.keyframes`, at most the budget's), the coverage reserve for `n_names` object
-    names, the scored-frame budget (the budget's, else `conf.budget`, else `scored_budget` over `n_candidates`)
-    and the iterative search's top-up (`topup`: up to its K, frames len/(topup_spacing x K) apart over `n_frames`).
-    Pure: reads the budget, changes nothing."""
-    K = int(keyframes or conf.keyframes)
-    if budget is not None:
-        K = min(K, int(budget.keyframes))
-    reserve = coverage_reserve(K, n_names, conf)
-    scored, capped = conf.budget, None
-    if budget is not None:
-        scored = int(budget.scored_frames)
-    elif scored is None and conf.min_scored_per_keyframe > 0:
-        scored = scored_budget(n_candidates, K, conf.budget_fraction, conf.min_scored_per_keyframe,
-                               conf.max_scored_per_keyframe)
-        uncapped = scored_budget(n_candidates, K, conf.budget_fraction, conf.min_scored_per_keyframe)
-        if scored < uncapped:
-            capped = {"scored": scored, "fraction_would_score": uncapped,
-                      "max_per_keyframe": conf.max_scored_per_keyframe}
-    k = K - reserve
-    upd: dict[str, Any] = {"keyframes": k, "budget": scored}
-    if conf.topup and conf.keyframe_method == "iterative":
-        if conf.min_keyframes is None:
-            upd["min_keyframes"] = k
-        if conf.topup_gap is None:
-            upd["topup_gap"] = max(1, n_frames // (conf.topup_spacing * k))
-        if conf.topup_relax is None:
-            upd["topup_relax"] = False
-    search = replace(conf, **upd)
-    search.validate()
-    return KeyFramePlan(K, reserve, search, capped)
