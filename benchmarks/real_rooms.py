@@ -212,7 +212,7 @@ def probe_edges(room: Path, bundle: Path, stride: int, n: int = 40) -> dict[str,
 
     src = open_source(room)
     m = load_role(str(bundle), "matcher", trace=Trace())
-    conf = AlignConf(min_inliers=12)
+    conf = AlignConf(keyframe_edges=True)  # the pipeline's edges: `keyframe_min_inliers`
     px = 1.5 * float(getattr(m, "keypoint_px", 1.0))
     idx = [int(i) for i in np.linspace(0, len(src) - 1 - stride, n).round()]
     counts = []

@@ -112,6 +112,26 @@ def test_pipeline_stage_configs_are_typed_and_merge_over_the_pipeline_defaults()
         PipelineConfig.merged({"alignment": {"min_inlierz": 3}})
 
 
+def test_each_edge_inlier_minimum_has_one_owner_and_none_is_rebound():
+    """`min_inliers` means 20 wherever it is read; the key frames' alignment names its own 12 and the solvers say
+    which applies (`edge_min_inliers`); their mathematical floors are named once (`SOLVER_MIN_POINTS`)."""
+    from dataclasses import replace
+
+    from mosaicthinker.runtime.align import AlignConf
+    from mosaicthinker.runtime.align.conf import SOLVER_MIN_POINTS
+
+    c = AlignConf()
+    assert c.edge_min_inliers == c.min_inliers == 20
+    assert replace(c, keyframe_edges=True).edge_min_inliers == c.keyframe_min_inliers == 12
+    assert AlignConf.merged(min_inliers=15).edge_min_inliers == 15
+    assert set(SOLVER_MIN_POINTS) == {"3d-3d", "pnp", "essential", "refit"}
+    for f in sorted((REPO / "runtime" / "align").glob("*.py")) + [REPO / "benchmarks" / "real_rooms.py"]:
+        src = f.read_text()
+        assert "min_inliers=conf.keyframe_min_inliers" not in src and "conf.min_inliers" not in src, f.name
+        assert "AlignConf(min_inliers=" not in src, f.name
+        assert not re.search(r"max\((3|6|8), ", src), f.name
+
+
 def test_sift_contrast_threshold_has_one_owner():
     """The SIFT contrast threshold is MatchConf's alone (it was also set in the pipeline's defaults)."""
     src = (REPO / "runtime" / "pipeline.py").read_text()

@@ -22,8 +22,10 @@ class AlignConf(StageConf):
     refine_m: float = 0.02             # final least-squares refit on matches this close (m; 0 = off)
     ransac_iterations: int = 1000
     max_matches: int = 400             # matches with valid depth kept per pair, best scores first (0 = all)
-    min_inliers: int = 20              # an edge with fewer inliers fails (alignment on its own: `align_frames`)
+    min_inliers: int = 20              # an edge with fewer inliers fails where nothing checks it afterwards
+                                       # (`align_frames` on its own: `mosaic eval pose --path frames`, pose table)
     keyframe_min_inliers: int = 12     # ... in `align_keyframes`, whose tree edges the depth check then verifies
+    keyframe_edges: bool = False       # set by `align_keyframes` alone: its edges need `keyframe_min_inliers`
     min_inlier_ratio: float = 0.15     # inliers / matches with depth below this = failed edge (random matches)
     max_match_depth_m: float = 10.0    # matches on depth beyond this are ignored (sensor noise)
     edge_radius: int = 3               # a match's depth must be smooth in a (2r+1)^2 window (0 = off) ...
@@ -65,7 +67,17 @@ class AlignConf(StageConf):
     revisit_tries: int = 4             # metric depth, out of every chain's reach: (near, far) pairs alike by
                                        # thumbnail tried per key frame (a place the video shows twice; 0 = off)
 
+    @property
+    def edge_min_inliers(self) -> int:
+        """The inlier minimum every edge solver applies (`pairwise`, `pnp`, `essential`): `keyframe_min_inliers` for
+        the key frames' alignment (`keyframe_edges`), else `min_inliers`; never below the solver's own
+        `SOLVER_MIN_POINTS`."""
+        return self.keyframe_min_inliers if self.keyframe_edges else self.min_inliers
+
     def validate(self) -> None:
+        if self.min_inliers < 1 or self.keyframe_min_inliers < 1:
+            raise InputError(f"alignment config: min_inliers and keyframe_min_inliers must be >= 1 (got "
+                             f"{self.min_inliers}, {self.keyframe_min_inliers})")
         if self.bridge_frames < 0 or self.revisit_tries < 0:
             raise InputError("alignment config: bridge_frames and revisit_tries must be >= 0")
         if self.attach_tries < 1:
@@ -73,6 +85,11 @@ class AlignConf(StageConf):
         if not 0 <= self.max_free_space_violation <= 1:
             raise InputError("alignment config: max_free_space_violation must be in [0, 1]")
 
+
+# the fewest matches each edge solver can estimate from at all (the math's minimum, not a setting: an edge's minimum
+# is `AlignConf.edge_min_inliers`, checked above these): Umeyama (3 points), PnP (6), the essential matrix (the
+# 8-point algorithm), and the least-squares refit of a 3D-3D edge on its tight inliers
+SOLVER_MIN_POINTS = {"3d-3d": 3, "pnp": 6, "essential": 8, "refit": 6}
 
 # expected error of one edge by method (metres, degrees): the median error of each method against the ground truth
 # on adjacent frames of the shared rooms (docs/real-rooms.md, "pairwise edges"); the pose graph's sigmas

@@ -12,7 +12,7 @@ import numpy as np
 
 from ..geometry import sample_depth, transform_scale
 from ..infra.errors import InputError
-from .conf import AlignConf
+from .conf import SOLVER_MIN_POINTS, AlignConf
 from .matching import Matches
 from .pairwise import PairResult
 
@@ -70,8 +70,9 @@ def essential_pose(m: Matches, K_a: np.ndarray, K_b: np.ndarray, conf: AlignConf
     def fail(why: str, nv: int = 0, ninl: int = 0) -> PairResult:
         return PairResult(np.eye(4), False, n, nv, ninl, float("inf"), time.perf_counter() - t0, why)
 
-    if n < max(8, conf.min_inliers):
-        return fail(f"only {n} matches (need {max(8, conf.min_inliers)})")
+    need = conf.edge_min_inliers
+    if n < max(SOLVER_MIN_POINTS["essential"], need):
+        return fail(f"only {n} matches (need {max(SOLVER_MIN_POINTS['essential'], need)})")
     sel = np.arange(n)
     if conf.essential_matches and n > conf.essential_matches:
         sel = np.argsort(-m.scores, kind="stable")[:conf.essential_matches]
@@ -91,8 +92,8 @@ def essential_pose(m: Matches, K_a: np.ndarray, K_b: np.ndarray, conf: AlignConf
     inl = np.zeros(len(sel), bool)
     inl[q0[m2.ravel() > 0]] = True
     ninl = int(inl.sum())
-    if ninl < conf.min_inliers:
-        return fail(f"{ninl} essential inliers (need {conf.min_inliers})", len(sel), ninl)
+    if ninl < need:
+        return fail(f"{ninl} essential inliers (need {need})", len(sel), ninl)
     if ninl < conf.min_inlier_ratio * len(sel):
         return fail(f"essential inlier ratio {ninl / len(sel):.2f} below {conf.min_inlier_ratio}", len(sel), ninl)
     t = t.reshape(3) / max(np.linalg.norm(t), 1e-12)  # x_b = R x_a + t, |t| = 1

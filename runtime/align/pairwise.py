@@ -11,7 +11,7 @@ import numpy as np
 
 from ..geometry import (backproject_pixels, icp_point_to_plane, ransac_transform, rotation_angle_deg, sample_depth,
                         transform, transform_scale, umeyama)
-from .conf import AlignConf
+from .conf import SOLVER_MIN_POINTS, AlignConf
 from .matching import Matches
 
 
@@ -62,19 +62,20 @@ def align_pair(m: Matches, depth_a: np.ndarray, K_a: np.ndarray, depth_b: np.nda
         ok[:] = False
         ok[q[np.argsort(-m.scores[q], kind="stable")[:conf.max_matches]]] = True
     nv = int(ok.sum())
-    if nv < max(3, conf.min_inliers):
+    need = conf.edge_min_inliers
+    if nv < max(SOLVER_MIN_POINTS["3d-3d"], need):
         return PairResult(np.eye(4), False, len(m), nv, 0, float("inf"), time.perf_counter() - t0,
-                          f"only {nv} matches with valid depth (need {conf.min_inliers})")
+                          f"only {nv} matches with valid depth (need {need})")
     pa = backproject_pixels(_undistort(m.uv0[ok], K_a, dist_a), za[ok], K_a)
     pb = backproject_pixels(_undistort(m.uv1[ok], K_b, dist_b), zb[ok], K_b)
     thr = conf.threshold_m if not with_scale else conf.threshold_rel * float(np.median(za[ok]))
     # only a model with >= w_min inliers could be accepted: enough iterations to find one with 99.9%
     # confidence (fewer than `iterations` for small match sets; failed pairs are the common, costly case)
-    w_min = min(1.0, max(conf.min_inliers / nv, conf.min_inlier_ratio))
+    w_min = min(1.0, max(need / nv, conf.min_inlier_ratio))
     its = conf.ransac_iterations if w_min >= 1.0 else \
         min(conf.ransac_iterations, int(np.ceil(np.log(1e-3) / np.log(max(1e-12, 1.0 - w_min**3)))) + 1)
     r = ransac_transform(pb, pa, threshold=thr, iterations=its, with_scale=with_scale,
-                         min_inliers=conf.min_inliers, rng=rng)
+                         min_inliers=need, rng=rng)
     reason = ""
     good = r.ok
     if good and conf.refine_m > 0:  # accept with the loose threshold, estimate from the tight inliers
@@ -82,12 +83,12 @@ def align_pair(m: Matches, depth_a: np.ndarray, K_a: np.ndarray, depth_b: np.nda
         T = r.T
         for _ in range(2):
             sel = np.linalg.norm(transform(T, pb) - pa, axis=1) < thr2
-            if sel.sum() < max(6, conf.min_inliers // 2):
+            if sel.sum() < max(SOLVER_MIN_POINTS["refit"], need // 2):
                 break
             T = umeyama(pb[sel], pa[sel], with_scale)
         r.T = T
     if not r.ok:
-        reason = f"{r.n_inliers} inliers (need {conf.min_inliers})"
+        reason = f"{r.n_inliers} inliers (need {need})"
     elif r.n_inliers < conf.min_inlier_ratio * nv:
         good, reason = False, f"inlier ratio {r.n_inliers / nv:.2f} below {conf.min_inlier_ratio}"
     T, icp, icp_rms = r.T, "", float("nan")

@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from ..geometry import backproject_pixels, invert, sample_depth
-from .conf import AlignConf
+from .conf import SOLVER_MIN_POINTS, AlignConf
 from .essential import essential_pose
 from .matching import Matches
 from .pairwise import PairResult, _undistort, align_pair, depth_smooth
@@ -66,7 +66,7 @@ def pnp_pair(m: Matches, fa: Any, fb: Any, conf: AlignConf, px: float = 2.0, ite
     """3D-2D edge: T_ab [4, 4] (b camera -> a camera) from the matches with usable depth in ONE frame (the side
     with more of them): those are lifted there and the other frame's pose is solved from their pixels (EPnP in
     RANSAC at `px` pixels of reprojection error, then Levenberg-Marquardt on the inliers, inliers re-counted).
-    Fails with fewer than `min_inliers` inliers or an inlier ratio below `min_inlier_ratio`."""
+    Fails with fewer than `edge_min_inliers` inliers or an inlier ratio below `min_inlier_ratio`."""
     import cv2
 
     t0 = time.perf_counter()
@@ -78,8 +78,9 @@ def pnp_pair(m: Matches, fa: Any, fb: Any, conf: AlignConf, px: float = 2.0, ite
     def fail(why: str, ninl: int = 0) -> EdgeResult:
         return EdgeResult(np.eye(4), False, len(m), n, ninl, float("inf"), time.perf_counter() - t0, why)
 
-    if n < max(6, conf.min_inliers):
-        return fail(f"only {n} matches with depth in one frame (need {conf.min_inliers})")
+    need = conf.edge_min_inliers
+    if n < max(SOLVER_MIN_POINTS["pnp"], need):
+        return fail(f"only {n} matches with depth in one frame (need {need})")
     src, dst = (fa, fb) if use_a else (fb, fa)
     uv_src = (m.uv0 if use_a else m.uv1)[sel]
     uv_dst = (m.uv1 if use_a else m.uv0)[sel].astype(np.float64)
@@ -100,8 +101,8 @@ def pnp_pair(m: Matches, fa: Any, fb: Any, conf: AlignConf, px: float = 2.0, ite
     err = np.linalg.norm(proj.reshape(-1, 2) - uv_dst, axis=1)
     good = (err < px) & (zc > 0)
     ninl = int(good.sum())
-    if ninl < conf.min_inliers:
-        return fail(f"{ninl} PnP inliers (need {conf.min_inliers})", ninl)
+    if ninl < need:
+        return fail(f"{ninl} PnP inliers (need {need})", ninl)
     if ninl < conf.min_inlier_ratio * n:
         return fail(f"PnP inlier ratio {ninl / n:.2f} below {conf.min_inlier_ratio}", ninl)
     T = np.eye(4)  # src camera -> dst camera

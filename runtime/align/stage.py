@@ -116,7 +116,7 @@ def align_keyframes(frames: list[Frame], matcher: KeyedMatcher, boxes: dict[int,
     hold = getattr(matcher, "hold", None)  # every frame this alignment may load stays cached: none extracted twice
     if callable(hold):
         hold(len(frames) + (backbone.max_frames if walks else conf.bridge_frames * max(1, conf.bridge_rounds)))
-    conf = replace(conf, min_inliers=conf.keyframe_min_inliers)  # the depth check verifies what this lets in
+    conf = replace(conf, keyframe_edges=True)  # every edge below needs `keyframe_min_inliers` (`edge_min_inliers`)
     if with_scale and not conf.relative_box_matching:  # essential edges: whole images from the first tree
         boxes = {i: None for i in boxes}
     with log.stage("alignment"):
