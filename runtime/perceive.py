@@ -22,6 +22,7 @@ from .geometry import box_iou
 from .infra.trace import StageLog, Trace, as_trace
 from .map import FusionConfig, box_depth_mask, lift_detections
 from .models import load_role
+from .models.detector import DetectorConf
 from .types import Budget, Detections, Frame, Observation
 
 DetectFn = Callable[[Frame, list[str]], Detections]
@@ -51,6 +52,9 @@ class Perception:
     # key-frame perception: candidate detections down to the detector's low score, with instance masks where an
     # instance segmenter gives them (the map verifies candidates across views); None = `detect`'s detections
     detect_keyframe: DetectFn | None = None
+    # the detector's confidence threshold (the bundle manifest's `score_threshold`, one per role): a lone view at
+    # or above it may stand in the map (`map.verify`, unless `VerifyConf.confident` is set); default: DetectorConf's
+    confident_score: float = DetectorConf.score_threshold
 
 
 def colour_frame(source: FrameSource, i: int) -> Frame:
@@ -274,7 +278,7 @@ def perception_from_bundle(bundle: Any, conf: PipelineConfig | dict | None = Non
                          f"the map needs a detector (export one with `mosaic export detector`), or use "
                          f"`detector=oracle` on a synthetic scene", fields=("bundle", "detector"))
     det = load("detector")
-    p = Perception(detect=lambda frame, names: det.detect(frame.rgb, names))
+    p = Perception(detect=lambda frame, names: det.detect(frame.rgb, names), confident_score=det.score_threshold)
     if getattr(det, "labels", None):
         labels = [x for x in dict.fromkeys(det.labels) if x and x.strip("?") and x.lower() != "n/a"]
         p.detect_all = lambda frame: det.detect(frame.rgb, labels)

@@ -190,6 +190,7 @@ class _Verifier:
     poses: dict[int, np.ndarray]
     conf: PipelineConfig
     metric: bool
+    confident_score: float  # the detector's threshold (`Perception.confident_score`)
     log: StageLog
     obs: list[Observation] | None = None
     ver: Any = None
@@ -197,10 +198,10 @@ class _Verifier:
     def __call__(self, obs: list[Observation]) -> list[Observation]:
         with self.log.stage("verify"):
             kept, ver = verify_observations(obs, self.p.frames, self.poses, self.p.dets, self.conf.verify,
-                                            self.metric)
+                                            self.metric, self.confident_score)
         self.obs, self.ver = obs, ver
         self.log.decide("verify", ver.report(obs))
-        if msg := ver.message(obs, self.conf.verify):
+        if msg := ver.message(obs):
             self.log.event("verify", msg, stage="fusion", dropped=len(obs) - len(kept))
         return kept
 
@@ -232,7 +233,7 @@ def _map_stage(p: Perceived, source: FrameSource, perception: Perception, conf: 
     trace.record(log)
     poses = {i: W @ T for i, T in al.poses.items()}
     log = StageLog()
-    verifier = _Verifier(p, poses, conf, not perception.depth_relative, log)
+    verifier = _Verifier(p, poses, conf, not perception.depth_relative, perception.confident_score, log)
     with trace.stage("fusion"):
         obs, instances, clouds = fuse_frames(p.frames, p.dets, poses, fconf, log, p.lifted, verifier)
     trace.record(log)

@@ -6,6 +6,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
+from conftest import REPO
 from mosaicthinker.runtime.map.verify import VerifyConf, annotate_views, rests_on, verify_observations
 from mosaicthinker.runtime.map import fuse_observations
 from mosaicthinker.runtime.types import Detections, Observation
@@ -99,3 +100,20 @@ def test_one_confident_view_adds_an_object_only_to_a_category_seen_twice():
     assert loose.why[2] == "confident"
     off, _ = verify_observations(obs, frames, poses, {}, VerifyConf(enabled=False))
     assert len(off) == 4
+    # the lone view's threshold is the detector's own (the bundle's score_threshold) unless verification sets one
+    strict = verify_observations(obs, frames, poses, dets, VerifyConf(), detector_threshold=0.85)[1]
+    assert strict.why[1] == "unverified" and strict.confident == 0.85 and "from score 0.85" in strict.message(obs)
+    assert verify_observations(obs, frames, poses, dets, VerifyConf(confident=0.5), detector_threshold=0.85)[1].why \
+        == ver.why and ver.confident == 0.5
+
+
+def test_the_detector_threshold_has_one_owner_per_role():
+    """Verification reads the detector's confidence threshold (the manifest's; DetectorConf's default), never a
+    copy of its own."""
+    from mosaicthinker.runtime.models.detector import DetectorConf
+    from mosaicthinker.runtime.perceive import Perception
+
+    assert VerifyConf().confident is None
+    assert Perception(detect=lambda f, n: None).confident_score == DetectorConf.score_threshold == 0.5
+    src = (REPO / "runtime" / "models" / "owlv2.py").read_text()
+    assert 'self.score_threshold = float(cfg.get("score_threshold", 0.1))' in src

@@ -28,6 +28,7 @@ from typing import Any, ClassVar, Mapping, Sequence
 import numpy as np
 
 from ..geometry import box_iou, invert
+from ..models.detector import DetectorConf
 from ..infra.config import StageConf
 from ..infra.errors import InputError
 
@@ -39,7 +40,8 @@ class VerifyConf(StageConf):
     conf_name: ClassVar[str] = "verify config"
 
     enabled: bool = True
-    confident: float = 0.5       # a detection at or above this score stands on its own view ...
+    confident: float | None = None   # a detection at or above this score stands on its own view ... (None: the
+                                     # detector's own threshold, the bundle's `score_threshold`)
     confident_needs_seen: bool = True  # ... when another detection of its name rests on `min_views` views
     min_views: int = 2           # below it, this many key frames (its own included) must agree
     agree_radius_m: float = 0.12  # 3D agreement: points of two views this close count as the same surface ...
@@ -53,7 +55,7 @@ class VerifyConf(StageConf):
     sample: int = 200            # points per detection projected (a fixed-seed subsample)
 
     def validate(self) -> None:
-        if not 0 <= self.confident <= 1 or not 0 <= self.min_iou <= 1 or not 0 < self.visible_share <= 1:
+        if not 0 <= (self.confident or 0) <= 1 or not 0 <= self.min_iou <= 1 or not 0 < self.visible_share <= 1:
             raise InputError("verify config: confident, min_iou and visible_share must be in [0, 1]")
         if self.min_views < 1 or self.sample < 4:
             raise InputError("verify config: min_views must be >= 1 and sample >= 4")
@@ -68,14 +70,15 @@ class Verification:
     against: list[list[int]] = field(default_factory=list)
     kept: list[bool] = field(default_factory=list)
     why: list[str] = field(default_factory=list)
+    confident: float | None = None  # the score a lone view stood from
 
-    def message(self, obs: Sequence[Any], conf: VerifyConf) -> str | None:
+    def message(self, obs: Sequence[Any]) -> str | None:
         """The trace's one line on what was left out, or None when nothing was."""
         out = [(o, a) for o, k, a in zip(obs, self.kept, self.against) if not k]
         if not out:
             return None
         return (f"verification: left out {len(out)} of {len(obs)} detection(s) no other key frame agreed with (a "
-                f"lone view counts from score {conf.confident} for a category seen twice elsewhere): "
+                f"lone view counts from score {self.confident} for a category seen twice elsewhere): "
                 + ", ".join(f"{o.name} in frame {o.frame} ({o.score:.2f})" for o, _ in out))
 
     def report(self, obs: Sequence[Any]) -> dict[str, Any]:
@@ -184,12 +187,15 @@ def cross_view_support(obs: Sequence[Any], frames: Sequence[Any], poses: Mapping
 
 
 def verify_observations(obs: Sequence[Any], frames: Sequence[Any], poses: Mapping[int, np.ndarray],
-                        dets: Mapping[int, Any], conf: VerifyConf, use_depth: bool = True
-                        ) -> tuple[list[Any], Verification]:
+                        dets: Mapping[int, Any], conf: VerifyConf, use_depth: bool = True,
+                        detector_threshold: float = DetectorConf.score_threshold) -> tuple[list[Any], Verification]:
     """The observations the map keeps (a view confident on its own, or agreed by `min_views` key frames in all;
     refinement's `recovered` views are not detections and pass) and what verification found. Each kept
     observation is returned unchanged. use_depth=False (relative depth): low-score candidates are not kept (their
-    3D agreement is not a test there). -> (kept observations in input order, Verification over all of them)."""
+    3D agreement is not a test there). A lone view is confident from `conf.confident`, else from the detector's own
+    `detector_threshold` (`Perception.confident_score`). -> (kept observations in input order, Verification over
+    all of them)."""
+    confident = conf.confident if conf.confident is not None else float(detector_threshold)
     if not conf.enabled or not len(obs):
         n = len(obs)
         return list(obs), Verification([[] for _ in range(n)], [[] for _ in range(n)], [True] * n, ["off"] * n)
@@ -201,17 +207,17 @@ def verify_observations(obs: Sequence[Any], frames: Sequence[Any], poses: Mappin
     for o, sup in zip(obs, support):
         if getattr(o, "recovered", False):
             w = "recovered"
-        elif 1 + len(sup) >= conf.min_views and (use_depth or float(o.score) >= conf.confident):
+        elif 1 + len(sup) >= conf.min_views and (use_depth or float(o.score) >= confident):
             w = "views"
-        elif float(o.score) >= conf.confident and (o.name in seen or not conf.confident_needs_seen):
+        elif float(o.score) >= confident and (o.name in seen or not conf.confident_needs_seen):
             w = "confident"
-        elif float(o.score) >= conf.confident:
+        elif float(o.score) >= confident:
             w = "unseen category"
         else:
             w = "unverified"
         kept.append(w in ("recovered", "views", "confident"))
         why.append(w)
-    return [o for o, k in zip(obs, kept) if k], Verification(support, against, kept, why)
+    return [o for o, k in zip(obs, kept) if k], Verification(support, against, kept, why, confident)
 
 
 def annotate_views(instances: Sequence[Any], obs: Sequence[Any], ver: Verification) -> None:

@@ -152,6 +152,7 @@ class LabelDetector(RoleModel):
         super().__init__(spec, sessions, trace)
         self.role = spec.role  # one adapter class may serve the detector and the instance_segmenter role
         self.conf = conf or detector_conf(spec)
+        self.score_threshold = self.conf.score_threshold  # the role's one confidence threshold (the manifest's)
         self.labels: list[str] = list(spec.semantics["labels"])
         self.vocabulary = "closed"
         self._input = self.session().input_names[0]

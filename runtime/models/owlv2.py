@@ -75,7 +75,7 @@ class OwlV2Detector(RoleModel):
             raise BundleError(f"{path}: start/end tokens of roles.detector.config are not in the tokenizer")
         self.pad_id = int(cfg.get("pad_id", 0))
         self.template = str(cfg.get("query_template", "{}"))
-        self.threshold = float(cfg.get("score_threshold", 0.1))
+        self.score_threshold = float(cfg.get("score_threshold", 0.1))  # the bundle's; a lone view stands from it
         self.nms_iou = float(cfg.get("nms_iou", 0.3))
         self.max_per_name = int(cfg.get("max_per_name", 10))
         self._text_cache: dict[str, np.ndarray] = {}
@@ -126,7 +126,7 @@ class OwlV2Detector(RoleModel):
         sc, boxes = self.scores(rgb, names)
         out_b, out_s, out_n = [], [], []
         for q, name in enumerate(names):
-            cand = np.flatnonzero(sc[:, q] >= self.threshold)
+            cand = np.flatnonzero(sc[:, q] >= self.score_threshold)
             if cand.size == 0:
                 continue
             keep = cand[nms(boxes[cand], sc[cand, q], self.nms_iou)][: self.max_per_name]
