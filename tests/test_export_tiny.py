@@ -153,7 +153,7 @@ def test_owlv2_runtime_matches_hf_detection_head(tiny_bundle, rgb):
     np.testing.assert_allclose(boxes, xyxy, rtol=1e-3, atol=1e-3)
     # text embeddings are cached per name: a repeated name costs no text pass
     calls = d.trace.stages["detector.text"].calls
-    d.threshold = float(np.quantile(sc, 0.95))
+    d.score_threshold = float(np.quantile(sc, 0.95))
     det = d.detect(rgb, names)
     assert d.trace.stages["detector.text"].calls == calls
     assert len(det) > 0 and set(det.names) <= set(names)
