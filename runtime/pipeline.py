@@ -535,7 +535,7 @@ class AskRequest:
     answerer: "map" | "vlm" | "auto"; method: "mosaic" (map + visual prompt) or "direct" (the baseline: frames
     sampled uniformly straight to the VLM, `direct_frames` of them); prompt_mode: "grid" | "points" | "text" |
     "json"; grounding: "rules" | "vlm" | "auto" (who reads the question into its program, `grounding.ground`);
-    keyframes: K (None: the budget's, else the config's: `keyframes.resolve_keyframes`); render_image=False skips
+    keyframes: K (None: the budget's, else the config's: `keyframes.requested_keyframes`); render_image=False skips
     the map image when nothing will show it (no VLM, no file written: on a 10 k-object map it dominates); conf: the
     `PipelineConfig` or overrides of it; profile: a device profile (a budget controller is made from it for a
     video) or budget: a controller already made."""

@@ -52,7 +52,8 @@ def test_a_distance_question_imports_no_scipy(tmp_path):
                 None, [(0.0, np.eye(4))], {}).save(m)
     code = (f"import sys; from mosaicthinker.runtime import pipeline; "
             f"r = pipeline.ask({str(m)!r}, 'What is the distance between the chair and the table (in meters)?', "
-            f"render_image=False); print(r.answer.text, any(k.split('.')[0] == 'scipy' for k in sys.modules))")
+            f"request=pipeline.AskRequest(render_image=False)); "
+            f"print(r.answer.text, any(k.split('.')[0] == 'scipy' for k in sys.modules))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr
     assert out.stdout.split() == ["2.0", "False"]

@@ -56,6 +56,7 @@ def _guard_events(trace: Trace) -> list[dict]:
     return [e for e in trace.events if e["kind"] == "memory_guard"]
 
 
+@pytest.mark.slow
 @pytest.mark.export
 def test_tiny_memory_budget_releases_and_reopens_sessions_through_ask(scene, shared_bundle, tmp_path, capsys):
     """`mosaic ask` under a profile whose memory budget leaves ~2 MB for ~12 MB of model sessions: idle sessions

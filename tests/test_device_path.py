@@ -68,6 +68,7 @@ def small_rgbd(tmp_path_factory, redkitchen) -> Path:
     return out
 
 
+@pytest.mark.slow
 def test_ask_and_map_import_no_host_module(device_bundle, small_rgbd, tmp_path):
     code = _CHILD.format(host=HOST, bundle=str(device_bundle), source=str(small_rgbd), out=str(tmp_path / "m"))
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600)

@@ -28,6 +28,7 @@ def _modules() -> dict[str, Path]:
             parts = parts[:-1]
         if parts:
             out[".".join(parts)] = p
+    assert len(out) > 10, f"only {len(out)} modules under {EXPORT}"  # an empty glob would pass every check here
     return out
 
 

@@ -125,7 +125,9 @@ def test_each_edge_inlier_minimum_has_one_owner_and_none_is_rebound():
     assert replace(c, keyframe_edges=True).edge_min_inliers == c.keyframe_min_inliers == 12
     assert AlignConf.merged(min_inliers=15).edge_min_inliers == 15
     assert set(SOLVER_MIN_POINTS) == {"3d-3d", "pnp", "essential", "refit"}
-    for f in sorted((REPO / "runtime" / "align").glob("*.py")) + [REPO / "benchmarks" / "real_rooms.py"]:
+    files = sorted((REPO / "runtime" / "align").glob("*.py"))
+    assert {"pairwise.py", "pnp.py", "essential.py", "stage.py"} <= {f.name for f in files}
+    for f in files + [REPO / "benchmarks" / "real_rooms.py"]:
         src = f.read_text()
         assert "min_inliers=conf.keyframe_min_inliers" not in src and "conf.min_inliers" not in src, f.name
         assert "AlignConf(min_inliers=" not in src, f.name

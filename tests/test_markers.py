@@ -33,7 +33,9 @@ def _module_marks(tree: ast.Module) -> set[str]:
 
 
 def test_modules_that_need_the_export_extra_are_marked_export():
-    unmarked = [f.name for f in sorted(TESTS.glob("test_*.py"))
+    files = sorted(TESTS.glob("test_*.py"))
+    assert len(files) > 50, f"only {len(files)} test modules under {TESTS}"
+    unmarked = [f.name for f in files
                 if _needs_export_extra(t := ast.parse(f.read_text())) and "export" not in _module_marks(t)]
     assert not unmarked, f"add `pytestmark = [pytest.mark.export, ...]` to {unmarked}"
 
@@ -43,3 +45,22 @@ def test_the_marker_check_can_fail():
     assert _needs_export_extra(tree) and _module_marks(tree) == set()
     tree = ast.parse('import pytest\nfrom mosaicthinker.export import common\npytestmark = [pytest.mark.export]\n')
     assert _needs_export_extra(tree) and _module_marks(tree) == {"export"}
+
+
+# ----------------------------------------------------------------------------- the slow marker, checked in a full run
+
+
+def test_an_unmarked_test_over_the_limit_fails_a_full_run_with_a_margin_for_load():
+    from conftest import REPO, SLOW_S, slow_check_applies, slow_limit_s, unmarked_slow
+
+    assert slow_limit_s(0.1, 2) == 2 * SLOW_S and slow_limit_s(8.0, 2) == 4 * SLOW_S  # idle: 10 s; load 4/core: 20 s
+    assert unmarked_slow(9.9, set(), slow_limit_s(0.0, 2)) is None
+    assert "without @pytest.mark.slow" in unmarked_slow(10.5, {"export"}, slow_limit_s(0.0, 2))
+    assert unmarked_slow(60.0, {"slow"}, 10.0) is None
+    # only a full run is checked (a narrowed run on a busy machine does not fail for timing alone), or when asked
+    assert slow_check_applies("", "", [str(REPO / "tests")], None) and slow_check_applies("", "", [str(REPO)], None)
+    assert not slow_check_applies("not slow", "", [str(REPO / "tests")], None)
+    assert not slow_check_applies("", "kitchen", [str(REPO / "tests")], None)
+    assert not slow_check_applies("", "", [str(REPO / "tests" / "test_markers.py")], None)
+    assert slow_check_applies("not slow", "", [str(REPO / "tests" / "test_markers.py")], "1")
+    assert not slow_check_applies("", "", [str(REPO / "tests")], "0")

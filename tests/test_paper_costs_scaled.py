@@ -33,7 +33,9 @@ def test_factor_is_the_least_floored_perception_ratio_and_vlm_scales_per_field()
 def test_every_profile_plans_with_the_paper_models():
     from mosaicthinker.runtime.budget.profile import load_profile
 
-    for p in sorted((ROOT / "profiles").glob("*.toml")):
+    profiles = sorted((ROOT / "profiles").glob("*.toml"))
+    assert len(profiles) >= 2, f"no device profiles found under {ROOT / 'profiles'}"  # an empty glob proves nothing
+    for p in profiles:
         prof = load_profile(p)
         assert {"depth", "segmenter", "detector", "embedder", "matcher", "vlm"} <= set(prof.paper_costs), p.name
         paper = prof.with_models("paper")

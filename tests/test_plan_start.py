@@ -110,10 +110,12 @@ def test_scaled_paper_loads_follow_the_host_cpu_and_the_vlm_load_factor():
 
 
 def test_estimate_py_regenerates_the_device_profiles_byte_for_byte_keeping_paper_costs(tmp_path):
-    for f in list((ROOT / "profiles").glob("*.toml")) + [ROOT / "profiles" / "estimate.py"]:
+    profiles = sorted((ROOT / "profiles").glob("*.toml"))
+    assert len(profiles) >= 2, f"no device profiles found under {ROOT / 'profiles'}"  # an empty glob proves nothing
+    for f in profiles + [ROOT / "profiles" / "estimate.py"]:
         shutil.copy(f, tmp_path / f.name)
     subprocess.run([sys.executable, str(tmp_path / "estimate.py")], check=True, capture_output=True)
-    for f in (ROOT / "profiles").glob("*.toml"):
+    for f in profiles:
         assert (tmp_path / f.name).read_bytes() == f.read_bytes(), f.name
         assert "[paper_costs." in f.read_text(), f.name
 

@@ -53,6 +53,7 @@ def test_import_metadata(shared_bundle: Path, shared_models: Path):
     assert d["provenance"]["sha256"] and "mobilePydnet" in d["provenance"]["upstream"]
 
 
+@pytest.mark.slow
 def test_checks_on_a_handful_of_frames(shared_bundle: Path, redkitchen: Path):
     from mosaicthinker.export.onnx_import import shared_model_checks
 
@@ -150,6 +151,7 @@ def test_camera_height_prior_uses_the_floor_fit():
         camera_height_prior(wall * 0.5, 1.5)
 
 
+@pytest.mark.slow
 def test_a_question_about_what_the_detector_cannot_see_says_so_before_reading_frames(shared_bundle: Path,
                                                                                       redkitchen: Path):
     """'where's the kettle?' with the COCO SSD: "unsupported: cannot recognise", never a searched-looking
