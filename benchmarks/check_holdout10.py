@@ -6,15 +6,17 @@ runs of words shared with the earlier sets are tested on the written file (see m
 """
 from __future__ import annotations
 
+import argparse
 import glob
 import json
 import re
 import sys
 from pathlib import Path
 
-from make_holdout10 import (HERE, ID_BASE, N_PATTERNS, NEVER_MISSPELT, PER_PATTERN, ROUTE_SYN, SYN, TYPES,
-                            TYPO_OBJECTS, TYPO_PER_TYPE, TYPO_WORDS, _noun, build, dumps, plural, rename,
-                            route_parts, source_objects)
+from holdout_common import FROM_BENCH, LIST_RE, OPTS_RE
+from make_holdout10 import (EARLIER_SOURCES, HERE, ID_BASE, N_PATTERNS, NEVER_MISSPELT, OUT, PER_PATTERN, ROUTE_SYN,
+                            SYN, TYPES, TYPO_OBJECTS, TYPO_PER_TYPE, TYPO_WORDS, VSI, _noun, build, dumps,
+                            earlier_sources, load_questions, plural, rename, route_parts, source_objects)
 
 UNIT_WORDS = [  # (unit, regex over the lowercased question); exactly one may match a numeric row
     ("m2", r"square met(?:re|er)s|\bsq ?m\b|\bsqm\b|\bm\^2|\bm²|met(?:re|er)s squared"),
@@ -25,10 +27,6 @@ UNIT_WORDS = [  # (unit, regex over the lowercased question); exactly one may ma
     ("in", r"\binch(?:es)?\b"),
     ("ft", r"(?<!square )\bfeet\b|(?<!square )\bfoot\b|(?<!sq )\bft\b(?!\^|²)"),
 ]
-# the benchmark's unit expressed in the unit read: cm -> x for sizes, m -> x for distances, m^2 -> x for areas
-FROM_BENCH = {"object_size_estimation": {"cm": 1.0, "mm": 10.0, "m": 1 / 100, "in": 1 / 2.54, "ft": 1 / 30.48},
-              "object_abs_distance": {"m": 1.0, "cm": 100.0, "mm": 1000.0, "in": 100 / 2.54, "ft": 100 / 30.48},
-              "room_size_estimation": {"m2": 1.0, "ft2": 1 / 0.09290304}}
 MEANING = {  # what each row of a type must still say (lowercased)
     "room_size_estimation": r"combin|together",
     "object_abs_distance": r"closest|nearest",
@@ -86,9 +84,6 @@ def names_of(obj: str) -> set[str]:
 
 OBJ_MASK = {w for o in ("tv", "table", "stove", "sofa", "stool", "refrigerator", "chair", "bed", "washer",
                         "fireplace", "toilet", "bathtub", "dishwasher") for n in names_of(o) for w in n.split()}
-LIST_RE = re.compile(r"\bOBJ(?:\s+(?:(?:the|or|and|a|an|either|[abcd])\s+)*OBJ)+\b")
-_DIR = r"(?:front|back|left|right|behind)"
-OPTS_RE = re.compile(rf"\b(?:{_DIR}(?:\s+(?:or|and|the|to|on|my|your))*\s+)+{_DIR}\b")
 
 
 def _tokens(text: str, waypoints: list[str]) -> list[str]:
@@ -281,3 +276,17 @@ def run_checks(qs: list[dict], used: set[int], seed: int, out: Path) -> int:
         print("FAIL", b)
     print("checks:", "all passed" if not bad else f"{len(bad)} failed")
     return 1 if bad else 0
+
+
+def main() -> int:
+    """`python benchmarks/check_holdout10.py` (what `make_holdout10.py --check` runs): every check on --out."""
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--questions", default=str(VSI / "questions.jsonl"))
+    ap.add_argument("--seed", type=int, default=10)
+    ap.add_argument("--out", default=str(OUT))
+    a = ap.parse_args()
+    return run_checks(load_questions(a.questions), earlier_sources(EARLIER_SOURCES), a.seed, Path(a.out))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

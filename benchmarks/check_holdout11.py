@@ -7,6 +7,7 @@ one-edit and dictionary helpers are set 10's (check_holdout10.py), imported.
 """
 from __future__ import annotations
 
+import argparse
 import glob
 import json
 import re
@@ -14,9 +15,11 @@ import sys
 from pathlib import Path
 
 from check_holdout10 import english_words, one_edit
+from holdout_common import FROM_BENCH, LIST_RE, OPTS_RE
 from make_holdout10 import ROUTE_SYN as SET10_ROUTE_SYN, rename as set10_rename
-from make_holdout11 import (HERE, ID_BASE, N_PATTERNS, NEVER_MISSPELT, PER_PATTERN, SYN, TYPES, TYPO_OBJECTS,
-                            TYPO_PER_TYPE, TYPO_WORDS, _noun, build, dumps, plural, route_parts, source_objects)
+from make_holdout11 import (EARLIER_SOURCES, HERE, ID_BASE, N_PATTERNS, NEVER_MISSPELT, OUT, PER_PATTERN, SYN, TYPES,
+                            TYPO_OBJECTS, TYPO_PER_TYPE, TYPO_WORDS, VSI, _noun, build, dumps, earlier_uses,
+                            load_questions, plural, route_parts, source_objects)
 
 UNIT_WORDS = [  # (unit, regex over the lowercased question); exactly one may match a numeric row
     ("m2", r"square met(?:re|er)s?\b|\bsq ?m\b|\bm\^2|\bm²|\bm2\b"),
@@ -27,10 +30,6 @@ UNIT_WORDS = [  # (unit, regex over the lowercased question); exactly one may ma
     ("in", r"\binch(?:es)?\b"),
     ("ft", r"(?<!square )\bfeet\b|(?<!square )\bfoot\b(?!age)|(?<!sq )\bft\b"),
 ]
-# the benchmark's unit expressed in the unit read: cm -> x for sizes, m -> x for distances, m^2 -> x for areas
-FROM_BENCH = {"object_size_estimation": {"cm": 1.0, "mm": 10.0, "m": 1 / 100, "in": 1 / 2.54, "ft": 1 / 30.48},
-              "object_abs_distance": {"m": 1.0, "cm": 100.0, "mm": 1000.0, "in": 100 / 2.54, "ft": 100 / 30.48},
-              "room_size_estimation": {"m2": 1.0, "ft2": 1 / 0.09290304}}
 MEANING = {  # what each row of a type must still say (lowercased, slip undone)
     "object_counting": r"how (?:many|much)|count|tally|number|headcount",
     "object_size_estimation": r"longest|biggest|largest|greatest|\bmax\b",
@@ -80,9 +79,6 @@ _OBJ = ("tv", "table", "stove", "sofa", "stool", "refrigerator", "chair", "bed",
 OBJ_MASK = {w for o in _OBJ for n in names_of(o) for w in n.split()} | {
     "settee", "settees", "couch", "couches", "fridge", "fridges", "hob", "cooker", "loo", "bath", "tub", "set",
     "washing", "machine", "machines", "television", "tvs"}
-LIST_RE = re.compile(r"\bOBJ(?:\s+(?:(?:the|or|and|a|an|either|[abcd])\s+)*OBJ)+\b")
-_DIR = r"(?:front|back|left|right|behind)"
-OPTS_RE = re.compile(rf"\b(?:{_DIR}(?:\s+(?:or|and|the|to|on|my|your))*\s+)+{_DIR}\b")
 
 
 def _tokens(text: str, places: list[str]) -> list[str]:
@@ -274,3 +270,17 @@ def run_checks(qs: list[dict], uses: dict[int, int], seed: int, out: Path) -> in
         print("FAIL", b)
     print("checks:", "all passed" if not bad else f"{len(bad)} failed")
     return 1 if bad else 0
+
+
+def main() -> int:
+    """`python benchmarks/check_holdout11.py` (what `make_holdout11.py --check` runs): every check on --out."""
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--questions", default=str(VSI / "questions.jsonl"))
+    ap.add_argument("--seed", type=int, default=11)
+    ap.add_argument("--out", default=str(OUT))
+    a = ap.parse_args()
+    return run_checks(load_questions(a.questions), earlier_uses(EARLIER_SOURCES), a.seed, Path(a.out))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

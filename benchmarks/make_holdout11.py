@@ -36,16 +36,18 @@ import argparse
 import json
 import random
 import re
+import subprocess
 import sys
 from pathlib import Path
+
+from holdout_common import (CM_IN, FILL_RE, FORWARD_RE, NUMBER, N_PATTERNS, PER_PATTERN, ROUTE_RE, SQM_IN, Seg,
+                            TYPES, TYPO_PER_TYPE, _noun, _split_objects, _tidy, convert, dumps,
+                            source_objects)
 
 HERE = Path(__file__).resolve().parent
 VSI = HERE.parent.parent / "shared" / "data" / "vsibench"
 EARLIER_SOURCES = [HERE / "data" / f"vsibench_paraphrases_holdout{n}.jsonl" for n in (8, 9, 10)]
 OUT = HERE / "data" / "vsibench_paraphrases_holdout11.jsonl"
-PER_PATTERN = 4
-N_PATTERNS = 10
-TYPO_PER_TYPE = 8  # of 40 rows: one in five
 ID_BASE = 1200000
 
 # everyday names a reader takes in without context; the benchmark's own name is kept about half the time
@@ -278,26 +280,6 @@ NEVER_MISSPELT = {"left", "right", "front", "back", "behind", "turn", "turns", "
                   "three", "four", "integer", "number", "hand", "quadrant", "quarter", "origin", "axis", "positive",
                   "ngl", "pls", "thx"}
 
-TEMPLATES = {  # the benchmark's own wording, to take the objects out
-    "object_counting": r"How many (.+?)\(s\) are in this room",
-    "object_size_estimation": r"\(length, width, or height\) of the (.+?), measured in centimeters",
-    "room_size_estimation": r"What is the size of this room \(in square meters\)",
-    "object_abs_distance": r"distance between the (.+?) and the (.+?) \(in meters\)",
-    "object_rel_distance": r"which of these objects \((.+?)\) is the closest to the (.+?)\?",
-    "object_rel_direction": r"standing by the (.+?) and facing the (.+?), is the (.+?) to ",
-}
-TYPES = ("object_counting", "object_size_estimation", "room_size_estimation", "object_abs_distance",
-         "object_rel_distance", "object_rel_direction_easy", "object_rel_direction_medium",
-         "object_rel_direction_hard")
-CM_IN = {"cm": 1.0, "mm": 0.1, "m": 100.0, "in": 2.54, "ft": 30.48}  # centimetres in one unit
-SQM_IN = {"m2": 1.0, "ft2": 0.09290304}  # square metres in one unit
-NUMBER = ["zero", "one", "two", "three", "four", "five"]
-
-
-def convert(value: str, per_unit: float) -> str:
-    """`value` (in the benchmark's unit) in a unit holding `per_unit` of it, rounded to 4 places."""
-    return str(round(float(value) / per_unit, 4))
-
 
 def say(name: str, rng: random.Random) -> str:
     """An everyday name for a benchmark category (its own name about half the time)."""
@@ -327,7 +309,6 @@ def listing(words: list[str], style: str) -> str:
 
 
 # --- one single-letter slip -----------------------------------------------------------------------------------------
-Seg = tuple[str, bool]  # (text, True where it is an object name or route place said by the question)
 
 
 def _segments(template: str, names: dict[str, str]) -> list[Seg]:
@@ -372,35 +353,6 @@ def join(segs: list[Seg], rng: random.Random | None, objects_too: bool = True) -
 
 
 # --- the eight types ------------------------------------------------------------------------------------------------
-def source_objects(q: dict) -> list[str]:
-    """The benchmark's object names in question `q`, in its own order (empty for room size)."""
-    qt = q["question_type"]
-    key = "object_rel_direction" if qt.startswith("object_rel_direction") else qt
-    m = re.search(TEMPLATES[key], q["question"])
-    if m is None:
-        raise ValueError(f"question {q['id']} is not in the benchmark's {qt} wording")
-    if qt == "object_rel_distance":
-        return [c.strip() for c in m.group(1).split(",")] + [m.group(2).strip()]
-    return [g.strip() for g in m.groups()]
-
-
-def _split_objects(segs: list[Seg], names: list[str]) -> list[Seg]:
-    """Template segments cut so that each candidate name in them is an object segment of its own."""
-    pat = re.compile(r"\b(" + "|".join(re.escape(n) for n in sorted(set(names), key=len, reverse=True)) + r")\b")
-    out: list[Seg] = []
-    for text, is_obj in segs:
-        if is_obj:
-            out.append((text, True))
-            continue
-        pos = 0
-        for m in pat.finditer(text):
-            if m.start() > pos:
-                out.append((text[pos:m.start()], False))
-            out.append((m.group(0), True))
-            pos = m.end()
-        if pos < len(text):
-            out.append((text[pos:], False))
-    return out
 
 
 def rewrite(q: dict, k: int, rng: random.Random, typo: bool) -> dict:
@@ -440,21 +392,6 @@ def rewrite(q: dict, k: int, rng: random.Random, typo: bool) -> dict:
 
 
 # --- route planning -------------------------------------------------------------------------------------------------
-ROUTE_RE = re.compile(r"beginning (?:at|by) (.+?),? (?:and )?facing (.+?)\s*\.\s*You want to navigate to (.+?)\s*\."
-                      r"\s*You will perform the following actions \(Note:.*?\):\s*(.+?)\s*You have reached the final "
-                      r"destination", re.S)
-FILL_RE = re.compile(r"^\[please fill in\]\.?$", re.I)
-FORWARD_RE = re.compile(r"^Go forward\s+(?:(?:until|untli)\s+)?(.*?)\.?$")  # 'untli': one benchmark typo
-
-
-def _tidy(phrase: str) -> str:
-    return re.sub(r"\bthe the\b", "the", phrase.strip(), flags=re.I)
-
-
-def _noun(phrase: str) -> str:
-    """The thing faced as a noun phrase: 'toward the door' -> 'the door', 'window' -> 'the window'."""
-    p = re.sub(r"^(?:into|towards?|to|out)\s+", "", phrase)
-    return p if re.match(r"(?:the|a|an|another)\b", p, re.I) else "the " + p
 
 
 def route_parts(text: str) -> tuple[str, str, str, list[tuple[str, str] | None]]:
@@ -565,10 +502,6 @@ def build(questions: list[dict], uses: dict[int, int], seed: int) -> list[dict]:
             for i, r in enumerate(rows)]
 
 
-def dumps(rows: list[dict]) -> bytes:
-    return "".join(json.dumps(r) + "\n" for r in rows).encode()
-
-
 def load_questions(path: str) -> list[dict]:
     try:
         with open(path) as f:
@@ -585,11 +518,11 @@ def main() -> None:
     ap.add_argument("--out", default=str(OUT))
     ap.add_argument("--check", action="store_true", help="run the checks on --out; write nothing")
     a = ap.parse_args()
+    if a.check:  # the checks import this generator: they run as their own script, so no import goes back
+        sys.exit(subprocess.run([sys.executable, str(HERE / "check_holdout11.py"), "--questions", a.questions,
+                                 "--seed", str(a.seed), "--out", a.out]).returncode)
     qs = load_questions(a.questions)
     uses = earlier_uses(EARLIER_SOURCES)
-    if a.check:
-        from check_holdout11 import run_checks  # beside this file; kept apart from the generator's tables
-        sys.exit(run_checks(qs, uses, a.seed, Path(a.out)))
     out = Path(a.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.with_suffix(out.suffix + ".tmp")

@@ -27,9 +27,11 @@ import random
 import re
 from pathlib import Path
 
+from holdout_common import (AREA_FROM_M2, FILL_RE, FORWARD_RE, PER_PATTERN, ROUTE_RE, TEMPLATES, TYPES, UNIT_FROM_CM,
+                            UNIT_FROM_M, _tidy)
+
 HERE = Path(__file__).resolve().parent
 VSI = HERE.parent.parent / "shared" / "data" / "vsibench"
-PER_PATTERN = 4
 ID_BASE = 900000
 
 # everyday names for the benchmark's categories; a name is swapped for one of these about half the time
@@ -165,21 +167,6 @@ TYPO_PATTERNS = {"object_counting": {3}, "object_size_estimation": {3}, "object_
                  "object_rel_distance": {3}, "object_rel_direction_easy": {3}, "object_rel_direction_medium": {3},
                  "object_rel_direction_hard": {3}}
 
-TEMPLATES = {  # the benchmark's own wording, to take the objects out
-    "object_counting": r"How many (.+?)\(s\) are in this room",
-    "object_size_estimation": r"\(length, width, or height\) of the (.+?), measured in centimeters",
-    "room_size_estimation": r"What is the size of this room \(in square meters\)",
-    "object_abs_distance": r"distance between the (.+?) and the (.+?) \(in meters\)",
-    "object_rel_distance": r"which of these objects \((.+?)\) is the closest to the (.+?)\?",
-    "object_rel_direction": r"standing by the (.+?) and facing the (.+?), is the (.+?) to ",
-}
-TYPES = ("object_counting", "object_size_estimation", "room_size_estimation", "object_abs_distance",
-         "object_rel_distance", "object_rel_direction_easy", "object_rel_direction_medium",
-         "object_rel_direction_hard")
-UNIT_FROM_CM = {"cm": 1.0, "mm": 10.0, "m": 0.01, "in": 1 / 2.54, "ft": 1 / 30.48}
-UNIT_FROM_M = {"m": 1.0, "cm": 100.0, "mm": 1000.0, "in": 1 / 0.0254, "ft": 1 / 0.3048}
-AREA_FROM_M2 = {"m2": 1.0, "ft2": 1 / (0.3048 ** 2)}
-
 
 def say(name: str, rng: random.Random, typo: bool = False) -> str:
     """An everyday name for a benchmark category (its own name about half the time), misspelt when `typo`."""
@@ -262,15 +249,6 @@ def rewrite(q: dict, k: int, rng: random.Random, counts: dict) -> dict:
 
 
 # --- route planning ---------------------------------------------------------------------------------------------
-ROUTE_RE = re.compile(r"beginning (?:at|by) (.+?),? (?:and )?facing (.+?)\s*\.\s*You want to navigate to (.+?)\s*\."
-                      r"\s*You will perform the following actions \(Note:.*?\):\s*(.+?)\s*You have reached the final "
-                      r"destination", re.S)
-FILL_RE = re.compile(r"^\[please fill in\]\.?$", re.I)
-FORWARD_RE = re.compile(r"^Go forward\s+(?:(?:until|untli)\s+)?(.*?)\.?$")
-
-
-def _tidy(phrase: str) -> str:
-    return re.sub(r"\bthe the\b", "the", phrase.strip(), flags=re.I)
 
 
 def route_parts(text: str) -> tuple[str, str, str, list[str | None]]:

@@ -43,12 +43,13 @@ import random
 import re
 from pathlib import Path
 
+from holdout_common import (AREA_FROM_M2, FILL_RE, FORWARD_RE, NUMBER, N_PATTERNS, PER_PATTERN, ROUTE_RE, Seg,
+                            TEMPLATES, TYPES, TYPO_PER_TYPE, UNIT_FROM_CM, UNIT_FROM_M, _segments, _split_objects,
+                            _tidy)
+
 HERE = Path(__file__).resolve().parent
 VSI = HERE.parent.parent / "shared" / "data" / "vsibench"
 SET8 = HERE / "data" / "vsibench_paraphrases_holdout8.jsonl"
-PER_PATTERN = 4
-N_PATTERNS = 10
-TYPO_PER_TYPE = 8  # of 40 rows: one in five
 ID_BASE = 1000000
 
 # everyday names a native speaker reads without context; the benchmark's own name is kept about 40 % of the time
@@ -212,23 +213,7 @@ HARD = [
     "back-right",
     "from beside the {A}, looking at the {B}, the {C} is where: front or back, and left or right?",
 ]
-TEMPLATES = {  # the benchmark's own wording, to take the objects out
-    "object_counting": r"How many (.+?)\(s\) are in this room",
-    "object_size_estimation": r"\(length, width, or height\) of the (.+?), measured in centimeters",
-    "room_size_estimation": r"What is the size of this room \(in square meters\)",
-    "object_abs_distance": r"distance between the (.+?) and the (.+?) \(in meters\)",
-    "object_rel_distance": r"which of these objects \((.+?)\) is the closest to the (.+?)\?",
-    "object_rel_direction": r"standing by the (.+?) and facing the (.+?), is the (.+?) to ",
-}
-TYPES = ("object_counting", "object_size_estimation", "room_size_estimation", "object_abs_distance",
-         "object_rel_distance", "object_rel_direction_easy", "object_rel_direction_medium",
-         "object_rel_direction_hard")
-# exact unit conversions (set 8's): 1 in = 2.54 cm, 1 ft = 30.48 cm
-UNIT_FROM_CM = {"cm": 1.0, "mm": 10.0, "m": 0.01, "in": 1 / 2.54, "ft": 1 / 30.48}
-UNIT_FROM_M = {"m": 1.0, "cm": 100.0, "mm": 1000.0, "in": 1 / 0.0254, "ft": 1 / 0.3048}
-AREA_FROM_M2 = {"m2": 1.0, "ft2": 1 / (0.3048 ** 2)}
 ORDINAL = ["first", "second", "third", "fourth", "fifth", "sixth", "seventh", "eighth"]
-NUMBER = ["zero", "one", "two", "three", "four", "five"]
 
 
 def convert(value: str, factor: float) -> str:
@@ -261,18 +246,6 @@ def listing(words: list[str], style: str) -> str:
 
 
 # --- one single-letter slip -----------------------------------------------------------------------------------------
-Seg = tuple[str, bool]  # (text, True where it is an object name said by the question)
-
-
-def _segments(template: str, names: dict[str, str]) -> list[Seg]:
-    """`template` with {slots} filled from `names`, as segments: template words and object names kept apart."""
-    out: list[Seg] = []
-    for part in re.split(r"(\{\w+\})", template):
-        if re.fullmatch(r"\{\w+\}", part):
-            out.append((names[part[1:-1]], True))
-        elif part:
-            out.append((part, False))
-    return out
 
 
 def _slips(segs: list[Seg]) -> list[tuple[int, int, int, str]]:
@@ -352,35 +325,7 @@ def rewrite(q: dict, k: int, rng: random.Random, typo: bool) -> dict:
     return out
 
 
-def _split_objects(segs: list[Seg], names: list[str]) -> list[Seg]:
-    """Template segments cut so that each candidate name in them is an object segment of its own."""
-    pat = re.compile(r"\b(" + "|".join(re.escape(n) for n in sorted(set(names), key=len, reverse=True)) + r")\b")
-    out: list[Seg] = []
-    for text, is_obj in segs:
-        if is_obj:
-            out.append((text, True))
-            continue
-        pos = 0
-        for m in pat.finditer(text):
-            if m.start() > pos:
-                out.append((text[pos:m.start()], False))
-            out.append((m.group(0), True))
-            pos = m.end()
-        if pos < len(text):
-            out.append((text[pos:], False))
-    return out
-
-
 # --- route planning -------------------------------------------------------------------------------------------------
-ROUTE_RE = re.compile(r"beginning (?:at|by) (.+?),? (?:and )?facing (.+?)\s*\.\s*You want to navigate to (.+?)\s*\."
-                      r"\s*You will perform the following actions \(Note:.*?\):\s*(.+?)\s*You have reached the final "
-                      r"destination", re.S)
-FILL_RE = re.compile(r"^\[please fill in\]\.?$", re.I)
-FORWARD_RE = re.compile(r"^Go forward\s+(?:(?:until|untli)\s+)?(.*?)\.?$")
-
-
-def _tidy(phrase: str) -> str:
-    return re.sub(r"\bthe the\b", "the", phrase.strip(), flags=re.I)
 
 
 def route_parts(text: str) -> tuple[str, str, str, list[str | None]]:

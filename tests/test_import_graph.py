@@ -188,6 +188,39 @@ def test_model_adapters_import_no_stage():
     assert stage_imports(import_graph(REPO / "runtime")) == {}
 
 
+def script_graph(root: Path) -> dict[str, set[str]]:
+    """Scripts beside each other (benchmarks/, tests/) that import one another by plain name: stem -> the sibling
+    stems it imports (anywhere in the file)."""
+    files = {p.stem: p for p in sorted(root.glob("*.py"))}
+    graph: dict[str, set[str]] = {m: set() for m in files}
+    for name, path in files.items():
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom) and not node.level and node.module:
+                graph[name].add(node.module.split(".")[0])
+            elif isinstance(node, ast.Import):
+                graph[name] |= {a.name.split(".")[0] for a in node.names}
+        graph[name] = {t for t in graph[name] if t in files and t != name}
+    return graph
+
+
+def test_no_import_circle_anywhere_in_the_repository():
+    """host/ and export/ as packages, benchmarks/ and tests/ as scripts importing their siblings (the runtime has its
+    own test above); none of them is imported by the runtime, so no circle can pass through it."""
+    graphs = {"host": import_graph(REPO / "host", "mosaicthinker.host"),
+              "export": import_graph(REPO / "export", "mosaicthinker.export"),
+              "benchmarks": script_graph(REPO / "benchmarks"), "tests": script_graph(REPO / "tests")}
+    assert len(graphs["benchmarks"]) > 20 and {"make_holdout10", "check_holdout10"} <= set(graphs["benchmarks"])
+    assert "make_holdout10" in graphs["benchmarks"]["check_holdout10"]  # the scan sees sibling imports
+    assert {k: circles(g) for k, g in graphs.items() if circles(g)} == {}
+
+
+def test_a_circle_between_scripts_is_found(tmp_path):
+    (tmp_path / "make_a.py").write_text("def main():\n    from check_a import run\n")
+    (tmp_path / "check_a.py").write_text("from make_a import main\nimport json\n")
+    assert script_graph(tmp_path) == {"check_a": {"make_a"}, "make_a": {"check_a"}}
+    assert circles(script_graph(tmp_path)) == [{"check_a", "make_a"}]
+
+
 def test_no_module_over_800_lines_but_the_query_work():
     assert set(long_modules(REPO / "runtime")) <= ALLOWED_LONG
 
