@@ -32,6 +32,7 @@ from typing import Any
 
 import numpy as np
 
+from mosaicthinker.runtime.infra import jsonio
 from mosaicthinker.runtime.infra import schema as S
 from mosaicthinker.runtime.infra.bundle import strict_json_loads
 from mosaicthinker.runtime.infra.errors import InputError, check_path
@@ -575,7 +576,7 @@ def _write_out(out: Path, res: dict[str, Any], build: Any, S: np.ndarray, vmeta:
                       "built_boxes": {k: [{**m, "centroid": list(np.asarray(m["centroid"]) + shift)} for m in v]
                                       for k, v in extra.items()}}
     build.map.save(out / "map.json")
-    (out / "scene_eval.json").write_text(json.dumps(res, indent=1, default=float))
+    (out / "scene_eval.json").write_text(jsonio.dumps(res, indent=1, default=float))
     trace.save(out / "trace.json")
 
 

@@ -34,6 +34,7 @@ from typing import Any, Mapping, Sequence
 
 from ..infra.bundle import ROLES as BUNDLE_ROLES
 from ..infra.bundle import load_bundle
+from ..infra import jsonio
 from ..infra.errors import ProfileError, path_kind
 from ..infra.file_schemas import profile_spec
 from ..infra.schema import check
@@ -570,7 +571,7 @@ def parse_profile(data: Mapping[str, Any], path: str | os.PathLike | None = None
     return Profile(name=dev["name"], path=path, latency_budget_ms=lat, memory_budget_mb=mem, providers=chain,
                    intra_op_threads=rt.get("intra_op_threads"), inter_op_threads=rt.get("inter_op_threads"),
                    core_affinity=list(aff) if aff else None, device=dev, runtime_notes=rt.get("notes"),
-                   roles=roles, costs=costs, paper_costs=paper_costs, raw=json.loads(json.dumps(data)))
+                   roles=roles, costs=costs, paper_costs=paper_costs, raw=jsonio.plain(data))
 
 
 def resolve_profile_path(name_or_path: str | os.PathLike) -> Path:

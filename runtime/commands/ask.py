@@ -12,6 +12,7 @@ import re
 from pathlib import Path
 from typing import Any
 
+from ..infra import jsonio
 from ..infra.errors import InputError
 from ..infra.outputs import RunOutputs, note_outputs, save_run
 from ..grounding import split_inline_options  # linear; lives with the question parser
@@ -195,7 +196,7 @@ def render(r: dict[str, Any]) -> str:
     if r.get("explain"):
         g = r.get("grounding") or {}
         prog = g.get("program")
-        lines.append(f"  program ({g.get('how', 'none')}): " + (json.dumps(prog["ask"]) if prog else
+        lines.append(f"  program ({g.get('how', 'none')}): " + (jsonio.dumps(prog["ask"]) if prog else
                                                                 "none (" + "; ".join(g.get("notes") or []) + ")"))
     if r.get("objects") is not None:
         lines.append(f"  map: {r['objects']} object(s)" + (f" from {len(r['keyframes'])} key frames"

@@ -31,7 +31,8 @@ from typing import Any, Iterator
 import numpy as np
 
 from .errors import OutputError, path_kind
-from .trace import as_trace, json_default
+from . import jsonio
+from .trace import as_trace
 
 LOCK = ".mosaic.lock"
 RUN_FILE = "run.json"
@@ -113,7 +114,7 @@ class RunOutputs:
     # -- lock -----------------------------------------------------------------------------------------------
     def _lock(self) -> None:
         lock = self.folder / LOCK
-        body = json.dumps({"pid": os.getpid(), "host": socket.gethostname(), "run_id": self.run_id,
+        body = jsonio.dumps({"pid": os.getpid(), "host": socket.gethostname(), "run_id": self.run_id,
                            "started": time.time()}).encode()
         for _ in range(3):
             try:
@@ -229,7 +230,7 @@ class RunOutputs:
                "time": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), **extra}
         tmp = self.folder / f"{TMP_PREFIX}{self.run_id}.{RUN_FILE}"
         with open(tmp, "w") as f:
-            json.dump(rec, f)
+            jsonio.dump(rec, f)
             f.flush()
             os.fsync(f.fileno())
         os.replace(tmp, self.folder / RUN_FILE)
@@ -286,10 +287,10 @@ def json_text(obj: Any, indent_below: int = 200_000) -> str:
     """JSON text of `obj`, always by the C encoder: indented by 1 when its compact form is under `indent_below`
     characters (the indenting encoder is pure Python: a trace with 12,500 evidence rows took seconds), else one
     line per top-level key (a long list one line per item). Each value is encoded once."""
-    enc = json.JSONEncoder(default=json_default).encode
+    enc = jsonio.encode_fn()
     if not isinstance(obj, dict):
         compact = enc(obj)
-        return (json.dumps(obj, indent=1, default=json_default) if len(compact) < indent_below else compact) + "\n"
+        return (jsonio.dumps(obj, indent=1) if len(compact) < indent_below else compact) + "\n"
     parts = []
     for k, v in obj.items():
         if isinstance(v, list) and len(v) > 100:
@@ -297,7 +298,7 @@ def json_text(obj: Any, indent_below: int = 200_000) -> str:
         else:
             parts.append(f" {enc(str(k))}: {enc(v)}")
     if sum(map(len, parts)) < indent_below:
-        return json.dumps(obj, indent=1, default=json_default) + "\n"
+        return jsonio.dumps(obj, indent=1) + "\n"
     return "{\n" + ",\n".join(parts) + "\n}\n"
 
 
