@@ -232,8 +232,9 @@ def iou_3d(a: OrientedBox, b: OrientedBox) -> float:
     """3D IoU of two gravity-aligned boxes (footprint polygon intersection x height overlap)."""
     import cv2
 
-    fa = a.corners()[:, :2].astype(np.float32)
-    fb = b.corners()[:, :2].astype(np.float32)
+    from mosaicthinker.runtime.geometry import local_f32
+
+    _, (fa, fb) = local_f32(a.corners()[:, :2], b.corners()[:, :2])
     ia, _ = cv2.intersectConvexConvex(cv2.convexHull(fa), cv2.convexHull(fb))
     za = (a.centroid[2] - a.axes_lengths[2] / 2, a.centroid[2] + a.axes_lengths[2] / 2)
     zb = (b.centroid[2] - b.axes_lengths[2] / 2, b.centroid[2] + b.axes_lengths[2] / 2)
