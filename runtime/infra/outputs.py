@@ -86,6 +86,35 @@ def check_out_dir(folder: Path, what: str = "--out") -> None:
                          f"choose another folder")
 
 
+def unfinished_run_note(path: str | os.PathLike) -> str | None:
+    """A sentence for whoever opens `path` (an output folder, or a file in one, e.g. its map.json) when the folder's
+    `run.json` says its last run did not finish: still "running" with its process gone (killed: SIGKILL, a power
+    cut), "running" now (another process is writing there), "interrupted" or "failed". None when it finished or
+    the folder holds no run.json. The folder's files are then an earlier run's (every file is renamed in only
+    when the whole group is written)."""
+    p = Path(path)
+    folder = p if p.is_dir() else p.parent
+    try:
+        rec = json.loads((folder / RUN_FILE).read_text())
+    except (OSError, ValueError, UnicodeDecodeError):
+        return None
+    if not isinstance(rec, dict) or rec.get("status") in (None, "complete"):
+        return None
+    status, rid, pid = rec.get("status"), rec.get("run_id"), rec.get("pid")
+    held = RunOutputs._read_lock(folder / LOCK)
+    if status == "running" and held is not None and held.get("run_id") == rid and \
+            held.get("host") == socket.gethostname() and _pid_alive(held["pid"]):
+        why = f"it is still running (pid {pid}): its files may replace these at any moment"
+    elif status == "running":
+        why = f"run.json still says 'running' but its process (pid {pid}) is gone: it was killed before it finished"
+    else:
+        why = f"it ended '{status}'" + (f": {rec.get('reason')}" if rec.get("reason") else "")
+    prev = rec.get("previous") if isinstance(rec.get("previous"), dict) else None
+    kept = f"the folder holds the files of an earlier run (run id {prev.get('run_id')})" if prev and \
+        prev.get("run_id") else "the folder's files are from an earlier run, if any"
+    return f"{folder / RUN_FILE}: the last run in this folder (run id {rid}) did not finish ({why}); {kept}"
+
+
 class RunOutputs:
     """The files one run leaves in one folder (see the module docstring). Not thread-safe."""
 
@@ -104,9 +133,12 @@ class RunOutputs:
         try:
             self._lock()
             self._clean_stale_temps()
+            unfinished = unfinished_run_note(self.folder)  # we hold the lock: "running" there is a killed run
+            if unfinished:
+                self.notes.append(unfinished)
             self._previous = self._read_previous()
             self._started = True  # before the write: a signal landing in it still ends run.json as interrupted
-            self._write_run_file("running", [])
+            self._write_run_file("running", [], previous=self._previous)  # a kill leaves it: what is kept
         except BaseException:  # incl. a SIGTERM landing here: never leave our lock behind
             self.close()
             raise
