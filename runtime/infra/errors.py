@@ -90,7 +90,8 @@ def read_text(path: "str | os.PathLike[str]", what: str, error: "type | None" = 
     that is not UTF-8 raises `error` (InputError) naming the file and where the bad byte is."""
     check_path(path, "a file", f"the {what} file", error)
     try:
-        data = open(path, "rb").read()
+        with open(path, "rb") as f:
+            data = f.read()
     except OSError as e:
         raise (error or InputError)(f"{path}: cannot read the {what} file ({e.strerror or e})") from None
     try:

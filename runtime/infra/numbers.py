@@ -57,6 +57,8 @@ def _read(text: Any, what: str, lo: float, hi: float, scale: float, integer: boo
     v = d * Decimal(scale)  # Decimal(float) is exact: the bound is compared exactly too
     if (math.isfinite(lo) and v < Decimal(lo)) or (math.isfinite(hi) and v > Decimal(hi)):
         raise error(f"{what}: {show_number(text)} is out of range; it must be {span}{'; ' + fix if fix else ''}")
+    if not math.isfinite(float(v)):  # no bound given and beyond any float (1e999999)
+        raise error(f"{what}: {show_number(text)} is beyond any float; give a finite number{'; ' + fix if fix else ''}")
     if integer:
         if v != v.to_integral_value():
             raise error(f"{what}: {show_number(text)} is not a whole number{'; ' + fix if fix else ''}")
