@@ -332,7 +332,13 @@ def _instance_lines(instances: list[ObjectInstance], arrays: tuple[np.ndarray, .
         return []
     C, L, A = SemanticMap(instances).box_arrays() if arrays is None else arrays
     corners = C[:, None, :] + (_CORNER_SIGNS[None] * (L[:, None, :] / 2.0)) @ A
-    rows = np.concatenate([C, L, A.reshape(n, 9), corners.min(1), corners.max(1)], 1).tolist()
+    rows = np.concatenate([C, L, A.reshape(n, 9), corners.min(1), corners.max(1)], 1)
+    scores = np.fromiter((float(o.score) for o in instances), np.float64, n)
+    bad = np.flatnonzero(~(np.isfinite(rows).all(1) & np.isfinite(scores)))
+    if len(bad):  # repr would write `nan`: not JSON, and no reader (this one included) takes it back
+        raise ValueError("cannot write the map: " + ", ".join(f"{instances[int(i)].name} #{instances[int(i)].id}"
+                                                              for i in bad[:3]) + " hold NaN or infinity in their box or score")
+    rows = rows.tolist()
     names: dict[str, str] = {}
     out = []
     for o, r in zip(instances, rows):
