@@ -36,6 +36,7 @@ from ..infra.bundle import ROLES as BUNDLE_ROLES
 from ..infra.bundle import load_bundle
 from ..infra import jsonio
 from ..infra.errors import ProfileError, path_kind
+from ..infra.numbers import read_number
 from ..infra.file_schemas import profile_spec
 from ..infra.schema import check
 from ..infra.trace import Trace, as_trace
@@ -357,13 +358,10 @@ def _check_number(v: Any, where: str, *, integer: bool = False, positive: bool =
                            f"(write the bare number; the unit is in the key name)")
     if integer and not isinstance(v, int):
         raise ProfileError(f"{where}: expected an integer, got {v!r}")
-    if not math.isfinite(v):
-        raise ProfileError(f"{where}: must be finite, got {v!r}")
-    if v < 0:
-        raise ProfileError(f"{where}: negative value {v!r}; budgets and costs must be >= 0")
     if positive and v == 0:
         raise ProfileError(f"{where}: must be > 0, got {v!r}")
-    return float(v)
+    return float(read_number(v, where, lo=0, integer=integer, error=ProfileError,  # finite, >= 0, any length
+                             fix="budgets and costs are finite numbers >= 0"))
 
 
 def _check_providers(chain: Any, where: str) -> list[str]:

@@ -49,10 +49,12 @@ def _read(text: Any, what: str, lo: float, hi: float, scale: float, integer: boo
         d = Decimal(str(text).strip().replace("_", "")) if not isinstance(text, Decimal) else text
     except InvalidOperation:
         raise error(f"{what}: {show_number(text)!r} is not a number{'; ' + fix if fix else ''}") from None
-    span = f"from {_limit(lo / scale)} to {_limit(hi / scale)}{(' ' + unit) if unit else ''}" if math.isfinite(lo) \
-        else f"at most {_limit(hi / scale)}{(' ' + unit) if unit else ''}"
+    u = f" {unit}" if unit else ""
+    span = (f"from {_limit(lo / scale)} to {_limit(hi / scale)}{u}" if math.isfinite(lo) and math.isfinite(hi) else
+            f"at least {_limit(lo / scale)}{u}" if math.isfinite(lo) else f"at most {_limit(hi / scale)}{u}"
+            if math.isfinite(hi) else "finite")
     if not d.is_finite():
-        raise error(f"{what}: {show_number(text)} is not a finite number; give one {span}"
+        raise error(f"{what}: {show_number(text)} is not a finite number; give a finite number{'' if span == 'finite' else ' ' + span}"
                     f"{'; ' + fix if fix else ''}")
     v = d * Decimal(scale)  # Decimal(float) is exact: the bound is compared exactly too
     if (math.isfinite(lo) and v < Decimal(lo)) or (math.isfinite(hi) and v > Decimal(hi)):
