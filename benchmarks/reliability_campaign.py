@@ -40,7 +40,8 @@ def main() -> None:
     s = campaign.summary(recs)
     res = {"command": "python " + " ".join(sys.argv), "date": time.strftime("%Y-%m-%d %H:%M"),
            "code": str(Path(rt.__file__).resolve().parent), "seconds": round(time.time() - t0, 1),
-           "seed": a.seed, "load_start": round(load0, 2), "load_end": round(os.getloadavg()[0], 2), "cpus": os.cpu_count(), **s}
+           "seed": a.seed, "load_start": round(load0, 2), "load_end": round(os.getloadavg()[0], 2),
+           "cpus": os.cpu_count(), **s}
     out = Path(a.out)
     doc = json.loads(out.read_text()) if out.is_file() else {}
     doc[a.label] = res

@@ -9,8 +9,8 @@ returns no note, so a healthy input prints nothing extra.
   placeholder, not a measurement). `sample_frames` reads a few frames of a source before the work starts, so
   an input that cannot be mapped at all (every sampled frame black) is refused clearly instead of ending in
   "not found" or a misleading "one view" error.
-- maps: objects larger than any indoor object or smaller than 1 cm, boxes holding NaN / inf, a room larger than a stadium, objects spread over kilometres,
-  a ceiling not above the floor.
+- maps: objects larger than any indoor object or smaller than 1 cm, boxes holding NaN / inf, a room larger than a
+  stadium, objects spread over kilometres, a ceiling not above the floor.
 """
 from __future__ import annotations
 

@@ -54,7 +54,8 @@ def _read(text: Any, what: str, lo: float, hi: float, scale: float, integer: boo
             f"at least {_limit(lo / scale)}{u}" if math.isfinite(lo) else f"at most {_limit(hi / scale)}{u}"
             if math.isfinite(hi) else "finite")
     if not d.is_finite():
-        raise error(f"{what}: {show_number(text)} is not a finite number; give a finite number{'' if span == 'finite' else ' ' + span}"
+        give = "" if span == "finite" else " " + span
+        raise error(f"{what}: {show_number(text)} is not a finite number; give a finite number{give}"
                     f"{'; ' + fix if fix else ''}")
     v = d * Decimal(scale)  # Decimal(float) is exact: the bound is compared exactly too
     if (math.isfinite(lo) and v < Decimal(lo)) or (math.isfinite(hi) and v > Decimal(hi)):
@@ -99,8 +100,8 @@ def check_array(a: Any, where: str, what: str, *, lo: float | None = None, hi: f
         at = f" (value {i + 1} of {arr.size})" if arr.size > 1 else ""
         if kind == "non-finite":
             raise error(f"{where}: {what} holds NaN or infinity{at}; {fix}")
-        raise error(f"{where}: {what} holds {arr.ravel()[i]:g}{at}, outside {_limit(lo if lo is not None else -math.inf)}"
-                    f"..{_limit(hi if hi is not None else math.inf)}; {fix}")
+        lo_, hi_ = _limit(lo if lo is not None else -math.inf), _limit(hi if hi is not None else math.inf)
+        raise error(f"{where}: {what} holds {arr.ravel()[i]:g}{at}, outside {lo_}..{hi_}; {fix}")
     return arr
 
 

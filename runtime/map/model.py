@@ -336,8 +336,8 @@ def _instance_lines(instances: list[ObjectInstance], arrays: tuple[np.ndarray, .
     scores = np.fromiter((float(o.score) for o in instances), np.float64, n)
     bad = np.flatnonzero(~(np.isfinite(rows).all(1) & np.isfinite(scores)))
     if len(bad):  # repr would write `nan`: not JSON, and no reader (this one included) takes it back
-        raise ValueError("cannot write the map: " + ", ".join(f"{instances[int(i)].name} #{instances[int(i)].id}"
-                                                              for i in bad[:3]) + " hold NaN or infinity in their box or score")
+        who = ", ".join(f"{instances[int(i)].name} #{instances[int(i)].id}" for i in bad[:3])
+        raise ValueError(f"cannot write the map: {who} hold NaN or infinity in their box or score")
     rows = rows.tolist()
     names: dict[str, str] = {}
     out = []
