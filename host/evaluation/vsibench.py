@@ -242,8 +242,11 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def _run(args: argparse.Namespace, outs: Any) -> dict[str, Any]:
-    from mosaicthinker.runtime.infra.outputs import write_file_atomic
+    from mosaicthinker.runtime.infra.outputs import check_out_file, write_file_atomic
 
+    for flag, path in (("--result", args.result), ("--disagreements", args.disagreements)):
+        if path:
+            check_out_file(path, flag)  # before scoring, not after
     questions = load_questions(args.questions)
     meta = load_meta(args.meta)
     summary, records = evaluate(questions, meta, args.types, args.limit)

@@ -115,6 +115,16 @@ def unfinished_run_note(path: str | os.PathLike) -> str | None:
     return f"{folder / RUN_FILE}: the last run in this folder (run id {rid}) did not finish ({why}); {kept}"
 
 
+def check_out_file(path: str | os.PathLike, what: str) -> None:
+    """Refuse, before any work, a result file that cannot be written: a folder, a FIFO or device, below a file,
+    in a folder that cannot be created or written (the folder is checked as `check_out_dir` does)."""
+    p = Path(path)
+    kind = path_kind(p)
+    if kind not in ("a file", "missing"):
+        raise OutputError(f"{what} {p}: is {kind}; give a file path in a writable folder")
+    check_out_dir(p.parent if str(p.parent) else Path("."), f"{what} {p}: its folder")
+
+
 class RunOutputs:
     """The files one run leaves in one folder (see the module docstring). Not thread-safe."""
 
