@@ -274,3 +274,15 @@ def test_a_folder_left_by_an_unfinished_run_says_so(tmp_path, capsys, status):
     assert "did not finish" in capsys.readouterr().out
     assert main(["ask", str(out / "map.json"), "How many chairs?"]) == 0  # that run finished: nothing to say
     assert "did not finish" not in capsys.readouterr().out
+
+
+def test_vsibench_result_files_are_checked_before_scoring(tmp_path, capsys):
+    (tmp_path / "f").write_text("x")
+    q, m = tmp_path / "q.jsonl", tmp_path / "m.json"
+    q.write_text('{"scene_name": "s", "question_type": "object_counting", "question": "How many chair(s)?", '
+                 '"ground_truth": 1}\n')
+    m.write_text("{]")  # would be refused when read: the result file must be refused first
+    for flag, bad in (("--result", tmp_path / "f" / "r.json"), ("--disagreements", tmp_path)):
+        assert main(["eval", "vsibench", "--questions", str(q), "--meta", str(m), flag, str(bad)]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith(f"error: {flag} ") and str(bad) in err, err
