@@ -94,10 +94,9 @@ def distance_condition(text: str) -> dict[str, Any] | None:
         return None
     n = m.group(2)
     unit = UNIT_WORDS.get(m.group(3)) or unit_in(m.group(3), "m")
-    v = read_number(n, f"question: the distance '{m.group(1)} ...'", lo=0,
-                    hi=field_max(DistanceCondition, "threshold_mm"), scale=UNIT_M[unit] * 1000, unit=unit,
-                    fix="ask with a distance in that range") / 1000 / UNIT_M[unit] if n[0].isdigit() else \
-        0.5 if n.startswith("half") else 1.0 if n in ("a", "an") else float(NUMBERS[n])
+    v = read_number(n, f"question: the distance '{m.group(1)} ...'", lo=0, unit=unit, fix="ask with a distance in "
+                    "that range", hi=field_max(DistanceCondition, "threshold_mm") / 1000 / UNIT_M[unit]) \
+        if n[0].isdigit() else 0.5 if n.startswith("half") else 1.0 if n in ("a", "an") else float(NUMBERS[n])
     return {"op": DIST_OPS[m.group(1)], "threshold_m": v * UNIT_M[unit], "text": f"{m.group(1)} {n} {m.group(3)}"}
 
 
