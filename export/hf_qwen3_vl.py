@@ -32,6 +32,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from mosaicthinker.runtime.infra import jsonio
 from mosaicthinker.runtime.infra.errors import ExportError
 
 from . import common as C
@@ -115,7 +116,7 @@ def random_checkpoint(size: str, dst: str | Path, *, dtype: str = "bfloat16", se
     n = sum(p.numel() for p in model.parameters())
     del model
     write_synthetic_tokenizer(dst)
-    (dst / RANDOM_MARKER).write_text(json.dumps({"random_weights": True, "size": size, "seed": seed,
+    (dst / RANDOM_MARKER).write_text(jsonio.dumps({"random_weights": True, "size": size, "seed": seed,
                                                  "dtype": dtype, "parameters": n}))
     return dst
 

@@ -48,6 +48,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from mosaicthinker.runtime.infra import jsonio
 from mosaicthinker.runtime.infra.errors import ExportError
 
 from . import common as C
@@ -89,7 +90,7 @@ def random_checkpoint(size: str, dst: str | Path, *, dtype: str = "float32", see
     model.eval().save_pretrained(str(dst))
     del model
     write_synthetic_tokenizer(dst, cfg.text_config.vocab_size)
-    (dst / RANDOM_MARKER).write_text(json.dumps({"random_weights": True, "size": size, "seed": seed,
+    (dst / RANDOM_MARKER).write_text(jsonio.dumps({"random_weights": True, "size": size, "seed": seed,
                                                  "dtype": dtype}))
     return dst
 
@@ -115,11 +116,11 @@ def write_synthetic_tokenizer(dst: str | Path, vocab_size: int = QWEN_VOCAB) -> 
     tok.save(str(dst / "tokenizer.json"))
     added = {str(i): {"content": t, "lstrip": False, "normalized": False, "rstrip": False, "single_word": False,
                       "special": True} for i, t in QWEN_SPECIALS.items()}
-    (dst / "tokenizer_config.json").write_text(json.dumps({
+    (dst / "tokenizer_config.json").write_text(jsonio.dumps({
         "tokenizer_class": "Qwen2Tokenizer", "model_max_length": 32768, "bos_token": None,
         "eos_token": "<|im_end|>", "pad_token": "<|endoftext|>", "unk_token": None, "clean_up_tokenization_spaces": False,
         "added_tokens_decoder": added, "errors": "replace", "split_special_tokens": False}, indent=1))
-    (dst / "special_tokens_map.json").write_text(json.dumps({"eos_token": "<|im_end|>",
+    (dst / "special_tokens_map.json").write_text(jsonio.dumps({"eos_token": "<|im_end|>",
                                                              "pad_token": "<|endoftext|>"}))
     return dst / "tokenizer.json"
 
@@ -371,7 +372,7 @@ def processor_config(image_size: int, vc: Any) -> dict[str, Any]:
 
 def genai_config(builder_cfg: dict[str, Any], vc: Any, context_length: int) -> dict[str, Any]:
     """The builder's genai_config.json with the embedding and vision sections of the qwen2_5_vl model added."""
-    g = json.loads(json.dumps(builder_cfg))
+    g = json.loads(jsonio.dumps(builder_cfg))
     m = g["model"]
     m["decoder"]["filename"] = "decoder/" + m["decoder"]["filename"]
     m["embedding"] = {"filename": "embedding/model.onnx",
@@ -694,8 +695,8 @@ def assemble_package(pkg: Path, dec_dir: Path, graphs: dict[str, Any], ckpt: Pat
             shutil.copyfile(ckpt / name, pkg / name)
     if not (pkg / "tokenizer.json").is_file():
         raise ExportError(f"{ckpt}: no tokenizer.json (the GenAI package needs one)")
-    (pkg / "genai_config.json").write_text(json.dumps(genai_config(builder_cfg, vc, context_length), indent=2))
-    (pkg / "processor_config.json").write_text(json.dumps(processor_config(image_size, vc), indent=2))
+    (pkg / "genai_config.json").write_text(jsonio.dumps(genai_config(builder_cfg, vc, context_length), indent=2))
+    (pkg / "processor_config.json").write_text(jsonio.dumps(processor_config(image_size, vc), indent=2))
     return pkg
 
 

@@ -7,7 +7,6 @@ import: `from mosaicthinker.host import bundle_write as B`.
 from __future__ import annotations
 
 import datetime as _dt
-import json
 import os
 import tempfile
 from pathlib import Path, PurePosixPath
@@ -17,6 +16,7 @@ from mosaicthinker.runtime.infra.bundle import (MANIFEST, OVERRIDABLE, ROLES, SC
                       RoleSpec, _varint, bundle_hash, check_schema, external_data_locations, iter_file_refs,
                       load_bundle, parity_text, read_manifest, safe_path, sha256_file, strict_json_loads,
                       task_text)
+from mosaicthinker.runtime.infra import jsonio
 from mosaicthinker.runtime.infra.errors import BundleError
 
 
@@ -45,7 +45,7 @@ def write_manifest(root: str | os.PathLike, manifest: dict[str, Any]) -> Path:
     check_schema(manifest, str(root / MANIFEST))
     fd, tmp = tempfile.mkstemp(dir=root, prefix=".manifest.", suffix=".tmp")
     with os.fdopen(fd, "w") as f:
-        json.dump(manifest, f, indent=2, sort_keys=False)
+        jsonio.dump(manifest, f, indent=2, sort_keys=False)
         f.write("\n")
     os.chmod(tmp, 0o644)  # mkstemp makes 0600; a bundle is read by other users/services
     os.replace(tmp, root / MANIFEST)

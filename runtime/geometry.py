@@ -294,15 +294,34 @@ class OrientedBox:
                 "normalizedAxes": np.asarray(self.axes).reshape(-1).tolist(), "min": lo.tolist(), "max": hi.tolist()}
 
 
+def local_f32(*point_sets: np.ndarray) -> tuple[np.ndarray, list[np.ndarray]]:
+    """(origin [D] float64, each set [N_i, D] minus it as float32): world coordinates for OpenCV's float32-only
+    geometry (minAreaRect, convexHull, intersectConvexConvex) taken relative to a local origin in float64 (the
+    first set's first point), so a map 10^6 m from its world origin measures as it does at 0 (float32 keeps ~7
+    digits: absolute coordinates of 10^6 m lose the centimetres)."""
+    sets = [np.asarray(p, dtype=np.float64) for p in point_sets]
+    first = next((s.reshape(-1, s.shape[-1]) for s in sets if s.size), None)
+    origin = first[0].copy() if first is not None else np.zeros(sets[0].shape[-1] if sets else 2)
+    return origin, [(s - origin).astype(np.float32) for s in sets]
+
+
+def min_area_rect(xy: np.ndarray) -> tuple[tuple[float, float], tuple[float, float], float]:
+    """`cv2.minAreaRect` of points `[N, 2]` (N >= 1) in world coordinates, computed about a local origin in float64
+    (`local_f32`): ((cx, cy), (w, h), angle in degrees)."""
+    import cv2
+
+    origin, (local,) = local_f32(np.asarray(xy, dtype=np.float64).reshape(-1, 2))
+    (cx, cy), (w, h), ang = cv2.minAreaRect(local)
+    return (float(cx + origin[0]), float(cy + origin[1])), (float(w), float(h)), float(ang)
+
+
 def fit_gravity_box(points: np.ndarray, up: np.ndarray | None = None) -> OrientedBox:
     """Gravity-aligned oriented box around `points [N, 3]` in a z-up world: yaw from the floor-projected
     points (minimum-area rectangle of their 2D convex hull), z extent from min/max height."""
-    import cv2
-
     pts = np.asarray(points, dtype=np.float64)
-    xy = pts[:, :2].astype(np.float32)
+    xy = pts[:, :2]
     if len(pts) >= 3:
-        (cx, cy), (w, h), ang = cv2.minAreaRect(xy)
+        (cx, cy), (w, h), ang = min_area_rect(xy)
     else:
         lo, hi = xy.min(0), xy.max(0)
         (cx, cy), (w, h), ang = tuple((lo + hi) / 2), tuple(hi - lo), 0.0
@@ -361,6 +380,7 @@ def polygon_area(polygon: np.ndarray) -> float:
     p = np.asarray(polygon, dtype=np.float64).reshape(-1, 2)
     if len(p) < 3:
         return 0.0
+    p = p - p[0]  # about a local origin: products of coordinates 10^6 m away would cancel the area's digits
     x, y = p[:, 0], p[:, 1]
     return float(abs(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1))) / 2.0)
 

@@ -9,8 +9,8 @@ returns no note, so a healthy input prints nothing extra.
   placeholder, not a measurement). `sample_frames` reads a few frames of a source before the work starts, so
   an input that cannot be mapped at all (every sampled frame black) is refused clearly instead of ending in
   "not found" or a misleading "one view" error.
-- maps: objects larger than any indoor object, a room larger than a stadium, objects spread over kilometres,
-  a ceiling not above the floor.
+- maps: objects larger than any indoor object or smaller than 1 cm, boxes holding NaN / inf, a room larger than a
+  stadium, objects spread over kilometres, a ceiling not above the floor.
 """
 from __future__ import annotations
 
@@ -23,6 +23,7 @@ from .infra.errors import InputError
 
 BLACK_MAX = 8            # an image whose pixels are all at most this (of 255) is black
 MAX_OBJECT_M = 30.0      # no indoor object is longer (the largest: a long table, a wall unit, a bus-sized machine)
+MIN_OBJECT_M = 0.01      # nothing a camera maps from a room is under 1 cm on its longest side (a box: points' extent)
 MAX_ROOM_M2 = 20_000.0   # a floor larger than a stadium's
 MAX_HEIGHT_M = 50.0      # floor to ceiling
 MAX_SPREAD_M = 1_000.0   # objects of one indoor map spread over more than a kilometre
@@ -98,12 +99,24 @@ def map_notes(smap: Any) -> list[str]:
         C, L, _ = smap.box_arrays() if hasattr(smap, "box_arrays") else (
             np.array([o.box.centroid for o in inst], np.float64).reshape(-1, 3),
             np.array([o.box.axes_lengths for o in inst], np.float64).reshape(-1, 3), None)
-        big = np.flatnonzero(L.max(1) > MAX_OBJECT_M)
+        finite = np.isfinite(C).all(1) & np.isfinite(L).all(1)
+        if not finite.all():
+            notes.append(f"implausible objects in the map: {_names(inst, np.flatnonzero(~finite))} hold NaN or "
+                         f"infinity in their box; answers cannot place them: check the map")
+        longest = np.where(finite, L.max(1, initial=0.0), np.nan)
+        with np.errstate(invalid="ignore"):
+            big, tiny = np.flatnonzero(longest > MAX_OBJECT_M), np.flatnonzero(longest < MIN_OBJECT_M)
         if len(big):
-            k = int(big[np.argmax(L[big].max(1))])
-            notes.append(f"implausible sizes in the map: {len(big)} object(s) longer than {MAX_OBJECT_M:g} m, e.g. "
-                         f"{inst[k].name} #{inst[k].id} is {_m(L[k].max())} long (larger than any indoor object); "
-                         f"answers use them as given: check the map")
+            big = big[np.argsort(-longest[big])]
+            notes.append(f"implausible sizes in the map: {len(big)} object(s) longer than {MAX_OBJECT_M:g} m: "
+                         f"{_names(inst, big, longest, 'long')} (larger than any indoor object); answers use them "
+                         f"as given: check the map")
+        if len(tiny):
+            tiny = tiny[np.argsort(longest[tiny])]
+            notes.append(f"implausible sizes in the map: {len(tiny)} object(s) smaller than {MIN_OBJECT_M * 100:g} "
+                         f"cm on every side: {_names(inst, tiny, longest, 'long')} (smaller than anything a camera "
+                         f"maps; vanishing boxes); answers use them as given: check the map")
+        C = C[finite] if finite.any() else np.zeros((1, 3))
         spread = float((C.max(0) - C.min(0))[:2].max())
         if spread > MAX_SPREAD_M:
             notes.append(f"implausible extent: the objects of the map spread over {_m(spread)} (more than "
@@ -123,4 +136,11 @@ def map_notes(smap: Any) -> list[str]:
 
 
 def _m(x: float) -> str:
-    return f"{x / 1000:,.1f} km" if x >= 10_000 else f"{x:,.1f} m"
+    return f"{x / 1000:,.1f} km" if x >= 10_000 else f"{x:,.1f} m" if x >= 0.1 else f"{x:.3g} m"
+
+
+def _names(inst: Sequence[Any], idx: np.ndarray, size: np.ndarray | None = None, word: str = "") -> str:
+    """'sofa #3 (1,000.0 km long), chair #0 ... and 4 more': up to three objects by name and id."""
+    parts = [f"{inst[int(k)].name} #{inst[int(k)].id}" + (f" ({_m(float(size[k]))} {word})" if size is not None
+                                                            else "") for k in idx[:3]]
+    return ", ".join(parts) + (f" and {len(idx) - 3} more" if len(idx) > 3 else "")

@@ -19,10 +19,10 @@ import cv2
 import numpy as np
 
 from .infra.config import StageConf
+from .infra import jsonio
 from .infra.errors import InputError
 from .geometry import box_footprint
 from .map.model import SemanticMap
-import json
 from pathlib import Path
 from .infra.outputs import encode_png
 
@@ -172,7 +172,7 @@ def json_block(smap: SemanticMap) -> str:
                           "last": [round(float(T1[0, 3]), 2), round(float(T1[1, 3]), 2), round(float(t1), 1)]}
     if smap.room is not None:
         code["floor_area_m2"] = round(float(smap.room.area()), 1)
-    return json.dumps(code, separators=(",", ":"))
+    return jsonio.dumps(code, separators=(",", ":"))
 
 
 def _nice_length(max_m: float) -> float:

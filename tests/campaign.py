@@ -484,3 +484,8 @@ EXTRA_CLASSES: dict[str, Callable[[Path], Iterator[Record]]] = {
     "paths": path_cases, "health_map": health_map_cases, "health_frames": health_frame_cases,
     "short_inputs": short_input_cases, "streams": stream_cases, "signals": signal_cases,
     "json_mode": json_mode_cases}
+
+
+from campaign_round4 import ROUND4_CLASSES  # noqa: E402 - issue 36's classes (they import this module's helpers)
+
+EXTRA_CLASSES.update(ROUND4_CLASSES)

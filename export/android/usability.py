@@ -2,11 +2,12 @@
 from __future__ import annotations
 
 import io
-import json
 import logging
 import tempfile
 from pathlib import Path
 from typing import Any
+
+from mosaicthinker.runtime.infra import jsonio
 
 from .config import NOT_CHECKED, AndroidConfig
 
@@ -67,7 +68,7 @@ def usability_report(onnx_path: str | Path, text_out: str | Path, json_out: str 
            "nnapi": nnapi, "coreml_neuralnetwork": cml_nn, "coreml_mlprogram": cml_mlp,
            "dynamic_inputs": [i.name for i in dyn_inputs], "flags": flags, "try_eps": try_eps,
            "not_checked": NOT_CHECKED}
-    Path(json_out).write_text(json.dumps(rep, indent=2) + "\n")
+    Path(json_out).write_text(jsonio.dumps(rep, indent=2) + "\n")
     return rep
 
 

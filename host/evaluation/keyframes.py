@@ -36,6 +36,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from mosaicthinker.runtime.infra import jsonio
 from mosaicthinker.runtime.infra.errors import InputError
 from mosaicthinker.runtime.keyframes import METHODS, KeyFrameConf, select_keyframes
 from mosaicthinker.runtime.types import Detections
@@ -159,7 +160,7 @@ def _ensure_scene(conf: Any, out: Path, workers: int) -> dict[str, Any]:
 
     if (out / "scene.json").exists() and (out / "questions.jsonl").exists():
         meta = load_scene(out)
-        if meta.get("config") == json.loads(json.dumps(config_dict(conf))):
+        if meta.get("config") == json.loads(jsonio.dumps(config_dict(conf))):
             return {"generated": False}
         raise InputError(f"{out}: holds a scene with another configuration; give another --out or delete it")
     if out.exists() and any(out.iterdir()):

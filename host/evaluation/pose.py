@@ -136,6 +136,10 @@ def evaluate_pose(source: Any, indices: Sequence[int], matcher: Any = "sift", st
         elif f.depth is None:
             raise InputError(f"{source.name}: frame {i} has no sensor depth; use `depth=model`", fields=("depth",))
         frames.append(f)
+    untracked = [f.index for f in frames if f.pose_gt is None]
+    if len(untracked) == len(frames):  # before the alignment: nothing would be left to score
+        raise InputError(f"{source.name}: none of the {len(frames)} frames has a ground-truth pose (needed for "
+                         f"ATE/RPE)")
     t0 = time.perf_counter()
     if path == "frames":
         from mosaicthinker.runtime.align import align_frames
@@ -145,10 +149,6 @@ def evaluate_pose(source: Any, indices: Sequence[int], matcher: Any = "sift", st
     else:
         res, used = _align_as_ask(source, frames, matcher, depth_model, with_scale, conf, trace, embedder)
     secs = time.perf_counter() - t0
-    untracked = [f.index for f in frames if f.pose_gt is None]
-    if len(untracked) == len(frames):
-        raise InputError(f"{source.name}: none of the {len(frames)} frames has a ground-truth pose (needed for "
-                         f"ATE/RPE)")
     ev = [f for f in frames if f.index in res.poses and f.pose_gt is not None]  # time order
     est = np.array([res.poses[f.index] for f in ev])
     gt = np.array([f.pose_gt for f in ev])

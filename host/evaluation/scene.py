@@ -32,9 +32,10 @@ from typing import Any
 
 import numpy as np
 
+from mosaicthinker.runtime.infra import jsonio
 from mosaicthinker.runtime.infra import schema as S
 from mosaicthinker.runtime.infra.bundle import strict_json_loads
-from mosaicthinker.runtime.infra.errors import InputError, check_path
+from mosaicthinker.runtime.infra.errors import InputError, check_path, read_text
 from mosaicthinker.runtime.infra.file_schemas import BOX, rigid_pose
 from mosaicthinker.runtime.geometry import OrientedBox, transform
 
@@ -106,29 +107,57 @@ def load_annotation(path: str | Path) -> tuple[str, dict[str, Any], np.ndarray]:
 def load_gt_boxes(path: str | Path) -> tuple[str, dict[str, Any], np.ndarray]:
     """(scene name, meta_info-style scene, T [4, 4] pose frame -> box frame) from a dataset's own boxes as shipped
     (`gt_boxes.json`, ScanNet's: axis-aligned boxes in the axis-aligned frame, `axis_align_matrix` taking a camera
-    pose into it; the format is in ../shared/data/README.md). The boxes get identity axes."""
+    pose into it; the format is in ../shared/data/README.md). The boxes get identity axes. Decoded and checked
+    before any work: a file that is not UTF-8 JSON, an `axis_align_matrix` that is not a finite rigid 4x4 matrix
+    are an InputError; a box with a non-finite or non-positive part is left out of the ground truth and listed by
+    name in `scene["not_scored"]` (every box so: an InputError, nothing is left to score)."""
+    import json
+
+    from mosaicthinker.runtime.frames.source import check_pose
+    from mosaicthinker.runtime.infra.numbers import check_array
+
+    text = read_text(path, "box")
+    shape = "need `axis_align_matrix` and `object_bbox` with centroid / axesLengths per box"
     try:
-        doc = json.loads(Path(path).read_text())
+        doc = json.loads(text)  # NaN tokens parse: a box holding one is listed below, not the whole file refused
         T = np.asarray(doc["axis_align_matrix"], float).reshape(4, 4)
-        bbox = {str(c): [{**b, "normalizedAxes": [1, 0, 0, 0, 1, 0, 0, 0, 1]} for b in lst]
-                for c, lst in doc["object_bbox"].items()}
-        for lst in bbox.values():
+        boxes = {str(c): list(lst) for c, lst in doc["object_bbox"].items()}
+        for lst in boxes.values():
             for b in lst:
-                OrientedBox.from_meta(b)
-    except (OSError, ValueError, KeyError, TypeError) as e:
-        raise InputError(f"{path}: not a box file as shipped (need `axis_align_matrix` and `object_bbox` with "
-                         f"centroid / axesLengths per box) ({e})") from e
-    return str(doc.get("scene", Path(path).parent.name)), {"object_bbox": bbox, "dataset": "scannet"}, T
+                np.asarray(b["centroid"], float).reshape(3), np.asarray(b["axesLengths"], float).reshape(3)
+    except (ValueError, KeyError, TypeError, AttributeError, RecursionError) as e:
+        raise InputError(f"{path}: not a box file as shipped ({shape}) ({e})"[:400]) from None
+    check_pose(check_array(T, f"{path}: axis_align_matrix", "the matrix", lo=-1e7, hi=1e7,
+                           fix="fix the matrix (ScanNet's is rigid: a rotation and a translation)"),
+               f"{path}: axis_align_matrix")
+    bbox: dict[str, list[dict[str, Any]]] = {}
+    dropped: list[str] = []
+    for c, lst in boxes.items():
+        for k, b in enumerate(lst):
+            ctr, size = np.asarray(b["centroid"], float), np.asarray(b["axesLengths"], float)
+            why = ("centroid holds NaN or infinity" if not np.isfinite(ctr).all() or np.abs(ctr).max() > 1e7 else
+                   "axesLengths hold NaN, infinity or a size <= 0" if not (np.isfinite(size).all() and
+                                                                          (size > 0).all() and size.max() < 1e4)
+                   else None)
+            if why:
+                dropped.append(f"{c} #{k} ({why})")
+            else:
+                bbox.setdefault(c, []).append({**b, "normalizedAxes": [1, 0, 0, 0, 1, 0, 0, 0, 1]})
+    if dropped and not bbox:
+        raise InputError(f"{path}: no box is usable ground truth ({'; '.join(dropped[:3])}"
+                         f"{' ...' if len(dropped) > 3 else ''}); nothing is left to score: fix the boxes")
+    scene = {"object_bbox": bbox, "dataset": "scannet", "not_scored": dropped}
+    return str(doc.get("scene", Path(path).parent.name)), scene, T
 
 
 def ground_truth_for(data: str | Path, annotations: str | Path | None) -> tuple[str, dict[str, Any], np.ndarray,
                                                                              str] | None:
     """The object ground truth of a room: the given annotation file (the project's, `scene_annotate`, or a
     dataset's `gt_boxes.json`), else the room's own `gt_boxes.json`, else None. Returns (name, scene, T_from_pose,
-    what it is)."""
+    what it is). The file is decoded and checked here, before any work."""
     if annotations is not None:
         p = Path(annotations)
-        if p.name == "gt_boxes.json" or "axis_align_matrix" in p.read_text()[:4096]:
+        if p.name == "gt_boxes.json" or "axis_align_matrix" in read_text(p, "scene annotation")[:4096]:
             return (*load_gt_boxes(p), f"{p} (as shipped)")
         return (*load_annotation(p), f"{p} (annotation)")
     own = Path(data) / "gt_boxes.json"
@@ -203,8 +232,9 @@ def iou_3d(a: OrientedBox, b: OrientedBox) -> float:
     """3D IoU of two gravity-aligned boxes (footprint polygon intersection x height overlap)."""
     import cv2
 
-    fa = a.corners()[:, :2].astype(np.float32)
-    fb = b.corners()[:, :2].astype(np.float32)
+    from mosaicthinker.runtime.geometry import local_f32
+
+    _, (fa, fb) = local_f32(a.corners()[:, :2], b.corners()[:, :2])
     ia, _ = cv2.intersectConvexConvex(cv2.convexHull(fa), cv2.convexHull(fb))
     za = (a.centroid[2] - a.axes_lengths[2] / 2, a.centroid[2] + a.axes_lengths[2] / 2)
     zb = (b.centroid[2] - b.axes_lengths[2] / 2, b.centroid[2] + b.axes_lengths[2] / 2)
@@ -404,6 +434,10 @@ def evaluate_scene(data: str | Path, annotations: str | Path | None, bundle: str
     from mosaicthinker.host.evaluation.pose import align_trajectories
 
     conf = conf or SceneEvalConfig()
+    if out:  # every output place and input file checked before the work (minutes of it)
+        from mosaicthinker.runtime.infra.outputs import check_out_dir
+
+        check_out_dir(Path(out))
     gt = ground_truth_for(data, annotations)
     src = open_source(data)
     name, scene, T_annot, gt_what = gt if gt is not None else (Path(data).name, {"object_bbox": {}},
@@ -452,7 +486,10 @@ def evaluate_scene(data: str | Path, annotations: str | Path | None, bundle: str
            "dedup": trace.decisions.get("dedup"), "wall_s": wall, "peak_rss_mb": peak,
            "stages": {k: {"seconds": round(v.seconds, 3), "calls": v.calls} for k, v in trace.stages.items()},
            "warnings": [e["message"] for e in trace.events if e["kind"] in ("fallback", "degraded", "not_in_map")],
-           "alignment_events": [e["message"] for e in trace.events if e.get("stage") == "alignment"]}
+           "alignment_events": [e["message"] for e in trace.events if e.get("stage") == "alignment"],
+           "ground_truth_not_scored": list(scene.get("not_scored", []))}
+    res["warnings"] += [f"ground truth {d}: left out of the scoring" for d in scene.get("not_scored", [])]
+    res["warnings"] += [n for n in src.notes if "pose files hold non-finite" in n]
     vmeta, recs = {"object_bbox": {}}, []
     if gt is not None:
         visible = visible_instances(src, T_annot, scene, conf)
@@ -575,7 +612,7 @@ def _write_out(out: Path, res: dict[str, Any], build: Any, S: np.ndarray, vmeta:
                       "built_boxes": {k: [{**m, "centroid": list(np.asarray(m["centroid"]) + shift)} for m in v]
                                       for k, v in extra.items()}}
     build.map.save(out / "map.json")
-    (out / "scene_eval.json").write_text(json.dumps(res, indent=1, default=float))
+    (out / "scene_eval.json").write_text(jsonio.dumps(res, indent=1, default=float))
     trace.save(out / "trace.json")
 
 

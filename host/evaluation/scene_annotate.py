@@ -30,6 +30,7 @@ from typing import Any
 
 import numpy as np
 
+from mosaicthinker.runtime.infra import jsonio
 from mosaicthinker.runtime.infra.errors import InputError
 from mosaicthinker.runtime.geometry import OrientedBox, backproject, fit_gravity_box, project, transform
 from mosaicthinker.runtime.map import components as _components
@@ -301,7 +302,7 @@ def main(argv: list[str] | None = None) -> int:
     a = ap.parse_args(argv)
     marks = json.loads(Path(a.marks).read_text())
     doc, room, _ = annotate(a.data, marks)
-    Path(a.out).write_text(json.dumps(doc, indent=1))
+    Path(a.out).write_text(jsonio.dumps(doc, indent=1))
     scene = next(iter(doc["meta_info"].values()))
     print(f"wrote {a.out}: {scene['object_counts']}")
     for cat, lst in scene["object_bbox"].items():

@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from mosaicthinker.runtime.answer import Answer, MapReasoner, NUMERIC_QTYPES
+from mosaicthinker.runtime.infra import jsonio
 from mosaicthinker.runtime.infra.errors import InputError
 from mosaicthinker.runtime.infra.progress import ticked
 from mosaicthinker.runtime.map import SemanticMap
@@ -241,8 +242,11 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def _run(args: argparse.Namespace, outs: Any) -> dict[str, Any]:
-    from mosaicthinker.runtime.infra.outputs import write_file_atomic
+    from mosaicthinker.runtime.infra.outputs import check_out_file, write_file_atomic
 
+    for flag, path in (("--result", args.result), ("--disagreements", args.disagreements)):
+        if path:
+            check_out_file(path, flag)  # before scoring, not after
     questions = load_questions(args.questions)
     meta = load_meta(args.meta)
     summary, records = evaluate(questions, meta, args.types, args.limit)
@@ -253,7 +257,7 @@ def _run(args: argparse.Namespace, outs: Any) -> dict[str, Any]:
         for d in dis:
             n_type[d["question_type"]] += 1
         share = {k: round(v / summary["per_type"][k]["n"], 4) for k, v in n_type.items()}
-        write_file_atomic(args.disagreements, json.dumps(
+        write_file_atomic(args.disagreements, jsonio.dumps(
             {"schema": "mosaicthinker.vsibench_disagreements/1",
              "definition": "wrong multiple-choice answers and numeric answers with MRA < 0.5 (relative "
                            "error >= 25%), computed from the benchmark's own boxes",
@@ -266,7 +270,7 @@ def _run(args: argparse.Namespace, outs: Any) -> dict[str, Any]:
     if args.records:
         result["records"] = records
     if getattr(args, "result", None):
-        write_file_atomic(args.result, json.dumps(result, indent=1, default=str))
+        write_file_atomic(args.result, jsonio.dumps(result, indent=1, default=str))
     if outs is not None:
         from mosaicthinker.runtime.infra.outputs import finish_group
 

@@ -34,6 +34,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from mosaicthinker.runtime.infra import jsonio
 from mosaicthinker.runtime.infra.errors import InputError
 from mosaicthinker.runtime.geometry import intrinsics_from_fov, project
 from mosaicthinker.runtime.infra.progress import start
@@ -176,7 +177,7 @@ def write_scene(conf: SceneConfig, out_dir: str | os.PathLike, workers: int = 1,
     for r, t in zip(rows, times):
         r["t"] = round(float(t), 6)
     meta = scene_json(scene, name or out.name, K, times, rows)
-    (out / "scene.json").write_text(json.dumps(meta, indent=1))
+    (out / "scene.json").write_text(jsonio.dumps(meta, indent=1))
     n_q = 0
     q_skipped: dict[str, Any] = {}
     if questions:
@@ -194,7 +195,7 @@ def write_questions(meta: dict[str, Any], out: Path, margins: dict[str, float] |
     from mosaicthinker.host.synth.questions import generate_questions
 
     qs, report = generate_questions(meta, seed=int(meta["seed"]), margins=margins, per_type=per_type)
-    (Path(out) / "questions.jsonl").write_text("".join(json.dumps(q) + "\n" for q in qs))
+    (Path(out) / "questions.jsonl").write_text("".join(jsonio.dumps(q) + "\n" for q in qs))
     return len(qs), report
 
 

@@ -22,6 +22,7 @@ from typing import Any
 
 import numpy as np
 
+from mosaicthinker.runtime.infra import jsonio
 from mosaicthinker.runtime.infra.errors import InputError
 
 STATS_PATH = Path(__file__).with_name("vsibench_stats.json")
@@ -164,7 +165,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", default=str(STATS_PATH))
     a = ap.parse_args(argv)
     stats = compute_stats(load_meta_info(a.meta), Path(a.meta).name)
-    Path(a.out).write_text(json.dumps(stats, indent=1) + "\n")
+    Path(a.out).write_text(jsonio.dumps(stats, indent=1) + "\n")
     print(f"wrote {a.out}: {stats['scenes']} scenes, {len(stats['categories'])} categories")
     return 0
 

@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from ..geometry import box_distance, point_box_distance
+from ..geometry import box_distance, local_f32, point_box_distance
 from .angles import signed_angle_deg
 from .result import ReasonerConfig, Unsupported  # noqa: F401 (Unsupported: view_relation)
 
@@ -63,10 +63,10 @@ def _between(a: Any, b: Any, c: Any) -> bool:
     """a's centre inside the top-view convex hull of b's and c's footprints, and in neither footprint."""
     import cv2
 
-    pts = np.concatenate([b.box.corners()[:, :2], c.box.corners()[:, :2]]).astype(np.float32)
+    origin, (pts,) = local_f32(np.concatenate([b.box.corners()[:, :2], c.box.corners()[:, :2]]))
     hull = cv2.convexHull(pts)
     p = (float(a.center[0]), float(a.center[1]))
-    inside = cv2.pointPolygonTest(hull, p, False) >= 0
+    inside = cv2.pointPolygonTest(hull, (p[0] - float(origin[0]), p[1] - float(origin[1])), False) >= 0
     own = any(o.box.contains(np.array([[p[0], p[1], o.center[2]]]))[0] for o in (b, c))
     return bool(inside) and not own
 

@@ -5,6 +5,7 @@ from typing import Any
 
 import numpy as np
 
+from ..geometry import min_area_rect
 from ..query.ir import COMPARATIVES, EVERYTHING, SUPERLATIVES, UNIT_M, Ref, RoomSize, Size, SizeCompare, everything
 from . import evidence as ev
 from .boxes import MEASURE_WORDS, measure
@@ -146,9 +147,7 @@ def room_size(node: RoomSize, ctx: Ctx) -> tuple[Any, str]:
     if node.measure != "area":
         return _room_sides(ctx, node, src)
     if src.startswith("object_boxes"):  # boxes only: the smallest rectangle around them, a lower bound
-        import cv2
-
-        (_, _), (w, h), _ = cv2.minAreaRect(np.asarray(room.polygon, np.float32))
+        (_, _), (w, h), _ = min_area_rect(room.polygon)
         area, what = float(w * h), ("smallest rectangle around the object boxes (the map has no floor extent: a "
                                     "lower bound, the floor between the furniture and the walls is not seen)")
     else:
@@ -168,9 +167,7 @@ def room_size(node: RoomSize, ctx: Ctx) -> tuple[Any, str]:
 def _room_sides(ctx: Ctx, node: RoomSize, src: str) -> tuple[Any, str]:
     """"How long / wide is the room?": the sides of the smallest rectangle around the room's floor outline
     (length the longer)."""
-    import cv2
-
-    (_, _), (w, h), _ = cv2.minAreaRect(np.asarray(ctx.map.extent().polygon, np.float32))
+    (_, _), (w, h), _ = min_area_rect(ctx.map.extent().polygon)
     unit = node.unit
     length, width = max(w, h) / UNIT_M[unit], min(w, h) / UNIT_M[unit]
     how = f"sides of the smallest rectangle around the map's room extent ({src})"

@@ -34,7 +34,9 @@ from typing import Any, Mapping, Sequence
 
 from ..infra.bundle import ROLES as BUNDLE_ROLES
 from ..infra.bundle import load_bundle
+from ..infra import jsonio
 from ..infra.errors import ProfileError, path_kind
+from ..infra.numbers import read_number
 from ..infra.file_schemas import profile_spec
 from ..infra.schema import check
 from ..infra.trace import Trace, as_trace
@@ -356,13 +358,10 @@ def _check_number(v: Any, where: str, *, integer: bool = False, positive: bool =
                            f"(write the bare number; the unit is in the key name)")
     if integer and not isinstance(v, int):
         raise ProfileError(f"{where}: expected an integer, got {v!r}")
-    if not math.isfinite(v):
-        raise ProfileError(f"{where}: must be finite, got {v!r}")
-    if v < 0:
-        raise ProfileError(f"{where}: negative value {v!r}; budgets and costs must be >= 0")
     if positive and v == 0:
         raise ProfileError(f"{where}: must be > 0, got {v!r}")
-    return float(v)
+    return float(read_number(v, where, lo=0, integer=integer, error=ProfileError,  # finite, >= 0, any length
+                             fix="budgets and costs are finite numbers >= 0"))
 
 
 def _check_providers(chain: Any, where: str) -> list[str]:
@@ -570,7 +569,7 @@ def parse_profile(data: Mapping[str, Any], path: str | os.PathLike | None = None
     return Profile(name=dev["name"], path=path, latency_budget_ms=lat, memory_budget_mb=mem, providers=chain,
                    intra_op_threads=rt.get("intra_op_threads"), inter_op_threads=rt.get("inter_op_threads"),
                    core_affinity=list(aff) if aff else None, device=dev, runtime_notes=rt.get("notes"),
-                   roles=roles, costs=costs, paper_costs=paper_costs, raw=json.loads(json.dumps(data)))
+                   roles=roles, costs=costs, paper_costs=paper_costs, raw=jsonio.plain(data))
 
 
 def resolve_profile_path(name_or_path: str | os.PathLike) -> Path:

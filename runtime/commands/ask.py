@@ -12,8 +12,9 @@ import re
 from pathlib import Path
 from typing import Any
 
+from ..infra import jsonio
 from ..infra.errors import InputError
-from ..infra.outputs import RunOutputs, note_outputs, save_run
+from ..infra.outputs import RunOutputs, note_outputs, save_run, unfinished_run_note
 from ..grounding import split_inline_options  # linear; lives with the question parser
 from ..cli import add_stage_flags
 from .flags import add_answerer, add_grounding, add_keyframes
@@ -96,6 +97,9 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         outs = RunOutputs(out) if out is not None else None  # checked and locked before the pipeline runs
         note_outputs(outs, trace)
         source: Any = args.source
+        unfinished = unfinished_run_note(src) if src.exists() else None  # a folder left by a killed run says so
+        if unfinished and (outs is None or outs.folder.resolve() != (src if src.is_dir() else src.parent).resolve()):
+            trace.event("input", unfinished, warn=False)
         if is_map:
             source = SemanticMap.load(src)
             # answering a saved map makes no reference cycles worth collecting, while the cyclic collector would
@@ -195,7 +199,7 @@ def render(r: dict[str, Any]) -> str:
     if r.get("explain"):
         g = r.get("grounding") or {}
         prog = g.get("program")
-        lines.append(f"  program ({g.get('how', 'none')}): " + (json.dumps(prog["ask"]) if prog else
+        lines.append(f"  program ({g.get('how', 'none')}): " + (jsonio.dumps(prog["ask"]) if prog else
                                                                 "none (" + "; ".join(g.get("notes") or []) + ")"))
     if r.get("objects") is not None:
         lines.append(f"  map: {r['objects']} object(s)" + (f" from {len(r['keyframes'])} key frames"

@@ -10,6 +10,7 @@ import argparse
 import sys
 from typing import Any, Sequence
 
+from ..infra.numbers import read_number, show_number
 from ..keyframes import KeyFrameConf
 import re
 
@@ -51,14 +52,17 @@ ANSWERERS = ("map", "vlm", "auto")    # map reasoner, VLM on the visual prompt, 
 GROUNDINGS = ("rules", "vlm", "auto")  # question -> program: rule parser, VLM (constrained), auto (rules first)
 
 
+MAX_SIDE_PX = 16384   # a frame side (the largest video frames are 8K: 7680 px)
+MAX_COUNT = 100_000   # key frames, scenes: more than any clip holds
+
+
 def parse_size(text: str) -> tuple[int, int]:
     """'640x480' -> (640, 480): frame size as WxH (argparse type)."""
-    try:
-        w, h = (int(x) for x in str(text).lower().split("x"))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"--size must be WxH, e.g. 640x480 (got {text!r})") from None
-    if w < 16 or h < 16:
-        raise argparse.ArgumentTypeError(f"--size must be at least 16x16 (got {text!r})")
+    parts = str(text).lower().split("x")
+    if len(parts) != 2 or not all(x.strip().isdigit() for x in parts):
+        raise argparse.ArgumentTypeError(f"--size must be WxH, e.g. 640x480 (got {show_number(text)!r})")
+    w, h = (read_number(x, f"--size {side}", lo=16, hi=MAX_SIDE_PX, integer=True, unit="px",
+                        error=argparse.ArgumentTypeError) for x, side in zip(parts, ("width", "height")))
     return w, h
 
 
@@ -104,13 +108,12 @@ def add_clip(p: argparse.ArgumentParser, duration: float | None, fps: float | No
 
 
 def _at_least_one(flag: str, what: str, text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{flag}: a whole number of {what}, got {text!r}") from None
-    if v < 1:
-        raise argparse.ArgumentTypeError(f"{flag} must be at least 1, got {text!r}")
-    return v
+    t = str(text).strip()
+    if not t.lstrip("+-").isdigit():
+        raise argparse.ArgumentTypeError(f"{flag}: a whole number of {what}, got {show_number(text)!r}")
+    if t.startswith("-") or not t.lstrip("+0"):
+        raise argparse.ArgumentTypeError(f"{flag} must be at least 1, got {show_number(text)!r}")
+    return read_number(t, flag, lo=1, hi=MAX_COUNT, integer=True, unit=what, error=argparse.ArgumentTypeError)
 
 
 def parse_keyframes(text: str) -> int:

@@ -7,9 +7,9 @@ the bounds the VLM decodes under). No map and no frames are read.
 from __future__ import annotations
 
 import argparse
-import json
 from typing import Any
 
+from ..infra import jsonio
 from ..infra.errors import InputError
 from ..grounding import check_question, ground, split_inline_options
 from ..infra.trace import Trace
@@ -53,11 +53,11 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
 
 def render(r: dict[str, Any]) -> str:
     if "json_schema" in r:
-        return json.dumps(r["json_schema"], indent=1)
+        return jsonio.dumps(r["json_schema"], indent=1)
     if r.get("program") is None:
         lines = ["program: none (not understood)"] + [f"  {n}" for n in r.get("notes", [])]
     else:
-        lines = [json.dumps(r["program"], indent=1),
+        lines = [jsonio.dumps(r["program"], indent=1),
                  f"  read by: {r['how']}; type {r['qtype']}; targets {r['targets']}; cues {r['cues']}"]
         if r.get("unknown"):
             lines.append(f"  not in the vocabulary (matched by name): {', '.join(r['unknown'])}")

@@ -9,7 +9,8 @@ from pathlib import Path
 import numpy as np
 
 from ..geometry import intrinsics_from_fov, make_pose
-from ..infra.errors import InputError
+from ..infra.errors import InputError, read_text
+from ..infra.numbers import check_array, read_number
 from ..types import Frame
 from .source import (IMAGE_EXTS, MAX_DECODE_SIDE, FrameSource, _downscale, _imread_depth, _imread_rgb, _loadtxt,
                      _natural_key, _read_timestamps, _show, check_depth_units, check_gravity, check_pose)
@@ -114,14 +115,28 @@ class SevenScenesSource(FrameSource):
             return None
         T = _loadtxt(self.pose_paths[i], (4, 4), "a 4x4 camera-to-world pose", allow_nonfinite=True)
         if not np.isfinite(T).all():
+            self.untracked_frames()  # every pose file non-finite is bad input, not N tracking failures
             return None
-        return check_pose(T, _show(self.pose_paths[i]))
+        return check_pose(check_array(T, _show(self.pose_paths[i]), "a 4x4 camera-to-world pose", lo=-1e7, hi=1e7),
+                          _show(self.pose_paths[i]))
 
     def untracked_frames(self) -> list[int]:
-        """Positions whose pose file holds a non-finite pose (a tracking failure), read once and cached."""
+        """Positions whose pose file holds a non-finite pose (a tracking failure), read once and cached; said in
+        `notes`. Every pose file non-finite is not a tracking failure but files without ground truth: InputError."""
         if getattr(self, "_untracked", None) is None:
-            self._untracked = [i for i, p in enumerate(self.pose_paths) if p.exists() and not np.isfinite(
+            have = [(i, p) for i, p in enumerate(self.pose_paths) if p.exists()]
+            bad = [i for i, p in have if not np.isfinite(
                 _loadtxt(p, (4, 4), "a 4x4 camera-to-world pose", allow_nonfinite=True)).all()]
+            if have and len(bad) == len(have):
+                raise InputError(f"{_show(self.root)}: every one of the {len(have)} pose files holds NaN or infinity "
+                                 f"(e.g. {_show(have[0][1].name)}): no ground-truth pose to use; fix the pose files "
+                                 f"or remove them (a tracking failure marks a few frames, not all)")
+            if bad:
+                names = ", ".join(_show(self.pose_paths[i].name) for i in bad[:3]) + (" ..." if len(bad) > 3 else "")
+                self.notes.append(f"{len(bad)} of {len(have)} pose files hold non-finite values ({names}): a "
+                                  f"tracking failure (as ScanNet writes -inf); those frames have no ground truth "
+                                  f"and are not scored")
+            self._untracked = bad
         return list(self._untracked)
 
 
@@ -129,15 +144,13 @@ def _read_tum_list(path: Path) -> list[tuple[float, list[str]]]:
     if not path.is_file():
         raise InputError(f"{path}: missing (TUM RGB-D layout needs rgb.txt, depth.txt, groundtruth.txt)")
     rows = []
-    for ln, line in enumerate(path.read_text().splitlines(), 1):
+    for ln, line in enumerate(read_text(path, "TUM list").splitlines(), 1):
         line = line.strip()
         if not line or line.startswith("#"):
             continue
         parts = line.split()
-        try:
-            rows.append((float(parts[0]), parts[1:]))
-        except (ValueError, IndexError):
-            raise InputError(f"{path}:{ln}: cannot parse {line!r}") from None
+        rows.append((read_number(parts[0], f"{_show(path)}:{ln}: the timestamp", lo=0, hi=1e11, unit="s",
+                                 fix="fix or drop that line"), parts[1:]))
     if not rows:
         raise InputError(f"{path}: no entries")
     return rows
@@ -190,8 +203,14 @@ class TUMSource(FrameSource):
                     v = gl[k][1]
                     if len(v) != 7:
                         raise InputError(f"{gt}: expected 'timestamp tx ty tz qx qy qz qw', got {len(v) + 1} fields")
-                    v = np.array(v, dtype=np.float64)
-                    if not np.isfinite(v).all() or not 0.5 < np.linalg.norm(v[3:]) < 2.0:
+                    try:
+                        v = np.array(v, dtype=np.float64)
+                    except ValueError:
+                        raise InputError(f"{_show(gt)}: the pose at t={gts[k]} is not 7 numbers; fix or drop that "
+                                         f"line") from None
+                    v = check_array(v, f"{_show(gt)}: the pose at t={gts[k]}", "the line", lo=-1e7, hi=1e7,
+                                    fix="fix or drop that line")
+                    if not 0.5 < np.linalg.norm(v[3:]) < 2.0:
                         raise InputError(f"{_show(gt)}: pose at t={gts[k]} is not finite or its quaternion is not "
                                          f"unit length; fix or drop that line")
                     self.poses[i] = make_pose(_quat_to_R(v[3:]), v[:3])

@@ -11,8 +11,9 @@ from typing import Any, Iterator, Sequence
 import cv2
 import numpy as np
 
-from ..infra.errors import InputError, path_kind
+from ..infra.errors import InputError, path_kind, read_text
 from ..infra.lru import LRU
+from ..infra.numbers import check_array, read_number
 from ..types import Frame
 
 IMAGE_EXTS = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp")
@@ -218,8 +219,8 @@ def _loadtxt(path: Path, shape: tuple[int, ...] | None = None, what: str = "numb
         if a.size != int(np.prod(shape)):
             raise InputError(f"{path}: expected {what} with {int(np.prod(shape))} values {shape}, got {a.size}")
         a = a.reshape(shape)
-    if not allow_nonfinite and not np.all(np.isfinite(a)):
-        raise InputError(f"{path}: {what} contains non-finite values")
+    if not allow_nonfinite:  # the one check of every number read (finite; within ±1e7: no indoor value is larger)
+        check_array(a, _show(path), what, lo=-1e7, hi=1e7, fix="fix or replace the file")
     return a
 
 
@@ -230,15 +231,13 @@ def _natural_key(s: str) -> list[Any]:
 def _read_timestamps(path: Path, n: int, names: Sequence[str] | None = None) -> np.ndarray:
     """`timestamps.txt`: one line per frame, either `t` or `<frame name or number> t` (last field = seconds)."""
     rows: list[tuple[str, float]] = []
-    for ln, line in enumerate(path.read_text().splitlines(), 1):
+    for ln, line in enumerate(read_text(path, "timestamps").splitlines(), 1):
         line = line.strip()
         if not line or line.startswith("#"):
             continue
         parts = line.replace(",", " ").split()
-        try:
-            rows.append((parts[0] if len(parts) > 1 else "", float(parts[-1])))
-        except ValueError:
-            raise InputError(f"{path}:{ln}: cannot parse a timestamp from {line!r}") from None
+        rows.append((parts[0] if len(parts) > 1 else "", read_number(
+            parts[-1], f"{_show(path)}:{ln}: the timestamp", lo=-1e11, hi=1e11, unit="s", fix="fix that line")))
     if len(rows) == n:
         t = np.array([r[1] for r in rows])
     elif names is not None and all(r[0] for r in rows):

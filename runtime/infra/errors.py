@@ -85,6 +85,22 @@ def check_path(path: "str | os.PathLike[str]", want: str, what: str, error: "typ
     raise (error or InputError)(f"{path}: {what} is {kind}; give {want}")
 
 
+def read_text(path: "str | os.PathLike[str]", what: str, error: "type | None" = None) -> str:
+    """The text of an input file, decoded as UTF-8 before any work uses it: a missing / unreadable file or a byte
+    that is not UTF-8 raises `error` (InputError) naming the file and where the bad byte is."""
+    check_path(path, "a file", f"the {what} file", error)
+    try:
+        with open(path, "rb") as f:
+            data = f.read()
+    except OSError as e:
+        raise (error or InputError)(f"{path}: cannot read the {what} file ({e.strerror or e})") from None
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as e:
+        raise (error or InputError)(f"{path}: the {what} file is not UTF-8 text (byte 0x{data[e.start]:02x} at "
+                                    f"offset {e.start}); save it as UTF-8") from None
+
+
 class Interrupted(KeyboardInterrupt):
     """The run was stopped by SIGTERM/SIGHUP (temp files and locks are cleaned up on the way out). A
     KeyboardInterrupt, not a MosaicError, so no `except MosaicError` fallback can swallow it."""

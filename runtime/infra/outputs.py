@@ -31,7 +31,8 @@ from typing import Any, Iterator
 import numpy as np
 
 from .errors import OutputError, path_kind
-from .trace import as_trace, json_default
+from . import jsonio
+from .trace import as_trace
 
 LOCK = ".mosaic.lock"
 RUN_FILE = "run.json"
@@ -85,6 +86,45 @@ def check_out_dir(folder: Path, what: str = "--out") -> None:
                          f"choose another folder")
 
 
+def unfinished_run_note(path: str | os.PathLike) -> str | None:
+    """A sentence for whoever opens `path` (an output folder, or a file in one, e.g. its map.json) when the folder's
+    `run.json` says its last run did not finish: still "running" with its process gone (killed: SIGKILL, a power
+    cut), "running" now (another process is writing there), "interrupted" or "failed". None when it finished or
+    the folder holds no run.json. The folder's files are then an earlier run's (every file is renamed in only
+    when the whole group is written)."""
+    p = Path(path)
+    folder = p if p.is_dir() else p.parent
+    try:
+        rec = json.loads((folder / RUN_FILE).read_text())
+    except (OSError, ValueError, UnicodeDecodeError):
+        return None
+    if not isinstance(rec, dict) or rec.get("status") in (None, "complete"):
+        return None
+    status, rid, pid = rec.get("status"), rec.get("run_id"), rec.get("pid")
+    held = RunOutputs._read_lock(folder / LOCK)
+    if status == "running" and held is not None and held.get("run_id") == rid and \
+            held.get("host") == socket.gethostname() and _pid_alive(held["pid"]):
+        why = f"it is still running (pid {pid}): its files may replace these at any moment"
+    elif status == "running":
+        why = f"run.json still says 'running' but its process (pid {pid}) is gone: it was killed before it finished"
+    else:
+        why = f"it ended '{status}'" + (f": {rec.get('reason')}" if rec.get("reason") else "")
+    prev = rec.get("previous") if isinstance(rec.get("previous"), dict) else None
+    kept = f"the folder holds the files of an earlier run (run id {prev.get('run_id')})" if prev and \
+        prev.get("run_id") else "the folder's files are from an earlier run, if any"
+    return f"{folder / RUN_FILE}: the last run in this folder (run id {rid}) did not finish ({why}); {kept}"
+
+
+def check_out_file(path: str | os.PathLike, what: str) -> None:
+    """Refuse, before any work, a result file that cannot be written: a folder, a FIFO or device, below a file,
+    in a folder that cannot be created or written (the folder is checked as `check_out_dir` does)."""
+    p = Path(path)
+    kind = path_kind(p)
+    if kind not in ("a file", "missing"):
+        raise OutputError(f"{what} {p}: is {kind}; give a file path in a writable folder")
+    check_out_dir(p.parent if str(p.parent) else Path("."), f"{what} {p}: its folder")
+
+
 class RunOutputs:
     """The files one run leaves in one folder (see the module docstring). Not thread-safe."""
 
@@ -103,9 +143,12 @@ class RunOutputs:
         try:
             self._lock()
             self._clean_stale_temps()
+            unfinished = unfinished_run_note(self.folder)  # we hold the lock: "running" there is a killed run
+            if unfinished:
+                self.notes.append(unfinished)
             self._previous = self._read_previous()
             self._started = True  # before the write: a signal landing in it still ends run.json as interrupted
-            self._write_run_file("running", [])
+            self._write_run_file("running", [], previous=self._previous)  # a kill leaves it: what is kept
         except BaseException:  # incl. a SIGTERM landing here: never leave our lock behind
             self.close()
             raise
@@ -113,7 +156,7 @@ class RunOutputs:
     # -- lock -----------------------------------------------------------------------------------------------
     def _lock(self) -> None:
         lock = self.folder / LOCK
-        body = json.dumps({"pid": os.getpid(), "host": socket.gethostname(), "run_id": self.run_id,
+        body = jsonio.dumps({"pid": os.getpid(), "host": socket.gethostname(), "run_id": self.run_id,
                            "started": time.time()}).encode()
         for _ in range(3):
             try:
@@ -229,7 +272,7 @@ class RunOutputs:
                "time": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), **extra}
         tmp = self.folder / f"{TMP_PREFIX}{self.run_id}.{RUN_FILE}"
         with open(tmp, "w") as f:
-            json.dump(rec, f)
+            jsonio.dump(rec, f)
             f.flush()
             os.fsync(f.fileno())
         os.replace(tmp, self.folder / RUN_FILE)
@@ -286,10 +329,10 @@ def json_text(obj: Any, indent_below: int = 200_000) -> str:
     """JSON text of `obj`, always by the C encoder: indented by 1 when its compact form is under `indent_below`
     characters (the indenting encoder is pure Python: a trace with 12,500 evidence rows took seconds), else one
     line per top-level key (a long list one line per item). Each value is encoded once."""
-    enc = json.JSONEncoder(default=json_default).encode
+    enc = jsonio.encode_fn()
     if not isinstance(obj, dict):
         compact = enc(obj)
-        return (json.dumps(obj, indent=1, default=json_default) if len(compact) < indent_below else compact) + "\n"
+        return (jsonio.dumps(obj, indent=1) if len(compact) < indent_below else compact) + "\n"
     parts = []
     for k, v in obj.items():
         if isinstance(v, list) and len(v) > 100:
@@ -297,7 +340,7 @@ def json_text(obj: Any, indent_below: int = 200_000) -> str:
         else:
             parts.append(f" {enc(str(k))}: {enc(v)}")
     if sum(map(len, parts)) < indent_below:
-        return json.dumps(obj, indent=1, default=json_default) + "\n"
+        return jsonio.dumps(obj, indent=1) + "\n"
     return "{\n" + ",\n".join(parts) + "\n}\n"
 
 

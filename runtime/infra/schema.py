@@ -23,6 +23,7 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 
 from .errors import MosaicError
+from .numbers import first_bad
 
 MISSING: Any = type("Missing", (), {"__repr__": lambda self: "<missing>"})()
 Path = Callable[[int], str]  # index in the column -> the field path of that value
@@ -121,15 +122,6 @@ def _range_text(lo: float | None, hi: float | None, lo_open: bool, hi_open: bool
     return (" " + " and ".join(parts)) if parts else ""
 
 
-def _range_bad(a: np.ndarray, lo: float | None, hi: float | None, lo_open: bool, hi_open: bool) -> np.ndarray:
-    bad = np.zeros(a.shape, bool)
-    if lo is not None:
-        bad |= (a <= lo) if lo_open else (a < lo)
-    if hi is not None:
-        bad |= (a >= hi) if hi_open else (a > hi)
-    return bad
-
-
 @dataclass(frozen=True, kw_only=True)
 class Num(Spec):
     """A finite JSON number (int or float; `integer` wants an int) within lo..hi."""
@@ -153,12 +145,11 @@ class Num(Spec):
         except OverflowError:  # an int beyond float range
             i = next(i for i, v in enumerate(vals) if isinstance(v, int) and abs(v) > 1e308)
             raise _fail(at, i, f"must be {self.describe()}, got a number with {len(str(vals[i]))} digits") from None
-        bad = np.flatnonzero(~np.isfinite(a))
-        if len(bad):
-            raise _fail(at, int(bad[0]), f"holds NaN or infinity; must be {self.describe()}")
-        bad = np.flatnonzero(_range_bad(a, self.lo, self.hi, self.lo_open, self.hi_open))
-        if len(bad):
-            raise _fail(at, int(bad[0]), f"must be {self.describe()}, got {show(vals[bad[0]])}")
+        got = first_bad(a, self.lo, self.hi, self.lo_open, self.hi_open)  # the one check of every number read
+        if got is not None:
+            i, kind = got
+            raise _fail(at, i, f"holds NaN or infinity; must be {self.describe()}" if kind == "non-finite"
+                        else f"must be {self.describe()}, got {show(vals[i])}")
 
 
 def Int(**kw: Any) -> Num:  # noqa: N802 - reads like a type in a spec
@@ -258,13 +249,11 @@ class Arr(Spec):
             if len(short):
                 i = int(short[0])
                 raise _fail(at, i, f"has {len(vals[i])} rows; at least {self.min_rows} are needed")
-        bad = np.flatnonzero(~np.isfinite(flat))
-        if len(bad):
-            raise _fail(at, int(owner[bad[0]]), "holds NaN or infinity")
-        bad = np.flatnonzero(_range_bad(flat, self.lo, self.hi, self.lo_open, self.hi_open))
-        if len(bad):
-            i = int(owner[bad[0]])
-            raise _fail(at, i, f"is {show(vals[i])}; must be {self.describe()}")
+        got = first_bad(flat, self.lo, self.hi, self.lo_open, self.hi_open)
+        if got is not None:
+            i = int(owner[got[0]])
+            raise _fail(at, i, "holds NaN or infinity" if got[1] == "non-finite"
+                        else f"is {show(vals[i])}; must be {self.describe()}")
         if self.array_rules and self.shape[0] >= 0:
             arr = flat.reshape(len(vals), *self.shape)
             for rule in self.array_rules:

@@ -6,7 +6,6 @@ A `Trace` is passed explicitly through the pipeline (no globals). It serialises 
 """
 from __future__ import annotations
 
-import json
 import os
 import sys
 import time
@@ -16,6 +15,9 @@ from dataclasses import dataclass, field
 from typing import Any, Iterator
 
 import psutil
+
+from . import jsonio
+from .jsonio import json_default  # noqa: F401 - its home was here; kept for importers
 
 TRACE_SCHEMA = "mosaicthinker.trace/1"
 
@@ -170,7 +172,7 @@ class Trace:
         tmp = f"{os.fspath(path)}.tmp-{os.getpid()}"
         try:
             with open(tmp, "w") as f:
-                json.dump(self.to_dict(), f, indent=2)
+                jsonio.dump(self.to_dict(), f, indent=2)
                 f.flush()
                 os.fsync(f.fileno())
             os.replace(tmp, path)
@@ -205,29 +207,13 @@ def _jsonable(x: Any) -> Any:
 jsonable = _jsonable
 
 
-def json_default(x: Any) -> Any:
-    """What the JSON encoder cannot write itself: numpy arrays and scalars, objects with `to_dict`, the rest as
-    text (the conversions of `jsonable`, done only where such a value is met)."""
-    import numpy as np  # noqa: PLC0415 - the CLI's first line comes before numpy loads
-
-    if isinstance(x, np.ndarray):
-        return x.tolist()
-    if isinstance(x, np.generic):
-        return x.item()
-    if hasattr(x, "to_dict"):
-        return x.to_dict()
-    if isinstance(x, (set, frozenset)):
-        return sorted(x, key=str)
-    return str(x)
-
-
 def to_plain(obj: Any) -> Any:
     """`obj` as plain JSON values (dicts with string keys, lists, numbers, strings): one encode and one decode in
     C, linear in the size (the per-value walk of `jsonable` took seconds on a 100 k-object answer's evidence)."""
     try:
-        return json.loads(json.dumps(obj, default=json_default))
+        return jsonio.plain(obj)
     except TypeError:  # a key JSON cannot hold (a tuple): the per-value walk names keys as text
-        return json.loads(json.dumps(jsonable(obj), default=json_default))
+        return jsonio.plain(jsonable(obj))
 
 
 class NullTrace(Trace):

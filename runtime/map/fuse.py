@@ -9,7 +9,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from ..geometry import OrientedBox, box_footprint, fit_gravity_box, polygon_area, worker_threads
+from ..geometry import OrientedBox, box_footprint, fit_gravity_box, local_f32, polygon_area, worker_threads
 from ..infra.progress import phase
 from ..infra.trace import StageLog, as_trace
 from ..types import Detections, Frame, Observation
@@ -191,7 +191,7 @@ def footprint_overlap(a: OrientedBox, b: OrientedBox) -> float:
     """Intersection area of two gravity-aligned boxes' floor footprints over the smaller footprint, in [0, 1]."""
     import cv2
 
-    fa, fb = box_footprint(a).astype(np.float32), box_footprint(b).astype(np.float32)
+    _, (fa, fb) = local_f32(box_footprint(a), box_footprint(b))
     area, _ = cv2.intersectConvexConvex(fa, fb)
     small = min(polygon_area(fa), polygon_area(fb))
     return float(area / small) if small > 1e-9 else 0.0

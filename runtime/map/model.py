@@ -21,6 +21,7 @@ import numpy as np
 
 from ..geometry import OrientedBox, convex_hull_2d, polygon_area
 from ..grounding import canonical_name
+from ..infra import jsonio
 from ..infra.errors import InputError, path_kind
 from ..infra.file_schemas import check_map
 from ..infra.trace import jsonable
@@ -224,7 +225,7 @@ class SemanticMap:
         in about a second."""
         d = self.to_dict(instances=False)
         d.update(extra)
-        head = ",\n".join(f" {json.dumps(k)}: {json.dumps(v)}" for k, v in d.items())
+        head = ",\n".join(f" {jsonio.dumps(k)}: {jsonio.dumps(v)}" for k, v in d.items())
         lines = _instance_lines(self.instances, self.box_arrays())
         return "{\n" + head + ',\n "instances": [\n  ' + ",\n  ".join(lines) + "\n ]\n}\n"
 
@@ -243,7 +244,7 @@ class SemanticMap:
         C, L, A = self.box_arrays()
         rows = [(o.id, o.name, o.first_seen, o.score, o.n_points, tuple(o.frames), repr(o.views) if o.views else "")
                 for o in self.instances]
-        return rows, C.tobytes(), L.tobytes(), A.tobytes(), json.dumps(self.to_dict(instances=False), default=str)
+        return rows, C.tobytes(), L.tobytes(), A.tobytes(), jsonio.dumps(self.to_dict(instances=False), default=str)
 
     def save(self, path: str | os.PathLike) -> None:
         with open(path, "wb") as f:
@@ -331,14 +332,20 @@ def _instance_lines(instances: list[ObjectInstance], arrays: tuple[np.ndarray, .
         return []
     C, L, A = SemanticMap(instances).box_arrays() if arrays is None else arrays
     corners = C[:, None, :] + (_CORNER_SIGNS[None] * (L[:, None, :] / 2.0)) @ A
-    rows = np.concatenate([C, L, A.reshape(n, 9), corners.min(1), corners.max(1)], 1).tolist()
+    rows = np.concatenate([C, L, A.reshape(n, 9), corners.min(1), corners.max(1)], 1)
+    scores = np.fromiter((float(o.score) for o in instances), np.float64, n)
+    bad = np.flatnonzero(~(np.isfinite(rows).all(1) & np.isfinite(scores)))
+    if len(bad):  # repr would write `nan`: not JSON, and no reader (this one included) takes it back
+        who = ", ".join(f"{instances[int(i)].name} #{instances[int(i)].id}" for i in bad[:3])
+        raise ValueError(f"cannot write the map: {who} hold NaN or infinity in their box or score")
+    rows = rows.tolist()
     names: dict[str, str] = {}
     out = []
     for o, r in zip(instances, rows):
-        name = names.get(o.name) or names.setdefault(o.name, json.dumps(o.name))
+        name = names.get(o.name) or names.setdefault(o.name, jsonio.dumps(o.name))
         fs = "null" if o.first_seen is None else repr(float(o.first_seen))
-        frames = json.dumps([int(f) for f in o.frames]) if o.frames else "[]"
-        views = f', "views": {json.dumps([_plain(v) for v in o.views])}' if o.views else ""
+        frames = jsonio.dumps([int(f) for f in o.frames]) if o.frames else "[]"
+        views = f', "views": {jsonio.dumps([_plain(v) for v in o.views])}' if o.views else ""
         out.append(_LINE % (int(o.id), name, *r, fs, float(o.score), int(o.n_points), frames, views))
     return out
 
@@ -396,7 +403,7 @@ def _with_fields(raw: bytes, keys: frozenset[str], extra: dict[str, Any]) -> byt
         return None
     start, head = len(raw) - len(body) + 1, []
     for k, v in extra.items():
-        key, val = json.dumps(k).encode(), json.dumps(v).encode()
+        key, val = jsonio.dumps(k).encode(), jsonio.dumps(v).encode()
         if not isinstance(v, str):
             return None
         if k not in keys:

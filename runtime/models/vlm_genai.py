@@ -13,7 +13,6 @@ Trace stages: `vlm.prefill` (vision + embedding + prefill: one GenAI call, the A
 """
 from __future__ import annotations
 
-import json
 import os
 import tempfile
 import time
@@ -21,6 +20,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from ..infra import jsonio
 from ..infra.errors import BundleError
 from . import RoleModel
 
@@ -62,7 +62,7 @@ class GenAIVLM(RoleModel):
         cfg.clear_providers()  # CPU; GPU providers are set by the profile on devices that have them
         if threads:
             so = {"intra_op_num_threads": int(threads), "inter_op_num_threads": 1}
-            cfg.overlay(json.dumps({"model": {c: {"session_options": so} for c in ("decoder", "embedding",
+            cfg.overlay(jsonio.dumps({"model": {c: {"session_options": so} for c in ("decoder", "embedding",
                                                                                    "vision")}}))
         self.og = og
         self.model = og.Model(cfg)

@@ -4,6 +4,7 @@ from __future__ import annotations
 import re
 from typing import Any
 
+from ...infra.numbers import field_max, read_number
 from ..ir import EVERYTHING, Count, CountCompare, CountCondition, Exists, List, Node, Relation, SeenSide, ViewerSide
 from .lexicon import COUNT_OPS, COUNT_RX, NUMBERS, SCENE, TESTED, VIEW_WORDS, WHAT_AT_RX
 from .intent import my_side
@@ -61,7 +62,8 @@ def _count_condition(joined: str) -> CountCondition | None:
     m = COUNT_RX.search(joined)
     if m is None:
         return None
-    n = int(m.group(2)) if m.group(2).isdigit() else NUMBERS[m.group(2)]
+    n = read_number(m.group(2), "question: the count", lo=0, hi=field_max(CountCondition, "n"), integer=True,
+                    fix="ask about a count in that range") if m.group(2).isdigit() else NUMBERS[m.group(2)]
     return CountCondition(COUNT_OPS.get(m.group(1) or "exactly"), n)
 
 

@@ -7,6 +7,8 @@ from typing import Any
 
 from .lexicon import (CLOSE, FAR, WHICH, CMP, CMP_RX, DIST_CMP_RX, DIST_OPS, FACING_AHEAD_RX, LOCATED, NUMBERS, ROOM_REGION_RX,
                       SUP_DIM_RX, SUP_RX, UNIT_M, UNIT_WORDS, VIEW_RX, WHAT_AT_RX)
+from ...infra.numbers import field_max, read_number
+from ..ir import DistanceCondition
 from ..text import split_options
 from .state import State
 from .tokens import has, noun_phrases, unit_in
@@ -40,7 +42,8 @@ def strip_preamble(joined: str) -> tuple[str, dict[str, Any]]:
     m = re.search(r"\b(?:turn|turning|turned|rotate|rotating|rotation)(?: of| by| through)?(?: at least| more than| over|"
                   r" about)? (\d+)\s+degrees", joined)
     if m:
-        extra["back_deg"] = float(m.group(1))
+        extra["back_deg"] = read_number(m.group(1), "question: the turn", lo=1, hi=180, unit="degrees",
+                                        fix="give a turn of at most 180 degrees (left or right)")
     for rx in PREAMBLE:
         joined = rx.sub(" ", joined)
     for rx, to in IMAGINED_VIEWER:  # "picture yourself by the sofa ... to your left": the asker's own place
@@ -90,9 +93,10 @@ def distance_condition(text: str) -> dict[str, Any] | None:
     if m is None:
         return None
     n = m.group(2)
-    v = float(n) if n[0].isdigit() else 0.5 if n.startswith("half") else 1.0 if n in ("a", "an") else \
-        float(NUMBERS[n])
     unit = UNIT_WORDS.get(m.group(3)) or unit_in(m.group(3), "m")
+    v = read_number(n, f"question: the distance '{m.group(1)} ...'", lo=0, unit=unit, fix="ask with a distance in "
+                    "that range", hi=field_max(DistanceCondition, "threshold_mm") / 1000 / UNIT_M[unit]) \
+        if n[0].isdigit() else 0.5 if n.startswith("half") else 1.0 if n in ("a", "an") else float(NUMBERS[n])
     return {"op": DIST_OPS[m.group(1)], "threshold_m": v * UNIT_M[unit], "text": f"{m.group(1)} {n} {m.group(3)}"}
 
 

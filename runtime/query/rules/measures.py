@@ -4,6 +4,7 @@ from __future__ import annotations
 import re
 from typing import Any
 
+from ...infra.numbers import field_max, read_number
 from ..ir import EVERYTHING, AreaCondition, Node, RoomSize, Size, SizeCompare
 from .intent import ELEVATION_RX
 from .lexicon import COMPARATIVES, COPULA, SUP_RX, SUPERLATIVES, UNIT_M, UNIT_WORDS
@@ -71,7 +72,9 @@ def size_compare(st: State, toks: list[str], joined: str, nps: list[dict[str, An
             return st.fail(f"a '{word}' question about '{st.phrase(names[0])}' and {m.group(1)} {m.group(2)}",
                            "a length to compare with: height, length or width in m, cm, mm, ft or in (e.g. 'is the "
                            "sofa longer than 2 m?')")
-        mm = round(float(m.group(1)) * UNIT_M[unit] * 1000)
+        mm = round(read_number(m.group(1), "question: the length", lo=0, unit=unit, fix="ask with a length in that "
+                               "range", hi=field_max(SizeCompare, "threshold_mm") / 1000 / UNIT_M[unit])
+                   * UNIT_M[unit] * 1000)
         return SizeCompare(sup, (R(names[0]),), "threshold", mm, f"{m.group(1)} {unit}")
     if ((yesno or diff) and len(names) != 2) or (word in COMPARATIVES and len(names) < 2):
         about = f" about '{st.phrase(names[0])}'" if names else ""
@@ -97,7 +100,9 @@ def room_size(st: State, toks: list[str], joined: str, nps: list[dict[str, Any]]
     than = None
     m = re.search(r"\b(bigger|larger|smaller) than (?:about |around )?(\d+(?:\.\d+)?)", st.question.lower())
     if m and toks[0] in COPULA:
-        value = float(m.group(2))
-        cm2 = round(value * (0.3048 ** 2 if unit == "ft2" else 1.0) * 1e4)
+        per = 0.3048 ** 2 if unit == "ft2" else 1.0  # m^2 per unit
+        value = read_number(m.group(2), "question: the area", lo=0, unit=unit, fix="ask with an area in that range",
+                            hi=field_max(AreaCondition, "threshold_cm2") / 1e4 / per)
+        cm2 = round(value * per * 1e4)
         than = AreaCondition("<" if m.group(1) == "smaller" else ">", cm2, f"{value:g} {unit}")
     return RoomSize(measure, unit, than)
