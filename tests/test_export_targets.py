@@ -84,6 +84,15 @@ def test_shared_models_export_every_target(shared_models, tmp_path, target):
         assert "detector/android-ort-fp32/model.ort" in orts and "embedder/android-ort-fp32/model.ort" in orts, orts
         assert _check_ort_files(out) == len(orts)
         assert (out / "android" / "required_operators.config").is_file()
+        v = subprocess.run([sys.executable, "-m", "mosaicthinker.runtime.cli", "bundle", "verify", str(out),
+                            "--target", "android", "--json"], capture_output=True, text=True, timeout=300)
+        assert v.returncode == 0, v.stderr[-2000:]
+        rep = json.loads(v.stdout)["android"]["roles"]
+        for role in ("detector", "embedder"):
+            cr = rep[role]["android-ort-fp32"]["model"]
+            assert cr["would_run"] == cr["chain"][0] and set(cr["providers"]) == {"QNN", "NNAPI", "XNNPACK", "CPU"}
+            assert cr["providers"]["CPU"]["cpu_ops"] == []
+            assert cr["providers"]["XNNPACK"]["supported_nodes"] < cr["providers"]["CPU"]["nodes"]
     if target == "jetson":
         assert (out / "jetson" / "build_engines.sh").is_file()
         for role in ("detector", "embedder"):

@@ -10,8 +10,9 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from ..infra.bundle import (COMMON_FLAGS, Bundle, _fields, add_arguments_for, load_bundle, render, safe_path,
-                            variant_meta)
+from ..infra.bundle import COMMON_FLAGS, Bundle, _fields, load_bundle, safe_path, variant_meta
+from ..infra.bundle import add_arguments_for as _bundle_arguments_for
+from ..infra.bundle import render as _bundle_render
 from ..infra.bundle import run_for as _bundle_run_for
 from ..infra.errors import BundleError
 from ..infra.file_schemas import image_input_problem
@@ -114,6 +115,14 @@ def _compare_inputs(listed: list[dict[str, Any]], got: list[tuple[str, list[Any]
                               f"{dtype}; re-export the role")
 
 
+def add_arguments_for(sub: str, parser: argparse.ArgumentParser) -> None:
+    _bundle_arguments_for(sub, parser)
+    if sub == "verify":
+        parser.add_argument("--target", choices=["cpu", "android"], default="cpu",
+                            help="android: also say per role which provider would run each .ort graph and which "
+                                 "ops fall back to the CPU (docs/deployment.md)")
+
+
 def run_for(sub: str, args: argparse.Namespace) -> dict[str, Any]:
     if sub == "verify":
         root = args.dir or getattr(args, "bundle", None)
@@ -121,5 +130,19 @@ def run_for(sub: str, args: argparse.Namespace) -> dict[str, Any]:
             res = _bundle_run_for(sub, args)  # schema (at read), then every file's sha256
             b = load_bundle(root, verify=False)
             check_archs(b)
-            return {**res, "graphs_checked": check_graph_inputs(b)}
+            res = {**res, "graphs_checked": check_graph_inputs(b)}
+            if getattr(args, "target", "cpu") == "android":
+                from .android_report import android_report
+
+                res["android"] = android_report(b)
+            return res
     return _bundle_run_for(sub, args)
+
+
+def render(result: dict[str, Any]) -> str:
+    text = _bundle_render(result)
+    if "android" in result:
+        from .android_report import render_android
+
+        text += "\n" + render_android(result["android"])
+    return text

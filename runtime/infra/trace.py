@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import os
+import platform
 import sys
 import time
 import warnings
@@ -163,6 +164,9 @@ class Trace:
             "events": self.events,
             "decisions": to_plain(self.decisions),
             "random_weights_used": self.random_weights_used,
+            # which CPU/OS the run was on (jetson/arm64_check.sh reads `machine` to prove an aarch64 run)
+            "host": {"machine": platform.machine(), "system": platform.system(),
+                     "python": platform.python_version()},
         }
 
     def save(self, path: str | os.PathLike) -> None:
