@@ -88,11 +88,12 @@ def graph_ops(path: str | os.PathLike) -> list[tuple[str, str]]:
 
 
 def _nnapi_table() -> frozenset[str] | None:
-    try:
-        import onnxruntime.tools.mobile_helpers as mh
-    except ImportError:
+    import importlib.util
+
+    spec = importlib.util.find_spec("onnxruntime")  # the file only: importing onnxruntime.tools pulls in onnx
+    if spec is None or not spec.submodule_search_locations:
         return None
-    md = Path(mh.__file__).parent / "nnapi_supported_ops.md"
+    md = Path(list(spec.submodule_search_locations)[0]) / "tools" / "mobile_helpers" / "nnapi_supported_ops.md"
     if not md.is_file():
         return None
     return frozenset(m.group(1) for m in re.finditer(r"^\|ai\.onnx:(\w+)\|", md.read_text(), re.M))
@@ -118,7 +119,7 @@ def table_support(provider: str, ops: list[tuple[str, str]]) -> dict[str, Any]:
     else:
         table = QNN_HTP_OPS if provider == "QNN" else _nnapi_table()
         if table is None:
-            return {"method": "unknown: onnxruntime.tools.mobile_helpers is not installed"}
+            return {"method": "unknown: onnxruntime's nnapi_supported_ops.md is not installed"}
         took = [d == "ai.onnx" and o in table for d, o in ops]
     cpu = sorted({f"{d}:{o}" if d != "ai.onnx" else o for (d, o), t in zip(ops, took) if not t})
     return {"supported_nodes": sum(took), "nodes": len(ops), "cpu_ops": cpu,
