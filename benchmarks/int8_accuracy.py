@@ -202,6 +202,37 @@ def _speed(t32: list[float], t8: list[float]) -> dict[str, Any]:
 ROWS = {"detector": detector_rows, "depth": depth_rows, "segmenter": segmenter_rows}
 
 
+def force_refused(bundle: Path, work: Path) -> tuple[Path, dict[str, str]]:
+    """A copy of `bundle` in which the int8-qdq variants the export refused (its parity gate on random inputs) are
+    made anyway, with the same kitchen calibration, to measure them on real data. They are never promoted.
+    Returns (the copy, {role: the export's reason})."""
+    import shutil
+
+    from mosaicthinker.export.common import add_variant_files, quantize_int8_qdq
+    from mosaicthinker.export.onnx_import import calibration_feeds
+    from mosaicthinker.runtime.infra.bundle import load_bundle
+
+    dst = work / "bundle"
+    shutil.copytree(bundle, dst)
+    b = load_bundle(dst, verify=False)
+    refused = {}
+    for role in ("detector", "depth", "segmenter"):
+        if not b.has_role(role):
+            continue
+        rm = b.role_meta(role)
+        why = (rm.get("skipped_variants") or {}).get("int8-qdq")
+        if "int8-qdq" in rm["variants"] or not why or len(rm["variants"]["fp32"]["components"]) != 1:
+            continue
+        src = dst / rm["variants"]["fp32"]["components"]["model"]["file"]
+        q = quantize_int8_qdq(src, work / f"{role}.int8.onnx", calibration_feeds(src, rm["preprocessing"],
+                                                                                  SHARED / "data" / KITCHEN))
+        meta = {k: rm[k] for k in ("arch", "name", "licence", "random_weights", "provenance", "preprocessing",
+                                   "semantics", "config") if k in rm}
+        add_variant_files(dst, role, "int8-qdq", {"model": q}, meta=meta, precision="int8-qdq")
+        refused[role] = why
+    return dst, refused
+
+
 def main(argv: list[str] | None = None) -> int:
     from mosaicthinker.export.int8_gate import TOLERANCES, gate, record_and_promote
     from mosaicthinker.runtime.infra.bundle import load_bundle
@@ -211,27 +242,38 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--frames", type=int, default=12, help="frames per evaluation room (default 12)")
     ap.add_argument("--pairs", type=int, default=16, help="kitchen pairs for the matcher (default 16)")
     ap.add_argument("--promote", action="store_true", help="make int8-qdq the default where the gate allows")
+    ap.add_argument("--also-refused", action="store_true",
+                    help="also measure the int8-qdq the export refused (made anyway in a temporary copy; never "
+                         "promoted)")
     ap.add_argument("--out", type=Path, default=REPO / "benchmarks" / "results" / "int8_accuracy.json")
     a = ap.parse_args(argv)
-    b = load_bundle(a.bundle, verify=True)
+    import tempfile
+
+    load_bundle(a.bundle, verify=True)
     frames = _frames(a.frames)
     roles: dict[str, Any] = {}
     t0 = time.time()
-    for role in ("detector", "depth", "segmenter", "matcher"):
-        if not b.has_role(role):
-            continue
-        rm = b.role_meta(role)
-        if "int8-qdq" not in rm["variants"]:
-            why = (rm.get("skipped_variants") or {}).get("int8-qdq", "no int8-qdq variant in the bundle")
-            roles[role] = {"int8_exported": False, "why": why}
-            continue
-        print(f"[int8] {role} ...", file=sys.stderr, flush=True)
-        row = matcher_rows(a.bundle, a.pairs) if role == "matcher" else ROWS[role](a.bundle, frames)
-        ok, reason = gate(role, row["accuracy"])
-        row.update({"int8_exported": True, "within_tolerance": ok, "verdict": reason})
-        if a.promote:
-            row["default_variant"] = record_and_promote(a.bundle, role, "int8-qdq", row)
-        roles[role] = row
+    with tempfile.TemporaryDirectory(prefix="mosaic-int8-") as work:
+        bundle, refused = force_refused(a.bundle, Path(work)) if a.also_refused else (a.bundle, {})
+        b = load_bundle(bundle, verify=True)
+        for role in ("detector", "depth", "segmenter", "matcher"):
+            if not b.has_role(role):
+                continue
+            rm = b.role_meta(role)
+            if "int8-qdq" not in rm["variants"]:
+                why = (rm.get("skipped_variants") or {}).get("int8-qdq", "no int8-qdq variant in the bundle")
+                roles[role] = {"int8_exported": False, "why": why}
+                continue
+            print(f"[int8] {role} ...", file=sys.stderr, flush=True)
+            row = matcher_rows(bundle, a.pairs) if role == "matcher" else ROWS[role](bundle, frames)
+            ok, reason = gate(role, row["accuracy"])
+            row.update({"int8_exported": role not in refused, "within_tolerance": ok, "verdict": reason})
+            if role in refused:
+                row["export_refused"] = refused[role]
+                row["default_variant"] = "fp32 (the export refused int8-qdq: measured here only)"
+            elif a.promote:
+                row["default_variant"] = record_and_promote(a.bundle, role, "int8-qdq", row)
+            roles[role] = row
     res = {"schema": "mosaicthinker.int8_accuracy/1", "bundle": str(a.bundle), "tolerances": TOLERANCES,
            "eval_rooms": list(EVAL_ROOMS), "frames_per_room": a.frames, "matcher_pairs": a.pairs,
            "calibration": f"{KITCHEN}: 16 evenly spaced frames (export/common.py calibration_frames)",
