@@ -14,11 +14,14 @@ nnapi_supported_ops.md` (the usability checker's table; the export records its p
 """
 from __future__ import annotations
 
+import importlib.util
 import os
 import re
 import tempfile
 from pathlib import Path
 from typing import Any
+
+from .bundle import _fields
 
 QNN_HTP_OPS = frozenset("""
 ArgMax ArgMin BatchNormalization Cast Clip Concat Conv ConvTranspose CumSum Einsum Expand FusedMatMul Gather
@@ -70,8 +73,6 @@ def qnn_context(model: str | os.PathLike, cache_dir: str | os.PathLike | None) -
 def graph_ops(path: str | os.PathLike) -> list[tuple[str, str]]:
     """(domain, op type) of every top-level node of an ONNX file, read from the protobuf (ModelProto.graph = 7,
     GraphProto.node = 1, NodeProto.op_type = 4, domain = 7)."""
-    from .bundle import _fields
-
     buf = memoryview(Path(path).read_bytes())
     graph = next((v for f, wt, v in _fields(buf) if f == 7 and wt == 2), None)
     ops = []
@@ -88,8 +89,6 @@ def graph_ops(path: str | os.PathLike) -> list[tuple[str, str]]:
 
 
 def _nnapi_table() -> frozenset[str] | None:
-    import importlib.util
-
     spec = importlib.util.find_spec("onnxruntime")  # the file only: importing onnxruntime.tools pulls in onnx
     if spec is None or not spec.submodule_search_locations:
         return None
