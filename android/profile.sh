@@ -59,7 +59,7 @@ while IFS=$'\t' read -r role variant comp ort ro _prec; do
     case "$p" in
       nnapi) [[ "$ro" != "-" ]] && model="$ro"; extra="-C 'session.enable_saved_runtime_optimizations|1'" ;;
       qnn) [[ "$ro" != "-" ]] && model="$ro"
-           extra="-i 'backend_path|$QNN_BACKEND' -C 'session.enable_saved_runtime_optimizations|1'" ;;
+           extra="-i 'backend_path|$QNN_BACKEND htp_performance_mode|burst' -C 'session.enable_saved_runtime_optimizations|1'" ;;
     esac
     tag="${role}__${variant}__${comp}__${p}"
     # One shell line on the phone; the exit code is appended so failures (provider missing) are reported.

@@ -184,6 +184,12 @@ def _export_roles(args: argparse.Namespace, out: Path) -> dict[str, Any]:
                           options=_options(args.set), target=args.target, **kw)}
 
 
+def _bundle_roles(res: dict[str, Any]) -> list[str]:
+    """The bundle roles an export wrote: its keys are exporter keys ('detector-ssd' is the detector role's SSD
+    variant, not a role of its own), so each result's own "role" wins."""
+    return list(dict.fromkeys(r.get("role", k) if isinstance(r, dict) else k for k, r in res.items()))
+
+
 def _target_names(text: str) -> list[str]:
     names = [t.strip() for t in text.split(",") if t.strip() and t.strip() != "cpu"]
     for t in names:
@@ -208,7 +214,7 @@ def _run(args: argparse.Namespace) -> dict[str, Any]:
         res, roles = {}, list(load_bundle(out).roles)
     else:
         res = _export_roles(args, out)
-        roles = list(res)
+        roles = _bundle_roles(res)
     done = {t: _load(TARGETS[t])(out, roles, args) for t in targets}
     b = load_bundle(out)  # re-verify everything that was written
     return {"schema": "mosaicthinker.export/1", "bundle": str(out), "roles": res, "targets": done,

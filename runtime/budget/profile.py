@@ -266,6 +266,13 @@ class Profile:
             return None
         got = nearest_variant(self.roles[role].bundle_variant, b.role_meta(role).get("variants", {}))
         want = self.roles[role].bundle_variant
+        gate = (b.role_meta(role)["variants"].get(got) or {}).get("accuracy_gate") or {} if got else {}
+        if gate.get("within_tolerance") is False:  # benchmarks/int8_accuracy.py measured it out of tolerance
+            used = b.variant_name(role)
+            as_trace(trace).event("degraded", f"profile {self.name} asks for {role} {got!r}, which failed its "
+                                  f"accuracy gate on real data ({gate.get('verdict')}): running {used!r}",
+                                  stage=role, requested=got, used=used)
+            return used
         if got != want:
             used = got or b.role_meta(role).get("default_variant")
             as_trace(trace).event("degraded", f"profile {self.name} asks for {role} {want!r}, which the bundle "

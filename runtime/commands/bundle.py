@@ -10,12 +10,14 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from ..infra.bundle import (COMMON_FLAGS, Bundle, _fields, add_arguments_for, load_bundle, render, safe_path,
-                            variant_meta)
+from ..infra.bundle import COMMON_FLAGS, Bundle, _fields, load_bundle, safe_path, variant_meta
+from ..infra.bundle import add_arguments_for as _bundle_arguments_for
+from ..infra.bundle import render as _bundle_render
 from ..infra.bundle import run_for as _bundle_run_for
-from ..infra.errors import BundleError
+from ..infra.errors import BundleError, InputError
 from ..infra.file_schemas import image_input_problem
 from ..models import check_archs
+from .android_report import android_report, render_android
 
 __all__ = ["COMMON_FLAGS", "add_arguments_for", "run_for", "render", "graph_inputs", "check_graph_inputs"]
 
@@ -114,6 +116,14 @@ def _compare_inputs(listed: list[dict[str, Any]], got: list[tuple[str, list[Any]
                               f"{dtype}; re-export the role")
 
 
+def add_arguments_for(sub: str, parser: argparse.ArgumentParser) -> None:
+    _bundle_arguments_for(sub, parser)
+    if sub == "verify":
+        parser.add_argument("--target", default="cpu",
+                            help="cpu | android (default cpu); android: also say per role which provider would run "
+                                 "each .ort graph and which ops fall back to the CPU (docs/deployment.md)")
+
+
 def run_for(sub: str, args: argparse.Namespace) -> dict[str, Any]:
     if sub == "verify":
         root = args.dir or getattr(args, "bundle", None)
@@ -121,5 +131,19 @@ def run_for(sub: str, args: argparse.Namespace) -> dict[str, Any]:
             res = _bundle_run_for(sub, args)  # schema (at read), then every file's sha256
             b = load_bundle(root, verify=False)
             check_archs(b)
-            return {**res, "graphs_checked": check_graph_inputs(b)}
+            res = {**res, "graphs_checked": check_graph_inputs(b)}
+            target = getattr(args, "target", "cpu") or "cpu"
+            if target not in ("cpu", "android"):
+                raise InputError(f"--target {target}: bundle verify knows cpu and android (the Jetson settings are "
+                                 f"checked by `mosaic export --target jetson`)")
+            if target == "android":
+                res["android"] = android_report(b)
+            return res
     return _bundle_run_for(sub, args)
+
+
+def render(result: dict[str, Any]) -> str:
+    text = _bundle_render(result)
+    if "android" in result:
+        text += "\n" + render_android(result["android"])
+    return text

@@ -28,6 +28,7 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
+from .ep_support import PROVIDER_DEFAULTS, qnn_context
 from .errors import ProviderError
 from .trace import Trace, as_trace, rss_mb
 
@@ -100,6 +101,8 @@ class SessionConfig:
     allow_spinning: bool = False
     allow_cpu_fallback: bool = True        # append CPU when the preference does not end with it
     log_severity: int = 3
+    # QNN context binaries (the compiled HTP graph) go here and are reused; None: compiled on every session
+    ep_context_dir: str | None = field(default_factory=lambda: os.environ.get("MOSAIC_EP_CONTEXT_DIR"))
 
 
 def _session_options(cfg: SessionConfig):
@@ -161,17 +164,12 @@ class Session:
 
     # -- creation ---------------------------------------------------------------------------------------------
     def _open_from(self, start: int, warmup_feeds: dict[str, np.ndarray] | None) -> None:
-        import onnxruntime as ort
-
         last_reason = "no provider left to try"
         for idx in range(start, len(self.candidates)):
             name, opts = self.candidates[idx]
-            chain = [(name, opts)] + ([(CPU, {})] if name != CPU else [])
             t0 = time.perf_counter()
             try:
-                sess = ort.InferenceSession(self.path, _session_options(self.config),
-                                            providers=[c[0] for c in chain],
-                                            provider_options=[c[1] for c in chain])
+                sess = self._create(name, opts)
             except Exception as e:  # noqa: BLE001  onnxruntime raises plain RuntimeError/Fail/...
                 last_reason = f"session creation failed on {name}: {type(e).__name__}: {str(e)[:300]}"
                 self._fallback(name, last_reason, time.perf_counter() - t0)
@@ -203,6 +201,26 @@ class Session:
             return
         raise ProviderError(f"{self.stage}: no execution provider could create/run {self.path} "
                             f"(tried {[c[0] for c in self.candidates]}; last: {last_reason})")
+
+    def _create(self, name: str, opts: dict[str, Any]) -> Any:
+        """An onnxruntime session on `name` (+ CPU behind it) with the provider's default options under the
+        caller's, and for QNN its context-binary cache (`ep_support.qnn_context`)."""
+        import onnxruntime as ort
+
+        so = _session_options(self.config)
+        model = self.path
+        opts = {**PROVIDER_DEFAULTS.get(name, {}), **opts}
+        if name == "QNNExecutionProvider":
+            model, entries = qnn_context(self.path, self.config.ep_context_dir)
+            for k, v in entries.items():
+                so.add_session_config_entry(k, v)
+        elif name == "XnnpackExecutionProvider" and self.config.intra_op_threads:
+            # XNNPACK has its own thread pool: give it the threads, not ORT's pool too (its docs' advice)
+            opts.setdefault("intra_op_num_threads", str(self.config.intra_op_threads))
+            so.intra_op_num_threads = 1
+        chain = [(name, opts)] + ([(CPU, {})] if name != CPU else [])
+        return ort.InferenceSession(model, so, providers=[c[0] for c in chain],
+                                    provider_options=[c[1] for c in chain])
 
     def _fallback(self, name: str, reason: str, seconds: float) -> None:
         self.attempts.append({"provider": name, "ok": False, "reason": reason, "seconds": round(seconds, 4)})
@@ -243,13 +261,9 @@ class Session:
         return self.sess
 
     def _reopen(self) -> None:
-        import onnxruntime as ort
-
         name, opts = self.candidates[self.index]
-        chain = [(name, opts)] + ([(CPU, {})] if name != CPU else [])
         try:
-            self.sess = ort.InferenceSession(self.path, _session_options(self.config),
-                                             providers=[c[0] for c in chain], provider_options=[c[1] for c in chain])
+            self.sess = self._create(name, opts)
         except Exception as e:  # noqa: BLE001  it ran here before: the next provider, as on first creation
             self._fallback(name, f"re-opening failed on {name}: {type(e).__name__}: {str(e)[:300]}", 0.0)
             self._open_from(self.index + 1, None)

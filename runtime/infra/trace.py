@@ -7,6 +7,7 @@ A `Trace` is passed explicitly through the pipeline (no globals). It serialises 
 from __future__ import annotations
 
 import os
+import platform
 import sys
 import time
 import warnings
@@ -165,6 +166,9 @@ class Trace:
             "events": self.events,
             "decisions": to_plain(self.decisions),
             "random_weights_used": self.random_weights_used,
+            # which CPU/OS the run was on (jetson/arm64_check.sh reads `machine` to prove an aarch64 run)
+            "host": {"machine": platform.machine(), "system": platform.system(),
+                     "python": platform.python_version()},
         }
 
     def save(self, path: str | os.PathLike) -> None:
