@@ -122,6 +122,7 @@ def test_refine_essential_reaches_the_scipy_minimum(seed):
     assert _angle(Rn, R) < _angle(R0, R) and abs(np.linalg.norm(tn) - 1) < 1e-12
 
 
+@pytest.mark.slow  # SIFT on 24 real frames: 15.6 s at load 10 on 2 cores
 def test_essential_method_names(redkitchen):
     from mosaicthinker.runtime.align.matching import FeatureMatcher
 

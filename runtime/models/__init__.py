@@ -10,7 +10,7 @@ Interfaces (shapes as in ARCHITECTURE.md):
 - segmenter: `.segment(rgb, boxes [N,4] | None, names, points=None) -> masks [N,H,W] bool`
 - detector:  `.detect(rgb, names) -> perception.Detections` (names it cannot detect in `.undetectable`)
 - embedder:  `.embed(rgb) -> [D] float32`, L2-normalised
-- matcher:   `.match(rgb0, rgb1, boxes0=None, boxes1=None) -> matching.Matches`
+- matcher:   `.match(rgb0, rgb1, boxes0=None, boxes1=None) -> types.Matches`
 - vlm:       see the VLM adapter (H6)
 
 Adding an architecture: write `runtime/models/<module>.py` with a `RoleModel` subclass and add ONE line to

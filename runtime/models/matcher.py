@@ -1,4 +1,4 @@
-"""Learned matcher adapters: `.match(rgb0, rgb1, boxes0=None, boxes1=None) -> matching.Matches`, the same
+"""Learned matcher adapters: `.match(rgb0, rgb1, boxes0=None, boxes1=None) -> types.Matches`, the same
 interface as the ORB/SIFT `FeatureMatcher` in runtime/align/matching.py.
 
 Graph I/O contract (every learned matcher export MUST follow one of the two; `semantics.contract` says which):
