@@ -190,6 +190,21 @@ def input_file_cases(work: Path, full: bool = True) -> Iterator[Record]:
     (d / "timestamps.txt").write_bytes(b"0.0\n0.1\n\xff0.2\n")
     yield Record("input files", "timestamps.txt: a non-UTF-8 byte",
                  *classify(*cli(["plan", "--profile", "cpu-generic", "--video", d]), file="timestamps.txt"))
+    q = (b'{"scene_name": "s", "question_type": "object_counting", "question": "How many chair(s)?", '
+         b'"ground_truth": 1}\n')
+    box = {"centroid": [0, 0, 0.5], "axesLengths": [1, 1, 1], "normalizedAxes": [1, 0, 0, 0, 1, 0, 0, 0, 1]}
+    meta = {"s": {"object_bbox": {"chair": [dict(box), dict(box)]}}}
+    meta["s"]["object_bbox"]["chair"][r.randrange(2)][r.choice(["centroid", "axesLengths"])][r.randrange(3)] = \
+        r.choice([math.nan, math.inf, -math.inf])
+    pos = r.randrange(len(q))
+    for name, qb, mb, named in (("questions.jsonl: a non-UTF-8 byte", q[:pos] + b"\xff" + q[pos:], b'{"s": {}}',
+                                 "q.jsonl"),
+                                ("meta_info.json: a box with NaN / inf", q, json.dumps(meta).encode(), "chair[")):
+        (work / "q.jsonl").write_bytes(qb)
+        (work / "meta.json").write_bytes(mb)
+        got = classify(*cli(["eval", "vsibench", "--questions", work / "q.jsonl", "--meta", work / "meta.json"]),
+                       field=named)
+        yield Record("input files", name, *got)
     values = ["nan", "inf", "-inf", "1e300", "9" * 400, "-" + "9" * 320, "1e-320"]
     for k in range(8 if full else 4):
         d = _rgbd(work, f"num{k}", n=3)

@@ -24,7 +24,8 @@ import numpy as np
 
 from mosaicthinker.runtime.answer import Answer, MapReasoner, NUMERIC_QTYPES
 from mosaicthinker.runtime.infra import jsonio
-from mosaicthinker.runtime.infra.errors import InputError
+from mosaicthinker.runtime.infra.errors import InputError, read_text
+from mosaicthinker.runtime.infra.numbers import check_array
 from mosaicthinker.runtime.infra.progress import ticked
 from mosaicthinker.runtime.map import SemanticMap
 
@@ -61,20 +62,19 @@ def load_questions(path: str | Path) -> list[dict[str, Any]]:
     if not path.exists():
         raise InputError(f"{path}: questions file not found (VSI-Bench questions.jsonl)")
     out = []
-    with open(path) as f:
-        for i, line in enumerate(f, 1):
-            if not line.strip():
-                continue
-            try:
-                q = json.loads(line)
-            except json.JSONDecodeError as e:
-                raise InputError(f"{path}:{i}: not a JSON line ({e})") from e
-            if not isinstance(q, dict):
-                raise InputError(f"{path}:{i}: a question must be a JSON object, got {type(q).__name__}")
-            for k in ("scene_name", "question_type", "question", "ground_truth"):
-                if k not in q:
-                    raise InputError(f"{path}:{i}: field `{k}` is missing")
-            out.append(q)
+    for i, line in enumerate(read_text(path, "questions").splitlines(), 1):  # decoded first: a bad byte is named
+        if not line.strip():
+            continue
+        try:
+            q = json.loads(line)
+        except json.JSONDecodeError as e:
+            raise InputError(f"{path}:{i}: not a JSON line ({e})") from e
+        if not isinstance(q, dict):
+            raise InputError(f"{path}:{i}: a question must be a JSON object, got {type(q).__name__}")
+        for k in ("scene_name", "question_type", "question", "ground_truth"):
+            if k not in q:
+                raise InputError(f"{path}:{i}: field `{k}` is missing")
+        out.append(q)
     return out
 
 
@@ -91,6 +91,14 @@ def load_meta(path: str | Path) -> dict[str, Any]:
     if bad is None or bad:
         raise InputError(f"{path}: meta_info must map scene names to objects with `object_bbox`"
                          + (f" (scene {bad[0]!r} is not an object)" if bad else ""))
+    for scene, entry in meta.items():  # ground truth that is not there (NaN / inf) is named, never scored
+        for c, boxes in (entry.get("object_bbox") or {}).items() if isinstance(entry.get("object_bbox"), dict) else ():
+            for j, b in enumerate(boxes if isinstance(boxes, list) else ()):
+                for k in ("centroid", "axesLengths"):
+                    v = b.get(k) if isinstance(b, dict) else None
+                    if isinstance(v, list) and all(isinstance(x, (int, float)) for x in v):
+                        check_array(v, f"{path}: scene {scene!r}: object_bbox.{c}[{j}].{k}", "the box", lo=-1e7,
+                                    hi=1e7, fix="fix that box or drop it from meta_info")
     return meta
 
 

@@ -97,8 +97,10 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         outs = RunOutputs(out) if out is not None else None  # checked and locked before the pipeline runs
         note_outputs(outs, trace)
         source: Any = args.source
-        unfinished = unfinished_run_note(src) if src.exists() else None  # a folder left by a killed run says so
-        if unfinished and (outs is None or outs.folder.resolve() != (src if src.is_dir() else src.parent).resolve()):
+        # a map or frame folder written by a run that did not finish (killed, interrupted) says so
+        held = src if src.is_dir() else src.parent if is_map and src.exists() else None
+        unfinished = unfinished_run_note(held) if held is not None else None
+        if unfinished and (outs is None or outs.folder.resolve() != held.resolve()):
             trace.event("input", unfinished, warn=False)
         if is_map:
             source = SemanticMap.load(src)

@@ -51,8 +51,14 @@ def dumps(obj: Any, *, indent: int | None = None, separators: tuple[str, str] | 
     kw = dict(indent=indent, separators=separators, sort_keys=sort_keys, default=default, allow_nan=False)
     try:
         return json.dumps(obj, **kw)  # type: ignore[arg-type]
-    except ValueError:  # a NaN / inf somewhere: written as null
+    except ValueError as e:  # a NaN / inf somewhere: written as null (a circular reference still raises)
+        if not _non_finite(e):
+            raise
         return json.dumps(finite_or_none(obj, default), **kw)  # type: ignore[arg-type]
+
+
+def _non_finite(e: ValueError) -> bool:
+    return "Out of range float values" in str(e)
 
 
 def dump(obj: Any, f: IO[str], **kw: Any) -> None:
@@ -67,7 +73,9 @@ def encode_fn(default: Callable[[Any], Any] | None = json_default) -> Callable[[
     def encode(v: Any) -> str:
         try:
             return enc(v)
-        except ValueError:
+        except ValueError as e:
+            if not _non_finite(e):
+                raise
             return enc(finite_or_none(v, default))
     return encode
 
