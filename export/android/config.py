@@ -14,9 +14,9 @@ SOURCE_PRECISIONS = FORMAT.precisions
 STYLES = ("Fixed", "Runtime")
 VARIANT_PREFIX = FORMAT.variant.replace("<p>", "")
 OPS_CONFIG = "android/required_operators.config"
-NOT_CHECKED = ("XNNPACK and QNN operator coverage is not checked here: onnxruntime's mobile usability checker "
-               "covers NNAPI and CoreML only. Profile on the phone (android/profile.sh) to see what each "
-               "provider actually takes.")
+NOT_CHECKED = ("XNNPACK and QNN operator coverage is not checked by onnxruntime's mobile usability checker (NNAPI "
+               "and CoreML only): `mosaic bundle verify B --target android` reads it from their EPs' op tables (an "
+               "upper bound). Profile on the phone (android/profile.sh) to see what each provider actually takes.")
 PHONE_RUNS = ("The phone runs the per-model graphs (.ort) through ONNX Runtime Mobile (Java/Kotlin or C/C++ "
               "API, or onnxruntime_perf_test for profiling); the Python pipeline itself is not shipped to the "
               "phone. See android/README.md for the Python-on-Android options that exist and why they are not "
