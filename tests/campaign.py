@@ -15,9 +15,7 @@ a real `python -m mosaicthinker.runtime.cli` subprocess.
 """
 from __future__ import annotations
 
-import contextlib
 import copy
-import io
 import json
 import os
 import shutil
@@ -25,76 +23,16 @@ import signal
 import subprocess
 import sys
 import tempfile
-from dataclasses import asdict, dataclass
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any, Callable, Iterator
 
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from campaign_core import CLASSES, Record, _dump, _limit, _proc, _Timeout, classify, cli  # noqa: E402,F401
 from fuzz_files import (MUTATIONS, base_annotation, base_manifest, base_map, base_profile, mutate,  # noqa: E402
                         paths, show_path, use_roles)
-
-CLASSES = ("crash", "hang", "silently wrong", "clear error", "flagged answer", "answered")
-
-
-@dataclass
-class Record:
-    cls: str      # campaign class (field damage: map, manifest ...)
-    case: str
-    outcome: str  # one of CLASSES
-    detail: str = ""
-
-
-class _Timeout(BaseException):
-    pass
-
-
-@contextlib.contextmanager
-def _limit(seconds: int) -> Iterator[None]:
-    def boom(signum, frame):
-        raise _Timeout()
-
-    old = signal.signal(signal.SIGALRM, boom)
-    signal.alarm(seconds)
-    try:
-        yield
-    finally:
-        signal.alarm(0)
-        signal.signal(signal.SIGALRM, old)
-
-
-def cli(argv: list, limit: int = 60) -> tuple[int | str, str, str]:
-    """`mosaic ARGV` in this process: (exit code or "hang", stdout, stderr)."""
-    from mosaicthinker.runtime import cli as C
-
-    out, err = io.StringIO(), io.StringIO()
-    try:
-        with _limit(limit), contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-            code = C.main([os.fsdecode(a) for a in argv])
-    except _Timeout:
-        return "hang", out.getvalue(), err.getvalue()
-    return code, out.getvalue(), err.getvalue()
-
-
-def classify(code: int | str, out: str, err: str, file: str | None = None, note: str | None = None,
-             answer: str | None = None, field: str | None = None) -> tuple[str, str]:
-    """The outcome class of one run. file / field: what an error must name (either); note: a fragment the
-    answer must carry; answer: the answer it must give."""
-    if code == "hang":
-        return "hang", ""
-    if code not in (0, 2) or "Traceback" in err or "internal error" in err:
-        return "crash", (err.strip().splitlines() or [f"exit {code}"])[-1][:200]
-    if code == 2:
-        names = [x for x in (file, file and Path(file).name, field, field and field.replace("_", " ")) if x]
-        ok = err.startswith("error:") and (not names or any(n in err for n in names))
-        return ("clear error", err.strip()[:200]) if ok else ("crash", f"unclear error: {err.strip()[:200]}")
-    if answer is not None and not out.startswith(f"answer: {answer}") and f'"answer": "{answer}"' not in out:
-        return "silently wrong", out.strip().splitlines()[0][:200] if out.strip() else ""
-    if note is not None:
-        return ("flagged answer", "") if note in out else ("silently wrong", f"no note {note!r}: {out[:200]}")
-    return "answered", ""
-
 
 # ------------------------------------------------------------------------------------------------ field damage
 
@@ -113,10 +51,6 @@ def _pairs(base: Any, full: bool) -> Iterator[tuple[tuple, str]]:
 
 def _leaf(path: tuple) -> str:
     return next((str(k) for k in reversed(path) if isinstance(k, str)), "")
-
-
-def _dump(doc: Any, path: Path) -> None:
-    path.write_text(json.dumps(doc, indent=1))
 
 
 def map_cases(work: Path, full: bool = True) -> Iterator[Record]:
@@ -382,14 +316,6 @@ def short_input_cases(work: Path, full: bool = True) -> Iterator[Record]:
 
 
 # ------------------------------------------------------------------------------------------------ processes
-
-def _proc(cmd: str, limit: int = 300) -> tuple[int | str, str, str]:
-    try:
-        r = subprocess.run(["bash", "-c", cmd], capture_output=True, text=True, timeout=limit)
-    except subprocess.TimeoutExpired:
-        return "hang", "", ""
-    return r.returncode, r.stdout, r.stderr
-
 
 def stream_cases(work: Path, full: bool = True) -> Iterator[Record]:
     """Closed or broken stdout / stderr / stdin: the run finishes, writes --out, exits 0."""

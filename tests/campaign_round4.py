@@ -22,7 +22,7 @@ from typing import Any, Callable, Iterator
 
 import numpy as np
 
-from campaign import Record, _dump, _proc, classify, cli
+from campaign_core import Record, _dump, classify, cli
 from fuzz_files import base_map
 
 
