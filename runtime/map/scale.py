@@ -209,12 +209,6 @@ def camera_height_vote(centres: np.ndarray, rots: np.ndarray, points: np.ndarray
                 float(np.log(conf.camera_height_m / h)), sd), up, ""
 
 
-def _weighted_median(x: np.ndarray, w: np.ndarray) -> float:
-    o = np.argsort(x)
-    c = np.cumsum(w[o])
-    return float(x[o][np.searchsorted(c, 0.5 * c[-1])])
-
-
 def _inverse_variance(x: np.ndarray, sd: np.ndarray) -> tuple[float, float]:
     """(mean, sd) inflated by the Birge ratio when the values disagree more than their sds allow."""
     w = 1.0 / sd ** 2
@@ -226,13 +220,14 @@ def _inverse_variance(x: np.ndarray, sd: np.ndarray) -> tuple[float, float]:
 
 
 def combine(votes: list[Vote], conf: ScaleConf) -> tuple[float, float, dict[str, dict[str, Any]]]:
-    """(log scale, sd, per cue) from votes: with 3 or more, those beyond `reject_k` sd of the weighted median
-    are marked not kept; the kept votes of each cue give one estimate (objects: inverse variance, sd floored at
+    """(log scale, sd, per cue) from votes: with 3 or more, those beyond `reject_k` sd of their median are marked
+    not kept (the plain median: one confident vote, e.g. a counter top taken for the floor, must not move the
+    centre that judges it); the kept votes of each cue give one estimate (objects: inverse variance, sd floored at
     `objects_min_sd`), and the cues are combined by inverse variance."""
     x = np.array([v.log_s for v in votes])
     sd = np.array([v.sd for v in votes])
     if len(votes) >= 3:
-        m = _weighted_median(x, 1.0 / sd ** 2)
+        m = float(np.median(x))
         for v in votes:
             v.kept = abs(v.log_s - m) <= conf.reject_k * v.sd
     cues: dict[str, dict[str, Any]] = {}
