@@ -18,7 +18,7 @@ unknown factor f (log-uniform in [0.2, 5], seeded) standing in for structure-fro
    smear it, measured: no floor layer at all in two rooms, a counter top in the kitchen) and the fused objects.
 The recovered factor metres / map unit is compared with the truth (1 / (f x normalisation)). Also reported and
 NOT combined: an oracle depth cue (the sensor's depth over the map's at the map points: what a good metric depth
-model could give), the map's gravity error and the camera-height cue with the true gravity (what an IMU would give). Priors were fixed before any room was run (ScaleConf docstring; size_priors.json from VSI-Bench).
+model could give), the old prior's error (median map-point depth = 2 m), the map's gravity error and the camera-height cue with the true gravity (what an IMU would give). Priors were fixed before any room was run (ScaleConf docstring; size_priors.json from VSI-Bench).
 """
 from __future__ import annotations
 
@@ -160,6 +160,7 @@ def room_rows(room: Path, bundle: Path, k: int, factors: list[float]) -> dict[st
                     "error": ms.scale / truth - 1, "stated_percent": round(ms.percent, 1), "source": ms.source,
                     "message": ms.message(), "cue_errors": cues, "votes": votes,
                     "oracle_sensor_depth_cue_error": orc,
+                    "old_prior_error": 1.0 / truth - 1,  # the old guess: median map-point depth = 2 m
                     "gravity_error_deg": float(np.degrees(np.arccos(np.clip(-down[2], -1, 1)))),
                     "camera_height_cue_error_true_gravity": None if imu is None else imu["scale"] / truth - 1, "objects": {n: sum(o.name == n for o in inst) for n in NAMES},
                     "keyframes": len(posed), "map_points_per_keyframe": float(np.median([len(z) for _, z in tri.values()])),

@@ -60,8 +60,9 @@ class ScaleConf(StageConf):
 
     conf_name: ClassVar[str] = "scale config"
 
-    camera_height_m: float = 1.40    # median camera height above the floor (hand-held / head-worn)
-    camera_height_sd: float = 0.11   # its spread, log units (1.1-1.7 m is about +-2 sd)
+    apply: bool = True               # rescale a map built from model depth by the estimate (False: state it only)
+    height_prior_m: float = 1.40    # median camera height above the floor (hand-held / head-worn)
+    height_prior_sd: float = 0.11   # its spread, log units (1.1-1.7 m is about +-2 sd)
     floor_sd: float = 0.05           # the floor layer's own height error, log units of the camera height
     object_meas_sd: float = 0.20     # a fused box's size error (partial views, mask bleed), log units
     max_prior_sd: float = 0.35       # box dimensions whose category spread is wider than this are not used
@@ -77,7 +78,7 @@ class ScaleConf(StageConf):
     fallback_median_m: float = 2.0   # no cue: the old prior (median depth), said as a guess
 
     def validate(self) -> None:
-        for name in ("camera_height_m", "camera_height_sd", "object_meas_sd", "max_prior_sd", "depth_model_sd",
+        for name in ("height_prior_m", "height_prior_sd", "object_meas_sd", "max_prior_sd", "depth_model_sd",
                      "reject_k", "rough_depth_m", "floor_bin_m", "fallback_median_m"):
             if getattr(self, name) <= 0:
                 raise InputError(f"scale config: {name} must be > 0 (got {getattr(self, name)})")

@@ -3,7 +3,7 @@
 A map from colour frames alone (structure from motion, or relative depth chained by Sim(3) edges) has an unknown
 scale. `estimate_scale` combines what the map already knows, each cue a log-scale vote with an sd:
 - camera height: the cameras' median height above the floor against a hand-held / head-worn prior
-  (`ScaleConf.camera_height_m`). The floor is the LOWEST well-supported level layer below the cameras, never the
+  (`ScaleConf.height_prior_m`). The floor is the LOWEST well-supported level layer below the cameras, never the
   biggest plane (a kitchen's counter top is bigger than the floor it hides);
 - object sizes: each recognised object's box (horizontal long, short, height) against its category's prior
   (`size_priors.json`, from VSI-Bench's ARKitScenes boxes; `host/synth/size_priors.py` regenerates it);
@@ -204,9 +204,9 @@ def camera_height_vote(centres: np.ndarray, rots: np.ndarray, points: np.ndarray
     h = float(np.median(hc - fl[0]))
     if h <= 0:
         return None, up, "the cameras are not above the floor found"
-    sd = float(np.hypot(conf.camera_height_sd, conf.floor_sd))
+    sd = float(np.hypot(conf.height_prior_sd, conf.floor_sd))
     return Vote("camera_height", f"camera height ({h:.2f} rough m over {fl[1]} floor points)",
-                float(np.log(conf.camera_height_m / h)), sd), up, ""
+                float(np.log(conf.height_prior_m / h)), sd), up, ""
 
 
 def _inverse_variance(x: np.ndarray, sd: np.ndarray) -> tuple[float, float]:

@@ -177,5 +177,6 @@ class DepthModel(RoleModel):
             if not getattr(self, "_prior_noted", False):
                 self._prior_noted = True
                 self.trace.event("degraded", f"{self.name}: relative depth scaled by a prior (median "
-                             f"{prior_median_m} m); metric values are approximate", stage="depth")
+                             f"{prior_median_m} m) per frame; the map's metric scale is set afterwards from what it shows "
+                             f"(see the scale note)", stage="depth")
         return ss.apply(pred, self.conf.min_depth_m, self.conf.max_depth_m), ss
