@@ -154,7 +154,7 @@ def room_rows(room: Path, bundle: Path, k: int, factors: list[float]) -> dict[st
                      down=_true_down(room, src, poses[root] @ invert(_scaled(T[root], norm))))
         cues = {c: v["scale"] / truth - 1 for c, v in ms.cues.items()}
         votes = [{"cue": v.cue, "label": v.label, "error": float(np.exp(v.log_s) / truth - 1), "kept": v.kept,
-                  "sd_log": round(v.sd, 3)} for v in ms.votes]
+                  "sd_log": round(v.sd, 3), "detail": v.detail} for v in ms.votes]
         orc = float(np.median(ratios)) / truth - 1 if ratios else None
         out.append({"factor": f, "normalisation": norm, "truth_m_per_unit": truth, "scale": ms.scale,
                     "error": ms.scale / truth - 1, "stated_percent": round(ms.percent, 1), "source": ms.source,

@@ -44,6 +44,7 @@ class Vote:
     log_s: float
     sd: float
     kept: bool = True
+    detail: str = ""
 
 
 @dataclass
@@ -93,7 +94,7 @@ class MetricScale:
         return {"scale": self.scale, "sd_log": self.sd, "percent": round(self.percent, 1), "source": self.source,
                 "cues": self.cues, "notes": list(self.notes), "message": self.message(),
                 "votes": [{"cue": v.cue, "label": v.label, "scale": float(np.exp(v.log_s)), "sd_log": v.sd,
-                           "kept": v.kept} for v in self.votes]}
+                           "kept": v.kept, "detail": v.detail} for v in self.votes]}
 
 
 @lru_cache(maxsize=4)
@@ -205,8 +206,8 @@ def camera_height_vote(centres: np.ndarray, rots: np.ndarray, points: np.ndarray
     if h <= 0:
         return None, up, "the cameras are not above the floor found"
     sd = float(np.hypot(conf.height_prior_sd, conf.floor_sd))
-    return Vote("camera_height", f"camera height ({h:.2f} rough m over {fl[1]} floor points)",
-                float(np.log(conf.height_prior_m / h)), sd), up, ""
+    return Vote("camera_height", "camera height", float(np.log(conf.height_prior_m / h)), sd,
+                detail=f"{h:.2f} rough m above a floor layer of {fl[1]} points"), up, ""
 
 
 def _inverse_variance(x: np.ndarray, sd: np.ndarray) -> tuple[float, float]:
@@ -242,6 +243,18 @@ def combine(votes: list[Vote], conf: ScaleConf) -> tuple[float, float, dict[str,
     m, s = _inverse_variance(np.array([c["log_s"] for c in cues.values()]),
                              np.array([c["sd_log"] for c in cues.values()]))
     return m, s, cues
+
+
+def depth_vote(ratios: Sequence[float], conf: ScaleConf) -> Vote | None:
+    """The metric depth model's vote from per-key-frame ratios (its depth over the map's): their median, sd the
+    model's own (`depth_model_sd`) or their spread when wider; None without a usable ratio."""
+    r = np.asarray([x for x in ratios if np.isfinite(x) and x > 0], float)
+    if not len(r):
+        return None
+    lr = np.log(r)
+    spread = 1.4826 * float(np.median(np.abs(lr - np.median(lr)))) / np.sqrt(len(r))
+    return Vote("depth_model", "metric depth model", float(np.median(lr)), max(conf.depth_model_sd, spread),
+                detail=f"{len(r)} key frames")
 
 
 def rough_unit(centres: np.ndarray, points: np.ndarray, conf: ScaleConf, max_points: int = 4000) -> float:
@@ -284,12 +297,8 @@ def estimate_scale(cameras: np.ndarray, points: np.ndarray | None = None, object
     votes += ov
     if not ov:
         notes.append(f"no object of a known size (priors for: {', '.join(sorted(priors))})")
-    r = np.asarray([x for x in (depth_ratios or []) if np.isfinite(x) and x > 0], float)
-    if len(r):
-        lr = np.log(r)
-        spread = 1.4826 * float(np.median(np.abs(lr - np.median(lr)))) / np.sqrt(len(r))
-        votes.append(Vote("depth_model", f"metric depth model ({len(r)} frames)", float(np.median(lr)),
-                          max(conf.depth_model_sd, spread)))
+    dv = depth_vote(depth_ratios or [], conf)
+    votes += [dv] if dv is not None else []
     if not votes:  # the old prior: the median depth becomes `fallback_median_m`, about +-50 %
         notes.append(f"relative depth scaled by a prior (median depth {conf.fallback_median_m} m)")
         return MetricScale(rough * conf.fallback_median_m / conf.rough_depth_m, float(np.log(1.5)), "guess", [],
