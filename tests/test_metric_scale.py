@@ -181,3 +181,14 @@ def test_pipeline_rescales_a_model_depth_map_and_says_so(tmp_path_factory):
     ref = Trace()
     build_map(open_source(scene), names, [], base, {"keyframe": {"keyframes": 10}}, ref)
     assert ref.decisions["scale"]["source"] == "sensor depth" and not [e for e in ref.events if e["kind"] == "scale"]
+
+
+def test_size_priors_table_is_what_its_command_derives(vsibench_dir):
+    """The checked-in priors are the generator's output on VSI-Bench's meta_info (regenerate, never hand-edit)."""
+    import json
+
+    from mosaicthinker.host.synth.size_priors import size_priors
+    from mosaicthinker.host.synth.stats import load_meta_info
+    from mosaicthinker.runtime.map.scale import PRIORS_PATH
+
+    assert json.loads(PRIORS_PATH.read_text()) == size_priors(load_meta_info(vsibench_dir / "meta_info.json"))
