@@ -12,6 +12,7 @@ from .infra.config import StageConf
 from .infra.errors import InputError
 from .keyframes import KeyFrameConf
 from .map import FusionConfig
+from .map.conf import ScaleConf
 from .map.verify import VerifyConf
 from .scan import DedupConf
 
@@ -19,7 +20,7 @@ from .scan import DedupConf
 # typed stage configs of a run: field -> its class (a mapping given for one is merged over the field's default)
 _SUB_CONFS: dict[str, type] = {"dedup": DedupConf, "keyframe": KeyFrameConf, "alignment": AlignConf,
                                "match": MatchConf, "fusion": FusionConfig, "verify": VerifyConf,
-                               "backbone": BackboneConf}
+                               "backbone": BackboneConf, "scale": ScaleConf}
 
 
 @dataclass
@@ -56,6 +57,7 @@ class PipelineConfig(StageConf):
     fusion: FusionConfig = field(default_factory=FusionConfig)
     verify: VerifyConf = field(default_factory=VerifyConf)  # candidate detections verified across views
     backbone: BackboneConf = field(default_factory=BackboneConf)  # metric depth: odometry between key frames
+    scale: ScaleConf = field(default_factory=ScaleConf)  # metric scale of maps from model depth (map/scale.py)
 
     def __post_init__(self) -> None:
         for name, cls in _SUB_CONFS.items():

@@ -14,6 +14,8 @@ from typing import Any
 import numpy as np
 import os
 
+from .infra.errors import InputError
+
 # ----------------------------------------------------------------------------- pose algebra
 
 
@@ -614,3 +616,67 @@ def in_boxes(uv: np.ndarray, boxes: np.ndarray | None, margin: float = 0.0) -> n
     x, y = uv[:, :1], uv[:, 1:2]
     inside = (x >= b[:, 0] - margin) & (x <= b[:, 2] + margin) & (y >= b[:, 1] - margin) & (y <= b[:, 3] + margin)
     return inside.any(1)
+
+
+# ----------------------------------------------------------------------------- depth scale/shift fits
+
+
+@dataclass
+class ScaleShift:
+    """z_metric = s * pred + t (relative) or 1 / (s * pred + t) (relative_inverse); n: points used;
+    residual: median absolute residual of the fit (in the fitted space)."""
+
+    s: float
+    t: float
+    n: int
+    residual: float
+    semantics: str = "relative"
+    method: str = ""
+
+    def apply(self, pred: np.ndarray, min_depth: float = 0.05, max_depth: float = 20.0) -> np.ndarray:
+        """pred [H, W] -> metric depth [H, W] float32, 0 where the result is not a plausible depth."""
+        v = self.s * pred.astype(np.float64) + self.t
+        if self.semantics == "relative_inverse":
+            with np.errstate(divide="ignore"):
+                v = np.where(v > 1e-6, 1.0 / np.maximum(v, 1e-6), 0.0)
+        out = np.where((v >= min_depth) & (v <= max_depth), v, 0.0)
+        return out.astype(np.float32)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"s": self.s, "t": self.t, "n": self.n, "residual": self.residual, "semantics": self.semantics,
+                "method": self.method}
+
+
+def robust_line_fit(x: np.ndarray, y: np.ndarray, shift: bool, trim_rounds: int = 2
+                    ) -> tuple[float, float, int, float]:
+    """Least squares y ~ s x + t (t = 0 unless `shift`) over x, y [N], `trim_rounds` rounds dropping residuals
+    above 2.5 x MAD. Returns (s, t, points kept, median absolute residual of the kept)."""
+    keep = np.ones(len(x), bool)
+    s, t = 1.0, 0.0
+    for r in range(trim_rounds + 1):
+        xs, ys = x[keep], y[keep]
+        if len(xs) < (2 if shift else 1):
+            break
+        if shift:
+            A = np.stack([xs, np.ones_like(xs)], 1)
+            (s, t), *_ = np.linalg.lstsq(A, ys, rcond=None)
+        else:
+            s, t = float(xs @ ys / max(xs @ xs, 1e-12)), 0.0
+        res = np.abs(s * x + t - y)
+        if r < trim_rounds:
+            mad = np.median(res[keep]) + 1e-12
+            keep = res <= 2.5 * 1.4826 * mad
+    res = np.abs(s * x[keep] + t - y[keep])
+    return float(s), float(t), int(keep.sum()), float(np.median(res)) if len(res) else float("inf")
+
+
+def fit_scale_shift(d: np.ndarray, z: np.ndarray, semantics: str, shift: bool, method: str) -> ScaleShift:
+    """(s, t) mapping depth-model values d [N] to metric (or map-unit) depths z [N] > 0 in `semantics`
+    (relative: z ~ s d + t; relative_inverse: 1/z ~ s d + t; metric_m: scale only)."""
+    if len(d) < 3:
+        raise InputError(f"depth scale recovery ({method}): only {len(d)} valid correspondences (need >= 3)")
+    if semantics == "metric_m":
+        shift = False
+    y = 1.0 / z if semantics == "relative_inverse" else z
+    s, t, n, res = robust_line_fit(d, y, shift)
+    return ScaleShift(s, t, n, res, semantics if semantics != "metric_m" else "relative", method)

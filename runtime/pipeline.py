@@ -39,7 +39,8 @@ from .perceive import (CachedDetector, Perceived, Perception, colour_frame, load
 from .align import AlignmentResult, align_keyframes, make_matcher, rigid_part
 from .map import (FusionConfig, ObjectInstance, Room, SemanticMap, annotate_views, extend_to_floor,
                   first_seen_from_detections, fuse_frames, gravity_from_frames, refine, room_extent,
-                  verify_observations)
+                  verify_observations, world_points)
+from .map.scale import estimate_scale, rescale_map, sensor_scale
 from . import prompt as vprompt
 from .answer import MapReasoner, answer_question, answer_with_vlm, cannot_detect
 
@@ -323,6 +324,32 @@ def _map_extras(instances: list[ObjectInstance], frames: list[Frame], poses: dic
     return room, cams
 
 
+def _metric_scale(smap: SemanticMap, clouds: list[np.ndarray], poses: dict[int, np.ndarray], frames: list[Frame],
+                  source: FrameSource, perception: Perception, conf: PipelineConfig, trace: Trace
+                  ) -> tuple[SemanticMap, list[np.ndarray], dict[int, np.ndarray]]:
+    """The map's metric scale (`map.scale`): sensor depth is metric (said in the trace); a map from model depth
+    takes it from the camera height, the objects' sizes and a metric model's own scale, applied once (map,
+    clouds, poses) and said with the answer ("scale" event); no usable cue: the depth prior stays, said loudly."""
+    if not (conf.depth == "model" or (conf.depth == "auto" and not getattr(source, "has_depth", False))):
+        trace.decide("scale", sensor_scale().to_dict())
+        return smap, clouds, poses
+    with trace.stage("scale"):
+        posed = [f for f in frames if f.index in poses]
+        pts = world_points(posed, poses, 8, lambda q: q[:, 2] < conf.floor_fit_max_depth_m)
+        ms = estimate_scale(np.array([rigid_part(poses[f.index]) for f in posed]).reshape(-1, 4, 4),
+                            np.concatenate(pts) if pts else None, smap.instances, np.array([0.0, 0.0, 1.0]),
+                            None if perception.depth_relative else [1.0] * len(posed), conf.scale)
+    trace.decide("scale", ms.to_dict())
+    if ms.source == "guess":
+        trace.event("degraded", ms.message(), stage="scale")
+        return smap, clouds, poses
+    trace.event("scale", ms.message(), stage="scale", scale=ms.scale, percent=round(ms.percent, 1))
+    if not conf.scale.apply:
+        return smap, clouds, poses
+    S = np.diag([ms.scale] * 3 + [1.0])
+    return rescale_map(smap, ms), [c * ms.scale for c in clouds], {i: S @ T for i, T in poses.items()}
+
+
 def _book_counters(trace: Trace, source: FrameSource, loaded0: tuple[float, int], matcher: Any) -> None:
     """Work that happens inside other stages, booked as stages of its own (seconds and calls, overlapping the
     stages it ran in): frame decoding ("frames.load", cache misses), OpenCV feature extraction and descriptor
@@ -387,7 +414,8 @@ def build_map(source: FrameSource, targets: Sequence[str], cues: Sequence[str] =
     smap = SemanticMap(instances, room, cams,
                        {"source": getattr(source, "name", "frames"), "built_from": "video", "keyframes": chosen,
                         "root": al.root, "unaligned": al.unaligned, "objects": names, "recovered": m.recovered})
-    return MapBuild(smap, chosen, m.clouds, m.poses, m.world_from_root, list(al.unaligned), m.recovered,
+    smap, clouds, poses = _metric_scale(smap, m.clouds, m.poses, p.frames, source, perception, conf, trace)
+    return MapBuild(smap, chosen, clouds, poses, m.world_from_root, list(al.unaligned), m.recovered,
                     bool(budget is not None and getattr(budget, "reduced", False)),
                     {"alignment": al.to_dict(), "dedup_kept": None}, det.undetectable())
 

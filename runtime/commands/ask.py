@@ -31,7 +31,7 @@ from ..query.rules.lexicon import EXAMPLES
 
 # trace events the printed answer repeats (a degraded or re-planned run says so next to its answer)
 WARNING_KINDS = ("fallback", "degraded", "random_weights", "not_in_map", "unknown_objects", "output", "input",
-                 "replan", "reduced_plan")
+                 "replan", "reduced_plan", "scale")
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("source", nargs="?", help="video file, image / RGB-D folder, or a saved map (map.json)")

@@ -118,7 +118,7 @@ def _run(args: argparse.Namespace, src: Path, outs: RunOutputs, paths: tuple[Pat
             "files": files,
             "warnings": [e["message"] for e in trace.events if e["kind"] in ("fallback", "degraded",
                                                                              "random_weights", "not_in_map",
-                                                                             "output", "input")],
+                                                                             "output", "input", "scale")],
             "seconds": trace.wall_seconds()}
 
 

@@ -1,4 +1,5 @@
-"""The map stage's settings: lifting detections to points and fusing them into instances (one owner)."""
+"""The map stage's settings: lifting detections to points and fusing them into instances, and the metric scale
+of maps built without a depth sensor (one owner)."""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -47,3 +48,42 @@ class FusionConfig(StageConf):
 
 
 default_fusion_conf = FusionConfig()
+
+
+@dataclass
+class ScaleConf(StageConf):
+    """Metric scale of a map built without a depth sensor (`map.scale.estimate_scale`). Priors fixed before any
+    evaluation room was looked at: the camera height from the literature range of hand-held / head-worn cameras
+    (standing adults' eye height 1.5-1.75 m, phones held at chest-to-eye height: about 1.1-1.7 m), the object
+    sizes from VSI-Bench's ARKitScenes boxes (`size_priors.json`). Heights and bins are in rough metres: the map
+    is first normalised so that its median point depth is `rough_depth_m` (only thresholds depend on it)."""
+
+    conf_name: ClassVar[str] = "scale config"
+
+    apply: bool = True               # rescale a map built from model depth by the estimate (False: state it only)
+    height_prior_m: float = 1.40    # median camera height above the floor (hand-held / head-worn)
+    height_prior_sd: float = 0.11   # its spread, log units (1.1-1.7 m is about +-2 sd)
+    floor_sd: float = 0.05           # the floor layer's own height error, log units of the camera height
+    object_meas_sd: float = 0.20     # a fused box's size error (partial views, mask bleed), log units
+    max_prior_sd: float = 0.35       # box dimensions whose category spread is wider than this are not used
+    objects_min_sd: float = 0.08     # floor of the object cue's sd (shared biases do not average out)
+    depth_model_sd: float = 0.10     # a metric depth model's scale error per room, log units
+    reject_k: float = 2.5            # a vote this many sd from the weighted median is an outlier
+    rough_depth_m: float = 2.0       # the normalisation's median depth (thresholds only)
+    floor_bin_m: float = 0.04        # height layers of the floor search
+    floor_min_share: float = 0.01    # a floor layer holds >= this share of the points (and >= floor_min_points)
+    floor_min_points: int = 30
+    floor_peak_ratio: float = 2.0    # ... and >= this x the median layer within +-0.3 m (a surface, not a wall)
+    floor_clearance_m: float = 0.5   # the floor lies this far below the 90th-percentile camera height
+    fallback_median_m: float = 2.0   # no cue: the old prior (median depth), said as a guess
+
+    def validate(self) -> None:
+        for name in ("height_prior_m", "height_prior_sd", "object_meas_sd", "max_prior_sd", "depth_model_sd",
+                     "reject_k", "rough_depth_m", "floor_bin_m", "fallback_median_m"):
+            if getattr(self, name) <= 0:
+                raise InputError(f"scale config: {name} must be > 0 (got {getattr(self, name)})")
+        if not 0 <= self.floor_min_share < 1:
+            raise InputError(f"scale config: floor_min_share must be in [0, 1) (got {self.floor_min_share})")
+
+
+default_scale_conf = ScaleConf()

@@ -29,14 +29,16 @@ Sim(3) trajectory alignment.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
 from ..infra.errors import InputError
 from . import RoleModel, preprocess_image
-from ..geometry import sample_depth
+from ..geometry import ScaleShift, fit_scale_shift, robust_line_fit, sample_depth
 from ..planes import fit_floor_plane
+
+_fit = robust_line_fit  # the names benchmarks import
+_fit_pairs = fit_scale_shift
 
 SEMANTICS = ("metric_m", "relative", "relative_inverse")
 
@@ -50,52 +52,6 @@ class DepthConf:
     max_depth_m: float = 20.0
 
 
-@dataclass
-class ScaleShift:
-    """z_metric = s * pred + t (relative) or 1 / (s * pred + t) (relative_inverse); n: points used;
-    residual: median absolute residual of the fit (in the fitted space)."""
-
-    s: float
-    t: float
-    n: int
-    residual: float
-    semantics: str = "relative"
-    method: str = ""
-
-    def apply(self, pred: np.ndarray, min_depth: float = 0.05, max_depth: float = 20.0) -> np.ndarray:
-        """pred [H, W] -> metric depth [H, W] float32, 0 where the result is not a plausible depth."""
-        v = self.s * pred.astype(np.float64) + self.t
-        if self.semantics == "relative_inverse":
-            with np.errstate(divide="ignore"):
-                v = np.where(v > 1e-6, 1.0 / np.maximum(v, 1e-6), 0.0)
-        out = np.where((v >= min_depth) & (v <= max_depth), v, 0.0)
-        return out.astype(np.float32)
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"s": self.s, "t": self.t, "n": self.n, "residual": self.residual, "semantics": self.semantics,
-                "method": self.method}
-
-
-def _fit(x: np.ndarray, y: np.ndarray, shift: bool, trim_rounds: int = 2) -> tuple[float, float, int, float]:
-    keep = np.ones(len(x), bool)
-    s, t = 1.0, 0.0
-    for r in range(trim_rounds + 1):
-        xs, ys = x[keep], y[keep]
-        if len(xs) < (2 if shift else 1):
-            break
-        if shift:
-            A = np.stack([xs, np.ones_like(xs)], 1)
-            (s, t), *_ = np.linalg.lstsq(A, ys, rcond=None)
-        else:
-            s, t = float(xs @ ys / max(xs @ xs, 1e-12)), 0.0
-        res = np.abs(s * x + t - y)
-        if r < trim_rounds:
-            mad = np.median(res[keep]) + 1e-12
-            keep = res <= 2.5 * 1.4826 * mad
-    res = np.abs(s * x[keep] + t - y[keep])
-    return float(s), float(t), int(keep.sum()), float(np.median(res)) if len(res) else float("inf")
-
-
 def fit_to_points(pred: np.ndarray, uv: np.ndarray, z: np.ndarray, semantics: str = "relative",
                   shift: bool = True) -> ScaleShift:
     """Fit (s, t) so that pred at pixels uv [N, 2] (x, y) maps to metric depths z [N] (metres, > 0)."""
@@ -104,7 +60,7 @@ def fit_to_points(pred: np.ndarray, uv: np.ndarray, z: np.ndarray, semantics: st
     z = np.asarray(z, np.float64).reshape(-1)
     d = sample_depth(pred.astype(np.float32), uv).astype(np.float64)
     ok = np.isfinite(d) & np.isfinite(z) & (z > 0)
-    return _fit_pairs(d[ok], z[ok], semantics, shift, "points")
+    return fit_scale_shift(d[ok], z[ok], semantics, shift, "points")
 
 
 def fit_to_sensor(pred: np.ndarray, sensor: np.ndarray, semantics: str = "relative", shift: bool = True,
@@ -118,17 +74,7 @@ def fit_to_sensor(pred: np.ndarray, sensor: np.ndarray, semantics: str = "relati
     p = pred[::stride, ::stride].astype(np.float64).ravel()
     z = sensor[::stride, ::stride].astype(np.float64).ravel()
     ok = (z > 0) & (z < max_depth_m) & np.isfinite(p)
-    return _fit_pairs(p[ok], z[ok], semantics, shift, "sensor")
-
-
-def _fit_pairs(d: np.ndarray, z: np.ndarray, semantics: str, shift: bool, method: str) -> ScaleShift:
-    if len(d) < 3:
-        raise InputError(f"depth scale recovery ({method}): only {len(d)} valid correspondences (need >= 3)")
-    if semantics == "metric_m":
-        shift = False
-    y = 1.0 / z if semantics == "relative_inverse" else z
-    s, t, n, res = _fit(d, y, shift)
-    return ScaleShift(s, t, n, res, semantics if semantics != "metric_m" else "relative", method)
+    return fit_scale_shift(p[ok], z[ok], semantics, shift, "sensor")
 
 
 def scale_from_prior(pred: np.ndarray, median_m: float = 2.0, semantics: str = "relative") -> ScaleShift:
@@ -230,5 +176,6 @@ class DepthModel(RoleModel):
             if not getattr(self, "_prior_noted", False):
                 self._prior_noted = True
                 self.trace.event("degraded", f"{self.name}: relative depth scaled by a prior (median "
-                             f"{prior_median_m} m); metric values are approximate", stage="depth")
+                             f"{prior_median_m} m) per frame; the map's metric scale is set afterwards from what it shows "
+                             f"(see the scale note)", stage="depth")
         return ss.apply(pred, self.conf.min_depth_m, self.conf.max_depth_m), ss
