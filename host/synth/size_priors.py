@@ -9,12 +9,12 @@ Categories with fewer than `--min-instances` boxes are left out. Regenerate the 
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from mosaicthinker.runtime.infra import jsonio
 from mosaicthinker.runtime.infra.errors import InputError
 from mosaicthinker.runtime.infra.outputs import write_file_atomic
 
@@ -51,7 +51,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--min-instances", type=int, default=10)
     a = ap.parse_args(argv)
     table = size_priors(load_meta_info(a.meta), a.min_instances, Path(a.meta).name)
-    write_file_atomic(Path(a.out), json.dumps(table, indent=1) + "\n")
+    write_file_atomic(Path(a.out), jsonio.dumps(table, indent=1) + "\n")
     print(f"wrote {a.out}: {len(table['categories'])} categories from {table['scenes']} rooms")
     return 0
 
