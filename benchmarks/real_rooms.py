@@ -138,7 +138,8 @@ def pose_row(room: Path, bundle: Path, depth: str, k: int, path: str, conf: dict
     fates: dict[str, int] = {}
     for v in (r.get("fates") or {}).values():
         fates[v] = fates.get(v, 0) + 1
-    return {"eval_pose": meta, "ate_m": r["ate_rmse_m"], "aligned": r["aligned_frames"], "of": r["total_frames"],
+    return {"eval_pose": meta, "ate_m": r.get("ate_m", r["ate_rmse_m"]), "ate_se3_m": r["ate_rmse_m"],
+            "ate_sim3_m": r.get("ate_sim3_m"), "sim3_scale": r.get("sim3_scale"), "aligned": r["aligned_frames"], "of": r["total_frames"],
             "other_frames_used": len(r.get("other_frames_used", [])), "aligned_by_path": fates,
             "untracked": r.get("untracked_frames"), "sim3": r.get("sim3"), "seconds": round(r["seconds"], 2)}
 
