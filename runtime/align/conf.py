@@ -145,6 +145,7 @@ class SfmConf(StageConf):
     pnp_iterations: int = 500
     min_pnp_inliers: int = 20       # a registration with fewer PnP inliers is rejected ...
     min_pnp_ratio: float = 0.3      # ... or with a smaller share of its 2D-3D matches
+    two_view_points: int = 8        # too few for PnP: the pair's essential matrix, scaled by this many shared points
     max_step_rot_deg: float = 30.0  # ... or rotating more than this per stream step from its neighbour ...
     max_step_depth: float = 1.0     # ... or moving more than this x its median scene depth per stream step
     max_misses: int = 3             # this many rejections in a row end a chain (a new one starts after)

@@ -139,5 +139,12 @@ def _keyframe_result(res: SfmResult, stream: list[int], by_index: dict[int, Fram
         msg += "; unaligned: " + "; ".join(f"{i}: {why[i]}" for i in unaligned)
     log.event("alignment", msg, stage="alignment", unaligned={str(i): why[i] for i in unaligned},
               chains=[len(mm.poses) for mm in res.models], stream_frames=len(stream),
-              focal_factor=round(float(m.focal), 4) if m else None)
+              focal_factor=round(float(m.focal), 4) if m else None, joined=res.joined)
+    if unaligned:  # the answer says why frames could not be related (never a pose kept because a solver gave one)
+        kinds: dict[str, int] = {}
+        for i in unaligned:
+            k = why[i].split(":")[0].split(" (")[0]
+            kinds[k] = kinds.get(k, 0) + 1
+        log.event("degraded", f"structure from motion could not relate {len(unaligned)} of {len(keys)} key frames "
+                  f"to the others (" + ", ".join(f"{n}: {k}" for k, n in kinds.items()) + ")", stage="alignment")
     return al

@@ -235,8 +235,30 @@ class _Mapper:
         return (x[:, 2] > 1e-6) & (np.linalg.norm(e - uv, axis=1) < self.c.max_reproj_px)
 
     def register(self, m: Reconstruction, p: int, near: int) -> str | None:
-        """PnP of position p on its triangulated tracks; checked against the registered neighbour `near`.
-        Returns None when registered, else why not."""
+        """Position p placed by PnP on its triangulated tracks, else (too few of them) by the essential matrix of
+        the verified pair with the registered neighbour `near`, its scale from the points both see; either way
+        checked against `near` (a jump is rejected). Returns None when registered, else why not."""
+        got = self._pnp(m, p, near)
+        if isinstance(got, str):
+            edge = self._two_view(m, p, near)
+            if isinstance(edge, str):
+                return f"{got}; {edge}"
+            got = edge
+        R, t, depth = got
+        Rn, tn = m.poses[near]
+        c = self.c
+        rot = _rot_deg(R, Rn)
+        move = np.linalg.norm(-R.T @ t + Rn.T @ tn)
+        if rot > c.max_step_rot_deg * max(1, abs(p - near)):
+            return f"jump: {rot:.0f} deg from frame position {near} (> {c.max_step_rot_deg:.0f} deg a step)"
+        if not depth > 0 or move > c.max_step_depth * depth * max(1, abs(p - near)):
+            return (f"jump: moved {move / max(depth, 1e-9):.2f} x the scene depth from frame position {near} "
+                    f"(> {c.max_step_depth})")
+        m.poses[p] = (R, t)
+        return None
+
+    def _pnp(self, m: Reconstruction, p: int, near: int) -> tuple[np.ndarray, np.ndarray, float] | str:
+        """(R, t, median depth of the inliers) by PnP RANSAC + Levenberg-Marquardt, or why not."""
         import cv2
 
         c, tid, uv = self.c, self.t.tid[p], self.t.uv[p]
@@ -245,10 +267,7 @@ class _Mapper:
         if n3d < c.min_pnp_inliers:
             return f"{n3d} matches with triangulated points (< {c.min_pnp_inliers})"
         X, u = m.X[tid[has]], uv[has]
-        Rn, tn = m.poses[near]
-        rv0 = cv2.Rodrigues(Rn)[0]
-        ok, rv, tv, inl = cv2.solvePnPRansac(X, u, self.K, None, rv0.copy(), tn.reshape(3, 1).copy(),
-                                             useExtrinsicGuess=False, iterationsCount=c.pnp_iterations,
+        ok, rv, tv, inl = cv2.solvePnPRansac(X, u, self.K, None, iterationsCount=c.pnp_iterations,
                                              reprojectionError=c.register_px, confidence=0.999,
                                              flags=cv2.SOLVEPNP_SQPNP)
         if not ok or inl is None or len(inl) < c.min_pnp_inliers:
@@ -258,17 +277,33 @@ class _Mapper:
             return f"PnP: {len(inl)} inliers of {n3d} ({len(inl) / n3d:.0%} < {c.min_pnp_ratio:.0%})"
         rv, tv = cv2.solvePnPRefineLM(X[inl], u[inl], self.K, None, rv, tv)
         R, t = cv2.Rodrigues(rv)[0], tv.ravel()
-        # a jump: a rotation or a move that the neighbour in the stream could not have made
-        rot = _rot_deg(R, Rn)
-        depth = np.median((X[inl] @ R.T + t)[:, 2])
-        move = np.linalg.norm(-R.T @ t + Rn.T @ tn)
-        if rot > c.max_step_rot_deg * max(1, abs(p - near)):
-            return f"jump: {rot:.0f} deg from frame position {near} (> {c.max_step_rot_deg:.0f} deg a step)"
-        if not depth > 0 or move > c.max_step_depth * depth * max(1, abs(p - near)):
-            return (f"jump: moved {move / max(depth, 1e-9):.2f} x the scene depth from frame position {near} "
-                    f"(> {c.max_step_depth})")
-        m.poses[p] = (R, t)
-        return None
+        return R, t, float(np.median((X[inl] @ R.T + t)[:, 2]))
+
+    def _two_view(self, m: Reconstruction, p: int, near: int) -> tuple[np.ndarray, np.ndarray, float] | str:
+        """(R, t, median depth) from the verified pair (near, p): its relative rotation and direction, the length
+        from the points near's chain holds that the pair also sees (their depth in near / their depth
+        triangulated with a unit baseline, median of at least `two_view_points`), or why not."""
+        c = self.c
+        key = (min(near, p), max(near, p))
+        if key not in self.t.pairs:
+            return "no verified pair with its neighbour"
+        Rr, tr, _ = self.t.pairs[key]
+        if key[0] == p:  # the pair gives camera b from camera a: invert for (near -> p)
+            Rr, tr = Rr.T, -Rr.T @ tr
+        common, ip, iq = np.intersect1d(self.t.tid[p], self.t.tid[near], return_indices=True)
+        held = ~np.isnan(m.X[common, 0])
+        if held.sum() < c.two_view_points:
+            return f"two-view: {int(held.sum())} shared points to scale it (< {c.two_view_points})"
+        Rn, tn = m.poses[near]
+        Xu, ang = triangulate(self.K, np.eye(3), np.zeros(3), Rr, tr, self.t.uv[near][iq[held]],
+                              self.t.uv[p][ip[held]])
+        zq = (m.X[common[held]] @ Rn.T + tn)[:, 2]
+        good = (Xu[:, 2] > 0) & (zq > 0) & (ang > c.min_tri_parallax_deg)
+        if good.sum() < c.two_view_points:
+            return f"two-view: {int(good.sum())} shared points with parallax (< {c.two_view_points})"
+        s = float(np.median(zq[good] / Xu[good, 2]))
+        R, t = Rr @ Rn, Rr @ tn + s * tr
+        return R, t, float(np.median(zq[good]))
 
     def adjust(self, m: Reconstruction, free: Sequence[int], iterations: int) -> None:
         """Bundle adjustment with the cameras `free` free (the rest of the chain fixed), then observations off by
