@@ -160,6 +160,7 @@ class SfmConf(StageConf):
     ba_scale_px: float = 2.0        # ... its scale (px)
     refine_focal: str = "auto"      # "auto": refine the focal length when K came from a field-of-view prior; "on",
                                     # "off"
+    rng_seed: int = 0               # OpenCV's RANSAC generator, set before matching and mapping (reproducible)
     scale_points: int = 10      # a key frame's depth scale needs this many triangulated points with depth
 
     def validate(self) -> None:

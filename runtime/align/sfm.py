@@ -466,7 +466,10 @@ def merge_chains(models: list[Reconstruction], conf: SfmConf) -> tuple[list[Reco
 
 def reconstruct(tracks: Tracks, K: np.ndarray, conf: SfmConf | None = None, refine_focal: bool = False) -> SfmResult:
     """Chains of registered frames over `tracks` (module doc); every frame not in the largest chain keeps why."""
+    import cv2
+
     conf = SfmConf.merged(conf)
+    cv2.setRNGSeed(conf.rng_seed)  # OpenCV's RANSAC draws from its global generator: the same answer every run
     mp = _Mapper(tracks, K, conf, refine_focal)
     models, start = [], 0
     while start < mp.F - 1:
@@ -492,6 +495,9 @@ def match_stream(n: int, match: PairMatches, K: np.ndarray, conf: SfmConf,
                  extra_pairs: Sequence[tuple[int, int]] = ()) -> Tracks:
     """Match each stream position with its next `match_window` (and `extra_pairs`), verify each pair by an
     essential matrix, chain the inliers into tracks."""
+    import cv2
+
+    cv2.setRNGSeed(conf.rng_seed)
     matched, pairs = {}, {}
     todo = [(a, b) for a in range(n) for b in range(a + 1, min(n, a + 1 + conf.match_window))]
     for a, b in list(todo) + [tuple(sorted(p)) for p in extra_pairs if tuple(sorted(p)) not in set(todo)]:
