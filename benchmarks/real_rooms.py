@@ -159,7 +159,7 @@ def sfm_accounting(r: dict[str, Any]) -> dict[str, Any] | None:
     notes = [x["message"] for x in r.get("events", []) if x.get("kind") in ("alignment", "degraded")
              and "intrinsics" in x.get("message", "")]
     return {"stream_frames": e.get("stream_frames"), "chains": e.get("chains"), "lost_by_reason": kinds,
-            "intrinsics": notes[0] if notes else None, "focal_factor": e.get("focal_factor")}
+            "intrinsics": notes[0] if notes else None}
 
 
 def ask_row(room: Path, bundle: Path) -> dict[str, Any]:

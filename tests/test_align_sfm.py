@@ -177,3 +177,4 @@ def test_real_kitchen_keyframes_posed_from_the_stream(redkitchen):
     # each pose carries its frame's depth scale, undoing the unknown factor: scale x factor is one constant
     units = np.array([np.cbrt(np.linalg.det(al.poses[i][:3, :3])) * factor[i] for i in ev])
     assert units.max() / units.min() < 1.1, units
+

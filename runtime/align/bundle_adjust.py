@@ -4,7 +4,7 @@ refinement step of the RGB-only structure from motion (`sfm`). scipy's `least_sq
 was tried first and stopped far from the minimum within any affordable budget (docs/rgb-geometry.md).
 
 Conventions: camera j maps a world point X to its frame by x = R_j X + t_j with R_j = Rodrigues(r_j); a pixel is
-K (x / z) with one K [3, 3] shared by every camera, whose focal length may be refined as one factor f.
+K (x / z) with one K [3, 3] shared by every camera (not refined: intrinsics from a prior stay as given).
 """
 from __future__ import annotations
 
@@ -34,13 +34,11 @@ def project(rvec: np.ndarray, tvec: np.ndarray, X: np.ndarray, K: np.ndarray, fo
 
 @dataclass
 class BAResult:
-    """rvecs, tvecs: [C, 3] refined cameras; X: [P, 3] refined points; focal: the refined focal factor (1.0 when
-    not refined); rms_px: RMS reprojection error of the observations after (px); nfev: residual evaluations."""
+    """rvecs, tvecs: [C, 3] refined cameras; X: [P, 3] refined points; rms_px: RMS reprojection error of the observations after (px); nfev: residual evaluations."""
 
     rvecs: np.ndarray
     tvecs: np.ndarray
     X: np.ndarray
-    focal: float
     rms_px: float
     nfev: int
 
@@ -86,14 +84,13 @@ def _so3(w: np.ndarray) -> np.ndarray:
 
 
 def bundle_adjust(rvecs: np.ndarray, tvecs: np.ndarray, X: np.ndarray, cam: np.ndarray, pt: np.ndarray,
-                  uv: np.ndarray, K: np.ndarray, free_cams: np.ndarray, refine_focal: bool = False,
+                  uv: np.ndarray, K: np.ndarray, free_cams: np.ndarray,
                   loss: str = "huber", scale_px: float = 2.0, max_nfev: int = 30) -> BAResult:
     """Levenberg-Marquardt on the robust (Huber, iteratively reweighted) reprojection error over the free cameras
     and every observed point, the points eliminated by the Schur complement (the reduced camera system is
     6 x free cameras square). rvecs, tvecs: [C, 3]; X: [P, 3]; observations cam [M] (camera row), pt [M] (point
     row), uv [M, 2] pixels; free_cams: [C] bool (the rest stay fixed: the gauge, or a local window's border);
-    refine_focal: one shared focal factor too, by a 1-D search after each solve (intrinsics from a field-of-view
-    prior). `max_nfev`: iterations at most. Returns a `BAResult` (fixed cameras unchanged)."""
+    `max_nfev`: iterations at most. Returns a `BAResult` (fixed cameras unchanged)."""
     C, P, M = len(rvecs), len(X), len(cam)
     Rs = _so3(np.asarray(rvecs, np.float64))
     t = np.asarray(tvecs, np.float64).copy()
@@ -174,16 +171,11 @@ def bundle_adjust(rvecs: np.ndarray, tvecs: np.ndarray, X: np.ndarray, cam: np.n
             lam *= 10
             if lam > 1e8:
                 break
-        if refine_focal and len(free_idx) == C:
-            for f_try in (focal * 1.01, focal / 1.01, focal * 1.002, focal / 1.002):
-                c_try, _ = cost(Rs, t, X, f_try)
-                if c_try < cur:
-                    focal, cur = f_try, c_try
         if lam > 1e8 or (new < cur + 1e-12 and rel < 1e-6):
             break
     _, e = cost(Rs, t, X, focal)
     import cv2
 
     rv = np.array([cv2.Rodrigues(R)[0].ravel() for R in Rs])
-    out = BAResult(rv, t, X, focal, float(np.sqrt(np.mean(e**2))) if M else 0.0, it)
+    out = BAResult(rv, t, X, float(np.sqrt(np.mean(e**2))) if M else 0.0, it)
     return out

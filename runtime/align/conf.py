@@ -158,15 +158,11 @@ class SfmConf(StageConf):
     ba_iterations: int = 30         # the global adjustment's Levenberg-Marquardt iterations at most
     ba_loss: str = "huber"          # robust loss: "huber" or "linear" (plain least squares)
     ba_scale_px: float = 2.0        # ... its scale (px)
-    refine_focal: str = "auto"      # "auto": refine the focal length when K came from a field-of-view prior; "on",
-                                    # "off"
     rng_seed: int = 0               # OpenCV's RANSAC generator, set before matching and mapping (reproducible)
     scale_points: int = 10      # a key frame's depth scale needs this many triangulated points with depth
 
     def validate(self) -> None:
         if self.match_window < 1 or self.max_misses < 1 or self.min_pnp_inliers < 4:
             raise InputError("sfm config: match_window >= 1, max_misses >= 1 and min_pnp_inliers >= 4 are required")
-        if self.refine_focal not in ("auto", "on", "off"):
-            raise InputError(f"sfm config: refine_focal must be auto, on or off, got {self.refine_focal!r}")
         if self.ba_loss not in ("linear", "huber"):
             raise InputError(f"sfm config: ba_loss must be huber or linear, got {self.ba_loss!r}")

@@ -28,15 +28,13 @@ def stream_positions(keys: list[int], grid: list[int], max_frames: int) -> list[
     return sorted(set(keys) | set(inner))
 
 
-def intrinsics_note(source: FrameSource, conf: SfmConf) -> tuple[bool, str]:
-    """(refine the focal length?, where the intrinsics came from, in words)."""
+def intrinsics_note(source: FrameSource) -> tuple[bool, str]:
+    """(K is only a field-of-view prior?, where the intrinsics came from, in words). A prior is used as given (the
+    focal length is not refined yet): the answer says so."""
     where = str(getattr(source, "K_from", "") or "the source")
-    prior = where.startswith("hfov_deg")
-    refine = conf.refine_focal == "on" or (conf.refine_focal == "auto" and prior)
-    if prior:
-        return refine, (f"intrinsics from a field-of-view prior ({where}), focal length refined in the bundle "
-                        f"adjustment" if refine else f"intrinsics from a field-of-view prior ({where}), not refined")
-    return refine, f"intrinsics from {where}" + (" (focal length refined)" if refine else "")
+    if where.startswith("hfov_deg"):
+        return True, f"intrinsics from a field-of-view prior ({where}), not refined: poses may bend"
+    return False, f"intrinsics from {where}"
 
 
 def align_keyframes_sfm(frames: list[Frame], matcher: KeyedMatcher, source: FrameSource, conf: SfmConf,
@@ -54,8 +52,8 @@ def align_keyframes_sfm(frames: list[Frame], matcher: KeyedMatcher, source: Fram
     grid = sorted(int(i) for i in thumbs) if thumbs else list(range(len(source)))
     stream = stream_positions(keys, grid, conf.stream_frames)
     K = np.asarray(frames[0].K, np.float64)
-    refine, how = intrinsics_note(source, conf)
-    if refine:
+    prior, how = intrinsics_note(source)
+    if prior:
         log.event("degraded", f"alignment: {how}", stage="alignment")
     else:
         log.event("alignment", f"alignment: {how}", stage="alignment")
@@ -81,7 +79,7 @@ def align_keyframes_sfm(frames: list[Frame], matcher: KeyedMatcher, source: Fram
         tracks = match_stream(len(stream), match, K, conf)
     t1 = time.perf_counter()
     with log.stage("alignment.sfm_map"):
-        res = reconstruct(tracks, K, conf, refine)
+        res = reconstruct(tracks, K, conf)
     res.seconds = {"sfm_match": t1 - t0, "sfm_map": time.perf_counter() - t1}
     al = _keyframe_result(res, stream, by_index, conf, log)
     al.seconds.update(res.seconds)
@@ -139,7 +137,7 @@ def _keyframe_result(res: SfmResult, stream: list[int], by_index: dict[int, Fram
         msg += "; unaligned: " + "; ".join(f"{i}: {why[i]}" for i in unaligned)
     log.event("alignment", msg, stage="alignment", unaligned={str(i): why[i] for i in unaligned},
               chains=[len(mm.poses) for mm in res.models], stream_frames=len(stream),
-              focal_factor=round(float(m.focal), 4) if m else None, joined=res.joined)
+              joined=res.joined)
     if unaligned:  # the answer says why frames could not be related (never a pose kept because a solver gave one)
         kinds: dict[str, int] = {}
         for i in unaligned:

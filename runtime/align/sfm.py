@@ -136,25 +136,23 @@ def triangulate(K: np.ndarray, R0: np.ndarray, t0: np.ndarray, R1: np.ndarray, t
 @dataclass
 class Reconstruction:
     """One chain of registered frames. poses: {position: (R [3, 3], t [3])} world -> camera; X: [T, 3] track
-    points (NaN until triangulated); focal: the refined focal factor; outlier: per frame [n_p] bool observations
+    points (NaN until triangulated); outlier: per frame [n_p] bool observations
     dropped by the reprojection check."""
 
     poses: dict[int, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
     X: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
-    focal: float = 1.0
     outlier: dict[int, np.ndarray] = field(default_factory=dict)
 
 
 @dataclass
 class SfmResult:
     """models: the chains, largest first; model_of: {position: model number}; why: {position: why it is not
-    registered}; K: the intrinsics used (focal refined when `focal_refined`)."""
+    registered}; K: the intrinsics used."""
 
     models: list[Reconstruction]
     model_of: dict[int, int]
     why: dict[int, str]
     K: np.ndarray
-    focal_refined: bool
     tracks: Tracks
     seconds: dict[str, float] = field(default_factory=dict)
     rejected: list[tuple[int, str]] = field(default_factory=list)  # (position, why) every rejected registration
@@ -168,8 +166,8 @@ def _rot_deg(Ra: np.ndarray, Rb: np.ndarray) -> float:
 class _Mapper:
     """Incremental mapping over tracks (module doc, steps 2-4)."""
 
-    def __init__(self, tracks: Tracks, K: np.ndarray, conf: SfmConf, refine_focal: bool):
-        self.t, self.K, self.c, self.refine_focal = tracks, K.astype(np.float64), conf, refine_focal
+    def __init__(self, tracks: Tracks, K: np.ndarray, conf: SfmConf):
+        self.t, self.K, self.c = tracks, K.astype(np.float64), conf
         self.F = len(tracks.tid)
         self.why: dict[int, str] = {}
         self.history: list[tuple[int, str]] = []  # every rejection, also of frames a later chain registered
@@ -331,17 +329,12 @@ class _Mapper:
         cam, pt, uv = np.concatenate(obs_c), np.concatenate(obs_t), np.concatenate(obs_uv)
         rv = np.array([_rvec(m.poses[p][0]) for p in cams])
         tv = np.array([m.poses[p][1] for p in cams])
-        K = self.K.copy()
-        K[0, 0] *= m.focal
-        K[1, 1] *= m.focal
+        K = self.K
         res = bundle_adjust(rv, tv, m.X[pts], cam, pt, uv, K, np.array([p in free_set for p in cams]),
-                            self.refine_focal and len(free_set) == len(cams), c.ba_loss, c.ba_scale_px, iterations)
+                            c.ba_loss, c.ba_scale_px, iterations)
         for p in free:
             m.poses[p] = (_rmat(res.rvecs[row[p]]), res.tvecs[row[p]])
         m.X[pts] = res.X
-        m.focal *= res.focal
-        K[0, 0] *= res.focal
-        K[1, 1] *= res.focal
         e = np.linalg.norm(project(res.rvecs[cam], res.tvecs[cam], res.X[pt], K) - uv, axis=1)
         i = 0
         for p, where in obs_ref:
@@ -464,13 +457,13 @@ def merge_chains(models: list[Reconstruction], conf: SfmConf) -> tuple[list[Reco
     return models, said
 
 
-def reconstruct(tracks: Tracks, K: np.ndarray, conf: SfmConf | None = None, refine_focal: bool = False) -> SfmResult:
+def reconstruct(tracks: Tracks, K: np.ndarray, conf: SfmConf | None = None) -> SfmResult:
     """Chains of registered frames over `tracks` (module doc); every frame not in the largest chain keeps why."""
     import cv2
 
     conf = SfmConf.merged(conf)
     cv2.setRNGSeed(conf.rng_seed)  # OpenCV's RANSAC draws from its global generator: the same answer every run
-    mp = _Mapper(tracks, K, conf, refine_focal)
+    mp = _Mapper(tracks, K, conf)
     models, start = [], 0
     while start < mp.F - 1:
         m, start = mp.chain(start)
@@ -484,11 +477,7 @@ def reconstruct(tracks: Tracks, K: np.ndarray, conf: SfmConf | None = None, refi
         if p not in model_of:
             mp.why.setdefault(p, "no chain reached it")
     why = {p: w for p, w in mp.why.items() if p not in model_of}
-    Kf = K.astype(np.float64).copy()
-    if models:
-        Kf[0, 0] *= models[0].focal
-        Kf[1, 1] *= models[0].focal
-    return SfmResult(models, model_of, why, Kf, refine_focal, tracks, rejected=mp.history, joined=joined)
+    return SfmResult(models, model_of, why, K.astype(np.float64), tracks, rejected=mp.history, joined=joined)
 
 
 def match_stream(n: int, match: PairMatches, K: np.ndarray, conf: SfmConf,
