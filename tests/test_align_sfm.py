@@ -178,3 +178,14 @@ def test_real_kitchen_keyframes_posed_from_the_stream(redkitchen):
     units = np.array([np.cbrt(np.linalg.det(al.poses[i][:3, :3])) * factor[i] for i in ev])
     assert units.max() / units.min() < 1.1, units
 
+
+
+def test_loop_pairs_join_far_apart_look_alikes_only():
+    from mosaicthinker.runtime.align.rgb_stage import loop_pairs
+
+    d = np.eye(4)[[0, 1, 2, 0]]          # key frames 0 and 3 show the same place; 1 and 2 are unlike anything
+    d = d + 0.01 * np.arange(16).reshape(4, 4)
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    got = loop_pairs(d, [0, 10, 20, 30], 1, 6)
+    assert (0, 30) in got and all(b - a > 6 for a, b in got)
+    assert loop_pairs(d, [0, 10, 20, 30], 0, 6) == [] and loop_pairs(d, [0, 3, 5, 8], 1, 100) == []

@@ -4,13 +4,14 @@ the reason its registration was rejected."""
 from __future__ import annotations
 
 import time
-from typing import Mapping
+from typing import Callable, Mapping
 
 import numpy as np
 
 from ..frames import FrameSource
 from ..infra.trace import StageLog, as_trace
 from ..types import Frame
+from .backbone import tiny_descriptor
 from .conf import SfmConf
 from .matching import KeyedMatcher
 from .sfm import SfmResult, keyframe_scale, match_stream, reconstruct
@@ -37,8 +38,23 @@ def intrinsics_note(source: FrameSource) -> tuple[bool, str]:
     return False, f"intrinsics from {where}"
 
 
+def loop_pairs(desc: np.ndarray, pos: list[int], n: int, min_gap: int) -> list[tuple[int, int]]:
+    """Revisit candidates among the key frames: for each key frame (place descriptors desc [K, D], unit rows; its
+    stream position pos [K]) its n most alike key frames more than `min_gap` stream positions away, as position
+    pairs (a < b), each once. Pure."""
+    if n <= 0 or len(pos) < 3:
+        return []
+    S = desc @ desc.T
+    out: set[tuple[int, int]] = set()
+    for i in range(len(pos)):
+        far = [j for j in np.argsort(-S[i]) if abs(pos[j] - pos[i]) > min_gap][:n]
+        out.update((min(pos[i], pos[j]), max(pos[i], pos[j])) for j in far)
+    return sorted(out)
+
+
 def align_keyframes_sfm(frames: list[Frame], matcher: KeyedMatcher, source: FrameSource, conf: SfmConf,
                         log: StageLog | None, thumbs: Mapping[int, np.ndarray] | None = None,
+                        describe: Callable[[np.ndarray], np.ndarray] | None = None,
                         ) -> tuple[AlignmentResult, list[int], SfmResult]:
     """Key frames `frames` (with relative depth) posed by SfM over the stream (`stream_positions` of the scan's
     kept frames, the keys of `thumbs`; else every frame of `source`). Poses: camera -> root key frame's camera,
@@ -75,8 +91,14 @@ def align_keyframes_sfm(frames: list[Frame], matcher: KeyedMatcher, source: Fram
         o = np.argsort(-m.scores)[:cap] if cap else np.arange(len(m))
         return m.uv0[o], m.uv1[o]
 
+    extra: list[tuple[int, int]] = []
+    if conf.loop_pairs > 0:  # places the walk shows twice: key frames alike by appearance, far apart in time
+        d = np.array([np.asarray((describe or tiny_descriptor)(by_index[i].rgb), np.float64).ravel() for i in keys])
+        d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
+        at = {i: p for p, i in enumerate(stream)}
+        extra = loop_pairs(d, [at[i] for i in keys], conf.loop_pairs, 2 * conf.match_window)
     with log.stage("alignment.sfm_match"):
-        tracks = match_stream(len(stream), match, K, conf)
+        tracks = match_stream(len(stream), match, K, conf, extra)
     t1 = time.perf_counter()
     with log.stage("alignment.sfm_map"):
         res = reconstruct(tracks, K, conf)

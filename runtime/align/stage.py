@@ -117,7 +117,7 @@ def align_keyframes(frames: list[Frame], matcher: KeyedMatcher, boxes: dict[int,
     log = as_trace(log)
     if with_scale and sfm is not None and sfm.sfm_on:
         with log.stage("alignment"):
-            al, used_i, _ = align_keyframes_sfm(frames, matcher, source, sfm, log, thumbs)
+            al, used_i, _ = align_keyframes_sfm(frames, matcher, source, sfm, log, thumbs, describe)
         fates = Fates([f.index for f in frames])
         fates.after(al, "structure from motion")
         _record_fates(log, al, fates)
