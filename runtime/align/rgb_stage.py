@@ -142,7 +142,10 @@ def _keyframe_result(res: SfmResult, stream: list[int], by_index: dict[int, Fram
         poses[i] = T
     root = max(poses, key=lambda i: int((~np.isnan(m.X[res.tracks.tid[pos[i]], 0])).sum())) if poses else keys[0]
     out: dict[int, np.ndarray] = {}
-    if poses:
+    if not poses:  # nothing related: the root key frame is still its own frame (the map holds what it sees)
+        out[root] = np.eye(4)
+        why.pop(root, None)
+    else:
         Ti_root = np.linalg.inv(poses[root])
         for i, T in poses.items():
             rel = Ti_root @ T
