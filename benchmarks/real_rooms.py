@@ -138,9 +138,28 @@ def pose_row(room: Path, bundle: Path, depth: str, k: int, path: str, conf: dict
     fates: dict[str, int] = {}
     for v in (r.get("fates") or {}).values():
         fates[v] = fates.get(v, 0) + 1
-    return {"eval_pose": meta, "ate_m": r["ate_rmse_m"], "aligned": r["aligned_frames"], "of": r["total_frames"],
+    return {"eval_pose": meta, "ate_m": r.get("ate_m", r["ate_rmse_m"]), "ate_se3_m": r["ate_rmse_m"],
+            "ate_sim3_m": r.get("ate_sim3_m"), "sim3_scale": r.get("sim3_scale"), "aligned": r["aligned_frames"], "of": r["total_frames"],
             "other_frames_used": len(r.get("other_frames_used", [])), "aligned_by_path": fates,
-            "untracked": r.get("untracked_frames"), "sim3": r.get("sim3"), "seconds": round(r["seconds"], 2)}
+            "untracked": r.get("untracked_frames"), "sim3": r.get("sim3"), "seconds": round(r["seconds"], 2),
+            "seconds_breakdown": r.get("seconds_breakdown"), "sfm": sfm_accounting(r)}
+
+
+def sfm_accounting(r: dict[str, Any]) -> dict[str, Any] | None:
+    """RGB only (structure from motion): where key frames were lost - the stream's size, the chains, each unaligned
+    key frame's reason counted by kind (from the alignment event `eval pose` returns); None on other paths."""
+    ev = [e for e in r.get("events", []) if e.get("kind") == "alignment" and "stream_frames" in e]
+    if not ev:
+        return None
+    e = ev[-1]
+    kinds: dict[str, int] = {}
+    for why in (e.get("unaligned") or {}).values():
+        k = why.split(":")[0].split(" (")[0]
+        kinds[k] = kinds.get(k, 0) + 1
+    notes = [x["message"] for x in r.get("events", []) if x.get("kind") in ("alignment", "degraded")
+             and "intrinsics" in x.get("message", "")]
+    return {"stream_frames": e.get("stream_frames"), "chains": e.get("chains"), "lost_by_reason": kinds,
+            "intrinsics": notes[0] if notes else None}
 
 
 def ask_row(room: Path, bundle: Path) -> dict[str, Any]:

@@ -7,7 +7,7 @@ import dataclasses
 from dataclasses import dataclass, field
 from typing import Any, ClassVar, Mapping
 
-from .align import AlignConf, BackboneConf, MatchConf
+from .align import AlignConf, BackboneConf, MatchConf, SfmConf
 from .infra.config import StageConf
 from .infra.errors import InputError
 from .keyframes import KeyFrameConf
@@ -20,7 +20,7 @@ from .scan import DedupConf
 # typed stage configs of a run: field -> its class (a mapping given for one is merged over the field's default)
 _SUB_CONFS: dict[str, type] = {"dedup": DedupConf, "keyframe": KeyFrameConf, "alignment": AlignConf,
                                "match": MatchConf, "fusion": FusionConfig, "verify": VerifyConf,
-                               "backbone": BackboneConf, "scale": ScaleConf}
+                               "backbone": BackboneConf, "scale": ScaleConf, "sfm": SfmConf}
 
 
 @dataclass
@@ -58,6 +58,7 @@ class PipelineConfig(StageConf):
     verify: VerifyConf = field(default_factory=VerifyConf)  # candidate detections verified across views
     backbone: BackboneConf = field(default_factory=BackboneConf)  # metric depth: odometry between key frames
     scale: ScaleConf = field(default_factory=ScaleConf)  # metric scale of maps from model depth (map/scale.py)
+    sfm: SfmConf = field(default_factory=SfmConf)  # relative depth: structure from motion over the kept frames
 
     def __post_init__(self) -> None:
         for name, cls in _SUB_CONFS.items():

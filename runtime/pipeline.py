@@ -162,7 +162,7 @@ def _align(p: Perceived, source: FrameSource, perception: Perception, conf: Pipe
     al, _used = align_keyframes(p.frames, matcher, boxes, emb, source, with_depth(conf.depth, perception, log),
                                 perception.depth_relative, conf.alignment, log,
                                 lambda unaligned: _over_budget(budget, unaligned), thumbs, conf.backbone,
-                                perception.embed)
+                                perception.embed, conf.sfm)
     trace.record(log)
     bar.done(aligned=f"{sum(f.index in al.poses for f in p.frames)}/{len(p.frames)} key frames")
     return al

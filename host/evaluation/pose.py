@@ -1,7 +1,9 @@
 """Camera-pose accuracy: ATE / RPE, and the `mosaic eval pose` command.
 
-ATE RMSE: camera centres of the estimated poses are aligned to the ground-truth centres by the best rigid
-transform (Umeyama; Sim(3) when depth is not metric), then the RMS of the residual distances.
+ATE RMSE: camera centres of the estimated poses are aligned to the ground-truth centres by the best transform
+(Umeyama), then the RMS of the residual distances: `ate_rmse_m` after a rigid SE(3) alignment (what a user gets, in
+metres), `ate_sim3_m` after a similarity Sim(3) (the trajectory's shape), `sim3_scale` the scale that needed (1.0 =
+metric). `ate_m` is the one the run's depth calls for (Sim(3) when depth is not metric; the field older readers use).
 RPE: for consecutive evaluated frames (time order), the relative motion estimated vs ground truth; translation
 as RMSE (m, after the ATE alignment's scale), rotation as the mean angle (deg).
 """
@@ -62,6 +64,21 @@ def rpe(est_poses: np.ndarray, gt_poses: np.ndarray, S: np.ndarray | None = None
         te.append(np.linalg.norm(err[:3, 3]))
         re.append(rotation_angle_deg(err[:3, :3]))
     return float(np.sqrt(np.mean(np.square(te)))), float(np.mean(re))
+
+
+def ate_fields(est: np.ndarray, gt: np.ndarray, with_scale: bool) -> dict[str, Any]:
+    """est, gt: [N, 4, 4] camera-to-world in time order -> {ate_rmse_m (after SE(3)), ate_sim3_m (after Sim(3)),
+    sim3_scale (the Sim(3)'s scale: 1.0 = metric), ate_m (Sim(3) if `with_scale` else SE(3)), rpe_trans_m,
+    rpe_rot_deg (after the alignment `ate_m` used)}. Fewer than 2 poses: NaN in the old fields, None in the new."""
+    if len(est) < 2:
+        nan = float("nan")
+        return {"ate_m": nan, "ate_rmse_m": nan, "ate_sim3_m": None, "sim3_scale": None, "rpe_trans_m": nan,
+                "rpe_rot_deg": nan}
+    ate_se3, S_se3 = ate_rmse(est, gt, False)
+    ate_sim3, S_sim3 = ate_rmse(est, gt, True)
+    rt, rr = rpe(est, gt, S_sim3 if with_scale else S_se3)
+    return {"ate_m": ate_sim3 if with_scale else ate_se3, "ate_rmse_m": ate_se3, "ate_sim3_m": ate_sim3,
+            "sim3_scale": transform_scale(S_sim3), "rpe_trans_m": rt, "rpe_rot_deg": rr}
 
 
 def pick_frames(n: int, k: int, sampling: str, seed: int = 0) -> list[int]:
@@ -152,13 +169,9 @@ def evaluate_pose(source: Any, indices: Sequence[int], matcher: Any = "sift", st
     ev = [f for f in frames if f.index in res.poses and f.pose_gt is not None]  # time order
     est = np.array([res.poses[f.index] for f in ev])
     gt = np.array([f.pose_gt for f in ev])
-    if len(ev) >= 2:
-        ate, S = ate_rmse(est, gt, with_scale)
-        rt, rr = rpe(est, gt, S)
-    else:
-        ate, rt, rr = float("nan"), float("nan"), float("nan")
+    scores = ate_fields(est, gt, with_scale)
     return {
-        "ate_rmse_m": ate, "rpe_trans_m": rt, "rpe_rot_deg": rr, "path": path,
+        **scores, "path": path,
         "aligned_frames": len([i for i in res.aligned if i in {f.index for f in frames}]),
         "total_frames": len(frames),
         "unaligned_frames": list(res.unaligned), "guessed_frames": list(res.guessed),
@@ -196,7 +209,7 @@ def _align_as_ask(source: Any, frames: list[Any], matcher: Any, depth_model: Any
     log = StageLog()
     al, used = align_keyframes(frames, m, {f.index: None for f in frames}, emb, source, with_depth, with_scale,
                                pconf.alignment, log, thumbs=scan.thumbs, backbone=pconf.backbone,
-                               describe=embedder.embed if embedder is not None else None)
+                               describe=embedder.embed if embedder is not None else None, sfm=pconf.sfm)
     trace.record(log)
     return al, [int(getattr(f, "index", f)) for f in used]
 
@@ -292,6 +305,10 @@ def _bundle_embedder(bundle: str | None, trace: Any) -> Any:
     return _load_role(bundle, "embedder", trace) if load_bundle(bundle).has_role("embedder") else None
 
 
+def _num(x: Any, digits: int = 3) -> str:
+    return "n/a" if x is None or not np.isfinite(x) else f"{x:.{digits}f}"
+
+
 def render(r: dict[str, Any]) -> str:
     un = r.get("unaligned_frames", [])
     gs = r.get("guessed_frames", [])
@@ -302,7 +319,8 @@ def render(r: dict[str, Any]) -> str:
              f"{r.get('seed')}), strategy {r.get('strategy')}, depth {r.get('depth')}, matcher {r.get('matcher')}",
              f"  edges           {r.get('edge', 'rgbd')}" + ("  (essential matrix + depth scale: relative depth)"
                                                           if r.get('edge') == 'essential' else ""),
-             f"  ATE RMSE        {r['ate_rmse_m']:.4f} m{'  (Sim(3) alignment)' if r.get('sim3') else ''}",
+             f"  ATE RMSE        {_num(r['ate_rmse_m'], 4)} m after SE(3) (metric), {_num(r.get('ate_sim3_m'), 4)} m after Sim(3)"
+             f" (scale {_num(r.get('sim3_scale'))}, 1.0 = metric)",
              f"  RPE             {r['rpe_trans_m']:.4f} m, {r['rpe_rot_deg']:.2f} deg",
              f"  aligned frames  {r['aligned_frames']} / {r['total_frames']}"
              + (f"  unaligned: {un}" if un else "") + (f"  guessed (failed links): {gs}" if gs else ""),

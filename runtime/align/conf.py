@@ -139,3 +139,48 @@ class BackboneConf(StageConf):
         if self.max_frames < 0 or self.first_jump < 1 or self.robust <= 0 or self.part_revisits < 0:
             raise InputError("backbone config: max_frames >= 0, first_jump >= 1, robust > 0 and part_revisits >= 0 "
                              "are required")
+
+
+@dataclass
+class SfmConf(StageConf):
+    """Defaults of the RGB-only structure from motion (`sfm`, `rgb_stage.align_rest_sfm`): relative depth, over the
+    key frames and the scan's kept frames between them. `PipelineConfig.sfm`; `SfmConf.merged(overrides)`."""
+
+    conf_name: ClassVar[str] = "sfm config"
+
+    sfm_on: bool = True            # off: the essential-matrix tree and bridge rounds (`stage.align_rest_relative`)
+    stream_frames: int = 160           # stream frames (key frames always in; the scan's kept frames evenly thinned)
+    match_window: int = 3           # each stream frame matched with its next this many (tracks over 3+ views)
+    loop_pairs: int = 2             # each key frame also matched with its n most alike key frames far in time (0 = off)
+    pair_matches: int = 1000         # matches kept per pair, best scores first
+    pair_px: float = 1.5       # a pair's essential-matrix inlier threshold (px)
+    min_pair_inliers: int = 30      # fewer verified matches: the pair adds nothing to the tracks
+    init_window: int = 8            # a chain's start pair is looked for among this many frames from its start
+    init_min_parallax_deg: float = 2.0   # ... with at least this median triangulation angle
+    min_tri_parallax_deg: float = 1.0    # a point triangulated with a smaller ray angle is not kept (yet)
+    max_reproj_px: float = 4.0      # observations off by more after an adjustment are dropped
+    register_px: float = 4.0             # PnP RANSAC reprojection threshold (px)
+    pnp_iterations: int = 500
+    min_pnp_inliers: int = 20       # a registration with fewer PnP inliers is rejected ...
+    min_pnp_ratio: float = 0.3      # ... or with a smaller share of its 2D-3D matches
+    two_view_points: int = 8        # too few for PnP: the pair's essential matrix, scaled by this many shared points
+    max_step_rot_deg: float = 30.0  # ... or rotating more than this per stream step from its neighbour ...
+    max_step_depth: float = 1.0     # ... or moving more than this x its median scene depth per stream step
+    max_misses: int = 3             # this many rejections in a row end a chain (a new one starts after)
+    merge_min_points: int = 20      # chains are joined by a Sim(3) on at least this many shared points ...
+    merge_min_share: float = 0.5    # ... this share of them inliers ...
+    merge_rel: float = 0.03         # ... within this fraction of the points' spread
+    local_ba_every: int = 5         # a local adjustment after this many registrations ...
+    local_ba_window: int = 12       # ... over the last this many cameras
+    local_ba_iterations: int = 10
+    ba_iterations: int = 30         # the global adjustment's Levenberg-Marquardt iterations at most
+    ba_loss: str = "huber"          # robust loss: "huber" or "linear" (plain least squares)
+    ba_scale_px: float = 2.0        # ... its scale (px)
+    rng_seed: int = 0               # OpenCV's RANSAC generator, set before matching and mapping (reproducible)
+    scale_points: int = 10      # a key frame's depth scale needs this many triangulated points with depth
+
+    def validate(self) -> None:
+        if self.match_window < 1 or self.max_misses < 1 or self.min_pnp_inliers < 4:
+            raise InputError("sfm config: match_window >= 1, max_misses >= 1 and min_pnp_inliers >= 4 are required")
+        if self.ba_loss not in ("linear", "huber"):
+            raise InputError(f"sfm config: ba_loss must be huber or linear, got {self.ba_loss!r}")

@@ -12,10 +12,11 @@ from ..frames import FrameSource
 from ..infra.trace import StageLog, as_trace
 from ..types import Frame
 from .backbone import align_rest_backbone
-from .conf import AlignConf, BackboneConf
+from .conf import AlignConf, BackboneConf, SfmConf
 from .matching import KeyedMatcher
 from .recover import (BlockPairs, Fates, WithDepth, attach_frames, bridge_attach, bridge_realign,
                       whole_image_realign)
+from .rgb_stage import align_keyframes_sfm
 from .tree import AlignmentResult, align_frames
 from .verify import verify_tree
 
@@ -100,7 +101,7 @@ def align_keyframes(frames: list[Frame], matcher: KeyedMatcher, boxes: dict[int,
                     source: FrameSource, with_depth: WithDepth, with_scale: bool, conf: AlignConf, log: StageLog | None,
                     over_budget: OverBudget = lambda unaligned: None,
                     thumbs: Mapping[int, np.ndarray] | None = None, backbone: BackboneConf | None = None,
-                    describe: Callable[[np.ndarray], np.ndarray] | None = None
+                    describe: Callable[[np.ndarray], np.ndarray] | None = None, sfm: SfmConf | None = None
                     ) -> tuple[AlignmentResult, list[Frame]]:
     """The key frames' alignment: matches restricted to object boxes (the paper's trick; with relative depth
     only when `relative_box_matching`), MST over frame similarity; then, with metric depth and `verify_depth`,
@@ -110,8 +111,17 @@ def align_keyframes(frames: list[Frame], matcher: KeyedMatcher, boxes: dict[int,
     metric bridging look for places the video revisits; with metric depth they are also the grid the odometry
     `backbone` walks (`backbone.align_rest_backbone`, when given and `odometry` is on: it replaces
     `align_rest_metric`; `describe`: rgb -> a place descriptor for its revisits, e.g. the bundle's embedder).
-    Returns (alignment over the key frames only, the bridge or walk frames used)."""
+    Relative depth with `sfm.sfm_on`: structure from motion over the key frames and the scan's kept frames
+    between them instead (`rgb_stage.align_keyframes_sfm`). Returns (alignment over the key frames only, the
+    bridge or walk frames used)."""
     log = as_trace(log)
+    if with_scale and sfm is not None and sfm.sfm_on:
+        with log.stage("alignment"):
+            al, used_i, _ = align_keyframes_sfm(frames, matcher, source, sfm, log, thumbs, describe)
+        fates = Fates([f.index for f in frames])
+        fates.after(al, "structure from motion")
+        _record_fates(log, al, fates)
+        return al, used_i  # type: ignore[return-value]  # frame numbers: the stream's frames are not kept
     walks = backbone is not None and backbone.odometry and conf.verify_depth and not with_scale
     hold = getattr(matcher, "hold", None)  # every frame this alignment may load stays cached: none extracted twice
     if callable(hold):

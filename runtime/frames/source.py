@@ -448,8 +448,9 @@ class FrameSource:
                               f"scaled to match; the models need no more)")
 
     def _set_K(self, K: np.ndarray, where: str) -> None:
-        """Check K against the decoded size, then scale it to the delivered size."""
+        """Check K against the decoded size, then scale it to the delivered size; `K_from` says where K came from."""
         self.K = _scale_K(check_intrinsics(K, self.orig_size, where), self.scale)
+        self.K_from = where
 
 
 class FrameList(FrameSource):
