@@ -325,19 +325,25 @@ def _map_extras(instances: list[ObjectInstance], frames: list[Frame], poses: dic
 
 
 def _metric_scale(smap: SemanticMap, clouds: list[np.ndarray], poses: dict[int, np.ndarray], frames: list[Frame],
-                  source: FrameSource, perception: Perception, conf: PipelineConfig, trace: Trace
-                  ) -> tuple[SemanticMap, list[np.ndarray], dict[int, np.ndarray]]:
+                  source: FrameSource, perception: Perception, conf: PipelineConfig, trace: Trace,
+                  sparse: np.ndarray | None = None) -> tuple[SemanticMap, list[np.ndarray], dict[int, np.ndarray]]:
     """The map's metric scale (`map.scale`): sensor depth is metric (said in the trace); a map from model depth
     takes it from the camera height, the objects' sizes and a metric model's own scale, applied once (map,
-    clouds, poses) and said with the answer ("scale" event); no usable cue: the depth prior stays, said loudly."""
+    clouds, poses) and said with the answer ("scale" event); no usable cue: the depth prior stays, said loudly.
+    `sparse` [N, 3]: triangulated world points (structure from motion), where the floor is fitted when there
+    are enough of them (a depth model's dense points smear the floor)."""
     if not (conf.depth == "model" or (conf.depth == "auto" and not getattr(source, "has_depth", False))):
         trace.decide("scale", sensor_scale().to_dict())
         return smap, clouds, poses
     with trace.stage("scale"):
         posed = [f for f in frames if f.index in poses]
-        pts = world_points(posed, poses, 8, lambda q: q[:, 2] < conf.floor_fit_max_depth_m)
+        if sparse is not None and len(sparse) >= conf.scale.min_sparse_points:
+            cloud = sparse
+        else:
+            pts = world_points(posed, poses, 8, lambda q: q[:, 2] < conf.floor_fit_max_depth_m)
+            cloud = np.concatenate(pts) if pts else None
         ms = estimate_scale(np.array([rigid_part(poses[f.index]) for f in posed]).reshape(-1, 4, 4),
-                            np.concatenate(pts) if pts else None, smap.instances, np.array([0.0, 0.0, 1.0]),
+                            cloud, smap.instances, np.array([0.0, 0.0, 1.0]),
                             None if perception.depth_relative else [1.0] * len(posed), conf.scale)
     trace.decide("scale", ms.to_dict())
     if ms.source == "guess":
@@ -414,7 +420,8 @@ def build_map(source: FrameSource, targets: Sequence[str], cues: Sequence[str] =
     smap = SemanticMap(instances, room, cams,
                        {"source": getattr(source, "name", "frames"), "built_from": "video", "keyframes": chosen,
                         "root": al.root, "unaligned": al.unaligned, "objects": names, "recovered": m.recovered})
-    smap, clouds, poses = _metric_scale(smap, m.clouds, m.poses, p.frames, source, perception, conf, trace)
+    sparse = al.points @ m.world_from_root[:3, :3].T + m.world_from_root[:3, 3] if al.points is not None else None
+    smap, clouds, poses = _metric_scale(smap, m.clouds, m.poses, p.frames, source, perception, conf, trace, sparse)
     return MapBuild(smap, chosen, clouds, poses, m.world_from_root, list(al.unaligned), m.recovered,
                     bool(budget is not None and getattr(budget, "reduced", False)),
                     {"alignment": al.to_dict(), "dedup_kept": None}, det.undetectable())

@@ -154,6 +154,10 @@ def _keyframe_result(res: SfmResult, stream: list[int], by_index: dict[int, Fram
             out[i] = rel
     unaligned = [i for i in keys if i not in out]
     al = AlignmentResult(out, root, [], unaligned, "sfm", with_scale=True, edge="sfm")
+    if poses:  # the points in the root camera's frame and units: what the metric scale fits the floor to
+        R, t = m.poses[pos[root]]
+        X = m.X[np.isfinite(m.X).all(1)]
+        al.points = (X @ R.T + t) / scales[root]
     al.fates = {i: ("structure from motion" if i in out else "unaligned") for i in keys}
     n_reg = len(m.poses) if m else 0
     msg = (f"structure from motion over {len(stream)} frames ({len(keys)} key frames): {n_reg} registered in the "

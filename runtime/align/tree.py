@@ -210,6 +210,8 @@ class AlignmentResult:
     # pairs already tried with whole-image matches (`attach_frames`): a pair that failed inside object boxes
     # is not one of them (few boxes give few matches; the whole image may still align it)
     whole_tried: set[frozenset] = field(default_factory=set)
+    # structure from motion: its triangulated points [N, 3] in the root camera frame and the map's units
+    points: np.ndarray | None = None
     # what became of each key frame in the end (`align_keyframes`): the step that gave its final pose, or
     # "unaligned"; the steps' own trace events are the history, this is the state
     fates: dict[int, str] = field(default_factory=dict)

@@ -76,6 +76,7 @@ class ScaleConf(StageConf):
     floor_peak_ratio: float = 2.0    # ... and >= this x the median layer within +-0.3 m (a surface, not a wall)
     floor_clearance_m: float = 0.5   # the floor lies this far below the 90th-percentile camera height
     fallback_median_m: float = 2.0   # no cue: the old prior (median depth), said as a guess
+    min_sparse_points: int = 500     # triangulated points enough to fit the floor to (else the depth model's)
 
     def validate(self) -> None:
         for name in ("height_prior_m", "height_prior_sd", "object_meas_sd", "max_prior_sd", "depth_model_sd",
