@@ -246,3 +246,33 @@ def test_map_room_polygon_a_string_is_exit_2(tmp_path, capsys):
     code, out, err = run_cli(capsys, ["ask", m, Q])
     assert code == 2 and "room.polygon must be" in err and "got a string 'abc'" in err, err
     np.testing.assert_equal(code, 2)
+
+
+@pytest.mark.parametrize("hard_links", [True, False])
+def test_the_lock_is_never_seen_empty(tmp_path, monkeypatch, hard_links):
+    """The lock appears with its holder already written (a run killed at any instant leaves no empty lock that
+    reads as a run still starting); without hard links the create-exclusive path still takes it; a second run is
+    refused while the first holds it, and no temp file stays behind."""
+    from mosaicthinker.runtime.infra import outputs
+
+    if not hard_links:
+        def no_link(*a, **k):
+            raise PermissionError("hard links not supported")
+        monkeypatch.setattr(outputs.os, "link", no_link)
+    seen: list[bytes] = []
+    real_link = os.link
+
+    def watch_link(src, dst, *a, **k):
+        seen.append(Path(src).read_bytes())  # what the lock will hold the instant it exists
+        return real_link(src, dst, *a, **k)
+    if hard_links:
+        monkeypatch.setattr(outputs.os, "link", watch_link)
+    a = outputs.RunOutputs(tmp_path)
+    held = json.loads((tmp_path / outputs.LOCK).read_text())
+    assert held["pid"] == os.getpid() and held["run_id"] == a.run_id
+    assert (not hard_links) or (seen and json.loads(seen[0])["run_id"] == a.run_id)
+    with pytest.raises(Exception, match="another run"):
+        outputs.RunOutputs(tmp_path)
+    a.close()
+    assert not (tmp_path / outputs.LOCK).exists()
+    assert not list(tmp_path.glob(outputs.TMP_PREFIX + "*"))

@@ -159,9 +159,7 @@ class RunOutputs:
         body = jsonio.dumps({"pid": os.getpid(), "host": socket.gethostname(), "run_id": self.run_id,
                            "started": time.time()}).encode()
         for _ in range(3):
-            try:
-                fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
-            except FileExistsError:
+            if not self._create_lock(lock, body):
                 held = self._read_lock(lock)
                 if held is None and _age_s(lock) < 10.0:  # just created, not yet written: another run's
                     held = {"pid": "?", "run_id": "starting"}
@@ -177,12 +175,34 @@ class RunOutputs:
                 who = f"pid {held['pid']}, run id {held.get('run_id')}" if held else "unreadable lock file"
                 self.notes.append(f"took over a stale lock on {self.folder} ({who}: process gone)")
                 continue
-            self._locked = True  # before writing: an interrupt from here on removes the lock in close()
-            with os.fdopen(fd, "wb") as f:
-                f.write(body)
+            self._locked = True  # an interrupt from here on removes the lock in close()
             return
         raise OutputError(f"{self.what} {self.folder}: could not take the folder's lock {lock}; remove it if no "
                          f"run is writing there")
+
+    def _create_lock(self, lock: Path, body: bytes) -> bool:
+        """Create `lock` holding `body` if no lock exists (False if one does). The body is written to a temp file
+        first and hard-linked in, so a run killed at any instant never leaves an empty lock that would look like
+        a run still starting; where the filesystem has no hard links, create-exclusive then write."""
+        tmp = self.folder / f"{TMP_PREFIX}{self.run_id}{LOCK}"
+        try:
+            tmp.write_bytes(body)
+            try:
+                os.link(tmp, lock)
+                return True
+            except FileExistsError:
+                return False
+            except OSError:  # no hard links here (e.g. some FUSE or FAT mounts)
+                try:
+                    fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+                except FileExistsError:
+                    return False
+                self._locked = True  # before writing: an interrupt from here on removes the lock in close()
+                with os.fdopen(fd, "wb") as f:
+                    f.write(body)
+                return True
+        finally:
+            tmp.unlink(missing_ok=True)
 
     def _read_previous(self) -> dict[str, Any] | None:
         """The run this folder held before (its run.json), for a run that ends without its files."""
