@@ -31,7 +31,7 @@ from .models.detector import detectable_names, undetectable_names
 from .types import Budget, Detections, Frame, Observation
 # the stages, in the paper's order
 from .scan import DedupConf, ScanResult, open_scanned, remove_redundant
-from .grounding import ParsedQuestion, ground
+from .grounding import ParsedQuestion, bundle_reader, ground
 from .keyframes import (KeyFrameConf, KeyFrameResult, plan_keyframes, reduce_keyframes, select_keyframes,
                         spread_keyframes, uniform_keyframes)
 from .perceive import (CachedDetector, Perceived, Perception, colour_frame, load_vlm, match_boxes, perceive_keyframes,
@@ -547,7 +547,8 @@ def ask(source: Any, question: str, options: list[str] | None = None, *, percept
         frames_for_grounding = lambda: [src[int(i)].rgb for i in np.linspace(0, len(src) - 1, n).round().astype(int)]  # noqa: E731
     with trace.stage("grounding"):
         names = sorted({o.name for o in src.instances}) if isinstance(src, SemanticMap) else ()
-        pq = ground(question, options, vlm, frames_for_grounding, trace, grounding, names)
+        reader = bundle_reader(bundle, trace) if grounding in ("model", "auto") else None
+        pq = ground(question, options, vlm, frames_for_grounding, trace, grounding, names, reader=reader)
     build = None
     if budget is None and profile is not None and not isinstance(src, SemanticMap):
         budget = controller_for(profile, src, trace, bundle)  # the planner's own clip length and frame rate

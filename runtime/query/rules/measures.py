@@ -98,6 +98,9 @@ def room_size(st: State, toks: list[str], joined: str, nps: list[dict[str, Any]]
     m = re.search(r"\b(bigger|larger|smaller) than (?:about |around )?(\d+(?:\.\d+)?)", st.question.lower())
     if m and toks[0] in COPULA:
         value = float(m.group(2))
-        cm2 = round(value * (0.3048 ** 2 if unit == "ft2" else 1.0) * 1e4)
+        area = value * (0.3048 ** 2 if unit == "ft2" else 1.0) * 1e4
+        if not area <= 10_000_000_000:  # AreaCondition's bound (ir.py): refused, not a program the schema rejects
+            return st.fail("a room-size comparison", "an area of at most 1,000,000 m2")
+        cm2 = round(area)
         than = AreaCondition("<" if m.group(1) == "smaller" else ">", cm2, f"{value:g} {unit}")
     return RoomSize(measure, unit, than)
