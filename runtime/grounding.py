@@ -16,6 +16,7 @@ from __future__ import annotations
 
 from typing import Any, Iterable
 
+from .infra.bundle import Bundle, load_bundle
 from .infra.errors import InputError
 from .query.ir import QTYPES
 from .query.parse import ParsedQuestion, parse_question
@@ -72,8 +73,6 @@ def ground(question: str, options: list[str] | None = None, vlm: Any = None, fra
 
 def bundle_reader(bundle: Any, trace: Any = None) -> Any:
     """The bundle's trained question reader (its `reader` role), else `MOSAIC_READER`'s, else None."""
-    from .infra.bundle import Bundle, load_bundle
-
     if bundle is not None:
         b = bundle if isinstance(bundle, Bundle) else load_bundle(bundle)
         if b.has_role("reader"):

@@ -8,6 +8,7 @@ DIR/head.npz + DIR/head.json (docs/query.md: retraining for your own wording or 
 from __future__ import annotations
 
 import argparse
+import tempfile
 import time
 from pathlib import Path
 from typing import Any
@@ -21,6 +22,7 @@ from .encoder import extract_encoder, load_encoder
 from .generate import Example, dataset
 from .head import Head, HeadConfig, save_head
 
+BATCH = 48
 TAG_ID = {t: i for i, t in enumerate(TAGS)}
 KIND_ID = {k: i for i, k in enumerate(KINDS)}
 
@@ -56,6 +58,21 @@ def features(encoder: Any, rows: list[list[int]], batch: int = 64) -> list[torch
         for j, i in enumerate(idx):
             out[i] = states[j, :len(rows[i])].to(torch.float16)
     return out  # type: ignore[return-value]
+
+
+def cached_features(encoder: Any, rows: list[list[int]], cache: Path | None, key: str,
+                    prov: dict[str, Any]) -> list[torch.Tensor]:
+    """`features`, kept in `cache` (features-KEY.pt) for a rerun with the same questions and encoder."""
+    path = None if cache is None or prov.get("random_weights") else cache / f"features-{key}.pt"
+    if path is not None and path.is_file():
+        saved = torch.load(path)
+        if saved["rows"] == rows:
+            return saved["feats"]
+    feats = features(encoder, rows)
+    if path is not None:
+        torch.save({"rows": rows, "feats": feats}, path.with_suffix(".tmp"))
+        path.with_suffix(".tmp").replace(path)
+    return feats
 
 
 def _pad(rows: list[list[int]], value: int = 0) -> tuple[torch.Tensor, torch.Tensor]:
@@ -98,13 +115,14 @@ def train(out: Path, seed: int, n_train: int, n_dev: int, epochs: int, random_en
           cache: Path | None = None) -> dict[str, Any]:
     t0 = time.time()
     torch.manual_seed(seed)
-    folder = None if random_encoder else extract_encoder(cache or out / "encoder")
+    cache = cache or Path(tempfile.gettempdir()) / "mosaic-reader-encoder"  # 90 MB: never beside the head
+    folder = None if random_encoder else extract_encoder(cache)
     encoder, tok, prov = load_encoder(folder, seed)
     train_ex, dev_ex = dataset(n_train, seed), dataset(n_dev, seed + 1_000_003)
     enc_tr = [encode(tok, e) for e in train_ex]
     enc_dv = [encode(tok, e) for e in dev_ex]
-    f_tr = features(encoder, [r for r, _ in enc_tr])
-    f_dv = features(encoder, [r for r, _ in enc_dv])
+    f_tr = cached_features(encoder, [r for r, _ in enc_tr], cache, f"train-{seed}-{n_train}", prov)
+    f_dv = cached_features(encoder, [r for r, _ in enc_dv], cache, f"dev-{seed}-{n_dev}", prov)
     t_feat = time.time() - t0
     print(f"features of {n_train}+{n_dev} questions in {t_feat:.0f} s", flush=True)
     y_tr, k_tr = [lab for _, lab in enc_tr], [KIND_ID[e.kind] for e in train_ex]
@@ -112,15 +130,15 @@ def train(out: Path, seed: int, n_train: int, n_dev: int, epochs: int, random_en
     head = Head(HeadConfig())
     opt = torch.optim.AdamW(head.parameters(), lr=1e-3, weight_decay=0.01)
     rng = np.random.default_rng(seed)
-    steps = epochs * ((n_train + 31) // 32)
+    steps = epochs * ((n_train + BATCH - 1) // BATCH)
     sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=1e-3, total_steps=steps, pct_start=0.1)
     ce = torch.nn.CrossEntropyLoss(ignore_index=-100)
     for ep in range(epochs):
         head.train()
         perm = rng.permutation(n_train)
         tot = 0.0
-        for s in range(0, n_train, 32):
-            x, mask, y, k = _batch(f_tr, y_tr, k_tr, perm[s:s + 32])
+        for s in range(0, n_train, BATCH):
+            x, mask, y, k = _batch(f_tr, y_tr, k_tr, perm[s:s + BATCH])
             kl, tl = head(x, mask)
             loss = ce(kl, k) + ce(tl.reshape(-1, tl.shape[-1]), y.reshape(-1))
             opt.zero_grad()
@@ -128,8 +146,8 @@ def train(out: Path, seed: int, n_train: int, n_dev: int, epochs: int, random_en
             opt.step()
             sched.step()
             tot += float(loss.detach()) * len(k)
-        dev = evaluate(head, f_dv, y_dv, k_dv)
-        print(f"epoch {ep + 1}/{epochs}: loss {tot / n_train:.4f}, dev {dev}", flush=True)
+        print(f"epoch {ep + 1}/{epochs}: loss {tot / n_train:.4f} ({time.time() - t0:.0f} s)", flush=True)
+    print(f"dev {evaluate(head, f_dv, y_dv, k_dv)}", flush=True)
     info = {"seed": seed, "n_train": n_train, "n_dev": n_dev, "epochs": epochs, "encoder": prov,
             "dev": evaluate(head, f_dv, y_dv, k_dv), "train_s": round(time.time() - t0, 1),
             "features_s": round(t_feat, 1), "torch_threads": torch.get_num_threads()}
@@ -142,12 +160,13 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--out", required=True, type=Path, help="folder for head.npz + head.json")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--train", type=int, default=6000, help="generated training questions")
-    p.add_argument("--dev", type=int, default=1000, help="generated questions (another seed) measuring it")
-    p.add_argument("--epochs", type=int, default=8)
+    p.add_argument("--train", type=int, default=5000, help="generated training questions")
+    p.add_argument("--dev", type=int, default=600, help="generated questions (another seed) measuring it")
+    p.add_argument("--epochs", type=int, default=5)
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--random-encoder", action="store_true", help="random weights of the real configuration (test)")
-    p.add_argument("--cache", type=Path, help="folder for the extracted encoder (default OUT/encoder)")
+    p.add_argument("--cache", type=Path, help="folder for the extracted encoder and the cached encoder states "
+                                              "(default: the temp folder's mosaic-reader-encoder)")
     a = p.parse_args(argv)
     torch.set_num_threads(a.threads)
     train(a.out, a.seed, a.train, a.dev, a.epochs, a.random_encoder, a.cache)

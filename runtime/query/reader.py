@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from ..infra.bundle import Bundle, load_bundle
 from ..infra.errors import BundleError
 from .reader_spec import KINDS, MAX_TOKENS, SPEC_VERSION, TAGS
 
@@ -144,8 +145,6 @@ class ModelReader:
 
 def load_reader(source: str | os.PathLike | Any, variant: str | None = None) -> ModelReader:
     """A reader from a bundle (its `reader` role) or a folder with model.onnx + tokenizer.json + reader.json."""
-    from ..infra.bundle import Bundle, load_bundle
-
     if not isinstance(source, Bundle):
         p = Path(source)
         if (p / "reader.json").is_file():
