@@ -71,7 +71,10 @@ def size_compare(st: State, toks: list[str], joined: str, nps: list[dict[str, An
             return st.fail(f"a '{word}' question about '{st.phrase(names[0])}' and {m.group(1)} {m.group(2)}",
                            "a length to compare with: height, length or width in m, cm, mm, ft or in (e.g. 'is the "
                            "sofa longer than 2 m?')")
-        mm = round(float(m.group(1)) * UNIT_M[unit] * 1000)
+        length = float(m.group(1)) * UNIT_M[unit] * 1000
+        if not length <= 1_000_000:  # SizeCompare.threshold_mm's bound (ir.py): refused, not an overflow
+            return st.fail(f"a '{word}' question about '{st.phrase(names[0])}'", "a length of at most 1 km")
+        mm = round(length)
         return SizeCompare(sup, (R(names[0]),), "threshold", mm, f"{m.group(1)} {unit}")
     if ((yesno or diff) and len(names) != 2) or (word in COMPARATIVES and len(names) < 2):
         about = f" about '{st.phrase(names[0])}'" if names else ""
