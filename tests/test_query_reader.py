@@ -49,6 +49,8 @@ def test_random_weights_export_verifies_and_reads(random_bundle):
     b = load_bundle(random_bundle)
     assert b.has_role("reader") and b.manifest["roles"]["reader"]["random_weights"] is True
     b.verify()  # every file listed with its sha256, tokenizer included
+    from mosaicthinker.runtime.models import check_archs
+    check_archs(b)  # the arch names the reader role's adapter
     r = load_reader(b)
     reading = r.read("how many chairs are there?")
     assert reading.kind in KINDS and 0.0 < reading.kind_confidence <= 1.0
