@@ -6,8 +6,8 @@ with the rule parser (the VSI-Bench templates, then plain English: `query.parse_
 templates then the trained reader alone (`query.reader`: a bundle's `reader` role, or `MOSAIC_READER`); `"vlm"`
 asks the VLM for the
 program under constrained decoding (`query.vlm`: LLGuidance with the program's JSON schema, the reply validated;
-refused clearly when it cannot); `"auto"` (default) uses the templates, the trained reader when there is one, the
-rules for what it refuses, and the VLM only for what they all refuse.
+refused clearly when it cannot); `"auto"` (default) uses the templates, the rules, the trained reader (when there is
+one) for what the rules refuse, and the VLM only for what they all refuse.
 Targets are weighed 1 and cues 0.5 by key-frame scoring (`ParsedQuestion.targets` / `.cues`).
 
 The vocabulary, question-text helpers and the parser live in `query/`; their public names are re-exported here.
@@ -39,7 +39,7 @@ def ground(question: str, options: list[str] | None = None, vlm: Any = None, fra
            ) -> ParsedQuestion:
     """Task grounding: question -> `ParsedQuestion` (its program, targets and cues).
 
-    grounding: "rules" | "vlm" | "auto" (see the module doc); names: object names beyond the vocabulary the
+    grounding: "rules" | "model" | "vlm" | "auto" (see the module doc); names: object names beyond the vocabulary the
     rule parser reads as mentions (a saved map's categories). With "vlm" or "auto" and a VLM that can decode
     under a JSON schema (`generate_json`), the VLM sees the question and `frames` ([H, W, 3] uint8 RGB) and emits
     the program; what it emits is validated (`query.schema.from_json`), and an output that fails validation is

@@ -150,8 +150,8 @@ def add_answerer(p: argparse.ArgumentParser, help_: str | None = None) -> None:
 def add_grounding(p: argparse.ArgumentParser) -> None:
     p.add_argument("--grounding", choices=list(GROUNDINGS), default="auto",
                    help="who reads the question into a program: the rule parser, the trained reader (the bundle's "
-                        "`reader` role), the bundle's VLM under the program's JSON schema, or auto (the trained "
-                        "reader when there is one, the rules and then the VLM for what it refuses) (default auto)")
+                        "`reader` role), the bundle's VLM under the program's JSON schema, or auto (the rules, the "
+                        "trained reader for what they refuse, then the VLM) (default auto)")
 
 
 class _Deprecated(argparse.Action):

@@ -35,6 +35,7 @@ ROLE_WORDS = {"OBJ": "the object asked about", "STAND": "where you stand", "FACE
               "TURN": "a turn", "LOC": "a place the objects are at"}
 _UNITS = [("mm", r"^mil+i|^mm"), ("cm", r"^cent|^cm"), ("in", r"^inch|^in\b|^\"$"), ("ft", r"^f(ee|oo)?t|^'$"),
           ("m", r"^met|^mtr|^m\b|^m$")]
+_MOST = r"\b(long|larg|bigg|great|max|most)\w*|\b(length|dimension|size|measure)\w*"
 _DIM = [("height", r"\b(tall|height|high)\b"), ("width", r"\b(wide|width)\b")]
 _ARTICLE = re.compile(r"^(?:(?:the|a|an|this|that|these|those|my|your|our|some)\s+)+", re.I)
 
@@ -96,11 +97,16 @@ def _one(r: Reading, role: str) -> Span:
     return spans[0]
 
 
+SURE_UNKNOWN = 0.9  # a span naming nothing known (vocabulary, map, by meaning) is kept only this sure
+
+
 def _ref(span: Span | str, resolve: Resolve, notes: list[str], plural: bool = False) -> Ref:
     phrase = clean_phrase(span.text if isinstance(span, Span) else span)
     if not phrase:
         raise Refusal(f"which object '{span.text if isinstance(span, Span) else span}' names")
     ref, more = resolve(phrase, plural)
+    if isinstance(span, Span) and not ref.known and ref.name == phrase and span.confidence < SURE_UNKNOWN:
+        raise Refusal(f"whether '{phrase}' is an object ({'; '.join(more) or 'no known name'})")
     notes.extend(more)
     return ref
 
@@ -113,7 +119,8 @@ def _count(r, q, options, resolve, notes) -> Node:
 
 
 def _size(r, q, options, resolve, notes) -> Node:
-    dim = next((d for d, rx in _DIM if re.search(rx, q.lower())), "longest")
+    low = q.lower()  # the longest unless one dimension is asked alone ("how tall", not "length, width or height")
+    dim = "longest" if re.search(_MOST, low) else next((d for d, rx in _DIM if re.search(rx, low)), "longest")
     return Size(_ref(_one(r, "OBJ"), resolve, notes), dim, unit_of(r.of("UNIT"), "cm"))
 
 
@@ -136,11 +143,15 @@ def _option_texts(options: list[str] | None) -> list[str]:
 
 def _nearest(extreme: str):
     def build(r, q, options, resolve, notes) -> Node:
-        cands = [_ref(s, resolve, notes) for s in r.of("CAND")] or \
-            [_ref(t, resolve, notes) for t in _option_texts(options) if t]
+        # the options are the choices (names as the question's author wrote them); else the listed objects
+        cands = [_ref(t, resolve, notes) for t in _option_texts(options) if t] or \
+            [_ref(s, resolve, notes) for s in r.of("CAND")]
         if not cands:
             raise Refusal("the objects compared (none listed, no options)")
-        return Nearest(_ref(_one(r, "REF"), resolve, notes), tuple(cands), extreme)
+        origin = _ref(_one(r, "REF"), resolve, notes)
+        if origin.name in {c.name for c in cands}:  # measured from one of the candidates: roles misread
+            raise Refusal(f"which object distances are measured from ('{origin.words}' is also a candidate)")
+        return Nearest(origin, tuple(cands), extreme)
     return build
 
 

@@ -55,24 +55,28 @@ def _softmax(x: np.ndarray) -> np.ndarray:
 
 def decode_spans(text: str, offsets: list[tuple[int, int]], probs: np.ndarray) -> list[Span]:
     """BIO tags of word pieces -> spans. offsets: [T] character ranges (special tokens (0, 0)); probs: [T, L]
-    tag probabilities. A piece continues a span when its tag is I- of the same role (or B- inside one word)."""
-    spans: list[Span] = []
-    cur: list[Any] | None = None  # [role, start, end, min prob]
-    ids = probs.argmax(-1)
-    for (a, b), t, p in zip(offsets, ids, probs.max(-1)):
+    tag probabilities. A word (pieces with no gap between letters) takes its first piece's tag, as in training;
+    a word continues a span when its tag is I- of the span's role. A span's confidence: its words' least."""
+    words: list[list[Any]] = []  # [start, end, tag id, prob]
+    for (a, b), row in zip(offsets, probs):
         if a == b:
             continue
-        tag = TAGS[int(t)]
-        same_word = cur is not None and a == cur[2] and text[a - 1:a].isalnum()
-        if tag == "O" and not same_word:
+        if words and a == words[-1][1] and text[a - 1:a].isalnum() and text[a:a + 1].isalnum():
+            words[-1][1] = b  # a later piece of the same word
+            continue
+        t = int(row.argmax())
+        words.append([a, b, t, float(row[t])])
+    spans: list[Span] = []
+    cur: list[Any] | None = None  # [role, start, end, min prob]
+    for a, b, t, p in words:
+        tag = TAGS[t]
+        if tag == "O":
             cur = _close(spans, cur, text)
-            continue
-        role = tag[2:] if tag != "O" else cur[0]
-        if cur is not None and role == cur[0] and (tag.startswith("I-") or same_word or tag == "O"):
-            cur[2], cur[3] = b, min(cur[3], float(p))
-            continue
-        _close(spans, cur, text)
-        cur = [role, a, b, float(p)]
+        elif cur is not None and tag == "I-" + cur[0]:
+            cur[2], cur[3] = b, min(cur[3], p)
+        else:
+            _close(spans, cur, text)
+            cur = [tag[2:], a, b, p]
     _close(spans, cur, text)
     return spans
 
