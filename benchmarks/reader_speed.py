@@ -38,14 +38,16 @@ def questions(limit: int) -> list[tuple[str, list[str] | None]]:
 
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--bundle", required=True)
+    p.add_argument("--bundle", required=True, help="a bundle with a reader role, or a reader folder")
     p.add_argument("--variant", default=None)
     p.add_argument("--n", type=int, default=300)
     p.add_argument("--out", type=Path)
     a = p.parse_args()
-    b = load_bundle(a.bundle)
-    spec = b.spec("reader", a.variant)
-    r = load_reader(b, a.variant)
+    if (Path(a.bundle) / "reader.json").is_file():  # a reader folder (model.onnx, tokenizer.json, reader.json)
+        r, variant, model = load_reader(a.bundle), "folder", Path(a.bundle) / "model.onnx"
+    else:
+        spec = load_bundle(a.bundle).spec("reader", a.variant)
+        r, variant, model = load_reader(load_bundle(a.bundle), a.variant), spec.variant, spec.component("model").path
     qs = questions(a.n)
     for q, _ in qs[:10]:
         r.read(q)
@@ -59,8 +61,8 @@ def main() -> int:
         parse_ms.append((time.perf_counter() - t) * 1e3)
     stat = lambda x: {"median": round(float(np.median(x)), 2), "p90": round(float(np.percentile(x, 90)), 2),  # noqa: E731
                       "max": round(float(np.max(x)), 2)}
-    res = {"schema": "mosaicthinker.bench.reader_speed/1", "bundle": str(a.bundle), "variant": spec.variant,
-           "model_bytes": spec.component("model").path.stat().st_size, "questions": len(qs),
+    res = {"schema": "mosaicthinker.bench.reader_speed/1", "bundle": str(a.bundle), "variant": variant,
+           "model_bytes": model.stat().st_size, "questions": len(qs),
            "read_ms": stat(read_ms), "parse_ms": stat(parse_ms), "threads": 1,
            "load_avg": [round(x, 2) for x in os.getloadavg()], "cpus": os.cpu_count(),
            "command": "OMP_NUM_THREADS=1 python benchmarks/reader_speed.py --bundle B"}
