@@ -116,7 +116,7 @@ def test_decode_spans_joins_word_pieces_and_bio_tags():
         probs[i, TAGS.index(t)] = 0.95
     spans = decode_spans(text, offsets, probs)
     assert [(s.role, s.text) for s in spans] == [("OBJ", "coat rack"), ("OBJ", "sofa")]
-    assert all(abs(s.confidence - 0.95) < 1e-6 for s in spans)
+    assert all(abs(s.confidence - 0.951) < 1e-3 for s in spans)  # the role's probability: B- plus I-
 
 
 def test_names_known_by_the_map_resolve_as_written_and_unknown_ones_stay():

@@ -53,10 +53,15 @@ def _softmax(x: np.ndarray) -> np.ndarray:
     return e / e.sum(-1, keepdims=True)
 
 
+# each tag's partner of the same role (B-X <-> I-X; "O" has none)
+_PAIR = [TAGS.index(("I-" if t.startswith("B-") else "B-") + t[2:]) if t != "O" else -1 for t in TAGS]
+
+
 def decode_spans(text: str, offsets: list[tuple[int, int]], probs: np.ndarray) -> list[Span]:
     """BIO tags of word pieces -> spans. offsets: [T] character ranges (special tokens (0, 0)); probs: [T, L]
     tag probabilities. A word (pieces with no gap between letters) takes its first piece's tag, as in training;
-    a word continues a span when its tag is I- of the span's role. A span's confidence: its words' least."""
+    a word continues a span when its tag is I- of the span's role. A span's confidence: its words' least
+    probability of the span's role."""
     words: list[list[Any]] = []  # [start, end, tag id, prob]
     for (a, b), row in zip(offsets, probs):
         if a == b:
@@ -64,8 +69,8 @@ def decode_spans(text: str, offsets: list[tuple[int, int]], probs: np.ndarray) -
         if words and a == words[-1][1] and text[a - 1:a].isalnum() and text[a:a + 1].isalnum():
             words[-1][1] = b  # a later piece of the same word
             continue
-        t = int(row.argmax())
-        words.append([a, b, t, float(row[t])])
+        t = int(row.argmax())  # confidence: the probability of the role (B- and I- together), not of one tag
+        words.append([a, b, t, float(row[t] + (row[_PAIR[t]] if _PAIR[t] >= 0 else 0.0))])
     spans: list[Span] = []
     cur: list[Any] | None = None  # [role, start, end, min prob]
     for a, b, t, p in words:
