@@ -125,3 +125,16 @@ def test_names_known_by_the_map_resolve_as_written_and_unknown_ones_stay():
     assert ref.name == "coat hanger" and not notes
     ref, _ = res("zither")
     assert ref.name == "zither" and not ref.known
+
+
+@pytest.mark.parametrize("q,level", [("from the bed facing the door, is the lamp on my left or my right?", "easy"),
+                                     ("at the bed facing the door: the lamp, left, right or behind me?", "medium"),
+                                     ("my back is to the bed and i face the door; is the lamp left or right?", "easy"),
+                                     ("at the bed facing the door, which quadrant is the lamp in?", "hard"),
+                                     ("at the bed facing the door, where is the lamp?", "free")])
+def test_direction_granularity_from_the_choices_the_question_lists(q, level):
+    stand = q.index("bed")
+    r = Reading("direction", 0.99, [Span("STAND", "bed", stand, stand + 3, 0.98),
+                                    Span("FACE", "door", q.index("door"), q.index("door") + 4, 0.98),
+                                    Span("OBJ", "lamp", q.index("lamp"), q.index("lamp") + 4, 0.98)])
+    assert compose(r, q, None, RES)[0].granularity == level

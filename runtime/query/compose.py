@@ -156,14 +156,13 @@ def _nearest(extreme: str):
 
 
 def _granularity(options: list[str] | None, q: str) -> str:
-    text = " ".join(_option_texts(options)).lower() if options else ""
-    if not text:
-        return "free"
-    if re.search(r"(front|back)[- ]?(left|right)", text):
+    """The choices asked: the options', else those the question lists ("left, right or behind?")."""
+    text = " ".join(_option_texts(options)).lower() if options else q.lower()
+    if re.search(r"(front|back)[- ]?(left|right)|quadrant|diagonal", text):
         return "hard"
-    if re.search(r"\b(back|behind)\b", text):
+    if re.search(r"\bleft\b.{0,30}\bright\b.{0,20}\b(back|behind)\b", text):  # a choice, not "my back is to"
         return "medium"
-    return "easy" if re.search(r"\b(left|right)\b", text) else "free"
+    return "easy" if re.search(r"\bleft\b.*\bright\b|\bright\b.*\bleft\b", text) else "free"
 
 
 def _direction(r, q, options, resolve, notes) -> Node:
