@@ -162,7 +162,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--train", type=int, default=5000, help="generated training questions")
     p.add_argument("--dev", type=int, default=600, help="generated questions (another seed) measuring it")
-    p.add_argument("--epochs", type=int, default=5)
+    p.add_argument("--epochs", type=int, default=12)  # the committed head's
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--random-encoder", action="store_true", help="random weights of the real configuration (test)")
     p.add_argument("--cache", type=Path, help="folder for the extracted encoder and the cached encoder states "
