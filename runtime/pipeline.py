@@ -31,7 +31,7 @@ from .detectable import detectable_names, undetectable_names
 from .types import Budget, Detections, Frame, Observation
 # the stages, in the paper's order
 from .scan import DedupConf, ScanResult, open_scanned, remove_redundant
-from .grounding import ParsedQuestion, ground
+from .grounding import ParsedQuestion, bundle_reader, ground
 from .keyframes import (KeyFrameConf, KeyFrameResult, finish_keyframes, plan_keyframes, requested_keyframes,
                         select_keyframes)
 from .perceive import (CachedDetector, Perceived, Perception, colour_frame, load_vlm, match_boxes, perceive_keyframes,
@@ -569,7 +569,7 @@ class AskRequest:
 
     answerer: "map" | "vlm" | "auto"; method: "mosaic" (map + visual prompt) or "direct" (the baseline: frames
     sampled uniformly straight to the VLM, `direct_frames` of them); prompt_mode: "grid" | "points" | "text" |
-    "json"; grounding: "rules" | "vlm" | "auto" (who reads the question into its program, `grounding.ground`);
+    "json"; grounding: "rules" | "model" | "vlm" | "auto" (who reads the question into its program, `grounding.ground`);
     keyframes: K (None: the budget's, else the config's: `keyframes.requested_keyframes`); render_image=False skips
     the map image when nothing will show it (no VLM, no file written: on a 10 k-object map it dominates); conf: the
     `PipelineConfig` or overrides of it; profile: a device profile (a budget controller is made from it for a
@@ -607,7 +607,7 @@ def ask(source: Any, question: str, options: list[str] | None = None, request: A
     src = _open(source, trace)
     if req.method == "direct":
         return _ask_direct(src, question, options, vlm, trace, req.direct_frames)
-    pq = _ground(src, question, options, vlm, conf, trace, req.grounding)
+    pq = _ground(src, question, options, vlm, conf, trace, req.grounding, bundle)
     build = None
     if isinstance(src, SemanticMap):
         smap = src
@@ -628,16 +628,18 @@ def ask(source: Any, question: str, options: list[str] | None = None, request: A
 
 
 def _ground(src: FrameSource | SemanticMap, question: str, options: list[str] | None, vlm: Any,
-            conf: PipelineConfig, trace: Trace, grounding: str) -> ParsedQuestion:
+            conf: PipelineConfig, trace: Trace, grounding: str, bundle: Any) -> ParsedQuestion:
     """The grounding stage: the question's program (`grounding.ground`); a video's frames are decoded only if
-    the VLM grounds it, a saved map's names help read it."""
+    the VLM grounds it, a saved map's names help read it, the bundle's trained reader reads what the rules
+    refuse."""
     frames_for_grounding = None
     if vlm is not None and not isinstance(src, SemanticMap):  # decoded only if the VLM grounds the question
         n = min(conf.grounding_frames, len(src))
         frames_for_grounding = lambda: [src[int(i)].rgb for i in np.linspace(0, len(src) - 1, n).round().astype(int)]  # noqa: E731
     with trace.stage("grounding"):
         names = sorted({o.name for o in src.instances}) if isinstance(src, SemanticMap) else ()
-        return ground(question, options, vlm, frames_for_grounding, trace, grounding, names)
+        reader = bundle_reader(bundle, trace) if grounding in ("model", "auto") else None
+        return ground(question, options, vlm, frames_for_grounding, trace, grounding, names, reader=reader)
 
 
 def _refused_before_frames(question: str, options: list[str] | None, pq: ParsedQuestion, bundle: Any,

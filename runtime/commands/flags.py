@@ -49,7 +49,7 @@ MAX_CLIP_S = 86400.0  # 24 h, as the planner (budget.MAX_CLIP_S): longer is not 
 MAX_FPS = 1000.0
 COMPLEXITY = ("low", "med", "high")   # object-number levels of a generated scene (VSI-Bench terciles)
 ANSWERERS = ("map", "vlm", "auto")    # map reasoner, VLM on the visual prompt, auto (reasoner when it knows)
-GROUNDINGS = ("rules", "vlm", "auto")  # question -> program: rule parser, VLM (constrained), auto (rules first)
+GROUNDINGS = ("rules", "model", "vlm", "auto")  # question -> program: rule parser, trained reader, VLM, auto (all)
 
 
 MAX_SIDE_PX = 16384   # a frame side (the largest video frames are 8K: 7680 px)
@@ -152,8 +152,9 @@ def add_answerer(p: argparse.ArgumentParser, help_: str | None = None) -> None:
 
 def add_grounding(p: argparse.ArgumentParser) -> None:
     p.add_argument("--grounding", choices=list(GROUNDINGS), default="auto",
-                   help="who reads the question into a program: the rule parser, the bundle's VLM under the "
-                        "program's JSON schema, or auto (the rules, the VLM for what they refuse) (default auto)")
+                   help="who reads the question into a program: the rule parser, the trained reader (the bundle's "
+                        "`reader` role), the bundle's VLM under the program's JSON schema, or auto (the rules, the "
+                        "trained reader for what they refuse, then the VLM) (default auto)")
 
 
 class _Deprecated(argparse.Action):

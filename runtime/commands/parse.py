@@ -1,6 +1,7 @@
 """`mosaic parse "question"`: the question's program as JSON (what `mosaic ask` executes on the map).
 
-`--grounding rules` reads it with the rule parser; `vlm` with the `--bundle`'s VLM under the program's JSON schema
+`--grounding rules` reads it with the rule parser; `model` with the trained reader (the `--bundle`'s `reader` role
+or MOSAIC_READER's); `vlm` with the `--bundle`'s VLM under the program's JSON schema
 (constrained decoding); `auto` (default) with the rules, and the VLM (when the bundle has one) for what they refuse. `--schema` prints the versioned JSON schema instead (`--schema vlm`:
 the bounds the VLM decodes under). No map and no frames are read.
 """
@@ -11,7 +12,7 @@ from typing import Any
 
 from ..infra import jsonio
 from ..infra.errors import InputError
-from ..grounding import check_question, ground, split_inline_options
+from ..grounding import bundle_reader, check_question, ground, split_inline_options
 from ..infra.trace import Trace
 from ..pipeline import load_vlm
 from ..query.schema import json_schema
@@ -42,11 +43,12 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         question, options = split_inline_options(question)
     trace = Trace()
     vlm = None
-    if args.grounding != "rules" and args.bundle:  # the models only when a VLM may read the question
+    if args.grounding in ("vlm", "auto") and args.bundle:  # the models only when a VLM may read the question
         vlm = load_vlm(args.bundle, trace)
     if args.grounding == "vlm" and vlm is None:
         raise InputError("`grounding=vlm` needs a bundle with a `vlm` role", fields=("grounding",))
-    pq = ground(question, options, vlm, None, trace, args.grounding)
+    reader = bundle_reader(args.bundle, trace) if args.grounding in ("model", "auto") else None
+    pq = ground(question, options, vlm, None, trace, args.grounding, reader=reader)
     return {"schema": "mosaicthinker.parse/1", "question": pq.question, "options": options, **pq.to_dict(),
             "warnings": [e["message"] for e in trace.events if e["kind"] in ("grounding", "random_weights")]}
 
@@ -58,7 +60,11 @@ def render(r: dict[str, Any]) -> str:
         lines = ["program: none (not understood)"] + [f"  {n}" for n in r.get("notes", [])]
     else:
         lines = [jsonio.dumps(r["program"], indent=1),
-                 f"  read by: {r['how']}; type {r['qtype']}; targets {r['targets']}; cues {r['cues']}"]
+                 f"  read by: {r['reader']}; type {r['qtype']}; targets {r['targets']}; cues {r['cues']}"]
+        if r.get("confidence"):
+            c = r["confidence"]
+            lines.append(f"  reader confidence: {c['kind']} {c['kind_p']:.2f}; " + ", ".join(
+                f"{s['role']} '{s['text']}' {s['p']:.2f}" for s in c["spans"]))
         if r.get("unknown"):
             lines.append(f"  not in the vocabulary (matched by name): {', '.join(r['unknown'])}")
         if r.get("notes"):  # spelling read otherwise, clauses set aside, words read as no object

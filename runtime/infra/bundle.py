@@ -71,7 +71,7 @@ from .file_schemas import check_manifest
 SCHEMA = "mosaicthinker.bundle/1"
 SUPPORTED_SCHEMAS = (SCHEMA,)
 MANIFEST = "manifest.json"
-ROLES = ("depth", "segmenter", "instance_segmenter", "matcher", "detector", "embedder", "vlm")
+ROLES = ("depth", "segmenter", "instance_segmenter", "matcher", "detector", "embedder", "vlm", "reader")
 # role-level fields a variant may override: a variant that is another model for the same role (the SSD kept beside
 # YOLOX as the detector's `ssd-fp32` variant) carries its own arch, pre-processing, labels, licence ...
 OVERRIDABLE = ("arch", "name", "preprocessing", "semantics", "provenance", "licence", "random_weights", "config")

@@ -62,6 +62,7 @@ ARCHS: dict[str, str] = {
     "internvl": "vlm:VLM",
     "qwen2_5_vl": "vlm_genai:GenAIVLM",       # ONNX Runtime GenAI package (decoder, embedding, vision)
     "qwen3_vl": "vlm:Qwen3VL",                # own graphs: vision with DeepStack, M-RoPE decoder
+    "minilm-reader": "reader:QuestionReader",  # the trained question reader (query/reader.py runs it)
 }
 
 

@@ -1,7 +1,9 @@
-"""Question -> program: the VSI-Bench templates first (exact wording), then the rule parser (plain English).
+"""Question -> program: the VSI-Bench templates first (exact wording), then the rule parser (plain English), then
+the trained reader (`reader`, `compose`: any wording, refused when unsure) for what the rules refuse.
 
-`parse_question(question, options) -> ParsedQuestion`: the program (None when not understood), how it was read,
-and notes saying what was and was not understood. Only the question text and the options are read.
+`parse_question(question, options) -> ParsedQuestion`: the program (None when not understood), how it was read
+(`how`: "template", "model", "natural", "vlm" or "none"), the reader's confidence, and notes saying what was and
+was not understood. Only the question text and the options are read.
 """
 from __future__ import annotations
 
@@ -9,8 +11,11 @@ import json
 from dataclasses import dataclass, field
 from typing import Any, Iterable
 
+from .compose import compose
 from .ir import NearestTo, Option, Program, iter_refs, phrases
+from .names import NameResolver
 from .normalize import normalize
+from .reader import default_reader
 from .rules.parse import parse_natural
 from .schema import to_json
 from .spelling import cue_reading, second_reading
@@ -29,6 +34,12 @@ class ParsedQuestion:
     notes: list[str] = field(default_factory=list)
     how: str = "none"
     read_as: list[str] = field(default_factory=list)  # spelling read otherwise ("read 'chiars' as 'chairs'")
+    confidence: dict[str, Any] | None = None  # the trained reader's: kind, its probability, each span's
+
+    @property
+    def reader(self) -> str:
+        """Which reader produced the program: "templates", "model", "rules", "vlm" (or "none")."""
+        return {"template": "templates", "natural": "rules"}.get(self.how, self.how)
 
     @property
     def node(self) -> Any:
@@ -87,7 +98,7 @@ class ParsedQuestion:
             (f"; not used: {'; '.join(self.notes)}" if self.notes else "")
 
     def to_dict(self) -> dict[str, Any]:
-        return {"how": self.how, "qtype": self.qtype, "targets": self.targets, "cues": self.cues,
+        return {"how": self.how, "reader": self.reader, "confidence": self.confidence, "qtype": self.qtype, "targets": self.targets, "cues": self.cues,
                 "unknown": self.unknown, "notes": list(self.notes), "read_as": list(self.read_as),
                 "program": None if self.program is None else to_json(self.program)}
 
@@ -96,10 +107,16 @@ def program_of(node: Any, options: list[str] | None) -> Program:
     return Program(node, tuple(Option(letter, text) for letter, text in split_options(options)))
 
 
-def parse_question(question: str, options: list[str] | None = None, names: Iterable[str] = ()) -> ParsedQuestion:
-    """Parse a question: the VSI-Bench templates first (exact wording), then natural wording (`rules`). The
-    program is None when the question is not understood (`notes` say what was and was not). names: object names
-    beyond the vocabulary the question may mention (a map's categories, a detector's labels). Questions over
+READERS = ("rules", "model", "auto")  # which readers follow the templates (auto: the rules, then the model)
+
+
+def parse_question(question: str, options: list[str] | None = None, names: Iterable[str] = (),
+                   reader: Any = "env", readers: str = "auto") -> ParsedQuestion:
+    """Parse a question: the VSI-Bench templates first (exact wording), then the rule parser, then the trained
+    reader for what the rules refuse (`reader`: a `query.reader.ModelReader`, "env" for `MOSAIC_READER`'s, None
+    for none; `readers`: "model" = the reader alone, "rules" = the rules alone, "auto" = both). The program
+    is None when the question is not understood (`notes` say what was and was not). names: object names beyond
+    the vocabulary the question may mention (a map's categories, a detector's labels). Questions over
     `text.MAX_QUESTION_CHARS` are an InputError."""
     check_question(question, options)
     q = clean_question(question)
@@ -108,6 +125,39 @@ def parse_question(question: str, options: list[str] | None = None, names: Itera
     if matched:
         return ParsedQuestion(q, opts, program_of(node, opts) if node is not None else None, notes,
                               "template" if node is not None else "none")
+    model = default_reader() if reader == "env" else reader
+    if readers == "model":
+        if model is None:
+            return ParsedQuestion(q, opts, None, ["not understood: no trained reader (`mosaic export reader`, "
+                                                  "`--bundle` with a reader role or MOSAIC_READER)"], "none")
+        return read_with_model(model, q, opts, names)
+    pq = parse_rules(q, opts, names)
+    if pq.program is not None or model is None or readers == "rules":
+        return pq
+    # auto: the trained reader reads what the rules refuse (docs/query.md: measured, it is not yet ahead of them)
+    pm = read_with_model(model, q, opts, names)
+    if pm.program is not None:
+        pm.notes = [f"the rules refused ({'; '.join(pq.notes)[:200]}); read by the trained reader"] + pm.notes
+        return pm
+    pq.notes = pq.notes + pm.notes
+    pq.confidence = pm.confidence
+    return pq
+
+
+def read_with_model(model: Any, q: str, opts: list[str] | None, names: Iterable[str]) -> ParsedQuestion:
+    """The trained reader's program (or its refusal), names resolved by the vocabulary, the map and by meaning."""
+    r = model.read(q)
+    node, notes = compose(r, q, opts, NameResolver(model, names))
+    conf = {"kind": r.kind, "kind_p": r.kind_confidence,
+            "spans": [{"role": s.role, "text": s.text, "p": s.confidence} for s in r.spans]}
+    if getattr(model, "random_weights", False):
+        notes = notes + ["the reader has RANDOM weights (test model): its readings are meaningless"]
+    return ParsedQuestion(q, opts, program_of(node, opts) if node is not None else None, notes,
+                          "model" if node is not None else "none", [], conf)
+
+
+def parse_rules(q: str, opts: list[str] | None, names: Iterable[str]) -> ParsedQuestion:
+    """The rule parser (plain English) on a cleaned question that no template matched."""
     text, read_as, unclear = normalize(q, names)  # typos, units, cue synonyms: in the parser's own words
     if unclear:  # a typo as close to two words the parser uses: refused, never read one way at random
         return ParsedQuestion(q, opts, None, read_as + [f"not understood: the word {', '.join(unclear)}; please "

@@ -57,6 +57,9 @@ def count_compare(st: State, toks: list[str], joined: str, nps: list[dict[str, A
     return CountCompare(R(names[0]), R(names[1]), "more" if more else "fewer", form)
 
 
+COUNT_MAX = 1000  # CountCondition.n's bound (ir.py)
+
+
 def _count_condition(joined: str) -> CountCondition | None:
     """"are there two chairs?" -> (==, 2); "is there more than one cup?" -> (>, 1); else None."""
     m = COUNT_RX.search(joined)
@@ -77,6 +80,8 @@ def exists(st: State, toks: list[str], joined: str, nps: list[dict[str, Any]], e
     rel = location(st, toks, objs, conds) if conds and (objs or every) else None
     rel = rel or attached_near(st, joined, objs)  # "is there a chair near the table?" (read as a selector)
     n = _count_condition(joined)  # "are there two chairs?": a count, not "is there a chair?"
+    if n is not None and n.n > COUNT_MAX:  # a number no program holds: refused, never a program the schema rejects
+        return st.fail("an are-there-N question", f"a count of at most {COUNT_MAX} (read {str(n.n)[:12]}...)")
     if n is not None and len(objs) > 1:
         return st.fail("an are-there-N question", "one object to count (e.g. 'are there two chairs?')")
     if n is not None and objs and len(objs[0]["words"]) > 1 and objs[0]["words"][0] in NUMBERS:

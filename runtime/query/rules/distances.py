@@ -34,6 +34,8 @@ def abs_distance(st: State, toks: list[str], joined: str, nps: list[dict[str, An
     within = None
     cond = distance_condition(st.question)
     if cond is not None and toks[0] in COPULA and not has(joined, VALUE_ASKED_RX):  # "within 2 m of ...?": yes/no
+        if not cond["threshold_m"] * 1000 <= 1_000_000:  # DistanceCondition's bound (ir.py): refused, not a crash
+            return st.fail("a within-distance question", "a distance of at most 1 km")
         within = DistanceCondition(cond["op"], round(cond["threshold_m"] * 1000), cond["text"])
     return Distance(R(names[0]), R(names[1]), unit_in(joined, "m"), within)
 
