@@ -41,7 +41,7 @@ import sys
 from pathlib import Path
 
 from holdout_common import (CM_IN, FILL_RE, FORWARD_RE, NUMBER, N_PATTERNS, PER_PATTERN, ROUTE_RE, SQM_IN, Seg,
-                            TYPES, TYPO_PER_TYPE, _noun, _split_objects, _tidy, convert, dumps,
+                            TYPES, TYPO_PER_TYPE, _noun, _segments, _split_objects, _tidy, convert, dumps,
                             source_objects)
 
 HERE = Path(__file__).resolve().parent
@@ -309,16 +309,6 @@ def listing(words: list[str], style: str) -> str:
 
 
 # --- one single-letter slip -----------------------------------------------------------------------------------------
-
-
-def _segments(template: str, names: dict[str, str]) -> list[Seg]:
-    out: list[Seg] = []
-    for part in re.split(r"(\{\w+\})", template):
-        if re.fullmatch(r"\{\w+\}", part):
-            out.append((names[part[1:-1]], True))
-        elif part:
-            out.append((part, False))
-    return out
 
 
 def _slips(segs: list[Seg], objects_too: bool) -> list[tuple[int, int, int, str]]:
