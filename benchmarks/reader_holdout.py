@@ -12,7 +12,6 @@ the answered ones (multiple choice: the share right; numbers: MRA), and the answ
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import time
 from collections import defaultdict
@@ -21,6 +20,8 @@ from pathlib import Path
 import numpy as np
 
 from mosaicthinker.host.evaluation.vsibench import VIDEO_ONLY, load_meta, load_questions, score_answer
+from mosaicthinker.runtime.infra import jsonio
+from mosaicthinker.runtime.infra.outputs import write_file_atomic
 from mosaicthinker.runtime.answer.execute import MapReasoner
 from mosaicthinker.runtime.map.model import SemanticMap
 from mosaicthinker.runtime.query.parse import parse_question
@@ -85,9 +86,7 @@ def main() -> int:
     res["seconds"] = round(time.time() - t0, 1)
     res["load_avg_end"] = [round(x, 2) for x in os.getloadavg()]
     if a.out:
-        tmp = a.out.with_suffix(".tmp")
-        tmp.write_text(json.dumps(res, indent=1) + "\n")
-        tmp.replace(a.out)
+        write_file_atomic(a.out, jsonio.dumps(res, indent=1) + "\n")
     return 0
 
 

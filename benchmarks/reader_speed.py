@@ -18,6 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
+from mosaicthinker.runtime.infra import jsonio
+from mosaicthinker.runtime.infra.outputs import write_file_atomic
 from mosaicthinker.runtime.infra.bundle import load_bundle
 from mosaicthinker.runtime.query.parse import parse_question
 from mosaicthinker.runtime.query.reader import load_reader
@@ -66,11 +68,10 @@ def main() -> int:
            "read_ms": stat(read_ms), "parse_ms": stat(parse_ms), "threads": 1,
            "load_avg": [round(x, 2) for x in os.getloadavg()], "cpus": os.cpu_count(),
            "command": "OMP_NUM_THREADS=1 python benchmarks/reader_speed.py --bundle B"}
-    print(json.dumps(res, indent=1))
+    text = jsonio.dumps(res, indent=1) + "\n"
+    print(text, end="")
     if a.out:
-        tmp = a.out.with_suffix(".tmp")
-        tmp.write_text(json.dumps(res, indent=1) + "\n")
-        tmp.replace(a.out)
+        write_file_atomic(a.out, text)
     return 0
 
 

@@ -9,7 +9,6 @@ beside the same rooms' pycolmap oracle (`sfm_oracle.py`) when `--oracle`.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 import time
@@ -17,6 +16,8 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from real_rooms import SHARED, pose_row  # noqa: E402
+from mosaicthinker.runtime.infra import jsonio  # noqa: E402
+from mosaicthinker.runtime.infra.outputs import write_file_atomic  # noqa: E402
 
 TARGETS = {"registered_share": 0.9, "ate_sim3_m": 0.10, "ate_sim3_kitchen_m": 0.06}
 
@@ -46,9 +47,7 @@ def main() -> int:
               file=sys.stderr)
     res = {"date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()), "keyframes": a.keyframes,
            "bundle": a.bundle, "targets": TARGETS, "machine": f"{os.cpu_count()} CPUs, shared", "rooms": rows}
-    tmp = Path(a.out).with_suffix(".tmp")
-    tmp.write_text(json.dumps(res, indent=1, default=str))
-    os.replace(tmp, a.out)
+    write_file_atomic(a.out, jsonio.dumps(res, indent=1) + "\n")
     return 0
 
 

@@ -9,13 +9,15 @@ ATE after Sim(3) against the ground truth. pycolmap has no aarch64 wheel: it is 
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
+
+from mosaicthinker.runtime.infra import jsonio
+from mosaicthinker.runtime.infra.outputs import write_file_atomic
 
 
 def oracle(data: str, k: int, stream_frames: int, overlap: int) -> dict:
@@ -83,11 +85,9 @@ def main() -> None:
     ap.add_argument("--out", default=None)
     a = ap.parse_args()
     r = oracle(a.data, a.keyframes, a.stream_frames, a.overlap)
-    text = json.dumps(r, indent=1, default=lambda x: None if isinstance(x, float) and not np.isfinite(x) else x)
+    text = jsonio.dumps(r, indent=1) + "\n"  # a non-finite figure (nothing registered) is written as null
     if a.out:
-        tmp = Path(a.out).with_suffix(".tmp")
-        tmp.write_text(text)
-        os.replace(tmp, a.out)
+        write_file_atomic(a.out, text)
     print(text)
 
 
