@@ -30,7 +30,8 @@ from typing import Any, Callable, Iterator
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from campaign_core import CLASSES, Record, _dump, _limit, _proc, _Timeout, classify, cli  # noqa: E402,F401
+from campaign_core import (CLASSES, Record, _dump, _limit, _proc, _Timeout, classify, cli,  # noqa: E402,F401
+                           start_run)
 from fuzz_files import (MUTATIONS, base_annotation, base_manifest, base_map, base_profile, mutate,  # noqa: E402
                         paths, show_path, use_roles)
 
@@ -341,23 +342,12 @@ def stream_cases(work: Path, full: bool = True) -> Iterator[Record]:
 
 def signal_cases(work: Path, full: bool = True) -> Iterator[Record]:
     """A signal during a run: the documented exit (128 + n), run.json says interrupted, the lock is gone."""
-    import time
-
     from test_bad_inputs import _big_map
 
     m = str(_big_map(work / "big.json", 30000))
     for sig in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP):
         out = work / sig.name
-        p = subprocess.Popen([sys.executable, "-m", "mosaicthinker.runtime.cli", "ask", m, "How many chairs?",
-                              "--out", str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        t0 = time.time()
-        while time.time() - t0 < 60 and p.poll() is None:
-            try:
-                if json.loads((out / "run.json").read_text())["status"] == "running":
-                    break
-            except (OSError, ValueError):
-                pass
-            time.sleep(0.02)
+        p = start_run(["ask", m, "How many chairs?", "--out", out], out, text=True, step=0.02)
         p.send_signal(sig)
         try:
             _, err = p.communicate(timeout=120)

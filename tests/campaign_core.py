@@ -9,6 +9,8 @@ import json
 import os
 import signal
 import subprocess
+import sys
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterator
@@ -84,3 +86,19 @@ def _proc(cmd: str, limit: int = 300) -> tuple[int | str, str, str]:
     except subprocess.TimeoutExpired:
         return "hang", "", ""
     return r.returncode, r.stdout, r.stderr
+
+
+def start_run(argv: list, out: Path, *, text: bool = False, limit: float = 60, step: float = 0.01) -> subprocess.Popen:
+    """`mosaic ARGV` in a subprocess, returned once its `--out` folder `out` says the run is running (or it ended,
+    or `limit` seconds passed): the moment a signal sent to it lands in the middle of a run."""
+    p = subprocess.Popen([sys.executable, "-m", "mosaicthinker.runtime.cli", *map(str, argv)],
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=text)
+    t0 = time.time()
+    while time.time() - t0 < limit and p.poll() is None:
+        try:
+            if json.loads((out / "run.json").read_text())["status"] == "running":
+                break
+        except (OSError, ValueError):
+            pass
+        time.sleep(step)
+    return p

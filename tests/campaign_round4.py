@@ -14,15 +14,13 @@ import math
 import os
 import random
 import signal
-import subprocess
-import sys
 import time
 from pathlib import Path
 from typing import Any, Callable, Iterator
 
 import numpy as np
 
-from campaign_core import Record, _dump, classify, cli
+from campaign_core import Record, _dump, classify, cli, start_run
 from fuzz_files import base_map
 
 
@@ -315,16 +313,7 @@ def killed_run_cases(work: Path, full: bool = True) -> Iterator[Record]:
     for k in range(2 if full else 1):
         out = work / f"o{k}"
         code, o, e = cli(["ask", m, "How many chairs?", "--out", out])
-        p = subprocess.Popen([sys.executable, "-m", "mosaicthinker.runtime.cli", "ask", str(out / "map.json"),
-                              "How many chairs?", "--out", str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
-        t0 = time.time()
-        while time.time() - t0 < 60 and p.poll() is None:
-            try:
-                if json.loads((out / "run.json").read_text())["status"] == "running":
-                    break
-            except (OSError, ValueError):
-                pass
-            time.sleep(0.01)
+        p = start_run(["ask", out / "map.json", "How many chairs?", "--out", out], out)
         time.sleep(r.uniform(0, 0.5))
         p.send_signal(signal.SIGKILL)
         p.communicate()
