@@ -12,7 +12,7 @@ from conftest import REPO
 BENCH = REPO / "benchmarks"
 
 
-@pytest.mark.parametrize("n", [8, 9, 10, 11])
+@pytest.mark.parametrize("n", [8, 9, 10, 11, 12])
 def test_each_held_out_set_is_rebuilt_byte_for_byte(n, vsibench_dir, tmp_path):
     out = tmp_path / f"set{n}.jsonl"
     args = [sys.executable, str(BENCH / f"make_holdout{n}.py"), "--questions", str(vsibench_dir / "questions.jsonl"),
@@ -24,6 +24,6 @@ def test_each_held_out_set_is_rebuilt_byte_for_byte(n, vsibench_dir, tmp_path):
 
 
 def test_the_shared_module_is_used_by_every_generator():
-    for f in ("make_holdout8", "make_holdout9", "make_holdout10", "make_holdout11", "check_holdout10",
-              "check_holdout11"):
+    for f in ("make_holdout8", "make_holdout9", "make_holdout10", "make_holdout11", "make_holdout12", "check_holdout10",
+              "check_holdout11", "check_holdout12"):
         assert "from holdout_common import" in (BENCH / f"{f}.py").read_text(), f
