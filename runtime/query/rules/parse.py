@@ -55,7 +55,7 @@ def parse_natural(question: str, options: list[str] | None = None, names: Iterab
     as an object, as before."""
     keys = frozenset(name_key(n) for n in names)
     node, st = _attempt(question, options, keys, mentions_first=True)
-    if node is not None and st.weak:  # "do me a favour and add up the sofas": stray words in object slots
+    if node is not None and st.weak:  # stray words in object slots
         node2, st2 = _attempt(question, options, keys, mentions_first=True, drop_weak=True)
         if node2 is not None and type(node2) is type(node) and node.qtype not in _EVERY_PHRASE:
             return st2.finish(node2), st2
@@ -133,7 +133,7 @@ def weak(toks: list[str], nps: list[dict[str, Any]], known: list[bool]) -> list[
     """Per phrase: a word that names no known object and that nothing in the sentence holds as one? Such a phrase
     is held when it is listed with a known object ("chairs and zithers") or comes right after a location,
     facing or comparison word ("near the zither", "than the zither") and does not read as a participle
-    ("my face pointed at"); else it is weak ("exact number if you can", "do me a favour", "all told")."""
+    ("my face pointed at"); else it is weak ("if you can")."""
     def gap(i: int, j: int) -> list[str]:
         if not 0 <= j < len(nps):
             return []
@@ -186,19 +186,11 @@ def told_by_place(toks: list[str], nps: list[dict[str, Any]], known: list[bool])
     return None
 
 
-def _held(keys: frozenset[str] | None) -> Callable[[str], bool] | None:
-    """Whether the map holds a phrase, by its name or a synonym ("cooker" in a map of "stove"s); None: no map."""
-    if not keys:
-        return None
-    canon = {canonical_name(k) or k for k in keys}
-    return lambda ph: name_key(ph) in keys or (canonical_name(ph) or name_key(ph)) in canon
-
-
 def _parse(st: State, keys: frozenset[str] | None, known_only: bool = False, drop_weak: bool = False
            ) -> Node | None:
     """The parse steps, each refusing (`Refused`) rather than dropping a word it cannot apply."""
     toks, read = read_clauses(tokens(st.question), lambda ph: name_key(ph) in NAME_SYNONYMS or name_key(ph) in
-                              (keys or frozenset()), _held(keys))
+                              (keys or frozenset()))
     st.notes += [n for n in read if n not in st.notes]
     joined, extra = strip_preamble(" ".join(toks))
     toks = resolve_pronouns(st, joined.split())
