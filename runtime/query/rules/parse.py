@@ -63,10 +63,6 @@ def parse_natural(question: str, options: list[str] | None = None, names: Iterab
         node2, st2 = _attempt(question, options, keys, mentions_first=True, drop_weak=True)
         if node2 is not None and node2.qtype not in _EVERY_PHRASE:
             return st2.finish(node2), st2
-    if node is None and st.unknown:  # refused: read only the phrases that name a known object ("the doorway")
-        node2, st2 = _attempt(question, options, keys, mentions_first=True, known_only=True)
-        if node2 is not None:
-            return st2.finish(node2), st2
     if node is None and st.dropped:  # refused without the dropped words: read every phrase as an object
         node, st = _attempt(question, options, keys, mentions_first=False)
     return (st.finish(node) if node is not None else None), st
@@ -77,10 +73,10 @@ _EVERY_PHRASE = {"route_planning", "obj_appearance_order"}
 
 
 def _attempt(question: str, options: list[str] | None, keys: frozenset[str], mentions_first: bool,
-             known_only: bool = False, drop_weak: bool = False) -> tuple[Node | None, State]:
+             drop_weak: bool = False) -> tuple[Node | None, State]:
     st = State(question, options)
     try:
-        node = _parse(st, keys if mentions_first else None, known_only, drop_weak)
+        node = _parse(st, keys if mentions_first else None, drop_weak)
     except Refused:
         node = None
     return node, st
@@ -120,7 +116,7 @@ def mentions(toks: list[str], nps: list[dict[str, Any]], keys: frozenset[str], k
             prev in _SUBJECTS or re.fullmatch(r"(?:i|you|we|they|he|she)'(?:d|ll|ve|re|m)", prev) is not None
             or all(re.search(r"(?:ing|ly)$", w) or (len(w) > 4 and w.endswith("ed")) for w in p["words"]))
 
-    if known_only:  # the second reading: words that name no known object are no object
+    if known_only:  # only the phrases that name a known object
         return [named(p) for p in nps]
     return [named(p) or marked(p) or not verb_like(p) for p in nps]
 
@@ -186,7 +182,7 @@ def told_by_place(toks: list[str], nps: list[dict[str, Any]], known: list[bool])
     return None
 
 
-def _parse(st: State, keys: frozenset[str] | None, known_only: bool = False, drop_weak: bool = False
+def _parse(st: State, keys: frozenset[str] | None, drop_weak: bool = False
            ) -> Node | None:
     """The parse steps, each refusing (`Refused`) rather than dropping a word it cannot apply."""
     toks, read = read_clauses(tokens(st.question), lambda ph: name_key(ph) in NAME_SYNONYMS or name_key(ph) in
@@ -200,32 +196,19 @@ def _parse(st: State, keys: frozenset[str] | None, known_only: bool = False, dro
     refuse_whole_text(st, joined, bool(st.options))
     nps_all = [p for p in noun_phrases(toks) if not p["scene"]]
     if keys is not None:  # mentions first: words that name no object and are marked as none are left out
-        keep = mentions(toks, nps_all, keys, known_only)
+        keep = mentions(toks, nps_all, keys)
         known = mentions(toks, nps_all, keys, True)
-        st.unknown = not all(known)
         frail = weak(toks, nps_all, known)
         if drop_weak:  # the stray words leave; the rest of the reading stays as it was
             keep = [k and not f for k, f in zip(keep, frail)]
         st.weak = [" ".join(p["words"]) for p, k, f in zip(nps_all, keep, frail) if k and f]
         prop = [p for p, k in zip(nps_all, known) if not k and p["start"] > 0 and toks[p["start"] - 1] in _DEGREE]
-        if (known_only or drop_weak) and prop:  # never left out: they say what is asked ("more comfortable than")
+        if drop_weak and prop:  # never left out: they say what is asked ("more comfortable than")
             st.notes.append(f"'{' '.join(prop[0]['words'])}': a property the map does not hold")
-            raise Refused
-        placed = [(p, q) for p, q, k, kq in zip(nps_all, nps_all[1:], known, known[1:]) if not k and kq and
-                  set(toks[p["end"]:q["start"]]) & LOCATION]
-        if known_only and placed:  # "whatever sits by the window": the window places the unknown one, never
-            p, q = placed[0]     # stands in for it
-            st.notes.append(f"'{' '.join(toks[p['start']:q['end']])}': an object told by its place, not named")
             raise Refused
         vague = told_by_place(toks, nps_all, known)
         if vague:  # "bigger than whatever sits by the window": the window places the object, never stands in for it
             st.notes.append(f"'{vague}': an object told by its place, not named")
-            raise Refused
-        held = [p for p, k, f in zip(nps_all, known, frail) if not k and not f]
-        if known_only and held:  # "how many chairs are near the zither?": never answered without the zither
-            b = before(toks, held[0], 1)
-            st.notes.append(f"'{' '.join(b + held[0]['words'])}': an object the vocabulary does not know, where "
-                            f"the question needs one")
             raise Refused
         st.dropped = [" ".join(p["words"]) for p, k in zip(nps_all, keep) if not k]
         if st.dropped:
@@ -241,8 +224,6 @@ def _parse(st: State, keys: frozenset[str] | None, known_only: bool = False, dro
                             f"appearance order): {why}")
             raise Refused
         st.notes.append(f"the kind read from its cue words ({why})")
-    if known_only and kind_word in ("route", "obj_appearance_order"):  # every phrase is a waypoint / an object
-        raise Refused
     nps = attachments(toks, nps_all) if kind_word not in ("rel_distance", "direction", "route") else nps_all
     first = next((i for i, t in enumerate(toks) if t in _TRIGGERS.get(kind_word, ())), None)
     if first is not None:  # "Quick question: how many chairs ...": the object comes after the question's cue
