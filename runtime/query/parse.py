@@ -1,5 +1,6 @@
 """Question -> program: the VSI-Bench templates first (exact wording), then the rule parser (plain English), then
-the trained reader (`reader`, `compose`: any wording, refused when unsure) for what the rules refuse.
+the trained reader (`reader`, `compose`: any wording, refused when unsure) for what the rules refuse or read with a
+name nothing knows.
 
 `parse_question(question, options) -> ParsedQuestion`: the program (None when not understood), how it was read
 (`how`: "template", "model", "natural", "vlm" or "none"), the reader's confidence, and notes saying what was and
