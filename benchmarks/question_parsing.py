@@ -1,5 +1,5 @@
 """Question parsing cost: parse_question at and around the length limit on adversarial text (repeated phrases, and
-distinct made-up words that the spelling corrector must each look up), the refusal of longer questions, and the
+distinct made-up words), the refusal of longer questions, and the
 inline-option splitter on long input (it must stay linear).
 
     python benchmarks/question_parsing.py   ->  benchmarks/results/question_parsing.json
@@ -15,7 +15,6 @@ from pathlib import Path
 
 from mosaicthinker.runtime.infra.errors import InputError
 from mosaicthinker.runtime.grounding import MAX_QUESTION_CHARS, parse_question, split_inline_options
-from mosaicthinker.runtime.query.spelling import _cached
 
 PATTERNS = {
     "direction_template": "If I am standing by the stove and facing the sofa, is the ",
@@ -38,8 +37,7 @@ def best_of(fn, n: int = 3) -> float:
 
 
 def distinct_words(n: int, seed: int = 0) -> str:
-    """n characters of distinct made-up words, each a word the spelling corrector has to look up (its cache
-    cleared before each run: the worst case, no word seen before)."""
+    """n characters of distinct made-up words (no word seen before)."""
     rng = random.Random(seed)
     words = ["".join(rng.choice(string.ascii_lowercase) for _ in range(rng.randint(4, 10))) for _ in range(n // 4)]
     return " ".join(words)[:n]
@@ -51,8 +49,7 @@ def main() -> None:
         q = distinct_words(n)
 
         def fresh() -> None:
-            _cached.cache_clear()
-            parse_question(q, names=["office chair"])  # with a map's names: the uncached path
+            parse_question(q, names=["office chair"])  # with a map's names
         rows.append({"pattern": "distinct_unknown_words", "chars": n, "parse_s": round(best_of(fresh), 5)})
     for name, pat in PATTERNS.items():
         for n in (200, 1000, MAX_QUESTION_CHARS):

@@ -1,23 +1,20 @@
-"""The parser's normalisers, one by one (unicode, shorthand, units and cue synonyms, numbers in words, spelling
-against the closed vocabulary, clauses, cue scores), and two properties over whole questions: a one-edit typo
-in a vocabulary word parses to the same program or is refused (never another program), and the clauses of a
-stance question say the same in any order."""
+"""The parser's normalisers, one by one (unicode, units and cue synonyms, numbers in words, clauses, cue scores),
+and a property over whole questions: the clauses of a stance question say the same in any order. (The spelling
+corrector, texting shorthand and the phrase tables written for wording sets 8-10 retired with issue 35: a
+misspelt word is the trained reader's, docs/query.md.)"""
 from __future__ import annotations
 
 import itertools
 import json
-import random
 from pathlib import Path
 
 import pytest
 
 from mosaicthinker.runtime.query import cues
-from mosaicthinker.runtime.query.normalize import _number_words, normalize, shorthand, synonyms, unicode_ascii
+from mosaicthinker.runtime.query.normalize import _number_words, normalize, synonyms, unicode_ascii
 from mosaicthinker.runtime.query.parse import parse_question
 from mosaicthinker.runtime.query.rules.clauses import read_clauses
 from mosaicthinker.runtime.query.rules.tokens import tokens
-from mosaicthinker.runtime.query.schema import to_json
-from mosaicthinker.runtime.query.spelling import _english, _static, best, correct, distance, is_known
 from mosaicthinker.runtime.query.vocabulary import NAME_SYNONYMS, name_key
 
 REPO = Path(__file__).resolve().parents[1]
@@ -30,20 +27,13 @@ def test_unicode_punctuation_becomes_ascii_and_lower_case():
     assert unicode_ascii("\u201cquoted\u201d\u00a0word") == '"quoted" word'
 
 
-def test_shorthand_is_read_as_whole_words_only():
-    assert shorthand("hw far r u from the tv pls") == "how far are you from the tv please"
-    assert shorthand("whats the hwy") == "what's the hwy"  # "hw" inside a word stays
-
-
 @pytest.mark.parametrize("text, want", [
     ("how big is it in m2?", "how big is it in square meters?"), ("area in sq ft", "area in square feet"),
     ("whats the square footage", "whats the square feet"), ("m^2 please", "square meters please"),
     ("in sq. m", "in square meters"), ("so what's the tally?", "so what's the count?"),
-    ("the clearance between", "the distance between"), ("its longest point, end to end?", "its longest point, ?"),
     ("which has the smallest gap to the tv", "which has the closest to the tv"),
-    ("nearest neighbour of the tv", "nearest to the tv"), ("the bed is dead ahead", "the bed is straight ahead of me"),
-    ("which corner is the tv in", "which quadrant is the tv in"),
-    ("looking over toward the sink", "looking toward the sink")])
+    ("what is it at its longest", "what is it at its longest dimension"),
+    ("nearest neighbour of the tv", "nearest to the tv"), ("the bed is dead ahead", "the bed is straight ahead")])
 def test_phrase_synonyms_give_the_parsers_own_words(text, want):
     assert synonyms(text) == want
 
@@ -58,60 +48,6 @@ def test_a_unit_word_inside_another_word_is_left_alone():
     ("one of them", "one of them"), ("three feet", "3 feet")])
 def test_numbers_in_words_before_a_unit_become_digits(text, want):
     assert _number_words(text) == want
-
-
-@pytest.mark.parametrize("typed, known", [
-    ("chiars", "chairs"), ("tabel", "table"), ("toliet", "toilet"), ("televison", "television"), ("bathub", "bathtub"),
-    ("dishwaser", "dishwasher"), ("fireplce", "fireplace"), ("cocuhs", "couches"), ("sqaure", "square"),
-    ("longets", "longest"), ("rigth", "right"), ("lookng", "looking"), ("waht", "what"), ("teh", "the"),
-    ("hwo", "how"), ("wich", "which"), ("lenght", "length"), ("distnace", "distance"), ("microwve", "microwave")])
-def test_phone_typos_are_read_as_the_one_close_vocabulary_word(typed, known):
-    assert best(typed) == known
-
-
-@pytest.mark.parametrize("word", ["tablet", "cable", "hear", "bear", "closets", "steps", "greatest", "walked",
-                                  "loop", "batch", "instance", "basis", "sections", "range", "weight",
-                                  "tv", "hw", "xyzzy", "doorway", "zither", "chairs", "sofa"])
-def test_known_words_short_words_and_far_words_are_never_changed(word):
-    assert best(word) is None
-
-
-def test_three_letter_words_change_only_by_a_swap_of_neighbouring_letters():
-    assert best("teh") == "the" and best("hte") == "the" and best("thr") is None and best("tge") is None
-
-
-def test_a_tie_between_two_words_of_the_same_use_is_left_as_typed():
-    meaning, known = _static()
-    assert is_known("beds", known) and best("beds") is None  # an inflection of a known word
-    assert best("chait") == "chair"  # t-r touch; "chain" is 1.5 away (t-n do not)
-    assert best("chaif") == "chair" and best("chaif", frozenset({"chaid"})) is None  # f touches r and d: a tie
-    assert best("stoo") == "stool"  # "stood" and "too" are as close, but an object name outranks them
-    assert best("washr") == "washer"  # "wash" (of "wash basin") is no object alone
-
-
-def test_the_maps_own_names_are_corrected_to_and_never_away_from():
-    assert best("zitehr", frozenset({"zither"})) == "zither"
-    text, notes, unclear = correct("how many zithers", ["zither"])
-    assert text == "how many zithers" and notes == [] and unclear == []
-
-
-def test_distance_weighs_swaps_and_neighbouring_keys():
-    assert distance("waht", "what") == 0.75 and distance("chait", "chair") == 1.0  # r-t touch
-    assert distance("cable", "table") == 1.5 and distance("abc", "abc") == 0.0
-    assert distance("chair", "c", limit=1.0) > 1.0  # stops early, over the limit
-
-
-def test_every_correction_is_a_note_the_answer_repeats():
-    text, notes, unclear = normalize("hwo many chiars are there?")
-    assert text == "how many chairs are there?" and notes == ["read 'hwo' as 'how'", "read 'chiars' as 'chairs'"]
-    assert not unclear
-    pq = parse_question("hwo many chiars are there?")
-    assert pq.read_as == notes and pq.node.objects[0].name == "chair"
-
-
-def test_a_typo_as_close_to_two_words_the_parser_uses_refuses_the_question():
-    pq = parse_question("standing bside the toilet and facing the tub, is the sink on my left?")
-    assert pq.program is None and "'bside' (beside or side?)" in pq.notes[-1]
 
 
 def _known(phrase: str) -> bool:
@@ -146,62 +82,6 @@ def test_cue_scores_pick_a_kind_and_refuse_ties_and_nothing():
 
 # ----------------------------------------------------------------------------- properties over whole questions
 
-def _natural_questions() -> list[tuple[str, list[str] | None]]:
-    rows = [json.loads(x) for x in (REPO / "benchmarks" / "data" / "vsibench_paraphrases.jsonl").read_text()
-            .splitlines() if x.strip()]
-    return [(r["question"], r["options"]) for r in rows if r["question_type"] != "route_planning"]
-
-
-_KEYS = "qwertyuiopasdfghjklzxcvbnm"
-
-
-def _one_edit(word: str, rng: random.Random) -> str:
-    """One phone slip inside the bound: two neighbouring letters swapped, a letter dropped or doubled, or a
-    neighbouring key."""
-    from mosaicthinker.runtime.query.spelling import _NEAR
-    i = rng.randrange(1, len(word) - 1)
-    kind = rng.choice(("swap", "drop", "double", "near"))
-    if kind == "swap":
-        return word[:i] + word[i + 1] + word[i] + word[i + 2:]
-    if kind == "drop":
-        return word[:i] + word[i + 1:]
-    if kind == "double":
-        return word[:i] + word[i] + word[i:]
-    return word[:i] + rng.choice(sorted(_NEAR[word[i]] & set(_KEYS))) + word[i + 1:]
-
-
-def test_a_one_edit_typo_in_a_vocabulary_word_gives_the_same_program_or_a_refusal():
-    """300 typos (seeded) in object names and cue words of the paraphrase set's natural questions: each reads to
-    the program of the clean question, or is refused; never another program. A typo that is itself a known or an
-    English word ("form" for "from") is not a typo a closed vocabulary can see, and is skipped."""
-    rng = random.Random(30)
-    meaning, known = _static()
-    qs = _natural_questions()
-    same = refused = tried = 0
-    for _ in range(2000):
-        if tried == 300:
-            break
-        q, opts = rng.choice(qs)
-        clean = parse_question(q, opts)
-        if clean.program is None or clean.how != "natural":
-            continue
-        words = [w for w in q.split() if w.lower().strip("?,.:;!") in meaning and len(w.strip("?,.:;!")) >= 4]
-        if not words:
-            continue
-        w = rng.choice(words).strip("?,.:;!")
-        typo = _one_edit(w.lower(), rng)
-        if is_known(typo, known) or typo in _english() or typo == w.lower():
-            continue
-        tried += 1
-        got = parse_question(q.replace(w, typo, 1), opts)
-        if got.program is None:
-            refused += 1
-            continue
-        assert to_json(got.program) == to_json(clean.program), (q, w, typo, got.read_as)
-        same += 1
-    assert tried == 300 and same >= 0.8 * tried, (same, refused)
-
-
 STANDS = ["standing by the {a}", "I'm at the {a}", "with my back to the {a}"]
 FACES = ["facing the {b}", "looking at the {b}", "with the {b} in front of me"]
 
@@ -229,21 +109,17 @@ def test_the_clauses_of_a_stance_question_say_the_same_in_any_order(a, b, c):
     ("Can you tell me how many chairs there are?", "object_counting", ["chair"]),
     ("I'd like to know how far the fridge is from the sink", "object_abs_distance", ["refrigerator", "sink"]),
     ("Do you know whether there is a lamp in the room?", "object_existence", ["lamp"]),
-    ("hey, quick question - how tall is teh wardrobe?", "object_size_estimation", ["wardrobe"]),
-    ("how many stools r in here", "object_counting", ["stool"]),
-    ("whats the distnace between the couch and the telly in feet", "object_abs_distance", ["sofa", "tv"]),
+    ("hey, quick question - how tall is the wardrobe?", "object_size_estimation", ["wardrobe"]),
+    ("whats the distance between the couch and the telly in feet", "object_abs_distance", ["sofa", "tv"]),
     ("the bookcase: how wide is it?", "object_size_estimation", ["bookshelf"]),
     ("so the fridge... how far is that from the oven?", "object_abs_distance", ["refrigerator", "oven"]),
     ("roughly what's the floor space of this flat in sq ft", "room_size_estimation", []),
     ("tally up the cushions for me", "object_counting", ["cushion"]),
-    ("how much clearance is there between the desk and the bed in cm", "object_abs_distance", ["desk", "bed"]),
-    ("measure the sofa end to end in inches", "object_size_estimation", ["sofa"]),
-    ("which is further from the loo, the bath or the sink?", "object_rel_distance", ["bathtub", "sink", "toilet"]),
+    ("which is further from the toilet, the bath or the sink?", "object_rel_distance", ["bathtub", "sink", "toilet"]),
     ("with my back to the tv and the sofa in front of me, is the lamp on my left?", "object_rel_direction_medium",
      ["lamp", "tv", "sofa"]),
     ("I'm trying to figure out if the couch fits through the doorway: how long is it?", "object_size_estimation",
      ["sofa"]),
-    ("Honestly I can't remember: how many chairs were there?", "object_counting", ["chair"]),
     ("if you walked around counting the lamps, what would you get?", "object_counting", ["lamp"]),
 ])
 def test_each_failure_class_in_words_the_parser_was_not_written_for(q, qtype, names):
@@ -258,34 +134,6 @@ def test_hyphenated_names_are_read_as_the_vocabulary_writes_them():
     from mosaicthinker.runtime.query.normalize import compounds
     assert compounds("the dish-washer by the night-stands, front-left") == "the dishwasher by the nightstands, front-left"
     assert compounds("the tv-to-bed distance") == "the tv-to-bed distance"
-
-
-def test_the_cue_table_alone_names_the_kind_of_almost_every_question_of_every_wording_set():
-    """The cue table decides only what the wording rules leave undecided; alone, over the nine wording sets (2,089
-    questions of the eight benchmark kinds, the development set 8 included), it names the benchmark's own kind
-    for >= 95% (ties and no cue are None: refused, never guessed)."""
-    kinds = {"object_counting": "count", "object_size_estimation": "size", "room_size_estimation": "room_size",
-             "object_abs_distance": "abs_distance", "object_rel_distance": "rel_distance",
-             "object_rel_direction_easy": "direction", "object_rel_direction_medium": "direction",
-             "object_rel_direction_hard": "direction", "route_planning": "route"}
-    right = wrong = 0
-    for p in sorted((REPO / "benchmarks" / "data").glob("vsibench_*.jsonl")):
-        for row in (json.loads(x) for x in p.read_text().splitlines() if x.strip()):
-            if row["question_type"] in kinds:
-                got = cues.kind_of(tokens(normalize(row["question"])[0]))[0]
-                right += got == kinds[row["question_type"]]
-                wrong += got is not None and got != kinds[row["question_type"]]
-    assert right + wrong >= 2000 and right / (right + wrong) >= 0.95, (right, wrong)
-
-
-def test_the_answer_says_how_a_misspelt_word_was_read():
-    """On a map (the test room of test_grounding_nl): the count is the room's, and the answer's explanation
-    repeats each correction; a misspelt name of the map's own ("compter tower") is read as it."""
-    from test_grounding_nl import ask
-    a = ask("hwo many offce chiars are there?")
-    assert a.text == "2" and "read 'chiars' as 'chairs'" in a.explanation and "read 'offce' as 'office'" in a.explanation
-    b = ask("how tall is the compter tower?")
-    assert b.ok and "read 'compter' as 'computer'" in b.explanation
 
 
 OPENERS = ["", "honestly, ", "quick q - ", "can you tell me ", "I'd like to know ", "hey, so "]
@@ -314,3 +162,12 @@ def test_every_opener_and_closer_with_every_phrasing_reads_the_same(qtype):
         if pq.qtype != qtype or set(pq.objects) != want:
             wrong.append((q, pq.describe()[:120]))
     assert not wrong, (len(wrong), wrong[:4])
+
+
+@pytest.mark.parametrize("q, unit", [("how far is the desk from the bed, mm?", "mm"),
+                                     ("how far is the sofa from the tv, ft?", "ft"),
+                                     ("the lamp and the desk: distance. cm", "cm")])
+def test_a_unit_said_alone_is_read(q, unit):
+    """"cm", "mm", "ft" anywhere are the unit (no other word means them): never a distance in metres."""
+    pq = parse_question(q, names=("desk", "bed", "sofa", "tv", "lamp"))
+    assert pq.program is not None and pq.node.KIND == "distance" and pq.node.unit == unit, pq.describe()

@@ -3,10 +3,10 @@
 `CUES[kind]` maps a cue (one word, or several in a row) to its weight. `score(words)` sums the weights of the cues
 a question holds per kind; `kind_of(words)` is the kind with the highest score when it is the only one (a tie or
 no cue at all is refused, saying which cues were found). The rule parser's own cue reading (`rules.intent`)
-decides first; this table decides what it leaves undecided, and is the vocabulary spelling corrects to.
+decides first; this table decides what it leaves undecided.
 
-Phrase synonyms that reduce to these cues ("tally" -> "count", "clearance" -> "distance", "square footage" ->
-"square feet") live in `normalize.PHRASES`.
+Phrase synonyms that reduce to these cues ("tally" -> "count", "square footage" -> "square feet") live in
+`normalize.PHRASES`.
 """
 from __future__ import annotations
 
@@ -44,7 +44,7 @@ MIN_SCORE = 2  # one weak cue word ("long", "which") alone names no kind
 
 @functools.lru_cache(maxsize=1)
 def cue_words() -> frozenset[str]:
-    """Every single word of every cue (the spelling vocabulary's cue part)."""
+    """Every single word of every cue."""
     return frozenset(w for table in CUES.values() for cue in table for w in cue.split())
 
 

@@ -1,5 +1,6 @@
 """Question -> program: the VSI-Bench templates first (exact wording), then the rule parser (plain English), then
-the trained reader (`reader`, `compose`: any wording, refused when unsure) for what the rules refuse.
+the trained reader (`reader`, `compose`: any wording, refused when unsure) for what the rules refuse or read with a
+name nothing knows.
 
 `parse_question(question, options) -> ParsedQuestion`: the program (None when not understood), how it was read
 (`how`: "template", "model", "natural", "vlm" or "none"), the reader's confidence, and notes saying what was and
@@ -18,9 +19,9 @@ from .normalize import normalize
 from .reader import default_reader
 from .rules.parse import parse_natural
 from .schema import to_json
-from .spelling import cue_reading, second_reading
 from .templates import parse_template
 from .text import check_question, clean_question, split_options
+from .vocabulary import name_key
 
 
 @dataclass
@@ -33,7 +34,7 @@ class ParsedQuestion:
     program: Program | None = None
     notes: list[str] = field(default_factory=list)
     how: str = "none"
-    read_as: list[str] = field(default_factory=list)  # spelling read otherwise ("read 'chiars' as 'chairs'")
+    read_as: list[str] = field(default_factory=list)  # words read otherwise than typed, said with the answer
     confidence: dict[str, Any] | None = None  # the trained reader's: kind, its probability, each span's
 
     @property
@@ -107,9 +108,6 @@ def program_of(node: Any, options: list[str] | None) -> Program:
     return Program(node, tuple(Option(letter, text) for letter, text in split_options(options)))
 
 
-READERS = ("rules", "model", "auto")  # which readers follow the templates (auto: the rules, then the model)
-
-
 def parse_question(question: str, options: list[str] | None = None, names: Iterable[str] = (),
                    reader: Any = "env", readers: str = "auto") -> ParsedQuestion:
     """Parse a question: the VSI-Bench templates first (exact wording), then the rule parser, then the trained
@@ -132,16 +130,28 @@ def parse_question(question: str, options: list[str] | None = None, names: Itera
                                                   "`--bundle` with a reader role or MOSAIC_READER)"], "none")
         return read_with_model(model, q, opts, names)
     pq = parse_rules(q, opts, names)
-    if pq.program is not None or model is None or readers == "rules":
+    if model is None or readers == "rules" or (pq.program is not None and not unread(pq, names)):
         return pq
-    # auto: the trained reader reads what the rules refuse (docs/query.md: measured, it is not yet ahead of them)
+    # auto: the trained reader reads what the rules refuse, and a question whose rule program names an object no
+    # vocabulary or map knows (a typo, another name: the reader matches names by meaning); its program is kept
+    # only when it names known objects (docs/query.md: measured, it is not yet ahead of the rules)
     pm = read_with_model(model, q, opts, names)
-    if pm.program is not None:
-        pm.notes = [f"the rules refused ({'; '.join(pq.notes)[:200]}); read by the trained reader"] + pm.notes
+    if pm.program is not None and (pq.program is None or not unread(pm, names)):
+        why = f"the rules refused ({'; '.join(pq.notes)[:200]})" if pq.program is None else \
+            f"the rules read {', '.join(repr(w) for w in unread(pq, names))}, a name nothing knows"
+        pm.notes = [f"{why}; read by the trained reader"] + pm.notes
         return pm
-    pq.notes = pq.notes + pm.notes
-    pq.confidence = pm.confidence
+    if pq.program is None:
+        pq.notes = pq.notes + pm.notes
+        pq.confidence = pm.confidence
     return pq
+
+
+def unread(pq: ParsedQuestion, names: Iterable[str]) -> list[str]:
+    """The question's words for each object of the program that neither the vocabulary nor `names` knows."""
+    keys = {name_key(n) for n in names}
+    return list(dict.fromkeys(r.words for r in iter_refs(pq.node)
+                              if not r.known and r.name != "*" and name_key(r.name) not in keys))
 
 
 def read_with_model(model: Any, q: str, opts: list[str] | None, names: Iterable[str]) -> ParsedQuestion:
@@ -158,21 +168,6 @@ def read_with_model(model: Any, q: str, opts: list[str] | None, names: Iterable[
 
 def parse_rules(q: str, opts: list[str] | None, names: Iterable[str]) -> ParsedQuestion:
     """The rule parser (plain English) on a cleaned question that no template matched."""
-    text, read_as, unclear = normalize(q, names)  # typos, units, cue synonyms: in the parser's own words
-    if unclear:  # a typo as close to two words the parser uses: refused, never read one way at random
-        return ParsedQuestion(q, opts, None, read_as + [f"not understood: the word {', '.join(unclear)}; please "
-                                                        f"check its spelling"], "none", read_as)
-    node, st = parse_natural(text, opts, names)
-    if node is None:  # refused as typed: a real word that is also a swap of a word the parser uses ("closets")
-        text2, more = second_reading(text)
-        node2, st2 = parse_natural(text2, opts, names) if more else (None, st)
-        if node2 is not None:
-            read_as, node, st = read_as + more, node2, st2
-    if node is None:  # a typo read as an object name that is as near a cue word ("cloest": closet, closest)
-        text3, other = cue_reading(text, read_as)
-        node3, st3 = parse_natural(text3, opts, names) if other else (None, st)
-        if node3 is not None:
-            read_as = [n for n in read_as if not any(n.split(" as ")[0] in o for o in other)] + other
-            node, st = node3, st3
-    return ParsedQuestion(q, opts, program_of(node, opts) if node is not None else None, read_as + st.notes,
-                          "natural" if node is not None else "none", read_as)
+    node, st = parse_natural(normalize(q, names), opts, names)  # units, numbers in words: the parser's own words
+    return ParsedQuestion(q, opts, program_of(node, opts) if node is not None else None, st.notes,
+                          "natural" if node is not None else "none")

@@ -82,14 +82,12 @@ def _mentions(words: list[str], known: Callable[[str], bool]) -> list[tuple[int,
     return out
 
 
-def _cued(words: list[str], remark_copula: bool = False) -> bool:
+def _cued(words: list[str]) -> bool:
     """A cue word of some kind, a direction, a unit, a number, or a place marked by the sentence ("I'm at the
     doorframe": an object the vocabulary does not know is still an object there)."""
     cues = cue_words() - _NOT_CUE
     marked = any(w in _MARKERS and n in DET for w, n in zip(words, words[1:]))
-    # a copula keeps a clause that asks with it ("is there ...", "are they ..."), not a remark ("hope you are well")
-    keep = _KEEP - _COPULA if remark_copula and words[0] not in _COPULA and "there" not in words else _KEEP
-    return marked or any(_stem(w) & (cues | keep) or any(c.isdigit() for c in w) for w in words)
+    return marked or any(_stem(w) & (cues | _KEEP) or any(c.isdigit() for c in w) for w in words)
 
 
 def _stem(w: str) -> set[str]:
@@ -135,10 +133,8 @@ def _viewer_you(toks: list[str]) -> tuple[list[str], bool]:
     return s.split(), True
 
 
-def read_clauses(toks: list[str], known: Callable[[str], bool], held: Callable[[str], bool] | None = None
-                 ) -> tuple[list[str], list[str]]:
-    """The tokens of the question proper and notes saying what was set aside (see the module). `held(phrase)`:
-    whether the map holds it (None: no map), which picks a context's one object among several."""
+def read_clauses(toks: list[str], known: Callable[[str], bool]) -> tuple[list[str], list[str]]:
+    """The tokens of the question proper and notes saying what was set aside (see the module)."""
     notes: list[str] = []
     toks, lead = _lead_in(toks)
     if lead:
@@ -147,8 +143,6 @@ def read_clauses(toks: list[str], known: Callable[[str], bool], held: Callable[[
     if you:
         notes.append("'you' read as the asker (where 'you' stand)")
     toks = _asides(toks, known, notes)
-    toks = _context(toks, known, held, notes)
-    route = any(t.startswith("turn") for t in toks)  # a route's "the steps are:" stays
     spans = _clauses(toks)
     keep = []
     for i, (a, b) in enumerate(spans):
@@ -158,7 +152,7 @@ def read_clauses(toks: list[str], known: Callable[[str], bool], held: Callable[[
         # a clause between commas in the middle of a sentence is part of it ("walk to the tv, turn, ..."): only
         # sentences, and a sentence's first or last comma clause ("honestly, ...", "..., please"), are left out
         inner = toks[b - 1] == "," and i > 0 and toks[a - 1] == "," and i + 1 < len(spans)
-        if inner or _mentions(words, known) or _cued(words, not route):
+        if inner or _mentions(words, known) or _cued(words):
             keep.append((a, b))
         else:
             notes.append(f"left out '{' '.join(words)}' (no object and nothing asked)")
@@ -166,73 +160,6 @@ def read_clauses(toks: list[str], known: Callable[[str], bool], held: Callable[[
         return toks, []
     toks = [t for a, b in keep for t in toks[a:b]]
     return _topic(toks, known, notes), notes
-
-
-# who a context sentence is about ("I'm putting a rug down by the fireplace, so: ...", "we're moving house ...")
-_CONTEXT_SUBJECTS = {"i", "i'm", "im", "we", "we're", "i've", "we've", "i'd", "we'd", "i'll", "we'll", "you've",
-                     "my", "our"}
-# words of a stance (where I stand, what I face) or of a direction: a context holding them may be the stance
-_STANCE = {"at", "by", "beside", "next", "near", "facing", "face", "faces", "looking", "standing", "sitting", "stood",
-           "sat", "seated", "behind", "front", "left", "right", "ahead", "back", "toward", "towards", "heading",
-           "pointed", "parked", "quadrant", "clockwise", "o'clock", "eyes", "look", "watching", "staring", "gazing",
-           "position", "spot", "location", "place", "stand", "start", "starting"}
-# words of a direction question, which a stance context may serve
-_DIRECTION = {"left", "right", "front", "behind", "back", "ahead", "quadrant", "clockwise", "o'clock", "facing", "face",
-              "toward", "towards", "side", "sides"}
-_STRONG = {".", ":", ";", "!", "-", "?", ","}  # the tokens write " - " as ","
-
-
-def _context(toks: list[str], known: Callable[[str], bool], held: Callable[[str], bool] | None,
-             notes: list[str]) -> list[str]:
-    """A first sentence that tells why the question is asked ("I'm planning where to put a lamp.", "we're moving
-    house and the washer has to go in the van, so: how long is it ...") is not the question: when the question
-    asks about "it", "it" is the context's one known object (the one the map holds, when several are named; else
-    it is left for the pronoun reader, which refuses naming them); when the question names its own objects and
-    the context holds no stance word, the context is left out. A context that may be a stance ("I'm at the
-    fridge") is kept when the question asks a direction; every step is said in the notes."""
-    if not toks or toks[0] not in _CONTEXT_SUBJECTS:
-        return toks
-    b = next((i for i, t in enumerate(toks) if t in _STRONG), None)
-    if b is None or b + 1 >= len(toks):
-        return toks
-    ctx, rest = toks[:b], toks[b + 1:]
-    while ctx and ctx[-1] in (",", "so", "and"):
-        ctx = ctx[:-1]
-    words = [w for w in ctx if w not in _BREAK]
-    cues = cue_words() - _NOT_CUE
-    if any(_stem(w) & cues and not (w == "where" and nxt in ("to", "i", "we")) or w in _ASKING_WH
-           for w, nxt in zip(words, words[1:] + [""])):
-        return toks  # the context asks something itself ("I'm trying to work out which is closest to the desk:")
-    rest_words = set(rest)
-    if not _cued([w for w in rest if w not in _BREAK]):
-        return toks  # no question after it
-    stance, asks_direction = bool(set(words) & _STANCE), bool(rest_words & _DIRECTION)
-    said = " ".join(words)
-    pron = next((i for i, w in enumerate(rest) if w == "it" or (w == "that" and i + 1 < len(rest) and rest[i + 1]
-                 in _AFTER_PRONOUN) or (w == "there" and i > 0 and rest[i - 1] in ("from", "to"))), None)
-    if pron is not None and _mentions(rest[:pron], known):  # "it" has its object in the question itself
-        pron = None
-    if pron is not None:
-        if stance and asks_direction:
-            return toks
-        spans = _mentions(words, known)
-        if rest[pron] == "there":  # "from there": the place the context names ("a plant near the sofa")
-            spans = [(a, c) for a, c in spans if [w for w in words[max(0, a - 3):a] if w not in DET][-1:] and
-                     [w for w in words[max(0, a - 3):a] if w not in DET][-1] in _MARKERS]
-        objs = [words[a:c] for a, c in spans]
-        if len(objs) > 1 and held is not None:
-            objs = [o for o in objs if held(" ".join(o))] or objs
-        if len({" ".join(o) for o in objs}) != 1:
-            return toks  # none or several: the pronoun reader says which
-        notes.append(f"'{rest[pron]}' read as the {' '.join(objs[0])} (of the context '{said}', left out)")
-        return rest[:pron] + ["the"] + objs[0] + rest[pron + 1:]
-    if pron is None and not stance and _mentions([w for w in rest if w not in _BREAK], known):
-        notes.append(f"left out the context '{said}' (the question names its own objects)")
-        return rest
-    return toks
-
-
-_ASKING_WH = {"how", "what", "what's", "which", "whichever", "whether", "if"}
 
 
 def _asides(toks: list[str], known: Callable[[str], bool], notes: list[str]) -> list[str]:
@@ -247,7 +174,7 @@ def _asides(toks: list[str], known: Callable[[str], bool], notes: list[str]) -> 
         words = [w for w in toks[i + 1:j] if w not in _BREAK] if j > 0 else []
         if words and not _mentions(words, known) and (not any(
                 _stem(w) & cues or w in UNIT_WORDS or any(c.isdigit() for c in w) for w in words)
-                or _DEFINES.search(" ".join(words))):  # "(..., as on a graph with me at the origin)": a definition
+                ):
             notes.append(f"left out the aside '({' '.join(words)})'")
             i = j + 1
             continue
@@ -276,9 +203,6 @@ def _topic(toks: list[str], known: Callable[[str], bool], notes: list[str]) -> l
             return second[:i] + ["the"] + name + second[i + 1:]
     return toks
 
-
-# a parenthesis that says what a word means names no object ("as on a graph", "i.e. ...", "meaning ...")
-_DEFINES = re.compile(r"(?:^|\s)(?:as on|as in|as if|like on|like in|i\.e\.?|ie|meaning|in the sense|that is)\s")
 
 _TOPIC_WORDS = {"about", "regarding", "re", "so", "quick", "one", "q", "question", "you", "see", "ok", "okay", "now",
                 "and", "then", "what", "hey"}

@@ -19,11 +19,6 @@ _FACING_IT = r"\b(?:facing|face|faces|looking at|look at|looking toward|looking 
 _CLOSENESS = {"closest", "nearest", "farthest", "furthest"}
 _OPENS = {"with", ",", ":", ";", ".", "-", "and", "", "one"}
 _AT_MY_BACK = r"(?:is )?(?:behind me|at my back|to my back)\b"
-# "the bed at my side", "with the tv right next to me": where I stand (the benchmark's "by X")
-_BESIDE_ME = (r"(?:is |are )?(?:right |just |immediately |directly )?(?:at my side|by my side|at my elbow|beside me|"
-              r"next to me|by me|alongside me|close to me|near me)\b")
-# the words before a phrase that opens a clause giving the stance ("with X ...", "I have X ...")
-_HOLDS = {"with", "have", "having", "got", "keep", "keeping"}
 
 
 def stance(toks: list[str], nps: list[dict[str, Any]]) -> tuple[int | None, int | None, int | None]:
@@ -41,11 +36,10 @@ def stance(toks: list[str], nps: list[dict[str, Any]]) -> tuple[int | None, int 
         ahead = re.match(AHEAD_OF_ME, after) is not None
         ahead_is = re.match(IS_AHEAD, after) is not None
         opens = last in _OPENS  # the phrase opens a clause ("..., the stove in front of me")
-        if face is None and (last in FACE1 or two in FACE2 or ((last in _HOLDS or opens) and ahead) or ahead_is):
+        if face is None and (last in FACE1 or two in FACE2 or ((last == "with" or opens) and ahead) or ahead_is):
             face = k
             continue
-        if pos is None and (two in ("back to", "back against") or (opens and re.match(_AT_MY_BACK, after))
-                            or ((opens or last in _HOLDS) and re.match(_BESIDE_ME, after))):
+        if pos is None and (two in ("back to", "back against") or (opens and re.match(_AT_MY_BACK, after))):
             pos = k  # "with my back to the sofa", "the stool behind me": where I stand (the benchmark's "by")
             continue
         if rel is None and last == "of" and len(b) >= 2 and b[-2] in ("left", "right", "front", "behind", "back",

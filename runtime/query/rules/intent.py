@@ -17,14 +17,8 @@ PREAMBLE = [  # phrases that would be misread as the question's own words
     re.compile(r"(?:measuring|measured|measure|as measured)?\s*(?:from|between)?\s*(?:the\s+)?(?:closest|nearest)"
                r"\s+points?(?:\s+(?:of|on)\s+(?:each|the|both|two)(?:\s+(?:two|the))?\s+objects?)?"),
     re.compile(r"(?:closest|nearest)[- ]point[- ]to[- ](?:closest|nearest)[- ]point"),
-    # "at the closest bit", "at their nearest": how a distance is measured (always between the closest points)
-    re.compile(r"\bat (?:the|its|their) (?:closest|nearest) (?:bits?|parts?|spots?|points?|edges?|places?|sides?)\b|"
-               r"\bat (?:its|their) (?:closest|nearest)\b(?! (?:to|from)\b)"),
     re.compile(r"(?:an object is (?:to )?my back|(?:it|something) counts as (?:behind|back)|count (?:it|that|"
                r"something) as (?:behind|back)) if .{0,120}?(?:face it|degrees(?: or more)?)\b"),
-    # "(behind meaning I'd have to turn 135 degrees or more)": what "behind" means, not a question
-    re.compile(r"\(?\b(?:behind|back) (?:means|meaning|meant|being|is|=|here means|here is)\b[^()?]{0,120}?"
-               r"\bdegrees(?: or (?:more|over|above|beyond))?\)?"),
     re.compile(r"(?:the )?directions? (?:refer|refers|are) .{0,160}?(?:y-axis|y axis|quadrants?)\b\)?"),
 ]
 

@@ -30,7 +30,7 @@ width height depth measure measures measured measuring measurement measurements 
 volume elevation hung installed fixed relative relation respect regard half counting excluding including
 leave leaving forgot forget forgotten drop dropped lost present visible separating spacing separation
 option options choice choices following eyes gaze oriented orientated position location pointing gazing
-watching staring now currently presently today tonight anymore
+watching staring
 point points object objects thing things item items stuff furniture piece pieces kind kinds type types
 please thanks roughly approximately approx around exactly just only really actually about estimate guess
 first second third fourth fifth last order appear appears appeared appearance came come comes seen
@@ -48,8 +48,7 @@ lie lies occupy occupies measure
 maximum max minimum min overall total approximate rough
 everything anything something nothing everyone all anywhere somewhere everywhere
 whichever whatever whoever whenever wherever altogether anyway anyhow though although also again already still
-even ever quite rather very perhaps maybe yet instead otherwise together answer answers reply greatest
-full entire exact precise
+even ever quite rather very perhaps maybe yet instead otherwise together
 me myself mine origin axis y-axis x-axis cartesian plane quadrant quadrants degrees degree
 """.split())
 COPULA = {"is", "are", "was", "were", "be", "been", "being", "get", "got", "gets"}

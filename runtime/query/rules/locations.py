@@ -46,11 +46,6 @@ def resolve_pronouns(st: State, toks: list[str]) -> list[str] | None:
         if loc is None or (i + 1 < len(toks) and is_content(toks, i + 1, False)):  # "next to that desk"
             continue
         cands = antecedents(toks, i, loc)
-        only = len([p for p in noun_phrases(toks) if not p["scene"] and p["start"] != i]) == 2  # nothing else asked
-        if toks[loc:i] == ["between"] and t in ("them", "those", "these") and len(cands) == 2 and only:  # "X, Y: ..
-            a, b = (toks[p["start"]:p["end"]] for p in cands)                                  # between them":
-            st.notes.append(f"'between {t}' read as between the {' '.join(a)} and the {' '.join(b)}")  # named once
-            return resolve_pronouns(st, toks[:loc + 1] + toks[i + 1:])
         if len(cands) != 1:
             named = [" ".join(toks[p["start"]:p["end"]]) for p in cands]
             why = f"it could be the {' or the '.join(named)}; say e.g. '{' '.join(toks[loc:i])} the {named[-1]}'" \
@@ -99,11 +94,6 @@ def location(st: State, toks: list[str], objs: list[dict[str, Any]], conds: list
     refs = st.refs(conds)
     negate = "not" in before(toks, conds[0], 5)[:-1]  # "cups not on the table": the others
     return Relation(rel, R(refs[0]), R(refs[1]) if two else None, negate)
-
-
-def where_objects(where: Relation) -> list[str]:
-    """The reference objects of a location: one, or two for "between"."""
-    return [r.name for r in (where.object, where.object2) if r is not None]
 
 
 def attached_near(st: State, joined: str, objs: list[dict[str, Any]]) -> Relation | None:

@@ -55,17 +55,13 @@ def parse_natural(question: str, options: list[str] | None = None, names: Iterab
     as an object, as before."""
     keys = frozenset(name_key(n) for n in names)
     node, st = _attempt(question, options, keys, mentions_first=True)
-    if node is not None and st.weak:  # "do me a favour and add up the sofas": stray words in object slots
+    if node is not None and st.weak:  # stray words in object slots
         node2, st2 = _attempt(question, options, keys, mentions_first=True, drop_weak=True)
         if node2 is not None and type(node2) is type(node) and node.qtype not in _EVERY_PHRASE:
             return st2.finish(node2), st2
     if node is None and st.weak:  # refused: without the stray words ("..., no rush at all", "bit of a weird one")
         node2, st2 = _attempt(question, options, keys, mentions_first=True, drop_weak=True)
         if node2 is not None and node2.qtype not in _EVERY_PHRASE:
-            return st2.finish(node2), st2
-    if node is None and st.unknown:  # refused: read only the phrases that name a known object ("the doorway")
-        node2, st2 = _attempt(question, options, keys, mentions_first=True, known_only=True)
-        if node2 is not None:
             return st2.finish(node2), st2
     if node is None and st.dropped:  # refused without the dropped words: read every phrase as an object
         node, st = _attempt(question, options, keys, mentions_first=False)
@@ -77,10 +73,10 @@ _EVERY_PHRASE = {"route_planning", "obj_appearance_order"}
 
 
 def _attempt(question: str, options: list[str] | None, keys: frozenset[str], mentions_first: bool,
-             known_only: bool = False, drop_weak: bool = False) -> tuple[Node | None, State]:
+             drop_weak: bool = False) -> tuple[Node | None, State]:
     st = State(question, options)
     try:
-        node = _parse(st, keys if mentions_first else None, known_only, drop_weak)
+        node = _parse(st, keys if mentions_first else None, drop_weak)
     except Refused:
         node = None
     return node, st
@@ -120,7 +116,7 @@ def mentions(toks: list[str], nps: list[dict[str, Any]], keys: frozenset[str], k
             prev in _SUBJECTS or re.fullmatch(r"(?:i|you|we|they|he|she)'(?:d|ll|ve|re|m)", prev) is not None
             or all(re.search(r"(?:ing|ly)$", w) or (len(w) > 4 and w.endswith("ed")) for w in p["words"]))
 
-    if known_only:  # the second reading: words that name no known object are no object
+    if known_only:  # only the phrases that name a known object
         return [named(p) for p in nps]
     return [named(p) or marked(p) or not verb_like(p) for p in nps]
 
@@ -133,7 +129,7 @@ def weak(toks: list[str], nps: list[dict[str, Any]], known: list[bool]) -> list[
     """Per phrase: a word that names no known object and that nothing in the sentence holds as one? Such a phrase
     is held when it is listed with a known object ("chairs and zithers") or comes right after a location,
     facing or comparison word ("near the zither", "than the zither") and does not read as a participle
-    ("my face pointed at"); else it is weak ("exact number if you can", "do me a favour", "all told")."""
+    ("my face pointed at"); else it is weak ("if you can")."""
     def gap(i: int, j: int) -> list[str]:
         if not 0 <= j < len(nps):
             return []
@@ -186,19 +182,11 @@ def told_by_place(toks: list[str], nps: list[dict[str, Any]], known: list[bool])
     return None
 
 
-def _held(keys: frozenset[str] | None) -> Callable[[str], bool] | None:
-    """Whether the map holds a phrase, by its name or a synonym ("cooker" in a map of "stove"s); None: no map."""
-    if not keys:
-        return None
-    canon = {canonical_name(k) or k for k in keys}
-    return lambda ph: name_key(ph) in keys or (canonical_name(ph) or name_key(ph)) in canon
-
-
-def _parse(st: State, keys: frozenset[str] | None, known_only: bool = False, drop_weak: bool = False
+def _parse(st: State, keys: frozenset[str] | None, drop_weak: bool = False
            ) -> Node | None:
     """The parse steps, each refusing (`Refused`) rather than dropping a word it cannot apply."""
     toks, read = read_clauses(tokens(st.question), lambda ph: name_key(ph) in NAME_SYNONYMS or name_key(ph) in
-                              (keys or frozenset()), _held(keys))
+                              (keys or frozenset()))
     st.notes += [n for n in read if n not in st.notes]
     joined, extra = strip_preamble(" ".join(toks))
     toks = resolve_pronouns(st, joined.split())
@@ -208,32 +196,19 @@ def _parse(st: State, keys: frozenset[str] | None, known_only: bool = False, dro
     refuse_whole_text(st, joined, bool(st.options))
     nps_all = [p for p in noun_phrases(toks) if not p["scene"]]
     if keys is not None:  # mentions first: words that name no object and are marked as none are left out
-        keep = mentions(toks, nps_all, keys, known_only)
+        keep = mentions(toks, nps_all, keys)
         known = mentions(toks, nps_all, keys, True)
-        st.unknown = not all(known)
         frail = weak(toks, nps_all, known)
         if drop_weak:  # the stray words leave; the rest of the reading stays as it was
             keep = [k and not f for k, f in zip(keep, frail)]
         st.weak = [" ".join(p["words"]) for p, k, f in zip(nps_all, keep, frail) if k and f]
         prop = [p for p, k in zip(nps_all, known) if not k and p["start"] > 0 and toks[p["start"] - 1] in _DEGREE]
-        if (known_only or drop_weak) and prop:  # never left out: they say what is asked ("more comfortable than")
+        if drop_weak and prop:  # never left out: they say what is asked ("more comfortable than")
             st.notes.append(f"'{' '.join(prop[0]['words'])}': a property the map does not hold")
-            raise Refused
-        placed = [(p, q) for p, q, k, kq in zip(nps_all, nps_all[1:], known, known[1:]) if not k and kq and
-                  set(toks[p["end"]:q["start"]]) & LOCATION]
-        if known_only and placed:  # "whatever sits by the window": the window places the unknown one, never
-            p, q = placed[0]     # stands in for it
-            st.notes.append(f"'{' '.join(toks[p['start']:q['end']])}': an object told by its place, not named")
             raise Refused
         vague = told_by_place(toks, nps_all, known)
         if vague:  # "bigger than whatever sits by the window": the window places the object, never stands in for it
             st.notes.append(f"'{vague}': an object told by its place, not named")
-            raise Refused
-        held = [p for p, k, f in zip(nps_all, known, frail) if not k and not f]
-        if known_only and held:  # "how many chairs are near the zither?": never answered without the zither
-            b = before(toks, held[0], 1)
-            st.notes.append(f"'{' '.join(b + held[0]['words'])}': an object the vocabulary does not know, where "
-                            f"the question needs one")
             raise Refused
         st.dropped = [" ".join(p["words"]) for p, k in zip(nps_all, keep) if not k]
         if st.dropped:
@@ -249,8 +224,6 @@ def _parse(st: State, keys: frozenset[str] | None, known_only: bool = False, dro
                             f"appearance order): {why}")
             raise Refused
         st.notes.append(f"the kind read from its cue words ({why})")
-    if known_only and kind_word in ("route", "obj_appearance_order"):  # every phrase is a waypoint / an object
-        raise Refused
     nps = attachments(toks, nps_all) if kind_word not in ("rel_distance", "direction", "route") else nps_all
     first = next((i for i, t in enumerate(toks) if t in _TRIGGERS.get(kind_word, ())), None)
     if first is not None:  # "Quick question: how many chairs ...": the object comes after the question's cue

@@ -32,7 +32,6 @@ class State:
         self.notes: list[str] = []
         self.dropped: list[str] = []  # phrases read as no object (`parse.mentions`)
         self.weak: list[str] = []  # unknown phrases read as objects that nothing in the sentence holds as one
-        self.unknown = False  # a phrase names no known object (the parse may be tried without such phrases)
 
     def phrase(self, name: str) -> str:
         return self.phrases.get(name, name)
