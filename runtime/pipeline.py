@@ -41,6 +41,7 @@ from .map import (FusionConfig, ObjectInstance, Room, SemanticMap, annotate_view
                   first_seen_from_detections, fuse_frames, gravity_from_frames, refine, room_extent,
                   verify_observations, world_points)
 from .map.scale import estimate_scale, rescale_map, sensor_scale
+from .map.anchor import anchor_observations, summary as anchor_summary
 from . import prompt as vprompt
 from .answer import MapReasoner, answer_question, answer_with_vlm, cannot_detect
 
@@ -235,8 +236,9 @@ def _map_stage(p: Perceived, source: FrameSource, perception: Perception, conf: 
     poses = {i: W @ T for i, T in al.poses.items()}
     log = StageLog()
     verifier = _Verifier(p, poses, conf, not perception.depth_relative, perception.confident_score, log)
+    lifted = _anchor(p, al, fconf, perception, trace)
     with trace.stage("fusion"):
-        obs, instances, clouds = fuse_frames(p.frames, p.dets, poses, fconf, log, p.lifted, verifier)
+        obs, instances, clouds = fuse_frames(p.frames, p.dets, poses, fconf, log, lifted, verifier)
     trace.record(log)
     instances, clouds, recovered = _refine(instances, clouds, obs, p.frames, poses, p.dets, perception, fconf,
                                            matcher, conf, trace, budget)
@@ -245,6 +247,31 @@ def _map_stage(p: Perceived, source: FrameSource, perception: Perception, conf: 
     if budget is not None:
         budget.end_stage("alignment")
     return _Mapped(al, W, poses, instances, clouds, recovered, matcher)
+
+
+def _anchor(p: Perceived, al: AlignmentResult, fconf: FusionConfig, perception: Perception,
+            trace: Trace) -> dict[int, list[Observation]]:
+    """Relative depth posed by structure from motion: each key frame's detections scaled to the triangulated
+    points inside them (`map.anchor`), said in the trace; otherwise perception's lifted observations as they are."""
+    if not (fconf.anchor and perception.depth_relative and al.points is not None and len(al.points)):
+        return p.lifted
+    out, done = dict(p.lifted), []
+    with trace.stage("anchor"):
+        for f in p.frames:
+            if f.index not in al.poses or f.index not in p.lifted or f.depth is None:
+                continue
+            T = np.linalg.inv(al.poses[f.index])  # root -> this camera, in this frame's depth units
+            out[f.index], a = anchor_observations(p.lifted[f.index], al.points @ T[:3, :3].T + T[:3, 3], f.depth,
+                                                  f.K, f.index, fconf.anchor_cell_px, fconf.anchor_min_points,
+                                                  fconf.anchor_inlier_log)
+            done.append(a)
+    s = anchor_summary(done)
+    trace.decide("anchor", s)
+    if s["frame_factor"]:
+        trace.event("anchor", f"objects on RGB: {s['anchored']} of {s['observations']} detections placed by the "
+                    f"triangulated points inside them, {s['frame_factor']} by their frame's depth factor (too few "
+                    f"points on them)", stage="fusion", **{k: s[k] for k in ("anchored", "frame_factor")})
+    return out
 
 
 def _refine(instances: list[ObjectInstance], clouds: list[np.ndarray], obs: list[Observation],
