@@ -35,6 +35,7 @@ class FusionConfig(StageConf):
     duplicate_iou: float = 0.7    # one frame's boxes of two names this alike are one object named twice (0 = off)
     same_frame_share: float = 0.5  # one frame's same-name box whose points lie on another's: group/duplicate (0 = off)
     subsample_seed: int = 0  # the stream of each frame's point subsampling (seed + frame)
+    named_twice_inside: float = 0.8  # an instance this much inside another name's box, seen with it: one object (0 = off)
     anchor: bool = True           # relative depth + triangulated points: each detection scaled to its own points
     anchor_cell_px: int = 4       # ... map points count as inside a detection in its footprint's cells of this size
     anchor_min_points: int = 5    # ... fewer agreeing points: the frame's depth factor stays
