@@ -416,12 +416,13 @@ def _start_build(source: FrameSource, targets: Sequence[str], cues: Sequence[str
 def build_map(source: FrameSource, targets: Sequence[str], cues: Sequence[str] = (),
               perception: Perception | None = None, conf: PipelineConfig | dict | None = None,
               trace: Trace | None = None, keyframes: int | None = None,
-              budget: Budget | None = None) -> MapBuild:
+              budget: Budget | None = None, chosen: Sequence[int] | None = None) -> MapBuild:
     """Build the semantic map of the task objects (targets weigh 1, cues 0.5 in the search).
 
     source: frames (`frames.open_source`); perception: injected models; keyframes: K (default
     `conf.keyframe.keyframes`); budget: an optional `budget.BudgetController` (deadlines + memory guard may lower
-    K; recorded).
+    K; recorded); chosen: key frame indices given instead of the search (`mosaic eval pose`: the frames it
+    scores go through the very map stages `ask` runs, metric scale included).
     """
     if perception is None:
         raise InputError("build_map needs a Perception (bundle models or the synthetic oracle)")
@@ -431,8 +432,12 @@ def build_map(source: FrameSource, targets: Sequence[str], cues: Sequence[str] =
     loaded0 = (getattr(source, "load_seconds", 0.0), getattr(source, "loads", 0))
     names, perception, K = _start_build(source, targets, cues, perception, conf, trace, keyframes, budget)
     scanned = scan(source, conf, trace, budget)  # its thumbnails serve the search and the bridges
-    chosen, det, _, _cands = select(source, targets, cues, perception, conf, trace, keyframes=K, budget=budget,
-                                    dedup=scanned)
+    if chosen is None:
+        chosen, det, _, _cands = select(source, targets, cues, perception, conf, trace, keyframes=K, budget=budget,
+                                        dedup=scanned)
+    else:
+        chosen, det = sorted(int(i) for i in chosen), CachedDetector(source, perception.detect)
+        trace.decide("keyframes", {"method": "given", "chosen": chosen})
     fconf = FusionConfig.merged(conf.fusion)
     with _stage(budget, trace, "perception"):
         p = perceive_keyframes(source, chosen, det, names, perception, conf, fconf, budget, scanned.counts)

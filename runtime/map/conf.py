@@ -71,7 +71,9 @@ class ScaleConf(StageConf):
     floor_sd: float = 0.05           # the floor layer's own height error, log units of the camera height
     object_meas_sd: float = 0.20     # a fused box's size error (partial views, mask bleed), log units
     max_prior_sd: float = 0.35       # box dimensions whose category spread is wider than this are not used
-    objects_min_sd: float = 0.08     # floor of the object cue's sd (shared biases do not average out)
+    objects_min_sd: float = 0.15     # floor of the object cue's sd: one room's boxes share their bias (partial views
+                                     # behind furniture, mask bleed), which does not average out over its objects
+    stated_z: float = 1.645          # the answer's +-% is this many sd (1.645: a 90 % range)
     depth_model_sd: float = 0.10     # a metric depth model's scale error per room, log units
     reject_k: float = 2.5            # a vote this many sd from the weighted median is an outlier
     rough_depth_m: float = 2.0       # the normalisation's median depth (thresholds only)
@@ -84,7 +86,7 @@ class ScaleConf(StageConf):
     min_sparse_points: int = 500     # triangulated points enough to fit the floor to (else the depth model's)
 
     def validate(self) -> None:
-        for name in ("height_prior_m", "height_prior_sd", "object_meas_sd", "max_prior_sd", "depth_model_sd",
+        for name in ("height_prior_m", "height_prior_sd", "object_meas_sd", "max_prior_sd", "depth_model_sd", "stated_z",
                      "reject_k", "rough_depth_m", "floor_bin_m", "fallback_median_m"):
             if getattr(self, name) <= 0:
                 raise InputError(f"scale config: {name} must be > 0 (got {getattr(self, name)})")

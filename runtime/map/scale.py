@@ -58,11 +58,12 @@ class MetricScale:
     votes: list[Vote] = field(default_factory=list)
     cues: dict[str, dict[str, Any]] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
+    z: float = 1.645  # the stated +- is this many sd (`ScaleConf.stated_z`: 1.645 = a 90 % range)
 
     @property
     def percent(self) -> float:
-        """The stated uncertainty as +- percent (1 sd)."""
-        return 100.0 * (float(np.exp(self.sd)) - 1.0)
+        """The stated uncertainty as +- percent (`z` sd: the range the answer states)."""
+        return 100.0 * (float(np.exp(self.z * self.sd)) - 1.0)
 
     def message(self) -> str:
         """One line for the printed answer, e.g. "scale from camera height and 3 objects (chair x2, tv), +-12 %"."""
@@ -83,7 +84,7 @@ class MetricScale:
             else:
                 parts.append(CUE_WORDS[name])
         said = parts[0] if len(parts) == 1 else ", ".join(parts[:-1]) + " and " + parts[-1]
-        out = [f"scale from {said}, +-{self.percent:.0f} %"]
+        out = [f"scale from {said}, +-{self.percent:.0f} % ({100 * _coverage(self.z):.0f} % range)"]
         dropped = [v for v in self.votes if not v.kept]
         if dropped:
             out.append("left out as off the others: " + ", ".join(
@@ -91,10 +92,18 @@ class MetricScale:
         return "; ".join(out + self.notes)
 
     def to_dict(self) -> dict[str, Any]:
-        return {"scale": self.scale, "sd_log": self.sd, "percent": round(self.percent, 1), "source": self.source,
+        return {"scale": self.scale, "sd_log": self.sd, "percent": round(self.percent, 1), "stated_z": self.z,
+                "source": self.source,
                 "cues": self.cues, "notes": list(self.notes), "message": self.message(),
                 "votes": [{"cue": v.cue, "label": v.label, "scale": float(np.exp(v.log_s)), "sd_log": v.sd,
                            "kept": v.kept, "detail": v.detail} for v in self.votes]}
+
+
+def _coverage(z: float) -> float:
+    """The share of a normal distribution within +-z sd."""
+    from math import erf, sqrt
+
+    return erf(z / sqrt(2.0))
 
 
 @lru_cache(maxsize=4)
@@ -301,19 +310,19 @@ def estimate_scale(cameras: np.ndarray, points: np.ndarray | None = None, object
     if not votes:  # the old prior: the median depth becomes `fallback_median_m`, about +-50 %
         notes.append(f"relative depth scaled by a prior (median depth {conf.fallback_median_m} m)")
         return MetricScale(rough * conf.fallback_median_m / conf.rough_depth_m, float(np.log(1.5)), "guess", [],
-                           {}, notes)
+                           {}, notes, conf.stated_z)
     m, s, cues = combine(votes, conf)
     if len(cues) > 1 and s > 1.5 * min(c["sd_log"] for c in cues.values()):
         said = ", ".join(f"{CUE_WORDS[k]} x{c['scale']:.3g}" for k, c in cues.items())
         notes = [f"the cues disagree ({said})"]
     else:
         notes = []
-    return MetricScale(float(np.exp(m)), s, "cues", votes, cues, notes)
+    return MetricScale(float(np.exp(m)), s, "cues", votes, cues, notes, conf.stated_z)
 
 
 def sensor_scale() -> MetricScale:
     """The statement for a map from sensor depth: scale 1, exact."""
-    return MetricScale(1.0, 0.0, "sensor depth")
+    return MetricScale(1.0, 0.0, "sensor depth")  # exact: no range to state
 
 
 def rescale_box(box: OrientedBox, s: float) -> OrientedBox:
