@@ -185,24 +185,26 @@ def evaluate_pose(source: Any, indices: Sequence[int], matcher: Any = "sift", st
     }
 
 
-def evaluate_pose_map(source: Any, indices: Sequence[int], bundle: str, conf: Any = None, trace: Any = None,
-                      matcher: str = "model") -> dict[str, Any]:
+def evaluate_pose_map(source: Any, indices: Sequence[int], bundle: str | None, conf: Any = None, trace: Any = None,
+                      matcher: str = "model", perception: Any = None, names: Sequence[str] | None = None
+                      ) -> dict[str, Any]:
     """`evaluate_pose` for RGB only on the path `ask` uses, in the units a user gets: the frames `indices` go
     through `pipeline.build_map` as its key frames (alignment, every category the bundle's detector names,
     fusion, gravity and the metric scale `ask` applies), and the map's poses are scored: `ate_rmse_m` after an
     SE(3) registration is then in metres as the user gets them, `sim3_scale` the factor the map's scale missed
     by (1.0 = right), `scale` what the map stated (where the scale came from, +-%) and whether that covered the
-    error (`scale_covered`: |log sim3_scale| within the stated range, `stated_z` sd)."""
+    error (`scale_covered`: |log sim3_scale| within the stated range, `stated_z` sd). perception / names: injected
+    (tests: the synthetic oracle) instead of the bundle's models and every category its detector names."""
     from mosaicthinker.runtime import pipeline
     from mosaicthinker.runtime.conf import PipelineConfig
     from mosaicthinker.runtime.detectable import detectable_names
-    from mosaicthinker.runtime.infra.trace import as_trace
+    from mosaicthinker.runtime.infra.trace import Trace
 
-    trace = as_trace(trace)
+    trace = trace if trace is not None else Trace()  # its decisions hold the scale statement
     extra = dict(conf or {}) if not isinstance(conf, PipelineConfig) else {}
     pconf = PipelineConfig.merged({**extra, "depth": "model", "matcher": matcher})
-    perception = pipeline.perception_from_bundle(str(bundle), pconf, trace)
-    names = detectable_names(bundle)
+    perception = perception if perception is not None else pipeline.perception_from_bundle(str(bundle), pconf, trace)
+    names = list(names) if names is not None else detectable_names(bundle)
     frames_gt = {int(i): source[int(i)].pose_gt for i in indices}
     t0 = time.perf_counter()
     build = pipeline.build_map(source, names, [], perception, pconf, trace, len(indices), chosen=indices)

@@ -244,17 +244,18 @@ def box_inside_share(a: np.ndarray, b: np.ndarray) -> float:
 
 
 def named_twice(small: tuple[str, np.ndarray, dict[int, np.ndarray]], big: tuple[str, np.ndarray, dict[int, np.ndarray]],
-                inside: float, box_inside: float = 0.8, grow: float = 0.1) -> str | None:
+                inside: float, box_inside: float = 0.8, grow: float = 0.1, floor_share: float = 0.25) -> str | None:
     """Why `small` is the same piece of furniture as `big` under another name, or None. Each is (name, points
-    [N, 3] in a z-up world, {frame: image box [4]}). All of these (unit-free, relative to big's box): at least
-    half of small's frames show big too, and in most of those small's image box lies inside big's (>= `box_inside`
-    of its area); >= `inside` of small's points lie in big's gravity box grown by `grow` of its sides; small
-    stands where big stands (its bottom within `grow` x big's height of big's bottom: a cushion or a cup on it
-    is another object) and does not rise above it (its 95th-percentile height under big's top + `grow` x height:
-    a chair pushed under a table shows its back above the top)."""
+    [N, 3] in a z-up world, {frame: image box [4]}). All of these (unit-free, relative to big's box): both are
+    detected in at least two frames (all of small's, if fewer; elsewhere the detector may name it only one way),
+    and in most of those small's image box lies inside big's (>= `box_inside` of its area); >= `inside` of small's
+    points lie in big's gravity box grown by `grow` of its sides; small stands where big stands (its bottom within
+    `floor_share` x big's height of big's bottom: a cushion on a seat or a cup on a table is another object) and
+    does not rise above it (its 95th-percentile height under big's top + `grow` x height: a chair pushed under a
+    table shows its back above the top)."""
     (na, pa, fa), (nb, pb, fb) = small, big
     shared = sorted(set(fa) & set(fb))
-    if na == nb or not fa or len(shared) < max(1, len(fa) / 2):
+    if na == nb or not fa or len(shared) < min(2, len(fa)):
         return None
     within = sum(box_inside_share(fa[f], fb[f]) >= box_inside for f in shared)
     if within < max(1, len(shared) / 2):
@@ -267,7 +268,7 @@ def named_twice(small: tuple[str, np.ndarray, dict[int, np.ndarray]], big: tuple
     h = L[k]
     bottom, top = float(box.centroid[2]) - h / 2, float(box.centroid[2]) + h / 2
     za = pa[:, 2]
-    if (share < inside or abs(float(np.percentile(za, 2)) - bottom) > grow * h
+    if (share < inside or abs(float(np.percentile(za, 2)) - bottom) > floor_share * h
             or float(np.percentile(za, 95)) > top + grow * h):
         return None
     return (f"{na} (frames {sorted(fa)}) lies inside {nb}'s box ({100 * share:.0f} % of its points), stands on the "
