@@ -294,7 +294,8 @@ def _drop_named_twice(items: list[tuple["_Acc", np.ndarray]], conf: FusionConfig
                 b.frames = sorted(set(b.frames) | set(a.frames))
                 break
     if drop:
-        as_trace(log).event("fusion", "fusion: left out " + "; ".join(drop[i] for i in sorted(drop)), stage="fusion",
+        as_trace(log).event("fusion", "fusion: left out as named twice: " + "; ".join(drop[i] for i in sorted(drop)),
+                            stage="fusion",
                             named_twice=[{"name": items[i][0].name, "why": drop[i]} for i in sorted(drop)])
     return [it for i, it in enumerate(items) if i not in drop]
 
