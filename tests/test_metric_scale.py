@@ -223,3 +223,20 @@ def test_eval_pose_scores_the_map_in_the_units_ask_gives(tmp_path_factory):
     off = evaluate_pose_map(src, idx, None, {"scale": {"apply": False}}, perception=half, names=names)
     assert off["sim3_scale"] == pytest.approx(2.0, rel=0.3) and off["scale"]["source"] == "cues"
     assert r["ate_rmse_m"] < off["ate_rmse_m"]  # SE(3) after the scale: what the user gets, in metres
+
+
+def test_step_scale_holds_where_the_trajectory_is_folded():
+    """A walk whose second half is folded back (a misplaced chain) at the right scale: the Sim(3) fit shrinks it,
+    the median step ratio still says 1; at half the size it says 2."""
+    from mosaicthinker.host.evaluation.pose import ate_fields, step_scale
+
+    gt = np.tile(np.eye(4), (12, 1, 1))
+    gt[:, 0, 3] = np.arange(12) * 0.5
+    est = gt.copy()
+    est[6:, 0, 3] = est[5, 0, 3] - (np.arange(6) + 1) * 0.5  # the same steps, walked back
+    assert abs(np.log(ate_fields(est, gt, True)["sim3_scale"])) > 0.4  # the Sim(3) would call it a scale error
+    assert step_scale(est, gt) == pytest.approx(1.0)
+    half = est.copy()
+    half[:, :3, 3] *= 0.5
+    assert step_scale(half, gt) == pytest.approx(2.0)
+    assert step_scale(gt[:2], gt[:2]) is None

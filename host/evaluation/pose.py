@@ -216,6 +216,7 @@ def evaluate_pose_map(source: Any, indices: Sequence[int], bundle: str | None, c
     al = build.info.get("alignment", {})
     ms = build.map.meta.get("scale") or trace.decisions.get("scale") or {}
     s3 = scores.get("sim3_scale")
+    steps = step_scale(est, gt)
     return {
         **scores, "path": "ask", "metric_path": "build_map", "objects": names,
         "aligned_frames": len([i for i in indices if i in build.poses_world]), "total_frames": len(indices),
@@ -233,7 +234,20 @@ def evaluate_pose_map(source: Any, indices: Sequence[int], bundle: str | None, c
         "scale_error": None if not s3 else 1.0 / s3 - 1.0,
         "scale_covered": None if not s3 or ms.get("sd_log") is None else bool(abs(np.log(s3)) <= ms.get("stated_z", 1.0) * ms["sd_log"]),
         "instances": len(build.map.instances),
+        "step_scale": steps, "scale_error_steps": None if not steps else 1.0 / steps - 1.0,
     }
+
+
+def step_scale(est: np.ndarray, gt: np.ndarray, min_step_m: float = 0.05) -> float | None:
+    """The map's scale error from its own steps: the median over consecutive scored frames (est, gt [N, 4, 4] in
+    time order) of the true camera step over the estimated one (steps under `min_step_m` left out). Unlike the
+    Sim(3)'s scale it holds where the trajectory's shape is wrong (a misplaced chain): None under 2 steps."""
+    if len(est) < 3:
+        return None
+    de = np.linalg.norm(np.diff(np.asarray(est)[:, :3, 3], axis=0), axis=1)
+    dg = np.linalg.norm(np.diff(np.asarray(gt)[:, :3, 3], axis=0), axis=1)
+    ok = (dg > min_step_m) & (de > 1e-9)
+    return float(np.median(dg[ok] / de[ok])) if ok.sum() >= 2 else None
 
 
 def _align_as_ask(source: Any, frames: list[Any], matcher: Any, depth_model: Any, with_scale: bool, conf: Any,
