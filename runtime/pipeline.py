@@ -333,8 +333,10 @@ def missing_reasons(missing: list[str], dets: dict[int, Detections], unaligned: 
 
 def _map_extras(instances: list[ObjectInstance], frames: list[Frame], poses: dict[int, np.ndarray],
                 det: CachedDetector, names: list[str], source: FrameSource, perception: Perception,
-                conf: PipelineConfig, fconf: FusionConfig, trace: Trace) -> tuple[Room | None, list[Any]]:
-    """First-seen times from the search's detections, floor-standing extents, the room. Returns (room, cams)."""
+                conf: PipelineConfig, fconf: FusionConfig, trace: Trace, anchored: bool = False
+                ) -> tuple[Room | None, list[Any]]:
+    """First-seen times from the search's detections, floor-standing extents (metric depth, or relative depth
+    whose objects were placed by triangulated points: `anchored`), the room. Returns (room, cams)."""
     # a camera is a position and an orientation: with relative depth a pose carries its frame's depth scale (Sim(3))
     cams = [(float(f.t), rigid_part(poses[f.index])) for f in frames if f.index in poses]
     log = StageLog()
@@ -342,7 +344,7 @@ def _map_extras(instances: list[ObjectInstance], frames: list[Frame], poses: dic
         key = tuple(names)
         first_seen_from_detections(instances, [(float(source.timestamps[i]), d.names)
                                                for (i, nm), d in det.cache.items() if nm == key], log)
-    if conf.floor_standing and not perception.depth_relative:
+    if conf.floor_standing and (anchored or not perception.depth_relative):
         with log.stage("extent"):
             extend_to_floor(instances, frames, poses, conf.floor_standing, conf.floor_band_share, log)
     with log.stage("room"):
@@ -353,12 +355,14 @@ def _map_extras(instances: list[ObjectInstance], frames: list[Frame], poses: dic
 
 def _metric_scale(smap: SemanticMap, clouds: list[np.ndarray], poses: dict[int, np.ndarray], frames: list[Frame],
                   source: FrameSource, perception: Perception, conf: PipelineConfig, trace: Trace,
-                  sparse: np.ndarray | None = None) -> tuple[SemanticMap, list[np.ndarray], dict[int, np.ndarray]]:
+                  sparse: np.ndarray | None = None, seen: list[tuple[str, Any]] | None = None
+                  ) -> tuple[SemanticMap, list[np.ndarray], dict[int, np.ndarray]]:
     """The map's metric scale (`map.scale`): sensor depth is metric (said in the trace); a map from model depth
     takes it from the camera height, the objects' sizes and a metric model's own scale, applied once (map,
     clouds, poses) and said with the answer ("scale" event); no usable cue: the depth prior stays, said loudly.
     `sparse` [N, 3]: triangulated world points (structure from motion), where the floor is fitted when there
-    are enough of them (a depth model's dense points smear the floor)."""
+    are enough of them (a depth model's dense points smear the floor). `seen`: (name, box) as fused, before the
+    floor-standing extension, whose height comes from a floor an RGB map only estimates: the size votes use these."""
     if not (conf.depth == "model" or (conf.depth == "auto" and not getattr(source, "has_depth", False))):
         trace.decide("scale", sensor_scale().to_dict())
         return smap, clouds, poses
@@ -370,7 +374,7 @@ def _metric_scale(smap: SemanticMap, clouds: list[np.ndarray], poses: dict[int, 
             pts = world_points(posed, poses, 8, lambda q: q[:, 2] < conf.floor_fit_max_depth_m)
             cloud = np.concatenate(pts) if pts else None
         ms = estimate_scale(np.array([rigid_part(poses[f.index]) for f in posed]).reshape(-1, 4, 4),
-                            cloud, smap.instances, np.array([0.0, 0.0, 1.0]),
+                            cloud, seen if seen is not None else smap.instances, np.array([0.0, 0.0, 1.0]),
                             None if perception.depth_relative else [1.0] * len(posed), conf.scale)
     trace.decide("scale", ms.to_dict())
     if ms.source == "guess":
@@ -446,14 +450,17 @@ def build_map(source: FrameSource, targets: Sequence[str], cues: Sequence[str] =
     m = _map_stage(p, source, perception, conf, fconf, trace, budget, scanned.thumbs)
     al, instances = m.alignment, m.instances
     _record_instances(instances, names, m.recovered, trace, p.dets, al.unaligned, det.scored())
-    room, cams = _map_extras(instances, p.frames, m.poses, det, names, source, perception, conf, fconf, trace)
+    seen = [(o.name, o.box) for o in instances]  # the boxes as fused: what the size votes measure (below)
+    room, cams = _map_extras(instances, p.frames, m.poses, det, names, source, perception, conf, fconf, trace,
+                             bool(trace.decisions.get("anchor", {}).get("anchored")))
     trace.record(det.log)  # the detector's time over the search and perception
     _book_counters(trace, source, loaded0, m.matcher)
     smap = SemanticMap(instances, room, cams,
                        {"source": getattr(source, "name", "frames"), "built_from": "video", "keyframes": chosen,
                         "root": al.root, "unaligned": al.unaligned, "objects": names, "recovered": m.recovered})
     sparse = al.points @ m.world_from_root[:3, :3].T + m.world_from_root[:3, 3] if al.points is not None else None
-    smap, clouds, poses = _metric_scale(smap, m.clouds, m.poses, p.frames, source, perception, conf, trace, sparse)
+    smap, clouds, poses = _metric_scale(smap, m.clouds, m.poses, p.frames, source, perception, conf, trace, sparse,
+                                        seen)
     return MapBuild(smap, chosen, clouds, poses, m.world_from_root, list(al.unaligned), m.recovered,
                     bool(budget is not None and getattr(budget, "reduced", False)),
                     {"alignment": al.to_dict(), "dedup_kept": None}, det.undetectable())
