@@ -18,6 +18,7 @@ sparse map points (triangulated features), so that depth-model shapes live in th
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import dataclass, field, replace
 from functools import lru_cache
 from pathlib import Path
@@ -101,9 +102,7 @@ class MetricScale:
 
 def _coverage(z: float) -> float:
     """The share of a normal distribution within +-z sd."""
-    from math import erf, sqrt
-
-    return erf(z / sqrt(2.0))
+    return math.erf(z / math.sqrt(2.0))
 
 
 @lru_cache(maxsize=4)
