@@ -40,7 +40,7 @@ from .align import AlignmentResult, align_keyframes, make_matcher, rigid_part
 from .map import (FusionConfig, ObjectInstance, Room, SemanticMap, annotate_views, extend_to_floor,
                   first_seen_from_detections, fuse_frames, gravity_from_frames, refine, room_extent,
                   verify_observations, world_points)
-from .map.scale import estimate_scale, rescale_map, sensor_scale
+from .map.scale import box_dims, estimate_scale, rescale_map, sensor_scale
 from .map.anchor import anchor_observations, summary as anchor_summary
 from . import prompt as vprompt
 from .answer import MapReasoner, answer_question, answer_with_vlm, cannot_detect
@@ -355,14 +355,15 @@ def _map_extras(instances: list[ObjectInstance], frames: list[Frame], poses: dic
 
 def _metric_scale(smap: SemanticMap, clouds: list[np.ndarray], poses: dict[int, np.ndarray], frames: list[Frame],
                   source: FrameSource, perception: Perception, conf: PipelineConfig, trace: Trace,
-                  sparse: np.ndarray | None = None, seen: list[tuple[str, Any]] | None = None
+                  sparse: np.ndarray | None = None, seen: list[tuple[str, Any, bool]] | None = None
                   ) -> tuple[SemanticMap, list[np.ndarray], dict[int, np.ndarray]]:
     """The map's metric scale (`map.scale`): sensor depth is metric (said in the trace); a map from model depth
     takes it from the camera height, the objects' sizes and a metric model's own scale, applied once (map,
     clouds, poses) and said with the answer ("scale" event); no usable cue: the depth prior stays, said loudly.
     `sparse` [N, 3]: triangulated world points (structure from motion), where the floor is fitted when there
     are enough of them (a depth model's dense points smear the floor). `seen`: (name, box) as fused, before the
-    floor-standing extension, whose height comes from a floor an RGB map only estimates: the size votes use these."""
+    floor-standing extension, whose height comes from a floor an RGB map only estimates, and whether it was extended
+    (then seen only in part: its height does not vote): the size votes use these."""
     if not (conf.depth == "model" or (conf.depth == "auto" and not getattr(source, "has_depth", False))):
         trace.decide("scale", sensor_scale().to_dict())
         return smap, clouds, poses
@@ -459,6 +460,9 @@ def build_map(source: FrameSource, targets: Sequence[str], cues: Sequence[str] =
                        {"source": getattr(source, "name", "frames"), "built_from": "video", "keyframes": chosen,
                         "root": al.root, "unaligned": al.unaligned, "objects": names, "recovered": m.recovered})
     sparse = al.points @ m.world_from_root[:3, :3].T + m.world_from_root[:3, 3] if al.points is not None else None
+    # a box the floor-standing extension reached down for was seen only in part: its height does not vote
+    z = np.array([0.0, 0.0, 1.0])
+    seen = [(n, b, float(box_dims(o.box, z)[2]) > 1.05 * float(box_dims(b, z)[2])) for (n, b), o in zip(seen, instances)]
     smap, clouds, poses = _metric_scale(smap, m.clouds, m.poses, p.frames, source, perception, conf, trace, sparse,
                                         seen)
     return MapBuild(smap, chosen, clouds, poses, m.world_from_root, list(al.unaligned), m.recovered,

@@ -240,3 +240,18 @@ def test_step_scale_holds_where_the_trajectory_is_folded():
     half[:, :3, 3] *= 0.5
     assert step_scale(half, gt) == pytest.approx(2.0)
     assert step_scale(gt[:2], gt[:2]) is None
+
+
+def test_a_partly_seen_height_does_not_vote():
+    """A chair whose box the floor-standing extension had to reach down for (its back seen over a table: 0.3 m of
+    its 0.9 m): flagged partial, only its footprint votes; unflagged, its height pulls the vote up ~x2."""
+    from mosaicthinker.runtime.map.conf import ScaleConf
+    from mosaicthinker.runtime.map.scale import object_votes
+
+    pri = load_size_priors()
+    L = np.asarray(pri["chair"]["median_m"], float)
+    top = OrientedBox(np.array([0.0, 0.0, 0.75]), np.array([L[0], L[1], 0.3]), np.eye(3))
+    up = np.array([0.0, 0, 1])
+    (full,) = object_votes([("chair", top)], up, pri, ScaleConf())
+    (part,) = object_votes([("chair", top, True)], up, pri, ScaleConf())
+    assert abs(part.log_s) < 1e-6 and full.log_s > 0.3

@@ -145,16 +145,19 @@ def box_dims(box: OrientedBox, up: np.ndarray) -> np.ndarray:
 def object_votes(objects: Iterable[Any], up: np.ndarray, priors: dict[str, dict[str, Any]],
                  conf: ScaleConf) -> list[Vote]:
     """One vote per object of a category with a prior: the prior-weighted mean of log(prior / measured) over its
-    informative dimensions (category spread <= `max_prior_sd`); sd: the shared measurement error and the priors'."""
+    informative dimensions (category spread <= `max_prior_sd`); sd: the shared measurement error and the priors'.
+    objects: instances, or (name, box) / (name, box, partial height) tuples: an object whose lower part was not
+    seen (the floor-standing extension had to reach down for it: a chair's back over a table) has a height that
+    is only a part of its own, so that dimension does not vote."""
     out = []
     for o in objects:
-        name, box = (o.name, o.box) if hasattr(o, "box") else o
+        name, box, partial = (o.name, o.box, False) if hasattr(o, "box") else (*o[:2], len(o) > 2 and bool(o[2]))
         pr = priors.get(name)
         if pr is None:
             continue
         d = box_dims(box, up)
         med, psd = np.asarray(pr["median_m"]), np.asarray(pr["log_sd"])
-        use = (psd <= conf.max_prior_sd) & (d > 0)
+        use = (psd <= conf.max_prior_sd) & (d > 0) & np.array([True, True, not partial])
         if not use.any():
             continue
         w = 1.0 / psd[use] ** 2
