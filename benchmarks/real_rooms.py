@@ -172,7 +172,9 @@ def pose_row(room: Path, bundle: Path, depth: str, k: int, path: str, conf: dict
             "ate_sim3_m": r.get("ate_sim3_m"), "sim3_scale": r.get("sim3_scale"), "aligned": r["aligned_frames"], "of": r["total_frames"],
             "other_frames_used": len(r.get("other_frames_used", [])), "aligned_by_path": fates,
             "untracked": r.get("untracked_frames"), "sim3": r.get("sim3"), "seconds": round(r["seconds"], 2),
-            "seconds_breakdown": r.get("seconds_breakdown"), "sfm": sfm_accounting(r)}
+            "seconds_breakdown": r.get("seconds_breakdown"), "sfm": sfm_accounting(r),
+            "scale": (r.get("scale") or {}).get("message"), "scale_error": r.get("scale_error"),
+            "scale_covered": r.get("scale_covered")}
 
 
 def sfm_accounting(r: dict[str, Any]) -> dict[str, Any] | None:
