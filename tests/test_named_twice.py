@@ -58,6 +58,10 @@ def test_objects_on_beside_or_under_another_stay():
     assert named_twice(("chair", tucked, inner), ("table", table, frames), 0.8) is None
     seat = _block(g, (0.1, 0.05, 0.0), (0.8, 0.85, 0.8), 600)
     assert named_twice(("chair", seat, inner), ("sofa", sofa, frames), 0.8) is not None
+    # an oven built into a run of cabinets: inside it, on the floor, under its top, but a small part of it
+    cabinets = _block(g, (0.0, 0.0, 0.0), (3.6, 0.6, 0.9), 3000)
+    oven = _block(g, (1.5, 0.05, 0.1), (2.1, 0.55, 0.8), 400)
+    assert named_twice(("oven", oven, inner), ("cabinet", cabinets, frames), 0.8) is None
     # seen apart: never in the same frames as the sofa, so two objects whatever the boxes say
     apart = {f + 10: b for f, b in inner.items()}
     assert named_twice(("chair", seat, apart), ("sofa", sofa, frames), 0.8) is None

@@ -243,8 +243,16 @@ def box_inside_share(a: np.ndarray, b: np.ndarray) -> float:
     return float(w * h / area)
 
 
+def _footprint_area(box: OrientedBox) -> float:
+    """Floor area of a gravity box (z up): the product of its two sides nearest the horizontal."""
+    L = np.asarray(box.axes_lengths, float)
+    k = int(np.argmax(np.abs(np.asarray(box.axes, float)[:, 2])))
+    return float(np.prod(np.delete(L, k)))
+
+
 def named_twice(small: tuple[str, np.ndarray, dict[int, np.ndarray]], big: tuple[str, np.ndarray, dict[int, np.ndarray]],
-                inside: float, box_inside: float = 0.8, grow: float = 0.1, floor_share: float = 0.25) -> str | None:
+                inside: float, box_inside: float = 0.8, grow: float = 0.1, floor_share: float = 0.25,
+                min_footprint: float = 0.25) -> str | None:
     """Why `small` is the same piece of furniture as `big` under another name, or None. Each is (name, points
     [N, 3] in a z-up world, {frame: image box [4]}). All of these (unit-free, relative to big's box): both are
     detected in at least two frames (all of small's, if fewer; elsewhere the detector may name it only one way),
@@ -252,7 +260,8 @@ def named_twice(small: tuple[str, np.ndarray, dict[int, np.ndarray]], big: tuple
     points lie in big's gravity box grown by `grow` of its sides; small stands where big stands (its bottom within
     `floor_share` x big's height of big's bottom: a cushion on a seat or a cup on a table is another object) and
     does not rise above it (its 95th-percentile height under big's top + `grow` x height: a chair pushed under a
-    table shows its back above the top)."""
+    table shows its back above the top), and covers >= `min_footprint` of big's floor footprint (one seat of a
+    three-seat sofa does; an oven built into a run of kitchen cabinets does not)."""
     (na, pa, fa), (nb, pb, fb) = small, big
     shared = sorted(set(fa) & set(fb))
     if na == nb or not fa or len(shared) < min(2, len(fa)):
@@ -268,7 +277,8 @@ def named_twice(small: tuple[str, np.ndarray, dict[int, np.ndarray]], big: tuple
     h = L[k]
     bottom, top = float(box.centroid[2]) - h / 2, float(box.centroid[2]) + h / 2
     za = pa[:, 2]
-    if (share < inside or abs(float(np.percentile(za, 2)) - bottom) > floor_share * h
+    if (share < inside or _footprint_area(fit_gravity_box(pa)) < min_footprint * _footprint_area(box)
+            or abs(float(np.percentile(za, 2)) - bottom) > floor_share * h
             or float(np.percentile(za, 95)) > top + grow * h):
         return None
     return (f"{na} (frames {sorted(fa)}) lies inside {nb}'s box ({100 * share:.0f} % of its points), stands on the "
