@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import subprocess
 import sys
@@ -123,10 +124,39 @@ def scene_row(room: Path, bundle: Path, depth: str, k: int, out: Path, conf: dic
         row["answers"] = {q: {x: p.get(x) for x in ("n", "metric", "score", "answered", "answered_score",
                                                     "not_in_map")} for q, p in an["per_type"].items()}
         row["answers_pooled"] = {x: an["pooled"][x] for x in ("multiple_choice", "n_mc", "numeric_mra", "n_numeric")}
+    row["stages"] = stage_accounting(out / "trace.json", r)
     got, ask_meta = _mosaic(["ask", str(out / "map.json"), QUESTION, "--json"], timeout=600)
     row["map_loads"] = {"ok": ask_meta["rc"] == 0 and got is not None, "answer": None if got is None else got.get("answer"),
                         **ask_meta}
     return row
+
+
+def stage_accounting(trace_path: Path, r: dict[str, Any]) -> dict[str, Any] | None:
+    """What was lost where, from the run's trace: key frames chosen / aligned, detections lifted, placed by the
+    triangulated points inside them (RGB only) or by their frame's depth factor, kept by cross-view verification,
+    left out as repeats or as one object named twice, instances; and the metric scale the map stated (with the
+    registration's scale against the ground truth where there is one: ``scale_error`` = stated / true - 1)."""
+    try:
+        t = json.loads(trace_path.read_text())
+    except (OSError, ValueError):
+        return None
+    d, ev = t.get("decisions", {}), t.get("events", [])
+    an, ver, sc = d.get("anchor") or {}, d.get("verify") or {}, d.get("scale") or {}
+    fusion = {e["message"]: e for e in ev if e.get("kind") == "fusion"}.values()  # refinement re-fuses: once each
+    twice = [x for e in fusion if e.get("named_twice") for x in e["named_twice"]]
+    repeats = sum(len(e.get("dropped") or []) for e in fusion if isinstance(e.get("dropped"), list))
+    reg = r.get("registration") or {}
+    true_over_map = reg.get("scale") if r.get("depth_relative") else None
+    return {"keyframes": len(r.get("keyframes_chosen", [])),
+            "aligned": len(r.get("keyframes_chosen", [])) - len(r.get("unaligned", [])),
+            "detections_lifted": ver.get("candidates", an.get("observations")),
+            "placed_by_points": an.get("anchored"), "placed_by_frame_factor": an.get("frame_factor"),
+            "verified": ver.get("kept"), "repeats_left_out": repeats, "named_twice": len(twice),
+            "instances": (d.get("instances") or {}).get("count"),
+            "scale": {"message": sc.get("message"), "source": sc.get("source"), "percent": sc.get("percent"),
+                      "scale_error": None if not true_over_map else 1.0 / true_over_map - 1.0,
+                      "covered": None if not true_over_map or sc.get("sd_log") is None
+                      else bool(abs(math.log(true_over_map)) <= sc.get("stated_z", 1.0) * sc["sd_log"])}}
 
 
 def pose_row(room: Path, bundle: Path, depth: str, k: int, path: str, conf: dict | None = None) -> dict[str, Any]:
@@ -142,7 +172,9 @@ def pose_row(room: Path, bundle: Path, depth: str, k: int, path: str, conf: dict
             "ate_sim3_m": r.get("ate_sim3_m"), "sim3_scale": r.get("sim3_scale"), "aligned": r["aligned_frames"], "of": r["total_frames"],
             "other_frames_used": len(r.get("other_frames_used", [])), "aligned_by_path": fates,
             "untracked": r.get("untracked_frames"), "sim3": r.get("sim3"), "seconds": round(r["seconds"], 2),
-            "seconds_breakdown": r.get("seconds_breakdown"), "sfm": sfm_accounting(r)}
+            "seconds_breakdown": r.get("seconds_breakdown"), "sfm": sfm_accounting(r),
+            "scale": (r.get("scale") or {}).get("message"), "scale_error": r.get("scale_error"),
+            "scale_covered": r.get("scale_covered")}
 
 
 def sfm_accounting(r: dict[str, Any]) -> dict[str, Any] | None:
@@ -375,6 +407,21 @@ def markdown(res: dict[str, Any]) -> str:
                 f"{_f(p.get('ate_m'))} ({p.get('aligned', '-')}/{p.get('of', '-')}) | {_f(o.get('recall'), 2)} | "
                 f"{_f(o.get('precision'), 2)} | {_f(o.get('median_centre_err_m'), 2)} | {_f(r['wall_s'], 1)} | "
                 f"{r['peak_rss_mb']} | {'yes' if r.get('map_loads', {}).get('ok') else 'NO'} |")
+    rgb = [(n, k, r) for n, i in res["rooms"].items() for k, r in i["runs"].items()
+           if k.startswith("model/") and r.get("stages")]
+    if rgb:
+        lines += ["", "RGB only (the room's depth ignored): what was lost where, and the metric scale",
+                  "", "| room | run | key frames aligned | detections | placed by SfM points / frame factor | "
+                  "verified | repeats / named twice out | instances | scale stated | scale error (covered) |",
+                  "|---|---|---|---|---|---|---|---|---|---|"]
+        for n, k, r in rgb:
+            st, sc = r["stages"], r["stages"]["scale"]
+            err = sc.get("scale_error")
+            lines.append(f"| {n} | {k} | {st['aligned']}/{st['keyframes']} | {st['detections_lifted']} | "
+                         f"{st['placed_by_points']} / {st['placed_by_frame_factor']} | {st['verified']} | "
+                         f"{st['repeats_left_out']} / {st['named_twice']} | {st['instances']} | {sc.get('message')} | "
+                         + ("-" if err is None else f"{100 * err:+.1f} % ({'yes' if sc.get('covered') else 'NO'})")
+                         + " |")
     asks = [(n, i["ask_k16"]) for n, i in res["rooms"].items() if i.get("ask_k16")]
     if asks:
         lines += ["", "| room | `mosaic ask` K=16 sensor, wall s | ratio to the kitchen | answer | load before |",

@@ -40,7 +40,8 @@ from .align import AlignmentResult, align_keyframes, make_matcher, rigid_part
 from .map import (FusionConfig, ObjectInstance, Room, SemanticMap, annotate_views, extend_to_floor,
                   first_seen_from_detections, fuse_frames, gravity_from_frames, refine, room_extent,
                   verify_observations, world_points)
-from .map.scale import estimate_scale, rescale_map, sensor_scale
+from .map.scale import box_dims, estimate_scale, rescale_map, sensor_scale
+from .map.anchor import anchor_observations, summary as anchor_summary
 from . import prompt as vprompt
 from .answer import MapReasoner, answer_question, answer_with_vlm, cannot_detect
 
@@ -235,8 +236,9 @@ def _map_stage(p: Perceived, source: FrameSource, perception: Perception, conf: 
     poses = {i: W @ T for i, T in al.poses.items()}
     log = StageLog()
     verifier = _Verifier(p, poses, conf, not perception.depth_relative, perception.confident_score, log)
+    lifted = _anchor(p, al, fconf, perception, trace)
     with trace.stage("fusion"):
-        obs, instances, clouds = fuse_frames(p.frames, p.dets, poses, fconf, log, p.lifted, verifier)
+        obs, instances, clouds = fuse_frames(p.frames, p.dets, poses, fconf, log, lifted, verifier)
     trace.record(log)
     instances, clouds, recovered = _refine(instances, clouds, obs, p.frames, poses, p.dets, perception, fconf,
                                            matcher, conf, trace, budget)
@@ -245,6 +247,31 @@ def _map_stage(p: Perceived, source: FrameSource, perception: Perception, conf: 
     if budget is not None:
         budget.end_stage("alignment")
     return _Mapped(al, W, poses, instances, clouds, recovered, matcher)
+
+
+def _anchor(p: Perceived, al: AlignmentResult, fconf: FusionConfig, perception: Perception,
+            trace: Trace) -> dict[int, list[Observation]]:
+    """Relative depth posed by structure from motion: each key frame's detections scaled to the triangulated
+    points inside them (`map.anchor`), said in the trace; otherwise perception's lifted observations as they are."""
+    if not (fconf.anchor and perception.depth_relative and al.points is not None and len(al.points)):
+        return p.lifted
+    out, done = dict(p.lifted), []
+    with trace.stage("anchor"):
+        for f in p.frames:
+            if f.index not in al.poses or f.index not in p.lifted or f.depth is None:
+                continue
+            T = np.linalg.inv(al.poses[f.index])  # root -> this camera, in this frame's depth units
+            out[f.index], a = anchor_observations(p.lifted[f.index], al.points @ T[:3, :3].T + T[:3, 3], f.depth,
+                                                  f.K, f.index, fconf.anchor_cell_px, fconf.anchor_min_points,
+                                                  fconf.anchor_inlier_log)
+            done.append(a)
+    s = anchor_summary(done)
+    trace.decide("anchor", s)
+    if s["frame_factor"]:
+        trace.event("anchor", f"objects on RGB: {s['anchored']} of {s['observations']} detections placed by the "
+                    f"triangulated points inside them, {s['frame_factor']} by their frame's depth factor (too few "
+                    f"points on them)", stage="fusion", **{k: s[k] for k in ("anchored", "frame_factor")})
+    return out
 
 
 def _refine(instances: list[ObjectInstance], clouds: list[np.ndarray], obs: list[Observation],
@@ -306,8 +333,10 @@ def missing_reasons(missing: list[str], dets: dict[int, Detections], unaligned: 
 
 def _map_extras(instances: list[ObjectInstance], frames: list[Frame], poses: dict[int, np.ndarray],
                 det: CachedDetector, names: list[str], source: FrameSource, perception: Perception,
-                conf: PipelineConfig, fconf: FusionConfig, trace: Trace) -> tuple[Room | None, list[Any]]:
-    """First-seen times from the search's detections, floor-standing extents, the room. Returns (room, cams)."""
+                conf: PipelineConfig, fconf: FusionConfig, trace: Trace, anchored: bool = False
+                ) -> tuple[Room | None, list[Any]]:
+    """First-seen times from the search's detections, floor-standing extents (metric depth, or relative depth
+    whose objects were placed by triangulated points: `anchored`), the room. Returns (room, cams)."""
     # a camera is a position and an orientation: with relative depth a pose carries its frame's depth scale (Sim(3))
     cams = [(float(f.t), rigid_part(poses[f.index])) for f in frames if f.index in poses]
     log = StageLog()
@@ -315,7 +344,7 @@ def _map_extras(instances: list[ObjectInstance], frames: list[Frame], poses: dic
         key = tuple(names)
         first_seen_from_detections(instances, [(float(source.timestamps[i]), d.names)
                                                for (i, nm), d in det.cache.items() if nm == key], log)
-    if conf.floor_standing and not perception.depth_relative:
+    if conf.floor_standing and (anchored or not perception.depth_relative):
         with log.stage("extent"):
             extend_to_floor(instances, frames, poses, conf.floor_standing, conf.floor_band_share, log)
     with log.stage("room"):
@@ -326,12 +355,15 @@ def _map_extras(instances: list[ObjectInstance], frames: list[Frame], poses: dic
 
 def _metric_scale(smap: SemanticMap, clouds: list[np.ndarray], poses: dict[int, np.ndarray], frames: list[Frame],
                   source: FrameSource, perception: Perception, conf: PipelineConfig, trace: Trace,
-                  sparse: np.ndarray | None = None) -> tuple[SemanticMap, list[np.ndarray], dict[int, np.ndarray]]:
+                  sparse: np.ndarray | None = None, seen: list[tuple[str, Any, bool]] | None = None
+                  ) -> tuple[SemanticMap, list[np.ndarray], dict[int, np.ndarray]]:
     """The map's metric scale (`map.scale`): sensor depth is metric (said in the trace); a map from model depth
     takes it from the camera height, the objects' sizes and a metric model's own scale, applied once (map,
     clouds, poses) and said with the answer ("scale" event); no usable cue: the depth prior stays, said loudly.
     `sparse` [N, 3]: triangulated world points (structure from motion), where the floor is fitted when there
-    are enough of them (a depth model's dense points smear the floor)."""
+    are enough of them (a depth model's dense points smear the floor). `seen`: (name, box) as fused, before the
+    floor-standing extension, whose height comes from a floor an RGB map only estimates, and whether it was extended
+    (then seen only in part: its height does not vote): the size votes use these."""
     if not (conf.depth == "model" or (conf.depth == "auto" and not getattr(source, "has_depth", False))):
         trace.decide("scale", sensor_scale().to_dict())
         return smap, clouds, poses
@@ -343,7 +375,7 @@ def _metric_scale(smap: SemanticMap, clouds: list[np.ndarray], poses: dict[int, 
             pts = world_points(posed, poses, 8, lambda q: q[:, 2] < conf.floor_fit_max_depth_m)
             cloud = np.concatenate(pts) if pts else None
         ms = estimate_scale(np.array([rigid_part(poses[f.index]) for f in posed]).reshape(-1, 4, 4),
-                            cloud, smap.instances, np.array([0.0, 0.0, 1.0]),
+                            cloud, seen if seen is not None else smap.instances, np.array([0.0, 0.0, 1.0]),
                             None if perception.depth_relative else [1.0] * len(posed), conf.scale)
     trace.decide("scale", ms.to_dict())
     if ms.source == "guess":
@@ -389,12 +421,13 @@ def _start_build(source: FrameSource, targets: Sequence[str], cues: Sequence[str
 def build_map(source: FrameSource, targets: Sequence[str], cues: Sequence[str] = (),
               perception: Perception | None = None, conf: PipelineConfig | dict | None = None,
               trace: Trace | None = None, keyframes: int | None = None,
-              budget: Budget | None = None) -> MapBuild:
+              budget: Budget | None = None, chosen: Sequence[int] | None = None) -> MapBuild:
     """Build the semantic map of the task objects (targets weigh 1, cues 0.5 in the search).
 
     source: frames (`frames.open_source`); perception: injected models; keyframes: K (default
     `conf.keyframe.keyframes`); budget: an optional `budget.BudgetController` (deadlines + memory guard may lower
-    K; recorded).
+    K; recorded); chosen: key frame indices given instead of the search (`mosaic eval pose`: the frames it
+    scores go through the very map stages `ask` runs, metric scale included).
     """
     if perception is None:
         raise InputError("build_map needs a Perception (bundle models or the synthetic oracle)")
@@ -404,8 +437,12 @@ def build_map(source: FrameSource, targets: Sequence[str], cues: Sequence[str] =
     loaded0 = (getattr(source, "load_seconds", 0.0), getattr(source, "loads", 0))
     names, perception, K = _start_build(source, targets, cues, perception, conf, trace, keyframes, budget)
     scanned = scan(source, conf, trace, budget)  # its thumbnails serve the search and the bridges
-    chosen, det, _, _cands = select(source, targets, cues, perception, conf, trace, keyframes=K, budget=budget,
-                                    dedup=scanned)
+    if chosen is None:
+        chosen, det, _, _cands = select(source, targets, cues, perception, conf, trace, keyframes=K, budget=budget,
+                                        dedup=scanned)
+    else:
+        chosen, det = sorted(int(i) for i in chosen), CachedDetector(source, perception.detect)
+        trace.decide("keyframes", {"method": "given", "chosen": chosen})
     fconf = FusionConfig.merged(conf.fusion)
     with _stage(budget, trace, "perception"):
         p = perceive_keyframes(source, chosen, det, names, perception, conf, fconf, budget, scanned.counts)
@@ -414,14 +451,20 @@ def build_map(source: FrameSource, targets: Sequence[str], cues: Sequence[str] =
     m = _map_stage(p, source, perception, conf, fconf, trace, budget, scanned.thumbs)
     al, instances = m.alignment, m.instances
     _record_instances(instances, names, m.recovered, trace, p.dets, al.unaligned, det.scored())
-    room, cams = _map_extras(instances, p.frames, m.poses, det, names, source, perception, conf, fconf, trace)
+    seen = [(o.name, o.box) for o in instances]  # the boxes as fused: what the size votes measure (below)
+    room, cams = _map_extras(instances, p.frames, m.poses, det, names, source, perception, conf, fconf, trace,
+                             bool(trace.decisions.get("anchor", {}).get("anchored")))
     trace.record(det.log)  # the detector's time over the search and perception
     _book_counters(trace, source, loaded0, m.matcher)
     smap = SemanticMap(instances, room, cams,
                        {"source": getattr(source, "name", "frames"), "built_from": "video", "keyframes": chosen,
                         "root": al.root, "unaligned": al.unaligned, "objects": names, "recovered": m.recovered})
     sparse = al.points @ m.world_from_root[:3, :3].T + m.world_from_root[:3, 3] if al.points is not None else None
-    smap, clouds, poses = _metric_scale(smap, m.clouds, m.poses, p.frames, source, perception, conf, trace, sparse)
+    # a box the floor-standing extension reached down for was seen only in part: its height does not vote
+    z = np.array([0.0, 0.0, 1.0])
+    seen = [(n, b, float(box_dims(o.box, z)[2]) > 1.05 * float(box_dims(b, z)[2])) for (n, b), o in zip(seen, instances)]
+    smap, clouds, poses = _metric_scale(smap, m.clouds, m.poses, p.frames, source, perception, conf, trace, sparse,
+                                        seen)
     return MapBuild(smap, chosen, clouds, poses, m.world_from_root, list(al.unaligned), m.recovered,
                     bool(budget is not None and getattr(budget, "reduced", False)),
                     {"alignment": al.to_dict(), "dedup_kept": None}, det.undetectable())

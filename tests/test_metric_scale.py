@@ -67,7 +67,7 @@ def test_camera_height_and_objects_recover_a_known_scale(unit):
     ms = estimate_scale(T, P, objs)
     assert ms.source == "cues" and set(ms.cues) == {"camera_height", "objects"}
     assert ms.scale == pytest.approx(unit, rel=0.05)
-    assert 3 < ms.percent < 20
+    assert 5 < ms.percent < 35
     assert ms.message().startswith("scale from camera height and 4 objects (chair x2, bed, tv), +-")
 
 
@@ -99,7 +99,7 @@ def test_metric_depth_ratios_are_a_cue():
     g = np.random.default_rng(4)
     ms = estimate_scale(_cameras(1.4, rng=g), None, [], depth_ratios=list(3.0 * np.exp(g.normal(0, 0.05, 16))))
     assert list(ms.cues) == ["depth_model"] and ms.scale == pytest.approx(3.0, rel=0.05)
-    assert ms.message().startswith("scale from a metric depth model, +-11 %")
+    assert ms.message().startswith("scale from a metric depth model, +-18 % (90 % range)")
 
 
 def test_no_cue_is_said_loudly_as_a_guess():
@@ -192,3 +192,66 @@ def test_size_priors_table_is_what_its_command_derives(vsibench_dir):
     from mosaicthinker.runtime.map.scale import PRIORS_PATH
 
     assert json.loads(PRIORS_PATH.read_text()) == size_priors(load_meta_info(vsibench_dir / "meta_info.json"))
+
+
+@pytest.mark.slow
+def test_eval_pose_scores_the_map_in_the_units_ask_gives(tmp_path_factory):
+    """`mosaic eval pose --path ask --depth model` scores the poses of the map `ask` builds from the given frames,
+    after its metric scale: a generated room with a "relative" depth that is the sensor's x 0.5 gives a Sim(3)
+    scale near 1 (the estimate undid the 0.5) where the same frames without the scale applied need about 2."""
+    import dataclasses
+    import sys
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from test_pipeline import synthetic_scene
+
+    from mosaicthinker.host.evaluation.oracle_perception import oracle_perception
+    from mosaicthinker.host.evaluation.pose import evaluate_pose_map, pick_frames
+    from mosaicthinker.host.synth.generate import load_scene
+    from mosaicthinker.runtime import open_source
+
+    scene = synthetic_scene(tmp_path_factory)
+    names = sorted(load_scene(scene)["object_counts"])
+    half = dataclasses.replace(oracle_perception(scene), depth=lambda f: f.depth * 0.5, depth_relative=True)
+    src = open_source(scene)
+    idx = pick_frames(len(src), 10, "uniform")
+    r = evaluate_pose_map(src, idx, None, None, perception=half, names=names)
+    assert r["frames"] == idx and r["evaluated_frames"] >= 8 and r["sim3"]
+    assert r["scale"]["source"] == "cues" and r["scale"]["message"].startswith("scale from ")
+    assert abs(r["sim3_scale"] - 1.0) < 0.3 and abs(r["scale_error"]) < 0.3, r["scale"]
+    assert isinstance(r["scale_covered"], bool)
+    off = evaluate_pose_map(src, idx, None, {"scale": {"apply": False}}, perception=half, names=names)
+    assert off["sim3_scale"] == pytest.approx(2.0, rel=0.3) and off["scale"]["source"] == "cues"
+    assert r["ate_rmse_m"] < off["ate_rmse_m"]  # SE(3) after the scale: what the user gets, in metres
+
+
+def test_step_scale_holds_where_the_trajectory_is_folded():
+    """A walk whose second half is folded back (a misplaced chain) at the right scale: the Sim(3) fit shrinks it,
+    the median step ratio still says 1; at half the size it says 2."""
+    from mosaicthinker.host.evaluation.pose import ate_fields, step_scale
+
+    gt = np.tile(np.eye(4), (12, 1, 1))
+    gt[:, 0, 3] = np.arange(12) * 0.5
+    est = gt.copy()
+    est[6:, 0, 3] = est[5, 0, 3] - (np.arange(6) + 1) * 0.5  # the same steps, walked back
+    assert abs(np.log(ate_fields(est, gt, True)["sim3_scale"])) > 0.4  # the Sim(3) would call it a scale error
+    assert step_scale(est, gt) == pytest.approx(1.0)
+    half = est.copy()
+    half[:, :3, 3] *= 0.5
+    assert step_scale(half, gt) == pytest.approx(2.0)
+    assert step_scale(gt[:2], gt[:2]) is None
+
+
+def test_a_partly_seen_height_does_not_vote():
+    """A chair whose box the floor-standing extension had to reach down for (its back seen over a table: 0.3 m of
+    its 0.9 m): flagged partial, only its footprint votes; unflagged, its height pulls the vote up ~x2."""
+    from mosaicthinker.runtime.map.conf import ScaleConf
+    from mosaicthinker.runtime.map.scale import object_votes
+
+    pri = load_size_priors()
+    L = np.asarray(pri["chair"]["median_m"], float)
+    top = OrientedBox(np.array([0.0, 0.0, 0.75]), np.array([L[0], L[1], 0.3]), np.eye(3))
+    up = np.array([0.0, 0, 1])
+    (full,) = object_votes([("chair", top)], up, pri, ScaleConf())
+    (part,) = object_votes([("chair", top, True)], up, pri, ScaleConf())
+    assert abs(part.log_s) < 1e-6 and full.log_s > 0.3

@@ -185,6 +185,71 @@ def evaluate_pose(source: Any, indices: Sequence[int], matcher: Any = "sift", st
     }
 
 
+def evaluate_pose_map(source: Any, indices: Sequence[int], bundle: str | None, conf: Any = None, trace: Any = None,
+                      matcher: str = "model", perception: Any = None, names: Sequence[str] | None = None
+                      ) -> dict[str, Any]:
+    """`evaluate_pose` for RGB only on the path `ask` uses, in the units a user gets: the frames `indices` go
+    through `pipeline.build_map` as its key frames (alignment, every category the bundle's detector names,
+    fusion, gravity and the metric scale `ask` applies), and the map's poses are scored: `ate_rmse_m` after an
+    SE(3) registration is then in metres as the user gets them, `sim3_scale` the factor the map's scale missed
+    by (1.0 = right), `scale` what the map stated (where the scale came from, +-%) and whether that covered the
+    error (`scale_covered`: |log sim3_scale| within the stated range, `stated_z` sd). perception / names: injected
+    (tests: the synthetic oracle) instead of the bundle's models and every category its detector names."""
+    from mosaicthinker.runtime import pipeline
+    from mosaicthinker.runtime.conf import PipelineConfig
+    from mosaicthinker.runtime.detectable import detectable_names
+    from mosaicthinker.runtime.infra.trace import Trace
+
+    trace = trace if trace is not None else Trace()  # its decisions hold the scale statement
+    extra = dict(conf or {}) if not isinstance(conf, PipelineConfig) else {}
+    pconf = PipelineConfig.merged({**extra, "depth": "model", "matcher": matcher})
+    perception = perception if perception is not None else pipeline.perception_from_bundle(str(bundle), pconf, trace)
+    names = list(names) if names is not None else detectable_names(bundle)
+    frames_gt = {int(i): source[int(i)].pose_gt for i in indices}
+    t0 = time.perf_counter()
+    build = pipeline.build_map(source, names, [], perception, pconf, trace, len(indices), chosen=indices)
+    secs = time.perf_counter() - t0
+    ev = [i for i in sorted(frames_gt) if i in build.poses_world and frames_gt[i] is not None]
+    est = np.array([build.poses_world[i] for i in ev]).reshape(-1, 4, 4)
+    gt = np.array([frames_gt[i] for i in ev]).reshape(-1, 4, 4)
+    scores = ate_fields(est, gt, with_scale=perception.depth_relative)
+    al = build.info.get("alignment", {})
+    ms = build.map.meta.get("scale") or trace.decisions.get("scale") or {}
+    s3 = scores.get("sim3_scale")
+    steps = step_scale(est, gt)
+    return {
+        **scores, "path": "ask", "metric_path": "build_map", "objects": names,
+        "aligned_frames": len([i for i in indices if i in build.poses_world]), "total_frames": len(indices),
+        "unaligned_frames": list(build.unaligned), "guessed_frames": list(al.get("guessed", [])),
+        "untracked_frames": [i for i in sorted(frames_gt) if frames_gt[i] is None],
+        "other_frames_used": sorted(int(i) for i in al.get("other_frames", []) or []),
+        "fates": {str(k): v for k, v in (al.get("fates") or {}).items()},
+        "evaluated_frames": len(ev), "sim3": perception.depth_relative, "edge": al.get("edge"),
+        "root": al.get("root"), "poses": {i: build.poses_world[i] for i in ev},
+        "gt_poses": {i: frames_gt[i] for i in ev}, "frames": list(map(int, indices)),
+        "seconds": secs, "seconds_breakdown": {**(al.get("seconds") or {}),
+                                               **{k: round(v.seconds, 3) for k, v in trace.stages.items()}},
+        "alignment": al,
+        "scale": {k: ms.get(k) for k in ("scale", "percent", "sd_log", "source", "message")},
+        "scale_error": None if not s3 else 1.0 / s3 - 1.0,
+        "scale_covered": None if not s3 or ms.get("sd_log") is None else bool(abs(np.log(s3)) <= ms.get("stated_z", 1.0) * ms["sd_log"]),
+        "instances": len(build.map.instances),
+        "step_scale": steps, "scale_error_steps": None if not steps else 1.0 / steps - 1.0,
+    }
+
+
+def step_scale(est: np.ndarray, gt: np.ndarray, min_step_m: float = 0.05) -> float | None:
+    """The map's scale error from its own steps: the median over consecutive scored frames (est, gt [N, 4, 4] in
+    time order) of the true camera step over the estimated one (steps under `min_step_m` left out). Unlike the
+    Sim(3)'s scale it holds where the trajectory's shape is wrong (a misplaced chain): None under 2 steps."""
+    if len(est) < 3:
+        return None
+    de = np.linalg.norm(np.diff(np.asarray(est)[:, :3, 3], axis=0), axis=1)
+    dg = np.linalg.norm(np.diff(np.asarray(gt)[:, :3, 3], axis=0), axis=1)
+    ok = (dg > min_step_m) & (de > 1e-9)
+    return float(np.median(dg[ok] / de[ok])) if ok.sum() >= 2 else None
+
+
 def _align_as_ask(source: Any, frames: list[Any], matcher: Any, depth_model: Any, with_scale: bool, conf: Any,
                   trace: Any, embedder: Any) -> tuple[Any, list[int]]:
     """`pipeline`'s alignment of the key frames `frames` with the rest of `source` available (module doc of
@@ -264,8 +329,11 @@ def _run(args: argparse.Namespace, outs: Any) -> dict[str, Any]:
     from mosaicthinker.runtime.infra.progress import phase
 
     with phase("alignment", len(idx), "frame") as bar:  # one call: the bar shows the time it takes
-        out = evaluate_pose(src, idx, matcher, args.strategy, depth_model, conf=_conf_arg(args.conf), trace=trace,
-                            path=args.path, embedder=embedder)
+        if args.path == "ask" and args.depth == "model" and _has_detector(args.bundle):
+            out = evaluate_pose_map(src, idx, args.bundle, _conf_arg(args.conf), trace, args.matcher)
+        else:
+            out = evaluate_pose(src, idx, matcher, args.strategy, depth_model, conf=_conf_arg(args.conf),
+                                trace=trace, path=args.path, embedder=embedder)
         bar.to(len(idx))
     out["seconds"] = time.perf_counter() - t0
     out.update({"schema": SCHEMA, "data": str(args.data), "keyframes": args.keyframes, "sampling": args.sampling,
@@ -294,6 +362,16 @@ def _conf_arg(text: str | None) -> dict[str, Any] | None:
     if not isinstance(conf, dict):
         raise InputError("--conf: must be a JSON object of config keys")
     return conf
+
+
+def _has_detector(bundle: str | None) -> bool:
+    """Whether the bundle can map objects (a closed-set detector): RGB only, the metric scale then comes from the
+    map `ask` builds; without one the poses are scored in the alignment's own units (Sim(3) only)."""
+    if not bundle:
+        return False
+    from mosaicthinker.runtime.infra.bundle import load_bundle
+
+    return load_bundle(bundle).has_role("detector")
 
 
 def _bundle_embedder(bundle: str | None, trace: Any) -> Any:
@@ -329,6 +407,12 @@ def render(r: dict[str, Any]) -> str:
         lines.insert(1, f"  path            the alignment `mosaic ask` runs: {len(r.get('other_frames_used', []))} other "
                         f"frame(s) of the sequence used" + (f" ({', '.join(f'{n} {k}' for k, n in fates.items())})"
                                                            if fates else ""))
+    sc = r.get("scale") or {}
+    if sc.get("message"):
+        err = r.get("scale_error")
+        lines.append(f"  metric scale    {sc['message']}" + ("" if err is None else
+                     f"; against the ground truth {100 * err:+.1f} % ("
+                     + ("within" if r.get("scale_covered") else "NOT within") + " the stated +-)"))
     if r.get("untracked_frames"):
         lines.append(f"  not scored      {r['untracked_frames']} (ground truth marks a tracking failure)")
     return "\n".join(lines)

@@ -35,6 +35,11 @@ class FusionConfig(StageConf):
     duplicate_iou: float = 0.7    # one frame's boxes of two names this alike are one object named twice (0 = off)
     same_frame_share: float = 0.5  # one frame's same-name box whose points lie on another's: group/duplicate (0 = off)
     subsample_seed: int = 0  # the stream of each frame's point subsampling (seed + frame)
+    named_twice_inside: float = 0.8  # an instance this much inside another name's box, seen with it: one object (0 = off)
+    anchor: bool = True           # relative depth + triangulated points: each detection scaled to its own points
+    anchor_cell_px: int = 4       # ... map points count as inside a detection in its footprint's cells of this size
+    anchor_min_points: int = 5    # ... fewer agreeing points: the frame's depth factor stays
+    anchor_inlier_log: float = 0.15  # ... points this far (log depth ratio) from their median are not on it
 
     def validate(self) -> None:
         if self.pixel_stride < 1 or self.erode_px < 0 or self.min_points < 1 or self.max_points < self.min_points:
@@ -66,7 +71,9 @@ class ScaleConf(StageConf):
     floor_sd: float = 0.05           # the floor layer's own height error, log units of the camera height
     object_meas_sd: float = 0.20     # a fused box's size error (partial views, mask bleed), log units
     max_prior_sd: float = 0.35       # box dimensions whose category spread is wider than this are not used
-    objects_min_sd: float = 0.08     # floor of the object cue's sd (shared biases do not average out)
+    objects_min_sd: float = 0.15     # floor of the object cue's sd: one room's boxes share their bias (partial views
+                                     # behind furniture, mask bleed), which does not average out over its objects
+    stated_z: float = 1.645          # the answer's +-% is this many sd (1.645: a 90 % range)
     depth_model_sd: float = 0.10     # a metric depth model's scale error per room, log units
     reject_k: float = 2.5            # a vote this many sd from the weighted median is an outlier
     rough_depth_m: float = 2.0       # the normalisation's median depth (thresholds only)
@@ -79,7 +86,7 @@ class ScaleConf(StageConf):
     min_sparse_points: int = 500     # triangulated points enough to fit the floor to (else the depth model's)
 
     def validate(self) -> None:
-        for name in ("height_prior_m", "height_prior_sd", "object_meas_sd", "max_prior_sd", "depth_model_sd",
+        for name in ("height_prior_m", "height_prior_sd", "object_meas_sd", "max_prior_sd", "depth_model_sd", "stated_z",
                      "reject_k", "rough_depth_m", "floor_bin_m", "fallback_median_m"):
             if getattr(self, name) <= 0:
                 raise InputError(f"scale config: {name} must be > 0 (got {getattr(self, name)})")

@@ -28,6 +28,7 @@ class _Acc:
     frames: list[int]
     hints: list[int]
     views: list[tuple[int, float, np.ndarray]] = field(default_factory=list)  # (frame, score, points) per detection
+    boxes2d: dict[int, np.ndarray] = field(default_factory=dict)  # frame -> its detection's image box [4]
 
     _memo: tuple[np.ndarray, dict[str, Any]] | None = field(default=None, repr=False, compare=False)
 
@@ -137,9 +138,11 @@ def fuse_observations(observations: list[Observation], conf: FusionConfig = defa
                 best, best_ov = a, ov + (1.0 if close else 0.0)
         if best is None:
             accs.append(_Acc(ob.name, pts, ob.score, ob.t, [ob.frame],
-                             [] if ob.instance_hint is None else [ob.instance_hint], [(ob.frame, ob.score, pts)]))
+                             [] if ob.instance_hint is None else [ob.instance_hint], [(ob.frame, ob.score, pts)],
+                             {ob.frame: np.asarray(ob.box2d, float)}))
         else:
             best.views.append((ob.frame, ob.score, pts))
+            best.boxes2d.setdefault(ob.frame, np.asarray(ob.box2d, float))
             best.points = voxel_downsample(np.concatenate([best.points, pts]), conf.voxel_m)
             best.score = max(best.score, ob.score)
             best.first_seen = min(best.first_seen, ob.t)
@@ -154,6 +157,8 @@ def fuse_observations(observations: list[Observation], conf: FusionConfig = defa
             cleaned.append((a, pts))
     if conf.merge_footprint:
         cleaned = _merge_overlapping(cleaned, conf)
+    if conf.named_twice_inside > 0:
+        cleaned = _drop_named_twice(cleaned, conf, log)
     instances, clouds = [], []
     for a, pts in cleaned:
         box = fit_gravity_box(pts)
@@ -220,6 +225,7 @@ def _merge_overlapping(items: list[tuple["_Acc", np.ndarray]], conf: FusionConfi
                 a.frames = sorted(set(a.frames) | set(b.frames))
                 a.hints += b.hints
                 a.views += b.views
+                a.boxes2d = {**b.boxes2d, **a.boxes2d}
                 items[i] = (a, a.points)
                 del items[j]
                 merged = True
@@ -227,6 +233,81 @@ def _merge_overlapping(items: list[tuple["_Acc", np.ndarray]], conf: FusionConfi
             if merged:
                 break
     return items
+
+
+def box_inside_share(a: np.ndarray, b: np.ndarray) -> float:
+    """Share of image box a [4] (x0, y0, x1, y1) inside image box b [4], in [0, 1]."""
+    w = max(0.0, min(a[2], b[2]) - max(a[0], b[0]))
+    h = max(0.0, min(a[3], b[3]) - max(a[1], b[1]))
+    area = max((a[2] - a[0]) * (a[3] - a[1]), 1e-9)
+    return float(w * h / area)
+
+
+def _footprint_area(box: OrientedBox) -> float:
+    """Floor area of a gravity box (z up): the product of its two sides nearest the horizontal."""
+    L = np.asarray(box.axes_lengths, float)
+    k = int(np.argmax(np.abs(np.asarray(box.axes, float)[:, 2])))
+    return float(np.prod(np.delete(L, k)))
+
+
+def named_twice(small: tuple[str, np.ndarray, dict[int, np.ndarray]], big: tuple[str, np.ndarray, dict[int, np.ndarray]],
+                inside: float, box_inside: float = 0.8, grow: float = 0.1, floor_share: float = 0.25,
+                min_footprint: float = 0.25) -> str | None:
+    """Why `small` is the same piece of furniture as `big` under another name, or None. Each is (name, points
+    [N, 3] in a z-up world, {frame: image box [4]}). All of these (unit-free, relative to big's box): both are
+    detected in at least two frames (all of small's, if fewer; elsewhere the detector may name it only one way),
+    and in most of those small's image box lies inside big's (>= `box_inside` of its area); >= `inside` of small's
+    points lie in big's gravity box grown by `grow` of its sides; small stands where big stands (its bottom within
+    `floor_share` x big's height of big's bottom: a cushion on a seat or a cup on a table is another object) and
+    does not rise above it (its 95th-percentile height under big's top + `grow` x height: a chair pushed under a
+    table shows its back above the top), and covers >= `min_footprint` of big's floor footprint (one seat of a
+    three-seat sofa does; an oven built into a run of kitchen cabinets does not)."""
+    (na, pa, fa), (nb, pb, fb) = small, big
+    shared = sorted(set(fa) & set(fb))
+    if na == nb or not fa or len(shared) < min(2, len(fa)):
+        return None
+    within = sum(box_inside_share(fa[f], fb[f]) >= box_inside for f in shared)
+    if within < max(1, len(shared) / 2):
+        return None
+    box = fit_gravity_box(pb)
+    L = np.asarray(box.axes_lengths, float)
+    local = (pa - box.centroid) @ np.asarray(box.axes, float).T
+    share = float(np.mean(np.all(np.abs(local) <= L / 2 * (1 + grow), axis=1)))
+    k = int(np.argmax(np.abs(np.asarray(box.axes, float)[:, 2])))
+    h = L[k]
+    bottom, top = float(box.centroid[2]) - h / 2, float(box.centroid[2]) + h / 2
+    za = pa[:, 2]
+    if (share < inside or _footprint_area(fit_gravity_box(pa)) < min_footprint * _footprint_area(box)
+            or abs(float(np.percentile(za, 2)) - bottom) > floor_share * h
+            or float(np.percentile(za, 95)) > top + grow * h):
+        return None
+    return (f"{na} (frames {sorted(fa)}) lies inside {nb}'s box ({100 * share:.0f} % of its points), stands on the "
+            f"same floor and is detected inside {nb}'s image box in {within} of the {len(shared)} frames both are "
+            f"seen in: one object named twice, kept as {nb}")
+
+
+def _drop_named_twice(items: list[tuple["_Acc", np.ndarray]], conf: FusionConfig, log: StageLog | None
+                      ) -> list[tuple["_Acc", np.ndarray]]:
+    """Instances of another name that are one piece of furniture with a bigger one (`named_twice`): the smaller
+    is left out, the reason in the trace's `fusion` event."""
+    order = sorted(range(len(items)), key=lambda i: len(items[i][1]))
+    drop: dict[int, str] = {}
+    for i in order:
+        a, pa = items[i]
+        for j in reversed(order):
+            b, pb = items[j]
+            if j == i or j in drop or len(pb) <= len(pa):
+                continue
+            why = named_twice((a.name, pa, a.boxes2d), (b.name, pb, b.boxes2d), conf.named_twice_inside)
+            if why:
+                drop[i] = why
+                b.frames = sorted(set(b.frames) | set(a.frames))
+                break
+    if drop:
+        as_trace(log).event("fusion", "fusion: left out as named twice: " + "; ".join(drop[i] for i in sorted(drop)),
+                            stage="fusion",
+                            named_twice=[{"name": items[i][0].name, "why": drop[i]} for i in sorted(drop)])
+    return [it for i, it in enumerate(items) if i not in drop]
 
 
 def fuse_frames(frames: list[Frame], dets: dict[int, Detections], poses: dict[int, np.ndarray], fconf: FusionConfig,

@@ -18,6 +18,7 @@ sparse map points (triangulated features), so that depth-model shapes live in th
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import dataclass, field, replace
 from functools import lru_cache
 from pathlib import Path
@@ -58,11 +59,12 @@ class MetricScale:
     votes: list[Vote] = field(default_factory=list)
     cues: dict[str, dict[str, Any]] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
+    z: float = 1.645  # the stated +- is this many sd (`ScaleConf.stated_z`: 1.645 = a 90 % range)
 
     @property
     def percent(self) -> float:
-        """The stated uncertainty as +- percent (1 sd)."""
-        return 100.0 * (float(np.exp(self.sd)) - 1.0)
+        """The stated uncertainty as +- percent (`z` sd: the range the answer states)."""
+        return 100.0 * (float(np.exp(self.z * self.sd)) - 1.0)
 
     def message(self) -> str:
         """One line for the printed answer, e.g. "scale from camera height and 3 objects (chair x2, tv), +-12 %"."""
@@ -83,7 +85,7 @@ class MetricScale:
             else:
                 parts.append(CUE_WORDS[name])
         said = parts[0] if len(parts) == 1 else ", ".join(parts[:-1]) + " and " + parts[-1]
-        out = [f"scale from {said}, +-{self.percent:.0f} %"]
+        out = [f"scale from {said}, +-{self.percent:.0f} % ({100 * _coverage(self.z):.0f} % range)"]
         dropped = [v for v in self.votes if not v.kept]
         if dropped:
             out.append("left out as off the others: " + ", ".join(
@@ -91,10 +93,16 @@ class MetricScale:
         return "; ".join(out + self.notes)
 
     def to_dict(self) -> dict[str, Any]:
-        return {"scale": self.scale, "sd_log": self.sd, "percent": round(self.percent, 1), "source": self.source,
+        return {"scale": self.scale, "sd_log": self.sd, "percent": round(self.percent, 1), "stated_z": self.z,
+                "source": self.source,
                 "cues": self.cues, "notes": list(self.notes), "message": self.message(),
                 "votes": [{"cue": v.cue, "label": v.label, "scale": float(np.exp(v.log_s)), "sd_log": v.sd,
                            "kept": v.kept, "detail": v.detail} for v in self.votes]}
+
+
+def _coverage(z: float) -> float:
+    """The share of a normal distribution within +-z sd."""
+    return math.erf(z / math.sqrt(2.0))
 
 
 @lru_cache(maxsize=4)
@@ -137,16 +145,19 @@ def box_dims(box: OrientedBox, up: np.ndarray) -> np.ndarray:
 def object_votes(objects: Iterable[Any], up: np.ndarray, priors: dict[str, dict[str, Any]],
                  conf: ScaleConf) -> list[Vote]:
     """One vote per object of a category with a prior: the prior-weighted mean of log(prior / measured) over its
-    informative dimensions (category spread <= `max_prior_sd`); sd: the shared measurement error and the priors'."""
+    informative dimensions (category spread <= `max_prior_sd`); sd: the shared measurement error and the priors'.
+    objects: instances, or (name, box) / (name, box, partial height) tuples: an object whose lower part was not
+    seen (the floor-standing extension had to reach down for it: a chair's back over a table) has a height that
+    is only a part of its own, so that dimension does not vote."""
     out = []
     for o in objects:
-        name, box = (o.name, o.box) if hasattr(o, "box") else o
+        name, box, partial = (o.name, o.box, False) if hasattr(o, "box") else (*o[:2], len(o) > 2 and bool(o[2]))
         pr = priors.get(name)
         if pr is None:
             continue
         d = box_dims(box, up)
         med, psd = np.asarray(pr["median_m"]), np.asarray(pr["log_sd"])
-        use = (psd <= conf.max_prior_sd) & (d > 0)
+        use = (psd <= conf.max_prior_sd) & (d > 0) & np.array([True, True, not partial])
         if not use.any():
             continue
         w = 1.0 / psd[use] ** 2
@@ -301,19 +312,19 @@ def estimate_scale(cameras: np.ndarray, points: np.ndarray | None = None, object
     if not votes:  # the old prior: the median depth becomes `fallback_median_m`, about +-50 %
         notes.append(f"relative depth scaled by a prior (median depth {conf.fallback_median_m} m)")
         return MetricScale(rough * conf.fallback_median_m / conf.rough_depth_m, float(np.log(1.5)), "guess", [],
-                           {}, notes)
+                           {}, notes, conf.stated_z)
     m, s, cues = combine(votes, conf)
     if len(cues) > 1 and s > 1.5 * min(c["sd_log"] for c in cues.values()):
         said = ", ".join(f"{CUE_WORDS[k]} x{c['scale']:.3g}" for k, c in cues.items())
         notes = [f"the cues disagree ({said})"]
     else:
         notes = []
-    return MetricScale(float(np.exp(m)), s, "cues", votes, cues, notes)
+    return MetricScale(float(np.exp(m)), s, "cues", votes, cues, notes, conf.stated_z)
 
 
 def sensor_scale() -> MetricScale:
     """The statement for a map from sensor depth: scale 1, exact."""
-    return MetricScale(1.0, 0.0, "sensor depth")
+    return MetricScale(1.0, 0.0, "sensor depth")  # exact: no range to state
 
 
 def rescale_box(box: OrientedBox, s: float) -> OrientedBox:
