@@ -265,9 +265,12 @@ class _Mapper:
         if n3d < c.min_pnp_inliers:
             return f"{n3d} matches with triangulated points (< {c.min_pnp_inliers})"
         X, u = m.X[tid[has]], uv[has]
-        ok, rv, tv, inl = cv2.solvePnPRansac(X, u, self.K, None, iterationsCount=c.pnp_iterations,
-                                             reprojectionError=c.register_px, confidence=0.999,
-                                             flags=cv2.SOLVEPNP_SQPNP)
+        try:
+            ok, rv, tv, inl = cv2.solvePnPRansac(X, u, self.K, None, iterationsCount=c.pnp_iterations,
+                                                 reprojectionError=c.register_px, confidence=0.999,
+                                                 flags=cv2.SOLVEPNP_SQPNP)
+        except cv2.error as e:  # SQPnP asserts on degenerate samples (e.g. collapsed points): a failed PnP
+            return f"PnP: degenerate ({str(e).strip().splitlines()[-1][:60]})"
         if not ok or inl is None or len(inl) < c.min_pnp_inliers:
             return f"PnP: {0 if inl is None else len(inl)} inliers of {n3d} (< {c.min_pnp_inliers})"
         inl = inl.ravel()
@@ -405,9 +408,45 @@ class _Mapper:
         self._global(m)
         return m, end
 
-    def _global(self, m: Reconstruction) -> None:
+    def relocalize(self, m: Reconstruction) -> list[int]:
+        """Frames outside chain m (rejected, or in a smaller chain) re-tried against m's whole map: PnP on every
+        track of theirs m has triangulated (loop pairs and wider matches link them), most such points first, each
+        checked against its nearest registered frame in time like any registration; rounds until none is added
+        (at most `relocalize_rounds`), a global adjustment after each. Returns the frames added."""
+        c, added = self.c, []
+        tried: dict[int, int] = {}  # frame -> points it had when it last failed (re-tried only with more)
+        for _ in range(c.relocalize_rounds):
+            got = []
+            for p in self._candidates(m, tried):
+                near = min(m.poses, key=lambda q: (abs(q - p), q))
+                why = self.register(m, p, near)
+                if why:
+                    tried[p] = self._n3d(m, p)
+                    self.why[p] = f"{why} (re-tried against the map)"
+                    continue
+                self.why.pop(p, None)
+                self.triangulate_new(m, p)
+                got.append(p)
+            if not got:
+                break
+            added += got
+            self._global(m, c.local_ba_iterations)
+        return added
+
+    def _n3d(self, m: Reconstruction, p: int) -> int:
+        tid = self.t.tid[p]
+        return int((~np.isnan(m.X[tid, 0])).sum()) if len(tid) else 0
+
+    def _candidates(self, m: Reconstruction, tried: dict[int, int]) -> list[int]:
+        """Frames outside m with at least `min_pnp_inliers` tracks m has triangulated (more than when they last
+        failed), most first."""
+        n = {p: self._n3d(m, p) for p in range(self.F) if p not in m.poses}
+        ok = [p for p, k in n.items() if k >= self.c.min_pnp_inliers and k > tried.get(p, 0)]
+        return sorted(ok, key=lambda p: (-n[p], p))
+
+    def _global(self, m: Reconstruction, iterations: int | None = None) -> None:
         first = min(m.poses)
-        self.adjust(m, [q for q in sorted(m.poses) if q != first], self.c.ba_iterations)
+        self.adjust(m, [q for q in sorted(m.poses) if q != first], iterations or self.c.ba_iterations)
 
 
 def _rvec(R: np.ndarray) -> np.ndarray:
@@ -457,6 +496,12 @@ def merge_chains(models: list[Reconstruction], conf: SfmConf) -> tuple[list[Reco
     return models, said
 
 
+def _without(m: Reconstruction, frames: set[int]) -> Reconstruction:
+    """Chain m less `frames` (registered elsewhere)."""
+    return Reconstruction({p: v for p, v in m.poses.items() if p not in frames}, m.X,
+                          {p: v for p, v in m.outlier.items() if p not in frames})
+
+
 def reconstruct(tracks: Tracks, K: np.ndarray, conf: SfmConf | None = None) -> SfmResult:
     """Chains of registered frames over `tracks` (module doc); every frame not in the largest chain keeps why."""
     import cv2
@@ -472,6 +517,13 @@ def reconstruct(tracks: Tracks, K: np.ndarray, conf: SfmConf | None = None) -> S
     models, joined = merge_chains(models, conf)
     if joined:
         mp._global(models[0])
+    if models and conf.relocalize_rounds > 0:
+        got = mp.relocalize(models[0])
+        if got:
+            joined.append(f"re-localized {len(got)} frames against the largest chain's map")
+            models = [models[0]] + [_without(mm, set(got)) for mm in models[1:]]
+            models = [models[0]] + sorted([mm for mm in models[1:] if len(mm.poses) >= 2], key=lambda mm: -len(mm.poses))
+            mp._global(models[0])
     model_of = {p: i for i, m in enumerate(models) for p in m.poses}
     for p in range(mp.F):
         if p not in model_of:
