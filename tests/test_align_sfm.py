@@ -227,3 +227,11 @@ def test_loop_pairs_join_far_apart_look_alikes_only():
     got = loop_pairs(d, [0, 10, 20, 30], 1, 6)
     assert (0, 30) in got and all(b - a > 6 for a, b in got)
     assert loop_pairs(d, [0, 10, 20, 30], 0, 6) == [] and loop_pairs(d, [0, 3, 5, 8], 1, 100) == []
+
+
+def test_loop_candidates_are_the_key_frames_and_every_nth_stream_frame():
+    from mosaicthinker.runtime.align.rgb_stage import loop_candidates
+
+    stream = list(range(0, 40, 2))
+    assert loop_candidates([6, 30], stream, 0) == [6, 30]
+    assert loop_candidates([6, 30], stream, 4) == [0, 6, 8, 16, 24, 30, 32]

@@ -151,7 +151,8 @@ class SfmConf(StageConf):
     sfm_on: bool = True            # off: the essential-matrix tree and bridge rounds (`stage.align_rest_relative`)
     stream_frames: int = 320           # stream frames (key frames always in; the scan's kept frames evenly thinned)
     match_window: int = 3           # each stream frame matched with its next this many (tracks over 3+ views)
-    loop_pairs: int = 2             # each key frame also matched with its n most alike key frames far in time (0 = off)
+    loop_pairs: int = 2             # each loop candidate also matched with its n most alike candidates far in time (0 = off)
+    loop_every: int = 4             # loop candidates: the key frames and every n-th stream frame (0: key frames only)
     pair_matches: int = 1000         # matches kept per pair, best scores first
     pair_px: float = 1.5       # a pair's essential-matrix inlier threshold (px)
     min_pair_inliers: int = 30      # fewer verified matches: the pair adds nothing to the tracks

@@ -38,6 +38,12 @@ def intrinsics_note(source: FrameSource) -> tuple[bool, str]:
     return False, f"intrinsics from {where}"
 
 
+def loop_candidates(keys: list[int], stream: list[int], every: int) -> list[int]:
+    """The frames looked at for revisits: every key frame and every `every`-th stream frame (0: key frames only),
+    in time order. Pure. (Key frames alone left the real rooms' walks in pieces: docs/rgb-geometry.md.)"""
+    return sorted(set(keys) | (set(stream[::every]) if every > 0 else set()))
+
+
 def loop_pairs(desc: np.ndarray, pos: list[int], n: int, min_gap: int) -> list[tuple[int, int]]:
     """Revisit candidates among the key frames: for each key frame (place descriptors desc [K, D], unit rows; its
     stream position pos [K]) its n most alike key frames more than `min_gap` stream positions away, as position
@@ -92,11 +98,13 @@ def align_keyframes_sfm(frames: list[Frame], matcher: KeyedMatcher, source: Fram
         return m.uv0[o], m.uv1[o]
 
     extra: list[tuple[int, int]] = []
-    if conf.loop_pairs > 0:  # places the walk shows twice: key frames alike by appearance, far apart in time
-        d = np.array([np.asarray((describe or tiny_descriptor)(by_index[i].rgb), np.float64).ravel() for i in keys])
-        d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
+    if conf.loop_pairs > 0:  # places the walk shows twice: frames alike by appearance, far apart in time
         at = {i: p for p, i in enumerate(stream)}
-        extra = loop_pairs(d, [at[i] for i in keys], conf.loop_pairs, 2 * conf.match_window)
+        cand = loop_candidates(keys, stream, conf.loop_every)
+        d = np.array([np.asarray((describe or tiny_descriptor)(rgb(i) if i in by_index else source[i].rgb),
+                                 np.float64).ravel() for i in cand])
+        d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
+        extra = loop_pairs(d, [at[i] for i in cand], conf.loop_pairs, 2 * conf.match_window)
     with log.stage("alignment.sfm_match"):
         tracks = match_stream(len(stream), match, K, conf, extra)
     t1 = time.perf_counter()
