@@ -179,6 +179,8 @@ class SfmConf(StageConf):
     ba_iterations: int = 30         # the global adjustment's Levenberg-Marquardt iterations at most
     ba_loss: str = "huber"          # robust loss: "huber" or "linear" (plain least squares)
     ba_scale_px: float = 2.0        # ... its scale (px)
+    refine_focal: bool = True       # K from a field-of-view prior: the global adjustments refine the focal length ...
+    focal_bounds: tuple[float, float] = (0.67, 1.5)  # ... kept within this factor of the prior's (else the prior, said)
     rng_seed: int = 0               # OpenCV's RANSAC generator, set before matching and mapping (reproducible)
     scale_points: int = 10      # a key frame's depth scale needs this many triangulated points with depth
 

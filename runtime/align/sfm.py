@@ -166,8 +166,9 @@ def _rot_deg(Ra: np.ndarray, Rb: np.ndarray) -> float:
 class _Mapper:
     """Incremental mapping over tracks (module doc, steps 2-4)."""
 
-    def __init__(self, tracks: Tracks, K: np.ndarray, conf: SfmConf):
+    def __init__(self, tracks: Tracks, K: np.ndarray, conf: SfmConf, refine_focal: bool = False):
         self.t, self.K, self.c = tracks, K.astype(np.float64), conf
+        self.refine_focal = refine_focal  # global adjustments refine the focal length (K from a prior)
         self.F = len(tracks.tid)
         self.why: dict[int, str] = {}
         self.history: list[tuple[int, str]] = []  # every rejection, also of frames a later chain registered
@@ -306,9 +307,10 @@ class _Mapper:
         R, t = Rr @ Rn, Rr @ tn + s * tr
         return R, t, float(np.median(zq[good]))
 
-    def adjust(self, m: Reconstruction, free: Sequence[int], iterations: int) -> None:
+    def adjust(self, m: Reconstruction, free: Sequence[int], iterations: int, focal: bool = False) -> None:
         """Bundle adjustment with the cameras `free` free (the rest of the chain fixed), then observations off by
-        more than `max_reproj_px` dropped and points left with fewer than 2 views removed."""
+        more than `max_reproj_px` dropped and points left with fewer than 2 views removed; `focal`: the focal
+        length refined too (K's fx, fy by one factor, kept in `self.K`)."""
         c = self.c
         cams = sorted(m.poses)
         row = {p: i for i, p in enumerate(cams)}
@@ -334,7 +336,9 @@ class _Mapper:
         tv = np.array([m.poses[p][1] for p in cams])
         K = self.K
         res = bundle_adjust(rv, tv, m.X[pts], cam, pt, uv, K, np.array([p in free_set for p in cams]),
-                            c.ba_loss, c.ba_scale_px, iterations)
+                            c.ba_loss, c.ba_scale_px, iterations, focal)
+        if focal:
+            K = self.K = K @ np.diag([res.focal, res.focal, 1.0])
         for p in free:
             m.poses[p] = (_rmat(res.rvecs[row[p]]), res.tvecs[row[p]])
         m.X[pts] = res.X
@@ -350,7 +354,6 @@ class _Mapper:
             tid = self.t.tid[p]
             np.add.at(views, tid[~m.outlier.get(p, np.zeros(len(tid), bool))], 1)
         m.X[views < 2] = np.nan
-        self.K_scaled = K
 
     def chain(self, start: int) -> tuple[Reconstruction | None, int]:
         """One chain from `start`: start pair, forward registration until `max_misses` in a row, then backward
@@ -446,7 +449,8 @@ class _Mapper:
 
     def _global(self, m: Reconstruction, iterations: int | None = None) -> None:
         first = min(m.poses)
-        self.adjust(m, [q for q in sorted(m.poses) if q != first], iterations or self.c.ba_iterations)
+        self.adjust(m, [q for q in sorted(m.poses) if q != first], iterations or self.c.ba_iterations,
+                    self.refine_focal)
 
 
 def _rvec(R: np.ndarray) -> np.ndarray:
@@ -502,13 +506,16 @@ def _without(m: Reconstruction, frames: set[int]) -> Reconstruction:
                           {p: v for p, v in m.outlier.items() if p not in frames})
 
 
-def reconstruct(tracks: Tracks, K: np.ndarray, conf: SfmConf | None = None) -> SfmResult:
-    """Chains of registered frames over `tracks` (module doc); every frame not in the largest chain keeps why."""
+def reconstruct(tracks: Tracks, K: np.ndarray, conf: SfmConf | None = None, refine_focal: bool = False
+                ) -> SfmResult:
+    """Chains of registered frames over `tracks` (module doc); every frame not in the largest chain keeps why.
+    `refine_focal` (K from a field-of-view prior): every global adjustment refines the focal length; the
+    result's K is the one found."""
     import cv2
 
     conf = SfmConf.merged(conf)
     cv2.setRNGSeed(conf.rng_seed)  # OpenCV's RANSAC draws from its global generator: the same answer every run
-    mp = _Mapper(tracks, K, conf)
+    mp = _Mapper(tracks, K, conf, refine_focal)
     models, start = [], 0
     while start < mp.F - 1:
         m, start = mp.chain(start)
@@ -529,7 +536,7 @@ def reconstruct(tracks: Tracks, K: np.ndarray, conf: SfmConf | None = None) -> S
         if p not in model_of:
             mp.why.setdefault(p, "no chain reached it")
     why = {p: w for p, w in mp.why.items() if p not in model_of}
-    return SfmResult(models, model_of, why, K.astype(np.float64), tracks, rejected=mp.history, joined=joined)
+    return SfmResult(models, model_of, why, mp.K, tracks, rejected=mp.history, joined=joined)
 
 
 def match_stream(n: int, match: PairMatches, K: np.ndarray, conf: SfmConf,
