@@ -3,7 +3,7 @@ from motion over the key frames and the scan's kept frames, `align.rgb_stage`) p
 `real_rooms.pose_row` (registered share, ATE after SE(3) and Sim(3), the Sim(3)'s scale, what was lost where),
 beside the same rooms' pycolmap oracle (`sfm_oracle.py`) when `--oracle`.
 
-    python benchmarks/rgb_poses.py --bundle /work/bundles/real [--keyframes 32] [--oracle] \
+    python benchmarks/rgb_poses.py --bundle BUNDLE [--keyframes 32] [--oracle] \
         [--rooms 7scenes-redkitchen,scannet-scene0000_00,hololens-lounge] [--out benchmarks/results/rgb_poses.json]
 """
 from __future__ import annotations
@@ -24,12 +24,20 @@ TARGETS = {"registered_share": 0.9, "ate_sim3_m": 0.10, "ate_sim3_kitchen_m": 0.
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--bundle", default="/work/bundles/real")
+    ap.add_argument("--bundle", default=os.environ.get("MOSAIC_BUNDLE"),
+                    help="the bundle to evaluate with (default: $MOSAIC_BUNDLE)")
     ap.add_argument("--keyframes", type=int, default=32)
     ap.add_argument("--rooms", default="7scenes-redkitchen,scannet-scene0000_00,hololens-lounge")
     ap.add_argument("--oracle", action="store_true", help="also pycolmap's global mapper over the same frames")
     ap.add_argument("--out", default=str(Path(__file__).resolve().parent / "results" / "rgb_poses.json"))
     a = ap.parse_args()
+    if not a.bundle:
+        print("error: no bundle: pass --bundle DIR or set MOSAIC_BUNDLE (a bundle with a depth model and a matcher)",
+              file=sys.stderr)
+        return 2
+    if not (Path(a.bundle) / "manifest.json").is_file():
+        print(f"error: --bundle {a.bundle}: no manifest.json there; pass an exported bundle directory", file=sys.stderr)
+        return 2
     rows = {}
     for name in a.rooms.split(","):
         room = SHARED / "data" / name

@@ -146,6 +146,44 @@ def test_sfm_rejects_a_jump_and_says_why():
     assert ate_rmse(est, poses[keep], True)[0] < 0.02
 
 
+def test_a_broken_chain_is_relocalized_against_the_whole_map():
+    """A walk cut in two (frames 12-15 match nothing: blur, a fast turn), one pair far in time (a loop pair) linking
+    frame 9 with frame 17: the first chain ends at the cut; its whole map then re-localizes frame 17 by PnP on the
+    loop's tracks and, from it, the frames after the cut, placed right; the dead frames stay out with reasons."""
+    from mosaicthinker.runtime.align.sfm import _Mapper
+
+    poses, match = _scene(n=24)
+    dead = {12, 13, 14, 15}
+
+    def cut(a: int, b: int) -> tuple[np.ndarray, np.ndarray]:
+        if a in dead or b in dead or (a < 12 < b and (a, b) != (9, 17)):
+            return np.zeros((0, 2)), np.zeros((0, 2))
+        return match(a, b)
+
+    conf = SfmConf(min_tri_parallax_deg=0.5)  # what 9 and 17 share are far walls (0.1-1.2 deg from 8 to 11)
+    tracks = match_stream(len(poses), cut, K, conf, extra_pairs=[(9, 17)])
+    mp = _Mapper(tracks, K, conf)
+    m, end = mp.chain(0)
+    assert sorted(m.poses) == list(range(12)) and end == 12
+    got = mp.relocalize(m)
+    assert sorted(got) == list(range(16, 24)), (got, mp.why)
+    assert not dead & set(m.poses) and {12, 13, 14} <= set(mp.why)
+    keep = sorted(m.poses)
+    est = np.array([_c2w(*m.poses[p]) for p in keep])
+    assert ate_rmse(est, poses[keep], True)[0] < 0.02
+
+
+def test_pnp_on_degenerate_points_is_a_reason_not_a_crash():
+    """SQPnP asserts on collapsed 3-D points (seen on a real walk): the registration fails with its reason."""
+    from mosaicthinker.runtime.align.sfm import Reconstruction, Tracks, _Mapper
+
+    uv = np.random.default_rng(0).uniform(0, 400, (40, 2))
+    tracks = Tracks([np.arange(40), np.arange(40)], [uv, uv + 1], 40)
+    m = Reconstruction(poses={0: (np.eye(3), np.zeros(3))}, X=np.tile([[0.0, 0.0, 2.0]], (40, 1)))
+    why = _Mapper(tracks, K, SfmConf()).register(m, 1, 0)
+    assert why is not None and 1 not in m.poses
+
+
 def test_stream_keeps_every_key_frame_and_thins_the_rest():
     s = stream_positions([0, 50, 100], list(range(0, 101, 2)), 20)
     assert {0, 50, 100} <= set(s) and len(s) <= 20 and s == sorted(s)
@@ -189,3 +227,39 @@ def test_loop_pairs_join_far_apart_look_alikes_only():
     got = loop_pairs(d, [0, 10, 20, 30], 1, 6)
     assert (0, 30) in got and all(b - a > 6 for a, b in got)
     assert loop_pairs(d, [0, 10, 20, 30], 0, 6) == [] and loop_pairs(d, [0, 3, 5, 8], 1, 100) == []
+
+
+def test_loop_candidates_are_the_key_frames_and_every_nth_stream_frame():
+    from mosaicthinker.runtime.align.rgb_stage import loop_candidates
+
+    stream = list(range(0, 40, 2))
+    assert loop_candidates([6, 30], stream, 0) == [6, 30]
+    assert loop_candidates([6, 30], stream, 4) == [0, 6, 8, 16, 24, 30, 32]
+
+
+def test_bundle_adjustment_refines_a_focal_length_10_percent_off():
+    """Six cameras see 300 points with a 550 px focal length; adjusted from a 500 px prior: fixed, the
+    reprojection error stays high; refined, the focal length comes back within 1 % and the error to the noise."""
+    rng = np.random.default_rng(0)
+    X = rng.uniform([-3, -2, 4], [3, 2, 8], (300, 3))
+    rv = rng.normal(0, 0.1, (6, 3))
+    tv = np.c_[np.linspace(-1, 1, 6), rng.normal(0, 0.1, (6, 2))]
+    true_K = K @ np.diag([1.1, 1.1, 1.0])
+    cam, pt = np.repeat(np.arange(6), len(X)), np.tile(np.arange(len(X)), 6)
+    uv = project(rv[cam], tv[cam], X[pt], true_K) + rng.normal(0, 0.5, (len(cam), 2))
+    free = np.arange(6) > 0
+    start = (rv + rng.normal(0, 0.01, rv.shape), tv + 0.02, X + rng.normal(0, 0.05, X.shape))
+    fixed = bundle_adjust(*start, cam, pt, uv, K, free, max_nfev=50)
+    got = bundle_adjust(*start, cam, pt, uv, K, free, max_nfev=50, refine_focal=True)
+    assert fixed.focal == 1.0 and fixed.rms_px > 1.0
+    assert abs(got.focal * K[0, 0] - 550) < 5.5 and got.rms_px < 0.8, (got.focal, got.rms_px)
+
+
+def test_a_refined_focal_length_is_kept_within_bounds_and_said():
+    from mosaicthinker.runtime.align.rgb_stage import hfov_deg, refined_focal
+
+    assert abs(hfov_deg(K) - 65.2) < 0.1
+    keep, words = refined_focal(K, K @ np.diag([1.1, 1.1, 1]), (0.67, 1.5))
+    assert keep and "refined" in words and f"{hfov_deg(K):.1f} deg" in words
+    keep, words = refined_focal(K, K @ np.diag([3.0, 3.0, 1]), (0.67, 1.5))
+    assert not keep and "not refined" in words and "may bend" in words

@@ -4,7 +4,8 @@ refinement step of the RGB-only structure from motion (`sfm`). scipy's `least_sq
 was tried first and stopped far from the minimum within any affordable budget (docs/rgb-geometry.md).
 
 Conventions: camera j maps a world point X to its frame by x = R_j X + t_j with R_j = Rodrigues(r_j); a pixel is
-K (x / z) with one K [3, 3] shared by every camera (not refined: intrinsics from a prior stay as given).
+K (x / z) with one K [3, 3] shared by every camera; with `refine_focal` its fx, fy by one factor refined too
+(intrinsics from a field-of-view prior).
 """
 from __future__ import annotations
 
@@ -41,6 +42,7 @@ class BAResult:
     X: np.ndarray
     rms_px: float
     nfev: int
+    focal: float = 1.0  # the focal length's factor found (1.0 unless `refine_focal`)
 
 
 def _jacobians(R: np.ndarray, t: np.ndarray, X: np.ndarray, K: np.ndarray, focal: float
@@ -85,12 +87,14 @@ def _so3(w: np.ndarray) -> np.ndarray:
 
 def bundle_adjust(rvecs: np.ndarray, tvecs: np.ndarray, X: np.ndarray, cam: np.ndarray, pt: np.ndarray,
                   uv: np.ndarray, K: np.ndarray, free_cams: np.ndarray,
-                  loss: str = "huber", scale_px: float = 2.0, max_nfev: int = 30) -> BAResult:
+                  loss: str = "huber", scale_px: float = 2.0, max_nfev: int = 30, refine_focal: bool = False
+                  ) -> BAResult:
     """Levenberg-Marquardt on the robust (Huber, iteratively reweighted) reprojection error over the free cameras
     and every observed point, the points eliminated by the Schur complement (the reduced camera system is
     6 x free cameras square). rvecs, tvecs: [C, 3]; X: [P, 3]; observations cam [M] (camera row), pt [M] (point
     row), uv [M, 2] pixels; free_cams: [C] bool (the rest stay fixed: the gauge, or a local window's border);
-    `max_nfev`: iterations at most. Returns a `BAResult` (fixed cameras unchanged)."""
+    `max_nfev`: iterations at most; `refine_focal`: the focal length (one factor on K's fx, fy, shared by every
+    camera) is one more column of the reduced camera system. Returns a `BAResult` (fixed cameras unchanged)."""
     C, P, M = len(rvecs), len(X), len(cam)
     Rs = _so3(np.asarray(rvecs, np.float64))
     t = np.asarray(tvecs, np.float64).copy()
@@ -123,6 +127,11 @@ def bundle_adjust(rvecs: np.ndarray, tvecs: np.ndarray, X: np.ndarray, cam: np.n
         U = _scatter(slot[cam[fc]], w[fc, None, None] * (_T(Jc[fc]) @ Jc[fc]), nf)
         bc = _scatter(slot[cam[fc]], w[fc, None] * (_T(Jc[fc]) @ r[fc][:, :, None])[:, :, 0], nf)
         W = w[fc, None, None] * (_T(Jc[fc]) @ Jp[fc])  # [Mf, 6, 3] per free observation
+        if refine_focal:  # d uv / d focal factor [M, 2]: the normalised point times fx, fy
+            Jf = (u - K[:2, 2]) / focal
+            Uff, bf = float(np.sum(w * np.sum(Jf**2, 1))), float(np.sum(w * np.sum(Jf * r, 1)))
+            Ucf = _scatter(slot[cam[fc]], w[fc, None] * (_T(Jc[fc]) @ Jf[fc][:, :, None])[:, :, 0], nf)
+            Wf = _scatter(pt, w[:, None] * (_T(Jp) @ Jf[:, :, None])[:, :, 0], P)  # [P, 3]
         new, rel = np.inf, 1.0
         while True:
             Vd = V + lam * (np.eye(3) * (np.einsum("pii->pi", V)[:, :, None] + 1e-9))
@@ -149,23 +158,35 @@ def bundle_adjust(rvecs: np.ndarray, tvecs: np.ndarray, X: np.ndarray, cam: np.n
                 rows = (6 * slot[cam[fo_s[idx]]][:, :, None] + np.arange(6)).reshape(len(st), 6 * n)
                 flat = (rows[:, :, None] * (6 * nf) + rows[:, None, :]).ravel()
                 S -= np.bincount(flat, weights=blk.ravel(), minlength=S.size).reshape(S.shape)
+            df = 0.0
             try:
-                dc = np.linalg.solve(S, rhs.ravel()).reshape(nf, 6) if nf else np.zeros((0, 6))
+                if refine_focal:  # one more row and column: the focal factor, its point coupling eliminated too
+                    ViWf = (Vi @ Wf[:, :, None])[:, :, 0]
+                    Scf = Ucf - _scatter(slot[cam[fo]], (W @ ViWf[pt[fo]][:, :, None])[:, :, 0], nf)
+                    Sff = Uff * (1 + lam) - float(np.sum(Wf * ViWf))
+                    A = np.block([[S, Scf.reshape(-1, 1)], [Scf.reshape(1, -1), np.array([[Sff]])]])
+                    sol = np.linalg.solve(A, np.r_[rhs.ravel(), -bf + float(np.sum(ViWf * bp))])
+                    dc, df = sol[:-1].reshape(nf, 6), float(sol[-1])
+                else:
+                    dc = np.linalg.solve(S, rhs.ravel()).reshape(nf, 6) if nf else np.zeros((0, 6))
             except np.linalg.LinAlgError:
                 lam *= 10
                 if lam > 1e8:
                     break
                 continue
             g = bp + _scatter(pt[fo], (_T(W) @ dc[slot[cam[fo]]][:, :, None])[:, :, 0], P)
+            if refine_focal:
+                g = g + Wf * df
             dX = -(Vi @ g[:, :, None])[:, :, 0]
             Rn, tn = Rs.copy(), t.copy()
             Rn[free_idx] = _so3(dc[:, :3]) @ Rs[free_idx]
             tn[free_idx] = t[free_idx] + dc[:, 3:]
             Xn = X + dX
-            new, _ = cost(Rn, tn, Xn, focal)
+            fn = focal + df
+            new, _ = cost(Rn, tn, Xn, fn)
             if new < cur:
                 rel = (cur - new) / max(cur, 1e-12)
-                Rs, t, X, cur = Rn, tn, Xn, new
+                Rs, t, X, cur, focal = Rn, tn, Xn, new, fn
                 lam = max(lam / 3, 1e-7)
                 break
             lam *= 10
@@ -177,5 +198,5 @@ def bundle_adjust(rvecs: np.ndarray, tvecs: np.ndarray, X: np.ndarray, cam: np.n
     import cv2
 
     rv = np.array([cv2.Rodrigues(R)[0].ravel() for R in Rs])
-    out = BAResult(rv, t, X, float(np.sqrt(np.mean(e**2))) if M else 0.0, it)
+    out = BAResult(rv, t, X, float(np.sqrt(np.mean(e**2))) if M else 0.0, it, focal)
     return out

@@ -149,15 +149,17 @@ class SfmConf(StageConf):
     conf_name: ClassVar[str] = "sfm config"
 
     sfm_on: bool = True            # off: the essential-matrix tree and bridge rounds (`stage.align_rest_relative`)
-    stream_frames: int = 160           # stream frames (key frames always in; the scan's kept frames evenly thinned)
+    stream_frames: int = 320           # stream frames (key frames always in; the scan's kept frames evenly thinned)
     match_window: int = 3           # each stream frame matched with its next this many (tracks over 3+ views)
-    loop_pairs: int = 2             # each key frame also matched with its n most alike key frames far in time (0 = off)
+    loop_pairs: int = 2             # each loop candidate also matched with its n most alike candidates far in time (0 = off)
+    loop_every: int = 4             # loop candidates: the key frames and every n-th stream frame (0: key frames only)
     pair_matches: int = 1000         # matches kept per pair, best scores first
     pair_px: float = 1.5       # a pair's essential-matrix inlier threshold (px)
     min_pair_inliers: int = 30      # fewer verified matches: the pair adds nothing to the tracks
     init_window: int = 8            # a chain's start pair is looked for among this many frames from its start
     init_min_parallax_deg: float = 2.0   # ... with at least this median triangulation angle
-    min_tri_parallax_deg: float = 1.0    # a point triangulated with a smaller ray angle is not kept (yet)
+    min_tri_parallax_deg: float = 2.0    # a point triangulated with a smaller ray angle is not kept (yet): 1 deg let
+                                         # near-biased points in and the scale collapsed along a walk
     max_reproj_px: float = 4.0      # observations off by more after an adjustment are dropped
     register_px: float = 4.0             # PnP RANSAC reprojection threshold (px)
     pnp_iterations: int = 500
@@ -170,12 +172,15 @@ class SfmConf(StageConf):
     merge_min_points: int = 20      # chains are joined by a Sim(3) on at least this many shared points ...
     merge_min_share: float = 0.5    # ... this share of them inliers ...
     merge_rel: float = 0.03         # ... within this fraction of the points' spread
+    relocalize_rounds: int = 4      # frames outside the largest chain re-tried against its whole map, rounds at most
     local_ba_every: int = 5         # a local adjustment after this many registrations ...
     local_ba_window: int = 12       # ... over the last this many cameras
     local_ba_iterations: int = 10
     ba_iterations: int = 30         # the global adjustment's Levenberg-Marquardt iterations at most
     ba_loss: str = "huber"          # robust loss: "huber" or "linear" (plain least squares)
     ba_scale_px: float = 2.0        # ... its scale (px)
+    refine_focal: bool = True       # K from a field-of-view prior: the global adjustments refine the focal length ...
+    focal_bounds: tuple[float, float] = (0.67, 1.5)  # ... kept within this factor of the prior's (else the prior, said)
     rng_seed: int = 0               # OpenCV's RANSAC generator, set before matching and mapping (reproducible)
     scale_points: int = 10      # a key frame's depth scale needs this many triangulated points with depth
 

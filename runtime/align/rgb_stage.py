@@ -30,12 +30,33 @@ def stream_positions(keys: list[int], grid: list[int], max_frames: int) -> list[
 
 
 def intrinsics_note(source: FrameSource) -> tuple[bool, str]:
-    """(K is only a field-of-view prior?, where the intrinsics came from, in words). A prior is used as given (the
-    focal length is not refined yet): the answer says so."""
+    """(K is only a field-of-view prior?, where the intrinsics came from, in words)."""
     where = str(getattr(source, "K_from", "") or "the source")
     if where.startswith("hfov_deg"):
-        return True, f"intrinsics from a field-of-view prior ({where}), not refined: poses may bend"
+        return True, f"intrinsics from a field-of-view prior ({where})"
     return False, f"intrinsics from {where}"
+
+
+def hfov_deg(K: np.ndarray) -> float:
+    """Horizontal field of view (deg) of K [3, 3], the image's width taken as 2 x its principal point's x."""
+    return float(np.degrees(2 * np.arctan2(K[0, 2], K[0, 0])))
+
+
+def refined_focal(K0: np.ndarray, K1: np.ndarray, bounds: tuple[float, float]) -> tuple[bool, str]:
+    """(keep the refined K1?, in words): the adjustment's focal length kept when within `bounds` x the prior
+    K0's (a factor outside: the views did not constrain it; the prior stays, said)."""
+    f = float(K1[0, 0] / K0[0, 0])
+    if bounds[0] <= f <= bounds[1]:
+        return True, (f"focal length refined by the bundle adjustment from the prior's {hfov_deg(K0):.1f} deg "
+                      f"field of view to {hfov_deg(K1):.1f} deg (x{f:.3f})")
+    return False, (f"focal length not refined: the adjustment's x{f:.2f} is outside {bounds[0]}-{bounds[1]} x the "
+                   f"prior; the prior's {hfov_deg(K0):.1f} deg field of view kept, poses may bend")
+
+
+def loop_candidates(keys: list[int], stream: list[int], every: int) -> list[int]:
+    """The frames looked at for revisits: every key frame and every `every`-th stream frame (0: key frames only),
+    in time order. Pure. (Key frames alone left the real rooms' walks in pieces: docs/rgb-geometry.md.)"""
+    return sorted(set(keys) | (set(stream[::every]) if every > 0 else set()))
 
 
 def loop_pairs(desc: np.ndarray, pos: list[int], n: int, min_gap: int) -> list[tuple[int, int]]:
@@ -69,9 +90,11 @@ def align_keyframes_sfm(frames: list[Frame], matcher: KeyedMatcher, source: Fram
     stream = stream_positions(keys, grid, conf.stream_frames)
     K = np.asarray(frames[0].K, np.float64)
     prior, how = intrinsics_note(source)
-    if prior:
-        log.event("degraded", f"alignment: {how}", stage="alignment")
-    else:
+    refine = prior and conf.refine_focal
+    if prior and not refine:
+        log.event("degraded", f"alignment: {how}, not refined (sfm.refine_focal off): poses may bend",
+                  stage="alignment")
+    elif not prior:
         log.event("alignment", f"alignment: {how}", stage="alignment")
     rgb_cache: dict[int, np.ndarray] = {}
     cap = conf.pair_matches
@@ -92,16 +115,27 @@ def align_keyframes_sfm(frames: list[Frame], matcher: KeyedMatcher, source: Fram
         return m.uv0[o], m.uv1[o]
 
     extra: list[tuple[int, int]] = []
-    if conf.loop_pairs > 0:  # places the walk shows twice: key frames alike by appearance, far apart in time
-        d = np.array([np.asarray((describe or tiny_descriptor)(by_index[i].rgb), np.float64).ravel() for i in keys])
-        d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
+    if conf.loop_pairs > 0:  # places the walk shows twice: frames alike by appearance, far apart in time
         at = {i: p for p, i in enumerate(stream)}
-        extra = loop_pairs(d, [at[i] for i in keys], conf.loop_pairs, 2 * conf.match_window)
+        cand = loop_candidates(keys, stream, conf.loop_every)
+        d = np.array([np.asarray((describe or tiny_descriptor)(rgb(i) if i in by_index else source[i].rgb),
+                                 np.float64).ravel() for i in cand])
+        d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
+        extra = loop_pairs(d, [at[i] for i in cand], conf.loop_pairs, 2 * conf.match_window)
     with log.stage("alignment.sfm_match"):
         tracks = match_stream(len(stream), match, K, conf, extra)
     t1 = time.perf_counter()
     with log.stage("alignment.sfm_map"):
-        res = reconstruct(tracks, K, conf)
+        res = reconstruct(tracks, K, conf, refine)
+    if refine:  # the key frames take the refined K (the map back-projects with it), or the prior stays: said
+        keep, words = refined_focal(K, res.K, conf.focal_bounds)
+        if keep:
+            for f in frames:
+                f.K = res.K.copy()
+        else:
+            res.K = K
+        log.event("degraded", f"alignment: {how}; {words}", stage="alignment", hfov_prior_deg=hfov_deg(K),
+                  hfov_deg=hfov_deg(res.K))
     res.seconds = {"sfm_match": t1 - t0, "sfm_map": time.perf_counter() - t1}
     al = _keyframe_result(res, stream, by_index, conf, log)
     al.seconds.update(res.seconds)

@@ -166,8 +166,9 @@ def _rot_deg(Ra: np.ndarray, Rb: np.ndarray) -> float:
 class _Mapper:
     """Incremental mapping over tracks (module doc, steps 2-4)."""
 
-    def __init__(self, tracks: Tracks, K: np.ndarray, conf: SfmConf):
+    def __init__(self, tracks: Tracks, K: np.ndarray, conf: SfmConf, refine_focal: bool = False):
         self.t, self.K, self.c = tracks, K.astype(np.float64), conf
+        self.refine_focal = refine_focal  # global adjustments refine the focal length (K from a prior)
         self.F = len(tracks.tid)
         self.why: dict[int, str] = {}
         self.history: list[tuple[int, str]] = []  # every rejection, also of frames a later chain registered
@@ -265,9 +266,12 @@ class _Mapper:
         if n3d < c.min_pnp_inliers:
             return f"{n3d} matches with triangulated points (< {c.min_pnp_inliers})"
         X, u = m.X[tid[has]], uv[has]
-        ok, rv, tv, inl = cv2.solvePnPRansac(X, u, self.K, None, iterationsCount=c.pnp_iterations,
-                                             reprojectionError=c.register_px, confidence=0.999,
-                                             flags=cv2.SOLVEPNP_SQPNP)
+        try:
+            ok, rv, tv, inl = cv2.solvePnPRansac(X, u, self.K, None, iterationsCount=c.pnp_iterations,
+                                                 reprojectionError=c.register_px, confidence=0.999,
+                                                 flags=cv2.SOLVEPNP_SQPNP)
+        except cv2.error as e:  # SQPnP asserts on degenerate samples (e.g. collapsed points): a failed PnP
+            return f"PnP: degenerate ({str(e).strip().splitlines()[-1][:60]})"
         if not ok or inl is None or len(inl) < c.min_pnp_inliers:
             return f"PnP: {0 if inl is None else len(inl)} inliers of {n3d} (< {c.min_pnp_inliers})"
         inl = inl.ravel()
@@ -303,9 +307,10 @@ class _Mapper:
         R, t = Rr @ Rn, Rr @ tn + s * tr
         return R, t, float(np.median(zq[good]))
 
-    def adjust(self, m: Reconstruction, free: Sequence[int], iterations: int) -> None:
+    def adjust(self, m: Reconstruction, free: Sequence[int], iterations: int, focal: bool = False) -> None:
         """Bundle adjustment with the cameras `free` free (the rest of the chain fixed), then observations off by
-        more than `max_reproj_px` dropped and points left with fewer than 2 views removed."""
+        more than `max_reproj_px` dropped and points left with fewer than 2 views removed; `focal`: the focal
+        length refined too (K's fx, fy by one factor, kept in `self.K`)."""
         c = self.c
         cams = sorted(m.poses)
         row = {p: i for i, p in enumerate(cams)}
@@ -331,7 +336,9 @@ class _Mapper:
         tv = np.array([m.poses[p][1] for p in cams])
         K = self.K
         res = bundle_adjust(rv, tv, m.X[pts], cam, pt, uv, K, np.array([p in free_set for p in cams]),
-                            c.ba_loss, c.ba_scale_px, iterations)
+                            c.ba_loss, c.ba_scale_px, iterations, focal)
+        if focal:
+            K = self.K = K @ np.diag([res.focal, res.focal, 1.0])
         for p in free:
             m.poses[p] = (_rmat(res.rvecs[row[p]]), res.tvecs[row[p]])
         m.X[pts] = res.X
@@ -347,7 +354,6 @@ class _Mapper:
             tid = self.t.tid[p]
             np.add.at(views, tid[~m.outlier.get(p, np.zeros(len(tid), bool))], 1)
         m.X[views < 2] = np.nan
-        self.K_scaled = K
 
     def chain(self, start: int) -> tuple[Reconstruction | None, int]:
         """One chain from `start`: start pair, forward registration until `max_misses` in a row, then backward
@@ -405,9 +411,46 @@ class _Mapper:
         self._global(m)
         return m, end
 
-    def _global(self, m: Reconstruction) -> None:
+    def relocalize(self, m: Reconstruction) -> list[int]:
+        """Frames outside chain m (rejected, or in a smaller chain) re-tried against m's whole map: PnP on every
+        track of theirs m has triangulated (loop pairs and wider matches link them), most such points first, each
+        checked against its nearest registered frame in time like any registration; rounds until none is added
+        (at most `relocalize_rounds`), a global adjustment after each. Returns the frames added."""
+        c, added = self.c, []
+        tried: dict[int, int] = {}  # frame -> points it had when it last failed (re-tried only with more)
+        for _ in range(c.relocalize_rounds):
+            got = []
+            for p in self._candidates(m, tried):
+                near = min(m.poses, key=lambda q: (abs(q - p), q))
+                why = self.register(m, p, near)
+                if why:
+                    tried[p] = self._n3d(m, p)
+                    self.why[p] = f"{why} (re-tried against the map)"
+                    continue
+                self.why.pop(p, None)
+                self.triangulate_new(m, p)
+                got.append(p)
+            if not got:
+                break
+            added += got
+            self._global(m, c.local_ba_iterations)
+        return added
+
+    def _n3d(self, m: Reconstruction, p: int) -> int:
+        tid = self.t.tid[p]
+        return int((~np.isnan(m.X[tid, 0])).sum()) if len(tid) else 0
+
+    def _candidates(self, m: Reconstruction, tried: dict[int, int]) -> list[int]:
+        """Frames outside m with at least `min_pnp_inliers` tracks m has triangulated (more than when they last
+        failed), most first."""
+        n = {p: self._n3d(m, p) for p in range(self.F) if p not in m.poses}
+        ok = [p for p, k in n.items() if k >= self.c.min_pnp_inliers and k > tried.get(p, 0)]
+        return sorted(ok, key=lambda p: (-n[p], p))
+
+    def _global(self, m: Reconstruction, iterations: int | None = None) -> None:
         first = min(m.poses)
-        self.adjust(m, [q for q in sorted(m.poses) if q != first], self.c.ba_iterations)
+        self.adjust(m, [q for q in sorted(m.poses) if q != first], iterations or self.c.ba_iterations,
+                    self.refine_focal)
 
 
 def _rvec(R: np.ndarray) -> np.ndarray:
@@ -457,13 +500,22 @@ def merge_chains(models: list[Reconstruction], conf: SfmConf) -> tuple[list[Reco
     return models, said
 
 
-def reconstruct(tracks: Tracks, K: np.ndarray, conf: SfmConf | None = None) -> SfmResult:
-    """Chains of registered frames over `tracks` (module doc); every frame not in the largest chain keeps why."""
+def _without(m: Reconstruction, frames: set[int]) -> Reconstruction:
+    """Chain m less `frames` (registered elsewhere)."""
+    return Reconstruction({p: v for p, v in m.poses.items() if p not in frames}, m.X,
+                          {p: v for p, v in m.outlier.items() if p not in frames})
+
+
+def reconstruct(tracks: Tracks, K: np.ndarray, conf: SfmConf | None = None, refine_focal: bool = False
+                ) -> SfmResult:
+    """Chains of registered frames over `tracks` (module doc); every frame not in the largest chain keeps why.
+    `refine_focal` (K from a field-of-view prior): every global adjustment refines the focal length; the
+    result's K is the one found."""
     import cv2
 
     conf = SfmConf.merged(conf)
     cv2.setRNGSeed(conf.rng_seed)  # OpenCV's RANSAC draws from its global generator: the same answer every run
-    mp = _Mapper(tracks, K, conf)
+    mp = _Mapper(tracks, K, conf, refine_focal)
     models, start = [], 0
     while start < mp.F - 1:
         m, start = mp.chain(start)
@@ -472,12 +524,19 @@ def reconstruct(tracks: Tracks, K: np.ndarray, conf: SfmConf | None = None) -> S
     models, joined = merge_chains(models, conf)
     if joined:
         mp._global(models[0])
+    if models and conf.relocalize_rounds > 0:
+        got = mp.relocalize(models[0])
+        if got:
+            joined.append(f"re-localized {len(got)} frames against the largest chain's map")
+            models = [models[0]] + [_without(mm, set(got)) for mm in models[1:]]
+            models = [models[0]] + sorted([mm for mm in models[1:] if len(mm.poses) >= 2], key=lambda mm: -len(mm.poses))
+            mp._global(models[0])
     model_of = {p: i for i, m in enumerate(models) for p in m.poses}
     for p in range(mp.F):
         if p not in model_of:
             mp.why.setdefault(p, "no chain reached it")
     why = {p: w for p, w in mp.why.items() if p not in model_of}
-    return SfmResult(models, model_of, why, K.astype(np.float64), tracks, rejected=mp.history, joined=joined)
+    return SfmResult(models, model_of, why, mp.K, tracks, rejected=mp.history, joined=joined)
 
 
 def match_stream(n: int, match: PairMatches, K: np.ndarray, conf: SfmConf,
