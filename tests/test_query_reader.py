@@ -94,7 +94,7 @@ OWN = [  # (question, options, kind of node, check) in words written for this te
     ("what's the longest side of the bookcase in cm", None, "Size", lambda n: n.object.name == "bookshelf"),
     ("I'm next to the fridge and the sink is in front of me. is the oven on my left or right?",
      ["A. left", "B. right"], "Direction",
-     lambda n: (n.stand.name, n.face.name, n.target.name, n.granularity) == ("refrigerator", "sink", "stove", "easy")),
+     lambda n: (n.stand.name, n.face.name, n.target.name, n.granularity) == ("refrigerator", "sink", "oven", "easy")),
     ("which is nearest to the desk: the printer, the plant or the bin?", None, "Nearest",
      lambda n: n.origin.name == "desk" and n.extreme == "closest" and len(n.candidates) == 3),
 ]
