@@ -74,6 +74,12 @@ def test_tiny_training_run_writes_a_head_that_loads(tmp_path):
     head, meta = load_head(tmp_path)
     assert meta["feature_noise"] == 0.1 and meta["n_train"] == 24 and 0.0 <= info["dev"]["kind_accuracy"] <= 1.0
     assert (tmp_path / "head.npz").stat().st_size < 4 * 2 ** 20
+    more = train(tmp_path / "more", seed=1, n_train=24, n_dev=8, epochs=2, random_encoder=True, noise=0.3,
+                 init=tmp_path, lr=1e-2)  # go on from that head
+    head2, meta2 = load_head(tmp_path / "more")
+    assert meta2["init"] == str(tmp_path) and more["feature_noise"] == 0.3
+    w1, w2 = head.state_dict()["tag.weight"], head2.state_dict()["tag.weight"]
+    assert 0 < float((w1 - w2).abs().max()) < 0.05  # moved from the first head, not trained afresh
 
 
 @pytest.mark.export
