@@ -130,3 +130,13 @@ def test_names_by_meaning(real_bundle):
     assert ref.name == "coat rack" and not ref.known and "coat hanger" in notes[0]
     ref, notes = res("zebra")
     assert not ref.known and "nearest" in notes[0]
+
+
+def test_agreement_of_a_reader_graph_with_itself_is_total(random_bundle):
+    from tokenizers import Tokenizer
+
+    from mosaicthinker.export.reader.export import agreement
+
+    model = next((random_bundle / "reader").rglob("model.onnx"))
+    got = agreement(model, model, Tokenizer.from_file(str(random_bundle / "reader" / "tokenizer.json")), n=20)
+    assert got["kind_agree"] == got["spans_agree"] == got["programs_agree"] == 1.0 and got["ok"]
