@@ -11,6 +11,8 @@ from mosaicthinker.export.reader.generate import Generator, dataset
 from mosaicthinker.export.reader.shapes import FRAGMENTS, SHAPES2, expand
 from mosaicthinker.runtime.query.reader_spec import KINDS, TAGS
 
+pytestmark = pytest.mark.export  # the export toolchain's modules (the generator itself needs numpy only)
+
 SLOTS = {"obj", "stand", "face", "ref", "cands", "unit", "room", "num", "start", "goal", "way", "turn", "loc"}
 
 
@@ -60,7 +62,6 @@ def test_a_repeated_slot_says_the_same_name_again():
         assert [t for w, t in out if t.startswith("B-")] == ["B-STAND", "B-FACE", "B-OBJ", "B-FACE"]
 
 
-@pytest.mark.export
 @pytest.mark.slow
 def test_tiny_training_run_writes_a_head_that_loads(tmp_path):
     pytest.importorskip("torch")
@@ -82,7 +83,6 @@ def test_tiny_training_run_writes_a_head_that_loads(tmp_path):
     assert 0 < float((w1 - w2).abs().max()) < 0.05  # moved from the first head, not trained afresh
 
 
-@pytest.mark.export
 @pytest.mark.slow
 def test_training_batches_cover_every_question_once_with_little_padding():
     pytest.importorskip("torch")
