@@ -1,6 +1,6 @@
 """Wording sets scored per reader: the trained reader alone, the rules alone, and both (issue 35).
 
-    python benchmarks/reader_holdout.py --bundle B --sets 8,9,10,11 --modes model,rules,auto \
+    python benchmarks/reader_holdout.py --bundle B --sets 8,9,10,11 --modes model,rules,auto [--variant V] \
         --meta ../shared/data/vsibench/meta_info.json --out benchmarks/results/reader_holdout.json
 
 Each question of `benchmarks/data/vsibench_paraphrases_holdoutN.jsonl` is parsed by `parse_question` with the
@@ -67,11 +67,13 @@ def main() -> int:
     p.add_argument("--sets", default="8,9,10,11")
     p.add_argument("--modes", default="model,rules,auto")
     p.add_argument("--meta", default=str(HERE.parent.parent / "shared/data/vsibench/meta_info.json"))
+    p.add_argument("--variant", default=None, help="the reader role's variant (default: the bundle's default)")
     p.add_argument("--out", type=Path)
     a = p.parse_args()
     meta = load_meta(a.meta)
-    reader = load_reader(a.bundle)
-    res = {"schema": "mosaicthinker.bench.reader_holdout/1", "bundle": str(a.bundle), "sets": {},
+    reader = load_reader(a.bundle, a.variant)
+    res = {"schema": "mosaicthinker.bench.reader_holdout/1", "bundle": str(a.bundle), "variant": a.variant,
+           "head": reader.meta.get("head"), "sets": {},
            "load_avg_start": [round(x, 2) for x in os.getloadavg()]}
     t0 = time.time()
     for s in a.sets.split(","):

@@ -138,3 +138,25 @@ def test_direction_granularity_from_the_choices_the_question_lists(q, level):
                                     Span("FACE", "door", q.index("door"), q.index("door") + 4, 0.98),
                                     Span("OBJ", "lamp", q.index("lamp"), q.index("lamp") + 4, 0.98)])
     assert compose(r, q, None, RES)[0].granularity == level
+
+
+def test_a_name_said_twice_in_one_role_is_one_span_and_two_names_refuse():
+    q = "which is closest to the bed: lamp or desk? measure from the bed"
+    node, _ = compose(reading(q, "closest", [("REF", "bed"), ("CAND", "lamp"), ("CAND", "desk"), ("REF", "bed")]),
+                      q, None, RES)
+    assert isinstance(node, Nearest) and node.origin.name == "bed" and len(node.candidates) == 2
+    q = "which is closest to the bed: lamp or desk? measure from the sofa"
+    node, notes = compose(reading(q, "closest", [("REF", "bed"), ("CAND", "lamp"), ("CAND", "desk"),
+                                                 ("REF", "sofa")]), q, None, RES)
+    assert node is None and "bed, sofa" in notes[-1]
+
+
+def test_a_name_said_again_in_its_role_counts_its_surest_mention():
+    q = "at the desk, facing the door: is the lamp left or right of the door?"
+    spans = [Span("STAND", "desk", 7, 11, 0.95), Span("FACE", "door", 24, 28, 0.55), Span("OBJ", "lamp", 33, 37, 0.97),
+             Span("FACE", "door", q.rindex("door"), q.rindex("door") + 4, 0.9)]
+    node, notes = compose(Reading("direction", 0.99, spans, False, ("other", 0.0)), q, None, RES)
+    assert isinstance(node, Direction) and node.face.name == "door", notes
+    spans[3] = Span("FACE", "door", q.rindex("door"), q.rindex("door") + 4, 0.5)  # never sure: refused
+    node, notes = compose(Reading("direction", 0.99, spans, False, ("other", 0.0)), q, None, RES)
+    assert node is None and "'door'" in notes[0]

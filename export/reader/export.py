@@ -54,23 +54,39 @@ def question_inputs(tokenizer: Any) -> Callable[[np.random.Generator], dict[str,
 
 def agreement(a: Path, b: Path, tokenizer: Any, n: int = 200, seed: int = 12345) -> dict[str, Any]:
     """Kind and span (role + words) agreement of two reader graphs on n generated questions of a seed no training
-    used: what the composer reads, not every word piece's arg-max."""
+    used: what the composer reads, not every word piece's arg-max (`ok`: spans agree on >= AGREE_MIN). Also how
+    often both give the same program or both refuse (`programs_agree`: the composer's thresholds applied, names
+    as written), for the record."""
+    from mosaicthinker.runtime.query.compose import compose
+    from mosaicthinker.runtime.query.names import NameResolver
     from mosaicthinker.runtime.query.reader import decode_spans
 
     from .generate import dataset
 
     sa, sb = C.ort_session(a), C.ort_session(b)
-    same_kind = same_all = 0
+    same_kind = same_all = same_prog = 0
+    resolve = NameResolver(None, ())
     for ex in dataset(n, seed):
         enc = tokenizer.encode(ex.text)
         feeds = {"input_ids": np.array([enc.ids], np.int64), "attention_mask": np.ones((1, len(enc.ids)), np.int64)}
         (ka, ta, _), (kb, tb, _) = sa.run(None, feeds), sb.run(None, feeds)
         k = int(ka.argmax()) == int(kb.argmax())
-        spans = [[(s.role, s.text) for s in decode_spans(ex.text, enc.offsets, _softmax(t[0]))] for t in (ta, tb)]
+        spans = [decode_spans(ex.text, enc.offsets, _softmax(t[0])) for t in (ta, tb)]
         same_kind += k
-        same_all += k and spans[0] == spans[1]
+        same_all += k and [(s.role, s.text) for s in spans[0]] == [(s.role, s.text) for s in spans[1]]
+        progs = [repr(compose(_reading(kl[0], sp), ex.text, ex.options, resolve)[0]) for kl, sp in
+                 ((ka, spans[0]), (kb, spans[1]))]
+        same_prog += progs[0] == progs[1]
     return {"questions": n, "seed": seed, "kind_agree": same_kind / n, "spans_agree": same_all / n,
-            "ok": same_all / n >= AGREE_MIN}
+            "programs_agree": same_prog / n, "ok": same_all / n >= AGREE_MIN}
+
+
+def _reading(kind_logits: np.ndarray, spans: list) -> Any:
+    from mosaicthinker.runtime.query.reader import Reading
+
+    p = _softmax(kind_logits.astype(np.float64))
+    o = np.argsort(-p)
+    return Reading(KINDS[o[0]], float(p[o[0]]), spans, False, (KINDS[o[1]], float(p[o[1]])))
 
 
 def _softmax(x: np.ndarray) -> np.ndarray:

@@ -18,6 +18,8 @@ import numpy as np
 
 from mosaicthinker.runtime.query.reader_spec import KINDS, ROLES
 
+from .shapes import SHAPES2, expand
+
 OBJECT_TEXT = """
 chair sofa couch table desk bed lamp tv television monitor screen laptop computer keyboard mouse printer
 bookshelf bookcase shelf cabinet cupboard wardrobe closet dresser drawer nightstand ottoman stool bench armchair
@@ -71,8 +73,28 @@ MULTI = ["trash can", "coffee table", "dining table", "office chair", "floor lam
          "towel rail", "air conditioner", "bulletin board", "bathroom sink", "paper towel holder",
          "medicine cabinet", "alarm clock", "wall clock", "ceiling fan", "space heater", "air purifier",
          "picture frame", "computer tower", "shoe cabinet", "chest of drawers", "night stand", "trash bin",
-         "recycling bin", "kitchen island", "bath mat", "shower curtain", "toilet paper", "wall shelf"]
-ADJ = ["small", "big", "white", "black", "wooden", "grey", "old", "round", "tall", "low", "blue", "red", "little"]
+         "recycling bin", "kitchen island", "bath mat", "shower curtain", "toilet paper", "wall shelf",
+         "tv set", "tv unit", "bath tub", "dish washer", "fire place", "flat screen", "arm chair", "book shelf",
+         "kitchen counter", "range hood", "chest freezer", "shoe stand", "plant pot", "room divider",
+         "standing desk", "corner sofa", "bean bag", "glass door", "sliding door", "window sill", "door mat",
+         "clothes horse", "drying rack", "wash basin", "hand basin", "shower head", "towel rack", "bath tub",
+         "pot plant", "house plant", "coat stand", "key hook", "pizza oven", "wine fridge", "water cooler",
+         "vending machine", "reception desk", "waiting chair", "conference table", "meeting table", "swivel chair",
+         "gaming chair", "tv cabinet", "display case", "glass cabinet", "china cabinet", "baby gate", "play mat",
+         "changing table", "bedside table", "bedside lamp", "reading lamp", "wall lamp", "pendant light",
+         "ceiling lamp", "window blind", "roller blind", "laundry hamper", "ironing table", "step stool",
+         "foot rest", "garden chair", "deck chair", "patio table", "barbecue grill", "log basket"]
+# informal and regional names people use (never a label list of any benchmark)
+INFORMAL = ["telly", "loo", "settee", "cooker", "hob", "stovetop", "couch", "washer", "fridge", "bin", "sideboard",
+            "wardrobe", "tub", "lav", "sink unit", "cupboard", "bog", "duvet", "doona", "chesterfield", "davenport",
+            "icebox", "range", "bureau", "tallboy", "lowboy", "commode", "pouf", "footrest", "lamp stand", "tele",
+            "boob tube", "fridge freezer", "kitchen roll", "armoire", "credenza", "escritoire", "wash stand",
+            "basin", "cistern", "sofabed", "daybed", "cot", "crib", "pram", "buggy", "hoover", "dustbin",
+            "rubbish bin", "garbage can", "waste bin", "pedal bin", "wheelie bin", "radiator", "rad", "aga",
+            "microwave oven", "hi-fi", "sound bar", "soundbar", "subwoofer", "tv screen", "computer screen",
+            "pc", "desktop", "notebook computer", "ottoman bed", "king size bed", "double bed", "single bed"]
+ADJ = ["small", "big", "white", "black", "wooden", "grey", "old", "round", "tall", "low", "blue", "red", "little",
+       "large", "green", "brown", "metal", "glass", "leather", "new", "second", "main", "corner"]
 ROOMS = ["room", "space", "place", "apartment", "flat", "house", "home", "lounge", "kitchen", "bedroom",
          "living room", "office", "studio", "hallway", "scene", "video", "clip", "area", "lobby", "den"]
 
@@ -274,7 +296,7 @@ class Generator:
 
     def __init__(self, seed: int, objects: list[str] | None = None, typo_rate: float = 0.06):
         self.rng = np.random.default_rng(seed)
-        self.objects = objects or (SINGLE + MULTI)
+        self.objects = objects or (SINGLE + MULTI + INFORMAL)
         self.typo_rate = typo_rate
 
     def _pick(self, xs: list) -> str:
@@ -303,27 +325,12 @@ class Generator:
         return out
 
     def sample(self, kind: str) -> Example:
-        shape = self._pick(SHAPES[kind])
+        # composed shapes (export/reader/shapes.py) most of the time, the fixed ones of SHAPES otherwise
+        shape = expand(self._pick(SHAPES2[kind]), self.rng) if kind in SHAPES2 and self.rng.random() < 0.75 \
+            else self._pick(SHAPES[kind])
         unit_key = self._pick(["m2", "ft2"] if kind == "room_size" else ["m", "cm", "mm", "ft", "in"])
-        out: list[tuple[str, str]] = []
         ncand = int(self.rng.integers(2, 5))
-        for piece in re.split(r"(\{\w+\})", shape):
-            if not piece.startswith("{"):
-                out += [(w, "O") for w in _words(piece)]
-                continue
-            slot = piece[1:-1]
-            if slot == "obj":
-                out += self._span(self._name(plural=kind == "count"), "OBJ")
-            elif slot in ("stand", "face", "ref", "start", "goal", "way", "loc"):
-                out += self._span(self._name(), slot.upper())
-            elif slot == "cands":
-                out += self._cands(ncand)
-            elif slot == "room":
-                out += [(w, "O") for w in self._pick(ROOMS).split()]
-            elif slot == "unit":
-                out += self._span(self._pick(UNITS[unit_key]).split(), "UNIT")
-            elif slot == "turn":
-                out += self._span(self._pick(TURNS).split(), "TURN")
+        out = self.fill(shape, kind, ncand, unit_key)
         options = None
         if kind == "direction" and self.rng.random() < 0.7:
             options = [f"{chr(65 + i)}. {o}" for i, o in enumerate(DIR_OPTIONS[self._pick(list(DIR_OPTIONS))])]
@@ -331,6 +338,38 @@ class Generator:
             options = [f"{chr(65 + i)}. {' '.join(self._name())}" for i in range(ncand)]
         out = self._noise(out, kind)
         return Example([w for w, _ in out], [t for _, t in out], kind, options)
+
+    def fill(self, shape: str, kind: str, ncand: int = 3, unit_key: str = "m") -> list[tuple[str, str]]:
+        """(word, tag) of a sentence shape with its slots filled: names, units (of `unit_key`), numbers, lists of
+        `ncand` objects, turns."""
+        out: list[tuple[str, str]] = []
+        drawn: dict[str, list[str]] = {}
+        for piece in re.split(r"(\{\w+@?\})", shape):
+            if not piece.startswith("{"):
+                out += [(w, "O") for w in _words(piece)]
+                continue
+            slot = piece[1:-1]
+            if slot.endswith("@"):  # the name drawn before for this slot, said again
+                slot = slot[:-1]
+                role = "OBJ" if slot == "obj" else slot.upper()
+                out += self._span(drawn.get(slot) or self._name(), role)
+            elif slot == "obj":
+                drawn[slot] = self._name(plural=kind == "count")
+                out += self._span(drawn[slot], "OBJ")
+            elif slot in ("stand", "face", "ref", "start", "goal", "way", "loc"):
+                drawn[slot] = self._name()
+                out += self._span(drawn[slot], slot.upper())
+            elif slot == "cands":
+                out += self._cands(ncand)
+            elif slot == "room":
+                out += [(w, "O") for w in self._pick(ROOMS).split()]
+            elif slot == "unit":
+                out += self._span(self._pick(UNITS[unit_key]).split(), "UNIT")
+            elif slot == "num":
+                out += self._span(self._pick(NUMBER_WORDS + [str(int(self.rng.integers(1, 500)))]).split(), "NUM")
+            elif slot == "turn":
+                out += self._span(self._pick(TURNS).split(), "TURN")
+        return out
 
     def _noise(self, out: list[tuple[str, str]], kind: str) -> list[tuple[str, str]]:
         rng = self.rng

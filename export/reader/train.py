@@ -20,7 +20,7 @@ from mosaicthinker.runtime.query.reader_spec import KINDS, MAX_TOKENS, TAGS
 
 from .encoder import extract_encoder, load_encoder
 from .generate import Example, dataset
-from .head import Head, HeadConfig, save_head
+from .head import Head, HeadConfig, load_head, save_head
 
 BATCH = 48
 TAG_ID = {t: i for i, t in enumerate(TAGS)}
@@ -57,6 +57,8 @@ def features(encoder: Any, rows: list[list[int]], batch: int = 64) -> list[torch
         states = encoder(input_ids=ids, attention_mask=mask).last_hidden_state
         for j, i in enumerate(idx):
             out[i] = states[j, :len(rows[i])].to(torch.float16)
+        if (s // batch) % 50 == 49:
+            print(f"encoder states: {s + len(idx)} of {len(rows)} questions", flush=True)
     return out  # type: ignore[return-value]
 
 
@@ -96,6 +98,23 @@ def _batch(feats: list[torch.Tensor], labels: list[list[int]], kinds: list[int],
     return x, mask, y, torch.tensor([kinds[i] for i in idx])
 
 
+def batches(lengths: np.ndarray, size: int, rng: np.random.Generator, pool: int = 32) -> list[np.ndarray]:
+    """One epoch's batches: shuffled, then questions of similar length batched together within pools of `pool`
+    batches (less padding: the head's cost is its padded word pieces), batches in random order."""
+    perm = rng.permutation(len(lengths))
+    out = []
+    for s in range(0, len(perm), size * pool):
+        chunk = perm[s:s + size * pool]
+        chunk = chunk[np.argsort(lengths[chunk], kind="stable")]
+        out += [chunk[i:i + size] for i in range(0, len(chunk), size)]
+    return [out[i] for i in rng.permutation(len(out))]
+
+
+def feature_spread(feats: list[torch.Tensor], rows: int = 2000) -> torch.Tensor:
+    """[D] standard deviation of each state dimension over the word pieces of the first `rows` questions."""
+    return torch.cat([f.float() for f in feats[:rows]]).std(0)
+
+
 def evaluate(head: Head, feats, labels, kinds) -> dict[str, float]:
     """Kind accuracy and the share of questions whose every piece tag is right."""
     head.eval()
@@ -112,7 +131,8 @@ def evaluate(head: Head, feats, labels, kinds) -> dict[str, float]:
 
 
 def train(out: Path, seed: int, n_train: int, n_dev: int, epochs: int, random_encoder: bool = False,
-          cache: Path | None = None) -> dict[str, Any]:
+          cache: Path | None = None, noise: float = 0.1, init: Path | None = None,
+          lr: float = 1e-3) -> dict[str, Any]:
     t0 = time.time()
     torch.manual_seed(seed)
     cache = cache or Path(tempfile.gettempdir()) / "mosaic-reader-encoder"  # 90 MB: never beside the head
@@ -127,18 +147,22 @@ def train(out: Path, seed: int, n_train: int, n_dev: int, epochs: int, random_en
     print(f"features of {n_train}+{n_dev} questions in {t_feat:.0f} s", flush=True)
     y_tr, k_tr = [lab for _, lab in enc_tr], [KIND_ID[e.kind] for e in train_ex]
     y_dv, k_dv = [lab for _, lab in enc_dv], [KIND_ID[e.kind] for e in dev_ex]
-    head = Head(HeadConfig())
-    opt = torch.optim.AdamW(head.parameters(), lr=1e-3, weight_decay=0.01)
+    head = load_head(init)[0] if init is not None else Head(HeadConfig())  # init: go on from a trained head
+    opt = torch.optim.AdamW(head.parameters(), lr=lr, weight_decay=0.01)
     rng = np.random.default_rng(seed)
     steps = epochs * ((n_train + BATCH - 1) // BATCH)
-    sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=1e-3, total_steps=steps, pct_start=0.1)
+    sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=lr, total_steps=steps, pct_start=0.1)
     ce = torch.nn.CrossEntropyLoss(ignore_index=-100)
+    # the encoder's states vary per dimension; noise of `noise` x that spread stands in for int8's rounding
+    scale = noise * feature_spread(f_tr)
+    lengths = np.array([f.shape[0] for f in f_tr])
     for ep in range(epochs):
         head.train()
-        perm = rng.permutation(n_train)
         tot = 0.0
-        for s in range(0, n_train, BATCH):
-            x, mask, y, k = _batch(f_tr, y_tr, k_tr, perm[s:s + BATCH])
+        for idx in batches(lengths, BATCH, rng):
+            x, mask, y, k = _batch(f_tr, y_tr, k_tr, idx)
+            if noise > 0:  # a head that reads the same through small changes of the states keeps int8's parity
+                x = x + torch.randn_like(x) * scale * mask[..., None]
             kl, tl = head(x, mask)
             loss = ce(kl, k) + ce(tl.reshape(-1, tl.shape[-1]), y.reshape(-1))
             opt.zero_grad()
@@ -148,7 +172,9 @@ def train(out: Path, seed: int, n_train: int, n_dev: int, epochs: int, random_en
             tot += float(loss.detach()) * len(k)
         print(f"epoch {ep + 1}/{epochs}: loss {tot / n_train:.4f} ({time.time() - t0:.0f} s)", flush=True)
     print(f"dev {evaluate(head, f_dv, y_dv, k_dv)}", flush=True)
-    info = {"seed": seed, "n_train": n_train, "n_dev": n_dev, "epochs": epochs, "encoder": prov,
+    info = {"seed": seed, "n_train": n_train, "n_dev": n_dev, "epochs": epochs, "feature_noise": noise, "lr": lr,
+            "init": str(init) if init is not None else None,
+            "encoder": prov,
             "dev": evaluate(head, f_dv, y_dv, k_dv), "train_s": round(time.time() - t0, 1),
             "features_s": round(t_feat, 1), "torch_threads": torch.get_num_threads()}
     save_head(head, out, info)
@@ -160,16 +186,19 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--out", required=True, type=Path, help="folder for head.npz + head.json")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--train", type=int, default=5000, help="generated training questions")
-    p.add_argument("--dev", type=int, default=600, help="generated questions (another seed) measuring it")
-    p.add_argument("--epochs", type=int, default=12)  # the committed head's
+    p.add_argument("--train", type=int, default=20000, help="generated training questions")
+    p.add_argument("--dev", type=int, default=1000, help="generated questions (another seed) measuring it")
+    p.add_argument("--epochs", type=int, default=5)  # the committed head's
+    p.add_argument("--noise", type=float, default=0.1, help="training noise on the states, x their spread")
     p.add_argument("--threads", type=int, default=2)
+    p.add_argument("--lr", type=float, default=1e-3, help="the one-cycle schedule's peak learning rate")
+    p.add_argument("--init", type=Path, help="go on training this head folder (head.npz + head.json)")
     p.add_argument("--random-encoder", action="store_true", help="random weights of the real configuration (test)")
     p.add_argument("--cache", type=Path, help="folder for the extracted encoder and the cached encoder states "
                                               "(default: the temp folder's mosaic-reader-encoder)")
     a = p.parse_args(argv)
     torch.set_num_threads(a.threads)
-    train(a.out, a.seed, a.train, a.dev, a.epochs, a.random_encoder, a.cache)
+    train(a.out, a.seed, a.train, a.dev, a.epochs, a.random_encoder, a.cache, a.noise, a.init, a.lr)
     return 0
 
 

@@ -77,11 +77,15 @@ def compose(r: Reading, question: str, options: list[str] | None, resolve: Resol
         return None, ["not understood: this asks something no program of the map answers (reader: other "
                       f"{r.kind_confidence:.2f})"]
     used = USES[r.kind]
+    best: dict[tuple[str, str], float] = {}  # a name said again in the same role: its surest mention counts
+    for s in r.spans:
+        key = (s.role, clean_phrase(s.text).lower())
+        best[key] = max(best.get(key, 0.0), s.confidence)
     for s in r.spans:
         if s.role not in used and s.confidence >= conf.stray_min:
             return None, [f"not understood: '{s.text}' read as {ROLE_WORDS[s.role]}, which a {r.kind} question "
                           f"does not take"]
-        if s.role in used and s.confidence < conf.span_min:
+        if s.role in used and best[(s.role, clean_phrase(s.text).lower())] < conf.span_min:
             return None, [f"not understood: whether '{s.text}' is {ROLE_WORDS[s.role]} (reader {s.confidence:.2f})"]
     try:
         node = _BUILD[r.kind](r, question, options, resolve, notes)
@@ -91,7 +95,10 @@ def compose(r: Reading, question: str, options: list[str] | None, resolve: Resol
 
 
 def _one(r: Reading, role: str) -> Span:
+    """The one span of a role; the same name said twice ("closest to the tv ... from the tv") is one span."""
     spans = r.of(role)
+    if len({clean_phrase(s.text).lower() for s in spans}) == 1:
+        spans = [max(spans, key=lambda s: s.confidence)]
     if len(spans) != 1:
         raise Refusal(f"{ROLE_WORDS[role]} ({'none found' if not spans else ', '.join(s.text for s in spans)})")
     return spans[0]
@@ -169,7 +176,8 @@ def _direction(r, q, options, resolve, notes) -> Node:
     faces = r.of("FACE")
     if not faces or len({clean_phrase(s.text).lower() for s in faces}) != 1:
         raise Refusal(f"{ROLE_WORDS['FACE']} ({', '.join(s.text for s in faces) or 'none found'})")
-    return Direction(_ref(_one(r, "STAND"), resolve, notes), _ref(faces[0], resolve, notes),
+    face = max(faces, key=lambda s: s.confidence)
+    return Direction(_ref(_one(r, "STAND"), resolve, notes), _ref(face, resolve, notes),
                      _ref(_one(r, "OBJ"), resolve, notes), _granularity(options, q))
 
 
