@@ -45,7 +45,6 @@ from mosaicthinker.runtime.align.matching import FeatureMatcher  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 DEFAULT_DATA = HERE.parent.parent / "shared" / "data" / "7scenes-redkitchen"
-DEFAULT_BUNDLE = Path(os.environ.get("MOSAIC_BUNDLE", "/work/bundles/real"))
 NAMES = ["chair", "table", "tv", "sink", "fridge", "microwave", "oven", "cup", "bottle", "keyboard"]
 TARGET_CORE_S = 0.2
 
@@ -161,7 +160,8 @@ def measure(frames: list, rm: ReplayMatcher, strategy: str, with_scale: bool, re
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", default=str(DEFAULT_DATA))
-    ap.add_argument("--bundle", default=str(DEFAULT_BUNDLE), help="detector/segmenter/depth/matcher roles")
+    ap.add_argument("--bundle", default=os.environ.get("MOSAIC_BUNDLE"), required="MOSAIC_BUNDLE" not in os.environ,
+                    help="detector/segmenter/depth/matcher roles (default: $MOSAIC_BUNDLE)")
     ap.add_argument("--keyframes", type=int, default=32)
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--depths", default="sensor,model", help="sensor (+ SIFT) and/or model (PyDNet++ + XFeat)")

@@ -191,7 +191,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--compare", nargs=2, metavar=("A", "B"), help="compare two outputs; exit 1 if they differ")
     ap.add_argument("--out", default=str(REPO / "benchmarks" / "results" / "behaviour" / "after.json"))
     ap.add_argument("--work", default="/tmp/mosaic-behaviour", help="scenes and caches (shared by both runs)")
-    ap.add_argument("--bundle", default="/work/bundles/real", help="bundle of the real shared models + XFeat")
+    ap.add_argument("--bundle", default=os.environ.get("MOSAIC_BUNDLE"), required="MOSAIC_BUNDLE" not in os.environ,
+                    help="bundle of the real shared models + XFeat (default: $MOSAIC_BUNDLE)")
     ap.add_argument("--only", default=",".join(PARTS), help=f"comma list of {', '.join(PARTS)}")
     ap.add_argument("--e2e-scenes", type=int, default=6)
     ap.add_argument("--digits", type=int, default=6)

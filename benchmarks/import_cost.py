@@ -1,6 +1,6 @@
 """Import and bundle-load cost of the device runtime (issue 11: <= 0.5 s and <= 80 MB RSS).
 
-    python benchmarks/import_cost.py [--bundle /work/bundles/real] [--runs 7] [--out benchmarks/results/import_cost.json]
+    python benchmarks/import_cost.py [--bundle B] [--runs 7] [--out benchmarks/results/import_cost.json]
 
 Each case runs in --runs fresh interpreter processes (nothing cached in the process; the OS file cache is warm
 after the first run, as on a device that has started the app before). In each process the clock starts after
@@ -76,7 +76,8 @@ def run_case(step: str, bundle: str, runs: int) -> dict[str, Any]:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--bundle", default="/work/bundles/real")
+    ap.add_argument("--bundle", default=os.environ.get("MOSAIC_BUNDLE"), required="MOSAIC_BUNDLE" not in os.environ,
+                    help="an exported bundle (default: $MOSAIC_BUNDLE)")
     ap.add_argument("--runs", type=int, default=7, help="fresh processes per case (median reported; >= 5)")
     ap.add_argument("--out", default=str(REPO / "benchmarks" / "results" / "import_cost.json"))
     a = ap.parse_args()

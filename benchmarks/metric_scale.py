@@ -1,6 +1,6 @@
 """Metric scale without a depth sensor (`runtime/map/scale.py`), measured apart from the pose work.
 
-    python benchmarks/metric_scale.py [--bundle /work/bundles/real] [--rooms 7scenes-redkitchen ...] [--keyframes 32]
+    python benchmarks/metric_scale.py [--bundle B] [--rooms 7scenes-redkitchen ...] [--keyframes 32]
                                       [--factors 3] [--out benchmarks/results/metric_scale.json]
 
 Per RGB-D room with ground-truth poses (../shared/data: the 7-Scenes kitchen, ScanNet scene0000_00, the HoloLens
@@ -250,7 +250,8 @@ def e2e(a: argparse.Namespace) -> dict[str, Any]:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--bundle", default="/work/bundles/real")
+    ap.add_argument("--bundle", default=os.environ.get("MOSAIC_BUNDLE"), required="MOSAIC_BUNDLE" not in os.environ,
+                    help="an exported bundle (default: $MOSAIC_BUNDLE)")
     ap.add_argument("--rooms", nargs="*", default=ROOMS)
     ap.add_argument("--keyframes", type=int, default=32)
     ap.add_argument("--factors", type=int, default=3, help="random unknown factors per room")

@@ -297,7 +297,8 @@ def probe_edges(room: Path, bundle: Path, stride: int, n: int = 40) -> dict[str,
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--bundle", type=Path, default=Path("/work/bundles/real"))
+    ap.add_argument("--bundle", type=Path, default=os.environ.get("MOSAIC_BUNDLE"), required="MOSAIC_BUNDLE" not in os.environ,
+                    help="an exported bundle (default: $MOSAIC_BUNDLE)")
     ap.add_argument("--rooms", type=Path, nargs="*", default=[])
     ap.add_argument("--only-default-rooms", action="store_true")
     ap.add_argument("--keyframes", default="16,32")
