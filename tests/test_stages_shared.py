@@ -165,8 +165,11 @@ def test_a_question_about_what_the_detector_cannot_see_says_so_before_reading_fr
     res = ask(redkitchen, "how many chayrs are there?", request=by_map, bundle=shared_bundle)  # a typo too far
     assert res.answer.text == "unsupported: the detector cannot recognise chayr ('chayr': did you mean chair?)"
     assert res.answer.hints == ["chair"]  # to be read as a name (y-i do not touch: not one keystroke away)
-    res = ask(redkitchen, "how many chiars are there?", request=by_map, bundle=shared_bundle)  # a phone typo:
-    assert res.answer.ok and "read 'chiars' as 'chairs'" in res.answer.explanation  # read, and said so
+    # a phone typo: the spelling corrector retired with the hand grammar (issue 35), so it is refused with the
+    # name it is likely to mean, never silently read as another object
+    res = ask(redkitchen, "how many chiars are there?", request=by_map, bundle=shared_bundle)
+    assert res.answer.status == "unsupported" and res.answer.hints == ["chair"] and res.build is None
+    assert "did you mean chair?" in res.answer.text
     for q, name in (("where's the kettle?", "kettle"), ("how many cups are on the counter?", "counter"),
                     ("is there a kettle in here?", "kettle")):
         res = ask(redkitchen, q, request=by_map, bundle=shared_bundle)
