@@ -95,6 +95,18 @@ def test_objects_outvote_a_wrong_floor_and_outlier_objects_are_left_out():
     assert "left out as off the others" in ms.message()
 
 
+def test_a_cue_that_could_not_vote_is_said_with_why():
+    """Objects alone give the scale when the map shows no floor: the statement names the cues used and says why
+    the camera height could not vote (it was dropped from the statement before)."""
+    g = np.random.default_rng(4)
+    objs = _objects(["chair", "chair", "refrigerator", "toilet"], g, {})
+    T, _, objs = _in_map_units(_cameras(1.40, rng=g), _room_points(g), objs, 0.5)
+    ms = estimate_scale(T, None, objs, up=np.array([0.0, 0, 1]))
+    assert list(ms.cues) == ["objects"] and ms.scale == pytest.approx(0.5, rel=0.1)
+    assert ms.message().startswith("scale from 4 objects")
+    assert ms.message().endswith("no camera height (no map points to find the floor in)")
+
+
 def test_metric_depth_ratios_are_a_cue():
     g = np.random.default_rng(4)
     ms = estimate_scale(_cameras(1.4, rng=g), None, [], depth_ratios=list(3.0 * np.exp(g.normal(0, 0.05, 16))))

@@ -314,11 +314,10 @@ def estimate_scale(cameras: np.ndarray, points: np.ndarray | None = None, object
         return MetricScale(rough * conf.fallback_median_m / conf.rough_depth_m, float(np.log(1.5)), "guess", [],
                            {}, notes, conf.stated_z)
     m, s, cues = combine(votes, conf)
+    notes = notes[:1] if cam is None else []  # a cue that could not vote is said with why; the object list is not
     if len(cues) > 1 and s > 1.5 * min(c["sd_log"] for c in cues.values()):
         said = ", ".join(f"{CUE_WORDS[k]} x{c['scale']:.3g}" for k, c in cues.items())
-        notes = [f"the cues disagree ({said})"]
-    else:
-        notes = []
+        notes.append(f"the cues disagree ({said})")
     return MetricScale(float(np.exp(m)), s, "cues", votes, cues, notes, conf.stated_z)
 
 
