@@ -13,9 +13,9 @@ import re
 import sys
 from pathlib import Path
 
-from holdout_common import FROM_BENCH, LIST_RE, OPTS_RE
+from holdout_common import FROM_BENCH, LIST_RE, OPTS_RE, read_checked_rows
 from make_holdout10 import (EARLIER_SOURCES, HERE, ID_BASE, N_PATTERNS, NEVER_MISSPELT, OUT, PER_PATTERN, ROUTE_SYN,
-                            SYN, TYPES, TYPO_OBJECTS, TYPO_PER_TYPE, TYPO_WORDS, VSI, _noun, build, dumps,
+                            SYN, TYPES, TYPO_OBJECTS, TYPO_PER_TYPE, TYPO_WORDS, VSI, _noun, build,
                             earlier_sources, load_questions, plural, rename, route_parts, source_objects)
 
 UNIT_WORDS = [  # (unit, regex over the lowercased question); exactly one may match a numeric row
@@ -150,32 +150,10 @@ def run_checks(qs: list[dict], used: set[int], seed: int, out: Path) -> int:
     """Every check of the set; prints a summary and returns 0, or 1 when any check failed."""
     bad: list[str] = []
     src = {q["id"]: q for q in qs}
-    first, second = dumps(build(qs, used, seed)), dumps(build(qs, used, seed))
-    if first != second:
-        bad.append("two builds differ")
-    if not out.exists():
-        print(f"error: {out}: missing (run without --check first)", file=sys.stderr)
+    read = read_checked_rows(lambda: build(qs, used, seed), out, ID_BASE, N_PATTERNS * PER_PATTERN, bad)
+    if read is None:
         return 2
-    if out.read_bytes() != first:
-        bad.append(f"{out} differs from a fresh build")
-    rows = []
-    for n, line in enumerate(out.read_text().splitlines(), 1):
-        try:
-            rows.append(json.loads(line))
-        except json.JSONDecodeError as e:
-            bad.append(f"line {n}: not JSON ({e})")
-    fields = ["id", "dataset", "scene_name", "question_type", "question", "options", "ground_truth", "source_id"]
-    counts: dict[str, int] = {}
-    for i, r in enumerate(rows):
-        if list(r) != fields:
-            bad.append(f"row {r.get('id')}: fields {list(r)}")
-        if r["id"] != ID_BASE + i:
-            bad.append(f"row {i}: id {r['id']}")
-        counts[r["question_type"]] = counts.get(r["question_type"], 0) + 1
-    print("rows per type:", json.dumps(counts), "total", len(rows))
-    for qt in TYPES:
-        if counts.get(qt) != N_PATTERNS * PER_PATTERN:
-            bad.append(f"{qt}: {counts.get(qt)} rows")
+    rows, counts = read
     n_routes = sum(q["question_type"] == "route_planning" for q in qs)
     if counts.get("route_planning") != 2 * n_routes:
         bad.append(f"route_planning: {counts.get('route_planning')} rows, want {2 * n_routes}")

@@ -19,10 +19,11 @@ import sys
 from pathlib import Path
 
 from check_holdout10 import english_words, one_edit
-from holdout_common import LIST_RE, N_PATTERNS, OPTS_RE, PER_PATTERN, TYPES, TYPO_PER_TYPE, _noun, source_objects
+from holdout_common import (LIST_RE, N_PATTERNS, OPTS_RE, PER_PATTERN, TYPES, TYPO_PER_TYPE, _noun, read_checked_rows,
+                            source_objects)
 from make_holdout10 import ROUTE_SYN as SET10_ROUTE_SYN, rename as set10_rename
 from make_holdout12 import (ABS, COUNT, EARLIER_SOURCES, EASY, HARD, ID_BASE, MEDIUM, NEVER_MISSPELT, OUT, REGION,
-                            REL, ROOM, ROUTES, SIZE, SYN, TYPO_OBJECTS, TYPO_WORDS, VSI, build, dumps, earlier_uses,
+                            REL, ROOM, ROUTES, SIZE, SYN, TYPO_OBJECTS, TYPO_WORDS, VSI, build, earlier_uses,
                             load_questions, plural, route_parts)
 
 FROM_BENCH = {  # benchmark unit -> unit read: cm for sizes, m for distances, m^2 for areas (1 in = 2.54 cm exactly)
@@ -349,32 +350,10 @@ def run_checks(qs: list[dict], uses: dict[int, int], seed: int, out: Path) -> in
     """Every check of the set; prints a summary and returns 0, or 1 when any check failed (2: no file)."""
     bad: list[str] = []
     src = {q["id"]: q for q in qs}
-    first, second = dumps(build(qs, uses, seed)), dumps(build(qs, uses, seed))
-    if first != second:
-        bad.append("two builds differ")
-    if not out.exists():
-        print(f"error: {out}: missing (run without --check first)", file=sys.stderr)
+    read = read_checked_rows(lambda: build(qs, uses, seed), out, ID_BASE, N_PATTERNS * PER_PATTERN, bad)
+    if read is None:
         return 2
-    if out.read_bytes() != first:
-        bad.append(f"{out} differs from a fresh build")
-    rows = []
-    for n, line in enumerate(out.read_text().splitlines(), 1):
-        try:
-            rows.append(json.loads(line))
-        except json.JSONDecodeError as e:
-            bad.append(f"line {n}: not JSON ({e})")
-    fields = ["id", "dataset", "scene_name", "question_type", "question", "options", "ground_truth", "source_id"]
-    counts: dict[str, int] = {}
-    for i, r in enumerate(rows):
-        if list(r) != fields:
-            bad.append(f"row {r.get('id')}: fields {list(r)}")
-        if r["id"] != ID_BASE + i:
-            bad.append(f"row {i}: id {r['id']}")
-        counts[r["question_type"]] = counts.get(r["question_type"], 0) + 1
-    print("rows per type:", json.dumps(counts), "total", len(rows))
-    for qt in TYPES:
-        if counts.get(qt) != N_PATTERNS * PER_PATTERN:
-            bad.append(f"{qt}: {counts.get(qt)} rows")
+    rows, counts = read
     routes = {q["id"] for q in qs if q["question_type"] == "route_planning"}
     route_src = [r["source_id"] for r in rows if r["question_type"] == "route_planning"]
     if sorted(route_src) != sorted(routes):

@@ -43,7 +43,7 @@ import sys
 from pathlib import Path
 
 from holdout_common import (CM_IN, NUMBER, N_PATTERNS, PER_PATTERN, SQM_IN, Seg, TYPES, TYPO_PER_TYPE, _noun,
-                            _segments, _split_objects, convert, dumps, source_objects)
+                            _segments, _split_objects, convert, dumps, join_with_slip, source_objects)
 from make_holdout11 import draw, earlier_uses, load_questions, route_parts
 
 HERE = Path(__file__).resolve().parent
@@ -369,35 +369,9 @@ def listing(words: list[str], style: str) -> str:
 # --- one single-letter slip -----------------------------------------------------------------------------------------
 
 
-def _slips(segs: list[Seg], objects_too: bool) -> list[tuple[int, int, int, str]]:
-    """Every place a slip may go: (segment, start, end, word)."""
-    found = []
-    for i, (text, is_obj) in enumerate(segs):
-        if is_obj and not objects_too:
-            continue
-        table = TYPO_OBJECTS if is_obj else TYPO_WORDS
-        for m in re.finditer(r"[A-Za-z]+", text):
-            w = m.group(0).lower()
-            if w in table and w not in NEVER_MISSPELT:
-                found.append((i, m.start(), m.end(), w))
-    return found
-
-
 def join(segs: list[Seg], rng: random.Random | None, objects_too: bool = True) -> str:
-    """The question text; with `rng`, one word (drawn evenly over the distinct words that may carry a slip) is
-    misspelt once."""
-    segs = list(segs)
-    if rng is not None:
-        spots = _slips(segs, objects_too)
-        if not spots:
-            raise ValueError("no word to misspell in: " + "".join(t for t, _ in segs))
-        word = rng.choice(sorted({w for *_, w in spots}))
-        i, a, b, w = rng.choice([s for s in spots if s[3] == word])
-        slip = rng.choice((TYPO_OBJECTS if segs[i][1] else TYPO_WORDS)[w])
-        if segs[i][0][a:a + 1].isupper():
-            slip = slip[:1].upper() + slip[1:]
-        segs[i] = (segs[i][0][:a] + slip + segs[i][0][b:], segs[i][1])
-    return "".join(t for t, _ in segs)
+    """The question text; with `rng`, one word of this set's slip tables misspelt once (`join_with_slip`)."""
+    return join_with_slip(segs, rng, TYPO_WORDS, TYPO_OBJECTS, NEVER_MISSPELT, objects_too)
 
 
 # --- the eight types ------------------------------------------------------------------------------------------------
