@@ -18,7 +18,7 @@ from typing import Any, Iterator
 import psutil
 
 from . import jsonio
-from .jsonio import json_default  # noqa: F401 - its home was here; kept for importers
+from .jsonio import json_default  # its home was here; importers still find it
 
 TRACE_SCHEMA = "mosaicthinker.trace/1"
 
@@ -199,12 +199,8 @@ def _jsonable(x: Any) -> Any:
         return {str(k): _jsonable(v) for k, v in x.items()}
     if isinstance(x, (list, tuple)):
         return [_jsonable(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return x.tolist()
-    if isinstance(x, np.generic):
-        return x.item()
-    if hasattr(x, "to_dict"):
-        return x.to_dict()
+    if isinstance(x, (np.ndarray, np.generic)) or hasattr(x, "to_dict"):
+        return json_default(x)  # the one numpy / to_dict conversion; other values stay as they are
     return x
 
 
