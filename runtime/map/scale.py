@@ -301,7 +301,8 @@ def estimate_scale(cameras: np.ndarray, points: np.ndarray | None = None, object
         cam.log_s += float(np.log(rough))  # rough metres -> map units
         votes.append(cam)
     else:
-        notes.append(f"no camera height ({why})")
+        no_height = f"no camera height ({why})"
+        notes.append(no_height)
     up_obj = np.asarray(up_found if up_found is not None else [0.0, 0.0, 1.0], float)
     ov = object_votes(objects, up_obj / np.linalg.norm(up_obj), priors, conf)
     votes += ov
@@ -314,7 +315,7 @@ def estimate_scale(cameras: np.ndarray, points: np.ndarray | None = None, object
         return MetricScale(rough * conf.fallback_median_m / conf.rough_depth_m, float(np.log(1.5)), "guess", [],
                            {}, notes, conf.stated_z)
     m, s, cues = combine(votes, conf)
-    notes = notes[:1] if cam is None else []  # a cue that could not vote is said with why; the object list is not
+    notes = [no_height] if cam is None else []  # a cue that could not vote is said with why; the object list is not
     if len(cues) > 1 and s > 1.5 * min(c["sd_log"] for c in cues.values()):
         said = ", ".join(f"{CUE_WORDS[k]} x{c['scale']:.3g}" for k, c in cues.items())
         notes.append(f"the cues disagree ({said})")
